@@ -1,0 +1,3 @@
+from aes_planner.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,53 @@
+"""The ``aes-planner`` command line.
+
+Each subcommand lives in its own module of this package with a ``register(subparsers)``
+function; :data:`COMMANDS` lists them in help order. User errors
+(:class:`~aes_planner.errors.AesPlannerError`) print one line and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from aes_planner import __version__
+from aes_planner.errors import AesPlannerError
+
+COMMANDS = [
+    "aes_planner.cli.demo",
+    "aes_planner.cli.bench",
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="aes-planner",
+        description="Camera viewpoint suggestion with a 3D aesthetic field.",
+    )
+    parser.add_argument("--version", action="version", version=f"aes-planner {__version__}")
+    parser.add_argument(
+        "-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)"
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMANDS:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except AesPlannerError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130

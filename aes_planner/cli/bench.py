@@ -1,0 +1,36 @@
+"""``aes-planner bench [GROUP ...] [--quick] [--json PATH]``."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from aes_planner.bench import GROUPS
+
+    p = sub.add_parser(
+        "bench",
+        help="run benchmarks and write their JSON",
+        description="Time the package's hot paths. Medians of several runs after a warm-up; "
+        f"groups: {', '.join(GROUPS)} (all when none is named).",
+    )
+    p.add_argument("groups", nargs="*", metavar="GROUP", help="groups to run (default: all)")
+    p.add_argument("--quick", action="store_true", help="fewer runs and smaller cases")
+    p.add_argument("--json", metavar="PATH", help="write the figures to this JSON file")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from aes_planner.bench import run_groups, write_json
+
+    # Benchmarks always report their figures, whatever -v says.
+    logging.getLogger("aes_planner.bench").setLevel(logging.INFO)
+    rec = run_groups(args.groups, quick=args.quick)
+    width = max((len(k) for k in rec.results), default=10)
+    for key, r in sorted(rec.results.items()):
+        print(f"{key:<{width}}  {r['value']:>12.4g} {r['unit']:<8} (runs={r['runs']})")
+    if args.json:
+        path = write_json(rec, args.json)
+        print(f"wrote {path}")
+    return 0

@@ -1,0 +1,126 @@
+"""Pinhole intrinsics (pixels, pixel centres at +0.5) and ray generation."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from aes_planner.errors import AesPlannerError
+
+__all__ = ["Intrinsics", "IntrinsicsError"]
+
+
+class IntrinsicsError(AesPlannerError, ValueError):
+    """Intrinsics that no pinhole camera has (non-positive focal length, empty image...)."""
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole camera intrinsics in pixels; no distortion.
+
+    ``fx, fy``: focal lengths in pixels. ``cx, cy``: principal point in pixels, measured from
+    the image's top-left corner, so pixel ``(i, j)`` has its centre at ``(i + 0.5, j + 0.5)`` and
+    a centred principal point is ``(width / 2, height / 2)``.
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    def __post_init__(self):
+        for name in ("fx", "fy", "cx", "cy"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise IntrinsicsError(f"intrinsics.{name} must be a finite number, got {v!r}")
+        if self.fx <= 0 or self.fy <= 0:
+            raise IntrinsicsError(
+                f"intrinsics focal lengths must be positive pixels, got fx={self.fx}, fy={self.fy}"
+            )
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+                raise IntrinsicsError(f"intrinsics.{name} must be a positive integer, got {v!r}")
+
+    @classmethod
+    def from_fov(cls, width: int, height: int, hfov_deg: float) -> "Intrinsics":
+        """Square pixels, centred principal point, horizontal field of view ``hfov_deg``."""
+        if not (0.0 < hfov_deg < 180.0):
+            raise IntrinsicsError(f"hfov_deg must be in (0, 180), got {hfov_deg}")
+        f = 0.5 * width / math.tan(math.radians(hfov_deg) / 2)
+        return cls(f, f, width / 2.0, height / 2.0, int(width), int(height))
+
+    @classmethod
+    def from_matrix(cls, K: np.ndarray, width: int, height: int) -> "Intrinsics":
+        """From a 3x3 matrix ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` (skew must be 0)."""
+        K = np.asarray(K, dtype=np.float64)
+        if K.shape != (3, 3):
+            raise IntrinsicsError(f"intrinsics matrix must be 3x3, got shape {K.shape}")
+        if abs(K[0, 1]) > 1e-9 or not np.allclose(K[2], [0, 0, 1]) or abs(K[1, 0]) > 1e-9:
+            raise IntrinsicsError(f"intrinsics matrix must be [[fx,0,cx],[0,fy,cy],[0,0,1]], got {K.tolist()}")
+        return cls(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), int(width), int(height))
+
+    @classmethod
+    def from_normalized(cls, fx_n: float, fy_n: float, cx_n: float, cy_n: float, width: int, height: int) -> "Intrinsics":
+        """From intrinsics normalised by the image size (fx/W, fy/H, cx/W, cy/H)."""
+        return cls(fx_n * width, fy_n * height, cx_n * width, cy_n * height, int(width), int(height))
+
+    def normalized(self) -> tuple[float, float, float, float]:
+        """(fx/W, fy/H, cx/W, cy/H), the DepthSplat/RealEstate10K form."""
+        return (self.fx / self.width, self.fy / self.height, self.cx / self.width, self.cy / self.height)
+
+    @property
+    def K(self) -> np.ndarray:
+        """The 3x3 intrinsics matrix, float64."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def K_tensor(self, dtype: torch.dtype = torch.float32, device: str | torch.device = "cpu") -> Tensor:
+        """The 3x3 intrinsics matrix as a tensor ``[3, 3]``."""
+        return torch.tensor(self.K, dtype=dtype, device=device)
+
+    @property
+    def hfov_rad(self) -> float:
+        return 2.0 * math.atan(0.5 * self.width / self.fx)
+
+    @property
+    def vfov_rad(self) -> float:
+        return 2.0 * math.atan(0.5 * self.height / self.fy)
+
+    def scaled(self, width: int, height: int) -> "Intrinsics":
+        """The same camera resampled to ``width x height`` pixels (same field of view)."""
+        sx, sy = width / self.width, height / self.height
+        return Intrinsics(self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy, int(width), int(height))
+
+    def pixel_directions(self, supersample: int = 1) -> np.ndarray:
+        """Camera-frame ray directions ``[H*s, W*s, 3]`` with z = 1 (not unit length), float64.
+
+        With ``supersample = s`` each pixel is split into ``s x s`` sub-pixels on a regular grid;
+        for ``s = 1`` the ray goes through the pixel centre ``(i + 0.5, j + 0.5)``.
+        """
+        s = int(supersample)
+        if s < 1:
+            raise IntrinsicsError(f"supersample must be >= 1, got {supersample}")
+        u = (np.arange(self.width * s, dtype=np.float64) + 0.5) / s
+        v = (np.arange(self.height * s, dtype=np.float64) + 0.5) / s
+        uu, vv = np.meshgrid(u, v)  # [H*s, W*s]
+        return np.stack([(uu - self.cx) / self.fx, (vv - self.cy) / self.fy, np.ones_like(uu)], axis=-1)
+
+    def project(self, points_cam: np.ndarray) -> np.ndarray:
+        """Camera-frame points ``[..., 3]`` -> pixel coordinates ``[..., 2]`` (u, v); z must be > 0."""
+        p = np.asarray(points_cam, dtype=np.float64)
+        z = p[..., 2]
+        return np.stack([self.fx * p[..., 0] / z + self.cx, self.fy * p[..., 1] / z + self.cy], axis=-1)
+
+    def unproject(self, uv_px: np.ndarray, depth_m: np.ndarray) -> np.ndarray:
+        """Pixel coordinates ``[..., 2]`` and z-depth ``[...]`` -> camera-frame points ``[..., 3]``."""
+        uv = np.asarray(uv_px, dtype=np.float64)
+        d = np.asarray(depth_m, dtype=np.float64)
+        x = (uv[..., 0] - self.cx) / self.fx * d
+        y = (uv[..., 1] - self.cy) / self.fy * d
+        return np.stack([x, y, d], axis=-1)

@@ -1,0 +1,239 @@
+"""Pan-tilt kinematics: joints <-> camera pose, with the tilt offset and the camera lever arm.
+
+The chain, each transform a function of the configuration or a joint::
+
+    cam2world = base2world                  # where the rig stands, its base orientation
+              @ Rz(pan)                     # pan joint: about the base's +z (up)
+              @ T(tilt_offset_m)            # tilt-axis origin in the pan frame
+              @ Ry(-tilt)                   # tilt joint: positive tilt looks up
+              @ T(lever_arm_m)              # camera optical centre in the tilt frame
+              @ BODY_TO_OPTICAL             # x forward/y left/z up -> OpenCV optical axes
+
+The pan and tilt frames are REP-103 body frames (x forward, y left, z up). With an upright base
+(``base_rpy_deg = (0, 0, 0)``) and zero offsets the camera's 5-DoF view is
+``(base position, yaw = pan, pitch = tilt)``. Joint angles are radians here; degrees appear only
+in :class:`PanTiltConfig` (the YAML edge). The servo driver maps radians to ticks.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from aes_planner.config import require, require_finite
+from aes_planner.errors import AesPlannerError
+from aes_planner.geometry.poses import BODY_TO_OPTICAL, cam2world_to_view, direction_to_yaw_pitch
+
+__all__ = ["PanTiltConfig", "PanTilt", "JointSolution", "JointCommandError"]
+
+
+class JointCommandError(AesPlannerError, ValueError):
+    """A joint command that must not reach a motor (NaN, Inf)."""
+
+
+@dataclass
+class PanTiltConfig:
+    """Geometry and limits of a pan-tilt rig (degrees and metres: this is the YAML edge).
+
+    * ``base_xyz_m``: pan-axis origin in the world.
+    * ``base_rpy_deg``: base orientation, static roll/pitch/yaw about world x, y, z
+      (``R = Rz(yaw) Ry(pitch) Rx(roll)``); (0, 0, 0) is upright facing +x.
+    * ``tilt_offset_m``: tilt-axis origin in the pan frame (x forward, y left, z up).
+    * ``lever_arm_m``: camera optical centre in the tilt frame.
+    * ``pan_limits_deg``, ``tilt_limits_deg``: (min, max) joint limits, inclusive.
+    """
+
+    base_xyz_m: tuple[float, float, float] = (0.0, 0.0, 1.2)
+    base_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    tilt_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.05)
+    lever_arm_m: tuple[float, float, float] = (0.03, 0.0, 0.02)
+    pan_limits_deg: tuple[float, float] = (-150.0, 150.0)
+    tilt_limits_deg: tuple[float, float] = (-60.0, 60.0)
+
+    def __post_init__(self):
+        for name in ("base_xyz_m", "base_rpy_deg", "tilt_offset_m", "lever_arm_m", "pan_limits_deg", "tilt_limits_deg"):
+            require_finite(list(getattr(self, name)), name)
+        lo, hi = self.pan_limits_deg
+        require(lo < hi, "pan_limits_deg", f"min must be below max, got ({lo}, {hi})")
+        require(hi - lo <= 360.0, "pan_limits_deg", f"a range over 360 deg is not a position-mode joint: ({lo}, {hi})")
+        lo, hi = self.tilt_limits_deg
+        require(lo < hi, "tilt_limits_deg", f"min must be below max, got ({lo}, {hi})")
+        require(-90.0 <= lo and hi <= 90.0, "tilt_limits_deg", f"tilt must stay within [-90, 90] deg, got ({lo}, {hi})")
+
+
+@dataclass(frozen=True)
+class JointSolution:
+    """Joint angles that aim the camera, and whether the limits allowed it.
+
+    ``pan_rad``/``tilt_rad`` are inside the joint limits (clamped when the aim was not
+    reachable); ``error_rad`` is the angle between the requested and achieved viewing directions.
+    """
+
+    pan_rad: float
+    tilt_rad: float
+    reachable: bool
+    error_rad: float
+
+
+def _rpy_matrix(rpy_rad: Sequence[float]) -> np.ndarray:
+    r, p, y = rpy_rad
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+class PanTilt:
+    """Forward and inverse kinematics of a :class:`PanTiltConfig` rig."""
+
+    def __init__(self, config: PanTiltConfig | None = None):
+        self.config = config or PanTiltConfig()
+        c = self.config
+        self.base2world = np.eye(4)
+        self.base2world[:3, :3] = _rpy_matrix([math.radians(a) for a in c.base_rpy_deg])
+        self.base2world[:3, 3] = c.base_xyz_m
+        self.tilt_offset = np.asarray(c.tilt_offset_m, dtype=np.float64)
+        self.lever_arm = np.asarray(c.lever_arm_m, dtype=np.float64)
+        self.pan_limits_rad = tuple(math.radians(a) for a in c.pan_limits_deg)
+        self.tilt_limits_rad = tuple(math.radians(a) for a in c.tilt_limits_deg)
+
+    # ----------------------------------------------------------------------------- limits
+    def clamp(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
+        """Clamp joint angles to the limits; NaN or Inf raise :class:`JointCommandError`."""
+        if not (math.isfinite(pan_rad) and math.isfinite(tilt_rad)):
+            raise JointCommandError(
+                f"joint command must be finite, got pan={pan_rad!r} rad, tilt={tilt_rad!r} rad; refusing to move"
+            )
+        (plo, phi), (tlo, thi) = self.pan_limits_rad, self.tilt_limits_rad
+        return min(max(pan_rad, plo), phi), min(max(tilt_rad, tlo), thi)
+
+    def within_limits(self, pan_rad: float, tilt_rad: float, tol_rad: float = 1e-9) -> bool:
+        (plo, phi), (tlo, thi) = self.pan_limits_rad, self.tilt_limits_rad
+        return plo - tol_rad <= pan_rad <= phi + tol_rad and tlo - tol_rad <= tilt_rad <= thi + tol_rad
+
+    # ---------------------------------------------------------------------------- forward
+    def forward(self, pan_rad, tilt_rad):
+        """Joint angles ``[...]`` -> cam2world ``[..., 4, 4]``.
+
+        Torch in, torch out (differentiable, the base pose in the joints' dtype); numpy or float in,
+        float64 numpy out.
+        """
+        if isinstance(pan_rad, Tensor) or isinstance(tilt_rad, Tensor):
+            pan = torch.as_tensor(pan_rad)
+            tilt = torch.as_tensor(tilt_rad, dtype=pan.dtype, device=pan.device)
+            return self._forward_torch(pan, tilt)
+        pan = torch.as_tensor(np.asarray(pan_rad, dtype=np.float64))
+        tilt = torch.as_tensor(np.asarray(tilt_rad, dtype=np.float64))
+        return self._forward_torch(pan, tilt).numpy()
+
+    def _forward_torch(self, pan: Tensor, tilt: Tensor) -> Tensor:
+        pan, tilt = torch.broadcast_tensors(pan, tilt)
+        kw = dict(dtype=pan.dtype, device=pan.device)
+        cp, sp = torch.cos(pan), torch.sin(pan)
+        ct, st = torch.cos(tilt), torch.sin(tilt)
+        zero, one = torch.zeros_like(cp), torch.ones_like(cp)
+        # Rz(pan) @ Ry(-tilt), built directly: [..., 3, 3]
+        r_pan = torch.stack([cp, -sp, zero, sp, cp, zero, zero, zero, one], -1).reshape(*cp.shape, 3, 3)
+        r_tilt = torch.stack([ct, zero, -st, zero, one, zero, st, zero, ct], -1).reshape(*cp.shape, 3, 3)
+        r_joint = r_pan @ r_tilt  # tilt frame -> base frame
+        offset = torch.as_tensor(self.tilt_offset, **kw)
+        lever = torch.as_tensor(self.lever_arm, **kw)
+        # camera centre in the base frame: Rz(pan) (offset + Ry(-tilt) lever)
+        centre_base = (r_pan @ (offset + (r_tilt @ lever.unsqueeze(-1)).squeeze(-1)).unsqueeze(-1)).squeeze(-1)
+        r_cam_base = r_joint @ torch.as_tensor(BODY_TO_OPTICAL, **kw)
+        base_r = torch.as_tensor(self.base2world[:3, :3], **kw)
+        base_t = torch.as_tensor(self.base2world[:3, 3], **kw)
+        rotation = base_r @ r_cam_base
+        centre = (base_r @ centre_base.unsqueeze(-1)).squeeze(-1) + base_t
+        top = torch.cat([rotation, centre.unsqueeze(-1)], dim=-1)
+        bottom = torch.zeros(*top.shape[:-2], 1, 4, **kw)
+        bottom[..., 0, 3] = 1.0
+        return torch.cat([top, bottom], dim=-2)
+
+    # ---------------------------------------------------------------------------- inverse
+    def _pick_pan(self, pan_rad: float, pan_hint_rad: float) -> float:
+        """Of the equivalent angles ``pan + 2 k pi``, the one inside the limits nearest the hint."""
+        lo, hi = self.pan_limits_rad
+        candidates = [pan_rad + 2 * math.pi * k for k in (-1, 0, 1)]
+        inside = [c for c in candidates if lo - 1e-12 <= c <= hi + 1e-12]
+        pool = inside or candidates
+        return min(pool, key=lambda c: abs(c - pan_hint_rad))
+
+    def inverse_direction(self, direction_world: Sequence[float], pan_hint_rad: float = 0.0) -> JointSolution:
+        """Joints that point the optical axis along ``direction_world [3]``.
+
+        The lever arm translates the camera but does not turn it, so the orientation alone fixes
+        the joints; use :meth:`inverse_look_at` to aim at a point, where the lever arm matters.
+        Straight up or down (relative to the base) the pan is free: ``pan_hint_rad`` is kept.
+        """
+        d = np.asarray(direction_world, dtype=np.float64)
+        if d.shape != (3,) or not np.all(np.isfinite(d)) or not np.any(d):
+            raise JointCommandError(f"direction must be 3 finite numbers, not all zero; got {d.tolist()}")
+        d_base = self.base2world[:3, :3].T @ d
+        pan, tilt = direction_to_yaw_pitch(d_base, float(pan_hint_rad))
+        pan = self._pick_pan(float(pan), float(pan_hint_rad))
+        return self._solution(pan, float(tilt), d)
+
+    def inverse_look_at(
+        self, target_world: Sequence[float], pan_hint_rad: float = 0.0, iterations: int = 50, tol_rad: float = 1e-12
+    ) -> JointSolution:
+        """Joints whose optical axis passes through ``target_world [3]``, lever arm included.
+
+        Fixed-point iteration: aim from the current camera centre at the target, move the joints,
+        recompute the centre. It converges while the target is farther than the lever arm; a
+        target inside the arm has no exact solution and gives the best aim with a non-zero error.
+        """
+        p = np.asarray(target_world, dtype=np.float64)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise JointCommandError(f"target must be 3 finite numbers, got {p.tolist()}")
+        pivot = self.base2world[:3, :3] @ self.tilt_offset + self.base2world[:3, 3]
+        sol = self.inverse_direction(p - pivot if np.any(p - pivot) else np.array([1.0, 0, 0]), pan_hint_rad)
+        pan, tilt = sol.pan_rad, sol.tilt_rad
+        for _ in range(iterations):
+            centre = self.forward(pan, tilt)[:3, 3]
+            if not np.any(p - centre):
+                break
+            nxt = self.inverse_direction(p - centre, pan)
+            converged = abs(nxt.pan_rad - pan) + abs(nxt.tilt_rad - tilt) < tol_rad
+            pan, tilt = nxt.pan_rad, nxt.tilt_rad
+            if converged:
+                break
+        c2w = self.forward(pan, tilt)
+        aim = p - c2w[:3, 3]
+        err = _angle_between(c2w[:3, 2], aim) if np.any(aim) else math.pi
+        return JointSolution(pan, tilt, self.within_limits(pan, tilt) and err < 1e-6, err)
+
+    def _solution(self, pan: float, tilt: float, desired_dir: np.ndarray) -> JointSolution:
+        cpan, ctilt = self.clamp(pan, tilt)
+        reachable = self.within_limits(pan, tilt)
+        achieved = self.forward(cpan, ctilt)[:3, 2]
+        return JointSolution(cpan, ctilt, reachable, _angle_between(achieved, desired_dir))
+
+    def view_of(self, pan_rad: float, tilt_rad: float) -> np.ndarray:
+        """5-DoF view ``[5]`` of the camera at these joints."""
+        return cam2world_to_view(self.forward(pan_rad, tilt_rad))
+
+    def joint_grid(self, n_pan: int, n_tilt: int, margin: float = 0.1) -> np.ndarray:
+        """Joint pairs ``[n_pan * n_tilt, 2]`` spread over the range, ``margin`` (fraction) in from each limit."""
+        (plo, phi), (tlo, thi) = self.pan_limits_rad, self.tilt_limits_rad
+        def span(lo, hi, n):
+            if n == 1:
+                return np.array([(lo + hi) / 2])
+            m = (hi - lo) * margin
+            return np.linspace(lo + m, hi - m, n)
+        pans, tilts = np.meshgrid(span(plo, phi, n_pan), span(tlo, thi, n_tilt), indexing="xy")
+        return np.stack([pans.ravel(), tilts.ravel()], axis=-1)
+
+
+def _angle_between(a: np.ndarray, b: np.ndarray) -> float:
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    # atan2 of |a x b| and a.b is accurate at small and large angles alike
+    return float(math.atan2(np.linalg.norm(np.cross(a, b)), float(np.dot(a, b))))
+

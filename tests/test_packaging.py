@@ -1,0 +1,47 @@
+"""The distribution installs every package folder and keeps generic names out of site-packages."""
+
+import re
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _declared():
+    data = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    return set(data["tool"]["setuptools"]["packages"]), data["tool"]["setuptools"]["package-dir"]
+
+
+def test_every_package_folder_is_listed():
+    packages, mapping = _declared()
+    found = set()
+    for top, folder in mapping.items():
+        base = ROOT / folder
+        for init in base.rglob("__init__.py"):
+            found.add(".".join([top, *init.parent.relative_to(base).parts]))
+    missing = sorted(found - packages)
+    assert not missing, f"add these to [tool.setuptools] packages in pyproject.toml: {missing}"
+
+
+def test_no_generic_top_level_names_installed():
+    packages, _ = _declared()
+    assert all(p == "aes_planner" or p.startswith("aes_planner.") for p in packages)
+
+
+def test_import_core_without_hardware_sdk():
+    # The core must import without dynamixel-sdk: block it and import everything hardware-free.
+    code = (
+        "import sys; sys.modules['dynamixel_sdk'] = None; sys.modules['serial'] = None\n"
+        "import aes_planner, aes_planner.geometry, aes_planner.cli\n"
+        "print('ok')"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr
+
+
+def test_cli_version():
+    out = subprocess.run([sys.executable, "-m", "aes_planner", "--version"], capture_output=True, text=True)
+    assert out.returncode == 0
+    assert re.match(r"aes-planner \d+\.\d+", out.stdout)
