@@ -69,8 +69,10 @@ def _forward_arrays(means, quats, log_scales, opacities, values, world2cam, K, w
     out = np.empty((n_cam, values.shape[1] + 1, height, width), dtype)
     t_final = np.empty((n_cam, height, width), dtype)
     last = np.empty((n_cam, height, width), np.int32)
-    k.raster_fwd(proj, box, values, offsets, lists, tiles_x, width, height, out, t_final, last)
-    state = (cov, proj, box, offsets, lists, tiles_x, last)
+    consts = np.array(k.CONSTS, dtype)
+    k.raster_fwd(proj, box, values, offsets, lists, tiles_x, width, height, consts, k.numba.get_num_threads(),
+                 out, t_final, last)
+    state = (cov, proj, box, offsets, lists, tiles_x, last, consts)
     return out, t_final, state
 
 
@@ -92,7 +94,7 @@ class _Raster(torch.autograd.Function):
         k = _kernels
         means, quats, log_scales, opacities, values = ctx.arrays
         w2c, kk, width, height, cam_dtype = ctx.camera
-        cov, proj, box, offsets, lists, tiles_x, last = ctx.state
+        cov, proj, box, offsets, lists, tiles_x, last, consts = ctx.state
         dtype = means.dtype
         n_cam, n = w2c.shape[0], means.shape[0]
         threads = k.numba.get_num_threads()
@@ -102,8 +104,8 @@ class _Raster(torch.autograd.Function):
         tdtype = torch.from_numpy(values[:0]).dtype
         v_out_np = _np(v_out.to(tdtype))
         v_t_np = _np(v_t.to(tdtype))
-        k.raster_bwd(proj, box, values, offsets, lists, tiles_x, width, height, ctx.t_final, last,
-                     v_out_np, v_t_np, by_camera, g2d, gvals)
+        k.raster_bwd(proj, box, values, offsets, lists, tiles_x, width, height, consts, ctx.t_final, last,
+                     v_out_np, v_t_np, by_camera, threads, g2d, gvals)
         g_means = np.empty_like(means)
         g_quats = np.empty_like(quats)
         g_log_scales = np.empty_like(log_scales)
