@@ -145,7 +145,7 @@ def rasterize(
         gaussians.validate()
     name = resolve_backend(backend, gaussians.device)
     g = gaussians
-    values = torch.cat([g.colors, g.features], dim=1) if g.num_channels else g.colors
+    values = torch.cat([g.colors, g.features], dim=1)  # [N, 3 + C]; also when C = 0 (grads stay defined)
     if name == "numba":
         from aes_planner.gaussians.numba_backend import render
     else:
