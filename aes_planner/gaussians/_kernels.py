@@ -7,14 +7,16 @@ Pipeline per call (B cameras, N Gaussians, Cv = 3 + C value channels, tiles of T
    parameters and the pixel box of the ``alpha >= 1/255`` ellipse (empty box = culled).
 3. ``bin_count`` / ``bin_fill``: per camera, a stable radix sort of the visible Gaussians by depth,
    then per-tile lists in that order (counting pass, prefix sum, fill): no per-tile sorts.
-4. ``raster_fwd``: parallel over (camera, tile). Each Gaussian of the tile's list visits only the
-   pixels of its ellipse, row by row (exact span per row), compositing front to back into tile
-   buffers; a tile stops when all its pixels are saturated. Stores the final transmittance and
-   the list position after each pixel's last contributor.
+4. ``raster_fwd``: parallel over (camera, tile), tiles interleaved across threads. Each Gaussian
+   of the tile's depth-sorted list visits only the tile rows of its ``alpha >= 1/255`` box; a row
+   is one masked 16-lane vector (sigma, exp, alpha, transmittance, stop rule), then the values
+   are accumulated lane-wise (few channels) or per contributing pixel with the channels
+   innermost (8 or more). A tile stops once all its pixels are saturated. Stores the final
+   transmittance and, per pixel, the list position after its last contributor.
 5. ``raster_bwd``: the same traversal in reverse from the stored final transmittance (gsplat's
-   backward), accumulating per (camera, Gaussian) image-space gradients and per-Gaussian value
-   gradients. Parallel over cameras when there are enough of them (no write conflicts), else over
-   tiles with per-thread buffers.
+   backward), accumulating per-lane gradient terms that are reduced once per Gaussian. Parallel
+   over cameras when there are enough of them (no write conflicts), else over tiles with
+   per-thread buffers.
 6. ``project_bwd``: per Gaussian, the chain rule through projection and covariance for every
    camera; camera-pose gradients go to per-thread buffers.
 
@@ -24,7 +26,6 @@ Everything geometric is float64; image-space parameters and outputs are in the G
 from __future__ import annotations
 
 import math
-
 import os
 
 import numba
@@ -36,9 +37,9 @@ import numba
 if "NUMBA_THREADING_LAYER" not in os.environ:
     numba.config.THREADING_LAYER = "workqueue"
 
-import numpy as np
-from numba import njit, prange, types
-from numba.extending import overload
+import numpy as np  # noqa: E402 (after the threading-layer choice)
+from numba import njit, prange, types  # noqa: E402
+from numba.extending import overload  # noqa: E402
 
 from aes_planner.gaussians.numerics import (
     ALPHA_MAX,
@@ -54,14 +55,15 @@ from aes_planner.gaussians.numerics import (
 )
 
 TILE = 16
+PIXEL_MAJOR_MIN_CHANNELS = 8  # value channels + depth from which the channel loops go innermost
 DONE_CHECK_EVERY = 32  # Gaussians between checks whether every pixel of a tile is saturated
 # Packed image-space parameters per (camera, Gaussian).
-P_U, P_V, P_A, P_B, P_C, P_O, P_Z, P_LEVEL, P_HALF_INV_SYY, P_TWO_OVER_A = range(10)
-NPROJ = 10
+P_U, P_V, P_A, P_B, P_C, P_O, P_Z = range(7)
+NPROJ = 7
 # Image-space gradients per (camera, Gaussian): mean2d, conic, opacity, depth.
 G_U, G_V, G_A, G_B, G_C, G_O, G_Z = range(7)
 NGRAD = 7
-SPAN_MARGIN_PX = 1e-2  # widen the exact row span; the per-pixel alpha test decides
+BOX_MARGIN_PX = 1e-2  # widen the alpha >= 1/255 box against rounding; the per-pixel test decides
 
 _opts = dict(cache=True, error_model="numpy")
 
@@ -124,20 +126,28 @@ def covariance_fwd(quats, log_scales, cov):  # [N, 4], [N, 3] -> cov [N, 6] floa
 
 
 # ---------------------------------------------------------------------------- 2. projection
+def camera_table(world2cam, K, width, height):
+    """Per-camera constants [B, NCAM] (float64, numpy): rotation (9), translation (3), fx, fy,
+    cx, cy and the clamp limits of x/z and y/z (+x, -x, +y, -y), computed once per call."""
+    fx, fy, cx, cy = K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2]
+    slack_x = FRUSTUM_SLACK * 0.5 * width / fx
+    slack_y = FRUSTUM_SLACK * 0.5 * height / fy
+    return np.ascontiguousarray(np.concatenate([
+        world2cam[:, :3, :3].reshape(-1, 9), world2cam[:, :3, 3],
+        np.stack([fx, fy, cx, cy, (width - cx) / fx + slack_x, cx / fx + slack_x,
+                  (height - cy) / fy + slack_y, cy / fy + slack_y], axis=1),
+    ], axis=1))
+
+
+NCAM = 20
+
+
 @njit(**_opts)
-def _camera(world2cam, K, b, width, height):
-    w = (
-        world2cam[b, 0, 0], world2cam[b, 0, 1], world2cam[b, 0, 2],
-        world2cam[b, 1, 0], world2cam[b, 1, 1], world2cam[b, 1, 2],
-        world2cam[b, 2, 0], world2cam[b, 2, 1], world2cam[b, 2, 2],
-    )
-    t = (world2cam[b, 0, 3], world2cam[b, 1, 3], world2cam[b, 2, 3])
-    fx, fy, cx, cy = K[b, 0, 0], K[b, 1, 1], K[b, 0, 2], K[b, 1, 2]
-    lim_xp = (width - cx) / fx + FRUSTUM_SLACK * 0.5 * width / fx
-    lim_xn = cx / fx + FRUSTUM_SLACK * 0.5 * width / fx
-    lim_yp = (height - cy) / fy + FRUSTUM_SLACK * 0.5 * height / fy
-    lim_yn = cy / fy + FRUSTUM_SLACK * 0.5 * height / fy
-    return w, t, fx, fy, cx, cy, lim_xp, lim_xn, lim_yp, lim_yn
+def _camera(cams, b):
+    c = cams[b]
+    w = (c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8])
+    t = (c[9], c[10], c[11])
+    return w, t, c[12], c[13], c[14], c[15], c[16], c[17], c[18], c[19]
 
 
 @njit(**_opts)
@@ -160,9 +170,9 @@ def _cov2d(j00, j02, j11, j12, s):
 
 
 @njit(parallel=True, **_opts)
-def project_fwd(means, cov, opacities, world2cam, K, width, height, proj, box):
+def project_fwd(means, cov, opacities, cams, width, height, proj, box):
     """proj [B, N, NPROJ] (Gaussians' dtype), box [B, N, 4] int32 (x0, x1, y0, y1; x0 > x1 = culled)."""
-    n_cam = world2cam.shape[0]
+    n_cam = cams.shape[0]
     for n in prange(means.shape[0]):
         m0, m1, m2 = np.float64(means[n, 0]), np.float64(means[n, 1]), np.float64(means[n, 2])
         sig = _sym((cov[n, 0], cov[n, 1], cov[n, 2], cov[n, 3], cov[n, 4], cov[n, 5]))
@@ -173,30 +183,39 @@ def project_fwd(means, cov, opacities, world2cam, K, width, height, proj, box):
             box[b, n, 1] = 0
             if not (o >= ALPHA_MIN):
                 continue
-            w, t, fx, fy, cx, cy, lim_xp, lim_xn, lim_yp, lim_yn = _camera(world2cam, K, b, width, height)
+            w, t, fx, fy, cx, cy, lim_xp, lim_xn, lim_yp, lim_yn = _camera(cams, b)
             x = w[0] * m0 + w[1] * m1 + w[2] * m2 + t[0]
             y = w[3] * m0 + w[4] * m1 + w[5] * m2 + t[1]
             z = w[6] * m0 + w[7] * m1 + w[8] * m2 + t[2]
             if not (z > NEAR_M and z < FAR_M):
                 continue
-            u = fx * x / z + cx
-            v = fy * y / z + cy
-            rx, _ = _clamp_ratio(x / z, -lim_xn, lim_xp)
-            ry, _ = _clamp_ratio(y / z, -lim_yn, lim_yp)
-            j00, j11 = fx / z, fy / z
-            j02, j12 = -fx * rx / z, -fy * ry / z
-            s = _mm(_mm(w, sig), _t(w))
-            a, bb, c = _cov2d(j00, j02, j11, j12, s)
+            iz = 1.0 / z
+            u = fx * x * iz + cx
+            v = fy * y * iz + cy
+            rx, _ = _clamp_ratio(x * iz, -lim_xn, lim_xp)
+            ry, _ = _clamp_ratio(y * iz, -lim_yn, lim_yp)
+            j00, j11 = fx * iz, fy * iz
+            j02, j12 = -fx * rx * iz, -fy * ry * iz
+            # cov2d = T Sigma T^T with T = J W (2 x 3)
+            t0 = (j00 * w[0] + j02 * w[6], j00 * w[1] + j02 * w[7], j00 * w[2] + j02 * w[8])
+            t1 = (j11 * w[3] + j12 * w[6], j11 * w[4] + j12 * w[7], j11 * w[5] + j12 * w[8])
+            s0 = (sig[0] * t0[0] + sig[1] * t0[1] + sig[2] * t0[2], sig[3] * t0[0] + sig[4] * t0[1] + sig[5] * t0[2],
+                  sig[6] * t0[0] + sig[7] * t0[1] + sig[8] * t0[2])
+            s1 = (sig[0] * t1[0] + sig[1] * t1[1] + sig[2] * t1[2], sig[3] * t1[0] + sig[4] * t1[1] + sig[5] * t1[2],
+                  sig[6] * t1[0] + sig[7] * t1[1] + sig[8] * t1[2])
+            a = t0[0] * s0[0] + t0[1] * s0[1] + t0[2] * s0[2]
+            bb = t1[0] * s0[0] + t1[1] * s0[1] + t1[2] * s0[2]
+            c = t1[0] * s1[0] + t1[1] * s1[1] + t1[2] * s1[2]
             a += BLUR_PX2
             c += BLUR_PX2
             det = max(a * c - bb * bb, DET_MIN)
             ext_x = math.sqrt(2.0 * level * a)
             ext_y = math.sqrt(2.0 * level * c)
             # Pixel i (centre i + 0.5) is touched if |i + 0.5 - u| <= ext: i in [u - ext - 0.5, u + ext - 0.5].
-            fx0 = min(max(u - ext_x - 0.5 - SPAN_MARGIN_PX, -1.0), width + 1.0)
-            fx1 = min(max(u + ext_x - 0.5 + SPAN_MARGIN_PX, -1.0), width + 1.0)
-            fy0 = min(max(v - ext_y - 0.5 - SPAN_MARGIN_PX, -1.0), height + 1.0)
-            fy1 = min(max(v + ext_y - 0.5 + SPAN_MARGIN_PX, -1.0), height + 1.0)
+            fx0 = min(max(u - ext_x - 0.5 - BOX_MARGIN_PX, -1.0), width + 1.0)
+            fx1 = min(max(u + ext_x - 0.5 + BOX_MARGIN_PX, -1.0), width + 1.0)
+            fy0 = min(max(v - ext_y - 0.5 - BOX_MARGIN_PX, -1.0), height + 1.0)
+            fy1 = min(max(v + ext_y - 0.5 + BOX_MARGIN_PX, -1.0), height + 1.0)
             if not (fx0 <= fx1 and fy0 <= fy1 and math.isfinite(a) and math.isfinite(c) and math.isfinite(bb)):
                 continue
             ix0 = max(int(math.ceil(fx0)), 0)
@@ -209,44 +228,52 @@ def project_fwd(means, cov, opacities, world2cam, K, width, height, proj, box):
             box[b, n, 1] = ix1
             box[b, n, 2] = iy0
             box[b, n, 3] = iy1
-            ca = c / det
             proj[b, n, P_U] = u
             proj[b, n, P_V] = v
-            proj[b, n, P_A] = ca
+            proj[b, n, P_A] = c / det
             proj[b, n, P_B] = -bb / det
             proj[b, n, P_C] = a / det
             proj[b, n, P_O] = o
             proj[b, n, P_Z] = z
-            proj[b, n, P_LEVEL] = level
-            proj[b, n, P_HALF_INV_SYY] = 0.5 / c
-            proj[b, n, P_TWO_OVER_A] = 2.0 / ca
 
 
 # ---------------------------------------------------------------------------- 3. binning
+RADIX_BITS = 12
+
+
 @njit(**_opts)
 def _radix_argsort(keys, idx, tmp_keys, tmp_idx):
-    """Stable LSD radix sort of int64 keys < 2**33 (float32 bit patterns), carrying idx."""
+    """Stable LSD radix sort of non-negative int64 keys, carrying idx. Keys are shifted to start
+    at 0 first, so the passes cover only the spread of the keys (two passes of 12 bits for
+    float32 depths within a factor of 4 of each other)."""
     n = keys.shape[0]
-    hist = np.empty(2048, np.int64)
-    for shift in (0, 11, 22):
+    if n < 2:
+        return
+    lo = keys.min()
+    span = keys.max() - lo
+    for i in range(n):
+        keys[i] -= lo
+    hist = np.empty(1 << RADIX_BITS, np.int64)
+    mask = (1 << RADIX_BITS) - 1
+    shift = 0
+    while (span >> shift) > 0:
         hist[:] = 0
         for i in range(n):
-            hist[(keys[i] >> shift) & 2047] += 1
-        if n == 0 or hist[(keys[0] >> shift) & 2047] == n:
-            continue  # every key shares this digit
+            hist[(keys[i] >> shift) & mask] += 1
         total = 0
-        for d in range(2048):
+        for d in range(1 << RADIX_BITS):
             c = hist[d]
             hist[d] = total
             total += c
         for i in range(n):
-            d = (keys[i] >> shift) & 2047
+            d = (keys[i] >> shift) & mask
             pos = hist[d]
             hist[d] = pos + 1
             tmp_keys[pos] = keys[i]
             tmp_idx[pos] = idx[i]
         keys[:n] = tmp_keys[:n]
         idx[:n] = tmp_idx[:n]
+        shift += RADIX_BITS
 
 
 @njit(parallel=True, **_opts)
@@ -368,6 +395,19 @@ def _tile_active(trans, consts):
 
 
 @njit(**_fast)
+def _add_pixel_major(acc, row, wbuf, vals, g, z, zero):
+    """acc[pixel, :] += w * (values of g, z) for the contributing pixels of a tile row."""
+    cv = vals.shape[1]
+    for j in range(TILE):
+        w = wbuf[j]
+        if w != zero:
+            base = (row + np.uint64(j)) * np.uint64(cv + 1)
+            for c in range(cv):
+                acc[base + np.uint64(c)] += w * vals[g, c]
+            acc[base + np.uint64(cv)] += w * z
+
+
+@njit(**_fast)
 def _raster_tile_fwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, height, consts, out, t_final, last):
     n_tiles = (offsets.shape[0] - 1) // proj.shape[0]
     cv = vals.shape[1]
@@ -378,7 +418,10 @@ def _raster_tile_fwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, h
     xs = _pixel_centres(tx0, TILE, consts)
     ys = _pixel_centres(ty0, TILE, consts)
     trans = np.empty(TILE * TILE, consts.dtype)  # > 0 while compositing, -T once done
-    acc = np.zeros((cv + 1) * TILE * TILE, consts.dtype)  # [channel, pixel]
+    # [channel, pixel] (lanes vectorised) for few channels; [pixel, channel] (channels vectorised,
+    # only contributing pixels visited) for many
+    pixel_major = cv + 1 >= PIXEL_MAJOR_MIN_CHANNELS
+    acc = np.zeros((cv + 1) * TILE * TILE, consts.dtype)
     last_k = np.zeros(TILE * TILE, np.int32)
     wbuf = np.empty(TILE, consts.dtype)
     for py in range(TILE):
@@ -417,17 +460,20 @@ def _raster_tile_fwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, h
                 last_k[row + i] = k_next if contrib else last_k[row + i]
                 w_sum += w
             if w_sum > zero:
-                for c in range(cv + 1):
-                    val = vals[g, c] if c < cv else z
-                    base = np.uint64(c * TILE * TILE) + row
-                    for j in range(TILE):
-                        i = np.uint64(j)
-                        acc[base + i] += wbuf[i] * val
+                if pixel_major:
+                    _add_pixel_major(acc, row, wbuf, vals, g, z, zero)
+                else:
+                    for c in range(cv + 1):
+                        val = vals[g, c] if c < cv else z
+                        base = np.uint64(c * TILE * TILE) + row
+                        for j in range(TILE):
+                            i = np.uint64(j)
+                            acc[base + i] += wbuf[i] * val
     for py in range(min(TILE, height - ty0)):
         for px in range(min(TILE, width - tx0)):
             p = py * TILE + px
             for c in range(cv + 1):
-                out[b, c, ty0 + py, tx0 + px] = acc[c * TILE * TILE + p]
+                out[b, c, ty0 + py, tx0 + px] = acc[p * (cv + 1) + c] if pixel_major else acc[c * TILE * TILE + p]
             t_final[b, ty0 + py, tx0 + px] = abs(trans[p])
             last[b, ty0 + py, tx0 + px] = last_k[p]
 
@@ -465,6 +511,32 @@ def _lane_sum(buf, q):
 
 
 @njit(**_fast)
+def _bwd_values_pixel_major(v_pix, behind, row, lane_fac, lane_t, lane_ra, lane_va, vals, g, z, g_val, zero):
+    """The value/depth part of a tile row's backward with channels innermost, hit pixels only."""
+    cv = vals.shape[1]
+    for j in range(TILE):
+        fac = lane_fac[j]
+        if fac == zero:
+            continue
+        t, ra = lane_t[j], lane_ra[j]
+        base = (row + np.uint64(j)) * np.uint64(cv + 1)
+        va = zero
+        for c in range(cv):
+            q = base + np.uint64(c)
+            vp = v_pix[q]
+            val = vals[g, c]
+            g_val[c] += fac * vp
+            va += (val * t - behind[q] * ra) * vp
+            behind[q] += val * fac
+        q = base + np.uint64(cv)
+        vp = v_pix[q]
+        g_val[cv] += fac * vp
+        va += (z * t - behind[q] * ra) * vp
+        behind[q] += z * fac
+        lane_va[j] += va
+
+
+@njit(**_fast)
 def _raster_tile_bwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, height, consts,
                      t_final, last, v_out, v_t, g2d, gvals):
     """Reverse traversal of one tile; adds into g2d [B, N, NGRAD] and gvals [N, Cv].
@@ -483,8 +555,9 @@ def _raster_tile_bwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, h
     xs = _pixel_centres(tx0, TILE, consts)
     ys = _pixel_centres(ty0, TILE, consts)
     npx = TILE * TILE
-    v_pix = np.zeros((cv + 1) * npx, dt)  # [channel, pixel]
-    behind = np.zeros((cv + 1) * npx, dt)  # sum of w * value of the Gaussians behind
+    pixel_major = cv + 1 >= PIXEL_MAJOR_MIN_CHANNELS  # layout as in the forward
+    v_pix = np.zeros((cv + 1) * npx, dt)  # [channel, pixel] or [pixel, channel]
+    behind = np.zeros((cv + 1) * npx, dt)  # sum of w * value of the Gaussians behind, same layout
     trans = np.ones(npx, dt)
     t_fin = np.ones(npx, dt)
     v_tf = np.zeros(npx, dt)
@@ -494,7 +567,7 @@ def _raster_tile_bwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, h
         for px in range(min(TILE, width - tx0)):
             p = py * TILE + px
             for c in range(cv + 1):
-                v_pix[c * npx + p] = v_out[b, c, ty0 + py, tx0 + px]
+                v_pix[p * (cv + 1) + c if pixel_major else c * npx + p] = v_out[b, c, ty0 + py, tx0 + px]
             trans[p] = t_final[b, ty0 + py, tx0 + px]
             t_fin[p] = trans[p]
             v_tf[p] = v_t[b, ty0 + py, tx0 + px]
@@ -507,7 +580,8 @@ def _raster_tile_bwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, h
     lane_vs = np.empty(TILE, dt)  # -alpha where alpha is free (not clamped), else 0
     lane_vo = np.empty(TILE, dt)  # exp(-sigma) where alpha is free, else 0
     acc_g = np.empty(6 * TILE, dt)  # lane sums of d/d(opacity, A, B, C, u, v)
-    acc_val = np.empty((cv + 1) * TILE, dt)  # lane sums of d/d(values, depth)
+    acc_val = np.empty((cv + 1) * TILE, dt)  # lane sums of d/d(values, depth) (lane-major layout)
+    g_val = np.empty(cv + 1, dt)  # d/d(values, depth) of the current Gaussian (pixel-major layout)
     start = offsets[b * n_tiles + tile]
     for k in range(k_end - 1, start - 1, -1):
         g = lists[k]
@@ -518,6 +592,7 @@ def _raster_tile_bwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, h
         k32 = np.int32(k)
         acc_g[:] = zero
         acc_val[:] = zero
+        g_val[:] = zero
         hit = False
         for py in range(max(box[b, g, 2], ty0) - ty0, min(box[b, g, 3], ty0 + TILE - 1) - ty0 + 1):
             dy = ys[py] - v
@@ -547,17 +622,20 @@ def _raster_tile_bwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, h
             if n_hit == zero:
                 continue
             hit = True
-            for c in range(cv + 1):
-                val = vals[g, c] if c < cv else z
-                base = np.uint64(c * npx) + row
-                lane_base = np.uint64(c * TILE)
-                for j in range(TILE):
-                    i = np.uint64(j)
-                    vp = v_pix[base + i]
-                    fac = lane_fac[i]
-                    acc_val[lane_base + i] += fac * vp
-                    lane_va[i] += (val * lane_t[i] - behind[base + i] * lane_ra[i]) * vp
-                    behind[base + i] += val * fac
+            if pixel_major:
+                _bwd_values_pixel_major(v_pix, behind, row, lane_fac, lane_t, lane_ra, lane_va, vals, g, z, g_val, zero)
+            else:
+                for c in range(cv + 1):
+                    val = vals[g, c] if c < cv else z
+                    base = np.uint64(c * npx) + row
+                    lane_base = np.uint64(c * TILE)
+                    for j in range(TILE):
+                        i = np.uint64(j)
+                        vp = v_pix[base + i]
+                        fac = lane_fac[i]
+                        acc_val[lane_base + i] += fac * vp
+                        lane_va[i] += (val * lane_t[i] - behind[base + i] * lane_ra[i]) * vp
+                        behind[base + i] += val * fac
             for j in range(TILE):
                 i = np.uint64(j)
                 dx = xs[i] - u
@@ -577,7 +655,7 @@ def _raster_tile_bwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, h
             g2d[b, g, G_U] += _lane_sum(acc_g, 4)
             g2d[b, g, G_V] += _lane_sum(acc_g, 5)
             for c in range(cv + 1):
-                sc = _lane_sum(acc_val, c)
+                sc = g_val[c] if pixel_major else _lane_sum(acc_val, c)
                 if c < cv:
                     gvals[g, c] += sc
                 else:
@@ -607,11 +685,10 @@ def raster_bwd(proj, box, vals, offsets, lists, tiles_x, width, height, consts, 
 
 # ---------------------------------------------------------------------------- 6. backward projection
 @njit(parallel=True, **_opts)
-def project_bwd(means, quats, log_scales, cov, world2cam, K, width, height, box, g2d,
-                g_means, g_quats, g_log_scales, g_opacities, g_cam):
+def project_bwd(means, quats, log_scales, cov, cams, box, g2d, g_means, g_quats, g_log_scales, g_opacities, g_cam):
     """Chain rule from g2d [nbuf, B, N, NGRAD] to the Gaussians and to g_cam [threads, B, 12]
     (rows 0..2 of world2cam, row-major)."""
-    n_cam = world2cam.shape[0]
+    n_cam = cams.shape[0]
     nbuf = g2d.shape[0]
     for n in prange(means.shape[0]):
         tid = numba.get_thread_id()
@@ -633,7 +710,7 @@ def project_bwd(means, quats, log_scales, cov, world2cam, K, width, height, box,
                 go += g2d[i, b, n, G_O]
                 gz += g2d[i, b, n, G_Z]
             g_o += go
-            w, t, fx, fy, cx, cy, lim_xp, lim_xn, lim_yp, lim_yn = _camera(world2cam, K, b, width, height)
+            w, t, fx, fy, cx, cy, lim_xp, lim_xn, lim_yp, lim_yn = _camera(cams, b)
             x = w[0] * m0 + w[1] * m1 + w[2] * m2 + t[0]
             y = w[3] * m0 + w[4] * m1 + w[5] * m2 + t[1]
             z = w[6] * m0 + w[7] * m1 + w[8] * m2 + t[2]

@@ -55,7 +55,7 @@ def _forward_arrays(means, quats, log_scales, opacities, values, world2cam, K, w
     box = np.empty((n_cam, n, 4), np.int32)
     if n:
         k.covariance_fwd(quats, log_scales, cov)
-        k.project_fwd(means, cov, opacities, world2cam, K, width, height, proj, box)
+        k.project_fwd(means, cov, opacities, k.camera_table(world2cam, K, width, height), width, height, proj, box)
     order = np.empty((n_cam, n), np.int32)
     n_visible = np.zeros(n_cam, np.int64)
     counts = np.zeros((n_cam, n_tiles), np.int64)
@@ -112,7 +112,7 @@ class _Raster(torch.autograd.Function):
         g_opac = np.empty_like(opacities)
         g_cam = np.zeros((threads, n_cam, 12))
         if n:
-            k.project_bwd(means, quats, log_scales, cov, w2c, kk, width, height, box, g2d,
+            k.project_bwd(means, quats, log_scales, cov, k.camera_table(w2c, kk, width, height), box, g2d,
                           g_means, g_quats, g_log_scales, g_opac, g_cam)
         g_w2c = torch.zeros(n_cam, 4, 4, dtype=torch.float64)
         g_w2c[:, :3, :] = torch.from_numpy(g_cam.sum(0).reshape(n_cam, 3, 4))

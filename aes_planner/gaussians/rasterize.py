@@ -6,7 +6,7 @@ Backends
   tiles or cameras. Needs numba (the ``fast`` extra) and CPU tensors. The first call in a fresh
   environment compiles for ~30-60 s per dtype and caches to disk; later processes load in well
   under a second.
-* ``"torch"``: pure-torch, tile-binned, autograd; any device; 20-50x slower on a CPU.
+* ``"torch"``: pure-torch, tile-binned, autograd; any device; about 30x slower on a CPU.
 * ``"auto"`` (default): ``numba`` when it imports and the tensors are on the CPU, else ``torch``.
 
 The environment variable ``AES_PLANNER_RASTER_BACKEND`` (``auto``/``numba``/``torch``) overrides
