@@ -2,7 +2,9 @@
 
 Keys per case (``raster.<case>.<figure>``), all per view:
 
-* ``fwd_ms``, ``fwdbwd_ms``: the fast backend (numba when available), medians.
+* ``fwd_ms``, ``fwdbwd_ms``: the fast backend (numba when available), wall-clock medians.
+* ``fwd_cpu_ms``, ``fwdbwd_cpu_ms``: process CPU time (all threads) in the same runs, medians:
+  on a shared machine, where wall-clock depends on what else runs, this is the work done.
 * ``dense_fwd_ms``: the dense reference in float32 (a plain dense rasterizer) in the same run;
   ``speedup_fwd`` = dense / fast. ``dense_fwdbwd_ms`` where the dense graph fits in memory.
 * ``pairs``: Gaussian-pixel pairs with ``alpha >= 1/255`` in the view (the work a rasterizer
@@ -64,6 +66,19 @@ _LOAD_SNIPPET = (
 )
 
 
+def _wall_and_cpu_ms(fn, runs: int, warmup: int = 2) -> tuple[float, float]:
+    """Medians of wall-clock and process CPU time (all threads) of ``fn()``, in ms."""
+    for _ in range(warmup):
+        fn()
+    wall, cpu = [], []
+    for _ in range(runs):
+        w0, c0 = time.perf_counter(), time.process_time()
+        fn()
+        wall.append((time.perf_counter() - w0) * 1e3)
+        cpu.append((time.process_time() - c0) * 1e3)
+    return statistics.median(wall), statistics.median(cpu)
+
+
 def _count_pairs(g, world2cam, K, width, height, rows: int) -> int:
     """Pairs with alpha >= 1/255 in the first ``rows`` rows of camera 0 (chunked, no grad)."""
     from aes_planner.gaussians.numerics import ALPHA_MIN
@@ -105,10 +120,13 @@ def _bench_case(rec: Recorder, name: str, case: Case, quick: bool) -> None:
         out = rasterize(gg, w2c, K, size, size)
         (out.rgb.sum() + out.features.sum() + out.depth.sum() + out.alpha.sum()).backward()
 
-    fast_fwd = statistics.median(time_ms(fwd, runs=runs, warmup=2)) / views
-    fast_fb = statistics.median(time_ms(fwdbwd, runs=runs, warmup=2)) / views
+    fast_fwd, cpu_fwd = _wall_and_cpu_ms(fwd, runs)
+    fast_fb, cpu_fb = _wall_and_cpu_ms(fwdbwd, runs)
+    fast_fwd, cpu_fwd, fast_fb, cpu_fb = (v / views for v in (fast_fwd, cpu_fwd, fast_fb, cpu_fb))
     rec.record(f"{prefix}.fwd_ms", fast_fwd, "ms", runs)
     rec.record(f"{prefix}.fwdbwd_ms", fast_fb, "ms", runs)
+    rec.record(f"{prefix}.fwd_cpu_ms", cpu_fwd, "ms", runs)
+    rec.record(f"{prefix}.fwdbwd_cpu_ms", cpu_fb, "ms", runs)
 
     # Dense reference (float32 per-pixel maths) on the same scene, in the same run. A crop to the
     # top rows is the same camera with a smaller height (pixel centres do not depend on it).

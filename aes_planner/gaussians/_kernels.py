@@ -2,11 +2,11 @@
 
 Pipeline per call (B cameras, N Gaussians, Cv = 3 + C value channels, tiles of TILE x TILE px):
 
-1. ``covariance_fwd``: per Gaussian, the world covariance (float64, shared by all cameras).
-2. ``project_fwd``: per (camera, Gaussian), EWA projection in float64 -> packed image-space
-   parameters and the pixel box of the ``alpha >= 1/255`` ellipse (empty box = culled).
-3. ``bin_count`` / ``bin_fill``: per camera, a stable radix sort of the visible Gaussians by depth,
-   then per-tile lists in that order (counting pass, prefix sum, fill): no per-tile sorts.
+1-2. ``project_fwd``: per Gaussian the world covariance (float64, shared by all cameras), then
+   per camera the EWA projection in float64 -> packed image-space parameters and the pixel box
+   of the ``alpha >= 1/255`` ellipse (empty box = culled).
+3. ``bin_cameras`` / ``fill_lists``: per camera, a stable radix sort of the visible Gaussians by
+   depth, then per-tile lists in that order (counting pass, prefix sum, fill): no per-tile sorts.
 4. ``raster_fwd``: parallel over (camera, tile), tiles interleaved across threads. Each Gaussian
    of the tile's depth-sorted list visits only the tile rows of its ``alpha >= 1/255`` box; a row
    is one masked 16-lane vector (sigma, exp, alpha, transmittance, stop rule), then the values
@@ -107,22 +107,22 @@ def _sym(c):
 
 
 # ---------------------------------------------------------------------------- 1. covariance
-@njit(parallel=True, **_opts)
-def covariance_fwd(quats, log_scales, cov):  # [N, 4], [N, 3] -> cov [N, 6] float64
-    for n in prange(quats.shape[0]):
-        r, _, _, _, _, _ = _quat_rotation(
-            np.float64(quats[n, 0]), np.float64(quats[n, 1]), np.float64(quats[n, 2]), np.float64(quats[n, 3])
-        )
-        s0 = math.exp(np.float64(log_scales[n, 0]))
-        s1 = math.exp(np.float64(log_scales[n, 1]))
-        s2 = math.exp(np.float64(log_scales[n, 2]))
-        m = (r[0] * s0, r[1] * s1, r[2] * s2, r[3] * s0, r[4] * s1, r[5] * s2, r[6] * s0, r[7] * s1, r[8] * s2)
-        cov[n, 0] = m[0] * m[0] + m[1] * m[1] + m[2] * m[2]
-        cov[n, 1] = m[0] * m[3] + m[1] * m[4] + m[2] * m[5]
-        cov[n, 2] = m[0] * m[6] + m[1] * m[7] + m[2] * m[8]
-        cov[n, 3] = m[3] * m[3] + m[4] * m[4] + m[5] * m[5]
-        cov[n, 4] = m[3] * m[6] + m[4] * m[7] + m[5] * m[8]
-        cov[n, 5] = m[6] * m[6] + m[7] * m[7] + m[8] * m[8]
+@njit(**_opts)
+def _covariance(quats, log_scales, n, cov):
+    """World covariance of Gaussian n into cov[n] (xx, xy, xz, yy, yz, zz), float64."""
+    r, _, _, _, _, _ = _quat_rotation(
+        np.float64(quats[n, 0]), np.float64(quats[n, 1]), np.float64(quats[n, 2]), np.float64(quats[n, 3])
+    )
+    s0 = math.exp(np.float64(log_scales[n, 0]))
+    s1 = math.exp(np.float64(log_scales[n, 1]))
+    s2 = math.exp(np.float64(log_scales[n, 2]))
+    m = (r[0] * s0, r[1] * s1, r[2] * s2, r[3] * s0, r[4] * s1, r[5] * s2, r[6] * s0, r[7] * s1, r[8] * s2)
+    cov[n, 0] = m[0] * m[0] + m[1] * m[1] + m[2] * m[2]
+    cov[n, 1] = m[0] * m[3] + m[1] * m[4] + m[2] * m[5]
+    cov[n, 2] = m[0] * m[6] + m[1] * m[7] + m[2] * m[8]
+    cov[n, 3] = m[3] * m[3] + m[4] * m[4] + m[5] * m[5]
+    cov[n, 4] = m[3] * m[6] + m[4] * m[7] + m[5] * m[8]
+    cov[n, 5] = m[6] * m[6] + m[7] * m[7] + m[8] * m[8]
 
 
 # ---------------------------------------------------------------------------- 2. projection
@@ -170,10 +170,12 @@ def _cov2d(j00, j02, j11, j12, s):
 
 
 @njit(parallel=True, **_opts)
-def project_fwd(means, cov, opacities, cams, width, height, proj, box):
-    """proj [B, N, NPROJ] (Gaussians' dtype), box [B, N, 4] int32 (x0, x1, y0, y1; x0 > x1 = culled)."""
+def project_fwd(means, quats, log_scales, opacities, cams, width, height, cov, proj, box):
+    """cov [N, 6] float64 (kept for the backward), proj [B, N, NPROJ] (Gaussians' dtype), box
+    [B, N, 4] int32 (x0, x1, y0, y1; x0 > x1 = culled). One parallel region for all of it."""
     n_cam = cams.shape[0]
     for n in prange(means.shape[0]):
+        _covariance(quats, log_scales, n, cov)
         m0, m1, m2 = np.float64(means[n, 0]), np.float64(means[n, 1]), np.float64(means[n, 2])
         sig = _sym((cov[n, 0], cov[n, 1], cov[n, 2], cov[n, 3], cov[n, 4], cov[n, 5]))
         o = np.float64(opacities[n])
@@ -276,47 +278,83 @@ def _radix_argsort(keys, idx, tmp_keys, tmp_idx):
         shift += RADIX_BITS
 
 
-@njit(parallel=True, **_opts)
-def bin_count(proj, box, tiles_x, order, n_visible, tile_counts):
-    """Per camera: visible Gaussians sorted by depth into order[b, :n_visible[b]]; tile counts."""
-    n_cam, n = box.shape[0], box.shape[1]
-    for b in prange(n_cam):
-        depth32 = np.empty(n, np.float32)
-        bits = depth32.view(np.uint32)
-        keys = np.empty(n, np.int64)
-        idx = np.empty(n, np.int32)
-        m = 0
-        for g in range(n):
-            if box[b, g, 0] <= box[b, g, 1]:
-                depth32[m] = proj[b, g, P_Z]
-                idx[m] = g
-                m += 1
-        for i in range(m):
-            keys[i] = np.int64(bits[i])
-        _radix_argsort(keys[:m], idx[:m], np.empty(m, np.int64), np.empty(m, np.int32))
-        n_visible[b] = m
-        for i in range(m):
-            g = idx[i]
-            order[b, i] = g
-            for ty in range(box[b, g, 2] // TILE, box[b, g, 3] // TILE + 1):
-                for tx in range(box[b, g, 0] // TILE, box[b, g, 1] // TILE + 1):
-                    tile_counts[b, ty * tiles_x + tx] += 1
+@njit(**_opts)
+def _sort_camera(proj, box, b, order, n_visible):
+    """Visible Gaussians of camera b, sorted by depth, into order[b, :n_visible[b]]."""
+    n = box.shape[1]
+    depth32 = np.empty(n, np.float32)
+    bits = depth32.view(np.uint32)
+    keys = np.empty(n, np.int64)
+    idx = np.empty(n, np.int32)
+    m = 0
+    for g in range(n):
+        if box[b, g, 0] <= box[b, g, 1]:
+            depth32[m] = proj[b, g, P_Z]
+            idx[m] = g
+            m += 1
+    for i in range(m):
+        keys[i] = np.int64(bits[i])
+    _radix_argsort(keys[:m], idx[:m], np.empty(m, np.int64), np.empty(m, np.int32))
+    n_visible[b] = m
+    order[b, :m] = idx[:m]
+
+
+@njit(**_opts)
+def _count_camera(box, b, tiles_x, order, n_visible, tile_counts):
+    for i in range(n_visible[b]):
+        g = order[b, i]
+        for ty in range(box[b, g, 2] // TILE, box[b, g, 3] // TILE + 1):
+            for tx in range(box[b, g, 0] // TILE, box[b, g, 1] // TILE + 1):
+                tile_counts[b, ty * tiles_x + tx] += 1
+
+
+@njit(**_opts)
+def _fill_camera(box, b, tiles_x, order, n_visible, offsets, lists):
+    n_tiles = (offsets.shape[0] - 1) // box.shape[0]
+    cursor = offsets[b * n_tiles:(b + 1) * n_tiles].copy()
+    for i in range(n_visible[b]):
+        g = order[b, i]
+        for ty in range(box[b, g, 2] // TILE, box[b, g, 3] // TILE + 1):
+            for tx in range(box[b, g, 0] // TILE, box[b, g, 1] // TILE + 1):
+                t = ty * tiles_x + tx
+                lists[cursor[t]] = g
+                cursor[t] += 1
+
+
+@njit(**_opts)
+def bin_cameras(proj, box, tiles_x, parallel, order, n_visible, tile_counts):
+    """Per camera: depth sort of the visible Gaussians and tile counts. With few cameras the
+    calling thread does it (a parallel region costs a barrier, which a loaded machine makes
+    expensive); with many, the cameras are spread over the threads."""
+    if parallel:
+        _bin_cameras_parallel(proj, box, tiles_x, order, n_visible, tile_counts)
+    else:
+        for b in range(box.shape[0]):
+            _sort_camera(proj, box, b, order, n_visible)
+            _count_camera(box, b, tiles_x, order, n_visible, tile_counts)
 
 
 @njit(parallel=True, **_opts)
-def bin_fill(box, tiles_x, order, n_visible, offsets, lists):
+def _bin_cameras_parallel(proj, box, tiles_x, order, n_visible, tile_counts):
+    for b in prange(box.shape[0]):
+        _sort_camera(proj, box, b, order, n_visible)
+        _count_camera(box, b, tiles_x, order, n_visible, tile_counts)
+
+
+@njit(**_opts)
+def fill_lists(box, tiles_x, parallel, order, n_visible, offsets, lists):
     """Fill the per-tile lists (global offsets [B * tiles + 1]) in depth order."""
-    n_cam = box.shape[0]
-    n_tiles = (offsets.shape[0] - 1) // n_cam
-    for b in prange(n_cam):
-        cursor = offsets[b * n_tiles:(b + 1) * n_tiles].copy()
-        for i in range(n_visible[b]):
-            g = order[b, i]
-            for ty in range(box[b, g, 2] // TILE, box[b, g, 3] // TILE + 1):
-                for tx in range(box[b, g, 0] // TILE, box[b, g, 1] // TILE + 1):
-                    t = ty * tiles_x + tx
-                    lists[cursor[t]] = g
-                    cursor[t] += 1
+    if parallel:
+        _fill_lists_parallel(box, tiles_x, order, n_visible, offsets, lists)
+    else:
+        for b in range(box.shape[0]):
+            _fill_camera(box, b, tiles_x, order, n_visible, offsets, lists)
+
+
+@njit(parallel=True, **_opts)
+def _fill_lists_parallel(box, tiles_x, order, n_visible, offsets, lists):
+    for b in prange(box.shape[0]):
+        _fill_camera(box, b, tiles_x, order, n_visible, offsets, lists)
 
 
 # ---------------------------------------------------------------------------- 4. forward raster

@@ -53,25 +53,26 @@ def _forward_arrays(means, quats, log_scales, opacities, values, world2cam, K, w
     cov = np.empty((n, 6))
     proj = np.empty((n_cam, n, k.NPROJ), dtype)
     box = np.empty((n_cam, n, 4), np.int32)
+    threads = k.numba.get_num_threads()
     if n:
-        k.covariance_fwd(quats, log_scales, cov)
-        k.project_fwd(means, cov, opacities, k.camera_table(world2cam, K, width, height), width, height, proj, box)
+        k.project_fwd(means, quats, log_scales, opacities, k.camera_table(world2cam, K, width, height),
+                      width, height, cov, proj, box)
     order = np.empty((n_cam, n), np.int32)
     n_visible = np.zeros(n_cam, np.int64)
     counts = np.zeros((n_cam, n_tiles), np.int64)
+    parallel_bins = n_cam >= threads  # one camera per thread at least, else the caller bins
     if n:
-        k.bin_count(proj, box, tiles_x, order, n_visible, counts)
+        k.bin_cameras(proj, box, tiles_x, parallel_bins, order, n_visible, counts)
     offsets = np.zeros(n_cam * n_tiles + 1, np.int64)
     np.cumsum(counts.reshape(-1), out=offsets[1:])
     lists = np.empty(int(offsets[-1]), np.int32)
     if n:
-        k.bin_fill(box, tiles_x, order, n_visible, offsets, lists)
+        k.fill_lists(box, tiles_x, parallel_bins, order, n_visible, offsets, lists)
     out = np.empty((n_cam, values.shape[1] + 1, height, width), dtype)
     t_final = np.empty((n_cam, height, width), dtype)
     last = np.empty((n_cam, height, width), np.int32)
     consts = np.array(k.CONSTS, dtype)
-    k.raster_fwd(proj, box, values, offsets, lists, tiles_x, width, height, consts, k.numba.get_num_threads(),
-                 out, t_final, last)
+    k.raster_fwd(proj, box, values, offsets, lists, tiles_x, width, height, consts, threads, out, t_final, last)
     state = (cov, proj, box, offsets, lists, tiles_x, last, consts)
     return out, t_final, state
 
