@@ -21,16 +21,20 @@ __all__ = ["canvas", "draw_disc", "draw_box", "draw_horizon", "add_clutter", "ra
 Colour = Sequence[float]
 
 
-def _grid(h: int, w: int) -> tuple[Tensor, Tensor]:  # -> ([H, W], [H, W]) pixel centres in frame units
-    y = (torch.arange(h, dtype=torch.float32) + 0.5) / h
-    x = (torch.arange(w, dtype=torch.float32) + 0.5) / w
-    return torch.meshgrid(y, x, indexing="ij")
+def _axis(n: int, lo: float, hi: float) -> tuple[slice, np.ndarray]:
+    """Pixels along one axis that a span [lo, hi] (frame units) touches, with their centres."""
+    a, b = max(0, int(math.floor(lo * n)) - 1), min(n, int(math.ceil(hi * n)) + 1)
+    return slice(a, max(a, b)), (np.arange(a, max(a, b), dtype=np.float32) + 0.5) / n
 
 
-def _paint(img: Tensor, coverage: Tensor, colour: Colour) -> Tensor:  # [3, H, W], [H, W] -> [3, H, W]
-    c = torch.as_tensor(colour, dtype=img.dtype).view(3, 1, 1)
-    a = coverage.clamp(0.0, 1.0)[None]
-    return img * (1 - a) + c * a
+def _paint(img: Tensor, rows: slice, cols: slice, coverage: np.ndarray, colour: Colour) -> Tensor:  # [3, H, W] -> [3, H, W]
+    """A copy of ``img`` with ``colour`` blended in over the window by ``coverage`` in [0, 1]."""
+    out = img.clone()
+    view = out.numpy()[:, rows, cols]
+    a = np.clip(coverage, 0.0, 1.0)[None].astype(np.float32)
+    c = np.asarray(colour, np.float32).reshape(3, 1, 1)
+    view[...] = view * (1 - a) + c * a
+    return out
 
 
 def canvas(h: int, w: int, colour: Colour = (0.55, 0.55, 0.55)) -> Tensor:  # -> [3, H, W]
@@ -41,18 +45,20 @@ def canvas(h: int, w: int, colour: Colour = (0.55, 0.55, 0.55)) -> Tensor:  # ->
 def draw_disc(img: Tensor, cx: float, cy: float, radius: float, colour: Colour) -> Tensor:  # [3, H, W] -> [3, H, W]
     """A disc centred at ``(cx, cy)`` with ``radius`` in units of the frame height."""
     h, w = img.shape[-2:]
-    y, x = _grid(h, w)
-    d = torch.sqrt(((x - cx) * w / h) ** 2 + (y - cy) ** 2)  # in frame heights
-    return _paint(img, (radius - d) * h + 0.5, colour)
+    rows, y = _axis(h, cy - radius, cy + radius)
+    cols, x = _axis(w, cx - radius * h / w, cx + radius * h / w)
+    d = np.sqrt(((x[None] - cx) * w / h) ** 2 + (y[:, None] - cy) ** 2)  # in frame heights
+    return _paint(img, rows, cols, (radius - d) * h + 0.5, colour)
 
 
 def draw_box(img: Tensor, x0: float, y0: float, x1: float, y1: float, colour: Colour) -> Tensor:  # [3, H, W] -> [3, H, W]
     """An axis-aligned box between frame corners ``(x0, y0)`` and ``(x1, y1)``."""
     h, w = img.shape[-2:]
-    y, x = _grid(h, w)
-    cov_x = ((x - x0) * w + 0.5).clamp(0, 1) * ((x1 - x) * w + 0.5).clamp(0, 1)
-    cov_y = ((y - y0) * h + 0.5).clamp(0, 1) * ((y1 - y) * h + 0.5).clamp(0, 1)
-    return _paint(img, cov_x * cov_y, colour)
+    rows, y = _axis(h, y0, y1)
+    cols, x = _axis(w, x0, x1)
+    cov_x = np.clip((x - x0) * w + 0.5, 0, 1) * np.clip((x1 - x) * w + 0.5, 0, 1)
+    cov_y = np.clip((y - y0) * h + 0.5, 0, 1) * np.clip((y1 - y) * h + 0.5, 0, 1)
+    return _paint(img, rows, cols, cov_y[:, None] * cov_x[None], colour)
 
 
 def draw_horizon(
@@ -60,11 +66,12 @@ def draw_horizon(
 ) -> Tensor:  # [3, H, W] -> [3, H, W]
     """Sky above and ground below a straight line through ``(0.5, y)`` tilted by ``tilt_deg``."""
     h, w = img.shape[-2:]
-    yy, xx = _grid(h, w)
-    line = y + math.tan(math.radians(tilt_deg)) * (xx - 0.5) * w / h
-    below = ((yy - line) * h + 0.5).clamp(0, 1)
-    img = _paint(img, torch.ones_like(below), sky)
-    return _paint(img, below, ground)
+    rows, yy = _axis(h, 0.0, 1.0)
+    cols, xx = _axis(w, 0.0, 1.0)
+    line = y + math.tan(math.radians(tilt_deg)) * (xx[None] - 0.5) * w / h
+    below = (yy[:, None] - line) * h + 0.5
+    img = _paint(img, rows, cols, np.ones_like(below), sky)
+    return _paint(img, rows, cols, below, ground)
 
 
 def add_clutter(img: Tensor, count: int, rng: np.random.Generator, size: float = 0.06) -> Tensor:  # [3, H, W] -> [3, H, W]
