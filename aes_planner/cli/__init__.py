@@ -18,6 +18,8 @@ from aes_planner.errors import AesPlannerError
 COMMANDS = [
     "aes_planner.cli.demo",
     "aes_planner.cli.bench",
+    "aes_planner.cli.score",
+    "aes_planner.cli.teachers",
 ]
 
 

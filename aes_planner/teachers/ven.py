@@ -103,7 +103,7 @@ class VENNet(nn.Module):
 
     def forward(self, x: Tensor) -> Tensor:  # [B, 3, 224, 224] normalised -> [B, 1]
         x = self.features(x)
-        return self.classifier(x.view(x.size(0), -1))
+        return self.classifier(torch.flatten(x, 1))
 
 
 def _sha256(path: Path) -> str:
@@ -231,13 +231,17 @@ class VENTeacher(Teacher):
 
     def __init__(self, weights: str | Path | Mapping[str, Any] | None = None, *, _random: bool = False):
         super().__init__()
-        self.net = VENNet()
         self.register_buffer("_mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("_std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
         if weights is None and not _random:
             raise WeightsError(WEIGHTS_ADVICE)
-        if weights is not None:
-            self._load(load_ven_state_dict(weights))
+        if weights is None:
+            self.net = VENNet()
+        else:
+            state = load_ven_state_dict(weights)
+            with torch.device("meta"):  # shapes only: no time spent on an initialisation we overwrite
+                self.net = VENNet()
+            self._load(state)
         self.freeze()
 
     @classmethod
@@ -271,14 +275,16 @@ class VENTeacher(Teacher):
                 raise WeightsError(f"VEN weight {k} has shape {tuple(state[k].shape)}, expected {tuple(v.shape)}")
             if not state[k].is_floating_point() or not torch.isfinite(state[k]).all():
                 raise WeightsError(f"VEN weight {k} is not finite floating point: the file is damaged; re-download it")
-        self.net.load_state_dict({k: state[k].to(v.dtype) for k, v in expected.items()}, strict=True)
+        tensors = {k: state[k].detach().to(device="cpu", dtype=torch.float32, copy=True).contiguous() for k in expected}
+        self.net.load_state_dict(tensors, strict=True, assign=True)
 
     def preprocess(self, images: Tensor) -> Tensor:  # [B, 3, H, W] in [0, 1] -> [B, 3, 224, 224]
         """The original evaluation transform: bilinear resize to 224x224, ImageNet normalisation."""
         images = check_images(images, "VEN").to(self._mean.dtype)
         if tuple(images.shape[-2:]) != (INPUT_SIZE, INPUT_SIZE):
             images = F.interpolate(images, size=(INPUT_SIZE, INPUT_SIZE), mode="bilinear", align_corners=False, antialias=True)
-        return (images - self._mean) / self._std
+        # Contiguous NCHW: a channels-last input would change the conv kernels, and their rounding.
+        return ((images - self._mean) / self._std).contiguous()
 
     def features(self, images: Tensor) -> Tensor:  # [B, 3, H, W] -> [B, 512, 14, 14]
         return self.net.features[:SPLIT](self.preprocess(images))
@@ -286,4 +292,4 @@ class VENTeacher(Teacher):
     def head(self, fmap: Tensor) -> Tensor:  # [B, 512, 14, 14] -> [B]
         check_feature_map(fmap, self.feature_channels, self.feature_size, "VEN head")
         x = self.net.features[SPLIT:](fmap)
-        return self.net.classifier(x.view(x.size(0), -1))[:, 0]
+        return self.net.classifier(torch.flatten(x, 1))[:, 0]
