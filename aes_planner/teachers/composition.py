@@ -167,6 +167,19 @@ def _gaussian_kernel(sigma: float) -> Tensor:  # -> [K]
     return (k / k.sum()).float()
 
 
+def _smoothing_matrix(n: int, kernel: Tensor) -> Tensor:  # [K] -> [n, n]
+    """The 1D convolution with ``kernel`` and replicate padding as a matrix: ``y = M @ x``.
+
+    The head works on 16-cell axes, where one small matmul costs far less than pad + conv
+    (whose thread-pool start-up dominates at this size)."""
+    r = kernel.numel() // 2
+    m = torch.zeros(n, n, dtype=torch.float64)
+    for i in range(n):
+        for j, k in enumerate(kernel.tolist()):
+            m[i, min(max(i + j - r, 0), n - 1)] += k
+    return m.float()
+
+
 class CompositionTeacher(Teacher):
     """Composition teacher (the default): see the module docstring for the map, terms and score."""
 
@@ -182,11 +195,30 @@ class CompositionTeacher(Teacher):
         n = cfg.feature_size
         self.feature_channels = len(CHANNELS)
         self.feature_size = (n, n)
-        self._sigmas = (self._CENTRE_SIGMA, *self._SURROUND_SIGMAS)
-        for i, s in enumerate(self._sigmas):
-            self.register_buffer(f"_blur{i}", _gaussian_kernel(s), persistent=False)
-        sobel = torch.tensor([[-1.0, 0.0, 1.0], [-2.0, 0.0, 2.0], [-1.0, 0.0, 1.0]]) / 8.0
-        self.register_buffer("_sobel", torch.stack([sobel, sobel.T])[:, None], persistent=False)  # [2, 1, 3, 3]
+        # Every filter of the working frame in one separable pass per axis: per opponent channel,
+        # the centre blur, the surround blurs, and the Sobel derivatives of the centre blur.
+        # (Few large convolutions: the thread pool's start-up, not arithmetic, dominates here.)
+        sigmas = (self._CENTRE_SIGMA, *self._SURROUND_SIGMAS)
+        blurs = [_gaussian_kernel(sg) for sg in sigmas]
+        diff = torch.tensor([-0.5, 0.0, 0.5])  # Sobel = [1, 2, 1] / 4 across times this along, /8 in all
+        smooth = torch.tensor([0.25, 0.5, 0.25])
+        centre = blurs[0]
+        d_centre = torch.conv1d(F.pad(centre, (1, 1))[None, None], diff.flip(0)[None, None])[0, 0]
+        s_centre = torch.conv1d(F.pad(centre, (1, 1))[None, None], smooth[None, None])[0, 0]
+        along_x = [*blurs, d_centre, s_centre]  # outputs: blurs..., gx, gy
+        along_y = [*blurs, s_centre, d_centre]
+        radius = max(k.numel() for k in along_x) // 2
+        self._filters = len(along_x)
+        self._radius = radius
+
+        def bank(kernels: list[Tensor]) -> Tensor:  # -> [3 * F, K]
+            padded = [F.pad(k, ((2 * radius + 1 - k.numel()) // 2,) * 2) for k in kernels]
+            return torch.stack(padded).repeat(3, 1)
+
+        self.register_buffer("_filters_x", bank(along_x)[:, None, None, :], persistent=False)  # [3F, 1, 1, K]
+        self.register_buffer("_filters_y", bank(along_y)[:, None, :, None], persistent=False)  # [3F, 1, K, 1]
+        opponent = torch.tensor([[0.299, 0.587, 0.114], [0.5, -0.5, 0.0], [0.25, 0.25, -0.5]])
+        self.register_buffer("_opponent", opponent, persistent=False)  # rows: L, red-green, yellow-blue
 
         c = (torch.arange(n, dtype=torch.float64) + 0.5) / n
         y, x = torch.meshgrid(c, c, indexing="ij")
@@ -203,19 +235,17 @@ class CompositionTeacher(Teacher):
         self.register_buffer("_thirds", torch.maximum(points, 0.5 * ridge).float(), persistent=False)
         self.register_buffer("_ring", ring.float(), persistent=False)
         self.register_buffer("_rows", c.float(), persistent=False)
-        self.register_buffer("_row_blur", _gaussian_kernel(1.0), persistent=False)
+        self.register_buffer("_box3", _smoothing_matrix(n, torch.full((3,), 1.0 / 3.0)), persistent=False)
+        self.register_buffer("_row_blur", _smoothing_matrix(n, _gaussian_kernel(1.0)), persistent=False)
+        groups = torch.zeros(n, 3)  # column -> left / middle / right third of the width
+        for j, (a, b) in enumerate(zip((0, n // 3, n - n // 3), (n // 3, n - n // 3, n))):
+            groups[a:b, j] = 1.0
+        self.register_buffer("_thirds_of_width", groups, persistent=False)
         w = torch.tensor([cfg.weights.__dict__[t] for t in TERMS], dtype=torch.float32)
         self.register_buffer("_weights", w, persistent=False)
         self.freeze()
 
     # ------------------------------------------------------------------ features
-    def _blur(self, img: Tensor, i: int) -> Tensor:  # [B, K, s, s] -> [B, K, s, s]
-        k = getattr(self, f"_blur{i}")
-        r = k.numel() // 2
-        ch = img.shape[1]
-        out = F.conv2d(F.pad(img, (r, r, 0, 0), mode="replicate"), k.view(1, 1, 1, -1).expand(ch, 1, 1, -1), groups=ch)
-        return F.conv2d(F.pad(out, (0, 0, r, r), mode="replicate"), k.view(1, 1, -1, 1).expand(ch, 1, -1, 1), groups=ch)
-
     def _working_frame(self, images: Tensor) -> Tensor:  # [B, 3, H, W] -> [B, 3, s, s]
         s = self.config.work_size
         h, w = images.shape[-2:]
@@ -228,24 +258,21 @@ class CompositionTeacher(Teacher):
     def features(self, images: Tensor) -> Tensor:  # [B, 3, H, W] in [0, 1] -> [B, 5, n, n]
         images = check_images(images, "composition teacher")
         rgb = self._working_frame(images.to(self._x.dtype))
-        r, g, b = rgb.unbind(1)
-        lum = 0.299 * r + 0.587 * g + 0.114 * b
-        opp = torch.stack([lum, 0.5 * (r - g), 0.25 * (r + g) - 0.5 * b], 1)  # [B, 3, s, s]
+        bsz, size, nf = rgb.shape[0], rgb.shape[-1], self._filters
+        opp = torch.einsum("oc,bchw->bohw", self._opponent, rgb)  # [B, 3, s, s]
+        r = self._radius
+        padded = F.pad(opp, (r, r, r, r), mode="replicate")
+        out = F.conv2d(F.conv2d(padded, self._filters_x, groups=3), self._filters_y, groups=3 * nf)
+        out = out.view(bsz, 3, nf, size, size)  # [B, colour, filter, s, s]
 
-        centre = self._blur(opp, 0)
-        sal = 0.0
-        for i in range(1, len(self._sigmas)):
-            d2 = (centre - self._blur(opp, i)).pow(2).sum(1)
-            sal = sal + (d2 + _EPS).sqrt() - math.sqrt(_EPS)
-        sal = sal / (len(self._sigmas) - 1)  # [B, s, s]
+        centre, surrounds = out[:, :, :1], out[:, :, 1 : nf - 2]
+        d2 = (centre - surrounds).pow(2).sum(1)  # [B, surrounds, s, s]
+        sal = ((d2 + _EPS).sqrt() - math.sqrt(_EPS)).mean(1)  # [B, s, s]
 
-        bsz = opp.shape[0]
-        grad = F.conv2d(F.pad(centre.reshape(-1, 1, *centre.shape[-2:]), (1, 1, 1, 1), mode="replicate"), self._sobel)
-        grad = grad.view(bsz, 3, 2, *centre.shape[-2:])  # [B, colour, (gx, gy), s, s]
-        gx, gy = grad[:, :, 0], grad[:, :, 1]
+        gx, gy = out[:, :, nf - 2], out[:, :, nf - 1]  # [B, colour, s, s]
         tensor = _EDGE_GAIN * torch.stack([(gx * gx).sum(1), (gy * gy).sum(1), (gx * gy).sum(1)], 1)
 
-        maps = torch.cat([sal[:, None], tensor, lum[:, None]], 1)  # [B, 5, s, s]
+        maps = torch.cat([sal[:, None], tensor, opp[:, :1]], 1)  # [B, 5, s, s]
         return F.adaptive_avg_pool2d(maps, self.feature_size)
 
     # ---------------------------------------------------------------------- head
@@ -268,7 +295,7 @@ class CompositionTeacher(Teacher):
 
         # How much there is to look at: salient cells, edges and local tonal contrast. Weak,
         # uniform signals (a shading gradient, an overcast sky) stay under the floors.
-        local_tone = (lum - F.avg_pool2d(F.pad(lum[:, None], (1, 1, 1, 1), mode="replicate"), 3, 1)[:, 0]).abs()
+        local_tone = (lum - self._box3 @ lum @ self._box3.T).abs()  # against the 3x3-cell mean
         evidence = (
             F.relu(sal - _CONTENT_SAL_FLOOR).mean(dims) / _CONTENT_SAL
             + F.relu(energy - _CONTENT_EDGE_FLOOR).mean(dims) / _CONTENT_EDGE
@@ -318,13 +345,12 @@ class CompositionTeacher(Teacher):
         n = jxx.shape[-1]
         # Near-horizontal line energy: > 0 for edges within ~30 deg of horizontal.
         line = F.relu(jyy - jxx - (jxy * jxy + _EPS).sqrt() + math.sqrt(_EPS))  # [B, n, n]
-        cuts = (0, n // 3, n - n // 3, n)
-        parts = torch.stack([line[..., a:b].sum(-1) for a, b in zip(cuts[:-1], cuts[1:])], 1)  # [B, 3, n]
-        k = self._row_blur
-        r = k.numel() // 2
-        parts = F.conv1d(F.pad(parts, (r, r), mode="replicate"), k.view(1, 1, -1).expand(3, 1, -1), groups=3)
-        span = torch.exp(torch.log(parts + _EPS).mean(1))  # [B, n]: geometric mean over the thirds of the width
-        w4 = torch.softmax(4.0 * torch.log(span), -1)  # = span^4 / sum(span^4), without overflow
+        # Line energy per row in each third of the width, smoothed over neighbouring rows so that
+        # a slightly tilted line still spans the frame.
+        parts = self._row_blur @ (line @ self._thirds_of_width)  # [B, n rows, 3]
+        log_span = torch.log(parts + _EPS).mean(-1)  # [B, n]: geometric mean over the thirds
+        span = torch.exp(log_span)
+        w4 = torch.softmax(4.0 * log_span, -1)  # = span^4 / sum(span^4), without overflow
         strength = (w4 * span).sum(-1)
         presence = 1.0 - torch.exp(-strength / _HORIZON_ENERGY)
         y = (w4 * self._rows).sum(-1)  # [B]
