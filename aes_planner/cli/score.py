@@ -17,8 +17,7 @@ from aes_planner.errors import AesPlannerError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from aes_planner.teachers import DEFAULT_TEACHER
-
+    # Nothing heavy here: every command builds this parser, and torch takes a second to import.
     p = sub.add_parser(
         "score",
         help="score images with an aesthetic teacher and explain the scores",
@@ -27,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(`aes-planner teachers list`).",
     )
     p.add_argument("images", nargs="+", metavar="IMAGE", help="image files (PNG, JPEG, ...)")
-    p.add_argument("--teacher", default=DEFAULT_TEACHER, metavar="NAME", help=f"teacher name (default: {DEFAULT_TEACHER})")
+    p.add_argument("--teacher", metavar="NAME", help="teacher name (default: composition)")
     p.add_argument("--weights", metavar="PATH", help="weights file of teachers that need one (ven)")
     p.add_argument("--json", action="store_true", help="print a JSON list of {path, score, terms}")
     p.set_defaults(func=run)
@@ -67,10 +66,10 @@ def read_image(path: str | Path):  # -> Tensor [3, H, W] float in [0, 1]
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from aes_planner.teachers import get_teacher
+    from aes_planner.teachers import DEFAULT_TEACHER, get_teacher
 
     kwargs = {"weights": args.weights} if args.weights else {}
-    teacher = get_teacher(args.teacher, **kwargs)
+    teacher = get_teacher(args.teacher or DEFAULT_TEACHER, **kwargs)
     rows = []
     with torch.no_grad():
         for path in args.images:
