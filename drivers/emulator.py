@@ -93,7 +93,8 @@ class FaultPlan:
 
     * drop: the reply is not sent (the SDK reports "There is no status packet!").
     * corrupt: the reply's CRC is flipped ("Incorrect status packet!").
-    * truncate: the reply loses its last data byte, with a valid CRC (a short status packet).
+    * truncate: the reply loses the second half of its data, with a valid CRC (a short status
+      packet: the SDK returns its CRC bytes as data, or raises IndexError).
     * delay: the reply is sent ``delay_s`` late (the bus stays busy meanwhile).
     """
 
@@ -731,6 +732,7 @@ class ServoEmulator:
 
 
 def _truncated(raw: bytes) -> bytes:
-    """The same status packet with its last data byte removed (and a valid CRC)."""
+    """The same status packet without the second half of its data (and with a valid CRC)."""
     (pkt,) = PacketParser().feed(raw)
-    return build_status(pkt.dxl_id, pkt.error, pkt.params[1:-1])
+    data = pkt.params[1:]
+    return build_status(pkt.dxl_id, pkt.error, data[: len(data) // 2])

@@ -4,20 +4,34 @@ Every fixture stops what it started, whatever the test did; every wait has a tim
 Short timeouts keep fault tests quick: the SDK waits 2 x latency_timer_ms + 2 ms for a reply.
 """
 
+import sys
+
 import pytest
 
 from aes_planner.drivers.dynamixel import DynamixelPanTilt, DynamixelPanTiltConfig
 from aes_planner.drivers.emulator import ServoEmulator
 
-# Quick motion and short reply timeouts, for tests against the in-process emulator.
+# Quick motion and short reply timeouts, for tests against the in-process emulator. The reply
+# timeout (2 x 10 + 2 ms) leaves room for GIL hand-offs between the SDK's busy wait and the
+# emulator thread on a loaded machine.
 FAST = dict(
     profile_velocity_deg_s=0.0,
     profile_acceleration_deg_s2=0.0,
-    latency_timer_ms=5.0,
+    latency_timer_ms=10.0,
     backoff_s=0.001,
     move_timeout_s=3.0,
     poll_interval_s=0.002,
 )
+
+
+@pytest.fixture(autouse=True)
+def _quick_thread_switches():
+    """The SDK busy-waits holding the GIL; switch threads every 0.5 ms, not 5 ms, so that the
+    in-process emulator answers about as fast as a servo would."""
+    before = sys.getswitchinterval()
+    sys.setswitchinterval(0.0005)
+    yield
+    sys.setswitchinterval(before)
 
 
 @pytest.fixture
@@ -29,15 +43,29 @@ def emulator():
         emu.stop()
 
 
-def make_gimbal(port, **overrides):
-    return DynamixelPanTilt(DynamixelPanTiltConfig(port=port, **{**FAST, **overrides}))
+@pytest.fixture
+def fast():
+    """Config overrides for quick tests (see FAST)."""
+    return dict(FAST)
 
 
 @pytest.fixture
-def gimbal(emulator):
+def make_gimbal():
+    """``make_gimbal(port, **overrides)``: an unconnected driver, disconnected at teardown."""
+    made = []
+
+    def make(port, **overrides):
+        g = DynamixelPanTilt(DynamixelPanTiltConfig(port=port, **{**FAST, **overrides}))
+        made.append(g)
+        return g
+
+    yield make
+    for g in made:
+        g.disconnect()
+
+
+@pytest.fixture
+def gimbal(emulator, make_gimbal):
     g = make_gimbal(emulator.port)
     g.connect()
-    try:
-        yield g
-    finally:
-        g.disconnect()
+    return g
