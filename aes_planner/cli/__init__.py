@@ -18,6 +18,7 @@ from aes_planner.errors import AesPlannerError
 COMMANDS = [
     "aes_planner.cli.demo",
     "aes_planner.cli.bench",
+    "aes_planner.cli.gimbal",
 ]
 
 
