@@ -118,9 +118,10 @@ def run_emulate(args: argparse.Namespace) -> int:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, _terminate)
-    print(emu.port, flush=True)
+    print(emu.pty_path, flush=True)
     servos = ", ".join(f"id {i} {s.model.name}" for i, s in sorted(emu.servos.items()))
-    print(f"emulating {servos} at {args.baud} baud on {emu.port}; Ctrl-C to stop", file=sys.stderr, flush=True)
+    where = emu.pty_path + (f" (link {emu.link})" if emu.link else "")
+    print(f"emulating {servos} at {args.baud} baud on {where}; Ctrl-C to stop", file=sys.stderr, flush=True)
     try:
         emu.serve_forever()
     except KeyboardInterrupt:
