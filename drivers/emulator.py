@@ -20,8 +20,9 @@ the master side as a chain of servos would:
   :meth:`ServoEmulator.vanish`): dropped, corrupted, truncated and delayed replies, hardware
   errors (overload, overheating, ...), a port that disappears and comes back.
 
-Run it in a background thread (``with ServoEmulator() as emu: emu.port``) or in the foreground
-(``aes-planner gimbal emulate``). State is guarded by ``emu.lock``; tests may inspect
+Run it in a background thread (``with ServoEmulator() as emu: emu.port``), in the foreground
+(``aes-planner gimbal emulate``), or in a child process (:class:`EmulatorProcess`, which shares no
+GIL with the driver, as real servos would not). State is guarded by ``emu.lock``; tests may inspect
 ``emu.servos`` and ``emu.goal_log`` under it.
 """
 
@@ -33,6 +34,8 @@ import os
 import queue
 import random
 import select
+import subprocess
+import sys
 import termios
 import threading
 import time
@@ -62,7 +65,7 @@ from aes_planner.drivers.protocol import (
 
 log = logging.getLogger(__name__)
 
-__all__ = ["BAUD_RATES", "FaultPlan", "EmulatedServo", "ServoBus", "ServoEmulator"]
+__all__ = ["BAUD_RATES", "FaultPlan", "EmulatedServo", "ServoBus", "ServoEmulator", "EmulatorProcess"]
 
 # Baud Rate register value -> bits per second (X series).
 BAUD_RATES: dict[int, int] = {
@@ -315,24 +318,25 @@ class EmulatedServo:
         self._publish()
 
     def _step(self, goal: float, v_max: float, a_max: float, dt: float) -> bool:
-        """One integration step of the trapezoidal profile; True once settled at the goal."""
+        """One integration step of the trapezoidal profile; True once settled at the goal.
+
+        Toward the goal the speed is the least of the profile velocity, the speed after
+        accelerating for ``dt`` and the braking curve ``sqrt(2 a d)`` that stops exactly at the
+        goal; moving away from it (a goal changed mid-move), the motor first brakes.
+        """
         d = goal - self.position_ticks
         v = self.velocity_ticks_s
-        if abs(d) < 1e-6 and v == 0.0:
+        if d == 0.0 and v == 0.0:
             return True
         s = 1.0 if d > 0 else -1.0
         if math.isinf(a_max):
             v = s * v_max
+        elif v * s < 0:
+            v += s * a_max * dt
         else:
-            braking = v * v / (2 * a_max)
-            if v * s > 0 and braking >= abs(d):
-                v -= s * a_max * dt  # decelerate into the goal
-                if v * s <= 0:
-                    v = s * min(v_max, a_max * dt)
-            else:
-                v = max(-v_max, min(v_max, v + s * a_max * dt))
+            v = s * min(v_max, abs(v) + a_max * dt, math.sqrt(2.0 * a_max * abs(d)))
         nxt = self.position_ticks + v * dt
-        if (goal - nxt) * s <= 0:  # reached or crossed the goal this step
+        if v * s > 0 and (goal - nxt) * s <= 0:  # reaches the goal within this step
             self.position_ticks, self.velocity_ticks_s = goal, 0.0
             return True
         self.position_ticks, self.velocity_ticks_s = nxt, v
@@ -736,3 +740,49 @@ def _truncated(raw: bytes) -> bytes:
     (pkt,) = PacketParser().feed(raw)
     data = pkt.params[1:]
     return build_status(pkt.dxl_id, pkt.error, data[: len(data) // 2])
+
+
+class EmulatorProcess:
+    """``aes-planner gimbal emulate`` in a child process; ``port`` is the pty path it printed.
+
+    Use as a context manager: the process is terminated (then killed) on exit. ``args`` are extra
+    command-line options (``["--link", path]``, ``["--drop-rate", "0.1"]``).
+    """
+
+    def __init__(self, models: Sequence[str] = ("xm430-w350", "xm430-w350"), baud: int = 1_000_000,
+                 args: Sequence[str] = (), start_timeout_s: float = 30.0):
+        self.argv = [sys.executable, "-m", "aes_planner", "gimbal", "emulate",
+                     "--models", ",".join(models), "--baud", str(baud), *args]
+        self.start_timeout_s = start_timeout_s
+        self.proc: subprocess.Popen | None = None
+        self.port = ""
+
+    def __enter__(self) -> "EmulatorProcess":
+        self.proc = subprocess.Popen(self.argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        ready, _, _ = select.select([self.proc.stdout], [], [], self.start_timeout_s)
+        self.port = self.proc.stdout.readline().strip() if ready else ""
+        if not self.port.startswith("/"):
+            self.stop()
+            raise RuntimeError(f"the emulator process did not print a pty path within {self.start_timeout_s:g} s "
+                               f"(got {self.port!r}); run {' '.join(self.argv[2:])} to see why")
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def stop(self, timeout_s: float = 5.0) -> int | None:
+        """Terminate the process (SIGTERM, then SIGKILL); returns its exit status."""
+        proc = self.proc
+        if proc is None:
+            return None
+        if proc.poll() is None:
+            proc.terminate()
+        try:
+            proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout_s)
+        for stream in (proc.stdout, proc.stderr):
+            if stream is not None:
+                stream.close()
+        return proc.returncode

@@ -1,39 +1,20 @@
 """The two-shell check: ``aes-planner gimbal emulate`` in a process, scan/move/state on its pty."""
 
-import select
 import signal
-import subprocess
-import sys
 
 import pytest
 
 from aes_planner.cli import main
+from aes_planner.drivers.emulator import EmulatorProcess
 
 
 @pytest.fixture
 def emulate(tmp_path):
-    """Run ``aes-planner gimbal emulate`` as a separate process; yields (process, pty path, link)."""
+    """``aes-planner gimbal emulate`` in a separate process; yields (process, pty path, link)."""
     link = tmp_path / "ttyDXL"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "aes_planner", "gimbal", "emulate", "--link", str(link)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )
-    try:
-        ready, _, _ = select.select([proc.stdout], [], [], 30.0)
-        assert ready, "the emulator printed nothing within 30 s"
-        port = proc.stdout.readline().strip()
-        assert port.startswith("/dev/pts/"), port
-        yield proc, port, link
-    finally:
-        if proc.poll() is None:
-            proc.terminate()
-        try:
-            proc.wait(5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
-        proc.stdout.close()
-        proc.stderr.close()
+    with EmulatorProcess(args=["--link", str(link)]) as emulator:
+        assert emulator.port.startswith("/dev/pts/"), emulator.port
+        yield emulator, emulator.port, link
 
 
 def test_emulate_scan_move_state(emulate, capsys):
@@ -56,8 +37,8 @@ def test_emulate_scan_move_state(emulate, capsys):
     assert main(["gimbal", "reboot", "--port", port]) == 0
     assert "no hardware error was latched" in capsys.readouterr().out
 
-    proc.send_signal(signal.SIGTERM)
-    assert proc.wait(10) == 0
+    proc.proc.send_signal(signal.SIGTERM)
+    assert proc.proc.wait(10) == 0  # a clean exit, not killed
     assert not link.exists()
 
 
