@@ -359,7 +359,7 @@ class DynamixelPanTilt(Gimbal):
             for joint in joints:
                 while True:
                     try:
-                        self._exchange(joint, f"ping {joint}", self._ph.ping, retries=0)
+                        self._exchange(joint, f"ping {joint}", self._ph.ping, retries=0, fatal=False)
                         break
                     except GimbalCommError:
                         if time.monotonic() > deadline:
@@ -394,7 +394,19 @@ class DynamixelPanTilt(Gimbal):
             self._on_alert(alerts)
 
     def _take_control(self) -> None:
-        """Position mode and limits in EEPROM (written only when they differ), profile, torque on."""
+        """Position mode and limits in EEPROM (written only when they differ), profile, torque on.
+
+        A failure half-way leaves both servos with torque off, never one holding alone.
+        """
+        try:
+            self._configure_and_enable()
+        except BaseException:
+            self._torque_off_all()
+            raise
+        self._in_control = True
+        log.info("torque on: pan limits %s deg, tilt limits %s deg", self.config.pan_limits_deg, self.config.tilt_limits_deg)
+
+    def _configure_and_enable(self) -> None:
         c = self.config
         for joint in JOINTS:
             model = self._models[joint]
@@ -411,8 +423,6 @@ class DynamixelPanTilt(Gimbal):
             self._write_item(joint, "profile_acceleration", model.acceleration_units(c.profile_acceleration_deg_s2))
             self._write_item(joint, "profile_velocity", model.velocity_units(c.profile_velocity_deg_s))
             self._write_item(joint, "torque_enable", 1)
-        self._in_control = True
-        log.info("torque on: pan limits %s deg, tilt limits %s deg", c.pan_limits_deg, c.tilt_limits_deg)
 
     def _describe_servos(self) -> str:
         return ", ".join(
@@ -478,7 +488,7 @@ class DynamixelPanTilt(Gimbal):
             ) from None
         try:
             self._identify()
-        except GimbalCommError:
+        except DeviceError:
             self._release_port()
             raise
         self._lost = False
@@ -489,14 +499,17 @@ class DynamixelPanTilt(Gimbal):
         self._port = None
 
     # ------------------------------------------------------------------------------ exchanges
-    def _exchange(self, joint: str | None, what: str, fn: Callable[..., tuple], *args: Any, retries: int | None = None):
+    def _exchange(
+        self, joint: str | None, what: str, fn: Callable[..., tuple], *args: Any, retries: int | None = None, fatal: bool = True
+    ):
         """One SDK exchange, retried: ``fn(port, id, *args) -> (value, comm_result, error)``.
 
         Returns ``(value, error_byte)``. Timeouts, corrupt or short replies and CRC-error statuses
         are retried with backoff; other error statuses raise :class:`GimbalProtocolError`; a port
         error raises :class:`GimbalPortLostError`; exhausted retries raise :class:`GimbalCommError`,
-        after turning torque off (best effort) when the driver had it on. ``joint`` None means a
-        broadcast exchange (``fn(port, *args)``).
+        after turning torque off (best effort) when the driver had it on, unless ``fatal`` is False
+        (a poll that is expected to fail for a while). ``joint`` None means a broadcast exchange
+        (``fn(port, *args)``).
         """
         retries = self.config.retries if retries is None else retries
         dxl_id = None if joint is None else self.config.joint_id(joint)
@@ -531,11 +544,13 @@ class DynamixelPanTilt(Gimbal):
                 log.debug("%s: %s; retry %d/%d in %.3f s", what, reason, attempt + 1, retries, wait_s)
                 time.sleep(wait_s)
                 wait_s *= 2
-        log.error("%s failed after %d tries: %s", what, retries + 1, reason)
-        if self._in_control:
-            self._torque_off_all()  # fatal: the bus no longer answers while the motors hold
+        if fatal:
+            log.error("%s failed after %d tries: %s", what, retries + 1, reason)
+            if self._in_control:
+                self._torque_off_all()  # the bus no longer answers while the motors hold
+        who = f"id {dxl_id}" if dxl_id is not None else "ids " + ", ".join(str(self.config.joint_id(j)) for j in JOINTS)
         raise GimbalCommError(
-            f"{what}: no valid reply from id {dxl_id if dxl_id is not None else 'broadcast'} on {self.config.port} "
+            f"{what}: no valid reply from {who} on {self.config.port} "
             f"at {self.config.baud} baud after {retries + 1} tries ({reason}); {_NO_REPLY_HINT}"
         )
 
