@@ -456,13 +456,14 @@ class DynamixelPanTilt(Gimbal):
         return "remove the cause (free the joint, let it cool, check the supply), then call reboot() / run `aes-planner gimbal reboot`"
 
     def _torque_off_all(self) -> None:
-        """Best effort: a failure is logged, never raised (this runs on the way out of errors)."""
+        """Best effort with every retry: a failure is logged, never raised (this runs on the way
+        out of errors)."""
         self._in_control = False
         for joint in JOINTS:
-            if joint not in self._models:
+            if joint not in self._models or self._port is None:
                 continue
             try:
-                self._write_item(joint, "torque_enable", 0, retries=1)
+                self._write_item(joint, "torque_enable", 0)
             except DeviceError as exc:
                 log.error("could not turn torque off on the %s servo: %s", joint, exc)
 

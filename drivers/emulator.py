@@ -571,6 +571,11 @@ class ServoEmulator:
         self._thread.start()
         return self
 
+    def request_stop(self) -> None:
+        """Ask :meth:`serve_forever` to return; safe from a signal handler or another thread."""
+        self._stop.set()
+        self._wake()
+
     def stop(self, timeout_s: float = 5.0) -> None:
         """Stop serving, close the pty and remove the link. Safe to call twice."""
         self._stop.set()

@@ -114,15 +114,12 @@ def run_emulate(args: argparse.Namespace) -> int:
     except (KeyError, ValueError) as exc:
         raise AesPlannerError(f"cannot emulate: {exc.args[0] if exc.args else exc}") from None
 
-    def _terminate(signum, frame):
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, _terminate)
-    print(emu.pty_path, flush=True)
-    servos = ", ".join(f"id {i} {s.model.name}" for i, s in sorted(emu.servos.items()))
-    where = emu.pty_path + (f" (link {emu.link})" if emu.link else "")
-    print(f"emulating {servos} at {args.baud} baud on {where}; Ctrl-C to stop", file=sys.stderr, flush=True)
+    signal.signal(signal.SIGTERM, lambda signum, frame: emu.request_stop())
     try:
+        print(emu.pty_path, flush=True)
+        servos = ", ".join(f"id {i} {s.model.name}" for i, s in sorted(emu.servos.items()))
+        where = emu.pty_path + (f" (link {emu.link})" if emu.link else "")
+        print(f"emulating {servos} at {args.baud} baud on {where}; Ctrl-C to stop", file=sys.stderr, flush=True)
         emu.serve_forever()
     except KeyboardInterrupt:
         pass
