@@ -11,13 +11,14 @@ import pytest
 from aes_planner.drivers.dynamixel import DynamixelPanTilt, DynamixelPanTiltConfig
 from aes_planner.drivers.emulator import ServoEmulator
 
-# Quick motion and short reply timeouts, for tests against the in-process emulator. The reply
-# timeout (2 x 10 + 2 ms) leaves room for GIL hand-offs between the SDK's busy wait and the
-# emulator thread on a loaded machine.
+# Quick motion, for tests against the in-process emulator. The reply timeout (2 x 25 + 2 ms)
+# leaves room for GIL hand-offs between the SDK's busy wait and the emulator thread, and for
+# the scheduler of a shared, loaded 2-core machine; replies normally take well under 1 ms.
+LATENCY_TIMER_MS = 25.0
 FAST = dict(
     profile_velocity_deg_s=0.0,
     profile_acceleration_deg_s2=0.0,
-    latency_timer_ms=10.0,
+    latency_timer_ms=LATENCY_TIMER_MS,
     backoff_s=0.001,
     move_timeout_s=3.0,
     poll_interval_s=0.002,
@@ -25,9 +26,13 @@ FAST = dict(
 
 
 @pytest.fixture(autouse=True)
-def _quick_thread_switches():
+def _in_process_timing(monkeypatch):
     """The SDK busy-waits holding the GIL; switch threads every 0.5 ms, not 5 ms, so that the
-    in-process emulator answers about as fast as a servo would."""
+    in-process emulator answers about as fast as a servo would. Tests that use the SDK directly
+    have no retries: they get a 0.2 s reply timeout (the SDK reads this global at call time)."""
+    import dynamixel_sdk.port_handler
+
+    monkeypatch.setattr(dynamixel_sdk.port_handler, "LATENCY_TIMER", 100)
     before = sys.getswitchinterval()
     sys.setswitchinterval(0.0005)
     yield

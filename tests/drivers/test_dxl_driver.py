@@ -152,7 +152,7 @@ def test_a_new_model_works_from_data_alone(monkeypatch, make_gimbal):
 
 
 def test_missing_servo_and_missing_port_say_what_to_check(emulator, tmp_path, make_gimbal):
-    g = make_gimbal(emulator.port, tilt_id=5, retries=1)
+    g = make_gimbal(emulator.port, tilt_id=5)
     with pytest.raises(GimbalCommError, match="no valid reply from id 5.*There is no status packet.*baud"):
         g.connect()
     with pytest.raises(GimbalCommError, match="cannot open serial port"):
