@@ -34,7 +34,8 @@ def test_import_core_without_hardware_sdk():
     # The core must import without dynamixel-sdk: block it and import everything hardware-free.
     code = (
         "import sys; sys.modules['dynamixel_sdk'] = None; sys.modules['serial'] = None\n"
-        "import aes_planner, aes_planner.geometry, aes_planner.cli\n"
+        "import aes_planner, aes_planner.geometry, aes_planner.cli, aes_planner.devices\n"
+        "import aes_planner.cli.gimbal\n"
         "print('ok')"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
