@@ -53,7 +53,7 @@ from aes_planner.drivers.dynamixel_models import (
     to_unsigned,
 )
 from aes_planner.drivers.protocol import ERRBIT_ALERT, ErrNum
-from aes_planner.geometry.pantilt import JointCommandError, PanTilt, PanTiltConfig
+from aes_planner.geometry.rig import JointCommandError, JointLimits, PanTiltConfig
 
 log = logging.getLogger(__name__)
 
@@ -234,7 +234,9 @@ class DynamixelPanTilt(Gimbal):
         self._lost = False
         self._in_control = False
         self._cal = {j: config.calibration(j) for j in JOINTS}
-        self._limits = PanTilt(PanTiltConfig(pan_limits_deg=config.pan_limits_deg, tilt_limits_deg=config.tilt_limits_deg))
+        self._limits = JointLimits.from_config(
+            PanTiltConfig(pan_limits_deg=config.pan_limits_deg, tilt_limits_deg=config.tilt_limits_deg)
+        )
         self._models: dict[str, ServoModel] = {}
         self._firmware: dict[str, int] = {}
         self._faults: dict[str, tuple[str, ...]] = {}

@@ -25,45 +25,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from aes_planner.config import require, require_finite
-from aes_planner.errors import AesPlannerError
+from aes_planner.geometry.rig import JointCommandError, JointLimits, PanTiltConfig
 from aes_planner.geometry.poses import BODY_TO_OPTICAL, cam2world_to_view, direction_to_yaw_pitch
 
 __all__ = ["PanTiltConfig", "PanTilt", "JointSolution", "JointCommandError"]
-
-
-class JointCommandError(AesPlannerError, ValueError):
-    """A joint command that must not reach a motor (NaN, Inf)."""
-
-
-@dataclass
-class PanTiltConfig:
-    """Geometry and limits of a pan-tilt rig (degrees and metres: this is the YAML edge).
-
-    * ``base_xyz_m``: pan-axis origin in the world.
-    * ``base_rpy_deg``: base orientation, static roll/pitch/yaw about world x, y, z
-      (``R = Rz(yaw) Ry(pitch) Rx(roll)``); (0, 0, 0) is upright facing +x.
-    * ``tilt_offset_m``: tilt-axis origin in the pan frame (x forward, y left, z up).
-    * ``lever_arm_m``: camera optical centre in the tilt frame.
-    * ``pan_limits_deg``, ``tilt_limits_deg``: (min, max) joint limits, inclusive.
-    """
-
-    base_xyz_m: tuple[float, float, float] = (0.0, 0.0, 1.2)
-    base_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    tilt_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.05)
-    lever_arm_m: tuple[float, float, float] = (0.03, 0.0, 0.02)
-    pan_limits_deg: tuple[float, float] = (-150.0, 150.0)
-    tilt_limits_deg: tuple[float, float] = (-60.0, 60.0)
-
-    def __post_init__(self):
-        for name in ("base_xyz_m", "base_rpy_deg", "tilt_offset_m", "lever_arm_m", "pan_limits_deg", "tilt_limits_deg"):
-            require_finite(list(getattr(self, name)), name)
-        lo, hi = self.pan_limits_deg
-        require(lo < hi, "pan_limits_deg", f"min must be below max, got ({lo}, {hi})")
-        require(hi - lo <= 360.0, "pan_limits_deg", f"a range over 360 deg is not a position-mode joint: ({lo}, {hi})")
-        lo, hi = self.tilt_limits_deg
-        require(lo < hi, "tilt_limits_deg", f"min must be below max, got ({lo}, {hi})")
-        require(-90.0 <= lo and hi <= 90.0, "tilt_limits_deg", f"tilt must stay within [-90, 90] deg, got ({lo}, {hi})")
 
 
 @dataclass(frozen=True)
@@ -100,22 +65,17 @@ class PanTilt:
         self.base2world[:3, 3] = c.base_xyz_m
         self.tilt_offset = np.asarray(c.tilt_offset_m, dtype=np.float64)
         self.lever_arm = np.asarray(c.lever_arm_m, dtype=np.float64)
-        self.pan_limits_rad = tuple(math.radians(a) for a in c.pan_limits_deg)
-        self.tilt_limits_rad = tuple(math.radians(a) for a in c.tilt_limits_deg)
+        self.limits = JointLimits.from_config(c)
+        self.pan_limits_rad = self.limits.pan_rad
+        self.tilt_limits_rad = self.limits.tilt_rad
 
     # ----------------------------------------------------------------------------- limits
     def clamp(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
         """Clamp joint angles to the limits; NaN or Inf raise :class:`JointCommandError`."""
-        if not (math.isfinite(pan_rad) and math.isfinite(tilt_rad)):
-            raise JointCommandError(
-                f"joint command must be finite, got pan={pan_rad!r} rad, tilt={tilt_rad!r} rad; refusing to move"
-            )
-        (plo, phi), (tlo, thi) = self.pan_limits_rad, self.tilt_limits_rad
-        return min(max(pan_rad, plo), phi), min(max(tilt_rad, tlo), thi)
+        return self.limits.clamp(pan_rad, tilt_rad)
 
     def within_limits(self, pan_rad: float, tilt_rad: float, tol_rad: float = 1e-9) -> bool:
-        (plo, phi), (tlo, thi) = self.pan_limits_rad, self.tilt_limits_rad
-        return plo - tol_rad <= pan_rad <= phi + tol_rad and tlo - tol_rad <= tilt_rad <= thi + tol_rad
+        return self.limits.within(pan_rad, tilt_rad, tol_rad)
 
     # ---------------------------------------------------------------------------- forward
     def forward(self, pan_rad, tilt_rad):
