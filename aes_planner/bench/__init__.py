@@ -1,0 +1,136 @@
+"""Benchmarks: ``aes-planner bench [GROUP ...] [--quick] [--json PATH]``.
+
+Each group is a module of this package with a ``run(rec: Recorder, quick: bool)`` function that
+times its cases and records figures under ``group.case.figure`` keys. The JSON written is::
+
+    {"_meta": {...machine, torch, backends, date, commit...},
+     "sim.render_128.ms": {"value": 12.3, "unit": "ms", "runs": 7}, ...}
+
+Timings are medians of several runs after a warm-up. A comparison (fast path against its
+reference) is measured in the same run and recorded as a ratio. Speed targets live here, never
+in timed tests.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import importlib
+import json
+import logging
+import os
+import platform
+import statistics
+import subprocess
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+from aes_planner.errors import AesPlannerError
+
+log = logging.getLogger(__name__)
+
+# Group name -> module. Groups of DESIGN.md that are not built yet are absent, not stubbed.
+GROUPS: dict[str, str] = {}
+
+__all__ = ["GROUPS", "Recorder", "run_groups", "time_ms", "machine_info"]
+
+
+def time_ms(fn: Callable[[], Any], runs: int = 7, warmup: int = 1) -> list[float]:
+    """Wall-clock samples of ``fn()`` in milliseconds, after ``warmup`` untimed calls."""
+    for _ in range(warmup):
+        fn()
+    samples = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        fn()
+        samples.append((time.perf_counter() - t0) * 1e3)
+    return samples
+
+
+class Recorder:
+    """Collects figures for the JSON file; ``meta`` holds machine and backend facts."""
+
+    def __init__(self) -> None:
+        self.results: dict[str, dict[str, Any]] = {}
+        self.meta: dict[str, Any] = {"backends": {}}
+
+    def record(self, key: str, value: float, unit: str, runs: int = 1) -> None:
+        if key.count(".") < 2:
+            raise ValueError(f"benchmark key {key!r} must read group.case.figure")
+        self.results[key] = {"value": float(value), "unit": unit, "runs": int(runs)}
+        log.debug("%s = %.4g %s (runs=%d)", key, value, unit, runs)
+
+    def time(self, key: str, fn: Callable[[], Any], runs: int = 7, warmup: int = 1) -> float:
+        """Time ``fn`` and record the median in ms under ``key``; returns the median."""
+        samples = time_ms(fn, runs=runs, warmup=warmup)
+        median = statistics.median(samples)
+        self.record(key, median, "ms", runs=runs)
+        return median
+
+    def to_json(self) -> dict[str, Any]:
+        return {"_meta": self.meta, **dict(sorted(self.results.items()))}
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def _git_commit() -> str | None:
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            capture_output=True, text=True, timeout=5, cwd=Path(__file__).resolve().parent,
+        )
+        return out.stdout.strip() or None
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def machine_info() -> dict[str, Any]:
+    import torch
+
+    return {
+        "cpu": _cpu_model(),
+        "cores": os.cpu_count(),
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "torch": torch.__version__,
+        "torch_threads": torch.get_num_threads(),
+    }
+
+
+def run_groups(groups: list[str] | None, quick: bool = False) -> Recorder:
+    """Run the named groups (all when empty) and return the recorder."""
+    names = list(groups) if groups else list(GROUPS)
+    unknown = [g for g in names if g not in GROUPS]
+    if unknown:
+        raise AesPlannerError(
+            f"unknown benchmark group {unknown[0]!r}; available: {', '.join(GROUPS)}"
+        )
+    rec = Recorder()
+    rec.meta.update(
+        machine=machine_info(),
+        date=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        commit=_git_commit(),
+        groups=names,
+        quick=quick,
+    )
+    for name in names:
+        log.info("bench group %s%s", name, " (quick)" if quick else "")
+        t0 = time.perf_counter()
+        importlib.import_module(GROUPS[name]).run(rec, quick)
+        rec.meta.setdefault("group_seconds", {})[name] = round(time.perf_counter() - t0, 2)
+    return rec
+
+
+def write_json(rec: Recorder, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(rec.to_json(), indent=2) + "\n")
+    return path
