@@ -64,7 +64,7 @@ def outdoor(seed: int) -> SceneSpec:
     b.box("path", (px, py, 0.01), (path_len, 1.2, 0.02), (0.62, 0.56, 0.45), yaw_deg=house_bearing,
           pattern=b.pattern("noise", (0.5, 0.45, 0.36), 0.4, octaves=1))
     # trees: a cluster near the house and a few loners, none close to the rig
-    for k in range(b.integer(6, 11)):
+    for k in range(b.integer(8, 14)):
         if k < 4:
             tx, ty = hx + b.uniform(-8, 8), hy + b.uniform(-10, 10)
             if math.hypot(tx - hx, ty - hy) < 6:
@@ -87,6 +87,12 @@ def outdoor(seed: int) -> SceneSpec:
         b.box(f"rail{k}", (mid[0], mid[1], z), (spacing * (posts - 1), 0.05, 0.08), wood, yaw_deg=math.degrees(heading))
     px, py = _polar(b.uniform(-160, 160), b.uniform(10, 25))
     b.cylinder("pond", (px, py, 0.01), b.uniform(2, 4), 0.02, (0.25, 0.45, 0.65), pattern=b.pattern("noise", (0.35, 0.55, 0.75), 0.8, octaves=1))
+    for k in range(b.integer(3, 6)):  # bushes: low clutter along the ground
+        bx, by = _polar(b.uniform(-170, 170), b.uniform(5, 30))
+        for j in range(b.integer(1, 3)):
+            radius = b.uniform(0.4, 0.9)
+            b.sphere(f"bush{k}_{j}", (bx + b.uniform(-0.6, 0.6), by + b.uniform(-0.6, 0.6), radius * 0.6), radius, b.tint((0.22, 0.4, 0.17)),
+                     pattern=b.pattern("noise", (0.15, 0.3, 0.12), 0.15, octaves=2, seed=k))
     for k in range(b.integer(2, 4)):
         rx, ry = _polar(b.uniform(-180, 180), b.uniform(4, 15))
         radius = b.uniform(0.3, 0.8)
