@@ -211,59 +211,79 @@ def _sort_by(keys: np.ndarray) -> np.ndarray:
 def _occluded(scene: Scene, placed: _Placed, origins: np.ndarray, toward: np.ndarray) -> np.ndarray:
     """Whether rays from ``origins [3, K]`` along the unit ``toward [3]`` hit anything: ``[K]``.
 
-    The rays are parallel: project the origins onto a plane across them and sort them along one
-    axis of it (in 32k bins, a radix sort); an object can only block the origins inside its
-    bounding sphere's shadow cylinder, a contiguous run of that order, cut down by the other
-    axis and by depth along the rays. Large occluders go first, one by one, each skipping the
-    rays already blocked; the rest are tested together.
+    The rays are parallel. Project the origins onto a plane across them (axes ``e1, e2``) and
+    sort them along ``e1`` (in 32k bins, a radix sort). An object can only block the origins
+    whose ``e1`` coordinate lies within its support (its oriented box's half width along
+    ``e1``, capped by its bounding radius): a contiguous slice of that order, cut down by its
+    support along ``e2`` and by whether it lies ahead along the rays. Objects with many
+    candidates go first, one by one, each skipping the rays already blocked; the rest are
+    tested together, one batch per shape kind.
     """
     n_rays = origins.shape[1]
-    occluded = np.zeros(n_rays, bool)
     if not n_rays or not len(scene.kind):
-        return occluded
+        return np.zeros(n_rays, bool)
     basis = frame_from_axis(toward)
-    a, b, s = basis[:, 0] @ origins, basis[:, 1] @ origins, toward @ origins
-    a_min, a_span = a.min(), max(a.max() - a.min(), 1e-12)
-    scale = 32000.0 / a_span
-    bins = ((a - a_min) * scale).astype(np.int64)
-    order = _sort_by(bins)
-    bins_sorted = bins.take(order)
-    c = placed.centres
-    ca, cb, cs = c @ basis[:, 0], c @ basis[:, 1], c @ toward
-    r = scene.bound_radius * (1 + 1e-9) + 1e-12
-    lo = np.searchsorted(bins_sorted, np.floor(np.clip((ca - r - a_min) * scale, -1, 32001)), "left")
-    hi = np.searchsorted(bins_sorted, np.floor(np.clip((ca + r - a_min) * scale, -1, 32001)), "right")
+    axes = np.stack([basis[:, 0], basis[:, 1], toward])  # [3 (e1, e2, toward), 3]
+    a = axes[0] @ origins
+    a_min, scale = a.min(), 32000.0 / max(a.max() - a.min(), 1e-12)
+    order = _sort_by(((a - a_min) * scale).astype(np.int64))
+    sorted_origins = origins.take(order, axis=1)
+    a_s, b_s, s_s = axes @ sorted_origins  # [K] each, in sorted order
+    bins = ((a_s - a_min) * scale).astype(np.int64)
+    blocked = np.zeros(n_rays, bool)  # in sorted order
+
+    c_a, c_b, c_s = axes @ placed.centres.T  # [M] each
+    local_axes = np.einsum("xi,mij->mxj", axes, placed.rotations)  # [M, 3 axes, 3 local]
+    support = np.minimum(np.einsum("mxj,mj->mx", np.abs(local_axes), scene.dims), scene.bound_radius[:, None])
+    support = support * (1 + 1e-9) + 1e-12
+    support[~np.isfinite(scene.bound_radius)] = np.inf
+    r_a, r_b, r_s = support.T
+    lo = np.searchsorted(bins, np.floor(np.clip((c_a - r_a - a_min) * scale, -1, 32001)), "left")
+    hi = np.searchsorted(bins, np.floor(np.clip((c_a + r_a - a_min) * scale, -1, 32001)), "right")
     count = hi - lo
 
-    def test_one(k: int, pts: np.ndarray) -> None:
-        pts = pts[~occluded.take(pts)]
-        pts = pts[(np.abs(b.take(pts) - cb[k]) <= r[k]) & (s.take(pts) <= cs[k] + r[k])]
+    def test_one(k: int) -> None:
+        run = slice(lo[k], hi[k])
+        near = ~blocked[run] & (np.abs(b_s[run] - c_b[k]) <= r_b[k]) & (s_s[run] <= c_s[k] + r_s[k])
         rot = placed.rotations[k]
-        o_local = rot.T @ (origins.take(pts, axis=1) - placed.centres[k][:, None])
+        if near.mean() > 0.5:  # most of the run: test it whole rather than gather
+            o_local = rot.T @ (sorted_origins[:, run] - placed.centres[k][:, None])
+            t = SHAPES[scene.kind[k]].intersect(o_local, toward @ rot, 0.0, scene.dims[k])
+            blocked[run] |= near & (t < FAR_M)
+            return
+        idx = np.nonzero(near)[0] + lo[k]
+        o_local = rot.T @ (sorted_origins.take(idx, axis=1) - placed.centres[k][:, None])
         t = SHAPES[scene.kind[k]].intersect(o_local, toward @ rot, 0.0, scene.dims[k])
-        occluded[pts[t < FAR_M]] = True
+        blocked[idx[t < FAR_M]] = True
 
-    def test_many(obj: np.ndarray, pts: np.ndarray) -> None:
-        keep = ~occluded.take(pts) & (np.abs(b.take(pts) - cb.take(obj)) <= r.take(obj)) & (s.take(pts) <= cs.take(obj) + r.take(obj))
-        obj, pts = obj[keep], pts[keep]
-        t = np.empty(len(pts))
+    def test_many(obj: np.ndarray, idx: np.ndarray) -> None:
+        near = ~blocked.take(idx) & (np.abs(b_s.take(idx) - c_b.take(obj)) <= r_b.take(obj)) & (s_s.take(idx) <= c_s.take(obj) + r_s.take(obj))
+        obj, idx = obj[near], idx[near]
+        t = np.empty(len(idx))
         for code, sel in _groups(scene.kind.take(obj)):
             o = obj.take(sel)
-            o_local = placed.to_local(o, origins.take(pts.take(sel), axis=1))
+            o_local = placed.to_local(o, sorted_origins.take(idx.take(sel), axis=1))
             rot = placed.rot9.T.take(o, axis=1)
             d_local = tuple(rot[j] * toward[0] + rot[3 + j] * toward[1] + rot[6 + j] * toward[2] for j in range(3))
             t[sel] = SHAPES[code].intersect(o_local, d_local, 0.0, scene.dims.T.take(o, axis=1))
-        occluded[pts[t < FAR_M]] = True
+        blocked[idx[t < FAR_M]] = True
 
     big = np.nonzero(count >= _BATCH_BELOW)[0]
     for k in big[np.argsort(-count[big], kind="stable")]:
-        test_one(k, order[lo[k] : hi[k]])
+        test_one(k)
     small = np.nonzero((count > 0) & (count < _BATCH_BELOW))[0]
     if len(small):
         n = count[small]
-        pos = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + np.repeat(lo[small], n)
-        test_many(np.repeat(small, n), order.take(pos))
+        test_many(np.repeat(small, n), _ranges(lo[small], hi[small]))
+    occluded = np.empty(n_rays, bool)
+    occluded[order] = blocked
     return occluded
+
+
+def _ranges(starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """The concatenation of ``arange(starts[i], ends[i])`` over ``i``, vectorised."""
+    n = np.maximum(ends - starts, 0)
+    return np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + np.repeat(starts, n)
 
 
 def _surfaces(scene: Scene, placed: _Placed, obj: np.ndarray, points: np.ndarray):
@@ -332,13 +352,13 @@ def _shade(scene: Scene, placed: _Placed, depth, ids, xs, ys) -> tuple[np.ndarra
 
 
 def _sky(sky: SkySpec, cam2world: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Sky colours ``[K, 3]`` of camera rays ``(x, y, 1)`` ``[K]``: by world elevation, linear
+    """Sky colours ``[3, K]`` of camera rays ``(x, y, 1)`` ``[K]``: by world elevation, linear
     in the angle from ``horizon`` to ``zenith``; ``nadir`` below the horizon."""
     d = cam2world[:3, :3] @ np.stack([x, y, np.ones_like(x)])  # [3, K]
-    sin_elev = d[2] / np.linalg.norm(d, axis=0)
-    w = (np.arcsin(np.clip(sin_elev, 0.0, 1.0)) / (math.pi / 2))[:, None]
-    horizon, zenith, nadir = (np.asarray(c, dtype=np.float64) for c in (sky.horizon, sky.zenith, sky.nadir))
-    return np.where((sin_elev < 0)[:, None], nadir, horizon * (1 - w) + zenith * w)
+    sin_elev = d[2] / np.sqrt(np.einsum("ik,ik->k", d, d))
+    w = np.arcsin(np.clip(sin_elev, 0.0, 1.0)) / (math.pi / 2)
+    horizon, zenith, nadir = (np.asarray(c, dtype=np.float64)[:, None] for c in (sky.horizon, sky.zenith, sky.nadir))
+    return np.where(sin_elev < 0, nadir, horizon * (1 - w) + zenith * w)
 
 
 def render(scene: Scene, cam2world: np.ndarray, intrinsics: Intrinsics, supersample: int = 1) -> RenderOutput:
@@ -360,17 +380,19 @@ def render(scene: Scene, cam2world: np.ndarray, intrinsics: Intrinsics, supersam
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         xs, ys = _ray_grid(intrinsics, s)
         depth, ids = _cast(scene, placed, xs, ys)
-        rgb = np.empty((len(ys) * len(xs), 3))
+        rgb = np.empty((3, len(ys) * len(xs)))  # channel planes: 1-D scatters are cheap
         colour, index = _shade(scene, placed, depth, ids, xs, ys)
-        rgb[index] = colour.T
         miss = np.flatnonzero(ids == 0)
         rows, cols = np.divmod(miss, len(xs))
-        rgb[miss] = _sky(scene.sky, cam2world, xs[cols], ys[rows])
-        rgb = rgb.reshape(h, s, w, s, 3).mean(axis=(1, 3)) if s > 1 else rgb.reshape(h, w, 3)
+        sky = _sky(scene.sky, cam2world, xs.take(cols), ys.take(rows))
+        for c in range(3):
+            rgb[c, index] = colour[c]
+            rgb[c, miss] = sky[c]
+        rgb = rgb.reshape(3, h, s, w, s).mean(axis=(2, 4)) if s > 1 else rgb.reshape(3, h, w)
         if s % 2:
             depth, ids = depth[s // 2 :: s, s // 2 :: s], ids[s // 2 :: s, s // 2 :: s]
         else:
             depth, ids = _cast(scene, placed, *_ray_grid(intrinsics, 1))
-    rgb8 = np.rint(np.clip(rgb, 0.0, 1.0) * 255.0).astype(np.uint8)
+    rgb8 = np.ascontiguousarray(np.rint(np.clip(rgb, 0.0, 1.0) * 255.0).astype(np.uint8).transpose(1, 2, 0))
     depth32 = np.where(ids > 0, depth, 0.0).astype(np.float32)
     return RenderOutput(rgb=rgb8, depth_m=depth32, instance_id=np.ascontiguousarray(ids, dtype=np.int32))

@@ -73,9 +73,12 @@ def value_noise(x: np.ndarray, y: np.ndarray, octaves, seed) -> np.ndarray:
         fx, fy = x - x0, y - y0
         sx, sy = fx * fx * (3 - 2 * fx), fy * fy * (3 - 2 * fy)
         ix, iy = x0.astype(np.int64), y0.astype(np.int64)
-        px0 = perm.take(base + (ix & 255))
-        px1 = perm.take(base + ((ix + 1) & 255))
-        corner = lambda px, dy: values.take(base + perm.take(base + ((px + iy + dy) & 255)))  # noqa: E731
+        if np.isscalar(base):  # one seed: index the tables directly
+            px0, px1 = perm.take(ix & 255), perm.take((ix + 1) & 255)
+            corner = lambda px, dy: values.take(perm.take((px + iy + dy) & 255))  # noqa: E731
+        else:
+            px0, px1 = perm.take(base + (ix & 255)), perm.take(base + ((ix + 1) & 255))
+            corner = lambda px, dy: values.take(base + perm.take(base + ((px + iy + dy) & 255)))  # noqa: E731
         top = corner(px0, 0) * (1 - sx) + corner(px1, 0) * sx
         bottom = corner(px0, 1) * (1 - sx) + corner(px1, 1) * sx
         weight = np.where(octaves > octave, amplitude, 0.0)
