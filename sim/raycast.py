@@ -7,16 +7,18 @@ Vectorised numpy, float64 inside, independent of any Gaussian code. How a frame 
    ``supersample = s``. Rays are cast in the camera frame with direction ``(x, y, 1)``, so the
    ray parameter *is* the z-depth, and every object is first moved into the camera frame in
    float64 (scenes 1e5 m from the origin keep millimetre precision).
-2. **Visibility.** Each bounded object's bounding sphere is projected to a pixel rectangle
-   (exact tangent bounds); only rays in that rectangle are intersected with it, and objects
-   behind the camera are skipped. Infinite planes test every ray. Hits nearer than
-   :data:`NEAR_M` or farther than :data:`FAR_M` do not count.
+2. **Visibility.** Each bounded object is projected to a pixel rectangle (its oriented box
+   clipped to the near plane, narrowed by its bounding sphere's tangent cone); only rays in
+   that rectangle are intersected with it, and objects behind the camera are skipped.
+   Objects covering many pixels are intersected one at a time (ray directions broadcast from
+   a row and a column); the many small ones in one batch per shape kind. Infinite planes
+   test every ray. Hits nearer than :data:`NEAR_M` or farther than :data:`FAR_M` do not count.
 3. **Shading.** Lambert: ``colour = albedo * (sum of ambient + sum of directional
    max(0, n . l) * visible + emission)``, clipped to ``[0, 1]``, no gamma. Normals face the
    viewer (surfaces are two-sided; from inside a box or sphere you see its inner walls).
    Shadow rays to each directional light with ``shadows: true`` are cast exactly: the hit
-   points are sorted along an axis across the light, so each object only tests the points
-   whose parallel shadow rays can reach its bounding sphere.
+   points are sorted along an axis across the light, so each object only tests the slice of
+   points whose parallel shadow rays can reach it (see :func:`_occluded`).
 4. **Misses** take the sky gradient colour of their world direction.
 
 **Anti-aliasing.** With ``supersample = s`` the RGB of a pixel is the mean of its ``s x s``

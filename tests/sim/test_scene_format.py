@@ -140,3 +140,12 @@ def test_defaults_fill_in_lights_and_objects_may_be_typed_specs():
     again = SceneSpec(objects=copy.deepcopy(spec.objects), rig=spec.rig)
     assert again == spec
     assert from_dict(SceneSpec, {**data, "lights": []}).lights == []
+
+
+def test_the_readme_example_is_the_showcase():
+    readme = (SCENES.parent / "README.md").read_text()
+    block = readme.split("```yaml\n", 1)[1].split("```", 1)[0]
+    assert from_dict(SceneSpec, yaml.safe_load(block)) == from_dict(SceneSpec, showcase_data())
+    drone = readme.split("```yaml\n", 2)[2].split("```", 1)[0]
+    spec = from_dict(SceneSpec, {**yaml.safe_load(drone), "objects": []})
+    assert spec.drone.contains([0, 0, 10]) and spec.rig is None
