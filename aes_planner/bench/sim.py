@@ -37,7 +37,7 @@ def run(rec: Recorder, quick: bool) -> None:
     from aes_planner.sim import FAMILIES, load_scene
 
     rec.meta["backends"]["sim"] = f"numpy {np.__version__} (float64 ray casting)"
-    runs = 5 if quick else 15
+    runs = 3 if quick else 15
     indoor = load_scene("indoor:0")
     _time_renders(rec, "sim.render_128.ms", indoor, 128, runs)
     _time_renders(rec, "sim.render_256.ms", indoor, 256, runs)
