@@ -70,8 +70,15 @@ def _orientation(yaw_deg: float | None, rpy_deg: Vec3 | None) -> np.ndarray:
     return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
 
 
-def _require_one_orientation(spec: Any) -> None:
-    require(spec.yaw_deg is None or spec.rpy_deg is None, "rpy_deg", "give yaw_deg or rpy_deg, not both")
+class _SizedAndTurned:
+    """For specs with ``size``, ``yaw_deg`` and ``rpy_deg`` fields (box, quad)."""
+
+    def __post_init__(self):
+        _require_positive(self.size, "size")
+        require(self.yaw_deg is None or self.rpy_deg is None, "rpy_deg", "give yaw_deg or rpy_deg, not both")
+
+    def rotation(self) -> np.ndarray:
+        return _orientation(self.yaw_deg, self.rpy_deg)
 
 
 def frame_from_axis(axis: np.ndarray) -> np.ndarray:
@@ -146,7 +153,7 @@ class MaterialSpec:
 
 # -------------------------------------------------------------------------------- objects
 @dataclass
-class BoxSpec:
+class BoxSpec(_SizedAndTurned):
     """A box: ``centre``, full edge lengths ``size`` along its local x, y, z, turned by
     ``yaw_deg`` (about world z) or ``rpy_deg``."""
 
@@ -157,13 +164,6 @@ class BoxSpec:
     rpy_deg: Vec3 | None = None
     name: str = ""
     material: MaterialSpec = field(default_factory=MaterialSpec)
-
-    def __post_init__(self):
-        _require_positive(self.size, "size")
-        _require_one_orientation(self)
-
-    def rotation(self) -> np.ndarray:
-        return _orientation(self.yaw_deg, self.rpy_deg)
 
 
 @dataclass
@@ -224,7 +224,7 @@ class PlaneSpec:
 
 
 @dataclass
-class QuadSpec:
+class QuadSpec(_SizedAndTurned):
     """A flat rectangle (a picture, a window, a sign): ``centre``, ``size`` = (width, height).
 
     Unturned, it stands upright facing world +x: its normal is local +x, the width runs along
@@ -240,13 +240,6 @@ class QuadSpec:
     rpy_deg: Vec3 | None = None
     name: str = ""
     material: MaterialSpec = field(default_factory=MaterialSpec)
-
-    def __post_init__(self):
-        _require_positive(self.size, "size")
-        _require_one_orientation(self)
-
-    def rotation(self) -> np.ndarray:
-        return _orientation(self.yaw_deg, self.rpy_deg)
 
 
 OBJECT_TYPES: dict[str, type] = {c.type: c for c in (BoxSpec, SphereSpec, CylinderSpec, PlaneSpec, QuadSpec)}
