@@ -110,7 +110,6 @@ def _projected_bounds(scene: Scene, placed: _Placed) -> tuple[np.ndarray, ...]:
     from its oriented box (``dims`` as half sizes) clipped to ``z >= NEAR_M``, narrowed by the
     exact tangent bounds of its bounding sphere when that lies in front. Empty (lo > hi) when
     nothing is in front; unbounded objects get infinite bounds."""
-    m = len(scene.kind)
     corners = placed.centres[:, None, :] + np.einsum("mij,mkj->mki", placed.rotations, _CORNERS[None] * scene.dims[:, None, :])
     a, b = corners[:, _EDGES[:, 0]], corners[:, _EDGES[:, 1]]  # [M, 12, 3]
     za, zb = a[..., 2], b[..., 2]

@@ -14,7 +14,6 @@ Colours are display values in ``[0, 1]`` (RGB, no gamma); lengths in metres; ang
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal, Mapping
@@ -425,7 +424,3 @@ def spec_to_dict(spec: SceneSpec) -> dict:
     out["objects"] = [_tagged_dict(x) for x in spec.objects]
     return _drop_none(out)
 
-
-def replace_objects(spec: SceneSpec, objects: list) -> SceneSpec:
-    """A copy of ``spec`` with other objects (the lights, sky, rig and drone are shared)."""
-    return dataclasses.replace(spec, objects=list(objects))
