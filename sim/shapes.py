@@ -225,14 +225,14 @@ SHAPES: list[type[Shape]] = [Box, Sphere, Cylinder, Plane, Quad]
 def shape_of(obj) -> tuple[type[Shape], np.ndarray, np.ndarray]:
     """The shape kind, local-origin position ``[3]`` (world) and ``dims [3]`` of an object spec."""
     if isinstance(obj, S.BoxSpec):
-        return Box, np.asarray(obj.centre, dtype=np.float64), 0.5 * np.asarray(obj.size, dtype=np.float64)
+        return Box, np.asarray(obj.centre_m, dtype=np.float64), 0.5 * np.asarray(obj.size_m, dtype=np.float64)
     if isinstance(obj, S.SphereSpec):
-        return Sphere, np.asarray(obj.centre, dtype=np.float64), np.full(3, float(obj.radius_m))
+        return Sphere, np.asarray(obj.centre_m, dtype=np.float64), np.full(3, float(obj.radius_m))
     if isinstance(obj, S.CylinderSpec):
         dims = np.array([obj.radius_m, obj.radius_m, 0.5 * obj.height_m], dtype=np.float64)
-        return Cylinder, np.asarray(obj.centre, dtype=np.float64), dims
+        return Cylinder, np.asarray(obj.centre_m, dtype=np.float64), dims
     if isinstance(obj, S.PlaneSpec):
-        return Plane, np.asarray(obj.point, dtype=np.float64), np.zeros(3)
+        return Plane, np.asarray(obj.point_m, dtype=np.float64), np.zeros(3)
     if isinstance(obj, S.QuadSpec):
-        return Quad, np.asarray(obj.centre, dtype=np.float64), np.array([0.0, 0.5 * obj.size[0], 0.5 * obj.size[1]])
+        return Quad, np.asarray(obj.centre_m, dtype=np.float64), np.array([0.0, 0.5 * obj.size_m[0], 0.5 * obj.size_m[1]])
     raise TypeError(f"not an object spec: {type(obj).__name__}")

@@ -21,7 +21,7 @@ from typing import Any, ClassVar, Literal, Mapping
 import numpy as np
 
 from aes_planner.config import ConfigError, from_dict, require, require_finite, to_dict
-from aes_planner.geometry import Intrinsics, PanTilt, PanTiltConfig, rot_x, rot_y, rot_z
+from aes_planner.geometry import Intrinsics, PanTilt, PanTiltConfig, rot_x, rot_y, rot_z, view_to_cam2world
 
 __all__ = [
     "AmbientLightSpec",
@@ -70,10 +70,10 @@ def _orientation(yaw_deg: float | None, rpy_deg: Vec3 | None) -> np.ndarray:
 
 
 class _SizedAndTurned:
-    """For specs with ``size``, ``yaw_deg`` and ``rpy_deg`` fields (box, quad)."""
+    """For specs with ``size_m``, ``yaw_deg`` and ``rpy_deg`` fields (box, quad)."""
 
     def __post_init__(self):
-        _require_positive(self.size, "size")
+        _require_positive(self.size_m, "size_m")
         require(self.yaw_deg is None or self.rpy_deg is None, "rpy_deg", "give yaw_deg or rpy_deg, not both")
 
     def rotation(self) -> np.ndarray:
@@ -153,12 +153,12 @@ class MaterialSpec:
 # -------------------------------------------------------------------------------- objects
 @dataclass
 class BoxSpec(_SizedAndTurned):
-    """A box: ``centre``, full edge lengths ``size`` along its local x, y, z, turned by
+    """A box: ``centre_m``, full edge lengths ``size_m`` along its local x, y, z, turned by
     ``yaw_deg`` (about world z) or ``rpy_deg``."""
 
     type: ClassVar[str] = "box"
-    centre: Vec3
-    size: Vec3
+    centre_m: Vec3
+    size_m: Vec3
     yaw_deg: float | None = None
     rpy_deg: Vec3 | None = None
     name: str = ""
@@ -167,10 +167,10 @@ class BoxSpec(_SizedAndTurned):
 
 @dataclass
 class SphereSpec:
-    """A sphere: ``centre``, ``radius_m``; ``rpy_deg`` turns its texture (poles on local z)."""
+    """A sphere: ``centre_m``, ``radius_m``; ``rpy_deg`` turns its texture (poles on local z)."""
 
     type: ClassVar[str] = "sphere"
-    centre: Vec3
+    centre_m: Vec3
     radius_m: float
     rpy_deg: Vec3 | None = None
     name: str = ""
@@ -185,11 +185,11 @@ class SphereSpec:
 
 @dataclass
 class CylinderSpec:
-    """A finite, capped cylinder: ``centre`` (middle of the axis), ``radius_m``, ``height_m``
+    """A finite, capped cylinder: ``centre_m`` (middle of the axis), ``radius_m``, ``height_m``
     along ``axis`` (a direction, default world up)."""
 
     type: ClassVar[str] = "cylinder"
-    centre: Vec3
+    centre_m: Vec3
     radius_m: float
     height_m: float
     axis: Vec3 = (0.0, 0.0, 1.0)
@@ -207,10 +207,10 @@ class CylinderSpec:
 
 @dataclass
 class PlaneSpec:
-    """An infinite plane through ``point`` with ``normal`` (seen from both sides)."""
+    """An infinite plane through ``point_m`` with ``normal`` (seen from both sides)."""
 
     type: ClassVar[str] = "plane"
-    point: Vec3 = (0.0, 0.0, 0.0)
+    point_m: Vec3 = (0.0, 0.0, 0.0)
     normal: Vec3 = (0.0, 0.0, 1.0)
     name: str = ""
     material: MaterialSpec = field(default_factory=MaterialSpec)
@@ -224,7 +224,7 @@ class PlaneSpec:
 
 @dataclass
 class QuadSpec(_SizedAndTurned):
-    """A flat rectangle (a picture, a window, a sign): ``centre``, ``size`` = (width, height).
+    """A flat rectangle (a picture, a window, a sign): ``centre_m``, ``size_m`` = (width, height).
 
     Unturned, it stands upright facing world +x: its normal is local +x, the width runs along
     local y and the height along local z; an image on it reads upright to a viewer in front.
@@ -233,8 +233,8 @@ class QuadSpec(_SizedAndTurned):
     """
 
     type: ClassVar[str] = "quad"
-    centre: Vec3
-    size: tuple[float, float]
+    centre_m: Vec3
+    size_m: tuple[float, float]
     yaw_deg: float | None = None
     rpy_deg: Vec3 | None = None
     name: str = ""
@@ -359,6 +359,26 @@ class DroneSpec:
     def clamp(self, xyz_m: Any) -> np.ndarray:
         """``xyz_m [3]`` moved to the nearest point of the flight box."""
         return np.clip(np.asarray(xyz_m, dtype=np.float64), self.bounds_min_m, self.bounds_max_m)
+
+    def survey_poses(self, n: int, pitch_deg: float = -10.0) -> np.ndarray:
+        """``n`` cam2world ``[n, 4, 4]`` on an arc inside the box (a quarter of the way in from
+        its walls, at mid height), each looking across the box centre, slightly down."""
+        if n < 1:
+            raise ValueError(f"survey_poses needs n >= 1 views, got {n}")
+        lo, hi = np.asarray(self.bounds_min_m), np.asarray(self.bounds_max_m)
+        centre, half = (lo + hi) / 2, (hi - lo) / 4
+        angles = np.linspace(-0.75 * np.pi, 0.75 * np.pi, n) if n > 1 else np.zeros(1)
+        views = np.stack(
+            [
+                centre[0] - half[0] * np.cos(angles),
+                centre[1] - half[1] * np.sin(angles),
+                np.full(n, centre[2]),
+                angles,  # from the arc, looking back across the centre
+                np.full(n, np.radians(pitch_deg)),
+            ],
+            axis=-1,
+        )
+        return view_to_cam2world(views)
 
 
 # ---------------------------------------------------------------------------------- scene

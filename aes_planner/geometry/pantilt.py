@@ -179,6 +179,22 @@ class PanTilt:
         """5-DoF view ``[5]`` of the camera at these joints."""
         return cam2world_to_view(self.forward(pan_rad, tilt_rad))
 
+    def sweep(self, n: int, margin: float = 0.1) -> np.ndarray:
+        """``n`` joint pairs ``[n, 2]`` along a left-to-right sweep of the range.
+
+        Pan steps evenly from one limit to the other (``margin`` of the range in from each);
+        tilt zig-zags a quarter of the tilt range above and below its middle, so consecutive
+        views overlap and the set covers both directions. ``n = 1`` is the centre.
+        """
+        if n < 1:
+            raise ValueError(f"sweep needs n >= 1 views, got {n}")
+        (plo, phi), (tlo, thi) = self.pan_limits_rad, self.tilt_limits_rad
+        pm = (phi - plo) * margin
+        pans = np.linspace(plo + pm, phi - pm, n) if n > 1 else np.array([(plo + phi) / 2])
+        mid, quarter = (tlo + thi) / 2, (thi - tlo) / 4
+        tilts = mid + quarter * np.where(np.arange(n) % 2 == 0, 1.0, -1.0) if n > 1 else np.array([mid])
+        return np.stack([pans, tilts], axis=-1)
+
     def joint_grid(self, n_pan: int, n_tilt: int, margin: float = 0.1) -> np.ndarray:
         """Joint pairs ``[n_pan * n_tilt, 2]`` spread over the range, ``margin`` (fraction) in from each limit."""
         (plo, phi), (tlo, thi) = self.pan_limits_rad, self.tilt_limits_rad

@@ -88,7 +88,7 @@ class Builder:
     # -------------------------------------------------------------------------- primitives
     def box(self, name, centre, size, albedo, yaw_deg=None, rpy_deg=None, pattern=None, emission=0.0) -> BoxSpec:
         obj = BoxSpec(
-            centre=v3(centre), size=v3(size),
+            centre_m=v3(centre), size_m=v3(size),
             yaw_deg=None if yaw_deg is None else r(yaw_deg, 2),
             rpy_deg=None if rpy_deg is None else v3(rpy_deg, 2),
             name=name, material=self.material(albedo, pattern, emission),
@@ -97,13 +97,13 @@ class Builder:
         return obj
 
     def sphere(self, name, centre, radius_m, albedo, pattern=None, emission=0.0) -> SphereSpec:
-        obj = SphereSpec(centre=v3(centre), radius_m=r(radius_m), name=name, material=self.material(albedo, pattern, emission))
+        obj = SphereSpec(centre_m=v3(centre), radius_m=r(radius_m), name=name, material=self.material(albedo, pattern, emission))
         self.objects.append(obj)
         return obj
 
     def cylinder(self, name, centre, radius_m, height_m, albedo, axis=(0.0, 0.0, 1.0), pattern=None, emission=0.0) -> CylinderSpec:
         obj = CylinderSpec(
-            centre=v3(centre), radius_m=r(radius_m), height_m=r(height_m), axis=v3(axis),
+            centre_m=v3(centre), radius_m=r(radius_m), height_m=r(height_m), axis=v3(axis),
             name=name, material=self.material(albedo, pattern, emission),
         )
         self.objects.append(obj)
@@ -111,7 +111,7 @@ class Builder:
 
     def quad(self, name, centre, size, albedo, yaw_deg=None, rpy_deg=None, pattern=None, emission=0.0) -> QuadSpec:
         obj = QuadSpec(
-            centre=v3(centre), size=(r(size[0]), r(size[1])),
+            centre_m=v3(centre), size_m=(r(size[0]), r(size[1])),
             yaw_deg=None if yaw_deg is None else r(yaw_deg, 2),
             rpy_deg=None if rpy_deg is None else v3(rpy_deg, 2),
             name=name, material=self.material(albedo, pattern, emission),
@@ -120,7 +120,7 @@ class Builder:
         return obj
 
     def plane(self, name, point, normal, albedo, pattern=None) -> PlaneSpec:
-        obj = PlaneSpec(point=v3(point), normal=v3(normal), name=name, material=self.material(albedo, pattern))
+        obj = PlaneSpec(point_m=v3(point), normal=v3(normal), name=name, material=self.material(albedo, pattern))
         self.objects.append(obj)
         return obj
 

@@ -63,7 +63,7 @@ def test_sphere_depth_matches_analytic(radius, distance):
     centre = rng.normal(size=3) * 2
     eye = centre + distance * np.array([-0.8, 0.5, 0.3]) / np.linalg.norm([-0.8, 0.5, 0.3])
     pose = look_at(eye, centre + rng.normal(size=3) * 0.1 * radius)
-    out = render(scene_of(SphereSpec(centre=tuple(centre), radius_m=radius)), pose, K128)
+    out = render(scene_of(SphereSpec(centre_m=tuple(centre), radius_m=radius)), pose, K128)
     t, margin = analytic_sphere(*camera_rays(pose, K128), centre, radius)
     clear = np.abs(margin) > 1e-6 * radius**2  # not grazing the silhouette
     hit = out.instance_id == 1
@@ -81,7 +81,7 @@ def test_plane_depth_matches_analytic():
     normal /= np.linalg.norm(normal)
     point = np.array([1.0, 2.0, -0.5])
     pose = view_to_cam2world(np.array([0.3, -0.4, 1.7, 0.4, -0.35]))
-    out = render(scene_of(PlaneSpec(point=tuple(point), normal=tuple(normal))), pose, K128)
+    out = render(scene_of(PlaneSpec(point_m=tuple(point), normal=tuple(normal))), pose, K128)
     origin, dirs = camera_rays(pose, K128)
     t = ((point - origin) @ normal) / (dirs @ normal)
     hit = out.instance_id == 1
@@ -93,7 +93,7 @@ def test_plane_depth_matches_analytic():
 def test_inside_a_box_every_ray_hits_the_nearest_wall():
     half = np.array([3.0, 2.0, 1.5])
     pose = view_to_cam2world(np.array([0.5, -0.3, 0.2, 0.7, 0.3]))
-    out = render(scene_of(BoxSpec(centre=(0.0, 0.0, 0.0), size=tuple(2 * half))), pose, K128)
+    out = render(scene_of(BoxSpec(centre_m=(0.0, 0.0, 0.0), size_m=tuple(2 * half))), pose, K128)
     origin, dirs = camera_rays(pose, K128)
     with np.errstate(divide="ignore"):
         t = np.min((np.sign(dirs) * half - origin) / dirs, axis=-1)
@@ -103,8 +103,8 @@ def test_inside_a_box_every_ray_hits_the_nearest_wall():
 
 def test_quad_and_cylinder_cap_facing_the_camera():
     pose = look_at(np.array([-5.0, 0, 1]), np.array([0.0, 0, 1]))
-    quad = QuadSpec(centre=(0.0, 0.0, 1.0), size=(2.0, 1.0), yaw_deg=180.0)
-    cap = CylinderSpec(centre=(2.0, 0.0, 1.0), radius_m=3.0, height_m=1.0, axis=(1.0, 0.0, 0.0))
+    quad = QuadSpec(centre_m=(0.0, 0.0, 1.0), size_m=(2.0, 1.0), yaw_deg=180.0)
+    cap = CylinderSpec(centre_m=(2.0, 0.0, 1.0), radius_m=3.0, height_m=1.0, axis=(1.0, 0.0, 0.0))
     out = render(scene_of(quad, cap), pose, K128)
     on_quad = out.instance_id == 1
     assert np.allclose(out.depth_m[on_quad], 5.0, atol=1e-5)
@@ -118,8 +118,8 @@ def test_quad_and_cylinder_cap_facing_the_camera():
 
 def test_ids_follow_scene_order_and_nearest_wins():
     pose = look_at(np.array([-5.0, 0, 0]), np.array([0.0, 0, 0]))
-    far = SphereSpec(centre=(2.0, 0.0, 0.0), radius_m=1.5)
-    near = SphereSpec(centre=(0.0, 0.0, 0.0), radius_m=0.5)
+    far = SphereSpec(centre_m=(2.0, 0.0, 0.0), radius_m=1.5)
+    near = SphereSpec(centre_m=(0.0, 0.0, 0.0), radius_m=0.5)
     out = render(scene_of(far, near), pose, Intrinsics.from_fov(129, 129, 60.0))  # pixel 64 on the axis
     assert out.instance_id[64, 64] == 2 and abs(out.depth_m[64, 64] - 4.5) < 1e-5
     assert out.instance_id[64, 40] == 1
@@ -146,7 +146,7 @@ def test_shadow_rays_are_exact(radius):
     centre = np.array([0.0, 0.0, 1.0])
     ambient = AmbientLightSpec(intensity=0.3)
     sun = DirectionalLightSpec(direction=(0.0, 0.0, -1.0), colour=(1.0, 1.0, 1.0), intensity=0.5)
-    scene = scene_of(PlaneSpec(material=MaterialSpec(albedo=(1.0, 1.0, 1.0))), SphereSpec(centre=tuple(centre), radius_m=radius), lights=[ambient, sun])
+    scene = scene_of(PlaneSpec(material=MaterialSpec(albedo=(1.0, 1.0, 1.0))), SphereSpec(centre_m=tuple(centre), radius_m=radius), lights=[ambient, sun])
     pose = look_at(np.array([-1.0, -0.5, 3.0]) * max(radius, 0.2) * 3, np.array([0.0, 0.0, 0.0]))
     out = render(scene, pose, K128)
     origin, dirs = camera_rays(pose, K128)
@@ -176,7 +176,7 @@ def test_sky_gradient_and_empty_scene():
 def test_image_texture_reads_upright(tmp_path):
     colours = np.array([[[255, 0, 0], [0, 255, 0]], [[0, 0, 255], [255, 255, 255]]], np.uint8)  # RGB, 2x2
     cv2.imwrite(str(tmp_path / "tiles.png"), cv2.cvtColor(colours, cv2.COLOR_RGB2BGR))
-    quad = QuadSpec(centre=(0.0, 0.0, 0.0), size=(2.0, 2.0), yaw_deg=180.0, material=MaterialSpec(image="tiles.png"))
+    quad = QuadSpec(centre_m=(0.0, 0.0, 0.0), size_m=(2.0, 2.0), yaw_deg=180.0, material=MaterialSpec(image="tiles.png"))
     scene = scene_of(quad, lights=[AmbientLightSpec(intensity=1.0)], base_dir=tmp_path)
     k = Intrinsics.from_fov(64, 64, 60.0)
     pose = look_at(np.array([-4.0, 0, 0]), np.zeros(3))
@@ -224,7 +224,7 @@ def test_checker_on_the_ground_alternates_in_world_metres():
 def test_supersampling_keeps_depth_and_ids_and_averages_rgb():
     scene = scene_of(
         PlaneSpec(material=MaterialSpec(pattern=PatternSpec(kind="checker", scale_m=0.3))),
-        SphereSpec(centre=(3.0, 0.0, 0.8), radius_m=0.8),
+        SphereSpec(centre_m=(3.0, 0.0, 0.8), radius_m=0.8),
         lights=[AmbientLightSpec(), DirectionalLightSpec()],
     )
     pose = view_to_cam2world(np.array([0, 0, 1.2, 0.05, -0.15]))
@@ -253,10 +253,10 @@ def test_far_from_the_origin_renders_the_same():
     offset = np.array([1e5, -2e5, 300.0])
     objects = [
         PlaneSpec(material=MaterialSpec(pattern=PatternSpec(kind="noise", scale_m=0.5))),
-        BoxSpec(centre=(3.0, 0.5, 0.5), size=(1.0, 1.0, 1.0), yaw_deg=20.0),
-        SphereSpec(centre=(4.0, -1.0, 0.7), radius_m=0.7),
+        BoxSpec(centre_m=(3.0, 0.5, 0.5), size_m=(1.0, 1.0, 1.0), yaw_deg=20.0),
+        SphereSpec(centre_m=(4.0, -1.0, 0.7), radius_m=0.7),
     ]
-    moved = [PlaneSpec(point=tuple(offset), material=objects[0].material), BoxSpec(centre=tuple(np.add(objects[1].centre, offset)), size=(1.0, 1.0, 1.0), yaw_deg=20.0), SphereSpec(centre=tuple(np.add(objects[2].centre, offset)), radius_m=0.7)]
+    moved = [PlaneSpec(point_m=tuple(offset), material=objects[0].material), BoxSpec(centre_m=tuple(np.add(objects[1].centre_m, offset)), size_m=(1.0, 1.0, 1.0), yaw_deg=20.0), SphereSpec(centre_m=tuple(np.add(objects[2].centre_m, offset)), radius_m=0.7)]
     lights = [AmbientLightSpec(), DirectionalLightSpec()]
     pose = view_to_cam2world(np.array([0, 0, 1.5, 0.0, -0.2]))
     far_pose = pose.copy()
@@ -272,11 +272,11 @@ def test_far_from_the_origin_renders_the_same():
 finite = st.floats(-5, 5, allow_nan=False)
 objects_strategy = st.lists(
     st.one_of(
-        st.builds(lambda c, s, y: BoxSpec(centre=c, size=s, yaw_deg=y), st.tuples(finite, finite, finite), st.tuples(*[st.floats(0.01, 6)] * 3), st.floats(-180, 180)),
-        st.builds(lambda c, r: SphereSpec(centre=c, radius_m=r), st.tuples(finite, finite, finite), st.floats(0.01, 6)),
-        st.builds(lambda c, r, h, a: CylinderSpec(centre=c, radius_m=r, height_m=h, axis=a), st.tuples(finite, finite, finite), st.floats(0.01, 3), st.floats(0.01, 6), st.sampled_from([(0, 0, 1), (1, 0, 0), (0.3, -0.5, 0.8)])),
-        st.builds(lambda p, n: PlaneSpec(point=p, normal=n), st.tuples(finite, finite, finite), st.sampled_from([(0, 0, 1), (0, 1, 0), (1, 1e-9, 0), (0.2, 0.3, -1)])),
-        st.builds(lambda c, s, y: QuadSpec(centre=c, size=s, yaw_deg=y), st.tuples(finite, finite, finite), st.tuples(st.floats(0.01, 6), st.floats(0.01, 6)), st.floats(-180, 180)),
+        st.builds(lambda c, s, y: BoxSpec(centre_m=c, size_m=s, yaw_deg=y), st.tuples(finite, finite, finite), st.tuples(*[st.floats(0.01, 6)] * 3), st.floats(-180, 180)),
+        st.builds(lambda c, r: SphereSpec(centre_m=c, radius_m=r), st.tuples(finite, finite, finite), st.floats(0.01, 6)),
+        st.builds(lambda c, r, h, a: CylinderSpec(centre_m=c, radius_m=r, height_m=h, axis=a), st.tuples(finite, finite, finite), st.floats(0.01, 3), st.floats(0.01, 6), st.sampled_from([(0, 0, 1), (1, 0, 0), (0.3, -0.5, 0.8)])),
+        st.builds(lambda p, n: PlaneSpec(point_m=p, normal=n), st.tuples(finite, finite, finite), st.sampled_from([(0, 0, 1), (0, 1, 0), (1, 1e-9, 0), (0.2, 0.3, -1)])),
+        st.builds(lambda c, s, y: QuadSpec(centre_m=c, size_m=s, yaw_deg=y), st.tuples(finite, finite, finite), st.tuples(st.floats(0.01, 6), st.floats(0.01, 6)), st.floats(-180, 180)),
     ),
     max_size=6,
 )
@@ -307,12 +307,12 @@ def test_outputs_are_always_finite(objects, eye, yaw, pitch, far, size, supersam
 
 def _moved(obj, offset):
     if isinstance(obj, PlaneSpec):
-        return dataclasses.replace(obj, point=tuple(np.add(obj.point, offset)))
-    return dataclasses.replace(obj, centre=tuple(np.add(obj.centre, offset)))
+        return dataclasses.replace(obj, point_m=tuple(np.add(obj.point_m, offset)))
+    return dataclasses.replace(obj, centre_m=tuple(np.add(obj.centre_m, offset)))
 
 
 def test_camera_inside_a_sphere_sees_its_inner_wall():
-    scene = scene_of(SphereSpec(centre=(0.0, 0.0, 0.0), radius_m=2.0), lights=[AmbientLightSpec()])
+    scene = scene_of(SphereSpec(centre_m=(0.0, 0.0, 0.0), radius_m=2.0), lights=[AmbientLightSpec()])
     out = render(scene, view_to_cam2world(np.array([0.5, 0.2, -0.3, 1.0, 0.4])), K128)
     origin, dirs = camera_rays(view_to_cam2world(np.array([0.5, 0.2, -0.3, 1.0, 0.4])), K128)
     oc = origin

@@ -57,7 +57,7 @@ def _overview_pose(scene):
         (lambda d: d["objects"][3]["material"].update(pattern={"kind": "dots"}), "objects[3].material.pattern.kind", "must be one of"),
         (lambda d: d["objects"][1].update(colour=[1, 0, 0]), "objects[1].colour", "unknown key"),
         (lambda d: d["objects"][1].update(type="cone"), "objects[1].type", "must be one of"),
-        (lambda d: d["objects"][1].update(size=[1, -1, 1]), "objects[1].size", "> 0"),
+        (lambda d: d["objects"][1].update(size_m=[1, -1, 1]), "objects[1].size_m", "> 0"),
         (lambda d: d["objects"][1].update(rpy_deg=[0, 0, 1]), "objects[1].rpy_deg", "not both"),
         (lambda d: d["objects"][2]["material"].update(albedo=[1.2, 0, 0]), "objects[2].material.albedo", r"\[0, 1\]"),
         (lambda d: d["objects"][2]["material"].update(image="x.png"), "objects[2].material.image", "not both"),
@@ -134,7 +134,7 @@ def test_yaml_round_trip_renders_the_same(tmp_path):
 
 
 def test_defaults_fill_in_lights_and_objects_may_be_typed_specs():
-    data = {"rig": {}, "objects": [{"type": "sphere", "centre": [3, 0, 1], "radius_m": 0.5}]}
+    data = {"rig": {}, "objects": [{"type": "sphere", "centre_m": [3, 0, 1], "radius_m": 0.5}]}
     spec = from_dict(SceneSpec, data)
     assert [type(light).type for light in spec.lights] == ["ambient", "directional"]
     again = SceneSpec(objects=copy.deepcopy(spec.objects), rig=spec.rig)

@@ -88,7 +88,7 @@ def test_latency_shows_the_earlier_pose_and_reports_the_current(scene):
 
 def test_drone_scene_takes_poses_not_joints():
     spec = SceneSpec(
-        objects=[SphereSpec(centre=(5.0, 0.0, 1.0), radius_m=1.0)],
+        objects=[SphereSpec(centre_m=(5.0, 0.0, 1.0), radius_m=1.0)],
         drone=DroneSpec(bounds_min_m=(-10, -10, 0.5), bounds_max_m=(10, 10, 30), camera=CameraSpec(32, 24, 70.0)),
     )
     scene = load_scene(spec)
