@@ -31,6 +31,8 @@ log = logging.getLogger(__name__)
 
 # Group name -> module. Groups of DESIGN.md that are not built yet are absent, not stubbed.
 GROUPS: dict[str, str] = {
+    "sim": "aes_planner.bench.sim",
+    "gimbal": "aes_planner.bench.gimbal",
     "teachers": "aes_planner.bench.teachers",
 }
 

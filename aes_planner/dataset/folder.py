@@ -1,0 +1,261 @@
+"""The posed-frame dataset folder: images + one ``cameras.json`` (+ optional depth files).
+
+Layout::
+
+    DIR/
+      cameras.json          # intrinsics, cam2world and stamp of every frame (format below)
+      images/00000.png      # RGB, any format OpenCV reads (written as PNG)
+      depth/00000.npy       # optional z-depth, float32 metres, 0 = no measurement
+                            # (16-bit PNG in millimetres is read too: "depth_png_scale_m")
+
+``cameras.json``::
+
+    {"format": "aes-planner/posed-frames", "version": 1,
+     "meta": {...free-form, e.g. the scene the frames came from...},
+     "frames": [{"image": "images/00000.png", "width": 128, "height": 96,
+                 "fx": 110.8, "fy": 110.8, "cx": 64.0, "cy": 48.0,
+                 "cam2world": [[r00, r01, r02, tx], [...], [...], [0, 0, 0, 1]],
+                 "stamp_s": 0.0, "depth": "depth/00000.npy", "frame_id": "00000",
+                 "meta": {...free-form per frame, e.g. joint angles...}}]}
+
+Poses follow :mod:`aes_planner.geometry`: OpenCV camera axes, REP-103 world (z up), metres,
+written as float64 with full precision (JSON floats round-trip exactly). Paths are relative to
+``DIR``. Reading never executes anything: JSON, images through OpenCV, ``.npy`` with
+``allow_pickle=False``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable
+
+import cv2
+import numpy as np
+
+from aes_planner.errors import AesPlannerError
+from aes_planner.geometry.camera import Intrinsics, IntrinsicsError
+from aes_planner.geometry.poses import PoseError, validate_cam2world
+from aes_planner.messages import MessageError, PosedFrame
+
+log = logging.getLogger(__name__)
+
+__all__ = ["DatasetError", "PosedDataset", "save_dataset", "load_dataset", "read_rgb", "read_depth"]
+
+FORMAT = "aes-planner/posed-frames"
+VERSION = 1
+
+
+class DatasetError(AesPlannerError, ValueError):
+    """A dataset file is missing, malformed or inconsistent; the message names the field."""
+
+
+@dataclass
+class PosedDataset:
+    """Frames read from (or to be written to) a dataset folder."""
+
+    frames: list[PosedFrame]
+    meta: dict[str, Any] = field(default_factory=dict)
+    root: Path | None = None
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def cam2worlds(self) -> np.ndarray:
+        """Poses ``[N, 4, 4]`` float64."""
+        return np.stack([f.cam2world for f in self.frames]) if self.frames else np.zeros((0, 4, 4))
+
+
+def read_rgb(path: Path, key: str) -> np.ndarray:
+    """An image file -> ``[H, W, 3]`` uint8 RGB; errors name ``key``."""
+    if not path.is_file():
+        raise DatasetError(f"{key}: image file {path} not found; check the path (relative to the dataset folder)")
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise DatasetError(f"{key}: {path} is not an image OpenCV can read")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def read_depth(path: Path, key: str, png_scale_m: float = 0.001) -> np.ndarray:
+    """A depth file (``.npy`` float metres, or 16-bit PNG scaled by ``png_scale_m``) -> float32 ``[H, W]``."""
+    if not path.is_file():
+        raise DatasetError(f"{key}: depth file {path} not found")
+    if path.suffix == ".npy":
+        try:
+            d = np.load(path, allow_pickle=False)
+        except ValueError as exc:
+            raise DatasetError(f"{key}: {path} is not a plain numeric .npy array ({exc})") from None
+    else:
+        d = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if d is None or d.ndim != 2 or d.dtype != np.uint16:
+            raise DatasetError(f"{key}: {path} must be a .npy array or a single-channel 16-bit PNG")
+        d = d.astype(np.float32) * np.float32(png_scale_m)
+    if d.ndim != 2 or not np.issubdtype(d.dtype, np.number):
+        raise DatasetError(f"{key}: depth must be a 2D numeric array, got shape {d.shape} dtype {d.dtype}")
+    d = d.astype(np.float32)
+    if not np.all(np.isfinite(d)):
+        raise DatasetError(f"{key}: depth contains NaN or Inf; mark missing depth with 0")
+    return d
+
+
+def _write_rgb(path: Path, image: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+        raise DatasetError(f"could not write {path}")
+
+
+def _jsonable(obj: Any, key: str) -> Any:
+    """Check that ``obj`` is plain JSON data with finite numbers (numpy scalars/arrays converted)."""
+    if isinstance(obj, np.ndarray):
+        obj = obj.tolist()
+    if isinstance(obj, (np.floating, np.integer)):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        raise DatasetError(f"{key}: {obj} is not a finite number; JSON metadata must be finite")
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v, f"{key}.{k}") for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v, f"{key}[{i}]") for i, v in enumerate(obj)]
+    if obj is None or isinstance(obj, (bool, int, float, str)):
+        return obj
+    raise DatasetError(f"{key}: {type(obj).__name__} cannot be stored in cameras.json")
+
+
+def save_dataset(
+    out_dir: str | Path,
+    frames: Iterable[PosedFrame],
+    meta: dict[str, Any] | None = None,
+    frame_meta: list[dict[str, Any]] | None = None,
+) -> Path:
+    """Write frames as a dataset folder; returns the path of ``cameras.json``.
+
+    ``frame_meta`` (optional, one dict per frame) is stored with each frame. Existing files of
+    the same names are overwritten; other files in the folder are left alone.
+    """
+    root = Path(out_dir)
+    root.mkdir(parents=True, exist_ok=True)
+    entries = []
+    frames = list(frames)
+    if frame_meta is not None and len(frame_meta) != len(frames):
+        raise DatasetError(f"frame_meta has {len(frame_meta)} entries for {len(frames)} frames")
+    for i, f in enumerate(frames):
+        name = f"{i:05d}"
+        k = f.intrinsics
+        entry: dict[str, Any] = {
+            "image": f"images/{name}.png",
+            "width": k.width,
+            "height": k.height,
+            "fx": k.fx,
+            "fy": k.fy,
+            "cx": k.cx,
+            "cy": k.cy,
+            "cam2world": np.asarray(f.cam2world, dtype=np.float64).tolist(),
+            "stamp_s": f.stamp_s,
+            "frame_id": f.frame_id or name,
+        }
+        _write_rgb(root / entry["image"], f.image)
+        if f.depth_m is not None:
+            entry["depth"] = f"depth/{name}.npy"
+            (root / "depth").mkdir(exist_ok=True)
+            np.save(root / entry["depth"], f.depth_m.astype(np.float32), allow_pickle=False)
+        if frame_meta is not None and frame_meta[i]:
+            entry["meta"] = _jsonable(frame_meta[i], f"frames[{i}].meta")
+        entries.append(entry)
+    doc = {"format": FORMAT, "version": VERSION, "meta": _jsonable(meta or {}, "meta"), "frames": entries}
+    path = root / "cameras.json"
+    path.write_text(json.dumps(doc, indent=1) + "\n")
+    log.info("wrote %d frames to %s", len(entries), root)
+    return path
+
+
+def _number(entry: dict, name: str, key: str) -> float:
+    if name not in entry:
+        raise DatasetError(f"{key}.{name}: missing")
+    v = entry[name]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise DatasetError(f"{key}.{name}: expected a finite number, got {v!r}")
+    return float(v)
+
+
+def _matrix(value: Any, key: str) -> np.ndarray:
+    try:
+        m = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise DatasetError(f"{key}: expected a 4x4 list of numbers") from None
+    try:
+        return validate_cam2world(m, key)
+    except PoseError as exc:
+        raise DatasetError(str(exc)) from None
+
+
+def frame_from_parts(
+    key: str,
+    image: np.ndarray,
+    intrinsics: Intrinsics,
+    cam2world: np.ndarray,
+    stamp_s: float = 0.0,
+    depth_m: np.ndarray | None = None,
+    frame_id: str = "",
+) -> PosedFrame:
+    """Build a :class:`PosedFrame`, turning its validation errors into :class:`DatasetError` naming ``key``."""
+    try:
+        return PosedFrame(image, intrinsics, cam2world, stamp_s, depth_m, frame_id)
+    except (MessageError, IntrinsicsError) as exc:
+        raise DatasetError(f"{key}: {exc}") from None
+
+
+def load_dataset(path: str | Path, load_depth: bool = True) -> PosedDataset:
+    """Read a dataset folder (or its ``cameras.json``) into :class:`PosedFrame` records."""
+    path = Path(path)
+    cameras = path / "cameras.json" if path.is_dir() else path
+    root = cameras.parent
+    if not cameras.is_file():
+        raise DatasetError(f"{cameras}: not found; a dataset folder holds images and a cameras.json")
+    try:
+        doc = json.loads(cameras.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise DatasetError(f"{cameras}: not valid JSON ({exc})") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise DatasetError(f"{cameras}: 'format' must be {FORMAT!r}; for nerfstudio or RealEstate10K files use the importers")
+    if doc.get("version") != VERSION:
+        raise DatasetError(f"{cameras}: version {doc.get('version')!r} is not supported (this package reads {VERSION})")
+    entries = doc.get("frames")
+    if not isinstance(entries, list):
+        raise DatasetError(f"{cameras}: 'frames' must be a list")
+    frames = []
+    frame_meta = []
+    for i, e in enumerate(entries):
+        key = f"frames[{i}]"
+        if not isinstance(e, dict):
+            raise DatasetError(f"{key}: expected an object")
+        if "image" not in e or not isinstance(e["image"], str):
+            raise DatasetError(f"{key}.image: missing (a path relative to {root})")
+        image = read_rgb(root / e["image"], f"{key}.image")
+        width, height = e.get("width", image.shape[1]), e.get("height", image.shape[0])
+        if (width, height) != (image.shape[1], image.shape[0]):
+            raise DatasetError(
+                f"{key}: width/height say {width}x{height} but {e['image']} is {image.shape[1]}x{image.shape[0]}"
+            )
+        try:
+            k = Intrinsics(_number(e, "fx", key), _number(e, "fy", key), _number(e, "cx", key), _number(e, "cy", key),
+                           image.shape[1], image.shape[0])
+        except IntrinsicsError as exc:
+            raise DatasetError(f"{key}: {exc}") from None
+        if "cam2world" not in e:
+            raise DatasetError(f"{key}.cam2world: missing (a 4x4 camera-to-world matrix, OpenCV axes)")
+        c2w = _matrix(e["cam2world"], f"{key}.cam2world")
+        stamp = _number(e, "stamp_s", key) if "stamp_s" in e else 0.0
+        depth = None
+        if load_depth and e.get("depth"):
+            depth = read_depth(root / e["depth"], f"{key}.depth", float(e.get("depth_png_scale_m", 0.001)))
+        frames.append(frame_from_parts(key, image, k, c2w, stamp, depth, str(e.get("frame_id", i))))
+        frame_meta.append(e.get("meta", {}))
+    for f, m in zip(frames, frame_meta):
+        f.extras["meta"] = m
+    meta = doc.get("meta", {})
+    if not isinstance(meta, dict):
+        raise DatasetError(f"{cameras}: 'meta' must be an object")
+    return PosedDataset(frames, meta, root)

@@ -1,0 +1,217 @@
+"""Importers: nerfstudio ``transforms.json`` and RealEstate10K camera files -> :class:`PosedDataset`.
+
+* **nerfstudio** (``transforms.json``): intrinsics ``fl_x, fl_y, cx, cy, w, h`` at the top level or
+  per frame (or ``camera_angle_x`` as in the original NeRF files); ``frames[i].file_path`` relative
+  to the JSON file; ``transform_matrix`` is cam2world with **OpenGL camera axes** (x right, y up,
+  z backward), converted here to OpenCV (x right, y down, z forward) by flipping the y and z
+  camera axes. ``depth_file_path`` is read when present (16-bit PNG scaled by
+  ``depth_unit_scale_factor``, default 1e-3 m, or ``.npy`` metres). Distortion coefficients are
+  not modelled: a non-zero one is reported in the log and ignored.
+* **RealEstate10K** (one ``.txt`` per clip): first line the video URL, then one line per frame:
+  ``timestamp_us fx fy cx cy 0 0`` (intrinsics normalised by the image size) followed by a 3x4
+  **world-to-camera** matrix, row-major (19 numbers per line). Frame images are looked up as
+  ``<frames_dir>/<timestamp>.{png,jpg,jpeg}``.
+
+Neither format fixes which way is up; the planner's 5-DoF views need world +z up.
+``up="cameras"`` rotates the world so that the mean camera up axis (-y of the OpenCV camera)
+becomes +z (right for footage shot by a level camera: RealEstate10K's default); ``up="keep"``
+leaves the world as it is (right for nerfstudio data processed with its default
+``orientation_method="up"``, or any z-up source).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from aes_planner.dataset.folder import (
+    DatasetError,
+    PosedDataset,
+    frame_from_parts,
+    read_depth,
+    read_rgb,
+)
+from aes_planner.geometry.camera import Intrinsics, IntrinsicsError
+from aes_planner.geometry.poses import PoseError, rigid_inverse, validate_cam2world
+
+log = logging.getLogger(__name__)
+
+__all__ = ["import_nerfstudio", "import_re10k", "align_up_to_cameras", "OPENGL_TO_OPENCV"]
+
+# Right-multiplying an OpenGL-axes cam2world by this flips the camera's y and z axes.
+OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+UpMode = Literal["cameras", "keep"]
+
+
+def align_up_to_cameras(cam2worlds: np.ndarray) -> np.ndarray:
+    """World rotation ``[4, 4]`` that maps the mean camera up axis (-y, OpenCV) to +z.
+
+    Apply as ``aligned = R @ cam2world``. The rotation is the smallest one doing that; if the mean
+    up is ill-defined (cameras disagree completely) the identity is returned with a warning.
+    """
+    ups = -np.asarray(cam2worlds)[:, :3, 1]  # [N, 3]
+    mean = ups.mean(axis=0)
+    n = np.linalg.norm(mean)
+    out = np.eye(4)
+    if n < 1e-6:
+        log.warning("camera up axes cancel out; keeping the world orientation")
+        return out
+    a = mean / n
+    z = np.array([0.0, 0.0, 1.0])
+    v = np.cross(a, z)
+    s, c = np.linalg.norm(v), float(np.dot(a, z))
+    if s < 1e-12:
+        if c < 0:  # upside down: half turn about x
+            out[:3, :3] = np.diag([1.0, -1.0, -1.0])
+        return out
+    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    out[:3, :3] = np.eye(3) + vx + vx @ vx * ((1 - c) / (s * s))
+    return out
+
+
+def _apply_up(frames_c2w: list[np.ndarray], up: UpMode) -> tuple[list[np.ndarray], np.ndarray]:
+    if up not in ("cameras", "keep"):
+        raise DatasetError(f"up must be 'cameras' or 'keep', got {up!r}")
+    if up == "keep" or not frames_c2w:
+        return frames_c2w, np.eye(4)
+    r = align_up_to_cameras(np.stack(frames_c2w))
+    return [r @ m for m in frames_c2w], r
+
+
+def _num(obj: dict, name: str, key: str, default: Any = None) -> Any:
+    v = obj.get(name, default)
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise DatasetError(f"{key}.{name}: expected a finite number, got {v!r}")
+    return float(v)
+
+
+def import_nerfstudio(transforms_json: str | Path, up: UpMode = "keep", load_depth: bool = True) -> PosedDataset:
+    """Read a nerfstudio ``transforms.json`` (see the module docstring)."""
+    path = Path(transforms_json)
+    if path.is_dir():
+        path = path / "transforms.json"
+    if not path.is_file():
+        raise DatasetError(f"{path}: not found")
+    try:
+        doc = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise DatasetError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("frames"), list):
+        raise DatasetError(f"{path}: expected an object with a 'frames' list (a nerfstudio transforms.json)")
+    root = path.parent
+    parts = []
+    for i, fr in enumerate(doc["frames"]):
+        key = f"frames[{i}]"
+        if not isinstance(fr, dict) or not isinstance(fr.get("file_path"), str):
+            raise DatasetError(f"{key}.file_path: missing")
+        image = read_rgb(root / fr["file_path"], f"{key}.file_path")
+        h, w = image.shape[:2]
+        merged = {**doc, **fr}
+        for dist in ("k1", "k2", "k3", "k4", "p1", "p2"):
+            if _num(merged, dist, key, 0.0):
+                log.warning("%s: distortion %s=%s is ignored (pinhole model); undistort the images first", key, dist, merged[dist])
+        if (merged.get("w") not in (None, w)) or (merged.get("h") not in (None, h)):
+            raise DatasetError(f"{key}: w/h say {merged.get('w')}x{merged.get('h')} but {fr['file_path']} is {w}x{h}")
+        fx = _num(merged, "fl_x", key)
+        fy = _num(merged, "fl_y", key)
+        if fx is None and "camera_angle_x" in merged:
+            fx = 0.5 * w / math.tan(_num(merged, "camera_angle_x", key) / 2)
+        if fx is None:
+            raise DatasetError(f"{key}: no focal length (fl_x, or camera_angle_x) at the top level or in the frame")
+        fy = fy if fy is not None else fx
+        cx = _num(merged, "cx", key, w / 2.0)
+        cy = _num(merged, "cy", key, h / 2.0)
+        try:
+            k = Intrinsics(fx, fy, cx, cy, w, h)
+        except IntrinsicsError as exc:
+            raise DatasetError(f"{key}: {exc}") from None
+        if "transform_matrix" not in fr:
+            raise DatasetError(f"{key}.transform_matrix: missing")
+        try:
+            m = validate_cam2world(np.asarray(fr["transform_matrix"], dtype=np.float64), f"{key}.transform_matrix")
+        except (PoseError, ValueError, TypeError) as exc:
+            raise DatasetError(str(exc) if isinstance(exc, PoseError) else f"{key}.transform_matrix: expected a 4x4 list of numbers") from None
+        depth = None
+        if load_depth and fr.get("depth_file_path"):
+            scale = _num(merged, "depth_unit_scale_factor", key, 1e-3)
+            depth = read_depth(root / fr["depth_file_path"], f"{key}.depth_file_path", scale)
+        parts.append((key, image, k, m @ OPENGL_TO_OPENCV, depth, Path(fr["file_path"]).stem))
+    poses, rot = _apply_up([p[3] for p in parts], up)
+    frames = [
+        frame_from_parts(key, image, k, c2w, float(i), depth, fid)
+        for i, ((key, image, k, _, depth, fid), c2w) in enumerate(zip(parts, poses))
+    ]
+    meta = {"source": "nerfstudio", "path": str(path), "up": up, "world_rotation": rot.tolist()}
+    return PosedDataset(frames, meta, root)
+
+
+def _find_frame_image(frames_dir: Path, stamp: str, key: str) -> Path:
+    for ext in (".png", ".jpg", ".jpeg"):
+        p = frames_dir / f"{stamp}{ext}"
+        if p.is_file():
+            return p
+    raise DatasetError(f"{key}: no image {stamp}.png/.jpg in {frames_dir}; extract the clip's frames named by timestamp")
+
+
+def import_re10k(
+    camera_txt: str | Path, frames_dir: str | Path, up: UpMode = "cameras", every: int = 1
+) -> PosedDataset:
+    """Read a RealEstate10K clip (see the module docstring); ``every`` keeps every n-th frame."""
+    path = Path(camera_txt)
+    if not path.is_file():
+        raise DatasetError(f"{path}: not found")
+    if every < 1:
+        raise DatasetError(f"every must be >= 1, got {every}")
+    frames_dir = Path(frames_dir)
+    lines = [(no, ln.strip()) for no, ln in enumerate(path.read_text().splitlines(), start=1) if ln.strip()]
+    if not lines:
+        raise DatasetError(f"{path}: empty file")
+    body = lines if _looks_numeric(lines[0][1]) else lines[1:]  # the first line is the video URL
+    parts = []
+    for line_no, ln in body[::every]:
+        key = f"{path.name}:{line_no}"
+        fields = ln.split()
+        if len(fields) != 19:
+            raise DatasetError(f"{key}: expected 19 numbers (timestamp, fx fy cx cy 0 0, 12 of world-to-camera), got {len(fields)}")
+        try:
+            values = np.array([float(v) for v in fields[1:]])
+        except ValueError:
+            raise DatasetError(f"{key}: not all fields are numbers") from None
+        if not np.all(np.isfinite(values)):
+            raise DatasetError(f"{key}: contains NaN or Inf")
+        image = read_rgb(_find_frame_image(frames_dir, fields[0], key), key)
+        h, w = image.shape[:2]
+        fx_n, fy_n, cx_n, cy_n = values[:4]
+        try:
+            k = Intrinsics.from_normalized(fx_n, fy_n, cx_n, cy_n, w, h)
+        except IntrinsicsError as exc:
+            raise DatasetError(f"{key}: {exc}") from None
+        w2c = np.vstack([values[6:].reshape(3, 4), [0.0, 0.0, 0.0, 1.0]])
+        try:
+            w2c = validate_cam2world(w2c, f"{key} world-to-camera")
+        except PoseError as exc:
+            raise DatasetError(str(exc)) from None
+        parts.append((key, image, k, rigid_inverse(w2c), int(fields[0]) * 1e-6, fields[0]))
+    poses, rot = _apply_up([p[3] for p in parts], up)
+    frames = [
+        frame_from_parts(key, image, k, c2w, stamp, None, fid)
+        for (key, image, k, _, stamp, fid), c2w in zip(parts, poses)
+    ]
+    meta = {"source": "re10k", "path": str(path), "up": up, "world_rotation": rot.tolist()}
+    return PosedDataset(frames, meta, frames_dir)
+
+
+def _looks_numeric(line: str) -> bool:
+    try:
+        float(line.split()[0])
+        return True
+    except (ValueError, IndexError):
+        return False
