@@ -2,54 +2,60 @@
 
 It is the default teacher and what the whole product maximises, so every term is built from
 image evidence that a bad view cannot fake cheaply, and the score is gated by how much there is
-to look at (a blank wall or an empty sky scores about zero).
+to look at: a blank wall, a black frame or an empty sky score about zero, and views of bare
+architecture (wall corners, floor boards, an empty horizon) about half of what the same framing
+of an object scores.
 
-**Features** (``features(images) -> [B, 5, 16, 16]``; the analogue of VEN's 14x14 pool4 map,
-but 5 channels instead of 512 so that the field renders it cheaply). The image is resampled to a
+**Features** (``features(images) -> [B, 4, 16, 16]``; the analogue of VEN's 14x14 pool4 map,
+but 4 channels instead of 512 so that the field renders it cheaply). The image is resampled to a
 64x64 working frame (area averaging down, bilinear up; composition is judged in normalised frame
 coordinates, so the aspect ratio is not kept) and converted to an opponent colour space
-(luminance ``L``, red-green, yellow-blue). Per 4x4 cell:
+(luminance, red-green, yellow-blue). Per 4x4 cell:
 
 ====  ==============  ====================================================================
  ch   name            meaning
 ====  ==============  ====================================================================
  0    ``saliency``    centre-surround colour contrast: distance in opponent colour between
-                      a fine blur and two coarse surrounds (Itti-style difference of
-                      Gaussians), so compact things that differ from their surroundings
-                      stand out and uniform regions do not
+                      a fine blur and two coarse surrounds (difference of Gaussians), so
+                      things that differ from their surroundings stand out and uniform
+                      regions do not
  1    ``edge_xx``     mean ``gx^2`` of the colour gradient (vertical-edge energy)
  2    ``edge_yy``     mean ``gy^2`` (horizontal-edge energy)
- 3    ``edge_xy``     mean ``gx*gy``; with 1 and 2 the pooled structure tensor, which gives
-                      the edge energy at any orientation ``t`` as
+ 3    ``edge_xy``     mean ``gx*gy``; with 1 and 2 the pooled colour structure tensor, which
+                      gives the edge energy at any orientation ``t`` as
                       ``xx*cos^2 t + 2*xy*sin t*cos t + yy*sin^2 t``
- 4    ``luminance``   mean luminance
 ====  ==============  ====================================================================
 
-**Head** (``head(fmap) -> [B]``; a few dozen tensor ops on the 16x16 map, no weights). Each
-term lies in ``[0, 1]``, higher is better:
+**Head** (``head(fmap) -> [B]``; about forty tensor ops on the 16x16 map, no weights). It first
+tells objects from lines: the smaller eigenvalue of the structure tensor pooled over 3x3 cells
+(*corner energy*, Shi-Tomasi at cell scale) is large where edges of several orientations meet
+(objects, corners, foliage) and about zero along straight lines (wall edges, floor boards, a
+horizon). The **subject** is saliency times objectness (a squashed corner energy). Each term
+lies in ``[0, 1]``, higher is better:
 
-* ``thirds`` -- share of the salient mass on the rule-of-thirds template (Gaussians at the four
-  power points, weaker ridges along the four third lines). A subject on a power point scores
-  about 0.8, a centred one about 0.05, an evenly spread image about 0.25.
-* ``balance`` -- the visual-weight centroid (saliency and edge energy) lies near the horizontal
+* ``thirds`` -- share of the subject's (squared) mass on the rule-of-thirds template (Gaussians
+  at the four power points, half-height ridges along the four third lines). A subject on a
+  power point scores about 0.75, a centred one about 0.15, no subject or an even spread 0.27.
+* ``balance`` -- the visual-weight centroid (subject and edge energy) lies near the horizontal
   centre (vertical offsets count a quarter as much). A lone subject on a third scores about 0.6.
-* ``border`` -- no subject cut by the frame: the share of the saliency in the one-cell frame
-  ring beyond 0.15 (a horizon crossing the frame stays under it) decays the term.
+* ``border`` -- no subject cut by the frame: the share of the subject on the one-cell frame
+  ring beyond 0.08 decays the term (lines crossing the frame are no subject and cost nothing).
 * ``horizon_placement`` -- the dominant frame-spanning near-horizontal line (horizon, floor or
   table line) lies on a third rather than in the middle.
 * ``horizon_level`` -- that line is level (a 2.5 deg tilt costs about 40 %, 5 deg about 85 %).
 * ``clutter`` -- clean versus busy: the share of cells with strong edges; 1 for a clean frame
   with a few strong lines, about 0 when edges fill the frame.
-* ``subject_size`` -- the salient mass covers a sensible part of the frame: its effective area
-  (inverse participation ratio of the saliency) near 15 %, log-normal falloff, so specks and
-  frame-filling textures score low.
+* ``subject_size`` -- there is a subject and it covers a sensible share of the frame: the area
+  of its second-moment ellipse (about its share of the frame), log-normal around 12 %, times
+  ``1 - exp(-subject mass / 0.1)`` so that no subject means 0.
 
 and two factors that say how the terms are combined:
 
-* ``content`` -- how much there is to look at (mean saliency, edge strength and tonal
-  contrast), ``1 - exp(-evidence)``: about 0 for a blank wall, a black frame or an empty sky,
-  above 0.9 with one clear subject.
-* ``horizon_presence`` -- how strongly a frame-spanning horizontal line is present, in
+* ``content`` -- how much there is to look at: ``1 - exp(-(corner energy / 1e-4 + 0.7 *
+  lines))`` where ``lines`` in ``[0, 1]`` measures edge energy; about 0 for a blank wall, a
+  black frame or an empty sky, at most 0.5 with straight lines only, above 0.95 with one clear
+  object.
+* ``horizon_presence`` -- how strongly a frame-spanning near-horizontal line is present, in
   ``[0, 1]``; the two horizon terms count only in proportion to it.
 
 **Score**, in ``[0, 1]``::
@@ -57,8 +63,9 @@ and two factors that say how the terms are combined:
     score = content * sum_k(w_k * term_k) / sum_k(w_k)
 
 with the weights of :class:`CompositionWeights` (horizon weights multiplied by
-``horizon_presence``). A featureless view scores near 0, an ordinary snapshot 0.4-0.6, a clean
-subject on a third with a level horizon on the other third above 0.8.
+``horizon_presence``). A featureless view scores near 0, bare architecture 0.2-0.4, an ordinary
+view with objects 0.4-0.6, a clean subject on a third with a level horizon on the other third
+about 0.8.
 """
 
 from __future__ import annotations
@@ -76,7 +83,7 @@ from aes_planner.teachers.base import Teacher, check_feature_map, check_images
 __all__ = ["CompositionConfig", "CompositionWeights", "CompositionTeacher", "TERMS", "CHANNELS"]
 
 #: Feature-map channels, in order.
-CHANNELS = ("saliency", "edge_xx", "edge_yy", "edge_xy", "luminance")
+CHANNELS = ("saliency", "edge_xx", "edge_yy", "edge_xy")
 #: Terms of the score, in order (see the module docstring).
 TERMS = (
     "thirds",
@@ -91,21 +98,25 @@ TERMS = (
 # Calibration constants of the head (fixed; the tests pin their effect). Energies are per cell
 # of the 16x16 map for images in [0, 1].
 _EPS = 1e-6
+_TINY = 1e-14
 _MAP_LIMIT = 1e3  # the head clamps rendered maps to +-this before anything can overflow
-_SAL_FLOOR = 1e-3  # saliency any cell is assumed to have: a blank frame reads as uniform
+_SAL_FLOOR = 3e-3  # subject saliency every cell is assumed to have: without a subject, p is uniform
+_RING_FLOOR = 1e-3  # the same for the share of the subject on the frame ring
 _EDGE_GAIN = 4.0
-_CONTENT_SAL_FLOOR = 0.01  # saliency below this is not content
-_CONTENT_SAL = 0.004  # mean saliency above the floor worth one unit of content evidence
+_OBJECT_ENERGY = 1e-3  # cell corner energy at which a cell counts a quarter object-like
+_CONTENT_OBJECT = 1e-4  # mean corner energy worth one unit of content evidence
 _CONTENT_EDGE_FLOOR = 3e-4  # edge energy below this (a smooth shading ramp) is not content
-_CONTENT_EDGE = 5e-4  # mean edge energy above the floor worth one unit
-_CONTENT_TONE = 0.01  # mean local tonal contrast worth one unit
+_CONTENT_EDGE = 5e-4  # mean edge energy above the floor for 63 % of the lines' share
+_LINES_CONTENT = 0.7  # lines alone give at most 1 - exp(-0.7) = 0.5 content
 _BALANCE_SIGMA = 0.18
-_BORDER_FREE = 0.15  # share of saliency on the frame ring that costs nothing
-_BORDER_SCALE = 0.1
+_BORDER_FREE = 0.08  # share of the subject on the frame ring that costs nothing
+_BORDER_SCALE = 0.08
 _BUSY_ENERGY = 0.004  # a cell with this edge energy counts half busy
 _CLUTTER_MID, _CLUTTER_WIDTH = 0.35, 0.07
-_SIZE_LOG_SIGMA = 1.0
-_HORIZON_ENERGY = 0.05  # line energy per third of the width for presence 0.63
+_SIZE_LOG_SIGMA = 1.2
+_AREA_GAIN = 1.6  # the squared subject mass sits on outlines and corners: x1.6 ~ share of the frame
+_SUBJECT_MASS = 0.1  # summed subject saliency for 63 % of the size term (one clear object: ~1)
+_HORIZON_ENERGY = 0.015  # line energy per third of the width for presence 0.63 (a hard level edge: ~0.94)
 _HORIZON_SIGMA = 0.06  # of the frame height, around each third
 
 
@@ -116,8 +127,8 @@ class CompositionWeights:
     thirds: float = 1.0
     balance: float = 0.5
     border: float = 1.0
-    horizon_placement: float = 0.5
-    horizon_level: float = 0.75
+    horizon_placement: float = 0.75
+    horizon_level: float = 1.0
     clutter: float = 0.75
     subject_size: float = 0.75
 
@@ -236,7 +247,7 @@ class CompositionTeacher(Teacher):
         self.register_buffer("_ring", ring.float(), persistent=False)
         self.register_buffer("_rows", c.float(), persistent=False)
         self.register_buffer("_box3", _smoothing_matrix(n, torch.full((3,), 1.0 / 3.0)), persistent=False)
-        self.register_buffer("_row_blur", _smoothing_matrix(n, _gaussian_kernel(1.0)), persistent=False)
+        self.register_buffer("_row_blur", _smoothing_matrix(n, _gaussian_kernel(1.5)), persistent=False)
         groups = torch.zeros(n, 3)  # column -> left / middle / right third of the width
         for j, (a, b) in enumerate(zip((0, n // 3, n - n // 3), (n // 3, n - n // 3, n))):
             groups[a:b, j] = 1.0
@@ -255,7 +266,7 @@ class CompositionTeacher(Teacher):
             images = F.adaptive_avg_pool2d(images, (s, s))
         return images
 
-    def features(self, images: Tensor) -> Tensor:  # [B, 3, H, W] in [0, 1] -> [B, 5, n, n]
+    def features(self, images: Tensor) -> Tensor:  # [B, 3, H, W] in [0, 1] -> [B, 4, n, n]
         images = check_images(images, "composition teacher")
         rgb = self._working_frame(images.to(self._x.dtype))
         bsz, size, nf = rgb.shape[0], rgb.shape[-1], self._filters
@@ -272,39 +283,44 @@ class CompositionTeacher(Teacher):
         gx, gy = out[:, :, nf - 2], out[:, :, nf - 1]  # [B, colour, s, s]
         tensor = _EDGE_GAIN * torch.stack([(gx * gx).sum(1), (gy * gy).sum(1), (gx * gy).sum(1)], 1)
 
-        maps = torch.cat([sal[:, None], tensor, opp[:, :1]], 1)  # [B, 5, s, s]
+        maps = torch.cat([sal[:, None], tensor], 1)  # [B, 4, s, s]
         return F.adaptive_avg_pool2d(maps, self.feature_size)
 
     # ---------------------------------------------------------------------- head
-    def head(self, fmap: Tensor) -> Tensor:  # [B, 5, n, n] -> [B]
+    def head(self, fmap: Tensor) -> Tensor:  # [B, 4, n, n] -> [B]
         return self._terms(fmap)["score"]
 
-    def explain_map(self, fmap: Tensor) -> dict[str, Tensor]:  # [B, 5, n, n] -> {name: [B]}
+    def explain_map(self, fmap: Tensor) -> dict[str, Tensor]:  # [B, 4, n, n] -> {name: [B]}
         return self._terms(fmap)
 
-    def _terms(self, fmap: Tensor) -> dict[str, Tensor]:  # [B, 5, n, n] -> {name: [B]}
+    def _terms(self, fmap: Tensor) -> dict[str, Tensor]:  # [B, 4, n, n] -> {name: [B]}
         check_feature_map(fmap, self.feature_channels, self.feature_size, "composition teacher head")
         fmap = fmap.clamp(-_MAP_LIMIT, _MAP_LIMIT)  # real maps stay within about [-1, 1]
         cfg = self.config
         n = self.feature_size[0]
         sal = fmap[:, 0].clamp_min(0.0)  # [B, n, n]
         jxx, jyy, jxy = fmap[:, 1].clamp_min(0.0), fmap[:, 2].clamp_min(0.0), fmap[:, 3]
-        lum = fmap[:, 4]
         energy = jxx + jyy
         dims = (1, 2)
 
-        # How much there is to look at: salient cells, edges and local tonal contrast. Weak,
-        # uniform signals (a shading gradient, an overcast sky) stay under the floors.
-        local_tone = (lum - self._box3 @ lum @ self._box3.T).abs()  # against the 3x3-cell mean
-        evidence = (
-            F.relu(sal - _CONTENT_SAL_FLOOR).mean(dims) / _CONTENT_SAL
-            + F.relu(energy - _CONTENT_EDGE_FLOOR).mean(dims) / _CONTENT_EDGE
-            + local_tone.mean(dims) / _CONTENT_TONE
-        )
-        content = 1.0 - torch.exp(-evidence)
+        # Objects versus lines: the smaller eigenvalue of the structure tensor pooled over 3x3
+        # cells (Shi-Tomasi at cell scale) is large where edges of several orientations meet
+        # (objects, corners, foliage) and about zero along straight lines (wall edges, floor
+        # boards, a horizon), which frame a view but are not a subject.
+        a, b, c = (self._box3 @ m @ self._box3.T for m in (jxx, jyy, jxy))
+        # (A tiny epsilon: sqrt(eps) biases every straight edge's value upwards.)
+        corners = F.relu(0.5 * (a + b - ((a - b) ** 2 + 4 * c * c + _TINY).sqrt() + math.sqrt(_TINY)))
+        objectness = (corners / (corners + _OBJECT_ENERGY)) ** 2  # [B, n, n] in [0, 1); squared: the
+        # steps of a slightly tilted line leave a little corner energy that must not make it a subject
+        subject = sal * objectness  # salient and object-like
 
-        # Where the salient mass is: squared saliency favours the subject over its halo.
-        p = sal * sal + _SAL_FLOOR**2
+        # How much there is to look at: objects count fully, lines at most half (a bare wall
+        # corner or an empty horizon is half-empty); shading ramps stay under the floor.
+        lines = 1.0 - torch.exp(-F.relu(energy - _CONTENT_EDGE_FLOOR).mean(dims) / _CONTENT_EDGE)
+        content = 1.0 - torch.exp(-(corners.mean(dims) / _CONTENT_OBJECT + _LINES_CONTENT * lines))
+
+        # Where the subject is: squared, so that it counts more than its halo.
+        p = subject * subject + _SAL_FLOOR**2
         p = p / p.sum(dims, keepdim=True)
         thirds = (p * self._thirds).sum(dims)
 
@@ -314,11 +330,19 @@ class CompositionTeacher(Teacher):
         cx, cy = (weight * self._x).sum(dims), (weight * self._y).sum(dims)
         balance = torch.exp(-((cx - 0.5) ** 2 + 0.25 * (cy - 0.5) ** 2) / (2 * _BALANCE_SIGMA**2))
 
-        ring_share = (sal * self._ring).sum(dims) / (sal.sum(dims) + _SAL_FLOOR * n * n)
+        ring_share = (subject * self._ring).sum(dims) / (subject.sum(dims) + _RING_FLOOR * n * n)
         border = torch.exp(-F.relu(ring_share - _BORDER_FREE) / _BORDER_SCALE)
 
-        area = 1.0 / (n * n * (p * p).sum(dims))
-        subject_size = torch.exp(-torch.log(area / cfg.ideal_subject_area) ** 2 / (2 * _SIZE_LOG_SIGMA**2))
+        # Area the subject spans: the ellipse of its second moments (2 pi sqrt(det cov) is the
+        # area of a disc whose outline, or whole, carries the mass), in shares of the frame.
+        s2 = subject * subject
+        w = s2 / (s2.sum(dims, keepdim=True) + _TINY)
+        mx, my = (w * self._x).sum(dims, keepdim=True), (w * self._y).sum(dims, keepdim=True)
+        dx, dy = self._x - mx, self._y - my
+        vxx, vyy, vxy = (w * dx * dx).sum(dims), (w * dy * dy).sum(dims), (w * dx * dy).sum(dims)
+        area = _AREA_GAIN * 2 * math.pi * (F.relu(vxx * vyy - vxy * vxy) + _TINY).sqrt()
+        size_fit = torch.exp(-torch.log(area / cfg.ideal_subject_area) ** 2 / (2 * _SIZE_LOG_SIGMA**2))
+        subject_size = size_fit * (1.0 - torch.exp(-subject.sum(dims) / _SUBJECT_MASS))  # no subject, no size
 
         busy = (energy / (energy + _BUSY_ENERGY)).mean(dims)
         clutter = torch.sigmoid((_CLUTTER_MID - busy) / _CLUTTER_WIDTH)
@@ -344,7 +368,7 @@ class CompositionTeacher(Teacher):
         """(placement, level, presence) of the dominant frame-spanning near-horizontal line, each [B]."""
         n = jxx.shape[-1]
         # Near-horizontal line energy: > 0 for edges within ~30 deg of horizontal.
-        line = F.relu(jyy - jxx - (jxy * jxy + _EPS).sqrt() + math.sqrt(_EPS))  # [B, n, n]
+        line = F.relu(jyy - jxx - 0.25 * ((jxy * jxy + _EPS).sqrt() - math.sqrt(_EPS)))  # [B, n, n]
         # Line energy per row in each third of the width, smoothed over neighbouring rows so that
         # a slightly tilted line still spans the frame.
         parts = self._row_blur @ (line @ self._thirds_of_width)  # [B, n rows, 3]

@@ -200,7 +200,7 @@ def test_gradients_finite_for_any_size_and_value(h, w, scale, offset, seed):
 def test_head_gradients_finite_for_any_rendered_map(scale, signed, seed):
     # The field renders maps the trunk never made: negative, huge, all zero. The head must cope.
     g = torch.Generator().manual_seed(seed)
-    fmap = scale * torch.randn(2, 5, 16, 16, generator=g)
+    fmap = scale * torch.randn(2, 4, 16, 16, generator=g)
     fmap = (fmap if signed else fmap.abs()).requires_grad_(True)
     e = _TEACHER.explain_map(fmap)
     sum(e.values()).sum().backward()
@@ -276,4 +276,4 @@ def test_bad_inputs_are_refused_with_advice(teacher, images, match):
 
 def test_head_refuses_maps_of_the_wrong_shape(teacher):
     with pytest.raises(TeacherError, match="feature_size"):
-        teacher.head(torch.zeros(1, 5, 14, 14))
+        teacher.head(torch.zeros(1, 4, 14, 14))
