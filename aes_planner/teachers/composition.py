@@ -102,7 +102,7 @@ _TINY = 1e-14
 _MAP_LIMIT = 1e3  # the head clamps rendered maps to +-this before anything can overflow
 _SAL_FLOOR = 3e-3  # subject saliency every cell is assumed to have: without a subject, p is uniform
 _RING_FLOOR = 1e-3  # the same for the share of the subject on the frame ring
-_EDGE_GAIN = 4.0
+_EDGE_GAIN = 4.0  # structure tensor scale: a hard edge gives cells of about 0.01-0.1
 _OBJECT_ENERGY = 1e-3  # cell corner energy at which a cell counts a quarter object-like
 _CONTENT_OBJECT = 1e-4  # mean corner energy worth one unit of content evidence
 _CONTENT_EDGE_FLOOR = 3e-4  # edge energy below this (a smooth shading ramp) is not content
@@ -195,7 +195,7 @@ class CompositionTeacher(Teacher):
     """Composition teacher (the default): see the module docstring for the map, terms and score."""
 
     name = "composition"
-    score_range = "[0, 1]: ~0 empty or featureless, 0.4-0.6 ordinary, > 0.8 well composed"
+    score_range = "[0, 1]: ~0 featureless, 0.2-0.4 bare architecture, 0.4-0.6 ordinary, ~0.8 well composed"
 
     _CENTRE_SIGMA = 1.0  # px of the working frame
     _SURROUND_SIGMAS = (4.0, 10.0)
@@ -252,8 +252,8 @@ class CompositionTeacher(Teacher):
         for j, (a, b) in enumerate(zip((0, n // 3, n - n // 3), (n // 3, n - n // 3, n))):
             groups[a:b, j] = 1.0
         self.register_buffer("_thirds_of_width", groups, persistent=False)
-        w = torch.tensor([cfg.weights.__dict__[t] for t in TERMS], dtype=torch.float32)
-        self.register_buffer("_weights", w, persistent=False)
+        weights = torch.tensor([getattr(cfg.weights, t) for t in TERMS], dtype=torch.float32)
+        self.register_buffer("_weights", weights, persistent=False)
         self.freeze()
 
     # ------------------------------------------------------------------ features
@@ -336,10 +336,10 @@ class CompositionTeacher(Teacher):
         # Area the subject spans: the ellipse of its second moments (2 pi sqrt(det cov) is the
         # area of a disc whose outline, or whole, carries the mass), in shares of the frame.
         s2 = subject * subject
-        w = s2 / (s2.sum(dims, keepdim=True) + _TINY)
-        mx, my = (w * self._x).sum(dims, keepdim=True), (w * self._y).sum(dims, keepdim=True)
+        m = s2 / (s2.sum(dims, keepdim=True) + _TINY)
+        mx, my = (m * self._x).sum(dims, keepdim=True), (m * self._y).sum(dims, keepdim=True)
         dx, dy = self._x - mx, self._y - my
-        vxx, vyy, vxy = (w * dx * dx).sum(dims), (w * dy * dy).sum(dims), (w * dx * dy).sum(dims)
+        vxx, vyy, vxy = (m * dx * dx).sum(dims), (m * dy * dy).sum(dims), (m * dx * dy).sum(dims)
         area = _AREA_GAIN * 2 * math.pi * (F.relu(vxx * vyy - vxy * vxy) + _TINY).sqrt()
         size_fit = torch.exp(-torch.log(area / cfg.ideal_subject_area) ** 2 / (2 * _SIZE_LOG_SIGMA**2))
         subject_size = size_fit * (1.0 - torch.exp(-subject.sum(dims) / _SUBJECT_MASS))  # no subject, no size
@@ -367,7 +367,7 @@ class CompositionTeacher(Teacher):
     def _horizon(self, jxx: Tensor, jyy: Tensor, jxy: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """(placement, level, presence) of the dominant frame-spanning near-horizontal line, each [B]."""
         n = jxx.shape[-1]
-        # Near-horizontal line energy: > 0 for edges within ~30 deg of horizontal.
+        # Near-horizontal line energy: > 0 for edges within ~40 deg of horizontal.
         line = F.relu(jyy - jxx - 0.25 * ((jxy * jxy + _EPS).sqrt() - math.sqrt(_EPS)))  # [B, n, n]
         # Line energy per row in each third of the width, smoothed over neighbouring rows so that
         # a slightly tilted line still spans the frame.
