@@ -23,9 +23,12 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
+# Benchmarks (JSON figures), then the checks too slow for `make test` (marked `slow`;
+# pytest's exit status 5 means none are collected, which is fine).
 bench: $(STAMP)
 	mkdir -p bench
 	$(BIN)/aes-planner bench --json bench/latest.json
+	$(BIN)/python -m pytest -q -m slow || [ $$? -eq 5 ]
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis

@@ -71,6 +71,10 @@ def _convert(tp: Any, value: Any, key: str) -> Any:
     if origin in (Union, types.UnionType):
         if value is None and type(None) in args:
             return None
+        options = [a for a in args if a is not type(None)]
+        if len(options) == 1:
+            # Optional[X]: X's own error names the key and the problem; keep it.
+            return _convert(options[0], value, key)
         for arg in args:
             if arg is type(None):
                 continue

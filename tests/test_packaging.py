@@ -34,7 +34,8 @@ def test_import_core_without_hardware_sdk():
     # The core must import without dynamixel-sdk: block it and import everything hardware-free.
     code = (
         "import sys; sys.modules['dynamixel_sdk'] = None; sys.modules['serial'] = None\n"
-        "import aes_planner, aes_planner.geometry, aes_planner.cli\n"
+        "import aes_planner, aes_planner.geometry, aes_planner.cli, aes_planner.devices\n"
+        "import aes_planner.cli.gimbal\n"
         "print('ok')"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
@@ -45,3 +46,16 @@ def test_cli_version():
     out = subprocess.run([sys.executable, "-m", "aes_planner", "--version"], capture_output=True, text=True)
     assert out.returncode == 0
     assert re.match(r"aes-planner \d+\.\d+", out.stdout)
+
+
+def test_hardware_bridge_imports_without_torch():
+    # A driver process must start fast, even on a small computer: no torch, no numpy.
+    code = (
+        "import sys\n"
+        "import aes_planner.drivers.dynamixel, aes_planner.drivers.emulator, aes_planner.cli.gimbal\n"
+        "from aes_planner.geometry import JointLimits, PanTiltConfig\n"
+        "print(sorted(m for m in ('torch', 'numpy') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"

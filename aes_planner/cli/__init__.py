@@ -17,8 +17,12 @@ from aes_planner.errors import AesPlannerError
 
 COMMANDS = [
     "aes_planner.cli.demo",
+    "aes_planner.cli.sim",
     "aes_planner.cli.dataset",
     "aes_planner.cli.bench",
+    "aes_planner.cli.score",
+    "aes_planner.cli.teachers",
+    "aes_planner.cli.gimbal",
 ]
 
 

@@ -1,31 +1,41 @@
 """``aes-planner demo``: the main job of ``make demo``.
 
-Until the simulator lands, it walks the default pan-tilt rig over its joint range and prints the
-camera pose at each setting (forward kinematics, then the inverse back to the joints).
+Until the planner's closed loop lands, it renders a simulated scene from a sweep of rig poses
+into a run folder (a dataset folder plus a contact sheet) and prints where it went.
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime as dt
 import math
+from pathlib import Path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="run the demonstration (make demo)")
+    p.add_argument("--scene", default="indoor:3", metavar="FILE_OR_FAMILY:SEED", help="scene to render (default indoor:3)")
+    p.add_argument("--views", type=int, default=6, help="number of rig views (default 6)")
+    p.add_argument("--runs", default="runs", help="parent folder of the run folder (default runs/)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from aes_planner.geometry import PanTilt
+    from aes_planner.cli.sim import render_survey
+    from aes_planner.dataset import load_dataset
+    from aes_planner.geometry import cam2world_to_view
 
-    rig = PanTilt()
-    print("pan_deg tilt_deg   x_m     y_m     z_m   yaw_deg pitch_deg  inverse(pan,tilt)_deg")
-    for pan, tilt in rig.joint_grid(3, 3):
-        view = rig.view_of(pan, tilt)
-        sol = rig.inverse_direction(rig.forward(pan, tilt)[:3, 2], pan)
-        print(
-            f"{math.degrees(pan):7.1f} {math.degrees(tilt):8.1f} "
-            f"{view[0]:7.3f} {view[1]:7.3f} {view[2]:7.3f} {math.degrees(view[3]):8.1f} {math.degrees(view[4]):8.1f}"
-            f"   ({math.degrees(sol.pan_rad):.1f}, {math.degrees(sol.tilt_rad):.1f})"
-        )
+    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    out = Path(args.runs) / f"demo-{stamp}"
+    render_survey(args.scene, args.views, out, contact_sheet=True)
+    ds = load_dataset(out)
+    print(f"rendered {len(ds)} rig views of {args.scene}:")
+    print("  view  pan_deg tilt_deg    x_m    y_m    z_m  yaw_deg pitch_deg")
+    for f in ds.frames:
+        pan, tilt = f.extras["meta"]["joints_rad"]
+        x, y, z, yaw, pitch = cam2world_to_view(f.cam2world)
+        print(f"  {f.frame_id[-6:]} {math.degrees(pan):8.1f} {math.degrees(tilt):8.1f} "
+              f"{x:6.2f} {y:6.2f} {z:6.2f} {math.degrees(yaw):8.1f} {math.degrees(pitch):8.1f}")
+    print(f"run folder: {out.resolve()}")
+    print("  cameras.json, images/, depth/ and contact_sheet.png (RGB over depth)")
     return 0

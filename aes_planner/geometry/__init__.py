@@ -52,48 +52,75 @@ about the pan frame's horizontal axis with positive tilt looking up, the camera 
 lever arm from the tilt axis; with an upright base, ``pan = yaw`` and ``tilt = pitch``.
 """
 
-from aes_planner.geometry.camera import Intrinsics
-from aes_planner.geometry.pantilt import JointSolution, PanTilt, PanTiltConfig
-from aes_planner.geometry.poses import (
-    LocalFrame,
-    cam2world_to_view,
-    direction_to_yaw_pitch,
-    look_at,
-    matrix_to_quat,
-    quat_to_matrix,
-    rigid_inverse,
-    rot_x,
-    rot_y,
-    rot_z,
-    validate_cam2world,
-    view_to_cam2world,
-    world2cam,
-    wrap_angle,
-    yaw_pitch_to_direction,
-)
-from aes_planner.geometry.trajectory import interpolate_poses, interpolate_views, slerp
+from __future__ import annotations
 
-__all__ = [
-    "Intrinsics",
-    "JointSolution",
-    "LocalFrame",
-    "PanTilt",
-    "PanTiltConfig",
-    "cam2world_to_view",
-    "direction_to_yaw_pitch",
-    "interpolate_poses",
-    "interpolate_views",
-    "look_at",
-    "matrix_to_quat",
-    "quat_to_matrix",
-    "rigid_inverse",
-    "rot_x",
-    "rot_y",
-    "rot_z",
-    "slerp",
-    "validate_cam2world",
-    "view_to_cam2world",
-    "world2cam",
-    "wrap_angle",
-    "yaw_pitch_to_direction",
-]
+import importlib
+from typing import TYPE_CHECKING, Any
+
+# Names resolve lazily (PEP 562) so that the torch-free parts (``geometry.rig``: rig
+# configuration, joint limits) import without loading torch: the hardware bridge needs only them.
+_EXPORTS = {
+    "Intrinsics": "camera",
+    "JointCommandError": "rig",
+    "JointLimits": "rig",
+    "PanTiltConfig": "rig",
+    "JointSolution": "pantilt",
+    "PanTilt": "pantilt",
+    "LocalFrame": "poses",
+    "cam2world_to_view": "poses",
+    "direction_to_yaw_pitch": "poses",
+    "look_at": "poses",
+    "matrix_to_quat": "poses",
+    "quat_to_matrix": "poses",
+    "rigid_inverse": "poses",
+    "rot_x": "poses",
+    "rot_y": "poses",
+    "rot_z": "poses",
+    "validate_cam2world": "poses",
+    "view_to_cam2world": "poses",
+    "world2cam": "poses",
+    "wrap_angle": "poses",
+    "yaw_pitch_to_direction": "poses",
+    "interpolate_poses": "trajectory",
+    "interpolate_views": "trajectory",
+    "slerp": "trajectory",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'aes_planner.geometry' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"aes_planner.geometry.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))
+
+
+if TYPE_CHECKING:  # for type checkers and IDEs
+    from aes_planner.geometry.camera import Intrinsics
+    from aes_planner.geometry.pantilt import JointSolution, PanTilt
+    from aes_planner.geometry.poses import (
+        LocalFrame,
+        cam2world_to_view,
+        direction_to_yaw_pitch,
+        look_at,
+        matrix_to_quat,
+        quat_to_matrix,
+        rigid_inverse,
+        rot_x,
+        rot_y,
+        rot_z,
+        validate_cam2world,
+        view_to_cam2world,
+        world2cam,
+        wrap_angle,
+        yaw_pitch_to_direction,
+    )
+    from aes_planner.geometry.rig import JointCommandError, JointLimits, PanTiltConfig
+    from aes_planner.geometry.trajectory import interpolate_poses, interpolate_views, slerp

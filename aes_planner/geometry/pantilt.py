@@ -25,45 +25,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from aes_planner.config import require, require_finite
-from aes_planner.errors import AesPlannerError
+from aes_planner.geometry.rig import JointCommandError, JointLimits, PanTiltConfig
 from aes_planner.geometry.poses import BODY_TO_OPTICAL, cam2world_to_view, direction_to_yaw_pitch
 
 __all__ = ["PanTiltConfig", "PanTilt", "JointSolution", "JointCommandError"]
-
-
-class JointCommandError(AesPlannerError, ValueError):
-    """A joint command that must not reach a motor (NaN, Inf)."""
-
-
-@dataclass
-class PanTiltConfig:
-    """Geometry and limits of a pan-tilt rig (degrees and metres: this is the YAML edge).
-
-    * ``base_xyz_m``: pan-axis origin in the world.
-    * ``base_rpy_deg``: base orientation, static roll/pitch/yaw about world x, y, z
-      (``R = Rz(yaw) Ry(pitch) Rx(roll)``); (0, 0, 0) is upright facing +x.
-    * ``tilt_offset_m``: tilt-axis origin in the pan frame (x forward, y left, z up).
-    * ``lever_arm_m``: camera optical centre in the tilt frame.
-    * ``pan_limits_deg``, ``tilt_limits_deg``: (min, max) joint limits, inclusive.
-    """
-
-    base_xyz_m: tuple[float, float, float] = (0.0, 0.0, 1.2)
-    base_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    tilt_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.05)
-    lever_arm_m: tuple[float, float, float] = (0.03, 0.0, 0.02)
-    pan_limits_deg: tuple[float, float] = (-150.0, 150.0)
-    tilt_limits_deg: tuple[float, float] = (-60.0, 60.0)
-
-    def __post_init__(self):
-        for name in ("base_xyz_m", "base_rpy_deg", "tilt_offset_m", "lever_arm_m", "pan_limits_deg", "tilt_limits_deg"):
-            require_finite(list(getattr(self, name)), name)
-        lo, hi = self.pan_limits_deg
-        require(lo < hi, "pan_limits_deg", f"min must be below max, got ({lo}, {hi})")
-        require(hi - lo <= 360.0, "pan_limits_deg", f"a range over 360 deg is not a position-mode joint: ({lo}, {hi})")
-        lo, hi = self.tilt_limits_deg
-        require(lo < hi, "tilt_limits_deg", f"min must be below max, got ({lo}, {hi})")
-        require(-90.0 <= lo and hi <= 90.0, "tilt_limits_deg", f"tilt must stay within [-90, 90] deg, got ({lo}, {hi})")
 
 
 @dataclass(frozen=True)
@@ -100,22 +65,17 @@ class PanTilt:
         self.base2world[:3, 3] = c.base_xyz_m
         self.tilt_offset = np.asarray(c.tilt_offset_m, dtype=np.float64)
         self.lever_arm = np.asarray(c.lever_arm_m, dtype=np.float64)
-        self.pan_limits_rad = tuple(math.radians(a) for a in c.pan_limits_deg)
-        self.tilt_limits_rad = tuple(math.radians(a) for a in c.tilt_limits_deg)
+        self.limits = JointLimits.from_config(c)
+        self.pan_limits_rad = self.limits.pan_rad
+        self.tilt_limits_rad = self.limits.tilt_rad
 
     # ----------------------------------------------------------------------------- limits
     def clamp(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
         """Clamp joint angles to the limits; NaN or Inf raise :class:`JointCommandError`."""
-        if not (math.isfinite(pan_rad) and math.isfinite(tilt_rad)):
-            raise JointCommandError(
-                f"joint command must be finite, got pan={pan_rad!r} rad, tilt={tilt_rad!r} rad; refusing to move"
-            )
-        (plo, phi), (tlo, thi) = self.pan_limits_rad, self.tilt_limits_rad
-        return min(max(pan_rad, plo), phi), min(max(tilt_rad, tlo), thi)
+        return self.limits.clamp(pan_rad, tilt_rad)
 
     def within_limits(self, pan_rad: float, tilt_rad: float, tol_rad: float = 1e-9) -> bool:
-        (plo, phi), (tlo, thi) = self.pan_limits_rad, self.tilt_limits_rad
-        return plo - tol_rad <= pan_rad <= phi + tol_rad and tlo - tol_rad <= tilt_rad <= thi + tol_rad
+        return self.limits.within(pan_rad, tilt_rad, tol_rad)
 
     # ---------------------------------------------------------------------------- forward
     def forward(self, pan_rad, tilt_rad):
@@ -218,6 +178,22 @@ class PanTilt:
     def view_of(self, pan_rad: float, tilt_rad: float) -> np.ndarray:
         """5-DoF view ``[5]`` of the camera at these joints."""
         return cam2world_to_view(self.forward(pan_rad, tilt_rad))
+
+    def sweep(self, n: int, margin: float = 0.1) -> np.ndarray:
+        """``n`` joint pairs ``[n, 2]`` along a left-to-right sweep of the range.
+
+        Pan steps evenly from one limit to the other (``margin`` of the range in from each);
+        tilt zig-zags a quarter of the tilt range above and below its middle, so consecutive
+        views overlap and the set covers both directions. ``n = 1`` is the centre.
+        """
+        if n < 1:
+            raise ValueError(f"sweep needs n >= 1 views, got {n}")
+        (plo, phi), (tlo, thi) = self.pan_limits_rad, self.tilt_limits_rad
+        pm = (phi - plo) * margin
+        pans = np.linspace(plo + pm, phi - pm, n) if n > 1 else np.array([(plo + phi) / 2])
+        mid, quarter = (tlo + thi) / 2, (thi - tlo) / 4
+        tilts = mid + quarter * np.where(np.arange(n) % 2 == 0, 1.0, -1.0) if n > 1 else np.array([mid])
+        return np.stack([pans, tilts], axis=-1)
 
     def joint_grid(self, n_pan: int, n_tilt: int, margin: float = 0.1) -> np.ndarray:
         """Joint pairs ``[n_pan * n_tilt, 2]`` spread over the range, ``margin`` (fraction) in from each limit."""

@@ -114,3 +114,15 @@ def test_config_errors_name_the_key():
         from_dict(PanTiltConfig, {"base_xyz_m": [0, 0]})
     with pytest.raises(ConfigError, match=r"base_xyz_m\[1\]: expected a number"):
         from_dict(PanTiltConfig, {"base_xyz_m": [0, "x", 1]})
+
+
+@pytest.mark.parametrize("n", [1, 2, 4, 7])
+def test_sweep_spreads_over_the_range(n):
+    joints = RIG.sweep(n)
+    assert joints.shape == (n, 2)
+    assert all(RIG.within_limits(p, t) for p, t in joints)
+    assert np.all(np.diff(joints[:, 0]) > 0)  # left to right
+    if n > 2:
+        span = RIG.pan_limits_rad[1] - RIG.pan_limits_rad[0]
+        assert joints[-1, 0] - joints[0, 0] == pytest.approx(0.8 * span)
+        assert len(np.unique(joints[:, 1])) == 2  # tilt zig-zags

@@ -1,0 +1,227 @@
+"""Hardware-free device interfaces: the :class:`Device` ABC, the :class:`Gimbal` interface and a
+registry that maps the ``type:`` word of a launch file to an implementation.
+
+Real and simulated implementations are registered side by side::
+
+    gimbal:
+      type: dynamixel_pan_tilt        # or emulated_pan_tilt: same driver on the built-in emulator
+      port: /dev/ttyUSB0
+
+:func:`make_device` looks the type word up, builds the class's config dataclass from the other
+keys (unknown keys are errors naming the key) and returns an unconnected device. Implementations
+are named by import path, so this module never imports ``aes_planner.drivers`` (or any vendor
+SDK) until a launch file asks for one.
+
+Joint angles follow :mod:`aes_planner.geometry`: radians, ``yaw`` = pan joint (about the base's
++z), ``pitch`` = tilt joint, positive looks up.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any, ClassVar, Mapping
+
+from aes_planner.config import ConfigError, from_dict
+from aes_planner.errors import AesPlannerError
+
+__all__ = [
+    "Device",
+    "Gimbal",
+    "GimbalState",
+    "DeviceError",
+    "GimbalCommError",
+    "GimbalPortLostError",
+    "GimbalHardwareError",
+    "GimbalProtocolError",
+    "GimbalTimeoutError",
+    "DEVICE_TYPES",
+    "register_device",
+    "device_class",
+    "make_device",
+]
+
+
+class DeviceError(AesPlannerError):
+    """A device could not do what was asked; the message says what to check."""
+
+
+class GimbalCommError(DeviceError):
+    """No valid reply from the gimbal after every retry (cable, power, baud, id, latency)."""
+
+
+class GimbalPortLostError(GimbalCommError):
+    """The serial port disappeared; the driver reopens it when it returns."""
+
+
+class GimbalProtocolError(DeviceError):
+    """A servo answered but refused the instruction (range, access, length)."""
+
+
+class GimbalTimeoutError(DeviceError):
+    """The gimbal did not report arrival at its goal in time."""
+
+
+class GimbalHardwareError(DeviceError):
+    """A servo raised its hardware alert; motion is refused until :meth:`Gimbal.reboot`.
+
+    ``faults`` maps a joint name (``"pan"``, ``"tilt"``) to the fault names it reports
+    (``("overload",)``).
+    """
+
+    def __init__(self, message: str, faults: Mapping[str, tuple[str, ...]]):
+        super().__init__(message)
+        self.faults = dict(faults)
+
+
+@dataclass(frozen=True)
+class GimbalState:
+    """What a gimbal reports.
+
+    * ``yaw_rad``, ``pitch_rad``: present pan and tilt joint angles.
+    * ``goal_yaw_rad``, ``goal_pitch_rad``: the goal the servos are moving to.
+    * ``moving``: True while either joint is still moving (or not yet at its goal).
+    * ``temperature_c``: (pan, tilt) motor temperatures.
+    * ``hardware_error``: active faults as ``"joint: fault"`` strings, empty when healthy.
+    * ``stamp_s``: wall-clock time of the reading (``time.time()``), to match camera frames.
+    """
+
+    yaw_rad: float
+    pitch_rad: float
+    goal_yaw_rad: float
+    goal_pitch_rad: float
+    moving: bool
+    temperature_c: tuple[float, float]
+    hardware_error: tuple[str, ...]
+    stamp_s: float
+
+    @property
+    def yaw_deg(self) -> float:
+        return math.degrees(self.yaw_rad)
+
+    @property
+    def pitch_deg(self) -> float:
+        return math.degrees(self.pitch_rad)
+
+    def summary(self) -> str:
+        """One line for logs and the CLI."""
+        temps = "/".join(f"{t:.0f}" for t in self.temperature_c)
+        fault = ", ".join(self.hardware_error) or "none"
+        return (
+            f"yaw {self.yaw_deg:+.2f} deg, pitch {self.pitch_deg:+.2f} deg "
+            f"(goal {math.degrees(self.goal_yaw_rad):+.2f}, {math.degrees(self.goal_pitch_rad):+.2f}), "
+            f"{'moving' if self.moving else 'still'}, {temps} C, hardware error: {fault}"
+        )
+
+
+class Device(ABC):
+    """A piece of hardware (or its simulation): connect, use, disconnect.
+
+    Used as a context manager, ``disconnect()`` runs however the block ends. ``disconnect()`` must
+    be safe to call twice and on a device that never connected. Subclasses set ``config_class``
+    (the dataclass :func:`make_device` builds from a launch file) and take it as their only
+    constructor argument.
+    """
+
+    config_class: ClassVar[type | None] = None
+
+    @abstractmethod
+    def connect(self) -> None:
+        """Open the device; raise a :class:`DeviceError` that says what to check when it fails."""
+
+    @abstractmethod
+    def disconnect(self) -> None:
+        """Leave the device safe (motors unpowered) and release it."""
+
+    @property
+    @abstractmethod
+    def connected(self) -> bool:
+        """True between a successful :meth:`connect` and :meth:`disconnect`."""
+
+    def __enter__(self):
+        self.connect()
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.disconnect()
+
+
+class Gimbal(Device):
+    """A two-axis pan-tilt gimbal commanded in joint radians.
+
+    Implementations clamp every command to their joint limits, refuse NaN/Inf with
+    :class:`~aes_planner.geometry.pantilt.JointCommandError` (nothing is sent), and are safe to
+    call from several threads.
+    """
+
+    @abstractmethod
+    def move_to(self, yaw_rad: float, pitch_rad: float) -> tuple[float, float]:
+        """Start moving to the joint angles; return the (clamped) angles actually commanded.
+
+        Returns without waiting; see :meth:`wait_until_reached`.
+        """
+
+    @abstractmethod
+    def state(self) -> GimbalState:
+        """Read the present state."""
+
+    @abstractmethod
+    def wait_until_reached(self, timeout_s: float | None = None) -> GimbalState:
+        """Block until the last goal is reached and the joints are still; return that state.
+
+        Raises :class:`GimbalTimeoutError` after ``timeout_s`` (the implementation's default
+        when None) and :class:`GimbalHardwareError` when a fault appears on the way.
+        """
+
+    def reboot(self) -> None:
+        """Clear a latched hardware error (after its cause is removed). No-op by default."""
+
+
+# type word -> "module:Class". Simulated gimbals register here beside the real ones.
+DEVICE_TYPES: dict[str, str | type[Device]] = {
+    "dynamixel_pan_tilt": "aes_planner.drivers.dynamixel:DynamixelPanTilt",
+    "emulated_pan_tilt": "aes_planner.drivers.dynamixel:EmulatedPanTilt",
+}
+
+
+def register_device(type_name: str, target: str | type[Device]) -> None:
+    """Register an implementation (a class or ``"module:Class"``) under a launch-file type word."""
+    if not type_name or not type_name.replace("_", "").isalnum():
+        raise ValueError(f"device type must be a word like 'sim_pan_tilt', got {type_name!r}")
+    DEVICE_TYPES[type_name] = target
+
+
+def device_class(type_name: str, key: str = "type") -> type[Device]:
+    """The class registered under ``type_name``, imported on first use."""
+    target = DEVICE_TYPES.get(type_name)
+    if target is None:
+        raise ConfigError(key, f"unknown device type {type_name!r}; known types: {', '.join(sorted(DEVICE_TYPES))}")
+    if isinstance(target, type):
+        return target
+    module_name, _, attr = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        raise DeviceError(
+            f"device type {type_name!r} needs the Python module {exc.name!r}, which is not installed; "
+            "install the hardware extra: pip install 'aes-planner[hardware]'"
+        ) from exc
+    return getattr(module, attr)
+
+
+def make_device(spec: Mapping[str, Any], key: str = "") -> Device:
+    """Build an unconnected device from a launch-file mapping ``{type: word, <config keys>}``."""
+    if not isinstance(spec, Mapping):
+        raise ConfigError(key, f"expected a mapping with a 'type' key, got {spec!r}")
+    type_key = f"{key}.type" if key else "type"
+    if "type" not in spec:
+        raise ConfigError(type_key, f"missing; known types: {', '.join(sorted(DEVICE_TYPES))}")
+    cls = device_class(spec["type"], type_key)
+    fields = {k: v for k, v in spec.items() if k != "type"}
+    if cls.config_class is None:
+        if fields:
+            raise ConfigError(key, f"device type {spec['type']!r} takes no settings, got {sorted(fields)}")
+        return cls()
+    return cls(from_dict(cls.config_class, fields, key))

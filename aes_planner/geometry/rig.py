@@ -1,0 +1,78 @@
+"""Pan-tilt rig configuration and joint limits, without torch or numpy.
+
+The hardware bridge imports this module alone (a driver process must start in well under a
+second, even on a small computer); :mod:`aes_planner.geometry.pantilt` adds the kinematics.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from aes_planner.config import require, require_finite
+from aes_planner.errors import AesPlannerError
+
+__all__ = ["JointCommandError", "JointLimits", "PanTiltConfig"]
+
+
+class JointCommandError(AesPlannerError, ValueError):
+    """A joint command that must not reach a motor (NaN, Inf)."""
+
+
+@dataclass
+class PanTiltConfig:
+    """Geometry and limits of a pan-tilt rig (degrees and metres: this is the YAML edge).
+
+    * ``base_xyz_m``: pan-axis origin in the world.
+    * ``base_rpy_deg``: base orientation, static roll/pitch/yaw about world x, y, z
+      (``R = Rz(yaw) Ry(pitch) Rx(roll)``); (0, 0, 0) is upright facing +x.
+    * ``tilt_offset_m``: tilt-axis origin in the pan frame (x forward, y left, z up).
+    * ``lever_arm_m``: camera optical centre in the tilt frame.
+    * ``pan_limits_deg``, ``tilt_limits_deg``: (min, max) joint limits, inclusive.
+    """
+
+    base_xyz_m: tuple[float, float, float] = (0.0, 0.0, 1.2)
+    base_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    tilt_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.05)
+    lever_arm_m: tuple[float, float, float] = (0.03, 0.0, 0.02)
+    pan_limits_deg: tuple[float, float] = (-150.0, 150.0)
+    tilt_limits_deg: tuple[float, float] = (-60.0, 60.0)
+
+    def __post_init__(self):
+        for name in ("base_xyz_m", "base_rpy_deg", "tilt_offset_m", "lever_arm_m", "pan_limits_deg", "tilt_limits_deg"):
+            require_finite(list(getattr(self, name)), name)
+        lo, hi = self.pan_limits_deg
+        require(lo < hi, "pan_limits_deg", f"min must be below max, got ({lo}, {hi})")
+        require(hi - lo <= 360.0, "pan_limits_deg", f"a range over 360 deg is not a position-mode joint: ({lo}, {hi})")
+        lo, hi = self.tilt_limits_deg
+        require(lo < hi, "tilt_limits_deg", f"min must be below max, got ({lo}, {hi})")
+        require(-90.0 <= lo and hi <= 90.0, "tilt_limits_deg", f"tilt must stay within [-90, 90] deg, got ({lo}, {hi})")
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """Inclusive (min, max) joint limits in radians, and the one clamp every command passes."""
+
+    pan_rad: tuple[float, float]
+    tilt_rad: tuple[float, float]
+
+    @classmethod
+    def from_config(cls, config: "PanTiltConfig") -> "JointLimits":
+        return cls(
+            tuple(math.radians(a) for a in config.pan_limits_deg),  # type: ignore[arg-type]
+            tuple(math.radians(a) for a in config.tilt_limits_deg),  # type: ignore[arg-type]
+        )
+
+    def clamp(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
+        """Clamp joint angles to the limits; NaN or Inf raise :class:`JointCommandError`."""
+        if not (math.isfinite(pan_rad) and math.isfinite(tilt_rad)):
+            raise JointCommandError(
+                f"joint command must be finite, got pan={pan_rad!r} rad, tilt={tilt_rad!r} rad; refusing to move"
+            )
+        (plo, phi), (tlo, thi) = self.pan_rad, self.tilt_rad
+        return min(max(pan_rad, plo), phi), min(max(tilt_rad, tlo), thi)
+
+    def within(self, pan_rad: float, tilt_rad: float, tol_rad: float = 1e-9) -> bool:
+        """Whether the joints are inside the limits (widened by ``tol_rad``)."""
+        (plo, phi), (tlo, thi) = self.pan_rad, self.tilt_rad
+        return plo - tol_rad <= pan_rad <= phi + tol_rad and tlo - tol_rad <= tilt_rad <= thi + tol_rad

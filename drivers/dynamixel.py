@@ -1,0 +1,751 @@
+"""``DynamixelPanTilt``: a pan-tilt gimbal of two Dynamixel X-series servos on ``dynamixel-sdk``.
+
+Protocol 2.0, position mode. The life of a command::
+
+    move_to(yaw_rad, pitch_rad)
+      -> NaN/Inf refused (JointCommandError, nothing sent); clamped to the joint limits
+      -> JointCalibration: radians -> ticks, clamped again to the tick limits
+      -> first move only: EEPROM checked (position mode, Min/Max Position Limit = joint limits;
+         written with torque off when they differ), profile velocity/acceleration, torque on
+      -> one sync write of both goals
+    state()  -> one sync read of Goal Position .. Present Temperature of both servos
+
+Faults: every SDK exchange runs under one lock, resets the SDK's ``is_using`` flag afterwards and
+is retried with exponential backoff on timeouts and corrupt replies (a short status packet counts
+as corrupt; the SDK would index past its end). A status with the hardware-alert bit reads
+Hardware Error Status, reports the fault in :class:`GimbalState`, turns torque off on both
+servos and refuses motion until :meth:`DynamixelPanTilt.reboot`. Communication lost after every
+retry is fatal too (torque off, best effort). A port that disappears raises
+:class:`GimbalPortLostError`; the next call reopens it once it is back.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import termios
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import dynamixel_sdk as sdk
+
+from aes_planner.config import ConfigError, require, require_finite
+from aes_planner.devices import (
+    DeviceError,
+    Gimbal,
+    GimbalCommError,
+    GimbalHardwareError,
+    GimbalPortLostError,
+    GimbalProtocolError,
+    GimbalState,
+    GimbalTimeoutError,
+)
+from aes_planner.drivers.dynamixel_models import (
+    JointCalibration,
+    ServoModel,
+    decode_hardware_error,
+    model_by_name,
+    model_by_number,
+    to_signed,
+    to_unsigned,
+)
+from aes_planner.drivers.protocol import ERRBIT_ALERT, ErrNum
+from aes_planner.geometry.rig import JointCommandError, JointLimits, PanTiltConfig
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "DynamixelPanTiltConfig",
+    "DynamixelPanTilt",
+    "EmulatedPanTiltConfig",
+    "EmulatedPanTilt",
+    "ScanResult",
+    "scan",
+    "SDK_BAUD_RATES",
+]
+
+JOINTS = ("pan", "tilt")
+# Rates both the SDK (PortHandler.getCFlagBaud) and the X series accept.
+SDK_BAUD_RATES = (9_600, 57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
+POSITION_MODE = 3
+# One sync read covers Goal Position (116) .. Present Temperature (146) on every X-series table.
+STATE_FIRST_ITEM, STATE_LAST_ITEM = "goal_position", "present_temperature"
+
+_ERRNUM_TEXT = {
+    ErrNum.RESULT_FAIL: "result fail",
+    ErrNum.INSTRUCTION: "instruction error",
+    ErrNum.CRC: "CRC error",
+    ErrNum.DATA_RANGE: "data range error",
+    ErrNum.DATA_LENGTH: "data length error",
+    ErrNum.DATA_LIMIT: "data limit error",
+    ErrNum.ACCESS: "access error",
+}
+_NO_REPLY_HINT = (
+    "check that the servos are powered, that --baud matches their Baud Rate register "
+    "(factory default 57600), that the ids are right (aes-planner gimbal scan), that they speak "
+    "Protocol 2.0, and the USB adapter's latency timer (README: Real hardware)"
+)
+
+
+@dataclass
+class DynamixelPanTiltConfig:
+    """Settings of a Dynamixel pan-tilt (the ``dynamixel_pan_tilt`` launch type).
+
+    * ``port``: serial device (``/dev/ttyUSB0``, ``/dev/serial/by-id/...``); ``baud``: the servos'
+      rate (one of :data:`SDK_BAUD_RATES`).
+    * ``pan_id``/``tilt_id``: servo ids. ``*_zero_offset_ticks``: servo ticks from the centre
+      (2048) to the joint's zero; ``*_direction``: +1 when positive servo ticks turn the joint
+      positive (pan left, tilt up), else -1.
+    * ``*_limits_deg``: joint limits, written to Min/Max Position Limit and enforced in software.
+    * ``profile_velocity_deg_s``/``profile_acceleration_deg_s2``: motion profile (0 = no limit).
+    * ``retries``/``backoff_s``: retries of a failed exchange, the first wait (doubling after).
+    * ``latency_timer_ms``: the USB adapter's latency timer; the SDK waits ``2 x`` this plus
+      transmission time for a reply. 16 is the FTDI default; 1 after the udev rule of the README.
+    * ``move_timeout_s``: default of :meth:`DynamixelPanTilt.wait_until_reached`;
+      ``arrival_tolerance_deg``: how close counts as arrived; ``poll_interval_s``: its poll rate.
+    * ``reboot_timeout_s``: how long a rebooted servo may take to answer again.
+    """
+
+    port: str
+    baud: int = 1_000_000
+    pan_id: int = 1
+    tilt_id: int = 2
+    pan_zero_offset_ticks: int = 0
+    tilt_zero_offset_ticks: int = 0
+    pan_direction: int = 1
+    tilt_direction: int = 1
+    pan_limits_deg: tuple[float, float] = (-150.0, 150.0)
+    tilt_limits_deg: tuple[float, float] = (-60.0, 60.0)
+    profile_velocity_deg_s: float = 60.0
+    profile_acceleration_deg_s2: float = 300.0
+    retries: int = 3
+    backoff_s: float = 0.005
+    latency_timer_ms: float = 16.0
+    move_timeout_s: float = 10.0
+    arrival_tolerance_deg: float = 1.0
+    poll_interval_s: float = 0.01
+    reboot_timeout_s: float = 2.0
+
+    def __post_init__(self):
+        require(isinstance(self.port, str) and bool(self.port), "port", "set the serial device, e.g. /dev/ttyUSB0")
+        require(
+            self.baud in SDK_BAUD_RATES, "baud",
+            f"{self.baud} is not a rate both dynamixel-sdk and X-series servos use; one of {list(SDK_BAUD_RATES)}",
+        )
+        for name in ("pan_id", "tilt_id"):
+            require(0 <= getattr(self, name) <= 252, name, f"servo ids are 0..252, got {getattr(self, name)}")
+        require(self.pan_id != self.tilt_id, "tilt_id", f"pan and tilt need different ids, both are {self.pan_id}")
+        for name in ("pan_direction", "tilt_direction"):
+            require(getattr(self, name) in (1, -1), name, f"must be 1 or -1, got {getattr(self, name)}")
+        try:
+            # the rig's own checks: finite, min < max, tilt within +-90 deg, pan within 360 deg
+            PanTiltConfig(pan_limits_deg=tuple(self.pan_limits_deg), tilt_limits_deg=tuple(self.tilt_limits_deg))
+        except ConfigError as exc:
+            raise ConfigError(exc.key, exc.message) from None
+        for joint in JOINTS:
+            lo, hi = self.calibration(joint).tick_limits
+            require(
+                0 <= lo and hi <= 4095, f"{joint}_limits_deg",
+                f"the limits map to ticks {lo}..{hi}, outside the servo's 0..4095 in position mode; "
+                f"narrow the limits or change {joint}_zero_offset_ticks",
+            )
+        for name in ("profile_velocity_deg_s", "profile_acceleration_deg_s2", "backoff_s"):
+            require_finite(getattr(self, name), name)
+            require(getattr(self, name) >= 0, name, f"must be >= 0, got {getattr(self, name)}")
+        require(0 <= self.retries <= 20, "retries", f"must be 0..20, got {self.retries}")
+        for name in ("latency_timer_ms", "move_timeout_s", "arrival_tolerance_deg", "poll_interval_s", "reboot_timeout_s"):
+            require_finite(getattr(self, name), name)
+            require(getattr(self, name) > 0, name, f"must be > 0, got {getattr(self, name)}")
+
+    def calibration(self, joint: str) -> JointCalibration:
+        lo, hi = getattr(self, f"{joint}_limits_deg")
+        return JointCalibration(
+            zero_offset_ticks=getattr(self, f"{joint}_zero_offset_ticks"),
+            direction=getattr(self, f"{joint}_direction"),
+            limits_rad=(math.radians(lo), math.radians(hi)),
+        )
+
+    def joint_id(self, joint: str) -> int:
+        return getattr(self, f"{joint}_id")
+
+
+class _Port(sdk.PortHandler):
+    """The SDK's port with the reply timeout taken from the config instead of a module global."""
+
+    def __init__(self, port_name: str, latency_timer_ms: float):
+        super().__init__(port_name)
+        self.latency_timer_ms = latency_timer_ms
+
+    def setPacketTimeout(self, packet_length):  # noqa: N802 (SDK name)
+        self.packet_start_time = self.getCurrentTime()
+        self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * self.latency_timer_ms + 2.0
+
+
+# I/O errors of a serial port that went away (pyserial raises SerialException, an OSError;
+# termios calls raise termios.error).
+_PORT_ERRORS = (OSError, termios.error)
+
+
+def _open_port(port_name: str, baud: int, latency_timer_ms: float) -> _Port:
+    port = _Port(port_name, latency_timer_ms)
+    try:
+        ok = port.setBaudRate(baud)  # opens the port
+    except _PORT_ERRORS as exc:
+        hint = "check that it exists (ls /dev/ttyUSB* /dev/serial/by-id) and that no other program holds it"
+        if "Permission denied" in str(exc):
+            hint = "add yourself to the dialout group (sudo usermod -aG dialout $USER, then log in again)"
+        raise GimbalCommError(f"cannot open serial port {port_name}: {exc}; {hint}") from exc
+    if not ok:
+        raise GimbalCommError(f"dynamixel-sdk refused baud {baud}; use one of {list(SDK_BAUD_RATES)}")
+    return port
+
+
+def _close_port(port: _Port | None) -> None:
+    if port is None or port.ser is None:
+        return
+    try:
+        port.closePort()
+    except _PORT_ERRORS:
+        pass
+
+
+class DynamixelPanTilt(Gimbal):
+    """Two Dynamixel X-series servos (pan, tilt) as a :class:`~aes_planner.devices.Gimbal`.
+
+    ``connect()`` opens the port and pings both servos (their model must be in
+    :data:`~aes_planner.drivers.dynamixel_models.MODELS`); it writes nothing. The first
+    :meth:`move_to` takes control (EEPROM, profile, torque on). ``disconnect()`` turns torque off.
+    Thread-safe: one lock serialises every exchange on the bus.
+    """
+
+    config_class = DynamixelPanTiltConfig
+
+    def __init__(self, config: DynamixelPanTiltConfig):
+        if not isinstance(config, DynamixelPanTiltConfig):
+            raise TypeError(f"expected a DynamixelPanTiltConfig, got {type(config).__name__}")
+        self.config = config
+        self._lock = threading.RLock()
+        self._ph = sdk.PacketHandler(2.0)
+        self._port: _Port | None = None
+        self._connected = False
+        self._lost = False
+        self._in_control = False
+        self._cal = {j: config.calibration(j) for j in JOINTS}
+        self._limits = JointLimits.from_config(
+            PanTiltConfig(pan_limits_deg=config.pan_limits_deg, tilt_limits_deg=config.tilt_limits_deg)
+        )
+        self._models: dict[str, ServoModel] = {}
+        self._firmware: dict[str, int] = {}
+        self._faults: dict[str, tuple[str, ...]] = {}
+
+    # ------------------------------------------------------------------------------ Device
+    @property
+    def connected(self) -> bool:
+        return self._connected
+
+    @property
+    def models(self) -> dict[str, str]:
+        """Joint -> model name, as the servos reported on connect."""
+        return {j: m.name for j, m in self._models.items()}
+
+    @property
+    def faults(self) -> dict[str, tuple[str, ...]]:
+        """Latched hardware faults per joint (empty when healthy)."""
+        return dict(self._faults)
+
+    def connect(self) -> None:
+        with self._lock:
+            if self._connected:
+                return
+            self._port = _open_port(self.config.port, self.config.baud, self.config.latency_timer_ms)
+            try:
+                self._identify()
+            except BaseException:
+                self._release_port()
+                raise
+            self._connected, self._lost = True, False
+            log.info("connected to pan-tilt on %s: %s", self.config.port, self._describe_servos())
+
+    def disconnect(self) -> None:
+        """Torque off on both servos (best effort), then close the port. Safe to call twice."""
+        with self._lock:
+            if self._port is not None and not self._lost:
+                self._torque_off_all()
+            self._release_port()
+            self._connected = self._lost = self._in_control = False
+
+    # ------------------------------------------------------------------------------ Gimbal
+    def move_to(self, yaw_rad: float, pitch_rad: float) -> tuple[float, float]:
+        """Send both goals in one sync write; returns the clamped joint angles commanded."""
+        try:
+            yaw_rad, pitch_rad = float(yaw_rad), float(pitch_rad)
+        except (TypeError, ValueError, OverflowError) as exc:
+            raise JointCommandError(f"joint command must be two finite numbers of radians: {exc}; refusing to move") from None
+        pan_rad, tilt_rad = self._limits.clamp(yaw_rad, pitch_rad)  # NaN/Inf raise here, nothing is sent
+        if (pan_rad, tilt_rad) != (yaw_rad, pitch_rad):
+            log.warning(
+                "command (%.4g, %.4g) rad clamped to the joint limits: (%.4f, %.4f) rad", yaw_rad, pitch_rad, pan_rad, tilt_rad
+            )
+        goals = {"pan": self._cal["pan"].to_ticks(pan_rad), "tilt": self._cal["tilt"].to_ticks(tilt_rad)}
+        with self._lock:
+            self._ensure_port()
+            if self._faults:
+                raise GimbalHardwareError(f"refusing to move: {self._fault_text()}; {self._reboot_hint()}", self._faults)
+            if not self._in_control:
+                self._take_control()
+            self._sync_write("goal_position", goals)
+        return pan_rad, tilt_rad
+
+    def state(self) -> GimbalState:
+        with self._lock:
+            self._ensure_port()
+            rows, alerts = self._sync_read_state()
+            if alerts:
+                self._on_alert(alerts)
+            hardware_error = tuple(f"{j}: {f}" for j in JOINTS for f in self._faults.get(j, ()))
+        stamp_s = time.time()
+        pan, tilt = rows["pan"], rows["tilt"]
+        return GimbalState(
+            yaw_rad=self._cal["pan"].to_rad(pan["present_position"]),
+            pitch_rad=self._cal["tilt"].to_rad(tilt["present_position"]),
+            goal_yaw_rad=self._cal["pan"].to_rad(pan["goal_position"]),
+            goal_pitch_rad=self._cal["tilt"].to_rad(tilt["goal_position"]),
+            moving=bool(pan["moving"] or tilt["moving"]),
+            temperature_c=(float(pan["present_temperature"]), float(tilt["present_temperature"])),
+            hardware_error=hardware_error,
+            stamp_s=stamp_s,
+        )
+
+    def wait_until_reached(self, timeout_s: float | None = None) -> GimbalState:
+        timeout_s = self.config.move_timeout_s if timeout_s is None else float(timeout_s)
+        if not (math.isfinite(timeout_s) and timeout_s > 0):
+            raise ValueError(f"timeout_s must be a finite number > 0, got {timeout_s!r}")
+        tol_rad = math.radians(self.config.arrival_tolerance_deg)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            st = self.state()
+            if st.hardware_error:
+                raise GimbalHardwareError(
+                    f"stopped on the way: {', '.join(st.hardware_error)}; {self._reboot_hint()}", self._faults
+                )
+            if (
+                not st.moving
+                and abs(st.yaw_rad - st.goal_yaw_rad) <= tol_rad
+                and abs(st.pitch_rad - st.goal_pitch_rad) <= tol_rad
+            ):
+                return st
+            if time.monotonic() >= deadline:
+                raise GimbalTimeoutError(
+                    f"the gimbal did not reach its goal within {timeout_s:g} s: {st.summary()}; check for an obstruction, "
+                    "raise profile_velocity_deg_s, or allow a longer timeout"
+                )
+            time.sleep(self.config.poll_interval_s)
+
+    def reboot(self) -> None:
+        """REBOOT the faulted servos (all when none is), wait until they answer, clear the latch.
+
+        Torque stays off until the next :meth:`move_to`. Remove the fault's cause first
+        (overload: free the joint; overheating: let it cool; voltage: check the supply).
+        """
+        with self._lock:
+            self._ensure_port()
+            self._in_control = False  # a rebooted servo comes back with torque off
+            joints = [j for j in JOINTS if j in self._faults] or list(JOINTS)
+            for joint in joints:
+                log.warning("rebooting %s servo (id %d)", joint, self.config.joint_id(joint))
+                self._exchange(joint, f"reboot {joint}", lambda p, i: (None, *self._ph.reboot(p, i)))
+            deadline = time.monotonic() + self.config.reboot_timeout_s
+            for joint in joints:
+                while True:
+                    try:
+                        self._exchange(joint, f"ping {joint}", self._ph.ping, retries=0, fatal=False)
+                        break
+                    except GimbalCommError:
+                        if time.monotonic() > deadline:
+                            raise GimbalCommError(
+                                f"the {joint} servo (id {self.config.joint_id(joint)}) did not answer within "
+                                f"{self.config.reboot_timeout_s:g} s of its reboot; {_NO_REPLY_HINT}"
+                            ) from None
+                        time.sleep(0.01)
+            self._faults.clear()
+            self._in_control = False
+            self._identify()
+
+    # ------------------------------------------------------------------------------ set-up
+    def _identify(self) -> None:
+        """Ping both servos, check their models, pick up faults they already report."""
+        alerts = []
+        for joint in JOINTS:
+            dxl_id = self.config.joint_id(joint)
+            number, err = self._exchange(joint, f"ping {joint}", self._ph.ping)
+            model = model_by_number(number)
+            if model is None:
+                raise DeviceError(
+                    f"the {joint} servo (id {dxl_id}) reports model number {number}, which has no control table here; "
+                    "supported: XM430-W350 (1020), XL430-W250 (1060); add a ServoModel to "
+                    "aes_planner/drivers/dynamixel_models.py"
+                )
+            self._models[joint] = model
+            self._firmware[joint] = self._read_item(joint, "firmware_version")
+            if err & ERRBIT_ALERT:
+                alerts.append(joint)
+        if alerts:
+            self._on_alert(alerts)
+
+    def _take_control(self) -> None:
+        """Position mode and limits in EEPROM (written only when they differ), profile, torque on.
+
+        A failure half-way leaves both servos with torque off, never one holding alone.
+        """
+        try:
+            self._configure_and_enable()
+        except BaseException:
+            self._torque_off_all()
+            raise
+        self._in_control = True
+        log.info("torque on: pan limits %s deg, tilt limits %s deg", self.config.pan_limits_deg, self.config.tilt_limits_deg)
+
+    def _configure_and_enable(self) -> None:
+        c = self.config
+        for joint in JOINTS:
+            model = self._models[joint]
+            lo, hi = self._cal[joint].tick_limits
+            wanted = {"operating_mode": POSITION_MODE, "min_position_limit": lo, "max_position_limit": hi}
+            present = {name: self._read_item(joint, name) for name in wanted}
+            if present != wanted:
+                if self._read_item(joint, "torque_enable"):
+                    log.warning("%s servo: torque off to update its EEPROM (%s -> %s)", joint, present, wanted)
+                    self._write_item(joint, "torque_enable", 0)
+                for name, value in wanted.items():
+                    if present[name] != value:
+                        self._write_item(joint, name, value)
+            self._write_item(joint, "profile_acceleration", model.acceleration_units(c.profile_acceleration_deg_s2))
+            self._write_item(joint, "profile_velocity", model.velocity_units(c.profile_velocity_deg_s))
+            self._write_item(joint, "torque_enable", 1)
+
+    def _describe_servos(self) -> str:
+        return ", ".join(
+            f"{j} id {self.config.joint_id(j)} {self._models[j].name} fw {self._firmware[j]}" for j in self._models
+        )
+
+    # ------------------------------------------------------------------------------ faults
+    def _on_alert(self, joints: Sequence[str]) -> None:
+        """Hardware alert: read which fault, latch it, torque off everywhere (fatal)."""
+        new = False
+        for joint in joints:
+            try:
+                status = self._read_item(joint, "hardware_error_status")
+            except (GimbalCommError, GimbalProtocolError):
+                status = 0
+            faults = decode_hardware_error(status) or ("unknown hardware error",)
+            if self._faults.get(joint) != faults:
+                new = True
+                self._faults[joint] = faults
+        if new:
+            log.error("hardware error: %s; turning torque off; %s", self._fault_text(), self._reboot_hint())
+            self._torque_off_all()
+
+    def _fault_text(self) -> str:
+        return "; ".join(
+            f"{j} servo (id {self.config.joint_id(j)}) reports {', '.join(f)}" for j, f in self._faults.items()
+        )
+
+    @staticmethod
+    def _reboot_hint() -> str:
+        return "remove the cause (free the joint, let it cool, check the supply), then call reboot() / run `aes-planner gimbal reboot`"
+
+    def _torque_off_all(self) -> None:
+        """Best effort with every retry: a failure is logged, never raised (this runs on the way
+        out of errors)."""
+        self._in_control = False
+        for joint in JOINTS:
+            if joint not in self._models or self._port is None:
+                continue
+            try:
+                self._write_item(joint, "torque_enable", 0)
+            except DeviceError as exc:
+                log.error("could not turn torque off on the %s servo: %s", joint, exc)
+
+    def _port_lost(self, exc: BaseException) -> GimbalPortLostError:
+        self._release_port()
+        self._lost, self._in_control = True, False
+        log.error("serial port %s lost: %s", self.config.port, exc)
+        return GimbalPortLostError(
+            f"serial port {self.config.port} disappeared ({exc}); check the USB cable and the adapter's power; "
+            "the driver reopens it on the next call once it is back"
+        )
+
+    def _ensure_port(self) -> None:
+        if not self._connected:
+            raise DeviceError("the gimbal is not connected; call connect() first or use it in a `with` block")
+        if not self._lost:
+            return
+        try:
+            self._port = _open_port(self.config.port, self.config.baud, self.config.latency_timer_ms)
+        except GimbalCommError as exc:
+            raise GimbalPortLostError(
+                f"serial port {self.config.port} is still missing; reconnect the adapter ({exc})"
+            ) from None
+        try:
+            self._identify()
+        except DeviceError:
+            self._release_port()
+            raise
+        self._lost = False
+        log.warning("serial port %s is back; reconnected (%s)", self.config.port, self._describe_servos())
+
+    def _release_port(self) -> None:
+        _close_port(self._port)
+        self._port = None
+
+    # ------------------------------------------------------------------------------ exchanges
+    def _exchange(
+        self, joint: str | None, what: str, fn: Callable[..., tuple], *args: Any, retries: int | None = None, fatal: bool = True
+    ):
+        """One SDK exchange, retried: ``fn(port, id, *args) -> (value, comm_result, error)``.
+
+        Returns ``(value, error_byte)``. Timeouts, corrupt or short replies and CRC-error statuses
+        are retried with backoff; other error statuses raise :class:`GimbalProtocolError`; a port
+        error raises :class:`GimbalPortLostError`; exhausted retries raise :class:`GimbalCommError`,
+        after turning torque off (best effort) when the driver had it on, unless ``fatal`` is False
+        (a poll that is expected to fail for a while). ``joint`` None means a broadcast exchange
+        (``fn(port, *args)``).
+        """
+        retries = self.config.retries if retries is None else retries
+        dxl_id = None if joint is None else self.config.joint_id(joint)
+        wait_s = self.config.backoff_s
+        comm = sdk.COMM_SUCCESS
+        for attempt in range(retries + 1):
+            with self._lock:
+                port = self._port
+                if port is None:
+                    raise GimbalPortLostError(f"serial port {self.config.port} is not open; call connect()")
+                try:
+                    value, comm, err = fn(port, *args) if dxl_id is None else fn(port, dxl_id, *args)
+                except IndexError:
+                    value, comm, err = None, sdk.COMM_RX_CORRUPT, 0  # the SDK indexed a short status packet
+                except _PORT_ERRORS as exc:
+                    raise self._port_lost(exc) from exc
+                finally:
+                    port.is_using = False
+            if comm == sdk.COMM_SUCCESS:
+                errnum = err & ~ERRBIT_ALERT
+                if errnum == ErrNum.NONE:
+                    return value, err
+                if errnum != ErrNum.CRC:
+                    raise GimbalProtocolError(
+                        f"{what}: the servo (id {dxl_id}) answered with a {_ERRNUM_TEXT.get(errnum, f'error {errnum}')}; "
+                        "this is a driver or control-table bug, please report it with this message"
+                    )
+                reason = "the servo saw a corrupt instruction (CRC error status)"
+            else:
+                reason = self._ph.getTxRxResult(comm) or f"result {comm}"
+            if attempt < retries:
+                log.debug("%s: %s; retry %d/%d in %.3f s", what, reason, attempt + 1, retries, wait_s)
+                time.sleep(wait_s)
+                wait_s *= 2
+        if fatal:
+            log.error("%s failed after %d tries: %s", what, retries + 1, reason)
+            if self._in_control:
+                self._torque_off_all()  # the bus no longer answers while the motors hold
+        who = f"id {dxl_id}" if dxl_id is not None else "ids " + ", ".join(str(self.config.joint_id(j)) for j in JOINTS)
+        raise GimbalCommError(
+            f"{what}: no valid reply from {who} on {self.config.port} "
+            f"at {self.config.baud} baud after {retries + 1} tries ({reason}); {_NO_REPLY_HINT}"
+        )
+
+    def _read_item(self, joint: str, name: str, retries: int | None = None) -> int:
+        item = self._models[joint].item(name)
+
+        def read(port, dxl_id):
+            # readTxRx would slice the CRC into the data of a short reply: build the READ here
+            # and check the status packet's length field
+            tx = [0] * 14
+            tx[4], tx[5], tx[6], tx[7] = dxl_id, 7, 0, sdk.INST_READ
+            tx[8:12] = [item.addr & 0xFF, item.addr >> 8, item.size & 0xFF, item.size >> 8]
+            rx, comm, _ = self._ph.txRxPacket(port, tx)
+            return _status_data(rx, comm, item.size)
+
+        data, _ = self._exchange(joint, f"read {name} of {joint}", read, retries=retries)
+        raw = int.from_bytes(bytes(data), "little")
+        return to_signed(raw, item.size) if item.signed else raw
+
+    def _write_item(self, joint: str, name: str, value: int, retries: int | None = None) -> None:
+        item = self._models[joint].item(name)
+        data = list(to_unsigned(int(value), item.size).to_bytes(item.size, "little"))
+        what = "torque off" if (name, value) == ("torque_enable", 0) else f"write {name}={value} to {joint}"
+        self._exchange(
+            joint, what, lambda port, dxl_id: (None, *self._ph.writeTxRx(port, dxl_id, item.addr, item.size, data)),
+            retries=retries,
+        )
+
+    def _sync_write(self, name: str, values: dict[str, int]) -> None:
+        item = self._models["pan"].item(name)
+        if any(self._models[j].item(name) != item for j in values):
+            raise DeviceError(f"{name} sits at different addresses on the two servos; sync write needs the same")
+        params = {
+            self.config.joint_id(j): list(to_unsigned(v, item.size).to_bytes(item.size, "little")) for j, v in values.items()
+        }
+
+        def send(port):
+            group = sdk.GroupSyncWrite(port, self._ph, item.addr, item.size)
+            for dxl_id, data in params.items():
+                group.addParam(dxl_id, data)
+            return None, group.txPacket(), 0
+
+        self._exchange(None, f"sync write {name}", send)
+
+    def _sync_read_state(self) -> tuple[dict[str, dict[str, int]], list[str]]:
+        """Sync read Goal Position..Present Temperature of both servos, decoded per item."""
+        model = self._models["pan"]
+        first, last = model.item(STATE_FIRST_ITEM), model.item(STATE_LAST_ITEM)
+        addr, length = first.addr, last.addr + last.size - first.addr
+        ids = [self.config.joint_id(j) for j in JOINTS]
+
+        def sync_read(port):
+            comm = self._ph.syncReadTx(port, addr, length, ids, len(ids), False)
+            if comm != sdk.COMM_SUCCESS:
+                return None, comm, 0
+            blocks, errors = {}, 0
+            for dxl_id in ids:
+                while True:  # as the SDK's readRx, without trusting the length
+                    rx, comm = self._ph.rxPacket(port, False)
+                    if comm != sdk.COMM_SUCCESS or rx[4] == dxl_id:
+                        break
+                data, comm, err = _status_data(rx, comm, length)
+                if comm != sdk.COMM_SUCCESS or data is None:
+                    return None, comm, err
+                blocks[dxl_id] = (data, err)
+                errors |= err
+            return blocks, sdk.COMM_SUCCESS, errors
+
+        blocks, _ = self._exchange(None, "sync read state", sync_read)
+        rows, alerts = {}, []
+        for joint, dxl_id in zip(JOINTS, ids):
+            data, err = blocks[dxl_id]
+            table = self._models[joint].table
+            row = {}
+            for name in ("goal_position", "moving", "present_position", "present_temperature"):
+                item = table[name]
+                raw = int.from_bytes(data[item.addr - addr : item.addr - addr + item.size], "little")
+                row[name] = to_signed(raw, item.size) if item.signed else raw
+            rows[joint] = row
+            if err & ERRBIT_ALERT:
+                alerts.append(joint)
+        return rows, alerts
+
+
+def _status_data(rx: list | None, comm: int, length: int) -> tuple[bytes | None, int, int]:
+    """``(data, comm_result, error)`` of a status packet that must carry ``length`` data bytes.
+
+    A reply of another length is corrupt (the SDK would hand back CRC bytes as data, or index
+    past the end), unless it is an error status, which carries no data and is reported as such.
+    """
+    if comm != sdk.COMM_SUCCESS:
+        return None, comm, 0
+    err = rx[8]
+    if (rx[5] | rx[6] << 8) != length + 4:  # LEN = INST + ERR + data + CRC
+        return None, (sdk.COMM_SUCCESS if err & ~ERRBIT_ALERT else sdk.COMM_RX_CORRUPT), err
+    return bytes(rx[9 : 9 + length]), comm, err
+
+
+@dataclass(frozen=True)
+class ScanResult:
+    """One servo found by :func:`scan`."""
+
+    dxl_id: int
+    model_number: int
+    model_name: str
+    firmware_version: int
+
+
+def scan(port: str, baud: int = 1_000_000, latency_timer_ms: float = 16.0) -> list[ScanResult]:
+    """Broadcast-ping the bus; every servo at this baud answers with its model and firmware."""
+    if baud not in SDK_BAUD_RATES:
+        raise GimbalCommError(f"baud {baud} is not one of {list(SDK_BAUD_RATES)}")
+    handle = _open_port(port, baud, latency_timer_ms)
+    ph = sdk.PacketHandler(2.0)
+    try:
+        found, comm = ph.broadcastPing(handle)
+    except _PORT_ERRORS as exc:
+        raise GimbalPortLostError(f"serial port {port} failed during the scan: {exc}") from exc
+    finally:
+        handle.is_using = False
+        _close_port(handle)
+    if comm != sdk.COMM_SUCCESS and not found:
+        raise GimbalCommError(f"no servo answered on {port} at {baud} baud ({ph.getTxRxResult(comm)}); {_NO_REPLY_HINT}")
+    out = []
+    for dxl_id, (number, firmware) in sorted(found.items()):
+        model = model_by_number(number)
+        out.append(ScanResult(dxl_id, number, model.name if model else "unknown model", firmware))
+    return out
+
+
+@dataclass
+class EmulatedPanTiltConfig(DynamixelPanTiltConfig):
+    """The ``emulated_pan_tilt`` launch type: the same driver on a built-in servo emulator.
+
+    ``models`` are the emulated servos, ids 1..N in order (pan and tilt ids must be among them);
+    ``port``, when set, is a symlink path the emulator keeps pointing at its pty.
+    """
+
+    port: str = ""
+    models: tuple[str, ...] = ("xm430-w350", "xm430-w350")
+
+    def __post_init__(self):
+        link = self.port
+        self.port = link or "<emulator>"
+        super().__post_init__()
+        self.port = link
+        for i, name in enumerate(self.models):
+            try:
+                model_by_name(name)
+            except KeyError as exc:
+                raise ConfigError(f"models[{i}]", str(exc.args[0])) from None
+        for name in ("pan_id", "tilt_id"):
+            require(
+                1 <= getattr(self, name) <= len(self.models), name,
+                f"the emulator gives ids 1..{len(self.models)}; got {getattr(self, name)}",
+            )
+
+
+class EmulatedPanTilt(DynamixelPanTilt):
+    """:class:`DynamixelPanTilt` on a :class:`~aes_planner.drivers.emulator.ServoEmulator` that it
+    starts on ``connect()`` and stops on ``disconnect()``: the gimbal of the simulated closed loop.
+    ``emulator`` is the running emulator (None while disconnected), for fault injection."""
+
+    config_class = EmulatedPanTiltConfig
+
+    def __init__(self, config: EmulatedPanTiltConfig):
+        super().__init__(config)
+        self._link = config.port or None
+        self.emulator = None
+
+    def connect(self) -> None:
+        from aes_planner.drivers.emulator import ServoEmulator
+
+        with self._lock:
+            if self.connected:
+                return
+            self.emulator = ServoEmulator(self.config.models, baud=self.config.baud, link=self._link).start()
+            self.config = dataclasses.replace(self.config, port=self.emulator.port)
+            try:
+                super().connect()
+            except BaseException:
+                self._stop_emulator()
+                raise
+
+    def disconnect(self) -> None:
+        with self._lock:
+            try:
+                super().disconnect()
+            finally:
+                self._stop_emulator()
+
+    def _stop_emulator(self) -> None:
+        if self.emulator is not None:
+            self.emulator.stop()
+            self.emulator = None

@@ -1,0 +1,191 @@
+"""``SimCamera``: renders :class:`~aes_planner.messages.PosedFrame` records of a scene.
+
+Timing model (all times in seconds of sim time, the ``stamp_s`` of the frames):
+
+* The camera keeps a **pose history**: :meth:`SimCamera.move_to` (a cam2world) or
+  :meth:`SimCamera.move_joints` (rig joint angles through
+  :meth:`~aes_planner.geometry.PanTilt.forward`) says where the camera is from ``stamp_s`` on.
+  The pose at time ``t`` is the last one set at or before ``t`` (a zero-order hold); before the
+  first one, the first one.
+* :meth:`SimCamera.capture` at time ``t`` returns a frame stamped ``t`` whose **image, depth
+  and ids show the pose at** ``t - latency_s`` (the exposure happened ``latency_s`` before the
+  frame arrived), while its **reported** ``cam2world`` is the pose at ``t`` — what a system that
+  pairs each frame with the latest pose would record. With ``latency_s = 0`` both agree.
+* **Pose noise** perturbs only the reported pose (translation ``N(0, sigma^2)`` per world axis,
+  rotation by a random rotation vector ``N(0, sigma^2)`` per camera axis); the true pose is
+  rendered. **Pixel noise** adds ``N(0, sigma^2)`` (8-bit levels) to each channel, rounded and
+  clipped. Both are seeded; they use separate streams, so turning one on does not change the
+  other.
+* ``frame.extras`` holds ``instance_id`` (``[H, W]`` int32), ``true_cam2world`` (the rendered
+  pose), ``exposure_stamp_s`` (``t - latency_s``) and ``reported_pose_error_m`` (translation
+  between the reported and rendered poses).
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from aes_planner.config import require
+from aes_planner.errors import AesPlannerError
+from aes_planner.geometry import Intrinsics, validate_cam2world
+from aes_planner.messages import PosedFrame
+from aes_planner.sim.raycast import MAX_SUPERSAMPLE, render
+from aes_planner.sim.scene import Scene
+
+__all__ = ["SimCamera", "SimCameraConfig", "SimCameraError"]
+
+_MAX_HISTORY = 4096  # poses kept; the oldest are dropped beyond this
+
+
+class SimCameraError(AesPlannerError, ValueError):
+    """A sim-camera call that cannot be served (no pose yet, joints on a drone scene...)."""
+
+
+@dataclass
+class SimCameraConfig:
+    """How the simulated camera images and what errors it adds.
+
+    * ``width``, ``height``, ``hfov_deg``: override the scene's camera (its ``rig`` or
+      ``drone`` section) when set.
+    * ``supersample``: anti-aliasing, ``s x s`` RGB samples per pixel (1 = off).
+    * ``pixel_noise_sigma``: std-dev of Gaussian noise per channel, in 8-bit levels.
+    * ``pose_noise_translation_m``, ``pose_noise_rotation_deg``: std-dev of the error added to
+      the reported pose (the rendered pose stays true).
+    * ``latency_s``: a frame captured at ``t`` shows the pose at ``t - latency_s``.
+    * ``seed``: for the noise streams.
+    """
+
+    width: int | None = None
+    height: int | None = None
+    hfov_deg: float | None = None
+    supersample: int = 1
+    pixel_noise_sigma: float = 0.0
+    pose_noise_translation_m: float = 0.0
+    pose_noise_rotation_deg: float = 0.0
+    latency_s: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self):
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            require(v is None or (isinstance(v, int) and v >= 1), name, f"must be a positive number of pixels, got {v!r}")
+        require(self.hfov_deg is None or 0.0 < self.hfov_deg < 180.0, "hfov_deg", f"must be in (0, 180), got {self.hfov_deg}")
+        require(1 <= self.supersample <= MAX_SUPERSAMPLE, "supersample", f"must be in [1, {MAX_SUPERSAMPLE}], got {self.supersample}")
+        for name in ("pixel_noise_sigma", "pose_noise_translation_m", "pose_noise_rotation_deg", "latency_s"):
+            v = getattr(self, name)
+            require(math.isfinite(v) and v >= 0.0, name, f"must be a finite number >= 0, got {v}")
+
+
+class SimCamera:
+    """A camera in a :class:`Scene` that turns poses into :class:`PosedFrame` records.
+
+    Quick use: ``SimCamera(scene).capture_joints(pan_rad, tilt_rad)`` on a rig scene, or
+    ``capture_pose(cam2world)``. For latency, set poses over time with :meth:`move_to` /
+    :meth:`move_joints` and call :meth:`capture` (timing model in the module docstring).
+    """
+
+    def __init__(self, scene: Scene, config: SimCameraConfig | None = None):
+        if not isinstance(scene, Scene):
+            raise SimCameraError(f"SimCamera needs a Scene, got {type(scene).__name__}; use aes_planner.sim.load_scene()")
+        self.scene = scene
+        self.config = config or SimCameraConfig()
+        c = self.config
+        base = (scene.rig or scene.drone).camera
+        self.intrinsics = Intrinsics.from_fov(c.width or base.width, c.height or base.height, c.hfov_deg or base.hfov_deg)
+        self.kinematics = scene.rig.kinematics() if scene.rig is not None else None
+        pose_seq, pixel_seq = np.random.SeedSequence(c.seed).spawn(2)
+        self._pose_rng = np.random.default_rng(pose_seq)
+        self._pixel_rng = np.random.default_rng(pixel_seq)
+        self._stamps: list[float] = []
+        self._poses: list[np.ndarray] = []
+        self.frames_captured = 0
+
+    # ------------------------------------------------------------------------------ motion
+    def move_to(self, cam2world: np.ndarray, stamp_s: float = 0.0) -> None:
+        """The camera is at ``cam2world [4, 4]`` from ``stamp_s`` on (replacing a pose set at
+        the same stamp)."""
+        pose = validate_cam2world(cam2world, "SimCamera.move_to cam2world")
+        if not math.isfinite(stamp_s):
+            raise SimCameraError(f"stamp_s must be a finite number of seconds, got {stamp_s!r}")
+        i = bisect.bisect_left(self._stamps, stamp_s)
+        if i < len(self._stamps) and self._stamps[i] == stamp_s:
+            self._poses[i] = pose
+        else:
+            self._stamps.insert(i, float(stamp_s))
+            self._poses.insert(i, pose)
+        if len(self._stamps) > _MAX_HISTORY:
+            del self._stamps[0], self._poses[0]
+
+    def move_joints(self, pan_rad: float, tilt_rad: float, stamp_s: float = 0.0) -> None:
+        """Rig scenes: the gimbal is at these joint angles from ``stamp_s`` on. Angles outside
+        the joint limits are rendered as given (a real servo would refuse them: clamp first
+        with ``camera.kinematics.clamp``)."""
+        if self.kinematics is None:
+            raise SimCameraError("this scene has a drone, not a rig: use move_to(cam2world) instead of joint angles")
+        self.move_to(self.kinematics.forward(float(pan_rad), float(tilt_rad)), stamp_s)
+
+    def pose_at(self, stamp_s: float) -> np.ndarray:
+        """cam2world ``[4, 4]`` held at ``stamp_s`` (zero-order hold over the history)."""
+        if not self._stamps:
+            raise SimCameraError("the camera has no pose yet: call move_to() or move_joints() first")
+        i = bisect.bisect_right(self._stamps, stamp_s) - 1
+        return self._poses[max(i, 0)].copy()
+
+    # ----------------------------------------------------------------------------- capture
+    def capture(self, stamp_s: float | None = None) -> PosedFrame:
+        """The frame that arrives at ``stamp_s`` (default: the newest pose's stamp)."""
+        if not self._stamps:
+            raise SimCameraError("the camera has no pose yet: call move_to() or move_joints() first")
+        t = self._stamps[-1] if stamp_s is None else float(stamp_s)
+        exposure_s = t - self.config.latency_s
+        true_pose = self.pose_at(exposure_s)
+        reported = self._perturb(self.pose_at(t))
+        out = render(self.scene, true_pose, self.intrinsics, self.config.supersample)
+        image = out.rgb
+        sigma = self.config.pixel_noise_sigma
+        if sigma > 0:
+            noisy = image + self._pixel_rng.normal(0.0, sigma, image.shape)
+            image = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+        frame = PosedFrame(
+            image=image,
+            intrinsics=self.intrinsics,
+            cam2world=reported,
+            stamp_s=t,
+            depth_m=out.depth_m,
+            frame_id=f"{self.scene.name}/{self.frames_captured:06d}",
+            extras={
+                "instance_id": out.instance_id,
+                "true_cam2world": true_pose,
+                "exposure_stamp_s": exposure_s,
+                "reported_pose_error_m": float(np.linalg.norm(reported[:3, 3] - true_pose[:3, 3])),
+            },
+        )
+        self.frames_captured += 1
+        return frame
+
+    def capture_pose(self, cam2world: np.ndarray, stamp_s: float | None = None) -> PosedFrame:
+        """Move to ``cam2world`` at ``stamp_s`` (default: the newest stamp, or 0) and capture then."""
+        t = stamp_s if stamp_s is not None else (self._stamps[-1] if self._stamps else 0.0)
+        self.move_to(cam2world, t)
+        return self.capture(t)
+
+    def capture_joints(self, pan_rad: float, tilt_rad: float, stamp_s: float | None = None) -> PosedFrame:
+        """Rig scenes: move the gimbal to these joints at ``stamp_s`` and capture then."""
+        t = stamp_s if stamp_s is not None else (self._stamps[-1] if self._stamps else 0.0)
+        self.move_joints(pan_rad, tilt_rad, t)
+        return self.capture(t)
+
+    def _perturb(self, cam2world: np.ndarray) -> np.ndarray:
+        c = self.config
+        if c.pose_noise_translation_m == 0 and c.pose_noise_rotation_deg == 0:
+            return cam2world
+        pose = cam2world.copy()
+        rotvec = self._pose_rng.normal(0.0, math.radians(c.pose_noise_rotation_deg), 3)
+        pose[:3, :3] = cam2world[:3, :3] @ cv2.Rodrigues(rotvec.reshape(3, 1))[0]
+        pose[:3, 3] += self._pose_rng.normal(0.0, c.pose_noise_translation_m, 3)
+        return pose
