@@ -446,7 +446,8 @@ def _add_pixel_major(acc, row, wbuf, vals, g, z, zero):
 
 
 @njit(**_fast)
-def _raster_tile_fwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, height, consts, out, t_final, last):
+def _raster_tile_fwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, height, consts, rgb, feat, dep,
+                     t_final, last):
     n_tiles = (offsets.shape[0] - 1) // proj.shape[0]
     cv = vals.shape[1]
     zero, one, half = consts[C_ZERO], consts[C_ONE], consts[C_HALF]
@@ -511,7 +512,13 @@ def _raster_tile_fwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, h
         for px in range(min(TILE, width - tx0)):
             p = py * TILE + px
             for c in range(cv + 1):
-                out[b, c, ty0 + py, tx0 + px] = acc[p * (cv + 1) + c] if pixel_major else acc[c * TILE * TILE + p]
+                val = acc[p * (cv + 1) + c] if pixel_major else acc[c * TILE * TILE + p]
+                if c < 3:
+                    rgb[b, c, ty0 + py, tx0 + px] = val
+                elif c < cv:
+                    feat[b, c - 3, ty0 + py, tx0 + px] = val
+                else:
+                    dep[b, ty0 + py, tx0 + px] = val
             t_final[b, ty0 + py, tx0 + px] = abs(trans[p])
             last[b, ty0 + py, tx0 + px] = last_k[p]
 
@@ -526,8 +533,10 @@ def _interleaved(item, n_items, threads):
 
 
 @njit(parallel=True, **_opts)
-def raster_fwd(proj, box, vals, offsets, lists, tiles_x, width, height, consts, threads, out, t_final, last):
-    """out [B, Cv + 1, H, W] (values then un-normalised depth), t_final [B, H, W], last [B, H, W]."""
+def raster_fwd(proj, box, vals, offsets, lists, tiles_x, width, height, consts, threads, rgb, feat, dep, t_final,
+               last):
+    """rgb [B, 3, H, W], feat [B, C, H, W], dep [B, H, W] (un-normalised depth), t_final [B, H, W],
+    last [B, H, W]."""
     n_cam = proj.shape[0]
     n_tiles = (offsets.shape[0] - 1) // n_cam
     n_items = n_cam * n_tiles
@@ -535,7 +544,7 @@ def raster_fwd(proj, box, vals, offsets, lists, tiles_x, width, height, consts, 
         real = _interleaved(item, n_items, threads)
         if real >= 0:
             _raster_tile_fwd(real // n_tiles, real % n_tiles, proj, box, vals, offsets, lists, tiles_x, width,
-                             height, consts, out, t_final, last)
+                             height, consts, rgb, feat, dep, t_final, last)
 
 
 # ---------------------------------------------------------------------------- 5. backward raster
@@ -576,7 +585,7 @@ def _bwd_values_pixel_major(v_pix, behind, row, lane_fac, lane_t, lane_ra, lane_
 
 @njit(**_fast)
 def _raster_tile_bwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, height, consts,
-                     t_final, last, v_out, v_t, g2d, gvals):
+                     t_final, last, v_rgb, v_feat, v_dep, v_t, g2d, gvals):
     """Reverse traversal of one tile; adds into g2d [B, N, NGRAD] and gvals [N, Cv].
 
     Per-pixel gradient terms are accumulated lane-wise ([quantity, lane] buffers) and reduced
@@ -605,7 +614,13 @@ def _raster_tile_bwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, h
         for px in range(min(TILE, width - tx0)):
             p = py * TILE + px
             for c in range(cv + 1):
-                v_pix[p * (cv + 1) + c if pixel_major else c * npx + p] = v_out[b, c, ty0 + py, tx0 + px]
+                if c < 3:
+                    vo = v_rgb[b, c, ty0 + py, tx0 + px]
+                elif c < cv:
+                    vo = v_feat[b, c - 3, ty0 + py, tx0 + px]
+                else:
+                    vo = v_dep[b, ty0 + py, tx0 + px]
+                v_pix[p * (cv + 1) + c if pixel_major else c * npx + p] = vo
             trans[p] = t_final[b, ty0 + py, tx0 + px]
             t_fin[p] = trans[p]
             v_tf[p] = v_t[b, ty0 + py, tx0 + px]
@@ -701,8 +716,8 @@ def _raster_tile_bwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, h
 
 
 @njit(parallel=True, **_opts)
-def raster_bwd(proj, box, vals, offsets, lists, tiles_x, width, height, consts, t_final, last, v_out, v_t,
-               by_camera, threads, g2d, gvals):
+def raster_bwd(proj, box, vals, offsets, lists, tiles_x, width, height, consts, t_final, last, v_rgb, v_feat,
+               v_dep, v_t, by_camera, threads, g2d, gvals):
     """g2d [nbuf, B, N, NGRAD] (nbuf = 1 when by_camera else threads), gvals [threads, N, Cv]."""
     n_cam = proj.shape[0]
     n_tiles = (offsets.shape[0] - 1) // n_cam
@@ -715,10 +730,10 @@ def raster_bwd(proj, box, vals, offsets, lists, tiles_x, width, height, consts, 
         if by_camera:
             for tile in range(n_tiles):
                 _raster_tile_bwd(real, tile, proj, box, vals, offsets, lists, tiles_x, width, height, consts,
-                                 t_final, last, v_out, v_t, g2d[0], gvals[tid])
+                                 t_final, last, v_rgb, v_feat, v_dep, v_t, g2d[0], gvals[tid])
         else:
             _raster_tile_bwd(real // n_tiles, real % n_tiles, proj, box, vals, offsets, lists, tiles_x, width,
-                             height, consts, t_final, last, v_out, v_t, g2d[tid], gvals[tid])
+                             height, consts, t_final, last, v_rgb, v_feat, v_dep, v_t, g2d[tid], gvals[tid])
 
 
 # ---------------------------------------------------------------------------- 6. backward projection

@@ -31,3 +31,5 @@ ONE_MINUS_ALPHA_MIN = 1e-6
 # clamping avoids denormal exp results, which are ~60x slower on CPUs.
 SIGMA_CLAMP = 80.0
 LOG_INV_ALPHA_MIN = math.log(255.0)
+# depth = sum(w z) / max(alpha, DEPTH_ALPHA_MIN); alpha is 0 or at least ~1/255 where drawn
+DEPTH_ALPHA_MIN = 1e-10

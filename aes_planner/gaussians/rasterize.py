@@ -24,6 +24,7 @@ import torch
 from torch import Tensor
 
 from aes_planner.gaussians.container import GaussianError, Gaussians
+from aes_planner.gaussians.numerics import DEPTH_ALPHA_MIN
 
 __all__ = ["BACKENDS", "BACKEND_ENV", "RasterOutput", "rasterize", "resolve_backend"]
 
@@ -145,16 +146,21 @@ def rasterize(
         gaussians.validate()
     name = resolve_backend(backend, gaussians.device)
     g = gaussians
-    values = torch.cat([g.colors, g.features], dim=1)  # [N, 3 + C]; also when C = 0 (grads stay defined)
     if name == "numba":
-        from aes_planner.gaussians.numba_backend import render
-    else:
-        from aes_planner.gaussians.torch_backend import render
-    out, t_final = render(g.means, g.quats, g.log_scales, g.opacities, values, world2cam, K, width, height)
+        from aes_planner.gaussians import numba_backend
+
+        rgb, features, depth, alpha = numba_backend.render(
+            g.means, g.quats, g.log_scales, g.opacities, g.colors, g.features, background, world2cam, K, width, height
+        )
+        return RasterOutput(rgb=rgb, features=features, depth=depth, alpha=alpha, backend=name)
+    from aes_planner.gaussians import torch_backend
+
+    values = torch.cat([g.colors, g.features], dim=1)  # [N, 3 + C]; also when C = 0 (grads stay defined)
+    out, t_final = torch_backend.render(g.means, g.quats, g.log_scales, g.opacities, values, world2cam, K, width, height)
     c = g.num_channels
     alpha = 1 - t_final
     rgb = out[:, :3]
     if background is not None:
         rgb = rgb + background[:, :, None, None] * t_final[:, None]
-    depth = out[:, 3 + c] / alpha.clamp_min(1e-10)
+    depth = out[:, 3 + c] / alpha.clamp_min(DEPTH_ALPHA_MIN)
     return RasterOutput(rgb=rgb, features=out[:, 3:3 + c], depth=depth, alpha=alpha, backend=name)

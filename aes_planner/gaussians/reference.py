@@ -12,7 +12,7 @@ import torch
 from torch import Tensor
 
 from aes_planner.gaussians.container import Gaussians
-from aes_planner.gaussians.numerics import ALPHA_MAX, ALPHA_MIN, FAR_M, NEAR_M, SIGMA_CLAMP, T_STOP
+from aes_planner.gaussians.numerics import ALPHA_MAX, ALPHA_MIN, DEPTH_ALPHA_MIN, FAR_M, NEAR_M, SIGMA_CLAMP, T_STOP
 from aes_planner.gaussians.projection import project
 
 __all__ = ["rasterize_dense"]
@@ -77,7 +77,7 @@ def rasterize_dense(
     if background is not None:
         bg = background.to(cdt).reshape(-1, 3)  # [1 or B, 3]
         rgb = rgb + bg[:, :, None, None] * t_final[:, None]
-    depth = out[:, -2] / alpha_map.clamp_min(1e-10)
+    depth = out[:, -2] / alpha_map.clamp_min(DEPTH_ALPHA_MIN)
     dtype = g.dtype
     return {
         "rgb": rgb.to(dtype),
