@@ -32,8 +32,9 @@ log = logging.getLogger(__name__)
 # Group name -> module. Groups of DESIGN.md that are not built yet are absent, not stubbed.
 GROUPS: dict[str, str] = {
     "sim": "aes_planner.bench.sim",
-    "gimbal": "aes_planner.bench.gimbal",
+    "raster": "aes_planner.bench.raster",
     "teachers": "aes_planner.bench.teachers",
+    "gimbal": "aes_planner.bench.gimbal",
 }
 
 __all__ = ["GROUPS", "Recorder", "run_groups", "time_ms", "machine_info"]

@@ -1,0 +1,208 @@
+"""Benchmark group ``raster``: the Gaussian rasterizer against the dense reference.
+
+Keys per case (``raster.<case>.<figure>``), all per view:
+
+* ``fwd_ms``, ``fwdbwd_ms``: the fast backend (numba when available), wall-clock medians.
+* ``fwd_cpu_ms``, ``fwdbwd_cpu_ms``: process CPU time (all threads) in the same runs, medians:
+  on a shared machine, where wall-clock depends on what else runs, this is the work done.
+* ``dense_fwd_ms``: the dense reference in float32 (a plain dense rasterizer) in the same run;
+  ``speedup_fwd`` = dense / fast. ``dense_fwdbwd_ms`` where the dense graph fits in memory.
+* ``pairs``: Gaussian-pixel pairs with ``alpha >= 1/255`` in the view (the work a rasterizer
+  cannot avoid, up to early termination); ``pairs_per_s_fwd``, ``pairs_per_s_fwdbwd``.
+* ``dense_extrapolated``: 1 when the dense time was measured on a subset (some cameras of a
+  batch; with ``--quick`` one camera and the top quarter of the rows, 1/32 for 50k Gaussians)
+  and scaled by the pixel count (the dense cost is linear in it).
+
+And ``raster.jit.compile_s`` (numba compile in an empty cache dir, full run only),
+``raster.jit.cached_load_s`` (a new process: load the cached kernels and render once).
+Scenes come from :func:`aes_planner.gaussians.random_scene` (Gaussians spread 2-6 m in front
+of the cameras, 0.4-2.5 px standard deviation at 64 px, opacity 0.1-0.9).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+
+import torch
+
+from aes_planner.bench import Recorder, time_ms
+
+log = logging.getLogger(__name__)
+
+__all__ = ["CASES", "run"]
+
+
+@dataclass(frozen=True)
+class Case:
+    n: int
+    size: int
+    channels: int
+    cameras: int
+    dense_cameras: int  # cameras the dense reference renders (time scaled to per view)
+    dense_backward: bool  # whether the dense autograd graph is affordable
+
+
+CASES = {
+    "10k_64x64_c3": Case(10_000, 64, 3, 1, 1, False),
+    "10k_32x32_c32": Case(10_000, 32, 32, 1, 1, True),
+    "50k_128x128_c3": Case(50_000, 128, 3, 1, 1, False),
+    "b64_10k_32x32_c32": Case(10_000, 32, 32, 64, 2, False),
+}
+
+_LOAD_SNIPPET = (
+    "import time; t0 = time.perf_counter()\n"
+    "import torch\n"
+    "from aes_planner.gaussians import numba_backend\n"
+    "t1 = time.perf_counter()\n"
+    "numba_backend.warmup(torch.float32)\n"
+    "print(time.perf_counter() - t1, t1 - t0)\n"
+)
+
+
+def _wall_and_cpu_ms(fn, runs: int, warmup: int = 2) -> tuple[float, float]:
+    """Medians of wall-clock and process CPU time (all threads) of ``fn()``, in ms."""
+    for _ in range(warmup):
+        fn()
+    wall, cpu = [], []
+    for _ in range(runs):
+        w0, c0 = time.perf_counter(), time.process_time()
+        fn()
+        wall.append((time.perf_counter() - w0) * 1e3)
+        cpu.append((time.process_time() - c0) * 1e3)
+    return statistics.median(wall), statistics.median(cpu)
+
+
+def _count_pairs(g, world2cam, K, width, height, rows: int) -> int:
+    """Pairs with alpha >= 1/255 in the first ``rows`` rows of camera 0 (chunked, no grad)."""
+    from aes_planner.gaussians.numerics import ALPHA_MIN
+    from aes_planner.gaussians.projection import project
+
+    with torch.no_grad():
+        p = project(g.means, g.quats, g.log_scales, g.opacities, world2cam[:1], K[:1], width, height)
+        keep = p.visible[0]
+        uv, conic, o = p.means2d[0, keep].float(), p.conics[0, keep].float(), g.opacities[keep].float()
+        total = 0
+        ys = torch.arange(rows, dtype=torch.float32) + 0.5
+        xs = torch.arange(width, dtype=torch.float32) + 0.5
+        for y in ys.split(max(1, 2048 // width)):
+            pix = torch.stack(torch.meshgrid(y, xs, indexing="ij"), -1).reshape(-1, 2)[:, [1, 0]]
+            d = pix[:, None, :] - uv[None]
+            sigma = 0.5 * (conic[:, 0] * d[..., 0] ** 2 + conic[:, 2] * d[..., 1] ** 2) + conic[:, 1] * d[..., 0] * d[..., 1]
+            alpha = (o * torch.exp(-sigma.clamp(0, 80))).clamp(max=0.99)
+            total += int(((alpha >= ALPHA_MIN) & (sigma >= 0)).sum())
+    return total
+
+
+def _bench_case(rec: Recorder, name: str, case: Case, quick: bool) -> None:
+    from aes_planner.gaussians import random_scene, rasterize
+    from aes_planner.gaussians.reference import rasterize_dense
+
+    g, world2cam, K = random_scene(case.n, case.channels, case.size, case.size, case.cameras, seed=0)
+    size, views = case.size, case.cameras
+    runs = 3 if quick else 15
+    prefix = f"raster.{name}"
+
+    def fwd():
+        with torch.no_grad():
+            rasterize(g, world2cam, K, size, size)
+
+    gg = g.clone().requires_grad_()
+    w2c = world2cam.clone().requires_grad_()
+
+    def fwdbwd():
+        out = rasterize(gg, w2c, K, size, size)
+        (out.rgb.sum() + out.features.sum() + out.depth.sum() + out.alpha.sum()).backward()
+
+    fast_fwd, cpu_fwd = _wall_and_cpu_ms(fwd, runs)
+    fast_fb, cpu_fb = _wall_and_cpu_ms(fwdbwd, runs)
+    fast_fwd, cpu_fwd, fast_fb, cpu_fb = (v / views for v in (fast_fwd, cpu_fwd, fast_fb, cpu_fb))
+    rec.record(f"{prefix}.fwd_ms", fast_fwd, "ms", runs)
+    rec.record(f"{prefix}.fwdbwd_ms", fast_fb, "ms", runs)
+    rec.record(f"{prefix}.fwd_cpu_ms", cpu_fwd, "ms", runs)
+    rec.record(f"{prefix}.fwdbwd_cpu_ms", cpu_fb, "ms", runs)
+
+    # Dense reference (float32 per-pixel maths) on the same scene, in the same run. A crop to the
+    # top rows is the same camera with a smaller height (pixel centres do not depend on it).
+    rows = size if not quick else size // (32 if case.n >= 50_000 else 4)
+    dense_views = case.dense_cameras if not quick else 1
+    extrapolated = rows < size or dense_views < views
+    scale = size / rows  # dense cost is linear in the pixel count
+
+    def dense():
+        with torch.no_grad():
+            rasterize_dense(g, world2cam[:dense_views], K[:dense_views], size, rows, compute_dtype=torch.float32)
+
+    dense_runs = 1 if (quick or case.n >= 50_000) else 3
+    dense_fwd = statistics.median(time_ms(dense, runs=dense_runs, warmup=0)) / dense_views * scale
+    rec.record(f"{prefix}.dense_fwd_ms", dense_fwd, "ms", dense_runs)
+    rec.record(f"{prefix}.speedup_fwd", dense_fwd / fast_fwd, "x", dense_runs)
+    rec.record(f"{prefix}.dense_extrapolated", float(extrapolated), "bool")
+    if case.dense_backward and not quick:
+
+        def dense_fb():
+            h = g.clone().requires_grad_()
+            w = world2cam[:1].clone().requires_grad_()
+            out = rasterize_dense(h, w, K[:1], size, size, compute_dtype=torch.float32, pixel_chunk=256)
+            (out["rgb"].sum() + out["features"].sum() + out["depth"].sum() + out["alpha"].sum()).backward()
+
+        dense_fb_ms = statistics.median(time_ms(dense_fb, runs=1, warmup=0))
+        rec.record(f"{prefix}.dense_fwdbwd_ms", dense_fb_ms, "ms", 1)
+        rec.record(f"{prefix}.speedup_fwdbwd", dense_fb_ms / fast_fb, "x", 1)
+
+    pairs = _count_pairs(g, world2cam, K, size, size, rows) * scale
+    rec.record(f"{prefix}.pairs", pairs, "pairs")
+    rec.record(f"{prefix}.pairs_per_s_fwd", pairs / (fast_fwd / 1e3), "1/s")
+    rec.record(f"{prefix}.pairs_per_s_fwdbwd", pairs / (fast_fb / 1e3), "1/s")
+    log.info("%s: fwd %.2f ms, fwd+bwd %.2f ms per view, dense %.0f ms (%.0fx)", name, fast_fwd, fast_fb,
+             dense_fwd, dense_fwd / fast_fwd)
+
+
+def _subprocess_seconds(env: dict) -> tuple[float, float]:
+    out = subprocess.run([sys.executable, "-c", _LOAD_SNIPPET], capture_output=True, text=True, env=env,
+                         timeout=900, check=True)
+    kernel_s, import_s = (float(v) for v in out.stdout.split()[-2:])
+    return kernel_s, import_s
+
+
+def _bench_jit(rec: Recorder, quick: bool) -> None:
+    env = dict(os.environ)
+    if not quick:
+        with tempfile.TemporaryDirectory() as cache:
+            cold = dict(env, NUMBA_CACHE_DIR=cache)
+            compile_s, _ = _subprocess_seconds(cold)
+            rec.record("raster.jit.compile_s", compile_s, "s")
+            load_s, import_s = _subprocess_seconds(cold)
+    else:
+        _subprocess_seconds(env)  # make sure the default cache is populated
+        load_s, import_s = _subprocess_seconds(env)
+    rec.record("raster.jit.cached_load_s", load_s, "s")
+    rec.record("raster.jit.import_s", import_s, "s")
+
+
+def run(rec: Recorder, quick: bool) -> None:
+    from aes_planner.gaussians import numba_backend, resolve_backend
+
+    backend = resolve_backend("auto")
+    info = {"backend": backend, "torch_threads": torch.get_num_threads()}
+    if backend == "numba":
+        import numba
+
+        numba_backend.warmup(torch.float32)
+        info.update(numba=numba.__version__, threading_layer=numba.threading_layer(),
+                    numba_threads=numba.get_num_threads())
+    rec.meta["backends"]["raster"] = info
+    rec.meta.setdefault("load_average", {})["raster_start"] = os.getloadavg()
+    t0 = time.perf_counter()
+    for name, case in CASES.items():
+        _bench_case(rec, name, case, quick)
+    if backend == "numba":
+        _bench_jit(rec, quick)
+    rec.meta["load_average"]["raster_end"] = os.getloadavg()
+    log.info("raster group took %.1f s", time.perf_counter() - t0)

@@ -1,0 +1,30 @@
+"""The compiled kernels are cached on disk, so a second process loads instead of compiling
+(checked through numba's cache statistics, not through timing)."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from aes_planner.gaussians import numba_backend
+
+SNIPPET = """
+import json, torch
+from aes_planner.gaussians import numba_backend
+numba_backend.warmup(torch.float32)
+k = numba_backend._kernels
+names = ["project_fwd", "bin_cameras", "fill_lists", "raster_fwd", "raster_bwd", "project_bwd"]
+print(json.dumps({n: [getattr(k, n).stats.cache_hits.total(), getattr(k, n).stats.cache_misses.total()] for n in names}))
+"""
+
+
+@pytest.mark.skipif(not numba_backend.available(), reason="numba is not installed")
+def test_second_process_loads_every_kernel_from_cache():
+    numba_backend.warmup(torch.float32)  # this process compiles (or loads) and writes the cache
+    out = subprocess.run([sys.executable, "-c", SNIPPET], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    stats = json.loads(out.stdout.strip().splitlines()[-1])
+    for name, (hits, misses) in stats.items():
+        assert hits >= 1 and misses == 0, f"{name}: {hits} cache hits, {misses} misses (not cacheable?)"
