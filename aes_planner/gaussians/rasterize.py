@@ -1,0 +1,160 @@
+"""``rasterize``: the public entry point of the Gaussian rasterizer, and backend selection.
+
+Backends
+--------
+* ``"numba"``: compiled CPU kernels (projection, binning, raster and their backward), parallel over
+  tiles or cameras. Needs numba (the ``fast`` extra) and CPU tensors. The first call in a fresh
+  environment compiles for ~30-60 s per dtype and caches to disk; later processes load in well
+  under a second.
+* ``"torch"``: pure-torch, tile-binned, autograd; any device; 20-50x slower on a CPU.
+* ``"auto"`` (default): ``numba`` when it imports and the tensors are on the CPU, else ``torch``.
+
+The environment variable ``AES_PLANNER_RASTER_BACKEND`` (``auto``/``numba``/``torch``) overrides
+``"auto"``; an explicit ``backend=`` argument wins over it.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass
+from typing import Sequence
+
+import torch
+from torch import Tensor
+
+from aes_planner.gaussians.container import GaussianError, Gaussians
+
+__all__ = ["BACKENDS", "BACKEND_ENV", "RasterOutput", "rasterize", "resolve_backend"]
+
+log = logging.getLogger(__name__)
+
+BACKENDS = ("auto", "numba", "torch")
+BACKEND_ENV = "AES_PLANNER_RASTER_BACKEND"
+
+
+@dataclass
+class RasterOutput:
+    """Rendered maps, batch first, channel-first.
+
+    * ``rgb``: ``[B, 3, H, W]`` colour composited over ``background`` (``bg * (1 - alpha)``).
+    * ``features``: ``[B, C, H, W]`` feature maps over a zero background.
+    * ``depth``: ``[B, H, W]`` expected camera z-depth in metres **normalised by alpha**
+      (``sum w_i z_i / alpha``), 0 where nothing was drawn. Multiply by ``alpha`` for the
+      un-normalised sum.
+    * ``alpha``: ``[B, H, W]`` accumulated opacity ``1 - T_final``.
+    * ``backend``: the backend that ran.
+    """
+
+    rgb: Tensor  # [B, 3, H, W]
+    features: Tensor  # [B, C, H, W]
+    depth: Tensor  # [B, H, W]
+    alpha: Tensor  # [B, H, W]
+    backend: str
+
+
+def resolve_backend(backend: str = "auto", device: torch.device | str = "cpu") -> str:
+    """The backend ``rasterize(..., backend=backend)`` would run for tensors on ``device``."""
+    if backend not in BACKENDS:
+        raise GaussianError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if backend == "auto":
+        backend = os.environ.get(BACKEND_ENV, "auto").strip().lower() or "auto"
+        if backend not in BACKENDS:
+            raise GaussianError(f"{BACKEND_ENV}={backend!r}: expected one of {BACKENDS}")
+    on_cpu = torch.device(device).type == "cpu"
+    if backend == "auto":
+        from aes_planner.gaussians import numba_backend
+
+        return "numba" if on_cpu and numba_backend.available() else "torch"
+    if backend == "numba":
+        from aes_planner.gaussians import numba_backend
+
+        if not on_cpu:
+            raise GaussianError(f"the numba backend runs on the CPU; tensors are on {device}. Use backend='torch'")
+        if not numba_backend.available():
+            raise GaussianError(
+                "numba is not importable; install the 'fast' extra (pip install 'aes-planner[fast]') "
+                "or use backend='torch'"
+            )
+    return backend
+
+
+def _batched(t: Tensor | Sequence, name: str, shape: tuple[int, int], device) -> Tensor:
+    t = torch.as_tensor(t, device=device)
+    if t.dim() == 2:
+        t = t.unsqueeze(0)
+    if t.dim() != 3 or tuple(t.shape[1:]) != shape:
+        raise GaussianError(f"{name} must have shape [B, {shape[0]}, {shape[1]}] (or [{shape[0]}, {shape[1]}]), got {tuple(t.shape)}")
+    if not t.dtype.is_floating_point:
+        raise GaussianError(f"{name} must be floating point (float64 recommended), got {t.dtype}")
+    if not bool(torch.isfinite(t).all()):
+        raise GaussianError(f"{name} has NaN or Inf entries; check the pose source")
+    return t
+
+
+def _check_inputs(gaussians, world2cam, K, width, height, background):
+    if not isinstance(gaussians, Gaussians):
+        raise GaussianError(f"rasterize takes a Gaussians, got {type(gaussians).__name__}")
+    for name, v in (("width", width), ("height", height)):
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise GaussianError(f"{name} must be a positive int (pixels), got {v!r}")
+    device = gaussians.device
+    world2cam = _batched(world2cam, "world2cam", (4, 4), device)
+    K = _batched(K, "K", (3, 3), device)
+    if K.shape[0] == 1 and world2cam.shape[0] > 1:
+        K = K.expand(world2cam.shape[0], 3, 3)
+    if K.shape[0] != world2cam.shape[0]:
+        raise GaussianError(f"K has {K.shape[0]} cameras but world2cam {world2cam.shape[0]}; pass one K or one per camera")
+    kd = K.detach()
+    if bool((kd[:, 0, 0] <= 0).any() | (kd[:, 1, 1] <= 0).any()):
+        raise GaussianError("K: focal lengths fx = K[..., 0, 0] and fy = K[..., 1, 1] must be positive pixels")
+    off = torch.stack([kd[:, 0, 1], kd[:, 1, 0], kd[:, 2, 0], kd[:, 2, 1], kd[:, 2, 2] - 1])
+    if bool((off != 0).any()):
+        raise GaussianError("K must read [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew); use Intrinsics.K_tensor()")
+    bottom = world2cam.detach()[:, 3]
+    if bool((bottom != torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=bottom.dtype, device=device)).any()):
+        raise GaussianError("world2cam must be rigid 4x4 matrices with bottom row [0, 0, 0, 1]")
+    if background is not None:
+        background = torch.as_tensor(background, dtype=gaussians.dtype, device=device)
+        if background.shape not in ((3,), (1, 3), (world2cam.shape[0], 3)):
+            raise GaussianError(f"background must have shape [3] or [B, 3], got {tuple(background.shape)}")
+        background = background.reshape(-1, 3)
+    return world2cam, K, background
+
+
+def rasterize(
+    gaussians: Gaussians,
+    world2cam: Tensor,  # [B, 4, 4] (or [4, 4]); float64 recommended for large coordinates
+    K: Tensor,  # [B, 3, 3] (or [3, 3], shared): [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]
+    width: int,
+    height: int,
+    background: Tensor | Sequence[float] | None = None,  # [3] or [B, 3]; None = black
+    backend: str = "auto",
+    validate: bool = True,
+) -> RasterOutput:
+    """Render ``gaussians`` from B cameras; differentiable w.r.t. ``world2cam``, ``background`` and
+    every float field of ``gaussians`` (not ``K``).
+
+    Numerics: :mod:`aes_planner.gaussians.numerics`. Pixel ``(i, j)`` has its centre at
+    ``(i + 0.5, j + 0.5)``; cameras use the OpenCV axes of :mod:`aes_planner.geometry`.
+    ``validate=False`` skips the O(N) finiteness/opacity checks of the Gaussians (inputs' shapes
+    are always checked).
+    """
+    world2cam, K, background = _check_inputs(gaussians, world2cam, K, width, height, background)
+    if validate:
+        gaussians.validate()
+    name = resolve_backend(backend, gaussians.device)
+    g = gaussians
+    values = torch.cat([g.colors, g.features], dim=1) if g.num_channels else g.colors
+    if name == "numba":
+        from aes_planner.gaussians.numba_backend import render
+    else:
+        from aes_planner.gaussians.torch_backend import render
+    out, t_final = render(g.means, g.quats, g.log_scales, g.opacities, values, world2cam, K, width, height)
+    c = g.num_channels
+    alpha = 1 - t_final
+    rgb = out[:, :3]
+    if background is not None:
+        rgb = rgb + background[:, :, None, None] * t_final[:, None]
+    depth = out[:, 3 + c] / alpha.clamp_min(1e-10)
+    return RasterOutput(rgb=rgb, features=out[:, 3:3 + c], depth=depth, alpha=alpha, backend=name)
