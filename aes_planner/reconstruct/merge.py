@@ -37,8 +37,7 @@ import numpy as np
 import torch
 
 from aes_planner.geometry.camera import Intrinsics
-from aes_planner.geometry.poses import matrix_to_quat
-from aes_planner.reconstruct.splats import SplatSet
+from aes_planner.reconstruct.splats import SplatSet, rotation_to_quat
 
 __all__ = ["BASE_CELL_M", "coarsen", "contributions", "dedupe", "levels", "prune_hidden", "refit_colors"]
 
@@ -88,6 +87,12 @@ def _cells(means: np.ndarray, level: np.ndarray, normals: np.ndarray) -> list[np
     cell = BASE_CELL_M * np.exp2(level.astype(np.float64))
     ijk = np.floor(means.astype(np.float64) / cell[:, None]).astype(np.int64)
     return [level, _normal_bin(normals).astype(np.int64), ijk[:, 0], ijk[:, 1], ijk[:, 2]]
+
+
+def _group_mean(x: np.ndarray, w: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
+    """Weighted mean of the rows of ``x [M, C]`` per group (weights ``w [M]``): ``[n, C]``."""
+    wsum = np.maximum(np.bincount(group, weights=w, minlength=n), 1e-30)
+    return np.stack([np.bincount(group, weights=w * x[:, j], minlength=n) for j in range(x.shape[1])], 1) / wsum[:, None]
 
 
 def _group_min(values: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
@@ -174,10 +179,9 @@ def _merge_groups(sp: SplatSet, members: np.ndarray, group: np.ndarray, n: int, 
     """One splat per group of ``members`` (indices into ``sp``, group ids ``[K]`` in ``0..n-1``)."""
     w = (sp.samples[members] * np.maximum(sp.opacities[members], 1e-3)).astype(np.float64)
     wsum = np.bincount(group, weights=w, minlength=n)
-    mean = lambda x: np.stack([np.bincount(group, weights=w * x[:, j], minlength=n) for j in range(x.shape[1])], 1) / wsum[:, None]  # noqa: E731
-    mu = mean(sp.means[members].astype(np.float64))
-    color = mean(sp.colors[members].astype(np.float64))
-    normal = mean(sp.normals[members].astype(np.float64))
+    mu = _group_mean(sp.means[members].astype(np.float64), w, group, n)
+    color = _group_mean(sp.colors[members].astype(np.float64), w, group, n)
+    normal = _group_mean(sp.normals[members].astype(np.float64), w, group, n)
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
     opacity = np.bincount(group, weights=w * sp.opacities[members], minlength=n) / wsum
     d = sp.means[members].astype(np.float64) - mu[group]
@@ -194,7 +198,7 @@ def _merge_groups(sp: SplatSet, members: np.ndarray, group: np.ndarray, n: int, 
     area = np.bincount(group, weights=sp.footprint_m[members].astype(np.float64) ** 2, minlength=n)
     return SplatSet(
         means=mu.astype(np.float32),
-        quats=matrix_to_quat(evecs).astype(np.float32),
+        quats=rotation_to_quat(evecs).astype(np.float32),
         log_scales=np.log(scales).astype(np.float32),
         opacities=np.clip(opacity, 0, 1).astype(np.float32),
         colors=color.astype(np.float32),
@@ -228,10 +232,9 @@ def _quad_costs(sp: SplatSet, scale_factor: float) -> tuple[np.ndarray, np.ndarr
     size = np.bincount(group, minlength=n)
     w = (sp.samples * np.maximum(sp.opacities, 1e-3)).astype(np.float64)
     wsum = np.bincount(group, weights=w, minlength=n)
-    avg = lambda x: np.stack([np.bincount(group, weights=w * x[:, j], minlength=n) for j in range(x.shape[1])], 1) / wsum[:, None]  # noqa: E731
-    c_bar = avg(sp.colors.astype(np.float64))
-    mu = avg(sp.means.astype(np.float64))
-    n_bar = avg(sp.normals.astype(np.float64))
+    c_bar = _group_mean(sp.colors.astype(np.float64), w, group, n)
+    mu = _group_mean(sp.means.astype(np.float64), w, group, n)
+    n_bar = _group_mean(sp.normals.astype(np.float64), w, group, n)
     n_len = np.linalg.norm(n_bar, axis=1)
     n_unit = n_bar / np.maximum(n_len, 1e-12)[:, None]
     color_cost = np.bincount(group, weights=w * ((sp.colors - c_bar[group]) ** 2).sum(1), minlength=n)

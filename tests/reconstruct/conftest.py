@@ -53,12 +53,3 @@ def capture(scene, cam2world: np.ndarray, intrinsics: Intrinsics, with_depth: bo
 
 def looking_at_ball(eye) -> np.ndarray:
     return look_at(np.asarray(eye, float), SPHERE_CENTRE)
-
-
-def psnr_db(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
-    return 100.0 if mse == 0 else 10 * np.log10(255.0**2 / mse)
-
-
-def to_uint8(rgb) -> np.ndarray:
-    return (rgb.detach().clamp(0, 1).permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)

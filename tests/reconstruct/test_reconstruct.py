@@ -7,6 +7,7 @@ import sys
 import numpy as np
 import pytest
 
+from aes_planner.bench.reconstruct import psnr_db, to_uint8
 from aes_planner.config import ConfigError, from_dict
 from aes_planner.geometry import Intrinsics, view_to_cam2world
 from aes_planner.messages import PosedFrame
@@ -20,7 +21,7 @@ from aes_planner.reconstruct import (
     reconstruct,
 )
 
-from conftest import SPHERE_CENTRE, WALL_X, capture, looking_at_ball, psnr_db, to_uint8
+from conftest import SPHERE_CENTRE, WALL_X, capture, looking_at_ball
 
 K64 = Intrinsics.from_fov(64, 48, 60.0)
 
