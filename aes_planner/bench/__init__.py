@@ -33,6 +33,7 @@ log = logging.getLogger(__name__)
 GROUPS: dict[str, str] = {
     "sim": "aes_planner.bench.sim",
     "gimbal": "aes_planner.bench.gimbal",
+    "reconstruct": "aes_planner.bench.reconstruct",
 }
 
 __all__ = ["GROUPS", "Recorder", "run_groups", "time_ms", "machine_info"]
