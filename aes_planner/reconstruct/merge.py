@@ -53,7 +53,7 @@ _MAX_LEVEL = 20  # quadtree levels: far beyond any image (2^20 blocks)
 _SPILL_WEIGHT = 0.03  # colour units per block whose merged tails would reach over a depth edge
 
 
-def levels(footprint_m: np.ndarray, factor: float) -> np.ndarray:
+def levels(footprint_m: np.ndarray, factor: float) -> np.ndarray:  # [M] -> [M] int64
     """Level ``L`` (int64 ``[M]``) whose cell ``BASE_CELL_M * 2^L`` is >= ``factor * footprint``."""
     size = np.maximum(factor * np.asarray(footprint_m, np.float64), 1e-9)
     return np.ceil(np.log2(size / BASE_CELL_M)).astype(np.int64)
@@ -65,7 +65,7 @@ def _normal_bin(normals: np.ndarray) -> np.ndarray:  # [M, 3] -> [M] in 0..5
     return axis * 2 + sign
 
 
-def _group(columns: list[np.ndarray]) -> tuple[np.ndarray, int]:
+def _group(columns: list[np.ndarray]) -> tuple[np.ndarray, int]:  # k x [M] int64 -> ([M], n)
     """Group rows of int64 ``columns`` (each ``[M]``): returns ``(group id [M], n_groups)``."""
     m = columns[0].shape[0]
     if m == 0:
@@ -83,25 +83,25 @@ def _group(columns: list[np.ndarray]) -> tuple[np.ndarray, int]:
     return inverse, int(inverse.max()) + 1
 
 
-def _cells(means: np.ndarray, level: np.ndarray, normals: np.ndarray) -> list[np.ndarray]:
+def _cells(means: np.ndarray, level: np.ndarray, normals: np.ndarray) -> list[np.ndarray]:  # [M, 3], [M], [M, 3]
     cell = BASE_CELL_M * np.exp2(level.astype(np.float64))
     ijk = np.floor(means.astype(np.float64) / cell[:, None]).astype(np.int64)
     return [level, _normal_bin(normals).astype(np.int64), ijk[:, 0], ijk[:, 1], ijk[:, 2]]
 
 
-def _group_mean(x: np.ndarray, w: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
+def _group_mean(x: np.ndarray, w: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:  # [M, C], [M], [M] -> [n, C]
     """Weighted mean of the rows of ``x [M, C]`` per group (weights ``w [M]``): ``[n, C]``."""
     wsum = np.maximum(np.bincount(group, weights=w, minlength=n), 1e-30)
     return np.stack([np.bincount(group, weights=w * x[:, j], minlength=n) for j in range(x.shape[1])], 1) / wsum[:, None]
 
 
-def _group_min(values: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
+def _group_min(values: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:  # [M], [M] -> [n]
     out = np.full(n, np.inf)
     np.minimum.at(out, group, values)
     return out
 
 
-def _group_max(values: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
+def _group_max(values: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:  # [M], [M] -> [n]
     out = np.full(n, -np.inf)
     np.maximum.at(out, group, values)
     return out
@@ -167,7 +167,7 @@ def _covered(losers: SplatSet, winners: SplatSet) -> np.ndarray:
     return out
 
 
-def _covariances(quats: np.ndarray, log_scales: np.ndarray) -> np.ndarray:  # -> [M, 3, 3]
+def _covariances(quats: np.ndarray, log_scales: np.ndarray) -> np.ndarray:  # [M, 4], [M, 3] -> [M, 3, 3]
     from aes_planner.geometry.poses import quat_to_matrix
 
     r = quat_to_matrix(quats.astype(np.float64))
@@ -175,7 +175,7 @@ def _covariances(quats: np.ndarray, log_scales: np.ndarray) -> np.ndarray:  # ->
     return m @ np.swapaxes(m, 1, 2)
 
 
-def _merge_groups(sp: SplatSet, members: np.ndarray, group: np.ndarray, n: int, spread_gain: float) -> SplatSet:
+def _merge_groups(sp: SplatSet, members: np.ndarray, group: np.ndarray, n: int, spread_gain: float) -> SplatSet:  # members, group [K]
     """One splat per group of ``members`` (indices into ``sp``, group ids ``[K]`` in ``0..n-1``)."""
     w = (sp.samples[members] * np.maximum(sp.opacities[members], 1e-3)).astype(np.float64)
     wsum = np.bincount(group, weights=w, minlength=n)
