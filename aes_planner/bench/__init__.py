@@ -34,6 +34,7 @@ GROUPS: dict[str, str] = {
     "sim": "aes_planner.bench.sim",
     "gimbal": "aes_planner.bench.gimbal",
     "reconstruct": "aes_planner.bench.reconstruct",
+    "teachers": "aes_planner.bench.teachers",
 }
 
 __all__ = ["GROUPS", "Recorder", "run_groups", "time_ms", "machine_info"]

@@ -20,6 +20,8 @@ COMMANDS = [
     "aes_planner.cli.sim",
     "aes_planner.cli.dataset",
     "aes_planner.cli.bench",
+    "aes_planner.cli.score",
+    "aes_planner.cli.teachers",
     "aes_planner.cli.gimbal",
 ]
 

@@ -171,13 +171,29 @@ def save_dataset(
     return path
 
 
-def _number(entry: dict, name: str, key: str) -> float:
-    if name not in entry:
-        raise DatasetError(f"{key}.{name}: missing")
+_MISSING = object()
+
+
+def finite_number(entry: dict, name: str, key: str, default: Any = _MISSING) -> Any:
+    """``entry[name]`` as a float; missing -> ``default`` (an error when none is given)."""
+    if name not in entry or entry[name] is None:
+        if default is _MISSING:
+            raise DatasetError(f"{key}.{name}: missing")
+        return default
     v = entry[name]
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
         raise DatasetError(f"{key}.{name}: expected a finite number, got {v!r}")
     return float(v)
+
+
+def read_json(path: Path, hint: str) -> Any:
+    """Parse a JSON file; a missing or malformed file raises :class:`DatasetError` with ``hint``."""
+    if not path.is_file():
+        raise DatasetError(f"{path}: not found; {hint}")
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise DatasetError(f"{path}: not valid JSON ({exc})") from None
 
 
 def _matrix(value: Any, key: str) -> np.ndarray:
@@ -212,12 +228,7 @@ def load_dataset(path: str | Path, load_depth: bool = True) -> PosedDataset:
     path = Path(path)
     cameras = path / "cameras.json" if path.is_dir() else path
     root = cameras.parent
-    if not cameras.is_file():
-        raise DatasetError(f"{cameras}: not found; a dataset folder holds images and a cameras.json")
-    try:
-        doc = json.loads(cameras.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise DatasetError(f"{cameras}: not valid JSON ({exc})") from None
+    doc = read_json(cameras, "a dataset folder holds images and a cameras.json")
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise DatasetError(f"{cameras}: 'format' must be {FORMAT!r}; for nerfstudio or RealEstate10K files use the importers")
     if doc.get("version") != VERSION:
@@ -240,14 +251,14 @@ def load_dataset(path: str | Path, load_depth: bool = True) -> PosedDataset:
                 f"{key}: width/height say {width}x{height} but {e['image']} is {image.shape[1]}x{image.shape[0]}"
             )
         try:
-            k = Intrinsics(_number(e, "fx", key), _number(e, "fy", key), _number(e, "cx", key), _number(e, "cy", key),
-                           image.shape[1], image.shape[0])
+            fx, fy, cx, cy = (finite_number(e, name, key) for name in ("fx", "fy", "cx", "cy"))
+            k = Intrinsics(fx, fy, cx, cy, image.shape[1], image.shape[0])
         except IntrinsicsError as exc:
             raise DatasetError(f"{key}: {exc}") from None
         if "cam2world" not in e:
             raise DatasetError(f"{key}.cam2world: missing (a 4x4 camera-to-world matrix, OpenCV axes)")
         c2w = _matrix(e["cam2world"], f"{key}.cam2world")
-        stamp = _number(e, "stamp_s", key) if "stamp_s" in e else 0.0
+        stamp = finite_number(e, "stamp_s", key, 0.0)
         depth = None
         if load_depth and e.get("depth"):
             depth = read_depth(root / e["depth"], f"{key}.depth", float(e.get("depth_png_scale_m", 0.001)))

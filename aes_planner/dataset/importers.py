@@ -21,7 +21,6 @@ leaves the world as it is (right for nerfstudio data processed with its default
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 from pathlib import Path
@@ -32,8 +31,10 @@ import numpy as np
 from aes_planner.dataset.folder import (
     DatasetError,
     PosedDataset,
+    finite_number,
     frame_from_parts,
     read_depth,
+    read_json,
     read_rgb,
 )
 from aes_planner.geometry.camera import Intrinsics, IntrinsicsError
@@ -84,26 +85,12 @@ def _apply_up(frames_c2w: list[np.ndarray], up: UpMode) -> tuple[list[np.ndarray
     return [r @ m for m in frames_c2w], r
 
 
-def _num(obj: dict, name: str, key: str, default: Any = None) -> Any:
-    v = obj.get(name, default)
-    if v is None:
-        return None
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise DatasetError(f"{key}.{name}: expected a finite number, got {v!r}")
-    return float(v)
-
-
 def import_nerfstudio(transforms_json: str | Path, up: UpMode = "keep", load_depth: bool = True) -> PosedDataset:
     """Read a nerfstudio ``transforms.json`` (see the module docstring)."""
     path = Path(transforms_json)
     if path.is_dir():
         path = path / "transforms.json"
-    if not path.is_file():
-        raise DatasetError(f"{path}: not found")
-    try:
-        doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise DatasetError(f"{path}: not valid JSON ({exc})") from None
+    doc = read_json(path, "pass nerfstudio's transforms.json or its folder")
     if not isinstance(doc, dict) or not isinstance(doc.get("frames"), list):
         raise DatasetError(f"{path}: expected an object with a 'frames' list (a nerfstudio transforms.json)")
     root = path.parent
@@ -116,19 +103,19 @@ def import_nerfstudio(transforms_json: str | Path, up: UpMode = "keep", load_dep
         h, w = image.shape[:2]
         merged = {**doc, **fr}
         for dist in ("k1", "k2", "k3", "k4", "p1", "p2"):
-            if _num(merged, dist, key, 0.0):
+            if finite_number(merged, dist, key, 0.0):
                 log.warning("%s: distortion %s=%s is ignored (pinhole model); undistort the images first", key, dist, merged[dist])
         if (merged.get("w") not in (None, w)) or (merged.get("h") not in (None, h)):
             raise DatasetError(f"{key}: w/h say {merged.get('w')}x{merged.get('h')} but {fr['file_path']} is {w}x{h}")
-        fx = _num(merged, "fl_x", key)
-        fy = _num(merged, "fl_y", key)
+        fx = finite_number(merged, "fl_x", key, None)
+        fy = finite_number(merged, "fl_y", key, None)
         if fx is None and "camera_angle_x" in merged:
-            fx = 0.5 * w / math.tan(_num(merged, "camera_angle_x", key) / 2)
+            fx = 0.5 * w / math.tan(finite_number(merged, "camera_angle_x", key) / 2)
         if fx is None:
             raise DatasetError(f"{key}: no focal length (fl_x, or camera_angle_x) at the top level or in the frame")
         fy = fy if fy is not None else fx
-        cx = _num(merged, "cx", key, w / 2.0)
-        cy = _num(merged, "cy", key, h / 2.0)
+        cx = finite_number(merged, "cx", key, w / 2.0)
+        cy = finite_number(merged, "cy", key, h / 2.0)
         try:
             k = Intrinsics(fx, fy, cx, cy, w, h)
         except IntrinsicsError as exc:
@@ -141,7 +128,7 @@ def import_nerfstudio(transforms_json: str | Path, up: UpMode = "keep", load_dep
             raise DatasetError(str(exc) if isinstance(exc, PoseError) else f"{key}.transform_matrix: expected a 4x4 list of numbers") from None
         depth = None
         if load_depth and fr.get("depth_file_path"):
-            scale = _num(merged, "depth_unit_scale_factor", key, 1e-3)
+            scale = finite_number(merged, "depth_unit_scale_factor", key, 1e-3)
             depth = read_depth(root / fr["depth_file_path"], f"{key}.depth_file_path", scale)
         parts.append((key, image, k, m @ OPENGL_TO_OPENCV, depth, Path(fr["file_path"]).stem))
     poses, rot = _apply_up([p[3] for p in parts], up)

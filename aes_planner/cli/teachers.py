@@ -1,0 +1,41 @@
+"""``aes-planner teachers list`` and ``aes-planner teachers convert-ven SRC DST``."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("teachers", help="list aesthetic teachers; convert VEN weights", description=__doc__)
+    tsub = p.add_subparsers(dest="teachers_command", metavar="ACTION", required=True)
+    lp = tsub.add_parser("list", help="teachers get_teacher() and --teacher accept, plugins included")
+    lp.set_defaults(func=run_list)
+    cp = tsub.add_parser(
+        "convert-ven",
+        help="one-off: turn the released VEN checkpoint into a safely loadable state dict",
+        description="Unpickles SRC with torch.load(weights_only=False) -- which can run code stored in the "
+        "file, so only do it for a checkpoint from a source you trust (its SHA-256 is logged) -- and writes "
+        "DST, a plain state dict that `--weights DST` then loads with weights_only=True.",
+    )
+    cp.add_argument("src", metavar="SRC", help="the released checkpoint, e.g. EvaluationNet.pth.tar")
+    cp.add_argument("dst", metavar="DST", help="where to write the converted weights, e.g. ven_weights.pt")
+    cp.set_defaults(func=run_convert)
+
+
+def run_list(args: argparse.Namespace) -> int:
+    from aes_planner.teachers import DEFAULT_TEACHER, available_teachers
+
+    for name in available_teachers():
+        print(name + ("  (default)" if name == DEFAULT_TEACHER else ""))
+    return 0
+
+
+def run_convert(args: argparse.Namespace) -> int:
+    import logging
+
+    from aes_planner.teachers.ven import convert_checkpoint
+
+    logging.getLogger("aes_planner.teachers.ven").setLevel(logging.INFO)
+    out = convert_checkpoint(args.src, args.dst)
+    print(f"wrote {out}; use it with --weights {out}")
+    return 0

@@ -1,0 +1,390 @@
+"""The composition teacher: a differentiable, weight-free model of framing and composition.
+
+It is the default teacher and what the whole product maximises, so every term is built from
+image evidence that a bad view cannot fake cheaply, and the score is gated by how much there is
+to look at: a blank wall, a black frame or an empty sky score about zero, and views of bare
+architecture (wall corners, floor boards, an empty horizon) about half of what the same framing
+of an object scores.
+
+**Features** (``features(images) -> [B, 4, 16, 16]``; the analogue of VEN's 14x14 pool4 map,
+but 4 channels instead of 512 so that the field renders it cheaply). The image is resampled to a
+64x64 working frame (area averaging down, bilinear up; composition is judged in normalised frame
+coordinates, so the aspect ratio is not kept) and converted to an opponent colour space
+(luminance, red-green, yellow-blue). Per 4x4 cell:
+
+====  ==============  ====================================================================
+ ch   name            meaning
+====  ==============  ====================================================================
+ 0    ``saliency``    centre-surround colour contrast: distance in opponent colour between
+                      a fine blur and two coarse surrounds (difference of Gaussians), so
+                      things that differ from their surroundings stand out and uniform
+                      regions do not
+ 1    ``edge_xx``     mean ``gx^2`` of the colour gradient (vertical-edge energy)
+ 2    ``edge_yy``     mean ``gy^2`` (horizontal-edge energy)
+ 3    ``edge_xy``     mean ``gx*gy``; with 1 and 2 the pooled colour structure tensor, which
+                      gives the edge energy at any orientation ``t`` as
+                      ``xx*cos^2 t + 2*xy*sin t*cos t + yy*sin^2 t``
+====  ==============  ====================================================================
+
+**Head** (``head(fmap) -> [B]``; about forty tensor ops on the 16x16 map, no weights). It first
+tells objects from lines: the smaller eigenvalue of the structure tensor pooled over 3x3 cells
+(*corner energy*, Shi-Tomasi at cell scale) is large where edges of several orientations meet
+(objects, corners, foliage) and about zero along straight lines (wall edges, floor boards, a
+horizon). The **subject** is saliency times objectness (a squashed corner energy). Each term
+lies in ``[0, 1]``, higher is better:
+
+* ``thirds`` -- share of the subject's (squared) mass on the rule-of-thirds template (Gaussians
+  at the four power points, half-height ridges along the four third lines). A subject on a
+  power point scores about 0.75, a centred one about 0.15, no subject or an even spread 0.27.
+* ``balance`` -- the visual-weight centroid (subject and edge energy) lies near the horizontal
+  centre (vertical offsets count a quarter as much). A lone subject on a third scores about 0.6.
+* ``border`` -- no subject cut by the frame: the share of the subject on the one-cell frame
+  ring beyond 0.08 decays the term (lines crossing the frame are no subject and cost nothing).
+* ``horizon_placement`` -- the dominant frame-spanning near-horizontal line (horizon, floor or
+  table line) lies on a third rather than in the middle.
+* ``horizon_level`` -- that line is level (a 2.5 deg tilt costs about 40 %, 5 deg about 85 %).
+* ``clutter`` -- clean versus busy: the share of cells with strong edges; 1 for a clean frame
+  with a few strong lines, about 0 when edges fill the frame.
+* ``subject_size`` -- there is a subject and it covers a sensible share of the frame: the area
+  of its second-moment ellipse (about its share of the frame), log-normal around 12 %, times
+  ``1 - exp(-subject mass / 0.1)`` so that no subject means 0.
+
+and two factors that say how the terms are combined:
+
+* ``content`` -- how much there is to look at: ``1 - exp(-(corner energy / 1e-4 + 0.7 *
+  lines))`` where ``lines`` in ``[0, 1]`` measures edge energy; about 0 for a blank wall, a
+  black frame or an empty sky, at most 0.5 with straight lines only, above 0.95 with one clear
+  object.
+* ``horizon_presence`` -- how strongly a frame-spanning near-horizontal line is present, in
+  ``[0, 1]``; the two horizon terms count only in proportion to it.
+
+**Score**, in ``[0, 1]``::
+
+    score = content * sum_k(w_k * term_k) / sum_k(w_k)
+
+with the weights of :class:`CompositionWeights` (horizon weights multiplied by
+``horizon_presence``). A featureless view scores near 0, bare architecture 0.2-0.4, an ordinary
+view with objects 0.4-0.6, a clean subject on a third with a level horizon on the other third
+about 0.8.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from aes_planner.config import require, require_finite
+from aes_planner.teachers.base import Teacher, check_feature_map, check_images
+
+__all__ = ["CompositionConfig", "CompositionWeights", "CompositionTeacher", "TERMS", "CHANNELS"]
+
+#: Feature-map channels, in order.
+CHANNELS = ("saliency", "edge_xx", "edge_yy", "edge_xy")
+#: Terms of the score, in order (see the module docstring).
+TERMS = (
+    "thirds",
+    "balance",
+    "border",
+    "horizon_placement",
+    "horizon_level",
+    "clutter",
+    "subject_size",
+)
+
+# Calibration constants of the head (fixed; the tests pin their effect). Energies are per cell
+# of the 16x16 map for images in [0, 1].
+_EPS = 1e-6
+_TINY = 1e-14
+_MAP_LIMIT = 1e3  # the head clamps rendered maps to +-this before anything can overflow
+_SAL_FLOOR = 3e-3  # subject saliency every cell is assumed to have: without a subject, p is uniform
+_RING_FLOOR = 1e-3  # the same for the share of the subject on the frame ring
+_EDGE_GAIN = 4.0  # structure tensor scale: a hard edge gives cells of about 0.01-0.1
+_OBJECT_ENERGY = 1e-3  # cell corner energy at which a cell counts a quarter object-like
+_CONTENT_OBJECT = 1e-4  # mean corner energy worth one unit of content evidence
+_CONTENT_EDGE_FLOOR = 3e-4  # edge energy below this (a smooth shading ramp) is not content
+_CONTENT_EDGE = 5e-4  # mean edge energy above the floor for 63 % of the lines' share
+_LINES_CONTENT = 0.7  # lines alone give at most 1 - exp(-0.7) = 0.5 content
+_BALANCE_SIGMA = 0.18
+_BORDER_FREE = 0.08  # share of the subject on the frame ring that costs nothing
+_BORDER_SCALE = 0.08
+_BUSY_ENERGY = 0.004  # a cell with this edge energy counts half busy
+_CLUTTER_MID, _CLUTTER_WIDTH = 0.35, 0.07
+_SIZE_LOG_SIGMA = 1.2
+_AREA_GAIN = 1.6  # the squared subject mass sits on outlines and corners: x1.6 ~ share of the frame
+_SUBJECT_MASS = 0.1  # summed subject saliency for 63 % of the size term (one clear object: ~1)
+_HORIZON_ENERGY = 0.015  # line energy per third of the width for presence 0.63 (a hard level edge: ~0.94)
+_HORIZON_SIGMA = 0.06  # of the frame height, around each third
+
+
+@dataclass(frozen=True)
+class CompositionWeights:
+    """Weights of the terms in the score (non-negative, at least one positive)."""
+
+    thirds: float = 1.0
+    balance: float = 0.5
+    border: float = 1.0
+    horizon_placement: float = 0.75
+    horizon_level: float = 1.0
+    clutter: float = 0.75
+    subject_size: float = 0.75
+
+    def __post_init__(self):
+        for name in TERMS:
+            v = getattr(self, name)
+            require_finite(v, f"weights.{name}")
+            require(v >= 0, f"weights.{name}", f"must be >= 0, got {v}")
+        require(sum(getattr(self, n) for n in TERMS) > 0, "weights", "at least one weight must be positive")
+
+
+@dataclass(frozen=True)
+class CompositionConfig:
+    """Settings of :class:`CompositionTeacher`.
+
+    ``work_size``: side of the square working frame the image is resampled to (px).
+    ``feature_size``: side of the square feature map; must divide ``work_size``.
+    ``thirds_sigma``: spread of the power-point Gaussians, in frame units.
+    ``tilt_tolerance_deg``: horizon tilt at which ``horizon_level`` falls to ``exp(-1/2)``.
+    ``ideal_subject_area``: effective subject area (share of the frame) that scores 1.
+    """
+
+    work_size: int = 64
+    feature_size: int = 16
+    thirds_sigma: float = 0.09
+    tilt_tolerance_deg: float = 2.5
+    ideal_subject_area: float = 0.12
+    weights: CompositionWeights = field(default_factory=CompositionWeights)
+
+    def __post_init__(self):
+        require(isinstance(self.work_size, int) and self.work_size >= 16, "work_size", f"must be an integer >= 16, got {self.work_size!r}")
+        require(
+            isinstance(self.feature_size, int) and 3 <= self.feature_size <= self.work_size and self.work_size % self.feature_size == 0,
+            "feature_size",
+            f"must be an integer >= 3 that divides work_size={self.work_size}, got {self.feature_size!r}",
+        )
+        for name, lo, hi in (("thirds_sigma", 0.01, 0.5), ("tilt_tolerance_deg", 0.1, 45.0), ("ideal_subject_area", 0.005, 1.0)):
+            v = getattr(self, name)
+            require_finite(v, name)
+            require(lo <= v <= hi, name, f"must be in [{lo}, {hi}], got {v}")
+
+
+def _gaussian_kernel(sigma: float) -> Tensor:  # -> [K]
+    radius = max(1, int(math.ceil(3.0 * sigma)))
+    x = torch.arange(-radius, radius + 1, dtype=torch.float64)
+    k = torch.exp(-0.5 * (x / sigma) ** 2)
+    return (k / k.sum()).float()
+
+
+def _smoothing_matrix(n: int, kernel: Tensor) -> Tensor:  # [K] -> [n, n]
+    """The 1D convolution with ``kernel`` and replicate padding as a matrix: ``y = M @ x``.
+
+    The head works on 16-cell axes, where one small matmul costs far less than pad + conv
+    (whose thread-pool start-up dominates at this size)."""
+    r = kernel.numel() // 2
+    m = torch.zeros(n, n, dtype=torch.float64)
+    for i in range(n):
+        for j, k in enumerate(kernel.tolist()):
+            m[i, min(max(i + j - r, 0), n - 1)] += k
+    return m.float()
+
+
+class CompositionTeacher(Teacher):
+    """Composition teacher (the default): see the module docstring for the map, terms and score."""
+
+    name = "composition"
+    score_range = "[0, 1]: ~0 featureless, 0.2-0.4 bare architecture, 0.4-0.6 ordinary, ~0.8 well composed"
+
+    _CENTRE_SIGMA = 1.0  # px of the working frame
+    _SURROUND_SIGMAS = (4.0, 10.0)
+
+    def __init__(self, config: CompositionConfig | None = None):
+        super().__init__()
+        self.config = cfg = config or CompositionConfig()
+        n = cfg.feature_size
+        self.feature_channels = len(CHANNELS)
+        self.feature_size = (n, n)
+        # Every filter of the working frame in one separable pass per axis: per opponent channel,
+        # the centre blur, the surround blurs, and the Sobel derivatives of the centre blur.
+        # (Few large convolutions: the thread pool's start-up, not arithmetic, dominates here.)
+        sigmas = (self._CENTRE_SIGMA, *self._SURROUND_SIGMAS)
+        blurs = [_gaussian_kernel(sg) for sg in sigmas]
+        diff = torch.tensor([-0.5, 0.0, 0.5])  # Sobel = [1, 2, 1] / 4 across times this along, /8 in all
+        smooth = torch.tensor([0.25, 0.5, 0.25])
+        centre = blurs[0]
+        d_centre = torch.conv1d(F.pad(centre, (1, 1))[None, None], diff.flip(0)[None, None])[0, 0]
+        s_centre = torch.conv1d(F.pad(centre, (1, 1))[None, None], smooth[None, None])[0, 0]
+        along_x = [*blurs, d_centre, s_centre]  # outputs: blurs..., gx, gy
+        along_y = [*blurs, s_centre, d_centre]
+        radius = max(k.numel() for k in along_x) // 2
+        self._filters = len(along_x)
+        self._radius = radius
+
+        def bank(kernels: list[Tensor]) -> Tensor:  # -> [3 * F, K]
+            padded = [F.pad(k, ((2 * radius + 1 - k.numel()) // 2,) * 2) for k in kernels]
+            return torch.stack(padded).repeat(3, 1)
+
+        self.register_buffer("_filters_x", bank(along_x)[:, None, None, :], persistent=False)  # [3F, 1, 1, K]
+        self.register_buffer("_filters_y", bank(along_y)[:, None, :, None], persistent=False)  # [3F, 1, K, 1]
+        opponent = torch.tensor([[0.299, 0.587, 0.114], [0.5, -0.5, 0.0], [0.25, 0.25, -0.5]])
+        self.register_buffer("_opponent", opponent, persistent=False)  # rows: L, red-green, yellow-blue
+
+        c = (torch.arange(n, dtype=torch.float64) + 0.5) / n
+        y, x = torch.meshgrid(c, c, indexing="ij")
+        thirds = (1.0 / 3.0, 2.0 / 3.0)
+        s = cfg.thirds_sigma
+        points = torch.stack([torch.exp(-((x - a) ** 2 + (y - b) ** 2) / (2 * s * s)) for a in thirds for b in thirds]).amax(0)
+        ridge = torch.stack(
+            [torch.exp(-((x - a) ** 2) / (2 * (s / 2) ** 2)) for a in thirds] + [torch.exp(-((y - a) ** 2) / (2 * (s / 2) ** 2)) for a in thirds]
+        ).amax(0)
+        ring = torch.zeros(n, n, dtype=torch.float64)
+        ring[0, :] = ring[-1, :] = ring[:, 0] = ring[:, -1] = 1.0
+        self.register_buffer("_x", x.float(), persistent=False)
+        self.register_buffer("_y", y.float(), persistent=False)
+        self.register_buffer("_thirds", torch.maximum(points, 0.5 * ridge).float(), persistent=False)
+        self.register_buffer("_ring", ring.float(), persistent=False)
+        self.register_buffer("_rows", c.float(), persistent=False)
+        self.register_buffer("_box3", _smoothing_matrix(n, torch.full((3,), 1.0 / 3.0)), persistent=False)
+        self.register_buffer("_row_blur", _smoothing_matrix(n, _gaussian_kernel(1.5)), persistent=False)
+        groups = torch.zeros(n, 3)  # column -> left / middle / right third of the width
+        for j, (a, b) in enumerate(zip((0, n // 3, n - n // 3), (n // 3, n - n // 3, n))):
+            groups[a:b, j] = 1.0
+        self.register_buffer("_thirds_of_width", groups, persistent=False)
+        weights = torch.tensor([getattr(cfg.weights, t) for t in TERMS], dtype=torch.float32)
+        self.register_buffer("_weights", weights, persistent=False)
+        self.freeze()
+
+    # ------------------------------------------------------------------ features
+    def _working_frame(self, images: Tensor) -> Tensor:  # [B, 3, H, W] -> [B, 3, s, s]
+        s = self.config.work_size
+        h, w = images.shape[-2:]
+        if h < s or w < s:
+            images = F.interpolate(images, size=(max(h, s), max(w, s)), mode="bilinear", align_corners=False)
+        if images.shape[-2:] != (s, s):
+            images = F.adaptive_avg_pool2d(images, (s, s))
+        return images
+
+    def features(self, images: Tensor) -> Tensor:  # [B, 3, H, W] in [0, 1] -> [B, 4, n, n]
+        images = check_images(images, "composition teacher")
+        rgb = self._working_frame(images.to(self._x.dtype))
+        bsz, size, nf = rgb.shape[0], rgb.shape[-1], self._filters
+        opp = torch.einsum("oc,bchw->bohw", self._opponent, rgb)  # [B, 3, s, s]
+        r = self._radius
+        padded = F.pad(opp, (r, r, r, r), mode="replicate")
+        out = F.conv2d(F.conv2d(padded, self._filters_x, groups=3), self._filters_y, groups=3 * nf)
+        out = out.view(bsz, 3, nf, size, size)  # [B, colour, filter, s, s]
+
+        centre, surrounds = out[:, :, :1], out[:, :, 1 : nf - 2]
+        d2 = (centre - surrounds).pow(2).sum(1)  # [B, surrounds, s, s]
+        sal = ((d2 + _EPS).sqrt() - math.sqrt(_EPS)).mean(1)  # [B, s, s]
+
+        gx, gy = out[:, :, nf - 2], out[:, :, nf - 1]  # [B, colour, s, s]
+        tensor = _EDGE_GAIN * torch.stack([(gx * gx).sum(1), (gy * gy).sum(1), (gx * gy).sum(1)], 1)
+
+        maps = torch.cat([sal[:, None], tensor], 1)  # [B, 4, s, s]
+        return F.adaptive_avg_pool2d(maps, self.feature_size)
+
+    # ---------------------------------------------------------------------- head
+    def head(self, fmap: Tensor) -> Tensor:  # [B, 4, n, n] -> [B]
+        return self._terms(fmap)["score"]
+
+    def explain_map(self, fmap: Tensor) -> dict[str, Tensor]:  # [B, 4, n, n] -> {name: [B]}
+        return self._terms(fmap)
+
+    def _terms(self, fmap: Tensor) -> dict[str, Tensor]:  # [B, 4, n, n] -> {name: [B]}
+        check_feature_map(fmap, self.feature_channels, self.feature_size, "composition teacher head")
+        fmap = fmap.clamp(-_MAP_LIMIT, _MAP_LIMIT)  # real maps stay within about [-1, 1]
+        cfg = self.config
+        n = self.feature_size[0]
+        sal = fmap[:, 0].clamp_min(0.0)  # [B, n, n]
+        jxx, jyy, jxy = fmap[:, 1].clamp_min(0.0), fmap[:, 2].clamp_min(0.0), fmap[:, 3]
+        energy = jxx + jyy
+        dims = (1, 2)
+
+        # Objects versus lines: the smaller eigenvalue of the structure tensor pooled over 3x3
+        # cells (Shi-Tomasi at cell scale) is large where edges of several orientations meet
+        # (objects, corners, foliage) and about zero along straight lines (wall edges, floor
+        # boards, a horizon), which frame a view but are not a subject.
+        a, b, c = (self._box3 @ m @ self._box3.T for m in (jxx, jyy, jxy))
+        # (A tiny epsilon: sqrt(eps) biases every straight edge's value upwards.)
+        corners = F.relu(0.5 * (a + b - ((a - b) ** 2 + 4 * c * c + _TINY).sqrt() + math.sqrt(_TINY)))
+        objectness = (corners / (corners + _OBJECT_ENERGY)) ** 2  # [B, n, n] in [0, 1); squared: the
+        # steps of a slightly tilted line leave a little corner energy that must not make it a subject
+        subject = sal * objectness  # salient and object-like
+
+        # How much there is to look at: objects count fully, lines at most half (a bare wall
+        # corner or an empty horizon is half-empty); shading ramps stay under the floor.
+        lines = 1.0 - torch.exp(-F.relu(energy - _CONTENT_EDGE_FLOOR).mean(dims) / _CONTENT_EDGE)
+        content = 1.0 - torch.exp(-(corners.mean(dims) / _CONTENT_OBJECT + _LINES_CONTENT * lines))
+
+        # Where the subject is: squared, so that it counts more than its halo.
+        p = subject * subject + _SAL_FLOOR**2
+        p = p / p.sum(dims, keepdim=True)
+        thirds = (p * self._thirds).sum(dims)
+
+        q = energy + _SAL_FLOOR**2
+        q = q / q.sum(dims, keepdim=True)
+        weight = 0.5 * (p + q)
+        cx, cy = (weight * self._x).sum(dims), (weight * self._y).sum(dims)
+        balance = torch.exp(-((cx - 0.5) ** 2 + 0.25 * (cy - 0.5) ** 2) / (2 * _BALANCE_SIGMA**2))
+
+        ring_share = (subject * self._ring).sum(dims) / (subject.sum(dims) + _RING_FLOOR * n * n)
+        border = torch.exp(-F.relu(ring_share - _BORDER_FREE) / _BORDER_SCALE)
+
+        # Area the subject spans: the ellipse of its second moments (2 pi sqrt(det cov) is the
+        # area of a disc whose outline, or whole, carries the mass), in shares of the frame.
+        s2 = subject * subject
+        m = s2 / (s2.sum(dims, keepdim=True) + _TINY)
+        mx, my = (m * self._x).sum(dims, keepdim=True), (m * self._y).sum(dims, keepdim=True)
+        dx, dy = self._x - mx, self._y - my
+        vxx, vyy, vxy = (m * dx * dx).sum(dims), (m * dy * dy).sum(dims), (m * dx * dy).sum(dims)
+        area = _AREA_GAIN * 2 * math.pi * (F.relu(vxx * vyy - vxy * vxy) + _TINY).sqrt()
+        size_fit = torch.exp(-torch.log(area / cfg.ideal_subject_area) ** 2 / (2 * _SIZE_LOG_SIGMA**2))
+        subject_size = size_fit * (1.0 - torch.exp(-subject.sum(dims) / _SUBJECT_MASS))  # no subject, no size
+
+        busy = (energy / (energy + _BUSY_ENERGY)).mean(dims)
+        clutter = torch.sigmoid((_CLUTTER_MID - busy) / _CLUTTER_WIDTH)
+
+        placement, level, presence = self._horizon(jxx, jyy, jxy)
+
+        terms = dict(
+            thirds=thirds,
+            balance=balance,
+            border=border,
+            horizon_placement=placement,
+            horizon_level=level,
+            clutter=clutter,
+            subject_size=subject_size,
+        )
+        stacked = torch.stack([terms[t] for t in TERMS], -1)  # [B, T]
+        gate = torch.stack([presence if t.startswith("horizon") else torch.ones_like(presence) for t in TERMS], -1)
+        w = self._weights * gate  # [B, T]: the horizon terms count as much as a horizon is present
+        composition = (w * stacked).sum(-1) / (w.sum(-1) + _EPS)
+        return {"score": content * composition, **terms, "content": content, "horizon_presence": presence}
+
+    def _horizon(self, jxx: Tensor, jyy: Tensor, jxy: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """(placement, level, presence) of the dominant frame-spanning near-horizontal line, each [B]."""
+        n = jxx.shape[-1]
+        # Near-horizontal line energy: > 0 for edges within ~40 deg of horizontal.
+        line = F.relu(jyy - jxx - 0.25 * ((jxy * jxy + _EPS).sqrt() - math.sqrt(_EPS)))  # [B, n, n]
+        # Line energy per row in each third of the width, smoothed over neighbouring rows so that
+        # a slightly tilted line still spans the frame.
+        parts = self._row_blur @ (line @ self._thirds_of_width)  # [B, n rows, 3]
+        log_span = torch.log(parts + _EPS).mean(-1)  # [B, n]: geometric mean over the thirds
+        span = torch.exp(log_span)
+        w4 = torch.softmax(4.0 * log_span, -1)  # = span^4 / sum(span^4), without overflow
+        strength = (w4 * span).sum(-1)
+        presence = 1.0 - torch.exp(-strength / _HORIZON_ENERGY)
+        y = (w4 * self._rows).sum(-1)  # [B]
+        s2 = 2 * _HORIZON_SIGMA**2
+        placement = (torch.exp(-((y - 1.0 / 3.0) ** 2) / s2) + torch.exp(-((y - 2.0 / 3.0) ** 2) / s2)).clamp(max=1.0)
+        band = torch.exp(-((self._rows - y[:, None]) ** 2) / (2 * (2.0 / n) ** 2))[..., None]  # [B, n, 1]
+        # For one straight line tilted by t: sum(xy) = g^2 sin t cos t, sum(yy) = g^2 cos^2 t,
+        # so this is sin t, bounded whatever the map holds.
+        sxy, syy = (band * jxy).sum((1, 2)), (band * jyy).sum((1, 2))
+        sin_tilt = sxy / (syy * syy + sxy * sxy + _EPS).sqrt()
+        tol = math.sin(math.radians(self.config.tilt_tolerance_deg))
+        level = torch.exp(-(sin_tilt**2) / (2 * tol * tol))
+        return placement, level, presence
