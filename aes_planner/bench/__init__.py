@@ -33,6 +33,7 @@ log = logging.getLogger(__name__)
 GROUPS: dict[str, str] = {
     "sim": "aes_planner.bench.sim",
     "raster": "aes_planner.bench.raster",
+    "reconstruct": "aes_planner.bench.reconstruct",
     "teachers": "aes_planner.bench.teachers",
     "gimbal": "aes_planner.bench.gimbal",
 }

@@ -7,8 +7,10 @@ small window — robust to exposure differences between frames. Costs (``1 - ZNC
 over the neighbours that see the point; the winner takes all, refined to sub-plane precision by
 a parabola through the three costs around the minimum.
 
-Confidence in [0, 1] combines how well the best plane matches (its ZNCC) with how far its cost
-sits below the median plane's (a flat cost curve means a textureless or ambiguous region).
+Confidence in [0, 1] combines how well the best plane matches (its ZNCC), how far its cost
+sits below the median plane's (a flat cost curve means a textureless region) and how far below
+the best rival plane outside its own dip (a second minimum means a repeated pattern, or stripes
+running along the baseline, where any of several depths fits).
 Pixels without texture, without a valid neighbour, or below ``min_confidence`` get depth 0
 (the package's "no measurement").
 
@@ -29,7 +31,7 @@ from torch import Tensor
 from aes_planner.config import require
 from aes_planner.messages import PosedFrame
 
-__all__ = ["StereoConfig", "StereoResult", "plane_sweep_depth", "expected_disparity_px"]
+__all__ = ["StereoConfig", "StereoResult", "consistent_depth", "plane_sweep_depth", "expected_disparity_px"]
 
 
 @dataclass
@@ -43,6 +45,7 @@ class StereoConfig:
     min_texture: float = 2e-4  # minimum variance of the reference window (gray in [0, 1])
     min_confidence: float = 0.15
     subplane: bool = True
+    uniqueness_margin: float = 0.1  # cost gap to the best rival plane that gives full confidence; 0 = off
 
     def __post_init__(self):
         require(self.num_planes >= 3, "num_planes", f"need at least 3 planes, got {self.num_planes}")
@@ -50,6 +53,7 @@ class StereoConfig:
         require(self.window_px >= 1 and self.window_px % 2 == 1, "window_px", f"must be a positive odd number, got {self.window_px}")
         require(self.min_texture >= 0, "min_texture", "must be >= 0")
         require(0 <= self.min_confidence <= 1, "min_confidence", "must be in [0, 1]")
+        require(self.uniqueness_margin >= 0, "uniqueness_margin", f"must be >= 0, got {self.uniqueness_margin}")
 
 
 @dataclass
@@ -68,6 +72,23 @@ def _gray(image: np.ndarray) -> Tensor:
 def _box(x: Tensor, k: int) -> Tensor:
     """Mean over a ``k x k`` window, same size out (edges average what exists)."""
     return F.avg_pool2d(x, k, stride=1, padding=k // 2, count_include_pad=False)
+
+
+def _rival_cost(cost: Tensor, best: Tensor) -> Tensor:  # cost [D, H, W], best [H, W] -> [H, W]
+    """Lowest cost outside the dip around ``best`` (the run of planes over which the cost rises
+    strictly away from it); 2 (the maximum) when the dip spans every plane."""
+    d = cost.shape[0]
+    planes = torch.arange(d)[:, None, None]
+    rises_right = torch.zeros_like(cost, dtype=torch.long)  # 1 where cost[k] <= cost[k-1]: a break
+    rises_right[1:] = (cost[1:] <= cost[:-1]).long()
+    breaks_r = rises_right.cumsum(0)
+    rises_left = torch.zeros_like(cost, dtype=torch.long)  # 1 where cost[k] <= cost[k+1]
+    rises_left[:-1] = (cost[:-1] <= cost[1:]).long()
+    breaks_l = rises_left.flip(0).cumsum(0).flip(0)  # breaks at k..D-1
+    at_best_r = breaks_r.gather(0, best[None])
+    at_best_l = breaks_l.gather(0, best[None])
+    dip = ((planes > best) & (breaks_r == at_best_r)) | ((planes < best) & (breaks_l == at_best_l)) | (planes == best)
+    return torch.where(dip, torch.full_like(cost, 2.0), cost).min(dim=0).values
 
 
 def expected_disparity_px(frames: list[PosedFrame], depth_m: float) -> float:
@@ -148,8 +169,45 @@ def plane_sweep_depth(ref: PosedFrame, neighbours: list[PosedFrame], config: Ste
     typical = cost.median(dim=0).values
     match = (1.0 - best_cost).clamp(0, 1)
     distinct = ((typical - best_cost) / 0.5).clamp(0, 1)
-    conf = match * distinct
+    # uniqueness: the best plane must beat every plane outside its own dip (the planes around it
+    # over which the cost rises strictly); a rival there — another valley, or a flat curve — means
+    # a repeated pattern or stripes along the epipolar lines, where several depths fit
+    rival = _rival_cost(cost, best)
+    unique = ((rival - best_cost) / cfg.uniqueness_margin).clamp(0, 1) if cfg.uniqueness_margin > 0 else torch.ones_like(best_cost)
+    conf = match * distinct * unique
     ok = seen.any(0) & (var_r[0, 0] > cfg.min_texture) & (conf >= cfg.min_confidence)
     depth = torch.where(ok, depth, torch.zeros_like(depth))
     conf = torch.where(ok, conf, torch.zeros_like(conf))
     return StereoResult(depth.numpy().astype(np.float32), conf.numpy().astype(np.float32))
+
+
+def consistent_depth(
+    ref: PosedFrame,
+    depth_m: np.ndarray,  # [H, W] the reference's stereo depth, 0 = unknown
+    others: list[tuple[PosedFrame, np.ndarray]],  # neighbours with their own stereo depth [h, w]
+    rel_tol: float = 0.05,
+) -> np.ndarray:
+    """``depth_m`` with 0 where no neighbour agrees: a pixel is kept when, moved into some
+    neighbour's camera, it lands on a pixel whose own depth is within ``rel_tol`` of its z there
+    (the multi-view geometric consistency check of MVS pipelines: a wrong match is rarely wrong
+    the same way from two reference views)."""
+    d = np.asarray(depth_m, np.float64)
+    known = d > 0
+    if not known.any() or not others:
+        return np.where(known, d, 0.0).astype(np.float32)
+    p_cam = ref.intrinsics.pixel_directions() * d[..., None]  # [H, W, 3]
+    p_world = p_cam @ ref.cam2world[:3, :3].T + ref.cam2world[:3, 3]
+    agree = np.zeros(d.shape, bool)
+    for nb, nb_depth in others:
+        q = (p_world - nb.cam2world[:3, 3]) @ nb.cam2world[:3, :3]  # neighbour camera frame
+        z = q[..., 2]
+        k = nb.intrinsics
+        with np.errstate(divide="ignore", invalid="ignore"):
+            col = np.floor(k.fx * q[..., 0] / z + k.cx)
+            row = np.floor(k.fy * q[..., 1] / z + k.cy)
+        inside = known & (z > 0) & (col >= 0) & (col < k.width) & (row >= 0) & (row < k.height)
+        ci = np.where(inside, col, 0).astype(np.int64)
+        ri = np.where(inside, row, 0).astype(np.int64)
+        seen = np.asarray(nb_depth, np.float64)[ri, ci]
+        agree |= inside & (seen > 0) & (np.abs(seen - z) <= rel_tol * seen)
+    return np.where(agree, d, 0.0).astype(np.float32)
