@@ -218,15 +218,15 @@ def label_view(scene, camera, frame) -> ViewLabel:
 def subject_views(
     seeds: Sequence[int] = (0, 1, 2, 3, 4),
     random_views: int = 24,
-    sweep: tuple[int, int] = (6, 4),
+    sweep: tuple[int, int] | None = (6, 4),
     width: int = 128,
     height: int = 96,
     families: Sequence[str] = FAMILIES_ORDER,
     seed: int = 0,
 ) -> SubjectViews | None:
     """Labelled views of every family and scene seed: ``random_views`` at joint angles drawn
-    uniformly within the rig's limits, then a ``sweep = (n_pan, n_tilt)`` joint grid; None
-    without the simulator."""
+    uniformly within the rig's limits, then a ``sweep = (n_pan, n_tilt)`` joint grid (none when
+    None); None without the simulator."""
     try:
         from aes_planner.sim import SimCamera, SimCameraConfig, load_scene
     except ImportError:
@@ -240,7 +240,8 @@ def subject_views(
             camera = SimCamera(scene, SimCameraConfig(width=width, height=height))
             (plo, phi), (tlo, thi) = camera.kinematics.pan_limits_rad, camera.kinematics.tilt_limits_rad
             joints = [(rng.uniform(plo, phi), rng.uniform(tlo, thi)) for _ in range(random_views)]
-            joints += [tuple(j) for j in camera.kinematics.joint_grid(*sweep)]
+            if sweep is not None:
+                joints += [tuple(j) for j in camera.kinematics.joint_grid(*sweep)]
             for i, (pan, tilt) in enumerate(joints):
                 frame = camera.capture_joints(float(pan), float(tilt))
                 out.images.append(torch.from_numpy(np.ascontiguousarray(frame.image)).permute(2, 0, 1).float() / 255.0)
@@ -260,7 +261,9 @@ def subject_metrics(scores: Sequence[float], views: SubjectViews) -> dict[str, f
       stripes); ``subject_pairs`` / ``subject_pairs_texture`` the pair counts.
     * ``sweep_argmax_subject_rate``: share of scenes whose best-scoring sweep view frames a
       subject; ``sweep_subject_share`` the share of sweep views that do (what a random pick
-      gets); ``sweep_argmax_texture_rate``: share of scenes whose best sweep view is a texture view.
+      gets); ``sweep_argmax_structure_rate`` / ``sweep_argmax_texture_rate``: share of scenes
+      whose best sweep view shows structure only / is a texture view (the rest of the scenes'
+      best views are neither: several small subjects, or one mostly cut by the frame).
     * ``subject_srcc``: SRCC between the scores and the subject coverage quality over the
       random views of a scene, averaged over scenes (scenes with constant quality skipped).
     """
@@ -269,7 +272,7 @@ def subject_metrics(scores: Sequence[float], views: SubjectViews) -> dict[str, f
         raise ValueError(f"subject_metrics needs one score per view ({len(views.labels)}), got shape {scores.shape}")
     out: dict[str, float] = {}
     wins: dict[str, list[float]] = {}
-    srccs, argmax_subject, argmax_texture, sweep_subject = [], [], [], []
+    srccs, argmax_subject, argmax_structure, argmax_texture, sweep_subject = [], [], [], [], []
     for name in dict.fromkeys(views.scenes):
         family = name.split(":")[0]
         idx = [i for i, s in enumerate(views.scenes) if s == name]
@@ -290,6 +293,7 @@ def subject_metrics(scores: Sequence[float], views: SubjectViews) -> dict[str, f
         if sw:
             best = sw[int(np.argmax(scores[sw]))]
             argmax_subject.append(views.labels[best].subject is not None)
+            argmax_structure.append(views.labels[best].structure_only)
             argmax_texture.append(views.labels[best].structure_only and views.labels[best].texture >= TEXTURE_MIN_COVER)
             sweep_subject += [views.labels[i].subject is not None for i in sw]
     nan = float("nan")
@@ -301,6 +305,7 @@ def subject_metrics(scores: Sequence[float], views: SubjectViews) -> dict[str, f
         out[f"subject_pref_acc_{family}"] = float(np.mean(wins[family])) if wins.get(family) else nan
     out["subject_srcc"] = float(np.mean(srccs)) if srccs else nan
     out["sweep_argmax_subject_rate"] = float(np.mean(argmax_subject)) if argmax_subject else nan
+    out["sweep_argmax_structure_rate"] = float(np.mean(argmax_structure)) if argmax_structure else nan
     out["sweep_argmax_texture_rate"] = float(np.mean(argmax_texture)) if argmax_texture else nan
     out["sweep_subject_share"] = float(np.mean(sweep_subject)) if sweep_subject else nan
     return out

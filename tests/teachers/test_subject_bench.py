@@ -82,6 +82,7 @@ def test_metrics_count_pairs_within_scenes_and_the_sweep_argmax():
     assert m["subject_pref_acc"] == pytest.approx(3.5 / 5)
     assert m["subject_pref_acc_texture"] == pytest.approx(0.5)
     assert m["sweep_argmax_subject_rate"] == 0.5 and m["sweep_argmax_texture_rate"] == 0.5
+    assert m["sweep_argmax_structure_rate"] == 0.5
     assert m["sweep_subject_share"] == 0.5
     # outdoor's random views tie, so only indoor has a within-scene SRCC
     assert m["subject_srcc"] == pytest.approx(bench.srcc([0.9, 0.5, 0.6, 0.1], [0.8, 0.4, 0, 0]))
