@@ -38,7 +38,7 @@ def test_records_the_evaluator_correlation(monkeypatch):
 def test_records_the_subject_figures_of_both_judges(monkeypatch):
     pytest.importorskip("aes_planner.sim")
     small = bench.subject_views
-    monkeypatch.setattr(bench, "subject_views", lambda seeds, random_views: small(seeds=(0,), random_views=6, sweep=(3, 2), width=64, height=48))
+    monkeypatch.setattr(bench, "subject_views", lambda seeds, random_views: small(seeds=(0,), random_views=4, sweep=(2, 2), width=64, height=48))
     rec = Recorder()
     bench.bench_subjects(rec, quick=True)
     for judge in ("composition", "evaluator"):
