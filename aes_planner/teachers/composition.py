@@ -278,13 +278,12 @@ class CompositionTeacher(Teacher):
         self.register_buffer("_rows", c.float(), persistent=False)
         self.register_buffer("_box3", _smoothing_matrix(n, torch.full((3,), 1.0 / 3.0)), persistent=False)
         self.register_buffer("_row_blur", _smoothing_matrix(n, _gaussian_kernel(1.5)), persistent=False)
-        # Annulus sums: unnormalised Gaussians (zero outside the frame); outer >= inner everywhere.
-        gauss = [torch.exp(-((c[:, None] - c[None]) ** 2) / (2 * sg**2)) for sg in _ANNULUS_SIGMAS]
-        ones = torch.ones(n, n, dtype=torch.float64)
-        self.register_buffer("_annulus_inner", gauss[0].float(), persistent=False)
-        self.register_buffer("_annulus_outer", gauss[1].float(), persistent=False)
-        area = gauss[1] @ ones @ gauss[1].T - gauss[0] @ ones @ gauss[0].T
-        self.register_buffer("_annulus_area", area.float(), persistent=False)
+        # Annulus means as one [N, N] matrix (source cell -> target cell): the outer Gaussian minus
+        # the inner one (both 1 at distance 0, so the cell itself drops out), clipped to the frame
+        # and normalised per target cell; every weight >= 0.
+        inner, outer = (torch.exp(-((c[:, None] - c[None]) ** 2) / (2 * sg**2)) for sg in _ANNULUS_SIGMAS)
+        ring = (torch.kron(outer, outer) - torch.kron(inner, inner)).clamp_min(0.0)
+        self.register_buffer("_annulus", (ring / ring.sum(0, keepdim=True)).float(), persistent=False)  # [N, N]
         groups = torch.zeros(n, 3)  # column -> left / middle / right third of the width
         for j, (a, b) in enumerate(zip((0, n // 3, n - n // 3), (n // 3, n - n // 3, n))):
             groups[a:b, j] = 1.0
@@ -376,9 +375,8 @@ class CompositionTeacher(Teacher):
         # Divisive normalisation by the mean evidence over an annulus around each cell (between
         # Gaussians of 3 and 6 cells, clipped to the frame), which leaves most of a compact
         # object's own outline out: about 1/(1 + k) of a uniform texture survives, most of a lone
-        # object. (The clamp only catches rounding: the annulus weights are >= 0.)
-        outer, inner = self._annulus_outer, self._annulus_inner
-        surround = F.relu(outer @ salient @ outer.T - inner @ salient @ inner.T) / self._annulus_area
+        # object.
+        surround = (salient.flatten(1) @ self._annulus).view_as(salient)
         subject = salient * salient / (salient + _ISOLATION * surround + _TINY)
         mass = subject.sum(dims)
         presence = 1.0 - torch.exp(-mass / _PRESENCE_MASS)  # [B]: is there a subject at all
