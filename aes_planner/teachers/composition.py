@@ -20,9 +20,9 @@ coordinates, so the aspect ratio is not kept) and converted to an opponent colou
  0    ``saliency``    *distinctive* contrast: centre-surround colour contrast (distance in
                       opponent colour between a fine blur and two coarse surrounds), times
                       the cell colour's distinctiveness in the frame, ``exp(-(area / 0.3 +
-                      repeated / 0.005))``: ``area`` is the share of the frame's cells of a
+                      repeated / 0.0025))``: ``area`` is the share of the frame's cells of a
                       similar colour (a wall, a floor, a sky), ``repeated`` the mean contrast
-                      per cell carried by cells of a similar colour at least ~4 cells away (a
+                      per cell carried by cells of a similar colour at least ~5 cells away (a
                       checker, stripes, tiles or boards repeat their contrast all over the
                       frame; a subject's own outline lies near it). A lone object of its own
                       colour keeps its contrast; large surfaces and repeated patterns lose it
@@ -122,8 +122,8 @@ _MAP_LIMIT = 1e3  # the head clamps rendered maps to +-this before anything can 
 _COLOUR_SIGMA = 0.06  # colour kernel of the distinctiveness (opponent units, chroma x _CHROMA_WEIGHT)
 _CHROMA_WEIGHT = 2.0
 _AREA_SHARE = 0.3  # share of the frame in one colour that divides its saliency by e
-_REPEATED_CONTRAST = 0.005  # mean contrast per cell, in one colour away from a cell, that divides its saliency by e
-_FAR = 0.25  # frame units (4 cells of 16): contrast nearer than this is the cell's own object, not a repeat
+_REPEATED_CONTRAST = 0.0025  # mean contrast per cell, in one colour away from a cell, that divides its saliency by e
+_FAR = 0.31  # frame units (5 cells of 16): contrast nearer than this is the cell's own object, not a repeat
 _SAL_FLOOR = 3e-3  # subject saliency every cell is assumed to have: without a subject, p is uniform
 _RING_FLOOR = 1e-3  # the same for the share of the subject on the frame ring
 _EDGE_GAIN = 4.0  # structure tensor scale: a hard edge gives cells of about 0.01-0.1
