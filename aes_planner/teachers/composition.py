@@ -80,7 +80,7 @@ and three factors that say how the terms are combined:
 
 with the weights ``w_k`` of :class:`CompositionWeights`, ``g_k = horizon_presence`` for the
 horizon terms (else 1) and ``e_k = subject_presence`` for the subject terms (else 1). A
-featureless view scores near 0; bare structure and regular texture 0.1-0.45 (median about 0.27
+featureless view scores near 0; bare structure and regular texture 0.1-0.45 (median about 0.25
 on random rig views of the simulator's scenes); an ordinary view of a subject 0.3-0.65 (median
 0.43); a clean subject on a third with a level horizon on the other third about 0.8.
 """
@@ -123,6 +123,7 @@ _COLOUR_SIGMA = 0.06  # colour kernel of the distinctiveness (opponent units, ch
 _CHROMA_WEIGHT = 2.0
 _AREA_SHARE = 0.3  # share of the frame in one colour that divides its saliency by e
 _REPEATED_CONTRAST = 0.0025  # mean contrast per cell, in one colour away from a cell, that divides its saliency by e
+_DISTINCT_CHUNK = 64  # images per pass of the distinctiveness ([64, 256, 256] floats: 16 MB a temporary)
 _FAR = 0.31  # frame units (5 cells of 16): contrast nearer than this is the cell's own object, not a repeat
 _SAL_FLOOR = 3e-3  # subject saliency every cell is assumed to have: without a subject, p is uniform
 _RING_FLOOR = 1e-3  # the same for the share of the subject on the frame ring
@@ -334,7 +335,10 @@ class CompositionTeacher(Teacher):
         stripes, tiles or floor boards put contrast into the same colours all over the frame,
         while a subject's own outline lies near it). The result is ``exp(-(area / share +
         repeated / amount))``: near 1 for a subject of its own colour, small for a large
-        surface or a repeated pattern."""
+        surface or a repeated pattern. (Chunks of the batch bound the ``[B, N, N]`` temporaries.)"""
+        if colour.shape[0] > _DISTINCT_CHUNK:
+            parts = zip(colour.split(_DISTINCT_CHUNK), contrast.split(_DISTINCT_CHUNK))
+            return torch.cat([self._distinctiveness(col, con) for col, con in parts])
         c = (colour * self._colour_weights[:, None, None]).flatten(2).transpose(1, 2)  # [B, N, 3]
         sq = (c * c).sum(-1)  # [B, N]
         d2 = (sq[:, :, None] + sq[:, None, :] - 2 * c @ c.transpose(1, 2)).clamp_min(0.0)  # [B, N, N]
