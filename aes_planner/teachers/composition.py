@@ -1,10 +1,12 @@
 """The composition teacher: a differentiable, weight-free model of framing and composition.
 
 It is the default teacher and what the whole product maximises, so every term is built from
-image evidence that a bad view cannot fake cheaply, and the score is gated by how much there is
-to look at: a blank wall, a black frame or an empty sky score about zero, and views of bare
-architecture (wall corners, floor boards, an empty horizon) about half of what the same framing
-of an object scores.
+image evidence that a bad view cannot fake cheaply. Two gates decide what a view is worth
+before its framing is judged: ``content`` (is there anything to look at: a blank wall, a black
+frame or an empty sky score about zero) and ``subject_presence`` (is there a *subject*: a
+compact, isolated region of a colour the rest of the frame does not repeat). Bare structure and
+regular texture (wall corners, floor boards, a checker floor, a striped cloth) have content but
+no subject, so they lose the subject terms and score about half of a framed subject.
 
 **Features** (``features(images) -> [B, 4, 16, 16]``; the analogue of VEN's 14x14 pool4 map,
 but 4 channels instead of 512 so that the field renders it cheaply). The image is resampled to a
@@ -15,10 +17,15 @@ coordinates, so the aspect ratio is not kept) and converted to an opponent colou
 ====  ==============  ====================================================================
  ch   name            meaning
 ====  ==============  ====================================================================
- 0    ``saliency``    centre-surround colour contrast: distance in opponent colour between
-                      a fine blur and two coarse surrounds (difference of Gaussians), so
-                      things that differ from their surroundings stand out and uniform
-                      regions do not
+ 0    ``saliency``    *distinctive* contrast: centre-surround colour contrast (distance in
+                      opponent colour between a fine blur and two coarse surrounds), times
+                      the cell colour's distinctiveness in the frame, ``exp(-(area / 0.3 +
+                      repeated / 0.0025))``: ``area`` is the share of the frame's cells of a
+                      similar colour (a wall, a floor, a sky), ``repeated`` the mean contrast
+                      per cell carried by cells of a similar colour at least ~5 cells away (a
+                      checker, stripes, tiles or boards repeat their contrast all over the
+                      frame; a subject's own outline lies near it). A lone object of its own
+                      colour keeps its contrast; large surfaces and repeated patterns lose it
  1    ``edge_xx``     mean ``gx^2`` of the colour gradient (vertical-edge energy)
  2    ``edge_yy``     mean ``gy^2`` (horizontal-edge energy)
  3    ``edge_xy``     mean ``gx*gy``; with 1 and 2 the pooled colour structure tensor, which
@@ -26,46 +33,56 @@ coordinates, so the aspect ratio is not kept) and converted to an opponent colou
                       ``xx*cos^2 t + 2*xy*sin t*cos t + yy*sin^2 t``
 ====  ==============  ====================================================================
 
-**Head** (``head(fmap) -> [B]``; about forty tensor ops on the 16x16 map, no weights). It first
+Distinctiveness is global (it compares each cell's colour with the whole frame's, 256 x 256
+cell pairs), so it lives in the trunk, not the head; the map keeps its 4 channels.
+
+**Head** (``head(fmap) -> [B]``; about fifty tensor ops on the 16x16 map, no weights). It first
 tells objects from lines: the smaller eigenvalue of the structure tensor pooled over 3x3 cells
 (*corner energy*, Shi-Tomasi at cell scale) is large where edges of several orientations meet
 (objects, corners, foliage) and about zero along straight lines (wall edges, floor boards, a
-horizon). The **subject** is saliency times objectness (a squashed corner energy). Each term
-lies in ``[0, 1]``, higher is better:
+horizon). *Salient evidence* is saliency times objectness (a squashed corner energy). The
+**subject** is that evidence where it is *isolated*: divided by itself plus 10 x the mean
+evidence over an annulus 3-6 cells around (a texture's cells are as strong as their surround and
+keep about 1/11; a compact object's outline mostly lies inside the annulus' hole).
+``subject_presence = 1 - exp(-subject mass / 0.3)``. Each term lies in ``[0, 1]``, higher is
+better:
 
 * ``thirds`` -- share of the subject's (squared) mass on the rule-of-thirds template (Gaussians
   at the four power points, half-height ridges along the four third lines). A subject on a
   power point scores about 0.75, a centred one about 0.15, no subject or an even spread 0.27.
 * ``balance`` -- the visual-weight centroid (subject and edge energy) lies near the horizontal
   centre (vertical offsets count a quarter as much). A lone subject on a third scores about 0.6.
-* ``border`` -- no subject cut by the frame: the share of the subject on the one-cell frame
-  ring beyond 0.08 decays the term (lines crossing the frame are no subject and cost nothing).
+* ``border`` -- nothing salient cut by the frame: the share of the salient evidence on the
+  one-cell frame ring beyond 0.08 decays the term (lines crossing the frame cost nothing).
 * ``horizon_placement`` -- the dominant frame-spanning near-horizontal line (horizon, floor or
   table line) lies on a third rather than in the middle.
 * ``horizon_level`` -- that line is level (a 2.5 deg tilt costs about 40 %, 5 deg about 85 %).
 * ``clutter`` -- clean versus busy: the share of cells with strong edges; 1 for a clean frame
   with a few strong lines, about 0 when edges fill the frame.
-* ``subject_size`` -- there is a subject and it covers a sensible share of the frame: the area
-  of its second-moment ellipse (about its share of the frame), log-normal around 12 %, times
-  ``1 - exp(-subject mass / 0.1)`` so that no subject means 0.
+* ``subject_size`` -- the subject covers a sensible share of the frame: the area of its
+  second-moment ellipse (about its share of the frame), log-normal around 12 %.
 
-and two factors that say how the terms are combined:
+and three factors that say how the terms are combined:
 
 * ``content`` -- how much there is to look at: ``1 - exp(-(corner energy / 1e-4 + 0.7 *
   lines))`` where ``lines`` in ``[0, 1]`` measures edge energy; about 0 for a blank wall, a
   black frame or an empty sky, at most 0.5 with straight lines only, above 0.95 with one clear
   object.
+* ``subject_presence`` -- whether there is a subject, in ``[0, 1]``: the subject terms
+  (``thirds``, ``border``, ``subject_size``) are *earned* in proportion to it, their weights
+  staying in the denominator, so a view without a subject scores as if they were 0.
 * ``horizon_presence`` -- how strongly a frame-spanning near-horizontal line is present, in
-  ``[0, 1]``; the two horizon terms count only in proportion to it.
+  ``[0, 1]``; the two horizon terms count (weights and all) only in proportion to it.
 
 **Score**, in ``[0, 1]``::
 
-    score = content * sum_k(w_k * term_k) / sum_k(w_k)
+    score = content * sum_k(w_k * g_k * e_k * term_k) / sum_k(w_k * g_k)
 
-with the weights of :class:`CompositionWeights` (horizon weights multiplied by
-``horizon_presence``). A featureless view scores near 0, bare architecture 0.2-0.4, an ordinary
-view with objects 0.4-0.6, a clean subject on a third with a level horizon on the other third
-about 0.8.
+with the weights ``w_k`` of :class:`CompositionWeights`, ``g_k = horizon_presence`` for the
+horizon terms (else 1) and ``e_k = subject_presence`` for the subject terms (else 1). A
+featureless view scores near 0; bare structure and regular texture 0.1-0.45 (median about 0.25
+on random rig views of the simulator's scenes); an ordinary view of a subject 0.3-0.65 (median
+0.43); a clean subject on a third with a level horizon on the other third about 0.8.
 """
 
 from __future__ import annotations
@@ -94,12 +111,20 @@ TERMS = (
     "clutter",
     "subject_size",
 )
+_SUBJECT_TERMS = ("thirds", "border", "subject_size")  # earned in proportion to subject presence
+_HORIZON_TERMS = ("horizon_placement", "horizon_level")  # weighted by horizon presence
 
 # Calibration constants of the head (fixed; the tests pin their effect). Energies are per cell
 # of the 16x16 map for images in [0, 1].
 _EPS = 1e-6
 _TINY = 1e-14
 _MAP_LIMIT = 1e3  # the head clamps rendered maps to +-this before anything can overflow
+_COLOUR_SIGMA = 0.06  # colour kernel of the distinctiveness (opponent units, chroma x _CHROMA_WEIGHT)
+_CHROMA_WEIGHT = 2.0
+_AREA_SHARE = 0.3  # share of the frame in one colour that divides its saliency by e
+_REPEATED_CONTRAST = 0.0025  # mean contrast per cell, in one colour away from a cell, that divides its saliency by e
+_DISTINCT_CHUNK = 64  # images per pass of the distinctiveness ([64, 256, 256] floats: 16 MB a temporary)
+_FAR = 0.31  # frame units (5 cells of 16): contrast nearer than this is the cell's own object, not a repeat
 _SAL_FLOOR = 3e-3  # subject saliency every cell is assumed to have: without a subject, p is uniform
 _RING_FLOOR = 1e-3  # the same for the share of the subject on the frame ring
 _EDGE_GAIN = 4.0  # structure tensor scale: a hard edge gives cells of about 0.01-0.1
@@ -115,7 +140,9 @@ _BUSY_ENERGY = 0.004  # a cell with this edge energy counts half busy
 _CLUTTER_MID, _CLUTTER_WIDTH = 0.35, 0.07
 _SIZE_LOG_SIGMA = 1.2
 _AREA_GAIN = 1.6  # the squared subject mass sits on outlines and corners: x1.6 ~ share of the frame
-_SUBJECT_MASS = 0.1  # summed subject saliency for 63 % of the size term (one clear object: ~1)
+_ISOLATION = 10.0  # weight of the surround in the subject's divisive normalisation
+_ANNULUS_SIGMAS = (0.19, 0.375)  # frame units (3 and 6 cells of 16): the surround of the isolation
+_PRESENCE_MASS = 0.3  # summed subject evidence for 63 % subject presence
 _HORIZON_ENERGY = 0.015  # line energy per third of the width for presence 0.63 (a hard level edge: ~0.94)
 _HORIZON_SIGMA = 0.06  # of the frame height, around each third
 
@@ -127,8 +154,8 @@ class CompositionWeights:
     thirds: float = 1.0
     balance: float = 0.5
     border: float = 1.0
-    horizon_placement: float = 0.75
-    horizon_level: float = 1.0
+    horizon_placement: float = 1.0
+    horizon_level: float = 0.75
     clutter: float = 0.75
     subject_size: float = 0.75
 
@@ -195,7 +222,7 @@ class CompositionTeacher(Teacher):
     """Composition teacher (the default): see the module docstring for the map, terms and score."""
 
     name = "composition"
-    score_range = "[0, 1]: ~0 featureless, 0.2-0.4 bare architecture, 0.4-0.6 ordinary, ~0.8 well composed"
+    score_range = "[0, 1]: ~0 featureless, 0.1-0.45 bare structure or texture, 0.3-0.65 a subject, ~0.8 well composed"
 
     _CENTRE_SIGMA = 1.0  # px of the working frame
     _SURROUND_SIGMAS = (4.0, 10.0)
@@ -230,9 +257,13 @@ class CompositionTeacher(Teacher):
         self.register_buffer("_filters_y", bank(along_y)[:, None, :, None], persistent=False)  # [3F, 1, K, 1]
         opponent = torch.tensor([[0.299, 0.587, 0.114], [0.5, -0.5, 0.0], [0.25, 0.25, -0.5]])
         self.register_buffer("_opponent", opponent, persistent=False)  # rows: L, red-green, yellow-blue
+        self.register_buffer("_colour_weights", torch.tensor([1.0, _CHROMA_WEIGHT, _CHROMA_WEIGHT]), persistent=False)
 
         c = (torch.arange(n, dtype=torch.float64) + 0.5) / n
         y, x = torch.meshgrid(c, c, indexing="ij")
+        cells = torch.stack([y.flatten(), x.flatten()], -1)  # [N, 2] frame units
+        far = 1.0 - torch.exp(-((cells[:, None] - cells[None]) ** 2).sum(-1) / (2 * _FAR**2))
+        self.register_buffer("_far", far.float(), persistent=False)  # [N, N]: 0 for the same cell, ~1 across the frame
         thirds = (1.0 / 3.0, 2.0 / 3.0)
         s = cfg.thirds_sigma
         points = torch.stack([torch.exp(-((x - a) ** 2 + (y - b) ** 2) / (2 * s * s)) for a in thirds for b in thirds]).amax(0)
@@ -248,6 +279,12 @@ class CompositionTeacher(Teacher):
         self.register_buffer("_rows", c.float(), persistent=False)
         self.register_buffer("_box3", _smoothing_matrix(n, torch.full((3,), 1.0 / 3.0)), persistent=False)
         self.register_buffer("_row_blur", _smoothing_matrix(n, _gaussian_kernel(1.5)), persistent=False)
+        # Annulus means as one [N, N] matrix (source cell -> target cell): the outer Gaussian minus
+        # the inner one (both 1 at distance 0, so the cell itself drops out), clipped to the frame
+        # and normalised per target cell; every weight >= 0.
+        inner, outer = (torch.exp(-((c[:, None] - c[None]) ** 2) / (2 * sg**2)) for sg in _ANNULUS_SIGMAS)
+        ring = (torch.kron(outer, outer) - torch.kron(inner, inner)).clamp_min(0.0)
+        self.register_buffer("_annulus", (ring / ring.sum(0, keepdim=True)).float(), persistent=False)  # [N, N]
         groups = torch.zeros(n, 3)  # column -> left / middle / right third of the width
         for j, (a, b) in enumerate(zip((0, n // 3, n - n // 3), (n // 3, n - n // 3, n))):
             groups[a:b, j] = 1.0
@@ -283,8 +320,32 @@ class CompositionTeacher(Teacher):
         gx, gy = out[:, :, nf - 2], out[:, :, nf - 1]  # [B, colour, s, s]
         tensor = _EDGE_GAIN * torch.stack([(gx * gx).sum(1), (gy * gy).sum(1), (gx * gy).sum(1)], 1)
 
-        maps = torch.cat([sal[:, None], tensor], 1)  # [B, 4, s, s]
-        return F.adaptive_avg_pool2d(maps, self.feature_size)
+        maps = F.adaptive_avg_pool2d(torch.cat([sal[:, None], tensor, centre[:, :, 0]], 1), self.feature_size)  # [B, 7, n, n]
+        contrast, colour = maps[:, 0], maps[:, 4:]
+        return torch.cat([(contrast * self._distinctiveness(colour, contrast))[:, None], maps[:, 1:4]], 1)
+
+    def _distinctiveness(self, colour: Tensor, contrast: Tensor) -> Tensor:  # [B, 3, n, n], [B, n, n] -> [B, n, n]
+        """How unlike the rest of the frame each cell's colour is, in ``(0, 1]``.
+
+        With ``K[i, j]`` the similarity of the colours of cells ``i`` and ``j`` (Gaussian in
+        opponent colour, chroma weighted up) and ``far[i, j]`` how far apart they are (``1 -
+        Gaussian`` of their distance), two densities of cell ``i``'s colour, as means over the
+        frame's cells: its *area* ``mean_j K[i, j]`` (a wall, a floor, a sky covers much of the
+        frame), and its *repeated contrast* ``mean_j K[i, j] far[i, j] contrast[j]`` (a checker,
+        stripes, tiles or floor boards put contrast into the same colours all over the frame,
+        while a subject's own outline lies near it). The result is ``exp(-(area / share +
+        repeated / amount))``: near 1 for a subject of its own colour, small for a large
+        surface or a repeated pattern. (Chunks of the batch bound the ``[B, N, N]`` temporaries.)"""
+        if colour.shape[0] > _DISTINCT_CHUNK:
+            parts = zip(colour.split(_DISTINCT_CHUNK), contrast.split(_DISTINCT_CHUNK))
+            return torch.cat([self._distinctiveness(col, con) for col, con in parts])
+        c = (colour * self._colour_weights[:, None, None]).flatten(2).transpose(1, 2)  # [B, N, 3]
+        sq = (c * c).sum(-1)  # [B, N]
+        d2 = (sq[:, :, None] + sq[:, None, :] - 2 * c @ c.transpose(1, 2)).clamp_min(0.0)  # [B, N, N]
+        similar = torch.exp(-d2 / (2 * _COLOUR_SIGMA**2))
+        area = similar.mean(-1)  # [B, N]
+        repeated = (similar * self._far * contrast.flatten(1)[:, None, :]).mean(-1)  # [B, N]
+        return torch.exp(-(area / _AREA_SHARE + repeated / _REPEATED_CONTRAST)).view_as(contrast)
 
     # ---------------------------------------------------------------------- head
     def head(self, fmap: Tensor) -> Tensor:  # [B, 4, n, n] -> [B]
@@ -312,7 +373,17 @@ class CompositionTeacher(Teacher):
         corners = F.relu(0.5 * (a + b - ((a - b) ** 2 + 4 * c * c + _TINY).sqrt() + math.sqrt(_TINY)))
         objectness = (corners / (corners + _OBJECT_ENERGY)) ** 2  # [B, n, n] in [0, 1); squared: the
         # steps of a slightly tilted line leave a little corner energy that must not make it a subject
-        subject = sal * objectness  # salient and object-like
+        salient = sal * objectness  # salient and object-like
+        # Isolated rather than repeated: a subject stands out from its surround, while the cells
+        # of a texture (checker, tiles, stripes filling the frame) are as strong as theirs.
+        # Divisive normalisation by the mean evidence over an annulus around each cell (between
+        # Gaussians of 3 and 6 cells, clipped to the frame), which leaves most of a compact
+        # object's own outline out: about 1/(1 + k) of a uniform texture survives, most of a lone
+        # object.
+        surround = (salient.flatten(1) @ self._annulus).view_as(salient)
+        subject = salient * salient / (salient + _ISOLATION * surround + _TINY)
+        mass = subject.sum(dims)
+        presence = 1.0 - torch.exp(-mass / _PRESENCE_MASS)  # [B]: is there a subject at all
 
         # How much there is to look at: objects count fully, lines at most half (a bare wall
         # corner or an empty horizon is half-empty); shading ramps stay under the floor.
@@ -330,7 +401,9 @@ class CompositionTeacher(Teacher):
         cx, cy = (weight * self._x).sum(dims), (weight * self._y).sum(dims)
         balance = torch.exp(-((cx - 0.5) ** 2 + 0.25 * (cy - 0.5) ** 2) / (2 * _BALANCE_SIGMA**2))
 
-        ring_share = (subject * self._ring).sum(dims) / (subject.sum(dims) + _RING_FLOOR * n * n)
+        # (From the salient evidence before isolation: an object cut by the frame edge shows little
+        # contrast along it, and isolation would hide what little there is.)
+        ring_share = (salient * self._ring).sum(dims) / (salient.sum(dims) + _RING_FLOOR * n * n)
         border = torch.exp(-F.relu(ring_share - _BORDER_FREE) / _BORDER_SCALE)
 
         # Area the subject spans: the ellipse of its second moments (2 pi sqrt(det cov) is the
@@ -341,13 +414,12 @@ class CompositionTeacher(Teacher):
         dx, dy = self._x - mx, self._y - my
         vxx, vyy, vxy = (m * dx * dx).sum(dims), (m * dy * dy).sum(dims), (m * dx * dy).sum(dims)
         area = _AREA_GAIN * 2 * math.pi * (F.relu(vxx * vyy - vxy * vxy) + _TINY).sqrt()
-        size_fit = torch.exp(-torch.log(area / cfg.ideal_subject_area) ** 2 / (2 * _SIZE_LOG_SIGMA**2))
-        subject_size = size_fit * (1.0 - torch.exp(-subject.sum(dims) / _SUBJECT_MASS))  # no subject, no size
+        subject_size = torch.exp(-torch.log(area / cfg.ideal_subject_area) ** 2 / (2 * _SIZE_LOG_SIGMA**2))
 
         busy = (energy / (energy + _BUSY_ENERGY)).mean(dims)
         clutter = torch.sigmoid((_CLUTTER_MID - busy) / _CLUTTER_WIDTH)
 
-        placement, level, presence = self._horizon(jxx, jyy, jxy)
+        placement, level, horizon = self._horizon(jxx, jyy, jxy)
 
         terms = dict(
             thirds=thirds,
@@ -359,10 +431,14 @@ class CompositionTeacher(Teacher):
             subject_size=subject_size,
         )
         stacked = torch.stack([terms[t] for t in TERMS], -1)  # [B, T]
-        gate = torch.stack([presence if t.startswith("horizon") else torch.ones_like(presence) for t in TERMS], -1)
-        w = self._weights * gate  # [B, T]: the horizon terms count as much as a horizon is present
-        composition = (w * stacked).sum(-1) / (w.sum(-1) + _EPS)
-        return {"score": content * composition, **terms, "content": content, "horizon_presence": presence}
+        ones = torch.ones_like(presence)
+        # The horizon terms count as much as a horizon is present (weight and all: a view without
+        # one is judged on the rest). The subject terms are *earned* in proportion to the subject's
+        # presence while keeping their weight: a view without a subject scores as if they were 0.
+        w = self._weights * torch.stack([horizon if t in _HORIZON_TERMS else ones for t in TERMS], -1)  # [B, T]
+        earned = torch.stack([presence if t in _SUBJECT_TERMS else ones for t in TERMS], -1)
+        composition = (w * earned * stacked).sum(-1) / (w.sum(-1) + _EPS)
+        return {"score": content * composition, **terms, "content": content, "subject_presence": presence, "horizon_presence": horizon}
 
     def _horizon(self, jxx: Tensor, jyy: Tensor, jxy: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """(placement, level, presence) of the dominant frame-spanning near-horizontal line, each [B]."""

@@ -3,6 +3,8 @@ VEN's 64-image batches take minutes, and run in `make bench`)."""
 
 import math
 
+import pytest
+
 from aes_planner.bench import GROUPS, Recorder
 from aes_planner.bench import teachers as bench
 from aes_planner.teachers import CompositionTeacher
@@ -31,3 +33,15 @@ def test_records_the_evaluator_correlation(monkeypatch):
     assert rec.results["teachers.correlation_synthetic.n"]["value"] == 60
     assert -1 <= rec.results["teachers.correlation_synthetic.plcc"]["value"] <= 1
     assert not math.isnan(rec.results["teachers.correlation_synthetic.srcc"]["value"])
+
+
+def test_records_the_subject_figures_of_both_judges(monkeypatch):
+    pytest.importorskip("aes_planner.sim")
+    small = bench.subject_views
+    monkeypatch.setattr(bench, "subject_views", lambda seeds, random_views: small(seeds=(0,), random_views=4, sweep=(2, 2), width=64, height=48))
+    rec = Recorder()
+    bench.bench_subjects(rec, quick=True)
+    for judge in ("composition", "evaluator"):
+        for key in ("subject_pref_acc", "subject_pref_acc_texture", "subject_srcc", "sweep_argmax_subject_rate", "sweep_subject_share"):
+            assert f"teachers.{judge}.{key}" in rec.results
+        assert 0 <= rec.results[f"teachers.{judge}.sweep_argmax_subject_rate"]["value"] <= 1

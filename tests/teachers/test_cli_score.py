@@ -32,7 +32,8 @@ def test_score_prints_scores_and_terms(pictures, capsys):
     assert main(["score", str(good), str(blank)]) == 0
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith("teacher composition")
-    assert str(good) in out[1] and "score 0.8" in out[1] and "thirds" in out[1] and "horizon_level" in out[1]
+    assert str(good) in out[1] and "thirds" in out[1] and "horizon_level" in out[1] and "subject_presence" in out[1]
+    assert float(out[1].split("score ")[1].split()[0]) > 0.75
     assert str(blank) in out[2] and "score 0.0000" in out[2]
 
 

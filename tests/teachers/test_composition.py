@@ -37,7 +37,7 @@ def test_map_shape_and_attributes(teacher):
     fmap = teacher.features(torch.rand(3, 3, 50, 70))
     assert fmap.shape == (3, teacher.feature_channels, *teacher.feature_size) == (3, len(CHANNELS), 16, 16)
     e = teacher.explain(torch.rand(2, 3, 40, 40))
-    assert set(e) == {"score", "content", "horizon_presence", *TERMS}
+    assert set(e) == {"score", "content", "subject_presence", "horizon_presence", *TERMS}
     assert all(v.shape == (2,) for v in e.values())
 
 
@@ -100,7 +100,8 @@ def test_horizon_terms_are_neutral_without_a_horizon(teacher):
     assert e[0]["horizon_presence"] < 0.05
     w = CompositionWeights()
     rest = {t: getattr(w, t) for t in TERMS if not t.startswith("horizon")}
-    expected = e[0]["content"] * sum(wt * e[0][t] for t, wt in rest.items()) / sum(rest.values())
+    earned = {t: e[0]["subject_presence"] if t in ("thirds", "border", "subject_size") else 1.0 for t in rest}
+    expected = e[0]["content"] * sum(wt * earned[t] * e[0][t] for t, wt in rest.items()) / sum(rest.values())
     assert e[0]["score"] == pytest.approx(expected, abs=0.01)
 
 
@@ -143,7 +144,38 @@ def test_texture_without_a_subject_scores_below_a_composition(teacher):
     checker = ((torch.arange(H)[:, None] // 8 + torch.arange(W)[None] // 8) % 2).float().expand(3, H, W)
     e = explain(teacher, noise, checker, draw_disc(draw_horizon(canvas(H, W), 2 / 3), 1 / 3, 0.45, 0.1, RED))
     assert e[0]["content"] > 0.9 and e[1]["content"] > 0.9  # not empty ...
-    assert max(e[0]["score"], e[1]["score"]) < 0.4 < 0.8 < e[2]["score"]  # ... but no composition either
+    assert max(e[0]["subject_presence"], e[1]["subject_presence"]) < 0.35 < 0.95 < e[2]["subject_presence"]  # ... no subject ...
+    assert max(e[0]["score"], e[1]["score"]) < 0.3 < 0.75 < e[2]["score"]  # ... and no composition either
+
+
+def _pattern_of(r, nx, ny):
+    img = canvas(H, W, WALL)
+    for i in range(nx):
+        for j in range(ny):
+            img = draw_disc(img, (i + 0.5) / nx, (j + 0.5) / ny, r, RED)
+    return img
+
+
+def test_a_lone_object_beats_the_same_object_repeated_as_a_pattern(teacher):
+    # Each disc of a pattern is as compact, bounded and colourful as the lone one: only its
+    # repetition (the same colour's contrast all over the frame, evidence all around it) tells
+    # a texture from a subject.
+    lone, small, large = explain(teacher, subject(1 / 3, 1 / 3, r=0.08), _pattern_of(0.06, 6, 4), _pattern_of(0.1, 4, 3))
+    assert lone["subject_presence"] > 0.8 > 0.65 > large["subject_presence"] > small["subject_presence"]
+    assert small["subject_presence"] < 0.4
+    assert lone["score"] > large["score"] + 0.2 and lone["score"] > small["score"] + 0.3
+
+
+def test_bare_architecture_has_no_subject_until_an_object_enters(teacher):
+    room = draw_box(draw_box(draw_box(canvas(H, W, (0.78, 0.78, 0.76)), 0.0, 0.0, 0.45, 1.0, (0.62, 0.62, 0.6)),
+                             0.0, 0.7, 1.0, 1.0, (0.5, 0.42, 0.33)), 0.0, 0.0, 1.0, 0.12, (0.92, 0.92, 0.9))
+    boards = canvas(H, W, (0.55, 0.4, 0.25))
+    for k in range(16):
+        boards = draw_box(boards, k / 16, 0.0, k / 16 + 0.008, 1.0, (0.3, 0.2, 0.12))
+    e = explain(teacher, room, draw_disc(room, 2 / 3, 0.55, 0.1, RED), boards, draw_disc(boards, 1 / 3, 0.4, 0.12, (0.2, 0.5, 0.85)))
+    for bare, furnished in ((e[0], e[1]), (e[2], e[3])):
+        assert bare["subject_presence"] < 0.15 < 0.95 < furnished["subject_presence"]
+        assert bare["score"] < 0.4 and furnished["score"] > bare["score"] + 0.3
 
 
 def test_score_does_not_depend_on_resolution(teacher):
@@ -255,7 +287,7 @@ def test_all_zero_weights_refused():
 def test_weights_change_the_total():
     only_thirds = CompositionTeacher(CompositionConfig(weights=CompositionWeights(**{t: float(t == "thirds") for t in TERMS})))
     e = only_thirds.explain(subject(1 / 3, 1 / 3)[None])
-    assert e["score"].item() == pytest.approx(e["content"].item() * e["thirds"].item(), rel=1e-5)
+    assert e["score"].item() == pytest.approx(e["content"].item() * e["subject_presence"].item() * e["thirds"].item(), rel=1e-5)
 
 
 @pytest.mark.parametrize(
