@@ -12,10 +12,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     lp.set_defaults(func=run_list)
     cp = tsub.add_parser(
         "convert-ven",
-        help="one-off: turn the released VEN checkpoint into a safely loadable state dict",
-        description="Unpickles SRC with torch.load(weights_only=False) -- which can run code stored in the "
-        "file, so only do it for a checkpoint from a source you trust (its SHA-256 is logged) -- and writes "
-        "DST, a plain state dict that `--weights DST` then loads with weights_only=True.",
+        help="write VEN weights (released layout or state dict) as a bare state dict",
+        description="Reads SRC weights-only, as --weights does (training extras become inert placeholders; "
+        "nothing in the file is executed), checks it is VEN, and writes DST with the bare tensors. The SHA-256 "
+        "of both files is logged.",
     )
     cp.add_argument("src", metavar="SRC", help="the released checkpoint, e.g. EvaluationNet.pth.tar")
     cp.add_argument("dst", metavar="DST", help="where to write the converted weights, e.g. ven_weights.pt")

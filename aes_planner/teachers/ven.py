@@ -15,12 +15,14 @@ ImageNet mean/std normalisation. A 224x224 input is not resampled at all, so it 
 what the original network computes.
 
 Weights are the user's file (nothing here downloads them); see :data:`WEIGHTS_ADVICE`. Files
-are read with ``torch.load(weights_only=True)``. The released checkpoint was pickled by an
-old PyTorch and may carry objects a weights-only load refuses; then the user converts it once,
-knowingly, with ``aes-planner teachers convert-ven SRC DST`` (:func:`convert_checkpoint`), which
-writes a plain state dict that loads safely from then on. We do not offer a flag that unpickles
-on every run: such a flag ends up in launch files and keeps trusting whatever file later sits
-at that path.
+are read with ``torch.load(weights_only=True)`` and nothing else: no file is ever unpickled with
+code of its choosing. The released checkpoint was pickled by an old PyTorch next to its tensors
+(training extras such as numpy scalars or an ``argparse.Namespace``), which a weights-only load
+refuses; :func:`_read_checkpoint` then names each such class and lets the weights-only loader
+build an inert placeholder in its place (a class of ours that stores nothing and runs nothing),
+so the released file loads as it is. Modules torch blocks outright (``os``, ``subprocess``, ...)
+are refused: a weights file never needs them. ``aes-planner teachers convert-ven SRC DST``
+writes the bare state dict (smaller, no placeholders) for those who prefer that.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import pickle
+import re
 import zipfile
 from collections import OrderedDict
 from pathlib import Path
@@ -114,54 +117,64 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-class _NoGlobals(pickle.Unpickler):
-    """Unpickles plain data only: any class or function reference is refused."""
+class _Inert:
+    """Stands in for a class a checkpoint pickled beyond its tensors: stores nothing, runs nothing."""
 
-    def find_class(self, module: str, name: str) -> Any:
-        raise pickle.UnpicklingError(f"refusing global {module}.{name}")
+    pickled_global = "?"
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        pass
+
+    def __setstate__(self, state: Any) -> None:
+        pass
+
+    def __repr__(self) -> str:
+        return f"<{self.pickled_global}, not loaded>"
 
 
-_LEGACY_MAGIC = 0x1950A86A20F9469CFC6C  # first pickle of torch's pre-1.6 (non-zip) format
+_MAX_PLACEHOLDERS = 64  # distinct classes a checkpoint may pickle besides tensors
+_UNSUPPORTED = re.compile(r"Unsupported global: GLOBAL ([\w.]+)")
+_BLOCKED = re.compile(r"unsupported GLOBAL ([\w.]+) whose module ([\w.]+) is blocked")
+_BAD_FILE = (RuntimeError, EOFError, OSError, ValueError, zipfile.BadZipFile, KeyError, AttributeError, TypeError)
 
 
-def _unsafe_globals(path: Path) -> list[str] | None:
-    """Why a real checkpoint failed a weights-only load (the globals it needs), or None when the
-    file is no checkpoint at all. Reads without executing anything."""
-    if zipfile.is_zipfile(path):
-        try:
-            found = torch.serialization.get_unsafe_globals_in_checkpoint(str(path))
-        except Exception:  # damaged archive
-            return None
-        return list(found) or None
-    try:
-        with path.open("rb") as f:
-            magic = _NoGlobals(f).load()
-    except Exception:  # not a pickle, or one that needs globals before the magic number
-        return None
-    return [] if magic == _LEGACY_MAGIC else None
+def _placeholder(name: str) -> tuple[type, str]:
+    return type("Inert_" + name.replace(".", "_"), (_Inert,), {"pickled_global": name}), name
 
 
 def _read_checkpoint(path: Path) -> Any:
-    """``torch.load(path, weights_only=True)`` with errors that say what to do."""
+    """``torch.load(path, weights_only=True)``, with inert placeholders (:class:`_Inert`) for
+    the classes a checkpoint pickles besides tensors, and errors that say what to do."""
     if not path.is_file():
         raise WeightsError(f"VEN weights file {path} does not exist. " + WEIGHTS_ADVICE)
-    try:
-        return torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as exc:
-        unsafe = _unsafe_globals(path)
-        if unsafe is not None:
+    names: list[str] = []
+    while True:
+        try:
+            with torch.serialization.safe_globals([_placeholder(n) for n in names]):
+                obj = torch.load(path, map_location="cpu", weights_only=True)
+            break
+        except pickle.UnpicklingError as exc:
+            text = str(exc)
+            blocked = _BLOCKED.search(text)
+            if blocked:
+                raise WeightsError(
+                    f"{path} references {blocked.group(1)} (module {blocked.group(2)}), which a weights file never "
+                    "needs; it is not loaded. Get the checkpoint from its original source. " + WEIGHTS_ADVICE
+                ) from None
+            found = _UNSUPPORTED.search(text)
+            if found is None or found.group(1) in names or len(names) >= _MAX_PLACEHOLDERS:
+                raise WeightsError(f"{path} is not a readable PyTorch checkpoint ({text.splitlines()[0]}); "
+                                   "re-download it. " + WEIGHTS_ADVICE) from None
+            names.append(found.group(1))
+        except _BAD_FILE as exc:
             raise WeightsError(
-                f"{path} holds Python objects beyond tensors ({', '.join(unsafe[:5]) or 'legacy format'}), so it "
-                "is not loaded: unpickling can run arbitrary code. If it is the released VEN checkpoint from a "
-                "source you trust, convert it once with `aes-planner teachers convert-ven "
-                f"{path} ven_weights.pt` and pass ven_weights.pt instead."
+                f"{path} is not a readable PyTorch checkpoint (truncated or corrupt: {exc}); re-download it. "
+                + WEIGHTS_ADVICE
             ) from None
-        raise WeightsError(f"{path} is not a readable PyTorch checkpoint ({exc}); re-download it.") from None
-    except (RuntimeError, EOFError, OSError, ValueError, zipfile.BadZipFile, KeyError) as exc:
-        raise WeightsError(
-            f"{path} is not a readable PyTorch checkpoint (truncated or corrupt: {exc}); re-download it. "
-            + WEIGHTS_ADVICE
-        ) from None
+    if names:
+        log.info("%s: %d pickled classes besides tensors read as inert placeholders: %s", path, len(names),
+                 ", ".join(names))
+    return obj
 
 
 def _extract_state_dict(obj: Any, source: str) -> "OrderedDict[str, Tensor]":
@@ -194,21 +207,15 @@ def load_ven_state_dict(weights: str | Path | Mapping[str, Any]) -> "OrderedDict
 
 
 def convert_checkpoint(src: str | Path, dst: str | Path) -> Path:
-    """Convert a checkpoint that needs full unpickling into a plain, safely loadable state dict.
+    """Write the VEN state dict of ``src`` (any layout :func:`load_ven_state_dict` reads) to
+    ``dst`` as bare tensors: smaller, and free of the placeholders the released file needs.
 
-    **This unpickles ``src`` with ``weights_only=False``, which can execute code stored in the
-    file.** Run it once, on a file from a source you trust (its SHA-256 is logged so that you
-    can compare it with the published one); the output loads with ``weights_only=True``.
+    ``src`` is read like any weights file (weights-only, nothing executed); the SHA-256 of both
+    files is logged so that the source can be compared with the published one.
     """
     src, dst = Path(src).expanduser(), Path(dst).expanduser()
-    if not src.is_file():
-        raise WeightsError(f"{src} does not exist. " + WEIGHTS_ADVICE)
-    log.warning("unpickling %s (sha256 %s) with weights_only=False: only do this for a file you trust", src, _sha256(src))
-    try:
-        obj = torch.load(src, map_location="cpu", weights_only=False)
-    except Exception as exc:  # anything at all: the file is not a checkpoint we can use
-        raise WeightsError(f"{src} could not be read as a PyTorch checkpoint: {exc}") from None
-    state = _extract_state_dict(obj, str(src))
+    log.info("reading %s (sha256 %s)", src, _sha256(src) if src.is_file() else "missing")
+    state = load_ven_state_dict(src)
     VENTeacher(state)  # refuse to write weights that do not fit
     dst.parent.mkdir(parents=True, exist_ok=True)
     torch.save({k: v.detach().clone().contiguous() for k, v in state.items()}, dst)

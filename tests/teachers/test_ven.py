@@ -3,7 +3,11 @@
 No real weights exist here: random weights saved in the released layout stand in for them.
 """
 
+import argparse
+import logging
 import math
+import os
+import pickle
 
 import numpy as np
 import pytest
@@ -196,20 +200,57 @@ def test_wrong_network_is_refused(ven, tmp_path):
         VENTeacher([1, 2])
 
 
-def test_pickled_objects_are_refused_then_converted_on_purpose(ven, tmp_path, x224, ven_scores):
-    """An old-style checkpoint with a numpy scalar (as training scripts often saved) needs full
-    unpickling: refused by default, with the conversion command in the message; the one-off
-    conversion writes a file that then loads safely and scores the same."""
-    legacy = tmp_path / "EvaluationNet.pth.tar"
+class _Training:  # an object a training script might have pickled next to the weights
+    def __init__(self):
+        self.lr = 0.01
+
+
+@pytest.mark.parametrize("zip_format", [True, False], ids=["zip", "legacy"])
+def test_pickled_extras_load_as_inert_placeholders(ven, tmp_path, x224, ven_scores, zip_format, caplog):
+    """A checkpoint with training extras (numpy scalars and arrays, a Namespace, a class of the
+    training script) in the 2018 legacy format or the zip format loads weights-only, the extras
+    as placeholders; it scores exactly like its weights, and converts to bare tensors."""
+    released = tmp_path / "EvaluationNet.pth.tar"
     state = {f"single_pass_net.{k}": v for k, v in ven.net.state_dict().items()}
-    torch.save({"state_dict": state, "best_prec": np.float64(0.77)}, legacy)
-    with pytest.raises(WeightsError, match="convert-ven") as info:
-        VENTeacher(legacy)
-    assert "numpy" in str(info.value)
-    out = convert_checkpoint(legacy, tmp_path / "ven_weights.pt")
-    torch.load(out, weights_only=True)  # the point of converting
+    extras = {"best_prec": np.float64(0.77), "hist": np.zeros(3), "args": argparse.Namespace(lr=0.1), "cfg": _Training()}
+    torch.save({"state_dict": state, **extras}, released, _use_new_zipfile_serialization=zip_format)
+    with pytest.raises(pickle.UnpicklingError):
+        torch.load(released, weights_only=True)  # what a plain weights-only load says
+    with caplog.at_level(logging.INFO, logger="aes_planner.teachers.ven"):
+        with torch.no_grad():
+            assert torch.equal(VENTeacher(released).score(x224), ven_scores)
+    assert "argparse.Namespace" in caplog.text and "_Training" in caplog.text
+    out = convert_checkpoint(released, tmp_path / "ven_weights.pt")
+    assert set(torch.load(out, weights_only=True)) == set(ven.net.state_dict())
     with torch.no_grad():
         assert torch.equal(VENTeacher(out).score(x224), ven_scores)
+
+
+class _Payload:
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (os.system, (f"touch {self.marker}",))
+
+
+@pytest.mark.parametrize("zip_format", [True, False], ids=["zip", "legacy"])
+def test_a_file_that_would_run_code_is_refused_and_runs_nothing(ven, tmp_path, zip_format):
+    marker = tmp_path / "ran"
+    path = tmp_path / "EvaluationNet.pth.tar"
+    state = {f"single_pass_net.{k}": v for k, v in ven.net.state_dict().items()}
+    torch.save({"state_dict": state, "x": _Payload(marker)}, path, _use_new_zipfile_serialization=zip_format)
+    for read in (VENTeacher, lambda p: convert_checkpoint(p, tmp_path / "out.pt")):
+        with pytest.raises(WeightsError, match=r"references .*system.*never needs"):
+            read(path)
+    assert not marker.exists() and not (tmp_path / "out.pt").exists()
+
+
+def test_a_tensor_entry_that_is_a_placeholder_is_refused(tmp_path):
+    path = tmp_path / "odd.pt"
+    torch.save({"state_dict": {"features.0.weight": np.zeros(3)}}, path)
+    with pytest.raises(WeightsError, match="features.0.weight.*not a tensor"):
+        VENTeacher(path)
 
 
 def test_conversion_refuses_what_is_not_ven(tmp_path):
@@ -220,11 +261,3 @@ def test_conversion_refuses_what_is_not_ven(tmp_path):
     assert not (tmp_path / "out.pt").exists()
     with pytest.raises(WeightsError, match="does not exist"):
         convert_checkpoint(tmp_path / "missing.pt", tmp_path / "out.pt")
-
-
-def test_legacy_format_with_pickled_objects_is_refused_too(tmp_path):
-    # The 2018 release predates torch's zip format; the advice must be the same for it.
-    path = tmp_path / "old.pth.tar"
-    torch.save({"state_dict": {"x": torch.zeros(1)}, "best_prec": np.float64(0.5)}, path, _use_new_zipfile_serialization=False)
-    with pytest.raises(WeightsError, match="legacy format.*convert-ven"):
-        VENTeacher(path)
