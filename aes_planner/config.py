@@ -23,7 +23,7 @@ from aes_planner.errors import AesPlannerError
 
 T = TypeVar("T")
 
-__all__ = ["ConfigError", "from_dict", "to_dict", "load_yaml", "require", "require_finite"]
+__all__ = ["ConfigError", "from_dict", "to_dict", "load_yaml", "require", "require_finite", "require_numbers"]
 
 
 class ConfigError(AesPlannerError, ValueError):
@@ -56,6 +56,16 @@ def require_finite(value: Any, key: str) -> None:
     for v in values:
         if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
             raise ConfigError(key, f"expected finite numbers, got {value!r}")
+
+
+def require_numbers(obj: Any, names: tuple[str, ...], *, minimum: float = 0.0, strict: bool = True) -> None:
+    """Raise for the first attribute of ``obj`` in ``names`` that is not a finite number above
+    ``minimum`` (``> minimum``; ``>= minimum`` with ``strict=False``), naming that attribute."""
+    op = ">" if strict else ">="
+    for name in names:
+        v = getattr(obj, name)
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        require(ok and (v > minimum if strict else v >= minimum), name, f"must be a finite number {op} {minimum:g}, got {v!r}")
 
 
 def _describe(tp: Any) -> str:

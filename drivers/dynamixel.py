@@ -32,7 +32,7 @@ from typing import Any, Callable, Sequence
 
 import dynamixel_sdk as sdk
 
-from aes_planner.config import ConfigError, require, require_finite
+from aes_planner.config import ConfigError, require, require_numbers
 from aes_planner.devices import (
     DeviceError,
     Gimbal,
@@ -152,13 +152,9 @@ class DynamixelPanTiltConfig:
                 f"the limits map to ticks {lo}..{hi}, outside the servo's 0..4095 in position mode; "
                 f"narrow the limits or change {joint}_zero_offset_ticks",
             )
-        for name in ("profile_velocity_deg_s", "profile_acceleration_deg_s2", "backoff_s"):
-            require_finite(getattr(self, name), name)
-            require(getattr(self, name) >= 0, name, f"must be >= 0, got {getattr(self, name)}")
+        require_numbers(self, ("profile_velocity_deg_s", "profile_acceleration_deg_s2", "backoff_s"), strict=False)
         require(0 <= self.retries <= 20, "retries", f"must be 0..20, got {self.retries}")
-        for name in ("latency_timer_ms", "move_timeout_s", "arrival_tolerance_deg", "poll_interval_s", "reboot_timeout_s"):
-            require_finite(getattr(self, name), name)
-            require(getattr(self, name) > 0, name, f"must be > 0, got {getattr(self, name)}")
+        require_numbers(self, ("latency_timer_ms", "move_timeout_s", "arrival_tolerance_deg", "poll_interval_s", "reboot_timeout_s"))
 
     def calibration(self, joint: str) -> JointCalibration:
         lo, hi = getattr(self, f"{joint}_limits_deg")

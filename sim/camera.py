@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from aes_planner.config import require
+from aes_planner.config import require, require_numbers
 from aes_planner.errors import AesPlannerError
 from aes_planner.geometry import Intrinsics, validate_cam2world
 from aes_planner.messages import PosedFrame
@@ -76,9 +76,7 @@ class SimCameraConfig:
             require(v is None or (isinstance(v, int) and v >= 1), name, f"must be a positive number of pixels, got {v!r}")
         require(self.hfov_deg is None or 0.0 < self.hfov_deg < 180.0, "hfov_deg", f"must be in (0, 180), got {self.hfov_deg}")
         require(1 <= self.supersample <= MAX_SUPERSAMPLE, "supersample", f"must be in [1, {MAX_SUPERSAMPLE}], got {self.supersample}")
-        for name in ("pixel_noise_sigma", "pose_noise_translation_m", "pose_noise_rotation_deg", "latency_s"):
-            v = getattr(self, name)
-            require(math.isfinite(v) and v >= 0.0, name, f"must be a finite number >= 0, got {v}")
+        require_numbers(self, ("pixel_noise_sigma", "pose_noise_translation_m", "pose_noise_rotation_deg", "latency_s"), strict=False)
 
 
 class SimCamera:

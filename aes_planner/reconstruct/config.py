@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
-from aes_planner.config import require
+from aes_planner.config import require, require_numbers
 from aes_planner.errors import AesPlannerError
 from aes_planner.reconstruct.stereo import StereoConfig
 
@@ -114,9 +114,7 @@ class ReconstructConfig:
 
     def __post_init__(self):
         require(self.mode in MODES, "mode", f"must be one of {list(MODES)}, got {self.mode!r}")
-        for name in ("nominal_depth_m", "sphere_radius_m", "far_radius_m", "scale_factor", "flatness", "merge_cell_factor"):
-            v = getattr(self, name)
-            require(isinstance(v, (int, float)) and math.isfinite(v) and v > 0, name, f"must be a finite number > 0, got {v!r}")
+        require_numbers(self, ("nominal_depth_m", "sphere_radius_m", "far_radius_m", "scale_factor", "flatness", "merge_cell_factor"))
         require(self.far_radius_m > self.sphere_radius_m, "far_radius_m", f"must exceed sphere_radius_m ({self.sphere_radius_m}), got {self.far_radius_m}")
         require(self.unknown_depth in ("auto", "skip", "far", "fill"), "unknown_depth", f"must be auto, skip, far or fill, got {self.unknown_depth!r}")
         require(math.isfinite(self.min_parallax_px) and self.min_parallax_px >= 0, "min_parallax_px", f"must be >= 0 pixels, got {self.min_parallax_px}")
