@@ -55,6 +55,7 @@ from aes_planner.gaussians.numerics import (
 )
 
 TILE = 16
+HALF_TILE = TILE // 2  # lanes of a narrow row window in the forward
 PIXEL_MAJOR_MIN_CHANNELS = 8  # value channels + depth from which the channel loops go innermost
 DONE_CHECK_EVERY = 32  # Gaussians between checks whether every pixel of a tile is saturated
 # Packed image-space parameters per (camera, Gaussian).
@@ -433,13 +434,14 @@ def _tile_active(trans, consts):
 
 
 @njit(**_fast)
-def _add_pixel_major(acc, row, wbuf, vals, g, z, zero):
-    """acc[pixel, :] += w * (values of g, z) for the contributing pixels of a tile row."""
+def _add_pixel_major(acc, row, w0, lanes, wbuf, vals, g, z, zero):
+    """acc[pixel, :] += w * (values of g, z) for the contributing pixels of a tile row's window
+    of ``lanes`` columns from ``w0`` (wbuf holds the window)."""
     cv = vals.shape[1]
-    for j in range(TILE):
+    for j in range(lanes):
         w = wbuf[j]
         if w != zero:
-            base = (row + np.uint64(j)) * np.uint64(cv + 1)
+            base = (row + w0 + np.uint64(j)) * np.uint64(cv + 1)
             for c in range(cv):
                 acc[base + np.uint64(c)] += w * vals[g, c]
             acc[base + np.uint64(cv)] += w * z
@@ -477,15 +479,22 @@ def _raster_tile_fwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, h
         ha, cb, hc = half * proj[b, g, P_A], proj[b, g, P_B], half * proj[b, g, P_C]
         o, z = proj[b, g, P_O], proj[b, g, P_Z]
         k_next = np.int32(k + 1)
+        # The row window: HALF_TILE lanes from w0 when the box's columns in the tile fit in them
+        # (most Gaussians), else the whole row.
+        jb0 = max(box[b, g, 0], tx0) - tx0
+        jb1 = min(box[b, g, 1], tx0 + TILE - 1) - tx0
+        narrow = jb1 - jb0 < HALF_TILE
+        lanes = HALF_TILE if narrow else TILE
+        w0 = np.uint64(min(jb0, TILE - HALF_TILE) if narrow else 0)
         for py in range(max(box[b, g, 2], ty0) - ty0, min(box[b, g, 3], ty0 + TILE - 1) - ty0 + 1):
             dy = ys[py] - v
             bdy = cb * dy
             crow = hc * dy * dy
-            row = np.uint64(py * TILE)
+            row = np.uint64(py * TILE) + w0
             w_sum = zero  # a float reduction: an int64 one would halve the vector width
-            for j in range(TILE):
+            for j in range(lanes):
                 i = np.uint64(j)
-                dx = xs[i] - u
+                dx = xs[w0 + i] - u
                 sigma = dx * (ha * dx + bdy) + crow
                 alpha = min(o * exp_neg(min(max(sigma, zero), s_clamp)), a_max)
                 t = trans[row + i]
@@ -500,12 +509,12 @@ def _raster_tile_fwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, h
                 w_sum += w
             if w_sum > zero:
                 if pixel_major:
-                    _add_pixel_major(acc, row, wbuf, vals, g, z, zero)
+                    _add_pixel_major(acc, row - w0, w0, lanes, wbuf, vals, g, z, zero)
                 else:
                     for c in range(cv + 1):
                         val = vals[g, c] if c < cv else z
                         base = np.uint64(c * TILE * TILE) + row
-                        for j in range(TILE):
+                        for j in range(lanes):
                             i = np.uint64(j)
                             acc[base + i] += wbuf[i] * val
     for py in range(min(TILE, height - ty0)):
