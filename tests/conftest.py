@@ -21,3 +21,20 @@ def _fixed_seeds():
     np.random.seed(0)
     torch.manual_seed(0)
     yield
+
+
+@pytest.fixture
+def wiring_recorder(monkeypatch):
+    """A bench ``Recorder`` whose ``time`` runs each case once and records 1 ms: for tests of a
+    group's wiring (which keys it records), not of its speed."""
+    from aes_planner.bench import Recorder
+
+    rec = Recorder()
+
+    def once(key, fn, runs=7, warmup=1):
+        fn()
+        rec.record(key, 1.0, "ms", runs)
+        return 1.0
+
+    monkeypatch.setattr(rec, "time", once)
+    return rec

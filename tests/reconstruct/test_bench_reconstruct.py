@@ -4,7 +4,7 @@ import importlib
 
 import pytest
 
-from aes_planner.bench import GROUPS, Recorder
+from aes_planner.bench import GROUPS
 from aes_planner.bench.reconstruct import SimSource, case, inputs_and_held_out
 from aes_planner.reconstruct import ReconstructConfig
 
@@ -20,15 +20,8 @@ def test_group_is_registered_and_a_case_runs():
 
 
 @pytest.mark.slow
-def test_group_records_every_figure(monkeypatch):
-    rec = Recorder()
-
-    def once(key, fn, runs=7, warmup=1):  # run each timed case once: this checks the wiring
-        fn()
-        rec.record(key, 1.0, "ms", runs)
-        return 1.0
-
-    monkeypatch.setattr(rec, "time", once)
+def test_group_records_every_figure(wiring_recorder):
+    rec = wiring_recorder
     importlib.import_module(GROUPS["reconstruct"]).run(rec, quick=True)
     keys = set(rec.results)
     for mode in ("depth", "stereo", "sphere", "depth_rig"):

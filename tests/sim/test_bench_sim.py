@@ -2,18 +2,11 @@
 
 import importlib
 
-from aes_planner.bench import GROUPS, Recorder
+from aes_planner.bench import GROUPS
 
 
-def test_sim_group_records_render_times(monkeypatch):
-    rec = Recorder()
-
-    def once(key, fn, runs=7, warmup=1):  # run each case once: this checks the wiring, not speed
-        fn()
-        rec.record(key, 1.0, "ms", runs)
-        return 1.0
-
-    monkeypatch.setattr(rec, "time", once)
+def test_sim_group_records_render_times(wiring_recorder):
+    rec = wiring_recorder
     importlib.import_module(GROUPS["sim"]).run(rec, quick=True)
     keys = set(rec.results)
     assert {"sim.render_128.ms", "sim.render_256.ms", "sim.render_128_aa3.ms", "sim.build_indoor.ms"} <= keys
