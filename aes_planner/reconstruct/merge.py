@@ -36,8 +36,10 @@ import logging
 import numpy as np
 import torch
 
+from aes_planner.gaussians.projection import covariance_3d
 from aes_planner.geometry.camera import Intrinsics
-from aes_planner.reconstruct.splats import SplatSet, rotation_to_quat
+from aes_planner.geometry.poses import matrix_to_quat
+from aes_planner.reconstruct.splats import SplatSet
 
 __all__ = ["BASE_CELL_M", "coarsen", "contributions", "dedupe", "levels", "prune_hidden", "refit_colors"]
 
@@ -167,14 +169,6 @@ def _covered(losers: SplatSet, winners: SplatSet) -> np.ndarray:
     return out
 
 
-def _covariances(quats: np.ndarray, log_scales: np.ndarray) -> np.ndarray:  # [M, 4], [M, 3] -> [M, 3, 3]
-    from aes_planner.geometry.poses import quat_to_matrix
-
-    r = quat_to_matrix(quats.astype(np.float64))
-    m = r * np.exp(log_scales.astype(np.float64))[:, None, :]
-    return m @ np.swapaxes(m, 1, 2)
-
-
 def _merge_groups(sp: SplatSet, members: np.ndarray, group: np.ndarray, n: int, spread_gain: float) -> SplatSet:  # members, group [K]
     """One splat per group of ``members`` (indices into ``sp``, group ids ``[K]`` in ``0..n-1``)."""
     w = (sp.samples[members] * np.maximum(sp.opacities[members], 1e-3)).astype(np.float64)
@@ -185,7 +179,9 @@ def _merge_groups(sp: SplatSet, members: np.ndarray, group: np.ndarray, n: int, 
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
     opacity = np.bincount(group, weights=w * sp.opacities[members], minlength=n) / wsum
     d = sp.means[members].astype(np.float64) - mu[group]
-    cov_i = _covariances(sp.quats[members], sp.log_scales[members]) + spread_gain * d[:, :, None] * d[:, None, :]
+    cov_i = covariance_3d(torch.from_numpy(sp.quats[members].astype(np.float64)),
+                          torch.from_numpy(sp.log_scales[members].astype(np.float64))).numpy()  # [K, 3, 3]
+    cov_i += spread_gain * d[:, :, None] * d[:, None, :]
     cov = np.stack([np.bincount(group, weights=w * cov_i[:, a, b], minlength=n) for a in range(3) for b in range(3)], 1)
     cov = cov.reshape(n, 3, 3) / wsum[:, None, None]
     evals, evecs = np.linalg.eigh(0.5 * (cov + np.swapaxes(cov, 1, 2)))
@@ -198,7 +194,7 @@ def _merge_groups(sp: SplatSet, members: np.ndarray, group: np.ndarray, n: int, 
     area = np.bincount(group, weights=sp.footprint_m[members].astype(np.float64) ** 2, minlength=n)
     return SplatSet(
         means=mu.astype(np.float32),
-        quats=rotation_to_quat(evecs).astype(np.float32),
+        quats=matrix_to_quat(evecs).astype(np.float32),
         log_scales=np.log(scales).astype(np.float32),
         opacities=np.clip(opacity, 0, 1).astype(np.float32),
         colors=color.astype(np.float32),

@@ -104,14 +104,3 @@ def test_tiny_images_give_finite_splats(shape):
         assert len(sp) >= 1
         for name in ("means", "quats", "log_scales", "colors", "normals", "footprint_m", "score"):
             assert np.all(np.isfinite(getattr(sp, name))), name
-
-
-def test_rotation_to_quat_matches_the_geometry_module():
-    from aes_planner.geometry import matrix_to_quat
-    from aes_planner.reconstruct.splats import rotation_to_quat
-
-    rng = np.random.default_rng(0)
-    q = rng.normal(size=(500, 4))
-    q[:4] = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]  # every Shepperd branch, 180 deg turns
-    r = quat_to_matrix(q)
-    assert np.allclose(rotation_to_quat(r), matrix_to_quat(r), atol=1e-9)
