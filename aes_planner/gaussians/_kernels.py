@@ -434,14 +434,14 @@ def _tile_active(trans, consts):
 
 
 @njit(**_fast)
-def _add_pixel_major(acc, row, w0, lanes, wbuf, vals, g, z, zero):
-    """acc[pixel, :] += w * (values of g, z) for the contributing pixels of a tile row's window
-    of ``lanes`` columns from ``w0`` (wbuf holds the window)."""
+def _add_pixel_major(acc, start, lanes, wbuf, vals, g, z, zero):
+    """acc[pixel, :] += w * (values of g, z) for the contributing pixels of a tile row's window:
+    ``lanes`` pixels from tile pixel ``start`` (wbuf holds the window)."""
     cv = vals.shape[1]
     for j in range(lanes):
         w = wbuf[j]
         if w != zero:
-            base = (row + w0 + np.uint64(j)) * np.uint64(cv + 1)
+            base = (start + np.uint64(j)) * np.uint64(cv + 1)
             for c in range(cv):
                 acc[base + np.uint64(c)] += w * vals[g, c]
             acc[base + np.uint64(cv)] += w * z
@@ -509,7 +509,7 @@ def _raster_tile_fwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, h
                 w_sum += w
             if w_sum > zero:
                 if pixel_major:
-                    _add_pixel_major(acc, row - w0, w0, lanes, wbuf, vals, g, z, zero)
+                    _add_pixel_major(acc, row, lanes, wbuf, vals, g, z, zero)
                 else:
                     for c in range(cv + 1):
                         val = vals[g, c] if c < cv else z
