@@ -14,8 +14,9 @@ import dataclasses
 import math
 import types
 import typing
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal, Mapping, TypeVar, Union, get_args, get_origin
+from typing import Any, Literal, TypeVar, Union, get_args, get_origin
 
 import yaml
 
@@ -65,7 +66,11 @@ def require_numbers(obj: Any, names: tuple[str, ...], *, minimum: float = 0.0, s
     for name in names:
         v = getattr(obj, name)
         ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-        require(ok and (v > minimum if strict else v >= minimum), name, f"must be a finite number {op} {minimum:g}, got {v!r}")
+        require(
+            ok and (v > minimum if strict else v >= minimum),
+            name,
+            f"must be a finite number {op} {minimum:g}, got {v!r}",
+        )
 
 
 def _describe(tp: Any) -> str:

@@ -21,8 +21,9 @@ from __future__ import annotations
 import importlib
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping
+from typing import Any, ClassVar
 
 from aes_planner.config import ConfigError, from_dict
 from aes_planner.errors import AesPlannerError

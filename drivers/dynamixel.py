@@ -27,10 +27,21 @@ import math
 import termios
 import threading
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import dynamixel_sdk as sdk
+from aes_planner.drivers.dynamixel_models import (
+    JointCalibration,
+    ServoModel,
+    decode_hardware_error,
+    model_by_name,
+    model_by_number,
+    to_signed,
+    to_unsigned,
+)
+from aes_planner.drivers.protocol import ERRBIT_ALERT, ErrNum
 
 from aes_planner.config import ConfigError, require, require_numbers
 from aes_planner.devices import (
@@ -43,16 +54,6 @@ from aes_planner.devices import (
     GimbalState,
     GimbalTimeoutError,
 )
-from aes_planner.drivers.dynamixel_models import (
-    JointCalibration,
-    ServoModel,
-    decode_hardware_error,
-    model_by_name,
-    model_by_number,
-    to_signed,
-    to_unsigned,
-)
-from aes_planner.drivers.protocol import ERRBIT_ALERT, ErrNum
 from aes_planner.geometry.rig import JointCommandError, JointLimits, PanTiltConfig
 
 log = logging.getLogger(__name__)
@@ -132,7 +133,8 @@ class DynamixelPanTiltConfig:
     def __post_init__(self):
         require(isinstance(self.port, str) and bool(self.port), "port", "set the serial device, e.g. /dev/ttyUSB0")
         require(
-            self.baud in SDK_BAUD_RATES, "baud",
+            self.baud in SDK_BAUD_RATES,
+            "baud",
             f"{self.baud} is not a rate both dynamixel-sdk and X-series servos use; one of {list(SDK_BAUD_RATES)}",
         )
         for name in ("pan_id", "tilt_id"):
@@ -148,13 +150,16 @@ class DynamixelPanTiltConfig:
         for joint in JOINTS:
             lo, hi = self.calibration(joint).tick_limits
             require(
-                0 <= lo and hi <= 4095, f"{joint}_limits_deg",
+                0 <= lo and hi <= 4095,
+                f"{joint}_limits_deg",
                 f"the limits map to ticks {lo}..{hi}, outside the servo's 0..4095 in position mode; "
                 f"narrow the limits or change {joint}_zero_offset_ticks",
             )
         require_numbers(self, ("profile_velocity_deg_s", "profile_acceleration_deg_s2", "backoff_s"), strict=False)
         require(0 <= self.retries <= 20, "retries", f"must be 0..20, got {self.retries}")
-        require_numbers(self, ("latency_timer_ms", "move_timeout_s", "arrival_tolerance_deg", "poll_interval_s", "reboot_timeout_s"))
+        require_numbers(
+            self, ("latency_timer_ms", "move_timeout_s", "arrival_tolerance_deg", "poll_interval_s", "reboot_timeout_s")
+        )
 
     def calibration(self, joint: str) -> JointCalibration:
         lo, hi = getattr(self, f"{joint}_limits_deg")
@@ -175,7 +180,7 @@ class _Port(sdk.PortHandler):
         super().__init__(port_name)
         self.latency_timer_ms = latency_timer_ms
 
-    def setPacketTimeout(self, packet_length):  # noqa: N802 (SDK name)
+    def setPacketTimeout(self, packet_length):
         self.packet_start_time = self.getCurrentTime()
         self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * self.latency_timer_ms + 2.0
 
@@ -279,17 +284,25 @@ class DynamixelPanTilt(Gimbal):
         try:
             yaw_rad, pitch_rad = float(yaw_rad), float(pitch_rad)
         except (TypeError, ValueError, OverflowError) as exc:
-            raise JointCommandError(f"joint command must be two finite numbers of radians: {exc}; refusing to move") from None
+            raise JointCommandError(
+                f"joint command must be two finite numbers of radians: {exc}; refusing to move"
+            ) from None
         pan_rad, tilt_rad = self._limits.clamp(yaw_rad, pitch_rad)  # NaN/Inf raise here, nothing is sent
         if (pan_rad, tilt_rad) != (yaw_rad, pitch_rad):
             log.warning(
-                "command (%.4g, %.4g) rad clamped to the joint limits: (%.4f, %.4f) rad", yaw_rad, pitch_rad, pan_rad, tilt_rad
+                "command (%.4g, %.4g) rad clamped to the joint limits: (%.4f, %.4f) rad",
+                yaw_rad,
+                pitch_rad,
+                pan_rad,
+                tilt_rad,
             )
         goals = {"pan": self._cal["pan"].to_ticks(pan_rad), "tilt": self._cal["tilt"].to_ticks(tilt_rad)}
         with self._lock:
             self._ensure_port()
             if self._faults:
-                raise GimbalHardwareError(f"refusing to move: {self._fault_text()}; {self._reboot_hint()}", self._faults)
+                raise GimbalHardwareError(
+                    f"refusing to move: {self._fault_text()}; {self._reboot_hint()}", self._faults
+                )
             if not self._in_control:
                 self._take_control()
             self._sync_write("goal_position", goals)
@@ -402,7 +415,9 @@ class DynamixelPanTilt(Gimbal):
             self._torque_off_all()
             raise
         self._in_control = True
-        log.info("torque on: pan limits %s deg, tilt limits %s deg", self.config.pan_limits_deg, self.config.tilt_limits_deg)
+        log.info(
+            "torque on: pan limits %s deg, tilt limits %s deg", self.config.pan_limits_deg, self.config.tilt_limits_deg
+        )
 
     def _configure_and_enable(self) -> None:
         c = self.config
@@ -499,7 +514,13 @@ class DynamixelPanTilt(Gimbal):
 
     # ------------------------------------------------------------------------------ exchanges
     def _exchange(
-        self, joint: str | None, what: str, fn: Callable[..., tuple], *args: Any, retries: int | None = None, fatal: bool = True
+        self,
+        joint: str | None,
+        what: str,
+        fn: Callable[..., tuple],
+        *args: Any,
+        retries: int | None = None,
+        fatal: bool = True,
     ):
         """One SDK exchange, retried: ``fn(port, id, *args) -> (value, comm_result, error)``.
 
@@ -574,7 +595,9 @@ class DynamixelPanTilt(Gimbal):
         data = list(to_unsigned(int(value), item.size).to_bytes(item.size, "little"))
         what = "torque off" if (name, value) == ("torque_enable", 0) else f"write {name}={value} to {joint}"
         self._exchange(
-            joint, what, lambda port, dxl_id: (None, *self._ph.writeTxRx(port, dxl_id, item.addr, item.size, data)),
+            joint,
+            what,
+            lambda port, dxl_id: (None, *self._ph.writeTxRx(port, dxl_id, item.addr, item.size, data)),
             retries=retries,
         )
 
@@ -583,7 +606,8 @@ class DynamixelPanTilt(Gimbal):
         if any(self._models[j].item(name) != item for j in values):
             raise DeviceError(f"{name} sits at different addresses on the two servos; sync write needs the same")
         params = {
-            self.config.joint_id(j): list(to_unsigned(v, item.size).to_bytes(item.size, "little")) for j, v in values.items()
+            self.config.joint_id(j): list(to_unsigned(v, item.size).to_bytes(item.size, "little"))
+            for j, v in values.items()
         }
 
         def send(port):
@@ -672,7 +696,9 @@ def scan(port: str, baud: int = 1_000_000, latency_timer_ms: float = 16.0) -> li
         handle.is_using = False
         _close_port(handle)
     if comm != sdk.COMM_SUCCESS and not found:
-        raise GimbalCommError(f"no servo answered on {port} at {baud} baud ({ph.getTxRxResult(comm)}); {_NO_REPLY_HINT}")
+        raise GimbalCommError(
+            f"no servo answered on {port} at {baud} baud ({ph.getTxRxResult(comm)}); {_NO_REPLY_HINT}"
+        )
     out = []
     for dxl_id, (number, firmware) in sorted(found.items()):
         model = model_by_number(number)
@@ -703,7 +729,8 @@ class EmulatedPanTiltConfig(DynamixelPanTiltConfig):
                 raise ConfigError(f"models[{i}]", str(exc.args[0])) from None
         for name in ("pan_id", "tilt_id"):
             require(
-                1 <= getattr(self, name) <= len(self.models), name,
+                1 <= getattr(self, name) <= len(self.models),
+                name,
                 f"the emulator gives ids 1..{len(self.models)}; got {getattr(self, name)}",
             )
 

@@ -11,8 +11,9 @@ easy-SDK; factory defaults matter only to the emulator (the driver writes what i
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Literal, Mapping
+from typing import Literal
 
 __all__ = [
     "Item",

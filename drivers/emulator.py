@@ -40,9 +40,9 @@ import termios
 import threading
 import time
 import tty
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
 
 from aes_planner.drivers.dynamixel_models import (
     CENTER_TICKS,
@@ -69,7 +69,14 @@ __all__ = ["BAUD_RATES", "FaultPlan", "EmulatedServo", "ServoBus", "ServoEmulato
 
 # Baud Rate register value -> bits per second (X series).
 BAUD_RATES: dict[int, int] = {
-    0: 9_600, 1: 57_600, 2: 115_200, 3: 1_000_000, 4: 2_000_000, 5: 3_000_000, 6: 4_000_000, 7: 4_500_000,
+    0: 9_600,
+    1: 57_600,
+    2: 115_200,
+    3: 1_000_000,
+    4: 2_000_000,
+    5: 3_000_000,
+    6: 4_000_000,
+    7: 4_500_000,
 }
 _FAULT_BITS = {name: bit for bit, name in HARDWARE_ERROR_BITS.items()}
 _BOOT_TIME_S = 0.05  # a rebooting servo does not answer for this long
@@ -140,7 +147,9 @@ class EmulatedServo:
     ``velocity_ticks_s``, floats) is folded into Present Position/Velocity by :meth:`update`.
     """
 
-    def __init__(self, model: ServoModel, dxl_id: int, baud: int = 1_000_000, clock: Callable[[], float] = time.monotonic):
+    def __init__(
+        self, model: ServoModel, dxl_id: int, baud: int = 1_000_000, clock: Callable[[], float] = time.monotonic
+    ):
         self.model = model
         self.clock = clock
         self.mem = bytearray(model.table_end)
@@ -161,7 +170,7 @@ class EmulatedServo:
 
     # ------------------------------------------------------------------------------ registers
     def factory_defaults(self) -> None:
-        for name, item in self.model.table.items():
+        for item in self.model.table.values():
             self._put(item.addr, item.size, item.default)
         self.set("model_number", self.model.model_number)
         self.set("firmware_version", self.model.firmware_version)
@@ -258,7 +267,7 @@ class EmulatedServo:
     def reboot(self) -> None:
         """REBOOT: RAM back to defaults, faults cleared, deaf for a moment; EEPROM kept."""
         self.update()
-        for name, item in self.model.table.items():
+        for item in self.model.table.values():
             if not self.model.is_eeprom(item.addr):
                 self._put(item.addr, item.size, item.default)
         self.set("present_temperature", self.model.idle_temperature_c)
@@ -388,7 +397,9 @@ class ServoBus:
         item = model.item("goal_position")
         offset = item.addr - addr
         if 0 <= offset and offset + item.size <= len(data):
-            self.goal_log.append((dxl_id, to_signed(int.from_bytes(data[offset : offset + item.size], "little"), item.size)))
+            self.goal_log.append(
+                (dxl_id, to_signed(int.from_bytes(data[offset : offset + item.size], "little"), item.size))
+            )
 
     def handle(self, pkt: Packet, line_baud: int | None = None) -> list[tuple[EmulatedServo, bytes, bool]]:
         # keyed by the ID register, which a WRITE may have changed
@@ -411,7 +422,15 @@ class ServoBus:
             for servo in servos.values() if pkt.dxl_id == BROADCAST_ID else [target] if target else []:
                 m = servo.model
                 replies.append(
-                    (servo, build_status(servo.dxl_id, servo.error_byte(), bytes([m.model_number & 0xFF, m.model_number >> 8, m.firmware_version])), True)
+                    (
+                        servo,
+                        build_status(
+                            servo.dxl_id,
+                            servo.error_byte(),
+                            bytes([m.model_number & 0xFF, m.model_number >> 8, m.firmware_version]),
+                        ),
+                        True,
+                    )
                 )
             return replies
         if pkt.inst == Inst.ACTION:
@@ -563,7 +582,7 @@ class ServoEmulator:
         """The current pty slave path (None while the port has vanished)."""
         return self._pty_path
 
-    def start(self) -> "ServoEmulator":
+    def start(self) -> ServoEmulator:
         """Serve in a daemon thread; pair with :meth:`stop` (or use ``with``)."""
         if self._thread is not None:
             raise RuntimeError("emulator already started")
@@ -593,7 +612,7 @@ class ServoEmulator:
                 pass
         self._wake_r = self._wake_w = -1
 
-    def __enter__(self) -> "ServoEmulator":
+    def __enter__(self) -> ServoEmulator:
         return self.start()
 
     def __exit__(self, *exc) -> None:
@@ -754,22 +773,39 @@ class EmulatorProcess:
     command-line options (``["--link", path]``, ``["--drop-rate", "0.1"]``).
     """
 
-    def __init__(self, models: Sequence[str] = ("xm430-w350", "xm430-w350"), baud: int = 1_000_000,
-                 args: Sequence[str] = (), start_timeout_s: float = 30.0):
-        self.argv = [sys.executable, "-m", "aes_planner", "gimbal", "emulate",
-                     "--models", ",".join(models), "--baud", str(baud), *args]
+    def __init__(
+        self,
+        models: Sequence[str] = ("xm430-w350", "xm430-w350"),
+        baud: int = 1_000_000,
+        args: Sequence[str] = (),
+        start_timeout_s: float = 30.0,
+    ):
+        self.argv = [
+            sys.executable,
+            "-m",
+            "aes_planner",
+            "gimbal",
+            "emulate",
+            "--models",
+            ",".join(models),
+            "--baud",
+            str(baud),
+            *args,
+        ]
         self.start_timeout_s = start_timeout_s
         self.proc: subprocess.Popen | None = None
         self.port = ""
 
-    def __enter__(self) -> "EmulatorProcess":
+    def __enter__(self) -> EmulatorProcess:
         self.proc = subprocess.Popen(self.argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         ready, _, _ = select.select([self.proc.stdout], [], [], self.start_timeout_s)
         self.port = self.proc.stdout.readline().strip() if ready else ""
         if not self.port.startswith("/"):
             self.stop()
-            raise RuntimeError(f"the emulator process did not print a pty path within {self.start_timeout_s:g} s "
-                               f"(got {self.port!r}); run {' '.join(self.argv[2:])} to see why")
+            raise RuntimeError(
+                f"the emulator process did not print a pty path within {self.start_timeout_s:g} s "
+                f"(got {self.port!r}); run {' '.join(self.argv[2:])} to see why"
+            )
         return self
 
     def __exit__(self, *exc) -> None:

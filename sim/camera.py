@@ -29,13 +29,13 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from aes_planner.sim.raycast import MAX_SUPERSAMPLE, render
+from aes_planner.sim.scene import Scene
 
 from aes_planner.config import require, require_numbers
 from aes_planner.errors import AesPlannerError
 from aes_planner.geometry import Intrinsics, validate_cam2world
 from aes_planner.messages import PosedFrame
-from aes_planner.sim.raycast import MAX_SUPERSAMPLE, render
-from aes_planner.sim.scene import Scene
 
 __all__ = ["SimCamera", "SimCameraConfig", "SimCameraError"]
 
@@ -73,10 +73,24 @@ class SimCameraConfig:
     def __post_init__(self):
         for name in ("width", "height"):
             v = getattr(self, name)
-            require(v is None or (isinstance(v, int) and v >= 1), name, f"must be a positive number of pixels, got {v!r}")
-        require(self.hfov_deg is None or 0.0 < self.hfov_deg < 180.0, "hfov_deg", f"must be in (0, 180), got {self.hfov_deg}")
-        require(1 <= self.supersample <= MAX_SUPERSAMPLE, "supersample", f"must be in [1, {MAX_SUPERSAMPLE}], got {self.supersample}")
-        require_numbers(self, ("pixel_noise_sigma", "pose_noise_translation_m", "pose_noise_rotation_deg", "latency_s"), strict=False)
+            require(
+                v is None or (isinstance(v, int) and v >= 1), name, f"must be a positive number of pixels, got {v!r}"
+            )
+        require(
+            self.hfov_deg is None or 0.0 < self.hfov_deg < 180.0,
+            "hfov_deg",
+            f"must be in (0, 180), got {self.hfov_deg}",
+        )
+        require(
+            1 <= self.supersample <= MAX_SUPERSAMPLE,
+            "supersample",
+            f"must be in [1, {MAX_SUPERSAMPLE}], got {self.supersample}",
+        )
+        require_numbers(
+            self,
+            ("pixel_noise_sigma", "pose_noise_translation_m", "pose_noise_rotation_deg", "latency_s"),
+            strict=False,
+        )
 
 
 class SimCamera:
@@ -89,12 +103,16 @@ class SimCamera:
 
     def __init__(self, scene: Scene, config: SimCameraConfig | None = None):
         if not isinstance(scene, Scene):
-            raise SimCameraError(f"SimCamera needs a Scene, got {type(scene).__name__}; use aes_planner.sim.load_scene()")
+            raise SimCameraError(
+                f"SimCamera needs a Scene, got {type(scene).__name__}; use aes_planner.sim.load_scene()"
+            )
         self.scene = scene
         self.config = config or SimCameraConfig()
         c = self.config
         base = (scene.rig or scene.drone).camera
-        self.intrinsics = Intrinsics.from_fov(c.width or base.width, c.height or base.height, c.hfov_deg or base.hfov_deg)
+        self.intrinsics = Intrinsics.from_fov(
+            c.width or base.width, c.height or base.height, c.hfov_deg or base.hfov_deg
+        )
         self.kinematics = scene.rig.kinematics() if scene.rig is not None else None
         pose_seq, pixel_seq = np.random.SeedSequence(c.seed).spawn(2)
         self._pose_rng = np.random.default_rng(pose_seq)

@@ -33,13 +33,13 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from aes_planner.sim.scene import Scene
+from aes_planner.sim.shapes import SHAPES
+from aes_planner.sim.spec import AmbientLightSpec, DirectionalLightSpec, SkySpec, frame_from_axis
+from aes_planner.sim.texture import sample_image
 
 from aes_planner.errors import AesPlannerError
 from aes_planner.geometry import Intrinsics, validate_cam2world
-from aes_planner.sim.scene import Scene
-from aes_planner.sim.spec import AmbientLightSpec, DirectionalLightSpec, SkySpec, frame_from_axis
-from aes_planner.sim.shapes import SHAPES
-from aes_planner.sim.texture import sample_image
 
 __all__ = ["FAR_M", "NEAR_M", "RenderError", "RenderOutput", "render"]
 
@@ -94,7 +94,9 @@ class _Placed:
     def to_camera(self, obj: np.ndarray, vectors: np.ndarray) -> np.ndarray:
         """Local vectors ``[3, K]`` of objects ``obj [K]`` -> camera frame."""
         rot = self.rot9.T.take(obj, axis=1)
-        return np.stack([rot[3 * i] * vectors[0] + rot[3 * i + 1] * vectors[1] + rot[3 * i + 2] * vectors[2] for i in range(3)])
+        return np.stack(
+            [rot[3 * i] * vectors[0] + rot[3 * i + 1] * vectors[1] + rot[3 * i + 2] * vectors[2] for i in range(3)]
+        )
 
 
 def _ray_grid(intrinsics: Intrinsics, supersample: int) -> tuple[np.ndarray, np.ndarray]:
@@ -110,7 +112,9 @@ def _projected_bounds(scene: Scene, placed: _Placed) -> tuple[np.ndarray, ...]:
     from its oriented box (``dims`` as half sizes) clipped to ``z >= NEAR_M``, narrowed by the
     exact tangent bounds of its bounding sphere when that lies in front. Empty (lo > hi) when
     nothing is in front; unbounded objects get infinite bounds."""
-    corners = placed.centres[:, None, :] + np.einsum("mij,mkj->mki", placed.rotations, _CORNERS[None] * scene.dims[:, None, :])
+    corners = placed.centres[:, None, :] + np.einsum(
+        "mij,mkj->mki", placed.rotations, _CORNERS[None] * scene.dims[:, None, :]
+    )
     a, b = corners[:, _EDGES[:, 0]], corners[:, _EDGES[:, 1]]  # [M, 12, 3]
     za, zb = a[..., 2], b[..., 2]
     crosses = (za > NEAR_M) != (zb > NEAR_M)
@@ -131,7 +135,10 @@ def _projected_bounds(scene: Scene, placed: _Placed) -> tuple[np.ndarray, ...]:
     tangent = []
     for lateral in (c[:, 0], c[:, 1]):
         k = np.sqrt(np.maximum(lateral**2 + c[:, 2] ** 2 - r**2, 0.0))
-        tangent += [np.where(front, (lateral * c[:, 2] - r * k) / den, -np.inf), np.where(front, (lateral * c[:, 2] + r * k) / den, np.inf)]
+        tangent += [
+            np.where(front, (lateral * c[:, 2] - r * k) / den, -np.inf),
+            np.where(front, (lateral * c[:, 2] + r * k) / den, np.inf),
+        ]
     x_lo, y_lo = np.maximum(x_lo, tangent[0]), np.maximum(y_lo, tangent[2])
     x_hi, y_hi = np.minimum(x_hi, tangent[1]), np.minimum(y_hi, tangent[3])
     unbounded = ~np.isfinite(r)
@@ -183,7 +190,9 @@ def _cast(scene: Scene, placed: _Placed, xs: np.ndarray, ys: np.ndarray):
             rot = placed.rot9.T.take(o, axis=1)
             xo, yo = x.take(sel), y.take(sel)
             d = tuple(rot[j] * xo + rot[3 + j] * yo + rot[6 + j] for j in range(3))
-            t[sel] = SHAPES[code].intersect(placed.origins_local.T.take(o, axis=1), d, NEAR_M, scene.dims.T.take(o, axis=1))
+            t[sel] = SHAPES[code].intersect(
+                placed.origins_local.T.take(o, axis=1), d, NEAR_M, scene.dims.T.take(o, axis=1)
+            )
         pix = row * w + col
         flat_depth, flat_ids = depth.reshape(-1), ids.reshape(-1)
         np.minimum.at(flat_depth, pix, t)
@@ -258,7 +267,11 @@ def _occluded(scene: Scene, placed: _Placed, origins: np.ndarray, toward: np.nda
         blocked[idx[t < FAR_M]] = True
 
     def test_many(obj: np.ndarray, idx: np.ndarray) -> None:
-        near = ~blocked.take(idx) & (np.abs(b_s.take(idx) - c_b.take(obj)) <= r_b.take(obj)) & (s_s.take(idx) <= c_s.take(obj) + r_s.take(obj))
+        near = (
+            ~blocked.take(idx)
+            & (np.abs(b_s.take(idx) - c_b.take(obj)) <= r_b.take(obj))
+            & (s_s.take(idx) <= c_s.take(obj) + r_s.take(obj))
+        )
         obj, idx = obj[near], idx[near]
         t = np.empty(len(idx))
         for code, sel in _groups(scene.kind.take(obj)):
@@ -310,7 +323,9 @@ def _surfaces(scene: Scene, placed: _Placed, obj: np.ndarray, points: np.ndarray
     for code, sel in _groups(scene.kind.take(obj.take(batched))):
         sel = batched.take(sel)
         o = obj.take(sel)
-        normal_local, u[sel], v[sel] = SHAPES[code].surface(placed.to_local(o, points.take(sel, axis=1)), scene.dims.T.take(o, axis=1))
+        normal_local, u[sel], v[sel] = SHAPES[code].surface(
+            placed.to_local(o, points.take(sel, axis=1)), scene.dims.T.take(o, axis=1)
+        )
         normal[:, sel] = placed.to_camera(o, normal_local)
     normal *= np.where(np.einsum("ij,ij->j", normal, points) > 0, -1.0, 1.0)
 
@@ -318,7 +333,9 @@ def _surfaces(scene: Scene, placed: _Placed, obj: np.ndarray, points: np.ndarray
     for k, image in scene.textures.items():
         run = slice(starts[k], starts[k] + counts[k])
         if counts[k]:
-            sc, tc, wrap = SHAPES[scene.kind[k]].image_coords(u[run], v[run], scene.objects[k].material.tile_m, scene.dims[k])
+            sc, tc, wrap = SHAPES[scene.kind[k]].image_coords(
+                u[run], v[run], scene.objects[k].material.tile_m, scene.dims[k]
+            )
             albedo[:, run] = sample_image(image, sc, tc, wrap).T
     return normal, albedo, scene.materials.emission.take(obj)
 
@@ -369,10 +386,16 @@ def render(scene: Scene, cam2world: np.ndarray, intrinsics: Intrinsics, supersam
     those of the pixel-centre ray. Outputs are always finite. See the module docstring.
     """
     if not isinstance(scene, Scene):
-        raise RenderError(f"render needs a Scene, got {type(scene).__name__}; build one with aes_planner.sim.load_scene()")
+        raise RenderError(
+            f"render needs a Scene, got {type(scene).__name__}; build one with aes_planner.sim.load_scene()"
+        )
     if not isinstance(intrinsics, Intrinsics):
         raise RenderError(f"intrinsics must be an aes_planner.geometry.Intrinsics, got {type(intrinsics).__name__}")
-    if isinstance(supersample, bool) or not isinstance(supersample, (int, np.integer)) or not 1 <= supersample <= MAX_SUPERSAMPLE:
+    if (
+        isinstance(supersample, bool)
+        or not isinstance(supersample, (int, np.integer))
+        or not 1 <= supersample <= MAX_SUPERSAMPLE
+    ):
         raise RenderError(f"supersample must be an integer in [1, {MAX_SUPERSAMPLE}], got {supersample!r}")
     s = int(supersample)
     cam2world = validate_cam2world(cam2world)

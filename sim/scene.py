@@ -11,15 +11,14 @@ import os
 import re
 from pathlib import Path
 
-import yaml
-
-from aes_planner.config import ConfigError, from_dict, load_yaml
-from aes_planner.errors import AesPlannerError
 import numpy as np
-
+import yaml
 from aes_planner.sim.shapes import SHAPES, shape_of
 from aes_planner.sim.spec import SceneSpec, spec_to_dict
 from aes_planner.sim.texture import MaterialTable, load_image
+
+from aes_planner.config import ConfigError, from_dict, load_yaml
+from aes_planner.errors import AesPlannerError
 
 __all__ = ["Scene", "SceneError", "load_scene", "save_scene", "scene_to_yaml"]
 
@@ -41,7 +40,9 @@ class Scene:
 
     def __init__(self, spec: SceneSpec, base_dir: str | Path | None = None):
         if not isinstance(spec, SceneSpec):
-            raise SceneError(f"Scene needs a SceneSpec, got {type(spec).__name__}; use load_scene() for files and families")
+            raise SceneError(
+                f"Scene needs a SceneSpec, got {type(spec).__name__}; use load_scene() for files and families"
+            )
         self.spec = spec
         self.base_dir = Path(base_dir) if base_dir is not None else None
         # The renderer's arrays, one row per object: shape kind (index into SHAPES), placement
@@ -111,7 +112,9 @@ def _load_family(name: str, seed: int) -> Scene:
     from aes_planner.sim.families import FAMILIES
 
     if name not in FAMILIES:
-        raise SceneError(f"unknown scene family {name!r}; families: {', '.join(FAMILIES)} (write FAMILY:SEED, e.g. indoor:3)")
+        raise SceneError(
+            f"unknown scene family {name!r}; families: {', '.join(FAMILIES)} (write FAMILY:SEED, e.g. indoor:3)"
+        )
     return Scene(FAMILIES[name](seed))
 
 
@@ -155,7 +158,7 @@ def scene_to_yaml(scene: Scene, relative_to: str | Path | None = None) -> str:
         path = scene.image_path(spec_obj.material.image)
         if path is not None:
             obj["material"]["image"] = os.path.relpath(path, relative_to) if relative_to is not None else str(path)
-    header = f"# aes-planner scene (format: sim/README.md), written by aes_planner.sim.scene_to_yaml\n"
+    header = "# aes-planner scene (format: sim/README.md), written by aes_planner.sim.scene_to_yaml\n"
     return header + yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100)
 
 

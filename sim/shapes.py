@@ -27,7 +27,6 @@ drawn in them (per primitive in ``sim/README.md``).
 from __future__ import annotations
 
 import numpy as np
-
 from aes_planner.sim import spec as S
 
 __all__ = ["Box", "Cylinder", "Plane", "Quad", "Shape", "SHAPES", "shape_of"]
@@ -234,5 +233,9 @@ def shape_of(obj) -> tuple[type[Shape], np.ndarray, np.ndarray]:
     if isinstance(obj, S.PlaneSpec):
         return Plane, np.asarray(obj.point_m, dtype=np.float64), np.zeros(3)
     if isinstance(obj, S.QuadSpec):
-        return Quad, np.asarray(obj.centre_m, dtype=np.float64), np.array([0.0, 0.5 * obj.size_m[0], 0.5 * obj.size_m[1]])
+        return (
+            Quad,
+            np.asarray(obj.centre_m, dtype=np.float64),
+            np.array([0.0, 0.5 * obj.size_m[0], 0.5 * obj.size_m[1]]),
+        )
     raise TypeError(f"not an object spec: {type(obj).__name__}")

@@ -15,8 +15,9 @@ Colours are display values in ``[0, 1]`` (RGB, no gamma); lengths in metres; ang
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Literal, Mapping
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 
@@ -443,4 +444,3 @@ def spec_to_dict(spec: SceneSpec) -> dict:
             out[section] = to_dict(getattr(spec, section))
     out["objects"] = [_tagged_dict(x) for x in spec.objects]
     return _drop_none(out)
-

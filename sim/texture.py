@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import cv2
 import numpy as np
+from aes_planner.sim.spec import PATTERN_KINDS, MaterialSpec
 
 from aes_planner.config import ConfigError
-from aes_planner.sim.spec import PATTERN_KINDS, MaterialSpec
 
 __all__ = ["MaterialTable", "load_image", "pattern_weight", "sample_image", "value_noise"]
 
@@ -75,10 +75,10 @@ def value_noise(x: np.ndarray, y: np.ndarray, octaves, seed) -> np.ndarray:
         ix, iy = x0.astype(np.int64), y0.astype(np.int64)
         if np.isscalar(base):  # one seed: index the tables directly
             px0, px1 = perm.take(ix & 255), perm.take((ix + 1) & 255)
-            corner = lambda px, dy: values.take(perm.take((px + iy + dy) & 255))  # noqa: E731
+            corner = lambda px, dy: values.take(perm.take((px + iy + dy) & 255))  # noqa: E731, B023 (called within this iteration)
         else:
             px0, px1 = perm.take(base + (ix & 255)), perm.take(base + ((ix + 1) & 255))
-            corner = lambda px, dy: values.take(base + perm.take(base + ((px + iy + dy) & 255)))  # noqa: E731
+            corner = lambda px, dy: values.take(base + perm.take(base + ((px + iy + dy) & 255)))  # noqa: E731, B023 (called within this iteration)
         top = corner(px0, 0) * (1 - sx) + corner(px1, 0) * sx
         bottom = corner(px0, 1) * (1 - sx) + corner(px1, 1) * sx
         weight = np.where(octaves > octave, amplitude, 0.0)
@@ -116,7 +116,9 @@ class MaterialTable:
         self.albedo = np.array([mat.albedo for mat in materials], dtype=np.float64).reshape(m, 3)
         self.emission = np.array([mat.emission for mat in materials], dtype=np.float64)
         patterns = [mat.pattern for mat in materials]
-        self.kind = np.array([NO_PATTERN if p is None else PATTERN_KINDS.index(p.kind) for p in patterns], dtype=np.int64)
+        self.kind = np.array(
+            [NO_PATTERN if p is None else PATTERN_KINDS.index(p.kind) for p in patterns], dtype=np.int64
+        )
         self.colour2 = np.array([p.colour2 if p else (0.0, 0.0, 0.0) for p in patterns], dtype=np.float64).reshape(m, 3)
         self.scale_m = np.array([p.scale_m if p else 1.0 for p in patterns], dtype=np.float64)
         self.angle_rad = np.array([math.radians(p.angle_deg) if p else 0.0 for p in patterns], dtype=np.float64)
@@ -135,8 +137,14 @@ class MaterialTable:
             sel = np.nonzero(kinds == code)[0]
             o = obj.take(sel)
             w = pattern_weight(
-                PATTERN_KINDS[code], u.take(sel), v.take(sel), self.scale_m.take(o), self.angle_rad.take(o),
-                self.duty.take(o), self.octaves.take(o), self.seed.take(o),
+                PATTERN_KINDS[code],
+                u.take(sel),
+                v.take(sel),
+                self.scale_m.take(o),
+                self.angle_rad.take(o),
+                self.duty.take(o),
+                self.octaves.take(o),
+                self.seed.take(o),
             )
             colour[:, sel] = colour.take(sel, axis=1) * (1.0 - w) + self.colour2.T.take(o, axis=1) * w
         return colour

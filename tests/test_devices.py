@@ -71,7 +71,10 @@ def test_context_manager_disconnects_even_on_error(toy_type):
 def test_state_summary_and_degrees():
     st = GimbalState(math.radians(10), math.radians(-5), 0.0, 0.0, True, (31.0, 33.0), ("tilt: overload",), 1.0)
     assert st.yaw_deg == pytest.approx(10) and st.pitch_deg == pytest.approx(-5)
-    assert st.summary() == "yaw +10.00 deg, pitch -5.00 deg (goal +0.00, +0.00), moving, 31/33 C, hardware error: tilt: overload"
+    assert (
+        st.summary()
+        == "yaw +10.00 deg, pitch -5.00 deg (goal +0.00, +0.00), moving, 31/33 C, hardware error: tilt: overload"
+    )
 
 
 def test_registry_errors_name_the_key(toy_type):

@@ -32,9 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Camera viewpoint suggestion with a 3D aesthetic field.",
     )
     parser.add_argument("--version", action="version", version=f"aes-planner {__version__}")
-    parser.add_argument(
-        "-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)"
-    )
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
         importlib.import_module(name).register(sub)

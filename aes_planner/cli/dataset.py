@@ -18,7 +18,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     imp.add_argument("kind", choices=["nerfstudio", "re10k"])
     imp.add_argument("path", help="transforms.json (nerfstudio) or the clip's camera .txt (re10k)")
     imp.add_argument("--frames", help="re10k: folder of frames named <timestamp>.png/.jpg")
-    imp.add_argument("--up", choices=["cameras", "keep"], help="world up: from the mean camera up, or keep (default: keep for nerfstudio, cameras for re10k)")
+    imp.add_argument(
+        "--up",
+        choices=["cameras", "keep"],
+        help="world up: from the mean camera up, or keep (default: keep for nerfstudio, cameras for re10k)",
+    )
     imp.add_argument("--every", type=int, default=1, help="re10k: keep every n-th frame")
     imp.add_argument("--out", required=True, help="output dataset folder")
     imp.set_defaults(func=run_import)

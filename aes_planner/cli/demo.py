@@ -14,7 +14,9 @@ from pathlib import Path
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="run the demonstration (make demo)")
-    p.add_argument("--scene", default="indoor:3", metavar="FILE_OR_FAMILY:SEED", help="scene to render (default indoor:3)")
+    p.add_argument(
+        "--scene", default="indoor:3", metavar="FILE_OR_FAMILY:SEED", help="scene to render (default indoor:3)"
+    )
     p.add_argument("--views", type=int, default=6, help="number of rig views (default 6)")
     p.add_argument("--runs", default="runs", help="parent folder of the run folder (default runs/)")
     p.set_defaults(func=run)
@@ -34,8 +36,10 @@ def run(args: argparse.Namespace) -> int:
     for f in ds.frames:
         pan, tilt = f.extras["meta"]["joints_rad"]
         x, y, z, yaw, pitch = cam2world_to_view(f.cam2world)
-        print(f"  {f.frame_id[-6:]} {math.degrees(pan):8.1f} {math.degrees(tilt):8.1f} "
-              f"{x:6.2f} {y:6.2f} {z:6.2f} {math.degrees(yaw):8.1f} {math.degrees(pitch):8.1f}")
+        print(
+            f"  {f.frame_id[-6:]} {math.degrees(pan):8.1f} {math.degrees(tilt):8.1f} "
+            f"{x:6.2f} {y:6.2f} {z:6.2f} {math.degrees(yaw):8.1f} {math.degrees(pitch):8.1f}"
+        )
     print(f"run folder: {out.resolve()}")
     print("  cameras.json, images/, depth/ and contact_sheet.png (RGB over depth)")
     return 0

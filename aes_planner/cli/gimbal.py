@@ -44,7 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.set_defaults(func=run_emulate)
 
     s = gsub.add_parser(
-        "scan", help="list the servos on a port (ids, models, firmware)",
+        "scan",
+        help="list the servos on a port (ids, models, firmware)",
         description="Broadcast-ping the bus and list every servo that answers at this baud rate.",
     )
     s.add_argument("--port", required=True, help="serial device, e.g. /dev/ttyUSB0 or an emulator's pty")
@@ -52,7 +53,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.set_defaults(func=run_scan)
 
     m = gsub.add_parser(
-        "move", help="move to a yaw/pitch and wait until the servos report arrival",
+        "move",
+        help="move to a yaw/pitch and wait until the servos report arrival",
         description="Move the pan-tilt to the joint angles (clamped to the joint limits) and wait until "
         "both servos report arrival; exits with an error on timeout. Torque is turned off on exit.",
     )
@@ -67,7 +69,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     st.set_defaults(func=run_state)
 
     r = gsub.add_parser(
-        "reboot", help="reboot the servos to clear a hardware error (after removing its cause)",
+        "reboot",
+        help="reboot the servos to clear a hardware error (after removing its cause)",
     )
     _driver_args(r)
     r.set_defaults(func=run_reboot)
@@ -141,13 +144,19 @@ def run_scan(args: argparse.Namespace) -> int:
 def run_move(args: argparse.Namespace) -> int:
     for name in ("yaw_deg", "pitch_deg"):
         if not math.isfinite(getattr(args, name)):
-            raise AesPlannerError(f"--{name.replace('_', '-')} must be a finite number of degrees, got {getattr(args, name)}")
+            raise AesPlannerError(
+                f"--{name.replace('_', '-')} must be a finite number of degrees, got {getattr(args, name)}"
+            )
     if args.timeout_s is not None and not (math.isfinite(args.timeout_s) and args.timeout_s > 0):
         raise AesPlannerError(f"--timeout-s must be a number of seconds > 0, got {args.timeout_s}")
     with _gimbal(args) as gimbal:
         yaw_rad, pitch_rad = gimbal.move_to(math.radians(args.yaw_deg), math.radians(args.pitch_deg))
         clamped = (math.degrees(yaw_rad), math.degrees(pitch_rad))
-        note = "" if math.isclose(clamped[0], args.yaw_deg) and math.isclose(clamped[1], args.pitch_deg) else " (clamped to the joint limits)"
+        note = (
+            ""
+            if math.isclose(clamped[0], args.yaw_deg) and math.isclose(clamped[1], args.pitch_deg)
+            else " (clamped to the joint limits)"
+        )
         print(f"moving to yaw {clamped[0]:+.2f} deg, pitch {clamped[1]:+.2f} deg{note}", flush=True)
         state = gimbal.wait_until_reached(args.timeout_s)
         print(f"arrived: {state.summary()}")

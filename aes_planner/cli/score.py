@@ -22,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "score",
         help="score images with an aesthetic teacher and explain the scores",
         description="Score image files with a teacher and print each score with its explanation terms. "
-        f"Teachers: built-in 'composition' (default, no weights) and 'ven' (needs --weights), plus plugins "
+        "Teachers: built-in 'composition' (default, no weights) and 'ven' (needs --weights), plus plugins "
         "(`aes-planner teachers list`).",
     )
     p.add_argument("images", nargs="+", metavar="IMAGE", help="image files (PNG, JPEG, ...)")

@@ -31,8 +31,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     f.set_defaults(func=run_families)
 
 
-def render_survey(scene_spec: str, views: int, out: str | Path, width: int | None = None, height: int | None = None,
-                  supersample: int = 2, depth: bool = True, contact_sheet: bool = False) -> Path:
+def render_survey(
+    scene_spec: str,
+    views: int,
+    out: str | Path,
+    width: int | None = None,
+    height: int | None = None,
+    supersample: int = 2,
+    depth: bool = True,
+    contact_sheet: bool = False,
+) -> Path:
     """Render ``views`` frames of a scene from survey poses and save them as a dataset folder."""
     from aes_planner.dataset import DatasetError, save_dataset
     from aes_planner.sim import SimCamera, SimCameraConfig, load_scene
@@ -53,8 +61,12 @@ def render_survey(scene_spec: str, views: int, out: str | Path, width: int | Non
     if not depth:
         for f in frames:
             f.depth_m = None
-    meta = {"source": "aes-planner sim render", "scene": scene_spec, "scene_name": scene.name,
-            "platform": "rig" if scene.rig is not None else "drone"}
+    meta = {
+        "source": "aes-planner sim render",
+        "scene": scene_spec,
+        "scene_name": scene.name,
+        "platform": "rig" if scene.rig is not None else "drone",
+    }
     path = save_dataset(out, frames, meta=meta, frame_meta=frame_meta)
     if contact_sheet:
         write_contact_sheet(frames, Path(out) / "contact_sheet.png")
@@ -81,8 +93,16 @@ def write_contact_sheet(frames, path: Path) -> Path:
 
 
 def run_render(args: argparse.Namespace) -> int:
-    out = render_survey(args.scene, args.views, args.out, args.width, args.height, args.supersample,
-                        depth=not args.no_depth, contact_sheet=args.contact_sheet)
+    out = render_survey(
+        args.scene,
+        args.views,
+        args.out,
+        args.width,
+        args.height,
+        args.supersample,
+        depth=not args.no_depth,
+        contact_sheet=args.contact_sheet,
+    )
     print(f"wrote {args.views} views of {args.scene} to {out}")
     return 0
 

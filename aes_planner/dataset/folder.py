@@ -29,9 +29,10 @@ from __future__ import annotations
 import json
 import logging
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import cv2
 import numpy as np
@@ -230,7 +231,9 @@ def load_dataset(path: str | Path, load_depth: bool = True) -> PosedDataset:
     root = cameras.parent
     doc = read_json(cameras, "a dataset folder holds images and a cameras.json")
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
-        raise DatasetError(f"{cameras}: 'format' must be {FORMAT!r}; for nerfstudio or RealEstate10K files use the importers")
+        raise DatasetError(
+            f"{cameras}: 'format' must be {FORMAT!r}; for nerfstudio or RealEstate10K files use the importers"
+        )
     if doc.get("version") != VERSION:
         raise DatasetError(f"{cameras}: version {doc.get('version')!r} is not supported (this package reads {VERSION})")
     entries = doc.get("frames")

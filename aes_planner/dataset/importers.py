@@ -24,7 +24,7 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 
@@ -104,7 +104,12 @@ def import_nerfstudio(transforms_json: str | Path, up: UpMode = "keep", load_dep
         merged = {**doc, **fr}
         for dist in ("k1", "k2", "k3", "k4", "p1", "p2"):
             if finite_number(merged, dist, key, 0.0):
-                log.warning("%s: distortion %s=%s is ignored (pinhole model); undistort the images first", key, dist, merged[dist])
+                log.warning(
+                    "%s: distortion %s=%s is ignored (pinhole model); undistort the images first",
+                    key,
+                    dist,
+                    merged[dist],
+                )
         if (merged.get("w") not in (None, w)) or (merged.get("h") not in (None, h)):
             raise DatasetError(f"{key}: w/h say {merged.get('w')}x{merged.get('h')} but {fr['file_path']} is {w}x{h}")
         fx = finite_number(merged, "fl_x", key, None)
@@ -125,7 +130,9 @@ def import_nerfstudio(transforms_json: str | Path, up: UpMode = "keep", load_dep
         try:
             m = validate_cam2world(np.asarray(fr["transform_matrix"], dtype=np.float64), f"{key}.transform_matrix")
         except (PoseError, ValueError, TypeError) as exc:
-            raise DatasetError(str(exc) if isinstance(exc, PoseError) else f"{key}.transform_matrix: expected a 4x4 list of numbers") from None
+            raise DatasetError(
+                str(exc) if isinstance(exc, PoseError) else f"{key}.transform_matrix: expected a 4x4 list of numbers"
+            ) from None
         depth = None
         if load_depth and fr.get("depth_file_path"):
             scale = finite_number(merged, "depth_unit_scale_factor", key, 1e-3)
@@ -145,7 +152,9 @@ def _find_frame_image(frames_dir: Path, stamp: str, key: str) -> Path:
         p = frames_dir / f"{stamp}{ext}"
         if p.is_file():
             return p
-    raise DatasetError(f"{key}: no image {stamp}.png/.jpg in {frames_dir}; extract the clip's frames named by timestamp")
+    raise DatasetError(
+        f"{key}: no image {stamp}.png/.jpg in {frames_dir}; extract the clip's frames named by timestamp"
+    )
 
 
 def import_re10k(
@@ -167,7 +176,9 @@ def import_re10k(
         key = f"{path.name}:{line_no}"
         fields = ln.split()
         if len(fields) != 19:
-            raise DatasetError(f"{key}: expected 19 numbers (timestamp, fx fy cx cy 0 0, 12 of world-to-camera), got {len(fields)}")
+            raise DatasetError(
+                f"{key}: expected 19 numbers (timestamp, fx fy cx cy 0 0, 12 of world-to-camera), got {len(fields)}"
+            )
         try:
             values = np.array([float(v) for v in fields[1:]])
         except ValueError:

@@ -37,9 +37,9 @@ import numba
 if "NUMBA_THREADING_LAYER" not in os.environ:
     numba.config.THREADING_LAYER = "workqueue"
 
-import numpy as np  # noqa: E402 (after the threading-layer choice)
-from numba import njit, prange, types  # noqa: E402
-from numba.extending import overload  # noqa: E402
+import numpy as np
+from numba import njit, prange, types
+from numba.extending import overload
 
 from aes_planner.gaussians.numerics import (
     ALPHA_MAX,
@@ -79,9 +79,15 @@ def _quat_rotation(qw, qx, qy, qz):
     inv = 1.0 / math.sqrt(n2)
     w, x, y, z = qw * inv, qx * inv, qy * inv, qz * inv
     r = (
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        1 - 2 * (y * y + z * z),
+        2 * (x * y - w * z),
+        2 * (x * z + w * y),
+        2 * (x * y + w * z),
+        1 - 2 * (x * x + z * z),
+        2 * (y * z - w * x),
+        2 * (x * z - w * y),
+        2 * (y * z + w * x),
+        1 - 2 * (x * x + y * y),
     )
     return r, inv, w, x, y, z
 
@@ -90,9 +96,15 @@ def _quat_rotation(qw, qx, qy, qz):
 def _mm(a, b):
     """3x3 @ 3x3 for row-major 9-tuples."""
     return (
-        a[0] * b[0] + a[1] * b[3] + a[2] * b[6], a[0] * b[1] + a[1] * b[4] + a[2] * b[7], a[0] * b[2] + a[1] * b[5] + a[2] * b[8],
-        a[3] * b[0] + a[4] * b[3] + a[5] * b[6], a[3] * b[1] + a[4] * b[4] + a[5] * b[7], a[3] * b[2] + a[4] * b[5] + a[5] * b[8],
-        a[6] * b[0] + a[7] * b[3] + a[8] * b[6], a[6] * b[1] + a[7] * b[4] + a[8] * b[7], a[6] * b[2] + a[7] * b[5] + a[8] * b[8],
+        a[0] * b[0] + a[1] * b[3] + a[2] * b[6],
+        a[0] * b[1] + a[1] * b[4] + a[2] * b[7],
+        a[0] * b[2] + a[1] * b[5] + a[2] * b[8],
+        a[3] * b[0] + a[4] * b[3] + a[5] * b[6],
+        a[3] * b[1] + a[4] * b[4] + a[5] * b[7],
+        a[3] * b[2] + a[4] * b[5] + a[5] * b[8],
+        a[6] * b[0] + a[7] * b[3] + a[8] * b[6],
+        a[6] * b[1] + a[7] * b[4] + a[8] * b[7],
+        a[6] * b[2] + a[7] * b[5] + a[8] * b[8],
     )
 
 
@@ -133,11 +145,28 @@ def camera_table(world2cam, K, width, height):
     fx, fy, cx, cy = K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2]
     slack_x = FRUSTUM_SLACK * 0.5 * width / fx
     slack_y = FRUSTUM_SLACK * 0.5 * height / fy
-    return np.ascontiguousarray(np.concatenate([
-        world2cam[:, :3, :3].reshape(-1, 9), world2cam[:, :3, 3],
-        np.stack([fx, fy, cx, cy, (width - cx) / fx + slack_x, cx / fx + slack_x,
-                  (height - cy) / fy + slack_y, cy / fy + slack_y], axis=1),
-    ], axis=1))
+    return np.ascontiguousarray(
+        np.concatenate(
+            [
+                world2cam[:, :3, :3].reshape(-1, 9),
+                world2cam[:, :3, 3],
+                np.stack(
+                    [
+                        fx,
+                        fy,
+                        cx,
+                        cy,
+                        (width - cx) / fx + slack_x,
+                        cx / fx + slack_x,
+                        (height - cy) / fy + slack_y,
+                        cy / fy + slack_y,
+                    ],
+                    axis=1,
+                ),
+            ],
+            axis=1,
+        )
+    )
 
 
 NCAM = 20
@@ -202,10 +231,16 @@ def project_fwd(means, quats, log_scales, opacities, cams, width, height, cov, p
             # cov2d = T Sigma T^T with T = J W (2 x 3)
             t0 = (j00 * w[0] + j02 * w[6], j00 * w[1] + j02 * w[7], j00 * w[2] + j02 * w[8])
             t1 = (j11 * w[3] + j12 * w[6], j11 * w[4] + j12 * w[7], j11 * w[5] + j12 * w[8])
-            s0 = (sig[0] * t0[0] + sig[1] * t0[1] + sig[2] * t0[2], sig[3] * t0[0] + sig[4] * t0[1] + sig[5] * t0[2],
-                  sig[6] * t0[0] + sig[7] * t0[1] + sig[8] * t0[2])
-            s1 = (sig[0] * t1[0] + sig[1] * t1[1] + sig[2] * t1[2], sig[3] * t1[0] + sig[4] * t1[1] + sig[5] * t1[2],
-                  sig[6] * t1[0] + sig[7] * t1[1] + sig[8] * t1[2])
+            s0 = (
+                sig[0] * t0[0] + sig[1] * t0[1] + sig[2] * t0[2],
+                sig[3] * t0[0] + sig[4] * t0[1] + sig[5] * t0[2],
+                sig[6] * t0[0] + sig[7] * t0[1] + sig[8] * t0[2],
+            )
+            s1 = (
+                sig[0] * t1[0] + sig[1] * t1[1] + sig[2] * t1[2],
+                sig[3] * t1[0] + sig[4] * t1[1] + sig[5] * t1[2],
+                sig[6] * t1[0] + sig[7] * t1[1] + sig[8] * t1[2],
+            )
             a = t0[0] * s0[0] + t0[1] * s0[1] + t0[2] * s0[2]
             bb = t1[0] * s0[0] + t1[1] * s0[1] + t1[2] * s0[2]
             c = t1[0] * s1[0] + t1[1] * s1[1] + t1[2] * s1[2]
@@ -312,7 +347,7 @@ def _count_camera(box, b, tiles_x, order, n_visible, tile_counts):
 @njit(**_opts)
 def _fill_camera(box, b, tiles_x, order, n_visible, offsets, lists):
     n_tiles = (offsets.shape[0] - 1) // box.shape[0]
-    cursor = offsets[b * n_tiles:(b + 1) * n_tiles].copy()
+    cursor = offsets[b * n_tiles : (b + 1) * n_tiles].copy()
     for i in range(n_visible[b]):
         g = order[b, i]
         for ty in range(box[b, g, 2] // TILE, box[b, g, 3] // TILE + 1):
@@ -448,8 +483,9 @@ def _add_pixel_major(acc, start, lanes, wbuf, vals, g, z, zero):
 
 
 @njit(**_fast)
-def _raster_tile_fwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, height, consts, rgb, feat, dep,
-                     t_final, last):
+def _raster_tile_fwd(
+    b, tile, proj, box, vals, offsets, lists, tiles_x, width, height, consts, rgb, feat, dep, t_final, last
+):
     n_tiles = (offsets.shape[0] - 1) // proj.shape[0]
     cv = vals.shape[1]
     zero, one, half = consts[C_ZERO], consts[C_ONE], consts[C_HALF]
@@ -542,8 +578,7 @@ def _interleaved(item, n_items, threads):
 
 
 @njit(parallel=True, **_opts)
-def raster_fwd(proj, box, vals, offsets, lists, tiles_x, width, height, consts, threads, rgb, feat, dep, t_final,
-               last):
+def raster_fwd(proj, box, vals, offsets, lists, tiles_x, width, height, consts, threads, rgb, feat, dep, t_final, last):
     """rgb [B, 3, H, W], feat [B, C, H, W], dep [B, H, W] (un-normalised depth), t_final [B, H, W],
     last [B, H, W]."""
     n_cam = proj.shape[0]
@@ -552,8 +587,24 @@ def raster_fwd(proj, box, vals, offsets, lists, tiles_x, width, height, consts, 
     for item in prange(threads * -(-n_items // threads)):
         real = _interleaved(item, n_items, threads)
         if real >= 0:
-            _raster_tile_fwd(real // n_tiles, real % n_tiles, proj, box, vals, offsets, lists, tiles_x, width,
-                             height, consts, rgb, feat, dep, t_final, last)
+            _raster_tile_fwd(
+                real // n_tiles,
+                real % n_tiles,
+                proj,
+                box,
+                vals,
+                offsets,
+                lists,
+                tiles_x,
+                width,
+                height,
+                consts,
+                rgb,
+                feat,
+                dep,
+                t_final,
+                last,
+            )
 
 
 # ---------------------------------------------------------------------------- 5. backward raster
@@ -593,8 +644,27 @@ def _bwd_values_pixel_major(v_pix, behind, row, lane_fac, lane_t, lane_ra, lane_
 
 
 @njit(**_fast)
-def _raster_tile_bwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, height, consts,
-                     t_final, last, v_rgb, v_feat, v_dep, v_t, g2d, gvals):
+def _raster_tile_bwd(
+    b,
+    tile,
+    proj,
+    box,
+    vals,
+    offsets,
+    lists,
+    tiles_x,
+    width,
+    height,
+    consts,
+    t_final,
+    last,
+    v_rgb,
+    v_feat,
+    v_dep,
+    v_t,
+    g2d,
+    gvals,
+):
     """Reverse traversal of one tile; adds into g2d [B, N, NGRAD] and gvals [N, Cv].
 
     Per-pixel gradient terms are accumulated lane-wise ([quantity, lane] buffers) and reduced
@@ -725,8 +795,27 @@ def _raster_tile_bwd(b, tile, proj, box, vals, offsets, lists, tiles_x, width, h
 
 
 @njit(parallel=True, **_opts)
-def raster_bwd(proj, box, vals, offsets, lists, tiles_x, width, height, consts, t_final, last, v_rgb, v_feat,
-               v_dep, v_t, by_camera, threads, g2d, gvals):
+def raster_bwd(
+    proj,
+    box,
+    vals,
+    offsets,
+    lists,
+    tiles_x,
+    width,
+    height,
+    consts,
+    t_final,
+    last,
+    v_rgb,
+    v_feat,
+    v_dep,
+    v_t,
+    by_camera,
+    threads,
+    g2d,
+    gvals,
+):
     """g2d [nbuf, B, N, NGRAD] (nbuf = 1 when by_camera else threads), gvals [threads, N, Cv]."""
     n_cam = proj.shape[0]
     n_tiles = (offsets.shape[0] - 1) // n_cam
@@ -738,11 +827,49 @@ def raster_bwd(proj, box, vals, offsets, lists, tiles_x, width, height, consts, 
         tid = numba.get_thread_id()
         if by_camera:
             for tile in range(n_tiles):
-                _raster_tile_bwd(real, tile, proj, box, vals, offsets, lists, tiles_x, width, height, consts,
-                                 t_final, last, v_rgb, v_feat, v_dep, v_t, g2d[0], gvals[tid])
+                _raster_tile_bwd(
+                    real,
+                    tile,
+                    proj,
+                    box,
+                    vals,
+                    offsets,
+                    lists,
+                    tiles_x,
+                    width,
+                    height,
+                    consts,
+                    t_final,
+                    last,
+                    v_rgb,
+                    v_feat,
+                    v_dep,
+                    v_t,
+                    g2d[0],
+                    gvals[tid],
+                )
         else:
-            _raster_tile_bwd(real // n_tiles, real % n_tiles, proj, box, vals, offsets, lists, tiles_x, width,
-                             height, consts, t_final, last, v_rgb, v_feat, v_dep, v_t, g2d[tid], gvals[tid])
+            _raster_tile_bwd(
+                real // n_tiles,
+                real % n_tiles,
+                proj,
+                box,
+                vals,
+                offsets,
+                lists,
+                tiles_x,
+                width,
+                height,
+                consts,
+                t_final,
+                last,
+                v_rgb,
+                v_feat,
+                v_dep,
+                v_t,
+                g2d[tid],
+                gvals[tid],
+            )
 
 
 # ---------------------------------------------------------------------------- 6. backward projection
@@ -799,9 +926,14 @@ def project_bwd(means, quats, log_scales, cov, cams, box, g2d, g_means, g_quats,
             # cov2d = J S J^T: G2 = [[g_a, g_b/2], [g_b/2, g_c]] (b is one parameter used twice)
             hb = 0.5 * g_b
             gS = (
-                j00 * j00 * g_a, j00 * j11 * hb, j00 * (g_a * j02 + hb * j12),
-                j00 * j11 * hb, j11 * j11 * g_c, j11 * (hb * j02 + g_c * j12),
-                j00 * (g_a * j02 + hb * j12), j11 * (hb * j02 + g_c * j12),
+                j00 * j00 * g_a,
+                j00 * j11 * hb,
+                j00 * (g_a * j02 + hb * j12),
+                j00 * j11 * hb,
+                j11 * j11 * g_c,
+                j11 * (hb * j02 + g_c * j12),
+                j00 * (g_a * j02 + hb * j12),
+                j11 * (hb * j02 + g_c * j12),
                 j02 * j02 * g_a + 2.0 * j02 * j12 * hb + j12 * j12 * g_c,
             )
             # dJ = 2 G2 J S; J S rows:
@@ -814,8 +946,15 @@ def project_bwd(means, quats, log_scales, cov, cams, box, g2d, g_means, g_quats,
             # S = W Sigma W^T: dSigma = W^T gS W, dW += 2 gS W Sigma
             gsig = _mm(_mm(_t(w), gS), w)
             gs = (
-                gs[0] + gsig[0], gs[1] + gsig[1], gs[2] + gsig[2], gs[3] + gsig[3], gs[4] + gsig[4],
-                gs[5] + gsig[5], gs[6] + gsig[6], gs[7] + gsig[7], gs[8] + gsig[8],
+                gs[0] + gsig[0],
+                gs[1] + gsig[1],
+                gs[2] + gsig[2],
+                gs[3] + gsig[3],
+                gs[4] + gsig[4],
+                gs[5] + gsig[5],
+                gs[6] + gsig[6],
+                gs[7] + gsig[7],
+                gs[8] + gsig[8],
             )
             gw = _mm(gS, ws)  # times 2 below
             # J(z, rx, ry) and the projected mean
@@ -851,15 +990,26 @@ def project_bwd(means, quats, log_scales, cov, cams, box, g2d, g_means, g_quats,
         r, inv, qw, qx, qy, qz = _quat_rotation(
             np.float64(quats[n, 0]), np.float64(quats[n, 1]), np.float64(quats[n, 2]), np.float64(quats[n, 3])
         )
-        sc = (math.exp(np.float64(log_scales[n, 0])), math.exp(np.float64(log_scales[n, 1])),
-              math.exp(np.float64(log_scales[n, 2])))
+        sc = (
+            math.exp(np.float64(log_scales[n, 0])),
+            math.exp(np.float64(log_scales[n, 1])),
+            math.exp(np.float64(log_scales[n, 2])),
+        )
         s0, s1, s2 = sc
-        gm = _mm(gs, (r[0] * s0, r[1] * s1, r[2] * s2, r[3] * s0, r[4] * s1, r[5] * s2, r[6] * s0, r[7] * s1, r[8] * s2))
+        gm = _mm(
+            gs, (r[0] * s0, r[1] * s1, r[2] * s2, r[3] * s0, r[4] * s1, r[5] * s2, r[6] * s0, r[7] * s1, r[8] * s2)
+        )
         # M_ij = R_ij s_j, dM = 2 gs M  ->  dR_ij = 2 gm_ij s_j, ds_j = sum_i 2 gm_ij R_ij
         gr = (
-            2 * gm[0] * s0, 2 * gm[1] * s1, 2 * gm[2] * s2,
-            2 * gm[3] * s0, 2 * gm[4] * s1, 2 * gm[5] * s2,
-            2 * gm[6] * s0, 2 * gm[7] * s1, 2 * gm[8] * s2,
+            2 * gm[0] * s0,
+            2 * gm[1] * s1,
+            2 * gm[2] * s2,
+            2 * gm[3] * s0,
+            2 * gm[4] * s1,
+            2 * gm[5] * s2,
+            2 * gm[6] * s0,
+            2 * gm[7] * s1,
+            2 * gm[8] * s2,
         )
         g_log_scales[n, 0] = 2 * (gm[0] * r[0] + gm[3] * r[3] + gm[6] * r[6]) * s0
         g_log_scales[n, 1] = 2 * (gm[1] * r[1] + gm[4] * r[4] + gm[7] * r[7]) * s1
@@ -868,9 +1018,36 @@ def project_bwd(means, quats, log_scales, cov, cams, box, g2d, g_means, g_quats,
             g_quats[n, 0] = g_quats[n, 1] = g_quats[n, 2] = g_quats[n, 3] = 0.0
             continue
         gw_ = 2.0 * (-qz * gr[1] + qy * gr[2] + qz * gr[3] - qx * gr[5] - qy * gr[6] + qx * gr[7])
-        gx_ = 2.0 * (qy * gr[1] + qz * gr[2] + qy * gr[3] - 2 * qx * gr[4] - qw * gr[5] + qz * gr[6] + qw * gr[7] - 2 * qx * gr[8])
-        gy_ = 2.0 * (-2 * qy * gr[0] + qx * gr[1] + qw * gr[2] + qx * gr[3] + qz * gr[5] - qw * gr[6] + qz * gr[7] - 2 * qy * gr[8])
-        gz_ = 2.0 * (-2 * qz * gr[0] - qw * gr[1] + qx * gr[2] + qw * gr[3] - 2 * qz * gr[4] + qy * gr[5] + qx * gr[6] + qy * gr[7])
+        gx_ = 2.0 * (
+            qy * gr[1]
+            + qz * gr[2]
+            + qy * gr[3]
+            - 2 * qx * gr[4]
+            - qw * gr[5]
+            + qz * gr[6]
+            + qw * gr[7]
+            - 2 * qx * gr[8]
+        )
+        gy_ = 2.0 * (
+            -2 * qy * gr[0]
+            + qx * gr[1]
+            + qw * gr[2]
+            + qx * gr[3]
+            + qz * gr[5]
+            - qw * gr[6]
+            + qz * gr[7]
+            - 2 * qy * gr[8]
+        )
+        gz_ = 2.0 * (
+            -2 * qz * gr[0]
+            - qw * gr[1]
+            + qx * gr[2]
+            + qw * gr[3]
+            - 2 * qz * gr[4]
+            + qy * gr[5]
+            + qx * gr[6]
+            + qy * gr[7]
+        )
         dot = qw * gw_ + qx * gx_ + qy * gy_ + qz * gz_
         g_quats[n, 0] = (gw_ - qw * dot) * inv
         g_quats[n, 1] = (gx_ - qx * dot) * inv

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Iterable, Sequence
 
 import numpy as np
 import torch
@@ -22,8 +22,13 @@ FORMAT_VERSION = 1
 _FLOAT_FIELDS = ("means", "quats", "log_scales", "opacities", "colors", "features")
 _INT_FIELDS = ("source_frame", "source_pixel")
 _TRAILING_SHAPES = {
-    "means": (3,), "quats": (4,), "log_scales": (3,), "opacities": (),
-    "colors": (3,), "source_frame": (), "source_pixel": (2,),
+    "means": (3,),
+    "quats": (4,),
+    "log_scales": (3,),
+    "opacities": (),
+    "colors": (3,),
+    "source_frame": (),
+    "source_pixel": (2,),
 }
 
 
@@ -67,7 +72,9 @@ class Gaussians:
     def __post_init__(self):
         for name in ("means", "quats", "log_scales", "opacities", "colors"):
             if not isinstance(getattr(self, name), Tensor):
-                raise GaussianError(f"Gaussians.{name} must be a torch.Tensor, got {type(getattr(self, name)).__name__}")
+                raise GaussianError(
+                    f"Gaussians.{name} must be a torch.Tensor, got {type(getattr(self, name)).__name__}"
+                )
         n = self.means.shape[0] if self.means.dim() >= 1 else -1
         dtype, device = self.means.dtype, self.means.device
         if not dtype.is_floating_point:
@@ -97,7 +104,9 @@ class Gaussians:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def empty(cls, channels: int = 0, dtype: torch.dtype = torch.float32, device: str | torch.device = "cpu") -> "Gaussians":
+    def empty(
+        cls, channels: int = 0, dtype: torch.dtype = torch.float32, device: str | torch.device = "cpu"
+    ) -> Gaussians:
         """No Gaussians, ``channels`` feature channels."""
         z = lambda *s: torch.zeros(*s, dtype=dtype, device=device)  # noqa: E731
         return cls(z(0, 3), z(0, 4), z(0, 3), z(0), z(0, 3), z(0, channels))
@@ -111,12 +120,12 @@ class Gaussians:
         opacity_logits: Tensor,  # [N]
         colors: Tensor,  # [N, 3]
         features: Tensor | None = None,  # [N, C]
-    ) -> "Gaussians":
+    ) -> Gaussians:
         """Gaussians whose opacities are ``sigmoid(opacity_logits)`` (differentiable)."""
         return cls(means, quats, log_scales, torch.sigmoid(opacity_logits), colors, features)
 
     @staticmethod
-    def cat(parts: Sequence["Gaussians"]) -> "Gaussians":
+    def cat(parts: Sequence[Gaussians]) -> Gaussians:
         """Concatenate along N; all parts must share C, dtype and device."""
         parts = list(parts)
         if not parts:
@@ -147,7 +156,7 @@ class Gaussians:
     def scales(self) -> Tensor:  # [N, 3]
         return self.log_scales.exp()
 
-    def __getitem__(self, index: int | slice | Tensor | Sequence[int]) -> "Gaussians":
+    def __getitem__(self, index: int | slice | Tensor | Sequence[int]) -> Gaussians:
         """Select Gaussians by slice, integer indices or a boolean mask ``[N]`` (differentiable)."""
         if isinstance(index, int):
             index = slice(index, index + 1 if index != -1 else None)
@@ -157,7 +166,7 @@ class Gaussians:
             index = torch.as_tensor(index, dtype=torch.long, device=self.device)
         return Gaussians(**{f: getattr(self, f)[index] for f in _names()})
 
-    def to(self, device: str | torch.device | None = None, dtype: torch.dtype | None = None) -> "Gaussians":
+    def to(self, device: str | torch.device | None = None, dtype: torch.dtype | None = None) -> Gaussians:
         """Move to ``device`` and/or cast the float fields to ``dtype`` (provenance stays int32)."""
         out = {}
         for f in _names():
@@ -165,13 +174,13 @@ class Gaussians:
             out[f] = t.to(device=device, dtype=dtype if f in _FLOAT_FIELDS else None)
         return Gaussians(**out)
 
-    def detach(self) -> "Gaussians":
+    def detach(self) -> Gaussians:
         return Gaussians(**{f: getattr(self, f).detach() for f in _names()})
 
-    def clone(self) -> "Gaussians":
+    def clone(self) -> Gaussians:
         return Gaussians(**{f: getattr(self, f).clone() for f in _names()})
 
-    def requires_grad_(self, requires_grad: bool = True) -> "Gaussians":
+    def requires_grad_(self, requires_grad: bool = True) -> Gaussians:
         """Make every float field a leaf that requires grad (in place); returns self."""
         for f in _FLOAT_FIELDS:
             getattr(self, f).requires_grad_(requires_grad)
@@ -221,14 +230,14 @@ class Gaussians:
         return path
 
     @classmethod
-    def load(cls, path: str | Path, device: str | torch.device = "cpu") -> "Gaussians":
+    def load(cls, path: str | Path, device: str | torch.device = "cpu") -> Gaussians:
         """Read a file written by :meth:`save` (``weights_only=True``: no code is unpickled)."""
         path = Path(path)
         try:
             data = torch.load(path, map_location=device, weights_only=True)
         except FileNotFoundError:
             raise GaussianError(f"{path}: no such Gaussians file") from None
-        except Exception as exc:  # noqa: BLE001 - any unpickling failure means a bad file
+        except Exception as exc:
             raise GaussianError(f"{path}: not a Gaussians file written by Gaussians.save ({exc})") from None
         if not isinstance(data, dict) or "format_version" not in data:
             raise GaussianError(f"{path}: not a Gaussians file written by Gaussians.save")

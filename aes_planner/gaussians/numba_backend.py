@@ -57,8 +57,18 @@ def _forward_arrays(means, quats, log_scales, opacities, values, channels, world
     box = np.empty((n_cam, n, 4), np.int32)
     threads = k.numba.get_num_threads()
     if n:
-        k.project_fwd(means, quats, log_scales, opacities, k.camera_table(world2cam, K, width, height),
-                      width, height, cov, proj, box)
+        k.project_fwd(
+            means,
+            quats,
+            log_scales,
+            opacities,
+            k.camera_table(world2cam, K, width, height),
+            width,
+            height,
+            cov,
+            proj,
+            box,
+        )
     order = np.empty((n_cam, n), np.int32)
     n_visible = np.zeros(n_cam, np.int64)
     counts = np.zeros((n_cam, n_tiles), np.int64)
@@ -76,8 +86,9 @@ def _forward_arrays(means, quats, log_scales, opacities, values, channels, world
     t_final = np.empty((n_cam, height, width), dtype)
     last = np.empty((n_cam, height, width), np.int32)
     consts = np.array(k.CONSTS, dtype)
-    k.raster_fwd(proj, box, values, offsets, lists, tiles_x, width, height, consts, threads,
-                 rgb, feat, depth_sum, t_final, last)
+    k.raster_fwd(
+        proj, box, values, offsets, lists, tiles_x, width, height, consts, threads, rgb, feat, depth_sum, t_final, last
+    )
     state = (cov, proj, box, offsets, lists, tiles_x, last, consts)
     return rgb, feat, depth_sum, t_final, state
 
@@ -138,25 +149,62 @@ class _Raster(torch.autograd.Function):
         by_camera = n_cam >= 2 * threads
         g2d = np.zeros((1 if by_camera else threads, n_cam, n, k.NGRAD), dtype)
         gvals = np.zeros((threads, n, values.shape[1]), dtype)
-        k.raster_bwd(proj, box, values, offsets, lists, tiles_x, width, height, consts, t_final, last,
-                     v_rgb, v_feat, v_depth_sum, v_t, by_camera, threads, g2d, gvals)
+        k.raster_bwd(
+            proj,
+            box,
+            values,
+            offsets,
+            lists,
+            tiles_x,
+            width,
+            height,
+            consts,
+            t_final,
+            last,
+            v_rgb,
+            v_feat,
+            v_depth_sum,
+            v_t,
+            by_camera,
+            threads,
+            g2d,
+            gvals,
+        )
         g_means = np.empty_like(means)
         g_quats = np.empty_like(quats)
         g_log_scales = np.empty_like(log_scales)
         g_opac = np.empty_like(opacities)
         g_cam = np.zeros((threads, n_cam, 12))
         if n:
-            k.project_bwd(means, quats, log_scales, cov, k.camera_table(w2c, kk, width, height), box, g2d,
-                          g_means, g_quats, g_log_scales, g_opac, g_cam)
+            k.project_bwd(
+                means,
+                quats,
+                log_scales,
+                cov,
+                k.camera_table(w2c, kk, width, height),
+                box,
+                g2d,
+                g_means,
+                g_quats,
+                g_log_scales,
+                g_opac,
+                g_cam,
+            )
         g_w2c = np.zeros((n_cam, 4, 4))
         g_w2c[:, :3, :] = g_cam.sum(0).reshape(n_cam, 3, 4)
         g_values = gvals.sum(0) if threads > 1 else gvals[0]
         return (
-            torch.from_numpy(g_means), torch.from_numpy(g_quats), torch.from_numpy(g_log_scales),
-            torch.from_numpy(g_opac), torch.from_numpy(np.ascontiguousarray(g_values[:, :3])),
+            torch.from_numpy(g_means),
+            torch.from_numpy(g_quats),
+            torch.from_numpy(g_log_scales),
+            torch.from_numpy(g_opac),
+            torch.from_numpy(np.ascontiguousarray(g_values[:, :3])),
             torch.from_numpy(np.ascontiguousarray(g_values[:, 3:])),
             None if g_bg is None else torch.from_numpy(g_bg.astype(dtype, copy=False)),
-            torch.from_numpy(g_w2c.astype(w2c.dtype)).to(cam_dtype), None, None, None,
+            torch.from_numpy(g_w2c.astype(w2c.dtype)).to(cam_dtype),
+            None,
+            None,
+            None,
         )
 
 
@@ -165,8 +213,7 @@ def render(means, quats, log_scales, opacities, colors, features, background, wo
     already validated; ``background`` is None or [1 or B, 3] in the Gaussians' dtype."""
     if _load() is None:
         raise RuntimeError(f"numba backend unavailable: {_import_error}")
-    return _Raster.apply(means, quats, log_scales, opacities, colors, features, background, world2cam, K,
-                         width, height)
+    return _Raster.apply(means, quats, log_scales, opacities, colors, features, background, world2cam, K, width, height)
 
 
 def warmup(dtype: torch.dtype = torch.float32) -> float:

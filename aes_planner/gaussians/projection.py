@@ -66,8 +66,12 @@ def project(
     v = fy * y / zs + cy
     # gsplat's frustum clamp of the Jacobian's x/z, y/z.
     tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
-    tx = zs * torch.minimum((width - cx) / fx + FRUSTUM_SLACK * tan_x, torch.maximum(-(cx / fx + FRUSTUM_SLACK * tan_x), x / zs))
-    ty = zs * torch.minimum((height - cy) / fy + FRUSTUM_SLACK * tan_y, torch.maximum(-(cy / fy + FRUSTUM_SLACK * tan_y), y / zs))
+    tx = zs * torch.minimum(
+        (width - cx) / fx + FRUSTUM_SLACK * tan_x, torch.maximum(-(cx / fx + FRUSTUM_SLACK * tan_x), x / zs)
+    )
+    ty = zs * torch.minimum(
+        (height - cy) / fy + FRUSTUM_SLACK * tan_y, torch.maximum(-(cy / fy + FRUSTUM_SLACK * tan_y), y / zs)
+    )
     zero = torch.zeros_like(zs)
     jac = torch.stack(
         [torch.stack([fx / zs, zero, -fx * tx / zs**2], -1), torch.stack([zero, fy / zs, -fy * ty / zs**2], -1)], -2
@@ -86,8 +90,10 @@ def project(
     extents = torch.stack([(2 * level * a.detach()).sqrt(), (2 * level * c.detach()).sqrt()], -1)
     ud, vd = u.detach(), v.detach()
     on_image = (
-        (ud + extents[..., 0] > 0) & (ud - extents[..., 0] < width)
-        & (vd + extents[..., 1] > 0) & (vd - extents[..., 1] < height)
+        (ud + extents[..., 0] > 0)
+        & (ud - extents[..., 0] < width)
+        & (vd + extents[..., 1] > 0)
+        & (vd - extents[..., 1] < height)
     )
     visible = in_depth & (opac >= ALPHA_MIN) & on_image
     return Projected(torch.stack([u, v], -1), conics, z, extents, visible)

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import torch
 from torch import Tensor
@@ -85,7 +85,9 @@ def _batched(t: Tensor | Sequence, name: str, shape: tuple[int, int], device) ->
     if t.dim() == 2:
         t = t.unsqueeze(0)
     if t.dim() != 3 or tuple(t.shape[1:]) != shape:
-        raise GaussianError(f"{name} must have shape [B, {shape[0]}, {shape[1]}] (or [{shape[0]}, {shape[1]}]), got {tuple(t.shape)}")
+        raise GaussianError(
+            f"{name} must have shape [B, {shape[0]}, {shape[1]}] (or [{shape[0]}, {shape[1]}]), got {tuple(t.shape)}"
+        )
     if not t.dtype.is_floating_point:
         raise GaussianError(f"{name} must be floating point (float64 recommended), got {t.dtype}")
     if not bool(torch.isfinite(t).all()):
@@ -105,7 +107,9 @@ def _check_inputs(gaussians, world2cam, K, width, height, background):
     if K.shape[0] == 1 and world2cam.shape[0] > 1:
         K = K.expand(world2cam.shape[0], 3, 3)
     if K.shape[0] != world2cam.shape[0]:
-        raise GaussianError(f"K has {K.shape[0]} cameras but world2cam {world2cam.shape[0]}; pass one K or one per camera")
+        raise GaussianError(
+            f"K has {K.shape[0]} cameras but world2cam {world2cam.shape[0]}; pass one K or one per camera"
+        )
     kd = K.detach()
     if bool((kd[:, 0, 0] <= 0).any() | (kd[:, 1, 1] <= 0).any()):
         raise GaussianError("K: focal lengths fx = K[..., 0, 0] and fy = K[..., 1, 1] must be positive pixels")
@@ -156,11 +160,13 @@ def rasterize(
     from aes_planner.gaussians import torch_backend
 
     values = torch.cat([g.colors, g.features], dim=1)  # [N, 3 + C]; also when C = 0 (grads stay defined)
-    out, t_final = torch_backend.render(g.means, g.quats, g.log_scales, g.opacities, values, world2cam, K, width, height)
+    out, t_final = torch_backend.render(
+        g.means, g.quats, g.log_scales, g.opacities, values, world2cam, K, width, height
+    )
     c = g.num_channels
     alpha = 1 - t_final
     rgb = out[:, :3]
     if background is not None:
         rgb = rgb + background[:, :, None, None] * t_final[:, None]
     depth = out[:, 3 + c] / alpha.clamp_min(DEPTH_ALPHA_MIN)
-    return RasterOutput(rgb=rgb, features=out[:, 3:3 + c], depth=depth, alpha=alpha, backend=name)
+    return RasterOutput(rgb=rgb, features=out[:, 3 : 3 + c], depth=depth, alpha=alpha, backend=name)

@@ -41,9 +41,7 @@ def rasterize_dense(
     in_depth = (proj.depths > NEAR_M) & (proj.depths < FAR_M)
     values = torch.cat([g.colors, g.features], dim=1).to(cdt)  # [N, 3 + C]
     opac = g.opacities.to(cdt)
-    ys, xs = torch.meshgrid(
-        torch.arange(height, dtype=cdt) + 0.5, torch.arange(width, dtype=cdt) + 0.5, indexing="ij"
-    )
+    ys, xs = torch.meshgrid(torch.arange(height, dtype=cdt) + 0.5, torch.arange(width, dtype=cdt) + 0.5, indexing="ij")
     pix = torch.stack([xs.reshape(-1), ys.reshape(-1)], -1)  # [P, 2]
     outs = []
     for b in range(world2cam.shape[0]):
@@ -53,7 +51,7 @@ def rasterize_dense(
         z, o, vals = proj.depths[b, order].to(cdt), opac[order], values[order]
         chunks = []
         for start in range(0, pix.shape[0], pixel_chunk):
-            d = pix[start:start + pixel_chunk, None, :] - mean2d[None]  # [P, M, 2]
+            d = pix[start : start + pixel_chunk, None, :] - mean2d[None]  # [P, M, 2]
             dx, dy = d[..., 0], d[..., 1]
             sigma = 0.5 * (conic[:, 0] * dx * dx + conic[:, 2] * dy * dy) + conic[:, 1] * dx * dy
             alpha = (o * torch.exp(-sigma.clamp(max=SIGMA_CLAMP))).clamp(max=ALPHA_MAX)

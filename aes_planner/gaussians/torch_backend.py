@@ -69,7 +69,7 @@ def render(
         depth = proj.depths[b].to(dtype)
         rows = []
         for t in range(tiles_x * tiles_y):
-            g = ids[starts[t]:ends[t]]
+            g = ids[starts[t] : ends[t]]
             origin = torch.tensor([(t % tiles_x) * TILE + 0.5, (t // tiles_x) * TILE + 0.5], dtype=dtype)
             d = (tile_pix + origin)[:, None, :] - mean2d[g][None]  # [P, M, 2]
             dx, dy = d[..., 0], d[..., 1]

@@ -40,16 +40,14 @@ class Intrinsics:
             if not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise IntrinsicsError(f"intrinsics.{name} must be a finite number, got {v!r}")
         if self.fx <= 0 or self.fy <= 0:
-            raise IntrinsicsError(
-                f"intrinsics focal lengths must be positive pixels, got fx={self.fx}, fy={self.fy}"
-            )
+            raise IntrinsicsError(f"intrinsics focal lengths must be positive pixels, got fx={self.fx}, fy={self.fy}")
         for name in ("width", "height"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
                 raise IntrinsicsError(f"intrinsics.{name} must be a positive integer, got {v!r}")
 
     @classmethod
-    def from_fov(cls, width: int, height: int, hfov_deg: float) -> "Intrinsics":
+    def from_fov(cls, width: int, height: int, hfov_deg: float) -> Intrinsics:
         """Square pixels, centred principal point, horizontal field of view ``hfov_deg``."""
         if not (0.0 < hfov_deg < 180.0):
             raise IntrinsicsError(f"hfov_deg must be in (0, 180), got {hfov_deg}")
@@ -57,7 +55,7 @@ class Intrinsics:
         return cls(f, f, width / 2.0, height / 2.0, int(width), int(height))
 
     @classmethod
-    def from_matrix(cls, K: np.ndarray, width: int, height: int) -> "Intrinsics":
+    def from_matrix(cls, K: np.ndarray, width: int, height: int) -> Intrinsics:
         """From a 3x3 matrix ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` (skew must be 0)."""
         K = np.asarray(K, dtype=np.float64)
         if K.shape != (3, 3):
@@ -67,7 +65,7 @@ class Intrinsics:
         return cls(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), int(width), int(height))
 
     @classmethod
-    def from_normalized(cls, fx_n: float, fy_n: float, cx_n: float, cy_n: float, width: int, height: int) -> "Intrinsics":
+    def from_normalized(cls, fx_n: float, fy_n: float, cx_n: float, cy_n: float, width: int, height: int) -> Intrinsics:
         """From intrinsics normalised by the image size (fx/W, fy/H, cx/W, cy/H)."""
         return cls(fx_n * width, fy_n * height, cx_n * width, cy_n * height, int(width), int(height))
 
@@ -92,7 +90,7 @@ class Intrinsics:
     def vfov_rad(self) -> float:
         return 2.0 * math.atan(0.5 * self.height / self.fy)
 
-    def scaled(self, width: int, height: int) -> "Intrinsics":
+    def scaled(self, width: int, height: int) -> Intrinsics:
         """The same camera resampled to ``width x height`` pixels (same field of view)."""
         sx, sy = width / self.width, height / self.height
         return Intrinsics(self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy, int(width), int(height))

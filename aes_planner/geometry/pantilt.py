@@ -18,15 +18,15 @@ in :class:`PanTiltConfig` (the YAML edge). The servo driver maps radians to tick
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 import torch
 from torch import Tensor
 
-from aes_planner.geometry.rig import JointCommandError, JointLimits, PanTiltConfig
 from aes_planner.geometry.poses import BODY_TO_OPTICAL, cam2world_to_view, direction_to_yaw_pitch
+from aes_planner.geometry.rig import JointCommandError, JointLimits, PanTiltConfig
 
 __all__ = ["PanTiltConfig", "PanTilt", "JointSolution", "JointCommandError"]
 
@@ -198,11 +198,13 @@ class PanTilt:
     def joint_grid(self, n_pan: int, n_tilt: int, margin: float = 0.1) -> np.ndarray:
         """Joint pairs ``[n_pan * n_tilt, 2]`` spread over the range, ``margin`` (fraction) in from each limit."""
         (plo, phi), (tlo, thi) = self.pan_limits_rad, self.tilt_limits_rad
+
         def span(lo, hi, n):
             if n == 1:
                 return np.array([(lo + hi) / 2])
             m = (hi - lo) * margin
             return np.linspace(lo + m, hi - m, n)
+
         pans, tilts = np.meshgrid(span(plo, phi, n_pan), span(tlo, thi, n_tilt), indexing="xy")
         return np.stack([pans.ravel(), tilts.ravel()], axis=-1)
 
@@ -212,4 +214,3 @@ def _angle_between(a: np.ndarray, b: np.ndarray) -> float:
     b = b / np.linalg.norm(b)
     # atan2 of |a x b| and a.b is accurate at small and large angles alike
     return float(math.atan2(np.linalg.norm(np.cross(a, b)), float(np.dot(a, b))))
-

@@ -8,8 +8,9 @@ torch implementation serves both.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable, TypeVar
+from typing import TypeVar
 
 import numpy as np
 import torch
@@ -43,9 +44,7 @@ HALF_PI = math.pi / 2
 # Rotation from the camera "body" frame (x forward, y left, z up, REP-103) to the OpenCV optical
 # frame's axes expressed in the body frame: optical x = -body y, optical y = -body z,
 # optical z = body x. Columns are the optical axes.
-BODY_TO_OPTICAL = np.array(
-    [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]], dtype=np.float64
-)
+BODY_TO_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]], dtype=np.float64)
 
 
 class PoseError(AesPlannerError, ValueError):
@@ -58,10 +57,7 @@ def _torchify(fn: Callable[..., Tensor]) -> Callable[..., Array]:
     def wrapper(*args, **kwargs):
         if any(isinstance(a, Tensor) for a in args):
             return fn(*args, **kwargs)
-        targs = [
-            torch.as_tensor(np.asarray(a, dtype=np.float64)) if a is not None else None
-            for a in args
-        ]
+        targs = [torch.as_tensor(np.asarray(a, dtype=np.float64)) if a is not None else None for a in args]
         out = fn(*targs, **kwargs)
         if isinstance(out, tuple):
             return tuple(o.numpy() for o in out)
@@ -188,9 +184,7 @@ def world2cam(cam2world: Array) -> Array:
 def yaw_pitch_to_direction(yaw_rad: Tensor, pitch_rad: Tensor) -> Tensor:
     """Unit viewing directions ``[..., 3]`` in the world frame."""
     cp = torch.cos(pitch_rad)
-    return torch.stack(
-        [cp * torch.cos(yaw_rad), cp * torch.sin(yaw_rad), torch.sin(pitch_rad)], dim=-1
-    )
+    return torch.stack([cp * torch.cos(yaw_rad), cp * torch.sin(yaw_rad), torch.sin(pitch_rad)], dim=-1)
 
 
 @_torchify
@@ -202,9 +196,11 @@ def direction_to_yaw_pitch(direction: Tensor, yaw_hint_rad: Tensor | None = None
     dx, dy, dz = direction.unbind(-1)
     horiz2 = dx * dx + dy * dy
     vertical = horiz2 <= 1e-24 * (horiz2 + dz * dz)
-    hint = torch.zeros_like(dx) if yaw_hint_rad is None else torch.as_tensor(
-        yaw_hint_rad, dtype=dx.dtype, device=dx.device
-    ).expand_as(dx)
+    hint = (
+        torch.zeros_like(dx)
+        if yaw_hint_rad is None
+        else torch.as_tensor(yaw_hint_rad, dtype=dx.dtype, device=dx.device).expand_as(dx)
+    )
     safe_x = torch.where(vertical, torch.ones_like(dx), dx)
     safe_y = torch.where(vertical, torch.zeros_like(dy), dy)
     yaw = torch.where(vertical, wrap_angle(hint), torch.atan2(safe_y, safe_x))
@@ -243,9 +239,15 @@ def quat_to_matrix(quat_wxyz: Tensor) -> Tensor:
     q = q * torch.rsqrt(torch.where(tiny, torch.ones_like(norm2), norm2))
     w, x, y, z = q.unbind(-1)
     rows = [
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        1 - 2 * (y * y + z * z),
+        2 * (x * y - w * z),
+        2 * (x * z + w * y),
+        2 * (x * y + w * z),
+        1 - 2 * (x * x + z * z),
+        2 * (y * z - w * x),
+        2 * (x * z - w * y),
+        2 * (y * z + w * x),
+        1 - 2 * (x * x + y * y),
     ]
     return torch.stack(rows, dim=-1).reshape(*q.shape[:-1], 3, 3)
 
@@ -261,10 +263,36 @@ def matrix_to_quat(rotation: Tensor) -> Tensor:
     trace = m00 + m11 + m22
     cands = torch.stack(
         [
-            torch.stack([1 + trace, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1),
-            torch.stack([m[..., 2, 1] - m[..., 1, 2], 1 + m00 - m11 - m22, m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0]], -1),
-            torch.stack([m[..., 0, 2] - m[..., 2, 0], m[..., 0, 1] + m[..., 1, 0], 1 - m00 + m11 - m22, m[..., 1, 2] + m[..., 2, 1]], -1),
-            torch.stack([m[..., 1, 0] - m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1], 1 - m00 - m11 + m22], -1),
+            torch.stack(
+                [1 + trace, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1
+            ),
+            torch.stack(
+                [
+                    m[..., 2, 1] - m[..., 1, 2],
+                    1 + m00 - m11 - m22,
+                    m[..., 0, 1] + m[..., 1, 0],
+                    m[..., 0, 2] + m[..., 2, 0],
+                ],
+                -1,
+            ),
+            torch.stack(
+                [
+                    m[..., 0, 2] - m[..., 2, 0],
+                    m[..., 0, 1] + m[..., 1, 0],
+                    1 - m00 + m11 - m22,
+                    m[..., 1, 2] + m[..., 2, 1],
+                ],
+                -1,
+            ),
+            torch.stack(
+                [
+                    m[..., 1, 0] - m[..., 0, 1],
+                    m[..., 0, 2] + m[..., 2, 0],
+                    m[..., 1, 2] + m[..., 2, 1],
+                    1 - m00 - m11 + m22,
+                ],
+                -1,
+            ),
         ],
         dim=-2,
     )  # [..., 4 candidates, 4]
@@ -318,7 +346,7 @@ class LocalFrame:
             raise PoseError(f"LocalFrame.origin_m must be 3 finite numbers, got {self.origin_m!r}")
 
     @classmethod
-    def centred_on(cls, cam2world: np.ndarray) -> "LocalFrame":
+    def centred_on(cls, cam2world: np.ndarray) -> LocalFrame:
         """A frame whose origin is the camera centre of ``cam2world [4, 4]`` (float64)."""
         t = np.asarray(cam2world, dtype=np.float64)[:3, 3]
         return cls(tuple(float(v) for v in t))  # type: ignore[arg-type]

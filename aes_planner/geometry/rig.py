@@ -57,7 +57,7 @@ class JointLimits:
     tilt_rad: tuple[float, float]
 
     @classmethod
-    def from_config(cls, config: "PanTiltConfig") -> "JointLimits":
+    def from_config(cls, config: PanTiltConfig) -> JointLimits:
         return cls(
             tuple(math.radians(a) for a in config.pan_limits_deg),  # type: ignore[arg-type]
             tuple(math.radians(a) for a in config.tilt_limits_deg),  # type: ignore[arg-type]

@@ -46,7 +46,9 @@ class PosedFrame:
         if not isinstance(img, np.ndarray) or img.ndim != 3 or img.shape[2] != 3:
             raise MessageError(f"PosedFrame.image must be an [H, W, 3] array, got {getattr(img, 'shape', type(img))}")
         if img.dtype != np.uint8:
-            raise MessageError(f"PosedFrame.image must be uint8 RGB, got {img.dtype}; convert with (img * 255).round().astype(np.uint8)")
+            raise MessageError(
+                f"PosedFrame.image must be uint8 RGB, got {img.dtype}; convert with (img * 255).round().astype(np.uint8)"
+            )
         h, w = img.shape[:2]
         if not isinstance(self.intrinsics, Intrinsics):
             raise MessageError(f"PosedFrame.intrinsics must be an Intrinsics, got {type(self.intrinsics).__name__}")

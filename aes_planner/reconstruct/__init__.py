@@ -25,7 +25,14 @@ neighbours first (flat, uniform surfaces before texture and edges) (:mod:`~aes_p
 """
 
 from aes_planner.reconstruct.config import MODES, ReconstructConfig, ReconstructError
-from aes_planner.reconstruct.reconstructor import Reconstruction, Reconstructor, detect_mode, parallax_px, reconstruct, render_local
+from aes_planner.reconstruct.reconstructor import (
+    Reconstruction,
+    Reconstructor,
+    detect_mode,
+    parallax_px,
+    reconstruct,
+    render_local,
+)
 from aes_planner.reconstruct.splats import SplatSet
 from aes_planner.reconstruct.stereo import StereoConfig, StereoResult, expected_disparity_px, plane_sweep_depth
 

@@ -114,23 +114,70 @@ class ReconstructConfig:
 
     def __post_init__(self):
         require(self.mode in MODES, "mode", f"must be one of {list(MODES)}, got {self.mode!r}")
-        require_numbers(self, ("nominal_depth_m", "sphere_radius_m", "far_radius_m", "scale_factor", "flatness", "merge_cell_factor"))
-        require(self.far_radius_m > self.sphere_radius_m, "far_radius_m", f"must exceed sphere_radius_m ({self.sphere_radius_m}), got {self.far_radius_m}")
-        require(self.unknown_depth in ("auto", "skip", "far", "fill"), "unknown_depth", f"must be auto, skip, far or fill, got {self.unknown_depth!r}")
-        require(math.isfinite(self.min_parallax_px) and self.min_parallax_px >= 0, "min_parallax_px", f"must be >= 0 pixels, got {self.min_parallax_px}")
-        require(isinstance(self.stride_px, int) and self.stride_px >= 0, "stride_px", f"must be an integer >= 0 (0 = auto), got {self.stride_px!r}")
-        require(isinstance(self.target_width_px, int) and self.target_width_px >= 1, "target_width_px", f"must be a positive integer, got {self.target_width_px!r}")
+        require_numbers(
+            self,
+            ("nominal_depth_m", "sphere_radius_m", "far_radius_m", "scale_factor", "flatness", "merge_cell_factor"),
+        )
+        require(
+            self.far_radius_m > self.sphere_radius_m,
+            "far_radius_m",
+            f"must exceed sphere_radius_m ({self.sphere_radius_m}), got {self.far_radius_m}",
+        )
+        require(
+            self.unknown_depth in ("auto", "skip", "far", "fill"),
+            "unknown_depth",
+            f"must be auto, skip, far or fill, got {self.unknown_depth!r}",
+        )
+        require(
+            math.isfinite(self.min_parallax_px) and self.min_parallax_px >= 0,
+            "min_parallax_px",
+            f"must be >= 0 pixels, got {self.min_parallax_px}",
+        )
+        require(
+            isinstance(self.stride_px, int) and self.stride_px >= 0,
+            "stride_px",
+            f"must be an integer >= 0 (0 = auto), got {self.stride_px!r}",
+        )
+        require(
+            isinstance(self.target_width_px, int) and self.target_width_px >= 1,
+            "target_width_px",
+            f"must be a positive integer, got {self.target_width_px!r}",
+        )
         require(self.max_stretch >= 1, "max_stretch", f"must be >= 1, got {self.max_stretch}")
         require(0 < self.opacity <= 1, "opacity", f"must be in (0, 1], got {self.opacity}")
-        require(isinstance(self.sharpen_iterations, int) and self.sharpen_iterations >= 0, "sharpen_iterations", f"must be an integer >= 0, got {self.sharpen_iterations!r}")
-        require(self.edge_rel > 0 and self.edge_ratio >= 1, "edge_rel", f"need edge_rel > 0 and edge_ratio >= 1, got {self.edge_rel}, {self.edge_ratio}")
-        require(isinstance(self.stereo_neighbours, int) and self.stereo_neighbours >= 1, "stereo_neighbours", f"must be >= 1, got {self.stereo_neighbours!r}")
-        require(0 <= self.stereo_consistency < 1, "stereo_consistency", f"must be in [0, 1) (0 = off), got {self.stereo_consistency}")
+        require(
+            isinstance(self.sharpen_iterations, int) and self.sharpen_iterations >= 0,
+            "sharpen_iterations",
+            f"must be an integer >= 0, got {self.sharpen_iterations!r}",
+        )
+        require(
+            self.edge_rel > 0 and self.edge_ratio >= 1,
+            "edge_rel",
+            f"need edge_rel > 0 and edge_ratio >= 1, got {self.edge_rel}, {self.edge_ratio}",
+        )
+        require(
+            isinstance(self.stereo_neighbours, int) and self.stereo_neighbours >= 1,
+            "stereo_neighbours",
+            f"must be >= 1, got {self.stereo_neighbours!r}",
+        )
+        require(
+            0 <= self.stereo_consistency < 1,
+            "stereo_consistency",
+            f"must be in [0, 1) (0 = off), got {self.stereo_consistency}",
+        )
         require(self.merge_margin >= 0, "merge_margin", f"must be >= 0, got {self.merge_margin}")
         require(0 <= self.min_opacity < 1, "min_opacity", f"must be in [0, 1), got {self.min_opacity}")
         require(self.min_contribution >= 0, "min_contribution", f"must be >= 0 (pixels), got {self.min_contribution}")
-        require(math.isfinite(self.budget_ratio) and self.budget_ratio >= 0, "budget_ratio", f"must be >= 0 (0 = cap only), got {self.budget_ratio}")
-        require(isinstance(self.max_gaussians, int) and self.max_gaussians >= 1, "max_gaussians", f"must be a positive integer, got {self.max_gaussians!r}")
+        require(
+            math.isfinite(self.budget_ratio) and self.budget_ratio >= 0,
+            "budget_ratio",
+            f"must be >= 0 (0 = cap only), got {self.budget_ratio}",
+        )
+        require(
+            isinstance(self.max_gaussians, int) and self.max_gaussians >= 1,
+            "max_gaussians",
+            f"must be a positive integer, got {self.max_gaussians!r}",
+        )
         require(0 <= self.budget_slack < 1, "budget_slack", f"must be in [0, 1), got {self.budget_slack}")
 
     def stride_for(self, width_px: int) -> int:

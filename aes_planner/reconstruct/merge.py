@@ -50,7 +50,9 @@ COVER_FACTOR = 1.5  # a loser must have a winner within its own cell this many f
 COVER_BORDER_BLOCKS = 3.0  # ... that is this many blocks inside its frame (> the cell's diagonal)
 _GEO_WEIGHT = 0.05  # colour units per (plane offset / footprint)^2
 _NORMAL_WEIGHT = 0.05  # colour units per (1 - cos) of normal spread
-_SPREAD_GAIN = 0.75  # measured: merged splats at 0.75 x the moment-matched spread render 0.4-0.6 dB closer (sim, 4-6 views)
+_SPREAD_GAIN = (
+    0.75  # measured: merged splats at 0.75 x the moment-matched spread render 0.4-0.6 dB closer (sim, 4-6 views)
+)
 _MAX_LEVEL = 20  # quadtree levels: far beyond any image (2^20 blocks)
 _SPILL_WEIGHT = 0.03  # colour units per block whose merged tails would reach over a depth edge
 
@@ -94,7 +96,9 @@ def _cells(means: np.ndarray, level: np.ndarray, normals: np.ndarray) -> list[np
 def _group_mean(x: np.ndarray, w: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:  # [M, C], [M], [M] -> [n, C]
     """Weighted mean of the rows of ``x [M, C]`` per group (weights ``w [M]``): ``[n, C]``."""
     wsum = np.maximum(np.bincount(group, weights=w, minlength=n), 1e-30)
-    return np.stack([np.bincount(group, weights=w * x[:, j], minlength=n) for j in range(x.shape[1])], 1) / wsum[:, None]
+    return (
+        np.stack([np.bincount(group, weights=w * x[:, j], minlength=n) for j in range(x.shape[1])], 1) / wsum[:, None]
+    )
 
 
 def _group_min(values: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:  # [M], [M] -> [n]
@@ -169,7 +173,9 @@ def _covered(losers: SplatSet, winners: SplatSet) -> np.ndarray:
     return out
 
 
-def _merge_groups(sp: SplatSet, members: np.ndarray, group: np.ndarray, n: int, spread_gain: float) -> SplatSet:  # members, group [K]
+def _merge_groups(
+    sp: SplatSet, members: np.ndarray, group: np.ndarray, n: int, spread_gain: float
+) -> SplatSet:  # members, group [K]
     """One splat per group of ``members`` (indices into ``sp``, group ids ``[K]`` in ``0..n-1``)."""
     w = (sp.samples[members] * np.maximum(sp.opacities[members], 1e-3)).astype(np.float64)
     wsum = np.bincount(group, weights=w, minlength=n)
@@ -179,8 +185,10 @@ def _merge_groups(sp: SplatSet, members: np.ndarray, group: np.ndarray, n: int, 
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
     opacity = np.bincount(group, weights=w * sp.opacities[members], minlength=n) / wsum
     d = sp.means[members].astype(np.float64) - mu[group]
-    cov_i = covariance_3d(torch.from_numpy(sp.quats[members].astype(np.float64)),
-                          torch.from_numpy(sp.log_scales[members].astype(np.float64))).numpy()  # [K, 3, 3]
+    cov_i = covariance_3d(
+        torch.from_numpy(sp.quats[members].astype(np.float64)),
+        torch.from_numpy(sp.log_scales[members].astype(np.float64)),
+    ).numpy()  # [K, 3, 3]
     cov_i += spread_gain * d[:, :, None] * d[:, None, :]
     cov = np.stack([np.bincount(group, weights=w * cov_i[:, a, b], minlength=n) for a in range(3) for b in range(3)], 1)
     cov = cov.reshape(n, 3, 3) / wsum[:, None, None]
@@ -223,7 +231,12 @@ def _quad_costs(sp: SplatSet, scale_factor: float) -> tuple[np.ndarray, np.ndarr
     """
     if not len(sp):
         return np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64), 0
-    cols = [sp.source_frame.astype(np.int64), sp.level.astype(np.int64), (sp.block[:, 0] >> 1).astype(np.int64), (sp.block[:, 1] >> 1).astype(np.int64)]
+    cols = [
+        sp.source_frame.astype(np.int64),
+        sp.level.astype(np.int64),
+        (sp.block[:, 0] >> 1).astype(np.int64),
+        (sp.block[:, 1] >> 1).astype(np.int64),
+    ]
     group, n = _group(cols)
     size = np.bincount(group, minlength=n)
     w = (sp.samples * np.maximum(sp.opacities, 1e-3)).astype(np.float64)
@@ -306,7 +319,11 @@ def coarsen(sp: SplatSet, target: int, scale_factor: float) -> SplatSet:
         if not moved:
             importance = sp.samples * sp.opacities
             keep = np.argsort(-importance, kind="stable")[:target]
-            log.warning("coarsen: nothing left to merge; dropping the %d least important of %d splats", len(sp) - target, len(sp))
+            log.warning(
+                "coarsen: nothing left to merge; dropping the %d least important of %d splats",
+                len(sp) - target,
+                len(sp),
+            )
             sp = sp.select(np.sort(keep))
     return sp
 
@@ -333,7 +350,9 @@ def contributions(
     for cam2world, k in views:
         if colors.grad is not None:
             colors.grad = None
-        out = rasterize(g, torch.from_numpy(np.linalg.inv(cam2world)), torch.from_numpy(k.K), k.width, k.height, validate=False)
+        out = rasterize(
+            g, torch.from_numpy(np.linalg.inv(cam2world)), torch.from_numpy(k.K), k.width, k.height, validate=False
+        )
         out.rgb[:, 0].sum().backward()
         wgt = colors.grad[:, 0].double().numpy()
         best = np.maximum(best, wgt)
@@ -359,7 +378,9 @@ def prune_hidden(sp: SplatSet, views: list[tuple[np.ndarray, Intrinsics]], min_w
 
 def refit_colors(
     sp: SplatSet,
-    views: list[tuple[np.ndarray, Intrinsics, np.ndarray]],  # (cam2world local, intrinsics, image [H, W, 3] uint8) by frame index
+    views: list[
+        tuple[np.ndarray, Intrinsics, np.ndarray]
+    ],  # (cam2world local, intrinsics, image [H, W, 3] uint8) by frame index
     iterations: int,
 ) -> SplatSet:
     """Van Cittert colour correction of merged splats against the frames they came from: each
@@ -378,7 +399,9 @@ def refit_colors(
             own = np.flatnonzero((sp.source_frame == index) & (sp.level > 0))
             if not own.size:
                 continue
-            out = rasterize(g, torch.from_numpy(np.linalg.inv(cam2world)), torch.from_numpy(k.K), k.width, k.height, validate=False)
+            out = rasterize(
+                g, torch.from_numpy(np.linalg.inv(cam2world)), torch.from_numpy(k.K), k.width, k.height, validate=False
+            )
             resid = image.astype(np.float32) / 255.0 - out.rgb[0].permute(1, 2, 0).numpy()
             integral = np.zeros((k.height + 1, k.width + 1, 3), np.float64)
             integral[1:, 1:] = resid.cumsum(0).cumsum(1)

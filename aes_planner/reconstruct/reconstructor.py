@@ -22,7 +22,14 @@ from aes_planner.geometry.poses import LocalFrame
 from aes_planner.messages import PosedFrame
 from aes_planner.reconstruct.config import ReconstructConfig, ReconstructError
 from aes_planner.reconstruct.merge import coarsen, dedupe, prune_hidden, refit_colors
-from aes_planner.reconstruct.splats import SplatParams, SplatSet, fill_inverse_depth, ray_sphere_depth, sharpen_colors, splats_from_depth
+from aes_planner.reconstruct.splats import (
+    SplatParams,
+    SplatSet,
+    fill_inverse_depth,
+    ray_sphere_depth,
+    sharpen_colors,
+    splats_from_depth,
+)
 from aes_planner.reconstruct.stereo import StereoResult, consistent_depth, plane_sweep_depth
 
 __all__ = ["Reconstruction", "Reconstructor", "detect_mode", "parallax_px", "reconstruct"]
@@ -100,10 +107,14 @@ class Reconstruction:
         return render_local(self.gaussians, self.local_frame.pose_to_local(cam2world), intrinsics, background)
 
 
-def render_local(gaussians: Gaussians, cam2world_local: np.ndarray, intrinsics: Intrinsics, background=None) -> RasterOutput:
+def render_local(
+    gaussians: Gaussians, cam2world_local: np.ndarray, intrinsics: Intrinsics, background=None
+) -> RasterOutput:
     """Render Gaussians at a local-frame pose ``[4, 4]``."""
     w2c = torch.from_numpy(np.linalg.inv(np.asarray(cam2world_local, np.float64)))
-    return rasterize(gaussians, w2c, torch.from_numpy(intrinsics.K), intrinsics.width, intrinsics.height, background=background)
+    return rasterize(
+        gaussians, w2c, torch.from_numpy(intrinsics.K), intrinsics.width, intrinsics.height, background=background
+    )
 
 
 class Reconstructor:
@@ -193,8 +204,12 @@ class Reconstructor:
             candidates = [r.frame for r in self._recent] + [f]
             if len(candidates) >= 2:
                 self._rgb_mode = detect_mode(candidates, self.config)
-                log.info("reconstruct: RGB frames %s (parallax %.2f px at %.1f m)", "translate: stereo" if self._rgb_mode == "stereo" else "rotate: sphere",
-                         parallax_px(candidates, self.config.nominal_depth_m), self.config.nominal_depth_m)
+                log.info(
+                    "reconstruct: RGB frames %s (parallax %.2f px at %.1f m)",
+                    "translate: stereo" if self._rgb_mode == "stereo" else "rotate: sphere",
+                    parallax_px(candidates, self.config.nominal_depth_m),
+                    self.config.nominal_depth_m,
+                )
             else:
                 return "wait"  # one RGB frame cannot tell rotation from translation
         return self._rgb_mode
@@ -202,9 +217,13 @@ class Reconstructor:
     # ------------------------------------------------------------------ integration
     def _params(self, frame: PosedFrame) -> SplatParams:
         c = self.config
-        return SplatParams(c.stride_for(frame.width), c.scale_factor, c.flatness, c.max_stretch, c.opacity, c.edge_rel, c.edge_ratio)
+        return SplatParams(
+            c.stride_for(frame.width), c.scale_factor, c.flatness, c.max_stretch, c.opacity, c.edge_rel, c.edge_ratio
+        )
 
-    def _integrate(self, item: _Local, mode: str, depth: np.ndarray | None = None, confidence: np.ndarray | None = None) -> int:
+    def _integrate(
+        self, item: _Local, mode: str, depth: np.ndarray | None = None, confidence: np.ndarray | None = None
+    ) -> int:
         f = item.frame
         cfg = self.config
         if mode == "sphere":
@@ -267,7 +286,14 @@ FILL_CONFIDENCE = 0.05  # interpolated stereo depth: kept, but any measurement b
 
 
 def _to_local(frame: PosedFrame, local: LocalFrame) -> PosedFrame:
-    return PosedFrame(frame.image, frame.intrinsics, local.pose_to_local(frame.cam2world), frame.stamp_s, frame.depth_m, frame.frame_id)
+    return PosedFrame(
+        frame.image,
+        frame.intrinsics,
+        local.pose_to_local(frame.cam2world),
+        frame.stamp_s,
+        frame.depth_m,
+        frame.frame_id,
+    )
 
 
 def _stereo_neighbours(ref: _Local, pool: list[_Local], cfg: ReconstructConfig) -> list[_Local]:
@@ -349,6 +375,8 @@ def reconstruct(frames: list[PosedFrame], config: ReconstructConfig | None = Non
     hidden = unpruned - len(rec._map)
     rec._enforce_budget(0.0)
     if cfg.refit_iterations:
-        rec._map = refit_colors(rec._map, [(it.frame.cam2world, it.frame.intrinsics, it.frame.image) for it in items], cfg.refit_iterations)
+        rec._map = refit_colors(
+            rec._map, [(it.frame.cam2world, it.frame.intrinsics, it.frame.image) for it in items], cfg.refit_iterations
+        )
     stats = {"unpruned": unpruned, "hidden_pruned": hidden, "budget": rec.budget, "count": len(rec._map)}
     return Reconstruction(rec.gaussians, rec.local_frame, modes, stats, rec.splats)

@@ -35,7 +35,15 @@ from aes_planner.gaussians.numerics import BLUR_PX2
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.poses import matrix_to_quat
 
-__all__ = ["SplatParams", "SplatSet", "depth_edges", "fill_inverse_depth", "ray_sphere_depth", "sharpen_colors", "splats_from_depth"]
+__all__ = [
+    "SplatParams",
+    "SplatSet",
+    "depth_edges",
+    "fill_inverse_depth",
+    "ray_sphere_depth",
+    "sharpen_colors",
+    "splats_from_depth",
+]
 
 _TINY = 1e-12
 MIN_SIGMA_PX = 0.2  # a splat never shrinks below this on screen in its own view
@@ -63,21 +71,37 @@ class SplatSet:
     border_px: np.ndarray  # [M] float32, distance (pixels) from its centre to its frame's border
 
     @classmethod
-    def empty(cls) -> "SplatSet":
+    def empty(cls) -> SplatSet:
         f = lambda *s: np.zeros(s, np.float32)  # noqa: E731
         i = lambda *s: np.zeros(s, np.int32)  # noqa: E731
-        return cls(f(0, 3), f(0, 4), f(0, 3), f(0), f(0, 3), f(0, 3), f(0), f(0), f(0), i(0), i(0, 2),
-                   np.zeros(0, np.int16), i(0, 2), np.zeros(0, np.int16), f(0), f(0))
+        return cls(
+            f(0, 3),
+            f(0, 4),
+            f(0, 3),
+            f(0),
+            f(0, 3),
+            f(0, 3),
+            f(0),
+            f(0),
+            f(0),
+            i(0),
+            i(0, 2),
+            np.zeros(0, np.int16),
+            i(0, 2),
+            np.zeros(0, np.int16),
+            f(0),
+            f(0),
+        )
 
     def __len__(self) -> int:
         return self.means.shape[0]
 
-    def select(self, index: np.ndarray) -> "SplatSet":
+    def select(self, index: np.ndarray) -> SplatSet:
         """Rows by boolean mask ``[M]`` or integer indices."""
         return SplatSet(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
 
     @staticmethod
-    def cat(parts: list["SplatSet"]) -> "SplatSet":
+    def cat(parts: list[SplatSet]) -> SplatSet:
         parts = [p for p in parts if len(p)]
         if not parts:
             return SplatSet.empty()
@@ -93,9 +117,14 @@ class SplatSet:
         """The rasterizer's container (no feature channels: the aesthetic field adds them)."""
         t = lambda a: torch.from_numpy(np.ascontiguousarray(a)).to(device)  # noqa: E731
         return Gaussians(
-            means=t(self.means), quats=t(self.quats), log_scales=t(self.log_scales),
-            opacities=t(self.opacities), colors=t(self.colors), features=None,
-            source_frame=t(self.source_frame), source_pixel=t(self.source_pixel),
+            means=t(self.means),
+            quats=t(self.quats),
+            log_scales=t(self.log_scales),
+            opacities=t(self.opacities),
+            colors=t(self.colors),
+            features=None,
+            source_frame=t(self.source_frame),
+            source_pixel=t(self.source_pixel),
         )
 
 

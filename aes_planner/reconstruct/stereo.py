@@ -49,8 +49,16 @@ class StereoConfig:
 
     def __post_init__(self):
         require(self.num_planes >= 3, "num_planes", f"need at least 3 planes, got {self.num_planes}")
-        require(0 < self.min_depth_m < self.max_depth_m, "min_depth_m", f"need 0 < min_depth_m < max_depth_m, got {self.min_depth_m}, {self.max_depth_m}")
-        require(self.window_px >= 1 and self.window_px % 2 == 1, "window_px", f"must be a positive odd number, got {self.window_px}")
+        require(
+            0 < self.min_depth_m < self.max_depth_m,
+            "min_depth_m",
+            f"need 0 < min_depth_m < max_depth_m, got {self.min_depth_m}, {self.max_depth_m}",
+        )
+        require(
+            self.window_px >= 1 and self.window_px % 2 == 1,
+            "window_px",
+            f"must be a positive odd number, got {self.window_px}",
+        )
         require(self.min_texture >= 0, "min_texture", "must be >= 0")
         require(0 <= self.min_confidence <= 1, "min_confidence", "must be in [0, 1]")
         require(self.uniqueness_margin >= 0, "uniqueness_margin", f"must be >= 0, got {self.uniqueness_margin}")
@@ -105,7 +113,9 @@ def expected_disparity_px(frames: list[PosedFrame], depth_m: float) -> float:
     return focal * baseline / depth_m
 
 
-def plane_sweep_depth(ref: PosedFrame, neighbours: list[PosedFrame], config: StereoConfig | None = None) -> StereoResult:
+def plane_sweep_depth(
+    ref: PosedFrame, neighbours: list[PosedFrame], config: StereoConfig | None = None
+) -> StereoResult:
     """Depth and confidence for ``ref`` from posed ``neighbours`` (see the module docstring)."""
     cfg = config or StereoConfig()
     h, w = ref.height, ref.width
@@ -173,7 +183,11 @@ def plane_sweep_depth(ref: PosedFrame, neighbours: list[PosedFrame], config: Ste
     # over which the cost rises strictly); a rival there — another valley, or a flat curve — means
     # a repeated pattern or stripes along the epipolar lines, where several depths fit
     rival = _rival_cost(cost, best)
-    unique = ((rival - best_cost) / cfg.uniqueness_margin).clamp(0, 1) if cfg.uniqueness_margin > 0 else torch.ones_like(best_cost)
+    unique = (
+        ((rival - best_cost) / cfg.uniqueness_margin).clamp(0, 1)
+        if cfg.uniqueness_margin > 0
+        else torch.ones_like(best_cost)
+    )
     conf = match * distinct * unique
     ok = seen.any(0) & (var_r[0, 0] > cfg.min_texture) & (conf >= cfg.min_confidence)
     depth = torch.where(ok, depth, torch.zeros_like(depth))

@@ -24,8 +24,9 @@ from __future__ import annotations
 
 import inspect
 import logging
+from collections.abc import Callable
 from importlib import metadata
-from typing import Any, Callable
+from typing import Any
 
 from aes_planner.teachers.base import Teacher, TeacherError, WeightsError
 from aes_planner.teachers.composition import CompositionConfig, CompositionTeacher, CompositionWeights

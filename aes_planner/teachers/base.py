@@ -53,8 +53,7 @@ def check_images(images: Tensor, who: str) -> Tensor:  # [B, 3, H, W] -> [B, 3, 
         raise TeacherError(f"{who}: empty image batch of shape {tuple(images.shape)}")
     if not images.is_floating_point():
         raise TeacherError(
-            f"{who}: expected float images in [0, 1], got dtype {images.dtype}; "
-            "convert uint8 with images.float() / 255"
+            f"{who}: expected float images in [0, 1], got dtype {images.dtype}; convert uint8 with images.float() / 255"
         )
     if not bool(torch.isfinite(images).all()):
         raise TeacherError(f"{who}: images contain NaN or inf; check the renderer or the file")
@@ -88,12 +87,12 @@ class Teacher(nn.Module, ABC):
     #: What the score means, one line (shown by the CLI).
     score_range: str = "unbounded; higher is better"
 
-    def freeze(self) -> "Teacher":
+    def freeze(self) -> Teacher:
         """No parameter gradients, eval mode; returns ``self``."""
         self.requires_grad_(False)
         return super().train(False)
 
-    def train(self, mode: bool = True) -> "Teacher":
+    def train(self, mode: bool = True) -> Teacher:
         # A teacher is never trained here: keep dropout off even inside a module being trained.
         return super().train(False)
 
@@ -124,4 +123,6 @@ class Teacher(nn.Module, ABC):
         return self.score(images)
 
     def extra_repr(self) -> str:
-        return f"name={self.name!r}, feature_map=[{self.feature_channels}, {self.feature_size[0]}, {self.feature_size[1]}]"
+        return (
+            f"name={self.name!r}, feature_map=[{self.feature_channels}, {self.feature_size[0]}, {self.feature_size[1]}]"
+        )

@@ -186,13 +186,23 @@ class CompositionConfig:
     weights: CompositionWeights = field(default_factory=CompositionWeights)
 
     def __post_init__(self):
-        require(isinstance(self.work_size, int) and self.work_size >= 16, "work_size", f"must be an integer >= 16, got {self.work_size!r}")
         require(
-            isinstance(self.feature_size, int) and 3 <= self.feature_size <= self.work_size and self.work_size % self.feature_size == 0,
+            isinstance(self.work_size, int) and self.work_size >= 16,
+            "work_size",
+            f"must be an integer >= 16, got {self.work_size!r}",
+        )
+        require(
+            isinstance(self.feature_size, int)
+            and 3 <= self.feature_size <= self.work_size
+            and self.work_size % self.feature_size == 0,
             "feature_size",
             f"must be an integer >= 3 that divides work_size={self.work_size}, got {self.feature_size!r}",
         )
-        for name, lo, hi in (("thirds_sigma", 0.01, 0.5), ("tilt_tolerance_deg", 0.1, 45.0), ("ideal_subject_area", 0.005, 1.0)):
+        for name, lo, hi in (
+            ("thirds_sigma", 0.01, 0.5),
+            ("tilt_tolerance_deg", 0.1, 45.0),
+            ("ideal_subject_area", 0.005, 1.0),
+        ):
             v = getattr(self, name)
             require_finite(v, name)
             require(lo <= v <= hi, name, f"must be in [{lo}, {hi}], got {v}")
@@ -266,9 +276,12 @@ class CompositionTeacher(Teacher):
         self.register_buffer("_far", far.float(), persistent=False)  # [N, N]: 0 for the same cell, ~1 across the frame
         thirds = (1.0 / 3.0, 2.0 / 3.0)
         s = cfg.thirds_sigma
-        points = torch.stack([torch.exp(-((x - a) ** 2 + (y - b) ** 2) / (2 * s * s)) for a in thirds for b in thirds]).amax(0)
+        points = torch.stack(
+            [torch.exp(-((x - a) ** 2 + (y - b) ** 2) / (2 * s * s)) for a in thirds for b in thirds]
+        ).amax(0)
         ridge = torch.stack(
-            [torch.exp(-((x - a) ** 2) / (2 * (s / 2) ** 2)) for a in thirds] + [torch.exp(-((y - a) ** 2) / (2 * (s / 2) ** 2)) for a in thirds]
+            [torch.exp(-((x - a) ** 2) / (2 * (s / 2) ** 2)) for a in thirds]
+            + [torch.exp(-((y - a) ** 2) / (2 * (s / 2) ** 2)) for a in thirds]
         ).amax(0)
         ring = torch.zeros(n, n, dtype=torch.float64)
         ring[0, :] = ring[-1, :] = ring[:, 0] = ring[:, -1] = 1.0
@@ -320,7 +333,9 @@ class CompositionTeacher(Teacher):
         gx, gy = out[:, :, nf - 2], out[:, :, nf - 1]  # [B, colour, s, s]
         tensor = _EDGE_GAIN * torch.stack([(gx * gx).sum(1), (gy * gy).sum(1), (gx * gy).sum(1)], 1)
 
-        maps = F.adaptive_avg_pool2d(torch.cat([sal[:, None], tensor, centre[:, :, 0]], 1), self.feature_size)  # [B, 7, n, n]
+        maps = F.adaptive_avg_pool2d(
+            torch.cat([sal[:, None], tensor, centre[:, :, 0]], 1), self.feature_size
+        )  # [B, 7, n, n]
         contrast, colour = maps[:, 0], maps[:, 4:]
         return torch.cat([(contrast * self._distinctiveness(colour, contrast))[:, None], maps[:, 1:4]], 1)
 
@@ -414,7 +429,7 @@ class CompositionTeacher(Teacher):
         dx, dy = self._x - mx, self._y - my
         vxx, vyy, vxy = (m * dx * dx).sum(dims), (m * dy * dy).sum(dims), (m * dx * dy).sum(dims)
         area = _AREA_GAIN * 2 * math.pi * (F.relu(vxx * vyy - vxy * vxy) + _TINY).sqrt()
-        subject_size = torch.exp(-torch.log(area / cfg.ideal_subject_area) ** 2 / (2 * _SIZE_LOG_SIGMA**2))
+        subject_size = torch.exp(-(torch.log(area / cfg.ideal_subject_area) ** 2) / (2 * _SIZE_LOG_SIGMA**2))
 
         busy = (energy / (energy + _BUSY_ENERGY)).mean(dims)
         clutter = torch.sigmoid((_CLUTTER_MID - busy) / _CLUTTER_WIDTH)
@@ -438,7 +453,13 @@ class CompositionTeacher(Teacher):
         w = self._weights * torch.stack([horizon if t in _HORIZON_TERMS else ones for t in TERMS], -1)  # [B, T]
         earned = torch.stack([presence if t in _SUBJECT_TERMS else ones for t in TERMS], -1)
         composition = (w * earned * stacked).sum(-1) / (w.sum(-1) + _EPS)
-        return {"score": content * composition, **terms, "content": content, "subject_presence": presence, "horizon_presence": horizon}
+        return {
+            "score": content * composition,
+            **terms,
+            "content": content,
+            "subject_presence": presence,
+            "horizon_presence": horizon,
+        }
 
     def _horizon(self, jxx: Tensor, jyy: Tensor, jxy: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """(placement, level, presence) of the dominant frame-spanning near-horizontal line, each [B]."""

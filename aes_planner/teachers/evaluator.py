@@ -21,8 +21,8 @@ parts. :func:`correlation` measures a teacher's agreement with it (PLCC and SRCC
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Iterable, Sequence
 
 import cv2
 import numpy as np
@@ -46,7 +46,11 @@ class EvaluatorConfig:
     min_line: float = 0.3
 
     def __post_init__(self):
-        require(isinstance(self.size, int) and 32 <= self.size <= 1024, "size", f"must be an integer in [32, 1024], got {self.size!r}")
+        require(
+            isinstance(self.size, int) and 32 <= self.size <= 1024,
+            "size",
+            f"must be an integer in [32, 1024], got {self.size!r}",
+        )
         require(0.05 <= self.min_line <= 1.0, "min_line", f"must be in [0.05, 1], got {self.min_line}")
 
 
@@ -112,7 +116,9 @@ class CompositionEvaluator:
             components=float(sum(1 for m in mass if m > 0.2 * mass.max())),
         )
 
-    def _lines(self, gray: np.ndarray) -> np.ndarray:  # -> [N, 3]: (angle_deg in (-90, 90], length, mid_y, mid_x) frame units
+    def _lines(
+        self, gray: np.ndarray
+    ) -> np.ndarray:  # -> [N, 3]: (angle_deg in (-90, 90], length, mid_y, mid_x) frame units
         segs = self._lsd.detect(gray)[0]
         s = self.config.size
         if segs is None:
@@ -160,7 +166,9 @@ class CompositionEvaluator:
         if subject is not None:
             d = min(math.hypot(subject["cx"] - a, subject["cy"] - b) for a in (1 / 3, 2 / 3) for b in (1 / 3, 2 / 3))
             patterns["thirds"] = _gauss(d, 0.0, 0.07)
-            patterns["centre_symmetry"] = _gauss(math.hypot(subject["cx"] - 0.5, subject["cy"] - 0.5), 0, 0.07) * max(0.0, sym)
+            patterns["centre_symmetry"] = _gauss(math.hypot(subject["cx"] - 0.5, subject["cy"] - 0.5), 0, 0.07) * max(
+                0.0, sym
+            )
         pattern = max(patterns.values())
 
         checks = {}
@@ -183,7 +191,9 @@ class CompositionEvaluator:
         score = interest * (0.4 + 0.6 * pattern) * quality
         return {"score": score, **{f"pattern_{k}": v for k, v in patterns.items()}, **checks, "interest": interest}
 
-    def explain(self, images: Tensor | Sequence[Tensor | np.ndarray]) -> dict[str, np.ndarray]:  # [N, 3, H, W] -> {name: [N]}
+    def explain(
+        self, images: Tensor | Sequence[Tensor | np.ndarray]
+    ) -> dict[str, np.ndarray]:  # [N, 3, H, W] -> {name: [N]}
         rows = [self.explain_one(img) for img in images]
         if not rows:
             raise TeacherError("evaluator: no images given")

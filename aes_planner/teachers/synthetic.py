@@ -10,7 +10,7 @@ where a pixel boundary falls.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -27,7 +27,9 @@ def _axis(n: int, lo: float, hi: float) -> tuple[slice, np.ndarray]:
     return slice(a, max(a, b)), (np.arange(a, max(a, b), dtype=np.float32) + 0.5) / n
 
 
-def _paint(img: Tensor, rows: slice, cols: slice, coverage: np.ndarray, colour: Colour) -> Tensor:  # [3, H, W] -> [3, H, W]
+def _paint(
+    img: Tensor, rows: slice, cols: slice, coverage: np.ndarray, colour: Colour
+) -> Tensor:  # [3, H, W] -> [3, H, W]
     """A copy of ``img`` with ``colour`` blended in over the window by ``coverage`` in [0, 1]."""
     out = img.clone()
     view = out.numpy()[:, rows, cols]
@@ -51,7 +53,9 @@ def draw_disc(img: Tensor, cx: float, cy: float, radius: float, colour: Colour) 
     return _paint(img, rows, cols, (radius - d) * h + 0.5, colour)
 
 
-def draw_box(img: Tensor, x0: float, y0: float, x1: float, y1: float, colour: Colour) -> Tensor:  # [3, H, W] -> [3, H, W]
+def draw_box(
+    img: Tensor, x0: float, y0: float, x1: float, y1: float, colour: Colour
+) -> Tensor:  # [3, H, W] -> [3, H, W]
     """An axis-aligned box between frame corners ``(x0, y0)`` and ``(x1, y1)``."""
     h, w = img.shape[-2:]
     rows, y = _axis(h, y0, y1)
@@ -74,7 +78,9 @@ def draw_horizon(
     return _paint(img, rows, cols, below, ground)
 
 
-def add_clutter(img: Tensor, count: int, rng: np.random.Generator, size: float = 0.06) -> Tensor:  # [3, H, W] -> [3, H, W]
+def add_clutter(
+    img: Tensor, count: int, rng: np.random.Generator, size: float = 0.06
+) -> Tensor:  # [3, H, W] -> [3, H, W]
     """``count`` small boxes of random colour scattered over the whole frame."""
     for _ in range(count):
         x, y = rng.uniform(0, 1, 2)
@@ -90,8 +96,11 @@ def random_composition(rng: np.random.Generator, h: int = 96, w: int = 128) -> T
     """
     if rng.uniform() < 0.6:
         img = draw_horizon(
-            canvas(h, w), rng.uniform(0.1, 0.9), rng.normal(0, 4.0),
-            sky=rng.uniform(0.4, 1.0, 3), ground=rng.uniform(0.0, 0.6, 3),
+            canvas(h, w),
+            rng.uniform(0.1, 0.9),
+            rng.normal(0, 4.0),
+            sky=rng.uniform(0.4, 1.0, 3),
+            ground=rng.uniform(0.0, 0.6, 3),
         )
     else:
         img = canvas(h, w, rng.uniform(0.1, 0.9, 3))

@@ -33,8 +33,9 @@ import pickle
 import re
 import zipfile
 from collections import OrderedDict
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -86,8 +87,12 @@ def vgg16_features() -> nn.Sequential:
 
 def _ven_classifier() -> nn.Sequential:
     return nn.Sequential(
-        nn.Linear(512 * 7 * 7, 1024), nn.ReLU(), nn.Dropout(),
-        nn.Linear(1024, 512), nn.ReLU(), nn.Dropout(),
+        nn.Linear(512 * 7 * 7, 1024),
+        nn.ReLU(),
+        nn.Dropout(),
+        nn.Linear(1024, 512),
+        nn.ReLU(),
+        nn.Dropout(),
         nn.Linear(512, 1),
     )
 
@@ -163,8 +168,10 @@ def _read_checkpoint(path: Path) -> Any:
                 ) from None
             found = _UNSUPPORTED.search(text)
             if found is None or found.group(1) in names or len(names) >= _MAX_PLACEHOLDERS:
-                raise WeightsError(f"{path} is not a readable PyTorch checkpoint ({text.splitlines()[0]}); "
-                                   "re-download it. " + WEIGHTS_ADVICE) from None
+                raise WeightsError(
+                    f"{path} is not a readable PyTorch checkpoint ({text.splitlines()[0]}); "
+                    "re-download it. " + WEIGHTS_ADVICE
+                ) from None
             names.append(found.group(1))
         except _BAD_FILE as exc:
             raise WeightsError(
@@ -172,12 +179,13 @@ def _read_checkpoint(path: Path) -> Any:
                 + WEIGHTS_ADVICE
             ) from None
     if names:
-        log.info("%s: %d pickled classes besides tensors read as inert placeholders: %s", path, len(names),
-                 ", ".join(names))
+        log.info(
+            "%s: %d pickled classes besides tensors read as inert placeholders: %s", path, len(names), ", ".join(names)
+        )
     return obj
 
 
-def _extract_state_dict(obj: Any, source: str) -> "OrderedDict[str, Tensor]":
+def _extract_state_dict(obj: Any, source: str) -> OrderedDict[str, Tensor]:
     """The VEN state dict from a released checkpoint or a plain state dict, prefixes stripped."""
     if isinstance(obj, nn.Module):
         obj = obj.state_dict()
@@ -190,14 +198,16 @@ def _extract_state_dict(obj: Any, source: str) -> "OrderedDict[str, Tensor]":
         name = str(key)
         for prefix in _PREFIXES:
             if name.startswith(prefix):
-                name = name[len(prefix):]
+                name = name[len(prefix) :]
         if not isinstance(value, Tensor):
-            raise WeightsError(f"{source}: entry {key!r} is a {type(value).__name__}, not a tensor; is this a VEN checkpoint?")
+            raise WeightsError(
+                f"{source}: entry {key!r} is a {type(value).__name__}, not a tensor; is this a VEN checkpoint?"
+            )
         out[name] = value
     return out
 
 
-def load_ven_state_dict(weights: str | Path | Mapping[str, Any]) -> "OrderedDict[str, Tensor]":
+def load_ven_state_dict(weights: str | Path | Mapping[str, Any]) -> OrderedDict[str, Tensor]:
     """Read VEN weights (released ``{'state_dict': {'single_pass_net.*'}}`` layout or a plain
     ``features.* / classifier.*`` state dict) from a file or a mapping, prefixes stripped."""
     if isinstance(weights, (str, Path)):
@@ -252,7 +262,7 @@ class VENTeacher(Teacher):
         self.freeze()
 
     @classmethod
-    def random(cls, seed: int = 0) -> "VENTeacher":
+    def random(cls, seed: int = 0) -> VENTeacher:
         """VEN with random weights, for tests and timing: its scores mean nothing."""
         with torch.random.fork_rng():
             torch.manual_seed(seed)
@@ -289,7 +299,9 @@ class VENTeacher(Teacher):
         """The original evaluation transform: bilinear resize to 224x224, ImageNet normalisation."""
         images = check_images(images, "VEN").to(self._mean.dtype)
         if tuple(images.shape[-2:]) != (INPUT_SIZE, INPUT_SIZE):
-            images = F.interpolate(images, size=(INPUT_SIZE, INPUT_SIZE), mode="bilinear", align_corners=False, antialias=True)
+            images = F.interpolate(
+                images, size=(INPUT_SIZE, INPUT_SIZE), mode="bilinear", align_corners=False, antialias=True
+            )
         # Contiguous NCHW: a channels-last input would change the conv kernels, and their rounding.
         return ((images - self._mean) / self._std).contiguous()
 

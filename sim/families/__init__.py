@@ -12,7 +12,7 @@ clutter) and weak ones (bare walls, floor, sky), so that where the camera points
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 from aes_planner.sim.families.gallery import gallery
 from aes_planner.sim.families.indoor import indoor

@@ -39,11 +39,24 @@ def gallery(seed: int) -> SceneSpec:
     b = Builder(seed)
     dist, width, height = b.uniform(4.0, 6.5), b.uniform(10.0, 14.0), b.uniform(3.5, 4.5)
     wall = b.tint(b.pick(WALL_TONES + [(0.95, 0.95, 0.93)] * 2), 0.02)
-    floor_pattern = b.pick([b.pattern("checker", (0.3, 0.3, 0.32), 0.6), b.pattern("stripes", b.tint((0.45, 0.32, 0.2)), 0.2, duty=0.1)])
-    b.box("floor", (dist / 2, 0, -0.05), (dist + 6, width + 2 * WALL_T, 0.1), b.pick(WOOD_TONES + [(0.85, 0.85, 0.82)]), pattern=floor_pattern)
+    floor_pattern = b.pick(
+        [b.pattern("checker", (0.3, 0.3, 0.32), 0.6), b.pattern("stripes", b.tint((0.45, 0.32, 0.2)), 0.2, duty=0.1)]
+    )
+    b.box(
+        "floor",
+        (dist / 2, 0, -0.05),
+        (dist + 6, width + 2 * WALL_T, 0.1),
+        b.pick(WOOD_TONES + [(0.85, 0.85, 0.82)]),
+        pattern=floor_pattern,
+    )
     b.box("wall_main", (dist + WALL_T / 2, 0, height / 2), (WALL_T, width, height), wall)
     for side in (-1, 1):
-        b.box(f"wall_side{(side + 1) // 2}", (dist / 2 - 1.5, side * (width / 2 + WALL_T / 2), height / 2), (dist + 3 + WALL_T, WALL_T, height), wall)
+        b.box(
+            f"wall_side{(side + 1) // 2}",
+            (dist / 2 - 1.5, side * (width / 2 + WALL_T / 2), height / 2),
+            (dist + 3 + WALL_T, WALL_T, height),
+            wall,
+        )
     b.box("wall_back", (-3 - WALL_T / 2, 0, height / 2), (WALL_T, width, height), wall)
     skylight = (dist - 1.6, dist - 0.4)  # x range of the opening along the main wall
     ceiling = (0.93, 0.93, 0.92)
@@ -56,7 +69,13 @@ def gallery(seed: int) -> SceneSpec:
     y = width / 2 - b.uniform(0.8, 2.0)
     k = 0
     while k < 6:
-        w, h = b.pick([(b.uniform(0.5, 0.8), b.uniform(0.6, 0.9)), (b.uniform(1.2, 2.0), b.uniform(0.9, 1.4)), (b.uniform(0.4, 0.6), b.uniform(0.4, 0.6))])
+        w, h = b.pick(
+            [
+                (b.uniform(0.5, 0.8), b.uniform(0.6, 0.9)),
+                (b.uniform(1.2, 2.0), b.uniform(0.9, 1.4)),
+                (b.uniform(0.4, 0.6), b.uniform(0.4, 0.6)),
+            ]
+        )
         if y - w < -width / 2 + 0.8:
             break
         painting(b, f"work{k}", (dist, y - w / 2, b.uniform(1.45, 1.7)), 180.0, w, h)

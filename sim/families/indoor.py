@@ -31,12 +31,20 @@ WALL_T = 0.1  # wall thickness, metres
 
 def _walls(b: Builder, length: float, width: float, height: float, wall, window) -> None:
     """Floor, ceiling, four walls; the far wall is built around the window opening."""
-    floor_pattern = b.pick([
-        b.pattern("stripes", b.tint((0.45, 0.3, 0.18)), 0.18, duty=0.12),
-        b.pattern("checker", (0.2, 0.2, 0.22), 0.5),
-        b.pattern("noise", b.tint((0.5, 0.4, 0.3)), 0.3, octaves=2),
-    ])
-    b.box("floor", (length / 2, 0, -0.05), (length + 2 * WALL_T, width + 2 * WALL_T, 0.1), b.pick(WOOD_TONES), pattern=floor_pattern)
+    floor_pattern = b.pick(
+        [
+            b.pattern("stripes", b.tint((0.45, 0.3, 0.18)), 0.18, duty=0.12),
+            b.pattern("checker", (0.2, 0.2, 0.22), 0.5),
+            b.pattern("noise", b.tint((0.5, 0.4, 0.3)), 0.3, octaves=2),
+        ]
+    )
+    b.box(
+        "floor",
+        (length / 2, 0, -0.05),
+        (length + 2 * WALL_T, width + 2 * WALL_T, 0.1),
+        b.pick(WOOD_TONES),
+        pattern=floor_pattern,
+    )
     b.box("ceiling", (length / 2, 0, height + 0.05), (length + 2 * WALL_T, width + 2 * WALL_T, 0.1), (0.93, 0.93, 0.92))
     b.box("wall_back", (-WALL_T / 2, 0, height / 2), (WALL_T, width, height), wall)
     b.box("wall_left", (length / 2, width / 2 + WALL_T / 2, height / 2), (length + 2 * WALL_T, WALL_T, height), wall)
@@ -65,8 +73,14 @@ def _sofa(b: Builder, x: float, side: float, width: float, length: float) -> Non
     for k, end in enumerate((-1, 1)):
         b.box(f"sofa_arm{k}", (x + end * (length / 2 - 0.1), y, 0.32), (0.2, depth, 0.64), b.tint(fabric, 0.03))
     for k in range(b.integer(1, 3)):
-        b.box(f"cushion{k}", (x + b.uniform(-0.35, 0.35) * length, y_wall - side * 0.3, 0.6), (0.4, 0.14, 0.38), b.pick(ACCENTS),
-              yaw_deg=b.uniform(-15, 15), pattern=b.pattern("checker", b.pick(ACCENTS), 0.1) if b.chance(0.4) else None)
+        b.box(
+            f"cushion{k}",
+            (x + b.uniform(-0.35, 0.35) * length, y_wall - side * 0.3, 0.6),
+            (0.4, 0.14, 0.38),
+            b.pick(ACCENTS),
+            yaw_deg=b.uniform(-15, 15),
+            pattern=b.pattern("checker", b.pick(ACCENTS), 0.1) if b.chance(0.4) else None,
+        )
 
 
 def _table(b: Builder, name: str, x: float, y: float, size_m: float) -> None:
@@ -79,13 +93,21 @@ def _table(b: Builder, name: str, x: float, y: float, size_m: float) -> None:
         h = b.uniform(0.2, 0.35)
         b.cylinder(f"{name}_vase", (x, y, top_z + h / 2), 0.06, h, b.pick(ACCENTS))
         for k in range(b.integer(2, 4)):
-            b.sphere(f"{name}_flower{k}", (x + b.uniform(-0.08, 0.08), y + b.uniform(-0.08, 0.08), top_z + h + b.uniform(0.03, 0.12)),
-                     b.uniform(0.03, 0.05), b.pick(ACCENTS))
+            b.sphere(
+                f"{name}_flower{k}",
+                (x + b.uniform(-0.08, 0.08), y + b.uniform(-0.08, 0.08), top_z + h + b.uniform(0.03, 0.12)),
+                b.uniform(0.03, 0.05),
+                b.pick(ACCENTS),
+            )
     else:
         b.cylinder(f"{name}_bowl", (x, y, top_z + 0.04), 0.16, 0.08, (0.92, 0.92, 0.9))
         for k in range(b.integer(2, 4)):
-            b.sphere(f"{name}_fruit{k}", (x + b.uniform(-0.08, 0.08), y + b.uniform(-0.08, 0.08), top_z + 0.12), 0.045,
-                     b.pick([(0.85, 0.2, 0.1), (0.95, 0.7, 0.1), (0.4, 0.7, 0.2)]))
+            b.sphere(
+                f"{name}_fruit{k}",
+                (x + b.uniform(-0.08, 0.08), y + b.uniform(-0.08, 0.08), top_z + 0.12),
+                0.045,
+                b.pick([(0.85, 0.2, 0.1), (0.95, 0.7, 0.1), (0.4, 0.7, 0.2)]),
+            )
 
 
 def _shelf(b: Builder, x: float, side: float, width: float, height_m: float) -> None:
@@ -102,8 +124,13 @@ def _shelf(b: Builder, x: float, side: float, width: float, height_m: float) -> 
         while cursor < x + length / 2 - 0.12 and k < 6:
             w = b.uniform(0.04, 0.09)
             h = b.uniform(0.18, 0.28)
-            b.box(f"book{level}_{k}", (cursor + w / 2, y - side * 0.04, z0 + h / 2), (w, 0.22, h), b.tint(b.pick(ACCENTS + FABRIC_TONES), 0.05),
-                  yaw_deg=None)
+            b.box(
+                f"book{level}_{k}",
+                (cursor + w / 2, y - side * 0.04, z0 + h / 2),
+                (w, 0.22, h),
+                b.tint(b.pick(ACCENTS + FABRIC_TONES), 0.05),
+                yaw_deg=None,
+            )
             cursor += w + b.uniform(0.0, 0.12)
             k += 1
 
@@ -123,7 +150,9 @@ def indoor(seed: int) -> SceneSpec:
     _walls(b, length, width, height, wall, window)
 
     # outside: ground and trees seen through the window
-    b.plane("ground_outside", (0, 0, -0.3), (0, 0, 1), (0.35, 0.5, 0.25), pattern=b.pattern("noise", (0.25, 0.4, 0.18), 2.0))
+    b.plane(
+        "ground_outside", (0, 0, -0.3), (0, 0, 1), (0.35, 0.5, 0.25), pattern=b.pattern("noise", (0.25, 0.4, 0.18), 2.0)
+    )
     for k in range(b.integer(1, 3)):
         tree(b, f"tree{k}", (length + b.uniform(4, 12), window[0] + b.uniform(-4, 4)), -0.3, b.uniform(4, 7))
 
@@ -136,7 +165,14 @@ def indoor(seed: int) -> SceneSpec:
     sofa_x = b.uniform(0.5, 0.75) * length
     _sofa(b, sofa_x, side, width, sofa_len)
     taken.add(sofa_x, side * (width / 2 - 0.45), sofa_len / 2)
-    painting(b, "painting_sofa", (sofa_x, side * width / 2, b.uniform(1.45, 1.7)), -90.0 * side, b.uniform(0.8, 1.3), b.uniform(0.5, 0.8))
+    painting(
+        b,
+        "painting_sofa",
+        (sofa_x, side * width / 2, b.uniform(1.45, 1.7)),
+        -90.0 * side,
+        b.uniform(0.8, 1.3),
+        b.uniform(0.5, 0.8),
+    )
 
     shelf_x = b.uniform(0.35, 0.6) * length
     if abs(shelf_x - sofa_x) > 1.6 or b.chance(0.5):
@@ -152,8 +188,14 @@ def indoor(seed: int) -> SceneSpec:
         if spot:
             _table(b, f"table{k}", *spot, b.uniform(0.6, 0.9))
     rug_xy = (b.uniform(0.45, 0.65) * length, b.uniform(-0.15, 0.15) * width)
-    b.box("rug", (rug_xy[0], rug_xy[1], 0.005), (b.uniform(1.6, 2.4), b.uniform(1.2, 1.8), 0.01), b.pick(FABRIC_TONES),
-          yaw_deg=b.uniform(-10, 10), pattern=b.pick([b.pattern("stripes", b.pick(ACCENTS), 0.25), b.pattern("checker", b.pick(ACCENTS), 0.3)]))
+    b.box(
+        "rug",
+        (rug_xy[0], rug_xy[1], 0.005),
+        (b.uniform(1.6, 2.4), b.uniform(1.2, 1.8), 0.01),
+        b.pick(FABRIC_TONES),
+        yaw_deg=b.uniform(-10, 10),
+        pattern=b.pick([b.pattern("stripes", b.pick(ACCENTS), 0.25), b.pattern("checker", b.pick(ACCENTS), 0.3)]),
+    )
     for k in range(b.integer(1, 3)):
         spot = taken.place(b, (1.0, length - 0.3), (-width / 2 + 0.3, width / 2 - 0.3), 0.3)
         if spot:
@@ -165,10 +207,17 @@ def indoor(seed: int) -> SceneSpec:
     # paintings on the far wall beside the window and on the bare side wall
     far_free = width / 2 - abs(window[0]) - window[1] / 2
     if far_free > 1.0:
-        y = (window[0] + math.copysign(window[1] / 2 + far_free / 2, -window[0]))
+        y = window[0] + math.copysign(window[1] / 2 + far_free / 2, -window[0])
         painting(b, "painting_far", (length, y, 1.5), 180.0, min(0.8, far_free * 0.6), b.uniform(0.5, 0.9))
     if b.chance(0.6):
-        painting(b, "painting_side", (b.uniform(0.3, 0.7) * length, -side * width / 2, 1.55), 90.0 * side, b.uniform(0.5, 0.9), b.uniform(0.6, 1.0))
+        painting(
+            b,
+            "painting_side",
+            (b.uniform(0.3, 0.7) * length, -side * width / 2, 1.55),
+            90.0 * side,
+            b.uniform(0.5, 0.9),
+            b.uniform(0.6, 1.0),
+        )
     b.box("door", (-0.01, b.pick([-1, 1]) * (width / 2 - 0.7), 1.02), (0.04, 0.9, 2.04), b.tint(b.pick(WOOD_TONES)))
 
     lights = [

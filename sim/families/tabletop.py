@@ -9,7 +9,17 @@ from __future__ import annotations
 
 import math
 
-from aes_planner.sim.families._kit import ACCENTS, FABRIC_TONES, WALL_TONES, WOOD_TONES, Builder, Footprints, ambient, rig, sun
+from aes_planner.sim.families._kit import (
+    ACCENTS,
+    FABRIC_TONES,
+    WALL_TONES,
+    WOOD_TONES,
+    Builder,
+    Footprints,
+    ambient,
+    rig,
+    sun,
+)
 from aes_planner.sim.spec import DirectionalLightSpec, SceneSpec
 
 TOP = 0.75  # table height, metres
@@ -18,7 +28,14 @@ TOP = 0.75  # table height, metres
 def _vase(b: Builder, x: float, y: float) -> None:
     h, r = b.uniform(0.22, 0.4), b.uniform(0.05, 0.09)
     colour = b.pick(ACCENTS)
-    b.cylinder("vase", (x, y, TOP + h / 2), r, h, colour, pattern=b.pattern("stripes", b.tint(colour, 0.2), 0.05, angle_deg=90, duty=0.3) if b.chance(0.5) else None)
+    b.cylinder(
+        "vase",
+        (x, y, TOP + h / 2),
+        r,
+        h,
+        colour,
+        pattern=b.pattern("stripes", b.tint(colour, 0.2), 0.05, angle_deg=90, duty=0.3) if b.chance(0.5) else None,
+    )
     b.sphere("vase_belly", (x, y, TOP + h * 0.3), r * 1.5, colour)
     for k in range(b.integer(3, 6)):
         stem = b.uniform(0.1, 0.25)
@@ -33,8 +50,12 @@ def _fruit_bowl(b: Builder, x: float, y: float) -> None:
     for k in range(b.integer(3, 6)):
         a = 2 * math.pi * k / 6 + b.uniform(-0.3, 0.3)
         fr = b.uniform(0.03, 0.05)
-        b.sphere(f"fruit{k}", (x + 0.5 * r * math.cos(a), y + 0.5 * r * math.sin(a), TOP + 0.07 + fr * 0.8), fr,
-                 b.pick([(0.85, 0.15, 0.1), (0.95, 0.65, 0.1), (0.45, 0.7, 0.15), (0.5, 0.1, 0.35)]))
+        b.sphere(
+            f"fruit{k}",
+            (x + 0.5 * r * math.cos(a), y + 0.5 * r * math.sin(a), TOP + 0.07 + fr * 0.8),
+            fr,
+            b.pick([(0.85, 0.15, 0.1), (0.95, 0.65, 0.1), (0.45, 0.7, 0.15), (0.5, 0.1, 0.35)]),
+        )
 
 
 def _bottle(b: Builder, name: str, x: float, y: float) -> None:
@@ -49,8 +70,13 @@ def _books(b: Builder, x: float, y: float) -> None:
     z = TOP
     for k in range(b.integer(2, 4)):
         t = b.uniform(0.025, 0.05)
-        b.box(f"book{k}", (x + b.uniform(-0.02, 0.02), y + b.uniform(-0.02, 0.02), z + t / 2), (b.uniform(0.15, 0.22), b.uniform(0.2, 0.28), t),
-              b.pick(ACCENTS + FABRIC_TONES), yaw_deg=b.uniform(-25, 25))
+        b.box(
+            f"book{k}",
+            (x + b.uniform(-0.02, 0.02), y + b.uniform(-0.02, 0.02), z + t / 2),
+            (b.uniform(0.15, 0.22), b.uniform(0.2, 0.28), t),
+            b.pick(ACCENTS + FABRIC_TONES),
+            yaw_deg=b.uniform(-25, 25),
+        )
         z += t
 
 
@@ -60,16 +86,39 @@ def tabletop(seed: int) -> SceneSpec:
     depth, width = b.uniform(0.9, 1.3), b.uniform(1.4, 2.0)
     gap = b.uniform(0.2, 0.8)
     wood = b.pick(WOOD_TONES)
-    b.plane("floor", (0, 0, 0), (0, 0, 1), b.tint((0.6, 0.55, 0.5)), pattern=b.pattern("checker", (0.45, 0.42, 0.38), 0.4))
-    b.box("wall", (depth + gap + 0.05, 0, 2.0), (0.1, 30.0, 4.0), b.tint(b.pick(WALL_TONES), 0.03),
-          pattern=b.pattern("stripes", b.tint(b.pick(WALL_TONES), 0.05), 0.35, duty=0.5) if b.chance(0.4) else None)
-    b.box("table_top", (depth / 2, 0, TOP - 0.02), (depth, width, 0.04), wood, pattern=b.pattern("stripes", b.tint(wood, 0.06), 0.09, duty=0.3))
+    b.plane(
+        "floor", (0, 0, 0), (0, 0, 1), b.tint((0.6, 0.55, 0.5)), pattern=b.pattern("checker", (0.45, 0.42, 0.38), 0.4)
+    )
+    b.box(
+        "wall",
+        (depth + gap + 0.05, 0, 2.0),
+        (0.1, 30.0, 4.0),
+        b.tint(b.pick(WALL_TONES), 0.03),
+        pattern=b.pattern("stripes", b.tint(b.pick(WALL_TONES), 0.05), 0.35, duty=0.5) if b.chance(0.4) else None,
+    )
+    b.box(
+        "table_top",
+        (depth / 2, 0, TOP - 0.02),
+        (depth, width, 0.04),
+        wood,
+        pattern=b.pattern("stripes", b.tint(wood, 0.06), 0.09, duty=0.3),
+    )
     for k, (lx, ly) in enumerate(((0.05, 0.05), (0.05, 0.95), (0.95, 0.05), (0.95, 0.95))):
         b.box(f"table_leg{k}", (lx * depth, (ly - 0.5) * width, (TOP - 0.04) / 2), (0.05, 0.05, TOP - 0.04), wood)
     cloth_w = b.uniform(0.5, 0.9) * width
-    b.box("cloth", (depth * 0.55, b.uniform(-0.2, 0.2) * width, TOP + 0.002), (depth * 0.6, cloth_w, 0.004), b.pick(ACCENTS),
-          pattern=b.pick([b.pattern("checker", (0.95, 0.95, 0.92), 0.06), b.pattern("stripes", (0.95, 0.95, 0.92), 0.08, angle_deg=90)]),
-          yaw_deg=b.uniform(-8, 8))
+    b.box(
+        "cloth",
+        (depth * 0.55, b.uniform(-0.2, 0.2) * width, TOP + 0.002),
+        (depth * 0.6, cloth_w, 0.004),
+        b.pick(ACCENTS),
+        pattern=b.pick(
+            [
+                b.pattern("checker", (0.95, 0.95, 0.92), 0.06),
+                b.pattern("stripes", (0.95, 0.95, 0.92), 0.08, angle_deg=90),
+            ]
+        ),
+        yaw_deg=b.uniform(-8, 8),
+    )
 
     taken = Footprints()
     taken.add(0.0, 0.0, 0.3)  # the rig's side of the table stays clear
@@ -96,5 +145,7 @@ def tabletop(seed: int) -> SceneSpec:
         sun(b, azimuth_deg=b.pick([-1, 1]) * b.uniform(50, 110), elevation_deg=b.uniform(30, 55), intensity=0.8),
         DirectionalLightSpec(direction=(1.0, 0.0, -0.6), colour=(1.0, 1.0, 1.0), intensity=0.25, shadows=False),
     ]
-    cam = rig((-0.15, b.uniform(-0.1, 0.1), TOP + b.uniform(0.25, 0.4)), 0.0, (-75, 75), (-70, 25), hfov_deg=b.uniform(50, 65))
+    cam = rig(
+        (-0.15, b.uniform(-0.1, 0.1), TOP + b.uniform(0.25, 0.4)), 0.0, (-75, 75), (-70, 25), hfov_deg=b.uniform(50, 65)
+    )
     return b.scene(f"tabletop-{seed}", lights, cam)

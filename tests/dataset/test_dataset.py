@@ -40,7 +40,12 @@ def make_frames(n=3, w=16, h=12, depth=True, seed=0):
 
 def test_round_trip_is_exact(tmp_path):
     frames = make_frames()
-    save_dataset(tmp_path / "ds", frames, meta={"scene": "indoor:3"}, frame_meta=[{"joints_rad": [0.1 * i, 0.0]} for i in range(3)])
+    save_dataset(
+        tmp_path / "ds",
+        frames,
+        meta={"scene": "indoor:3"},
+        frame_meta=[{"joints_rad": [0.1 * i, 0.0]} for i in range(3)],
+    )
     ds = load_dataset(tmp_path / "ds")
     assert len(ds) == 3 and ds.meta == {"scene": "indoor:3"}
     for a, b in zip(frames, ds.frames):
@@ -64,11 +69,17 @@ def write_doc(root, mutate):
     "mutate, match",
     [
         (lambda d: d["frames"][1]["cam2world"][2].pop(), r"frames\[1\].cam2world: expected a 4x4"),
-        (lambda d: d["frames"][1]["cam2world"][0].__setitem__(0, 3.0), r"frames\[1\].cam2world: rotation is not orthonormal"),
+        (
+            lambda d: d["frames"][1]["cam2world"][0].__setitem__(0, 3.0),
+            r"frames\[1\].cam2world: rotation is not orthonormal",
+        ),
         (lambda d: d["frames"][0]["cam2world"][1].__setitem__(3, float("nan")), r"frames\[0\].cam2world: contains NaN"),
         (lambda d: d["frames"][0].__setitem__("fx", float("nan")), r"frames\[0\].fx: expected a finite number"),
         (lambda d: d["frames"][0].__setitem__("fx", -3.0), r"frames\[0\].*focal lengths must be positive"),
-        (lambda d: d["frames"][1].__setitem__("image", "images/missing.png"), r"frames\[1\].image: image file .*missing.png not found"),
+        (
+            lambda d: d["frames"][1].__setitem__("image", "images/missing.png"),
+            r"frames\[1\].image: image file .*missing.png not found",
+        ),
         (lambda d: d["frames"][1].__setitem__("width", 99), r"frames\[1\]: width/height say 99x12"),
         (lambda d: d["frames"][0].pop("cam2world"), r"frames\[0\].cam2world: missing"),
         (lambda d: d.__setitem__("format", "other"), r"'format' must be"),
@@ -112,7 +123,9 @@ def test_nerfstudio_opengl_axes_become_opencv(tmp_path):
     doc = {"fl_x": 20.0, "fl_y": 21.5, "cx": 8.25, "cy": 5.5, "w": 16, "h": 12, "frames": []}
     for i, f in enumerate(frames):
         write_image(tmp_path / "images" / f"frame_{i:05d}.png")
-        doc["frames"].append({"file_path": f"images/frame_{i:05d}.png", "transform_matrix": (f.cam2world @ OPENGL_TO_OPENCV).tolist()})
+        doc["frames"].append(
+            {"file_path": f"images/frame_{i:05d}.png", "transform_matrix": (f.cam2world @ OPENGL_TO_OPENCV).tolist()}
+        )
     (tmp_path / "transforms.json").write_text(json.dumps(doc))
     ds = import_nerfstudio(tmp_path / "transforms.json")
     for a, b in zip(frames, ds.frames):
@@ -126,14 +139,24 @@ def test_nerfstudio_opengl_axes_become_opencv(tmp_path):
 def test_nerfstudio_camera_angle_and_errors(tmp_path, caplog):
     write_image(tmp_path / "a.png")
     pose = np.eye(4).tolist()
-    (tmp_path / "transforms.json").write_text(json.dumps({"camera_angle_x": math.pi / 2, "k1": 0.1, "frames": [{"file_path": "a.png", "transform_matrix": pose}]}))
+    (tmp_path / "transforms.json").write_text(
+        json.dumps(
+            {"camera_angle_x": math.pi / 2, "k1": 0.1, "frames": [{"file_path": "a.png", "transform_matrix": pose}]}
+        )
+    )
     ds = import_nerfstudio(tmp_path)
     assert ds.frames[0].intrinsics.fx == pytest.approx(8.0)
     assert "distortion k1" in caplog.text
-    (tmp_path / "transforms.json").write_text(json.dumps({"frames": [{"file_path": "a.png", "transform_matrix": pose}]}))
+    (tmp_path / "transforms.json").write_text(
+        json.dumps({"frames": [{"file_path": "a.png", "transform_matrix": pose}]})
+    )
     with pytest.raises(DatasetError, match=r"frames\[0\]: no focal length"):
         import_nerfstudio(tmp_path)
-    (tmp_path / "transforms.json").write_text(json.dumps({"fl_x": 5, "frames": [{"file_path": "a.png", "transform_matrix": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}]}))
+    (tmp_path / "transforms.json").write_text(
+        json.dumps(
+            {"fl_x": 5, "frames": [{"file_path": "a.png", "transform_matrix": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}]}
+        )
+    )
     with pytest.raises(DatasetError, match=r"frames\[0\].transform_matrix: expected a 4x4"):
         import_nerfstudio(tmp_path)
 
@@ -192,7 +215,10 @@ def test_cli_import_and_info(tmp_path, capsys):
         write_image(tmp_path / f"{i}.png")
         doc["frames"].append({"file_path": f"{i}.png", "transform_matrix": (f.cam2world @ OPENGL_TO_OPENCV).tolist()})
     (tmp_path / "transforms.json").write_text(json.dumps(doc))
-    assert main(["dataset", "import", "nerfstudio", str(tmp_path / "transforms.json"), "--out", str(tmp_path / "out")]) == 0
+    assert (
+        main(["dataset", "import", "nerfstudio", str(tmp_path / "transforms.json"), "--out", str(tmp_path / "out")])
+        == 0
+    )
     assert main(["dataset", "info", str(tmp_path / "out")]) == 0
     out = capsys.readouterr().out
     assert "2 frames" in out and "16x12" in out

@@ -3,9 +3,9 @@
 import signal
 
 import pytest
+from aes_planner.drivers.emulator import EmulatorProcess
 
 from aes_planner.cli import main
-from aes_planner.drivers.emulator import EmulatorProcess
 
 
 @pytest.fixture
@@ -45,7 +45,10 @@ def test_emulate_scan_move_state(emulate, capsys):
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["gimbal", "move", "--port", "P", "--yaw-deg", "nan", "--pitch-deg", "0"], "--yaw-deg must be a finite number"),
+        (
+            ["gimbal", "move", "--port", "P", "--yaw-deg", "nan", "--pitch-deg", "0"],
+            "--yaw-deg must be a finite number",
+        ),
         (["gimbal", "move", "--yaw-deg", "1", "--pitch-deg", "0"], "give the serial port"),
         (["gimbal", "state", "--port", "/dev/ttyUSB_missing"], "cannot open serial port /dev/ttyUSB_missing"),
         (["gimbal", "state", "--port", "/dev/x", "--baud", "1234"], "baud"),

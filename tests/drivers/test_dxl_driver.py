@@ -4,14 +4,13 @@ import dataclasses
 import math
 
 import pytest
-
-from aes_planner.config import ConfigError
-from aes_planner.devices import DeviceError, GimbalCommError, GimbalTimeoutError, make_device
 from aes_planner.drivers import dynamixel_models as dm
 from aes_planner.drivers.dynamixel import DynamixelPanTilt, DynamixelPanTiltConfig, EmulatedPanTilt, scan
 from aes_planner.drivers.emulator import ServoEmulator
-from aes_planner.geometry.pantilt import JointCommandError
 
+from aes_planner.config import ConfigError
+from aes_planner.devices import DeviceError, GimbalCommError, GimbalTimeoutError, make_device
+from aes_planner.geometry.pantilt import JointCommandError
 
 
 def _goal(emu, dxl_id):
@@ -43,7 +42,9 @@ def test_move_takes_control_and_arrives(emulator, gimbal):
         assert pan.torque_on and tilt.torque_on
         assert pan.get("operating_mode") == 3
         assert (pan.get("min_position_limit"), pan.get("max_position_limit")) == (pan_lo, pan_hi)
-        assert (tilt.get("min_position_limit"), tilt.get("max_position_limit")) == gimbal.config.calibration("tilt").tick_limits
+        assert (tilt.get("min_position_limit"), tilt.get("max_position_limit")) == gimbal.config.calibration(
+            "tilt"
+        ).tick_limits
 
 
 def test_profile_is_written_from_degrees(emulator, make_gimbal):
@@ -162,7 +163,8 @@ def test_missing_servo_and_missing_port_say_what_to_check(emulator, tmp_path, ma
 def test_scan_lists_ids_models_firmware(emulator):
     found = scan(emulator.port, 1_000_000)
     assert [(r.dxl_id, r.model_number, r.model_name, r.firmware_version) for r in found] == [
-        (1, 1020, "XM430-W350", 45), (2, 1020, "XM430-W350", 45),
+        (1, 1020, "XM430-W350", 45),
+        (2, 1020, "XM430-W350", 45),
     ]
     with pytest.raises(GimbalCommError, match="no servo answered.*57600"):
         scan(emulator.port, 57_600)

@@ -4,22 +4,39 @@ import dataclasses
 import math
 
 import pytest
+from aes_planner.drivers import dynamixel_models as dm
+from aes_planner.drivers.dynamixel import DynamixelPanTiltConfig, EmulatedPanTiltConfig
 from hypothesis import given
 from hypothesis import strategies as st
 
 from aes_planner.config import ConfigError, from_dict
-from aes_planner.drivers import dynamixel_models as dm
-from aes_planner.drivers.dynamixel import DynamixelPanTiltConfig, EmulatedPanTiltConfig
 
 # REFERENCE.md: (address, size) of the items the driver and emulator rely on.
 REFERENCE_ITEMS = {
-    "model_number": (0, 2), "id": (7, 1), "baud_rate": (8, 1), "drive_mode": (10, 1), "operating_mode": (11, 1),
-    "homing_offset": (20, 4), "temperature_limit": (31, 1), "velocity_limit": (44, 4),
-    "max_position_limit": (48, 4), "min_position_limit": (52, 4), "torque_enable": (64, 1), "led": (65, 1),
-    "status_return_level": (68, 1), "hardware_error_status": (70, 1), "bus_watchdog": (98, 1),
-    "profile_acceleration": (108, 4), "profile_velocity": (112, 4), "goal_position": (116, 4), "moving": (122, 1),
-    "moving_status": (123, 1), "present_velocity": (128, 4), "present_position": (132, 4),
-    "present_input_voltage": (144, 2), "present_temperature": (146, 1),
+    "model_number": (0, 2),
+    "id": (7, 1),
+    "baud_rate": (8, 1),
+    "drive_mode": (10, 1),
+    "operating_mode": (11, 1),
+    "homing_offset": (20, 4),
+    "temperature_limit": (31, 1),
+    "velocity_limit": (44, 4),
+    "max_position_limit": (48, 4),
+    "min_position_limit": (52, 4),
+    "torque_enable": (64, 1),
+    "led": (65, 1),
+    "status_return_level": (68, 1),
+    "hardware_error_status": (70, 1),
+    "bus_watchdog": (98, 1),
+    "profile_acceleration": (108, 4),
+    "profile_velocity": (112, 4),
+    "goal_position": (116, 4),
+    "moving": (122, 1),
+    "moving_status": (123, 1),
+    "present_velocity": (128, 4),
+    "present_position": (132, 4),
+    "present_input_voltage": (144, 2),
+    "present_temperature": (146, 1),
 }
 
 
@@ -60,7 +77,13 @@ def test_signed_examples():
 def test_hardware_error_decoding():
     assert dm.decode_hardware_error(0) == ()
     assert dm.decode_hardware_error(0b100000) == ("overload",)
-    assert dm.decode_hardware_error(0b111101) == ("input voltage", "overheating", "motor encoder", "electrical shock", "overload")
+    assert dm.decode_hardware_error(0b111101) == (
+        "input voltage",
+        "overheating",
+        "motor encoder",
+        "electrical shock",
+        "overload",
+    )
 
 
 def test_calibration_centre_and_quarter_turns():
@@ -74,8 +97,10 @@ def test_calibration_centre_and_quarter_turns():
 
 
 @given(
-    st.integers(-500, 500), st.sampled_from([1, -1]),
-    st.floats(-2.5, 0.0), st.floats(0.01, 2.5),
+    st.integers(-500, 500),
+    st.sampled_from([1, -1]),
+    st.floats(-2.5, 0.0),
+    st.floats(0.01, 2.5),
     st.floats(allow_nan=False, allow_infinity=False, min_value=-1e6, max_value=1e6),
 )
 def test_ticks_never_leave_the_limits(offset, direction, lo, hi, angle):

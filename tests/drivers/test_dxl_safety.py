@@ -10,7 +10,6 @@ from hypothesis import strategies as st
 
 from aes_planner.geometry.pantilt import JointCommandError
 
-
 ANGLES = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True),
     st.floats(-10.0, 10.0),
@@ -18,8 +17,19 @@ ANGLES = st.one_of(
 )
 
 
-@pytest.mark.parametrize("calibration", [{}, {"pan_direction": -1, "pan_zero_offset_ticks": 300, "tilt_direction": -1,
-                                              "tilt_zero_offset_ticks": -200, "tilt_limits_deg": (-30.0, 80.0)}])
+@pytest.mark.parametrize(
+    "calibration",
+    [
+        {},
+        {
+            "pan_direction": -1,
+            "pan_zero_offset_ticks": 300,
+            "tilt_direction": -1,
+            "tilt_zero_offset_ticks": -200,
+            "tilt_limits_deg": (-30.0, 80.0),
+        },
+    ],
+)
 def test_no_goal_outside_the_limits(emulator, calibration, make_gimbal):
     with make_gimbal(emulator.port, **calibration) as g:
         limits = {1: g.config.calibration("pan").tick_limits, 2: g.config.calibration("tilt").tick_limits}
@@ -61,7 +71,7 @@ def test_concurrent_reads_and_moves(emulator, make_gimbal):
                     st_ = g.state()
                     assert math.isfinite(st_.yaw_rad) and st_.hardware_error == ()
                     counts["state"] += 1
-                except Exception as exc:  # noqa: BLE001 - collected for the main thread
+                except Exception as exc:
                     errors.append(exc)
                     return
 
@@ -71,11 +81,13 @@ def test_concurrent_reads_and_moves(emulator, make_gimbal):
                 try:
                     g.move_to(rng.uniform(-3, 3), rng.uniform(-2, 2))
                     counts["move"] += 1
-                except Exception as exc:  # noqa: BLE001
+                except Exception as exc:
                     errors.append(exc)
                     return
 
-        threads = [threading.Thread(target=reader) for _ in range(3)] + [threading.Thread(target=mover, args=(i,)) for i in range(2)]
+        threads = [threading.Thread(target=reader) for _ in range(3)] + [
+            threading.Thread(target=mover, args=(i,)) for i in range(2)
+        ]
         for t in threads:
             t.start()
         stop.wait(1.0)

@@ -4,8 +4,7 @@ import pytest
 import torch
 
 from aes_planner.errors import AesPlannerError
-from aes_planner.gaussians import BACKEND_ENV, GaussianError, random_scene, rasterize, resolve_backend
-from aes_planner.gaussians import numba_backend
+from aes_planner.gaussians import BACKEND_ENV, GaussianError, numba_backend, random_scene, rasterize, resolve_backend
 
 from .conftest import FAST_BACKENDS
 

@@ -56,10 +56,10 @@ def test_peak_memory_is_additive_in_gaussians_and_pixels():
     # same for 1k and 16k Gaussians; a dense [N, H*W] float32 buffer would add
     # 15000 * 15360 * 4 B = 880 MiB to the second step.
     code = (
-        "import json, sys; sys.path.insert(0, %r)\n"
+        f"import json, sys; sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
         "from test_memory import peak_mib\n"
         "print(json.dumps([peak_mib(n, s) for n, s in [(1000, 32), (1000, 128), (16000, 32), (16000, 128)]]))"
-    ) % str(Path(__file__).parent)
+    )
     env = dict(os.environ, MALLOC_MMAP_THRESHOLD_="65536")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
     assert res.returncode == 0, res.stderr

@@ -109,7 +109,9 @@ def test_transmittance_stop_leaves_out_the_last_gaussian(fast_backend):
     # with alpha = 1 - 1.25e-4 and the first three colours only.
     g, world2cam, K = random_scene(4, 0, 9, 9, dtype=torch.float64)
     depth = torch.tensor([2.0, 2.5, 3.0, 3.5], dtype=torch.float64)
-    g.means[:] = torch.stack([depth, torch.zeros(4, dtype=torch.float64), torch.full((4,), 1.5, dtype=torch.float64)], -1)
+    g.means[:] = torch.stack(
+        [depth, torch.zeros(4, dtype=torch.float64), torch.full((4,), 1.5, dtype=torch.float64)], -1
+    )
     g.quats[:] = torch.tensor([1.0, 0, 0, 0], dtype=torch.float64)
     g.log_scales[:] = torch.log(0.02 * depth)[:, None]
     g.opacities[:] = 0.95

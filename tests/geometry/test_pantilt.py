@@ -12,8 +12,15 @@ from aes_planner.config import ConfigError, from_dict
 from aes_planner.geometry import PanTilt, PanTiltConfig, cam2world_to_view, view_to_cam2world
 from aes_planner.geometry.pantilt import JointCommandError
 
-RIG = PanTilt(PanTiltConfig(base_xyz_m=(1.0, -2.0, 1.5), tilt_offset_m=(0.0, 0.0, 0.06), lever_arm_m=(0.04, 0.01, 0.03),
-                            pan_limits_deg=(-170, 170), tilt_limits_deg=(-80, 80)))
+RIG = PanTilt(
+    PanTiltConfig(
+        base_xyz_m=(1.0, -2.0, 1.5),
+        tilt_offset_m=(0.0, 0.0, 0.06),
+        lever_arm_m=(0.04, 0.01, 0.03),
+        pan_limits_deg=(-170, 170),
+        tilt_limits_deg=(-80, 80),
+    )
+)
 pans = st.floats(math.radians(-170), math.radians(170))
 tilts = st.floats(math.radians(-80), math.radians(80))
 
@@ -21,7 +28,9 @@ tilts = st.floats(math.radians(-80), math.radians(80))
 def test_upright_rig_without_offsets_is_the_5dof_view():
     rig = PanTilt(PanTiltConfig(base_xyz_m=(1, 2, 3), tilt_offset_m=(0, 0, 0), lever_arm_m=(0, 0, 0)))
     for pan, tilt in [(0.0, 0.0), (0.7, -0.3), (-2.0, 0.9)]:
-        np.testing.assert_allclose(rig.forward(pan, tilt), view_to_cam2world(np.array([1, 2, 3, pan, tilt])), atol=1e-12)
+        np.testing.assert_allclose(
+            rig.forward(pan, tilt), view_to_cam2world(np.array([1, 2, 3, pan, tilt])), atol=1e-12
+        )
 
 
 def test_lever_arm_moves_the_camera():

@@ -99,12 +99,16 @@ def test_wrap_angle_edges():
 
 def test_roll_is_discarded_but_direction_kept():
     m = np.eye(4)
-    m[:3, :3] = view_to_cam2world(np.array([0, 0, 0, 0.4, 0.3]))[:3, :3] @ transforms3d.axangles.axangle2mat([0, 0, 1], 0.5)
+    m[:3, :3] = view_to_cam2world(np.array([0, 0, 0, 0.4, 0.3]))[:3, :3] @ transforms3d.axangles.axangle2mat(
+        [0, 0, 1], 0.5
+    )
     view = cam2world_to_view(m)
     # rolling about the optical axis keeps the forward axis: yaw/pitch unchanged
     assert angle_diff(view[3], 0.4) < 1e-12 and view[4] == pytest.approx(0.3)
     # roll of 90 degrees at the pole: the right axis still carries the yaw
-    m[:3, :3] = view_to_cam2world(np.array([0, 0, 0, 0.4, math.pi / 2]))[:3, :3] @ transforms3d.axangles.axangle2mat([0, 0, 1], math.pi / 2)
+    m[:3, :3] = view_to_cam2world(np.array([0, 0, 0, 0.4, math.pi / 2]))[:3, :3] @ transforms3d.axangles.axangle2mat(
+        [0, 0, 1], math.pi / 2
+    )
     view = cam2world_to_view(m)
     assert np.all(np.isfinite(view)) and view[4] == pytest.approx(math.pi / 2)
 

@@ -55,7 +55,9 @@ def test_exactly_opposite_orientations_have_a_midpoint():
     q1 = np.array([0.0, 0, 0, 1])  # 180 degrees about z
     mid = slerp(q0, q1, 0.5)
     assert np.linalg.norm(mid) == pytest.approx(1.0)
-    assert rot_angle(np.pad(quat_to_matrix(mid), (0, 1)), np.pad(quat_to_matrix(q0), (0, 1))) == pytest.approx(math.pi / 2)
+    assert rot_angle(np.pad(quat_to_matrix(mid), (0, 1)), np.pad(quat_to_matrix(q0), (0, 1))) == pytest.approx(
+        math.pi / 2
+    )
 
 
 def test_slerp_takes_the_short_way():

@@ -15,15 +15,47 @@ WALL_X = 6.0  # the wall's front face
 ANALYTIC = {
     "name": "analytic",
     "objects": [
-        {"type": "plane", "name": "ground", "point_m": [0, 0, 0], "normal": [0, 0, 1],
-         "material": {"albedo": [0.7, 0.6, 0.5], "pattern": {"kind": "checker", "colour2": [0.3, 0.3, 0.35], "scale_m": 0.4}}},
-        {"type": "sphere", "name": "ball", "centre_m": SPHERE_CENTRE.tolist(), "radius_m": SPHERE_RADIUS,
-         "material": {"albedo": [0.2, 0.4, 0.8], "pattern": {"kind": "noise", "colour2": [0.9, 0.9, 0.9], "scale_m": 0.1, "octaves": 2, "seed": 3}}},
-        {"type": "box", "name": "wall", "centre_m": [WALL_X + 0.1, 0, 2], "size_m": [0.2, 12, 4],
-         "material": {"albedo": [0.8, 0.75, 0.7], "pattern": {"kind": "stripes", "colour2": [0.5, 0.3, 0.3], "scale_m": 0.6, "duty": 0.4, "angle_deg": 30}}},
+        {
+            "type": "plane",
+            "name": "ground",
+            "point_m": [0, 0, 0],
+            "normal": [0, 0, 1],
+            "material": {
+                "albedo": [0.7, 0.6, 0.5],
+                "pattern": {"kind": "checker", "colour2": [0.3, 0.3, 0.35], "scale_m": 0.4},
+            },
+        },
+        {
+            "type": "sphere",
+            "name": "ball",
+            "centre_m": SPHERE_CENTRE.tolist(),
+            "radius_m": SPHERE_RADIUS,
+            "material": {
+                "albedo": [0.2, 0.4, 0.8],
+                "pattern": {"kind": "noise", "colour2": [0.9, 0.9, 0.9], "scale_m": 0.1, "octaves": 2, "seed": 3},
+            },
+        },
+        {
+            "type": "box",
+            "name": "wall",
+            "centre_m": [WALL_X + 0.1, 0, 2],
+            "size_m": [0.2, 12, 4],
+            "material": {
+                "albedo": [0.8, 0.75, 0.7],
+                "pattern": {
+                    "kind": "stripes",
+                    "colour2": [0.5, 0.3, 0.3],
+                    "scale_m": 0.6,
+                    "duty": 0.4,
+                    "angle_deg": 30,
+                },
+            },
+        },
     ],
-    "rig": {"pan_tilt": {"base_xyz_m": [0.0, 0.0, 1.2], "pan_limits_deg": [-60, 60], "tilt_limits_deg": [-40, 30]},
-            "camera": {"width": 64, "height": 48, "hfov_deg": 60.0}},
+    "rig": {
+        "pan_tilt": {"base_xyz_m": [0.0, 0.0, 1.2], "pan_limits_deg": [-60, 60], "tilt_limits_deg": [-40, 30]},
+        "camera": {"width": 64, "height": 48, "hfov_deg": 60.0},
+    },
 }
 
 
@@ -43,12 +75,19 @@ def analytic_scene():
     return load_scene(from_dict(SceneSpec, ANALYTIC))
 
 
-def capture(scene, cam2world: np.ndarray, intrinsics: Intrinsics, with_depth: bool = True, supersample: int = 1) -> PosedFrame:
+def capture(
+    scene, cam2world: np.ndarray, intrinsics: Intrinsics, with_depth: bool = True, supersample: int = 1
+) -> PosedFrame:
     from aes_planner.sim import render
 
     out = render(scene, cam2world, intrinsics, supersample)
-    return PosedFrame(out.rgb, intrinsics, cam2world, depth_m=out.depth_m if with_depth else None,
-                      extras={"instance_id": out.instance_id})
+    return PosedFrame(
+        out.rgb,
+        intrinsics,
+        cam2world,
+        depth_m=out.depth_m if with_depth else None,
+        extras={"instance_id": out.instance_id},
+    )
 
 
 def looking_at_ball(eye) -> np.ndarray:

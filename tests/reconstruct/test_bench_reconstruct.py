@@ -27,7 +27,15 @@ def test_group_records_every_figure(wiring_recorder):
     for mode in ("depth", "stereo", "sphere", "depth_rig"):
         assert {f"reconstruct.{mode}_4v.{f}" for f in ("psnr_db", "coverage", "count")} <= keys
     for name in ("budget_default", "budget_0.1"):
-        assert {f"reconstruct.{name}.{f}" for f in ("psnr_db", "count", "fraction", "fraction_of_raw", "psnr_loss_db")} <= keys
-    assert {"reconstruct.unpruned.psnr_db", "reconstruct.raw.count", "reconstruct.stereo.abs_rel",
-            "reconstruct.stereo.within_5pct", "reconstruct.build_4x128.ms", "reconstruct.stream_frame.ms"} <= keys
+        assert {
+            f"reconstruct.{name}.{f}" for f in ("psnr_db", "count", "fraction", "fraction_of_raw", "psnr_loss_db")
+        } <= keys
+    assert {
+        "reconstruct.unpruned.psnr_db",
+        "reconstruct.raw.count",
+        "reconstruct.stereo.abs_rel",
+        "reconstruct.stereo.within_5pct",
+        "reconstruct.build_4x128.ms",
+        "reconstruct.stream_frame.ms",
+    } <= keys
     assert rec.results["reconstruct.budget_default.fraction"]["value"] <= 0.3

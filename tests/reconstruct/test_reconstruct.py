@@ -6,6 +6,7 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import SPHERE_CENTRE, WALL_X, capture, looking_at_ball
 
 from aes_planner.bench.reconstruct import psnr_db, to_uint8
 from aes_planner.config import ConfigError, from_dict
@@ -20,8 +21,6 @@ from aes_planner.reconstruct import (
     parallax_px,
     reconstruct,
 )
-
-from conftest import SPHERE_CENTRE, WALL_X, capture, looking_at_ball
 
 K64 = Intrinsics.from_fov(64, 48, 60.0)
 
@@ -59,7 +58,10 @@ def test_render_at_the_input_pose_reproduces_the_image(analytic_scene):
         assert psnr_db(to_uint8(out.rgb[0]), f.image) > 29.0
         assert float(out.alpha.min()) > 0.95  # no holes
         unsharp = reconstruct([f], ReconstructConfig(mode="depth", budget_ratio=0.0, sharpen_iterations=0))
-        assert psnr_db(to_uint8(unsharp.render(f.cam2world, K64).rgb[0]), f.image) < psnr_db(to_uint8(out.rgb[0]), f.image) - 2
+        assert (
+            psnr_db(to_uint8(unsharp.render(f.cam2world, K64).rgb[0]), f.image)
+            < psnr_db(to_uint8(out.rgb[0]), f.image) - 2
+        )
 
 
 def test_held_out_rig_view_from_depth_and_from_the_sphere(analytic_scene):
@@ -96,7 +98,9 @@ def test_stereo_from_translating_rgb_frames(analytic_scene):
     rgb = [rgb_only(f) for f in frames]
     cfg = ReconstructConfig()
     raw = [plane_sweep_depth(rgb[i], [rgb[j] for j in (i - 1, i + 1) if 0 <= j < 3], cfg.stereo) for i in range(3)]
-    mid = consistent_depth(rgb[1], raw[1].depth_m, [(rgb[0], raw[0].depth_m), (rgb[2], raw[2].depth_m)], cfg.stereo_consistency)
+    mid = consistent_depth(
+        rgb[1], raw[1].depth_m, [(rgb[0], raw[0].depth_m), (rgb[2], raw[2].depth_m)], cfg.stereo_consistency
+    )
     truth = frames[1].depth_m
     kept = (mid > 0) & (truth > 0)
     rel = np.abs(mid[kept] - truth[kept]) / truth[kept]
@@ -170,7 +174,9 @@ def test_merging_deduplicates_overlapping_frames(analytic_scene):
     twice = reconstruct([a, a], cfg)
     assert len(twice.gaussians) == alone  # the copy adds nothing
     pair = reconstruct([a, b], cfg)
-    no_merge = reconstruct([a, b], ReconstructConfig(mode="depth", budget_ratio=0.0, dedupe=False, min_contribution=0.0))
+    no_merge = reconstruct(
+        [a, b], ReconstructConfig(mode="depth", budget_ratio=0.0, dedupe=False, min_contribution=0.0)
+    )
     assert len(no_merge.gaussians) == 2 * alone
     assert len(pair.gaussians) < 1.5 * alone  # the two views overlap by ~80 %
     # nothing went missing: both input views are still fully covered
@@ -292,8 +298,14 @@ def test_tiny_frames_in_every_mode(size):
     frames = []
     for i in range(3):
         c2w = view_to_cam2world(np.array([0.0, 0.3 * i, 1.0, 0.0, 0.0]))
-        frames.append(PosedFrame(rng.integers(0, 255, (h, w, 3), dtype=np.uint8), k, c2w,
-                                 depth_m=rng.uniform(1, 3, (h, w)).astype(np.float32)))
+        frames.append(
+            PosedFrame(
+                rng.integers(0, 255, (h, w, 3), dtype=np.uint8),
+                k,
+                c2w,
+                depth_m=rng.uniform(1, 3, (h, w)).astype(np.float32),
+            )
+        )
     for mode in ("depth", "stereo", "sphere"):
         rec = reconstruct(frames if mode == "depth" else [rgb_only(f) for f in frames], ReconstructConfig(mode=mode))
         g = rec.gaussians

@@ -2,11 +2,16 @@
 
 import numpy as np
 import pytest
+from conftest import SPHERE_CENTRE, capture, looking_at_ball, surface_distance
 
 from aes_planner.geometry import Intrinsics, quat_to_matrix
-from aes_planner.reconstruct.splats import SplatParams, depth_edges, fill_inverse_depth, ray_sphere_depth, splats_from_depth
-
-from conftest import SPHERE_CENTRE, SPHERE_RADIUS, capture, looking_at_ball, surface_distance
+from aes_planner.reconstruct.splats import (
+    SplatParams,
+    depth_edges,
+    fill_inverse_depth,
+    ray_sphere_depth,
+    splats_from_depth,
+)
 
 K64 = Intrinsics.from_fov(64, 48, 60.0)
 

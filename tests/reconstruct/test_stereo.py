@@ -10,7 +10,12 @@ from aes_planner.reconstruct import StereoConfig, expected_disparity_px, plane_s
 
 def texture(y, z):
     """A smooth random-looking pattern on the plane (values in [0, 1])."""
-    t = 0.5 + 0.18 * np.sin(7.1 * y + 2.3 * z) + 0.14 * np.sin(3.3 * z - 11.7 * y + 1.0) + 0.12 * np.sin(17.0 * z + 5.0 * y)
+    t = (
+        0.5
+        + 0.18 * np.sin(7.1 * y + 2.3 * z)
+        + 0.14 * np.sin(3.3 * z - 11.7 * y + 1.0)
+        + 0.12 * np.sin(17.0 * z + 5.0 * y)
+    )
     return np.clip(t, 0, 1)
 
 

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-
 from aes_planner.sim import FAMILIES, load_scene, render, save_scene
 from aes_planner.sim.shapes import SHAPES
 
@@ -32,7 +31,11 @@ def test_yaml_round_trip_gives_the_same_render(family, tmp_path):
     k = scene.rig.intrinsics().scaled(48, 36)
     for pan, tilt in kin.joint_grid(2, 2):
         a, b = render(scene, kin.forward(pan, tilt), k), render(back, kin.forward(pan, tilt), k)
-        assert np.array_equal(a.rgb, b.rgb) and np.array_equal(a.depth_m, b.depth_m) and np.array_equal(a.instance_id, b.instance_id)
+        assert (
+            np.array_equal(a.rgb, b.rgb)
+            and np.array_equal(a.depth_m, b.depth_m)
+            and np.array_equal(a.instance_id, b.instance_id)
+        )
 
 
 def _inside(scene, point) -> list[str]:

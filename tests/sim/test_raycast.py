@@ -6,10 +6,6 @@ import math
 import cv2
 import numpy as np
 import pytest
-from hypothesis import given
-from hypothesis import strategies as st
-
-from aes_planner.geometry import Intrinsics, look_at, view_to_cam2world
 from aes_planner.sim import RenderError, Scene, SceneSpec, render
 from aes_planner.sim.raycast import _BATCH_BELOW
 from aes_planner.sim.spec import (
@@ -26,6 +22,10 @@ from aes_planner.sim.spec import (
     SphereSpec,
 )
 from aes_planner.sim.texture import pattern_weight, value_noise
+from hypothesis import given
+from hypothesis import strategies as st
+
+from aes_planner.geometry import Intrinsics, look_at, view_to_cam2world
 
 K128 = Intrinsics.from_fov(128, 128, 60.0)
 
@@ -128,7 +128,9 @@ def test_ids_follow_scene_order_and_nearest_wins():
 
 def test_lambert_and_ambient_values():
     angle = math.radians(35)
-    light = DirectionalLightSpec(direction=(-math.sin(angle), 0.0, -math.cos(angle)), colour=(1.0, 1.0, 1.0), intensity=0.6, shadows=False)
+    light = DirectionalLightSpec(
+        direction=(-math.sin(angle), 0.0, -math.cos(angle)), colour=(1.0, 1.0, 1.0), intensity=0.6, shadows=False
+    )
     ground = PlaneSpec(material=MaterialSpec(albedo=(0.5, 0.8, 0.2)))
     scene = scene_of(ground, lights=[AmbientLightSpec(intensity=0.25), light])
     out = render(scene, view_to_cam2world(np.array([0, 0, 2.0, 0.3, -0.6])), K128)
@@ -146,7 +148,11 @@ def test_shadow_rays_are_exact(radius):
     centre = np.array([0.0, 0.0, 1.0])
     ambient = AmbientLightSpec(intensity=0.3)
     sun = DirectionalLightSpec(direction=(0.0, 0.0, -1.0), colour=(1.0, 1.0, 1.0), intensity=0.5)
-    scene = scene_of(PlaneSpec(material=MaterialSpec(albedo=(1.0, 1.0, 1.0))), SphereSpec(centre_m=tuple(centre), radius_m=radius), lights=[ambient, sun])
+    scene = scene_of(
+        PlaneSpec(material=MaterialSpec(albedo=(1.0, 1.0, 1.0))),
+        SphereSpec(centre_m=tuple(centre), radius_m=radius),
+        lights=[ambient, sun],
+    )
     pose = look_at(np.array([-1.0, -0.5, 3.0]) * max(radius, 0.2) * 3, np.array([0.0, 0.0, 0.0]))
     out = render(scene, pose, K128)
     origin, dirs = camera_rays(pose, K128)
@@ -176,13 +182,20 @@ def test_sky_gradient_and_empty_scene():
 def test_image_texture_reads_upright(tmp_path):
     colours = np.array([[[255, 0, 0], [0, 255, 0]], [[0, 0, 255], [255, 255, 255]]], np.uint8)  # RGB, 2x2
     cv2.imwrite(str(tmp_path / "tiles.png"), cv2.cvtColor(colours, cv2.COLOR_RGB2BGR))
-    quad = QuadSpec(centre_m=(0.0, 0.0, 0.0), size_m=(2.0, 2.0), yaw_deg=180.0, material=MaterialSpec(image="tiles.png"))
+    quad = QuadSpec(
+        centre_m=(0.0, 0.0, 0.0), size_m=(2.0, 2.0), yaw_deg=180.0, material=MaterialSpec(image="tiles.png")
+    )
     scene = scene_of(quad, lights=[AmbientLightSpec(intensity=1.0)], base_dir=tmp_path)
     k = Intrinsics.from_fov(64, 64, 60.0)
     pose = look_at(np.array([-4.0, 0, 0]), np.zeros(3))
     out = render(scene, pose, k)
     # the centres of the four texels: (-0.5, +0.5) is top-left as the viewer sees it
-    for (y_local, z), colour in (((-0.5, 0.5), colours[0, 0]), ((0.5, 0.5), colours[0, 1]), ((-0.5, -0.5), colours[1, 0]), ((0.5, -0.5), colours[1, 1])):
+    for (y_local, z), colour in (
+        ((-0.5, 0.5), colours[0, 0]),
+        ((0.5, 0.5), colours[0, 1]),
+        ((-0.5, -0.5), colours[1, 0]),
+        ((0.5, -0.5), colours[1, 1]),
+    ):
         world = np.array([0.0, -y_local, z])  # the quad faces -x, so its local +y is world -y
         u, v = k.project((np.linalg.inv(pose) @ np.append(world, 1))[:3])
         assert np.abs(out.rgb[int(v), int(u)].astype(int) - colour).max() < 30  # bilinear: near the texel centre
@@ -210,7 +223,11 @@ def test_patterns():
 
 
 def test_checker_on_the_ground_alternates_in_world_metres():
-    ground = PlaneSpec(material=MaterialSpec(albedo=(1.0, 1.0, 1.0), pattern=PatternSpec(kind="checker", colour2=(0.0, 0.0, 0.0), scale_m=1.0)))
+    ground = PlaneSpec(
+        material=MaterialSpec(
+            albedo=(1.0, 1.0, 1.0), pattern=PatternSpec(kind="checker", colour2=(0.0, 0.0, 0.0), scale_m=1.0)
+        )
+    )
     scene = scene_of(ground, lights=[AmbientLightSpec(intensity=1.0)])
     pose = look_at(np.array([0.0, 0.0, 10.0]), np.array([0.0, 0.0, 0.0]), yaw_hint_rad=0.0)
     k = Intrinsics.from_fov(101, 101, 60.0)
@@ -256,12 +273,19 @@ def test_far_from_the_origin_renders_the_same():
         BoxSpec(centre_m=(3.0, 0.5, 0.5), size_m=(1.0, 1.0, 1.0), yaw_deg=20.0),
         SphereSpec(centre_m=(4.0, -1.0, 0.7), radius_m=0.7),
     ]
-    moved = [PlaneSpec(point_m=tuple(offset), material=objects[0].material), BoxSpec(centre_m=tuple(np.add(objects[1].centre_m, offset)), size_m=(1.0, 1.0, 1.0), yaw_deg=20.0), SphereSpec(centre_m=tuple(np.add(objects[2].centre_m, offset)), radius_m=0.7)]
+    moved = [
+        PlaneSpec(point_m=tuple(offset), material=objects[0].material),
+        BoxSpec(centre_m=tuple(np.add(objects[1].centre_m, offset)), size_m=(1.0, 1.0, 1.0), yaw_deg=20.0),
+        SphereSpec(centre_m=tuple(np.add(objects[2].centre_m, offset)), radius_m=0.7),
+    ]
     lights = [AmbientLightSpec(), DirectionalLightSpec()]
     pose = view_to_cam2world(np.array([0, 0, 1.5, 0.0, -0.2]))
     far_pose = pose.copy()
     far_pose[:3, 3] += offset
-    a, b = render(scene_of(*objects, lights=lights), pose, K128), render(scene_of(*moved, lights=lights), far_pose, K128)
+    a, b = (
+        render(scene_of(*objects, lights=lights), pose, K128),
+        render(scene_of(*moved, lights=lights), far_pose, K128),
+    )
     assert np.mean(a.instance_id != b.instance_id) < 0.002
     same = a.instance_id == b.instance_id
     assert np.abs(a.depth_m[same] - b.depth_m[same]).max() < 1e-4
@@ -272,11 +296,33 @@ def test_far_from_the_origin_renders_the_same():
 finite = st.floats(-5, 5, allow_nan=False)
 objects_strategy = st.lists(
     st.one_of(
-        st.builds(lambda c, s, y: BoxSpec(centre_m=c, size_m=s, yaw_deg=y), st.tuples(finite, finite, finite), st.tuples(*[st.floats(0.01, 6)] * 3), st.floats(-180, 180)),
-        st.builds(lambda c, r: SphereSpec(centre_m=c, radius_m=r), st.tuples(finite, finite, finite), st.floats(0.01, 6)),
-        st.builds(lambda c, r, h, a: CylinderSpec(centre_m=c, radius_m=r, height_m=h, axis=a), st.tuples(finite, finite, finite), st.floats(0.01, 3), st.floats(0.01, 6), st.sampled_from([(0, 0, 1), (1, 0, 0), (0.3, -0.5, 0.8)])),
-        st.builds(lambda p, n: PlaneSpec(point_m=p, normal=n), st.tuples(finite, finite, finite), st.sampled_from([(0, 0, 1), (0, 1, 0), (1, 1e-9, 0), (0.2, 0.3, -1)])),
-        st.builds(lambda c, s, y: QuadSpec(centre_m=c, size_m=s, yaw_deg=y), st.tuples(finite, finite, finite), st.tuples(st.floats(0.01, 6), st.floats(0.01, 6)), st.floats(-180, 180)),
+        st.builds(
+            lambda c, s, y: BoxSpec(centre_m=c, size_m=s, yaw_deg=y),
+            st.tuples(finite, finite, finite),
+            st.tuples(*[st.floats(0.01, 6)] * 3),
+            st.floats(-180, 180),
+        ),
+        st.builds(
+            lambda c, r: SphereSpec(centre_m=c, radius_m=r), st.tuples(finite, finite, finite), st.floats(0.01, 6)
+        ),
+        st.builds(
+            lambda c, r, h, a: CylinderSpec(centre_m=c, radius_m=r, height_m=h, axis=a),
+            st.tuples(finite, finite, finite),
+            st.floats(0.01, 3),
+            st.floats(0.01, 6),
+            st.sampled_from([(0, 0, 1), (1, 0, 0), (0.3, -0.5, 0.8)]),
+        ),
+        st.builds(
+            lambda p, n: PlaneSpec(point_m=p, normal=n),
+            st.tuples(finite, finite, finite),
+            st.sampled_from([(0, 0, 1), (0, 1, 0), (1, 1e-9, 0), (0.2, 0.3, -1)]),
+        ),
+        st.builds(
+            lambda c, s, y: QuadSpec(centre_m=c, size_m=s, yaw_deg=y),
+            st.tuples(finite, finite, finite),
+            st.tuples(st.floats(0.01, 6), st.floats(0.01, 6)),
+            st.floats(-180, 180),
+        ),
     ),
     max_size=6,
 )

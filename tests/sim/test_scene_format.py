@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-
-from aes_planner.config import ConfigError, from_dict
 from aes_planner.sim import SceneError, SceneSpec, load_scene, render, save_scene, scene_to_yaml
 from aes_planner.sim.spec import OBJECT_TYPES, PATTERN_KINDS, spec_to_dict
+
+from aes_planner.config import ConfigError, from_dict
 
 SCENES = Path(str(resources.files("aes_planner.sim") / "scenes"))
 SHOWCASE = SCENES / "showcase.yaml"
@@ -54,7 +54,11 @@ def _overview_pose(scene):
 @pytest.mark.parametrize(
     "edit, key, message",
     [
-        (lambda d: d["objects"][3]["material"].update(pattern={"kind": "dots"}), "objects[3].material.pattern.kind", "must be one of"),
+        (
+            lambda d: d["objects"][3]["material"].update(pattern={"kind": "dots"}),
+            "objects[3].material.pattern.kind",
+            "must be one of",
+        ),
         (lambda d: d["objects"][1].update(colour=[1, 0, 0]), "objects[1].colour", "unknown key"),
         (lambda d: d["objects"][1].update(type="cone"), "objects[1].type", "must be one of"),
         (lambda d: d["objects"][1].update(size_m=[1, -1, 1]), "objects[1].size_m", "> 0"),
@@ -66,7 +70,11 @@ def _overview_pose(scene):
         (lambda d: d["objects"][2].update(radius_m="big"), "objects[2].radius_m", "expected a number"),
         (lambda d: d["lights"][1].update(intensity=-1), "lights[1].intensity", ">= 0"),
         (lambda d: d["lights"].append({"type": "spot"}), "lights[2].type", "must be one of"),
-        (lambda d: d["rig"]["pan_tilt"].update(pan_limits_deg=[10, -10]), "rig.pan_tilt.pan_limits_deg", "min must be below max"),
+        (
+            lambda d: d["rig"]["pan_tilt"].update(pan_limits_deg=[10, -10]),
+            "rig.pan_tilt.pan_limits_deg",
+            "min must be below max",
+        ),
         (lambda d: d["rig"]["camera"].update(hfov_deg=200), "rig.camera.hfov_deg", r"\(0, 180\)"),
         (lambda d: d["sky"].update(zenit=[0, 0, 1]), "sky.zenit", "unknown key"),
         (lambda d: d.pop("rig"), "rig", "exactly one"),
@@ -92,7 +100,10 @@ def test_exact_pattern_kind_message():
     data["objects"][3]["material"]["pattern"]["kind"] = "dots"
     with pytest.raises(ConfigError) as info:
         from_dict(SceneSpec, data)
-    assert str(info.value) == "objects[3].material.pattern.kind: must be one of ['checker', 'stripes', 'noise', 'gradient'], got 'dots'"
+    assert (
+        str(info.value)
+        == "objects[3].material.pattern.kind: must be one of ['checker', 'stripes', 'noise', 'gradient'], got 'dots'"
+    )
 
 
 def test_not_yaml_and_not_a_mapping(tmp_path):
@@ -123,7 +134,9 @@ def test_yaml_round_trip_renders_the_same(tmp_path):
     path = save_scene(scene, tmp_path / "sub" / "copy.yaml")
     back = load_scene(path)
     picture = scene.objects[6].material.image
-    assert back.image_path(back.objects[6].material.image) == scene.image_path(picture)  # same file, found from the new place
+    assert back.image_path(back.objects[6].material.image) == scene.image_path(
+        picture
+    )  # same file, found from the new place
     pose = scene.rig.kinematics().forward(-0.14, -0.2)
     a, b = render(scene, pose, scene.intrinsics()), render(back, pose, back.intrinsics())
     assert np.array_equal(a.rgb, b.rgb) and np.array_equal(a.depth_m, b.depth_m)

@@ -4,13 +4,13 @@ import math
 
 import numpy as np
 import pytest
+from aes_planner.sim import SimCamera, SimCameraConfig, load_scene, render
+from aes_planner.sim.camera import SimCameraError
+from aes_planner.sim.spec import CameraSpec, DroneSpec, SceneSpec, SphereSpec
 
 from aes_planner.config import ConfigError, from_dict
 from aes_planner.geometry import look_at
 from aes_planner.messages import PosedFrame
-from aes_planner.sim import SimCamera, SimCameraConfig, load_scene, render
-from aes_planner.sim.camera import SimCameraError
-from aes_planner.sim.spec import CameraSpec, DroneSpec, SceneSpec, SphereSpec
 
 
 @pytest.fixture(scope="module")
@@ -60,12 +60,20 @@ def test_pose_noise_perturbs_the_report_not_the_image(scene):
     assert np.array_equal(frames[0].image, SimCamera(scene, SimCameraConfig(**small)).capture_pose(pose).image)
     offsets = np.array([f.cam2world[:3, 3] - pose[:3, 3] for f in frames])
     assert abs(offsets.std() - 0.01) < 0.0015
-    angles = [math.degrees(math.acos(np.clip((np.trace(pose[:3, :3].T @ f.cam2world[:3, :3]) - 1) / 2, -1, 1))) for f in frames]
+    angles = [
+        math.degrees(math.acos(np.clip((np.trace(pose[:3, :3].T @ f.cam2world[:3, :3]) - 1) / 2, -1, 1)))
+        for f in frames
+    ]
     assert 0.4 < np.mean(angles) < 1.1  # |rotation vector| of a 3-D normal with sigma 0.5 deg: mean 0.8 deg
     assert all(np.allclose(f.extras["true_cam2world"], pose) for f in frames)
     assert frames[0].extras["reported_pose_error_m"] == pytest.approx(np.linalg.norm(offsets[0]))
     # turning pixel noise on does not change the pose-noise stream
-    both = SimCamera(scene, SimCameraConfig(pose_noise_translation_m=0.01, pose_noise_rotation_deg=0.5, pixel_noise_sigma=2.0, seed=1, **small))
+    both = SimCamera(
+        scene,
+        SimCameraConfig(
+            pose_noise_translation_m=0.01, pose_noise_rotation_deg=0.5, pixel_noise_sigma=2.0, seed=1, **small
+        ),
+    )
     assert np.array_equal(both.capture_pose(pose, 0.0).cam2world, frames[0].cam2world)
 
 

@@ -38,10 +38,20 @@ def test_records_the_evaluator_correlation(monkeypatch):
 def test_records_the_subject_figures_of_both_judges(monkeypatch):
     pytest.importorskip("aes_planner.sim")
     small = bench.subject_views
-    monkeypatch.setattr(bench, "subject_views", lambda seeds, random_views: small(seeds=(0,), random_views=4, sweep=(2, 2), width=64, height=48))
+    monkeypatch.setattr(
+        bench,
+        "subject_views",
+        lambda seeds, random_views: small(seeds=(0,), random_views=4, sweep=(2, 2), width=64, height=48),
+    )
     rec = Recorder()
     bench.bench_subjects(rec, quick=True)
     for judge in ("composition", "evaluator"):
-        for key in ("subject_pref_acc", "subject_pref_acc_texture", "subject_srcc", "sweep_argmax_subject_rate", "sweep_subject_share"):
+        for key in (
+            "subject_pref_acc",
+            "subject_pref_acc_texture",
+            "subject_srcc",
+            "sweep_argmax_subject_rate",
+            "sweep_subject_share",
+        ):
             assert f"teachers.{judge}.{key}" in rec.results
         assert 0 <= rec.results[f"teachers.{judge}.sweep_argmax_subject_rate"]["value"] <= 1

@@ -22,7 +22,9 @@ def write_png(path, image):  # image [3, H, W] float in [0, 1]
 
 @pytest.fixture
 def pictures(tmp_path):
-    good = write_png(tmp_path / "good.png", draw_disc(draw_horizon(canvas(96, 128), 2 / 3), 1 / 3, 0.45, 0.1, (0.85, 0.2, 0.15)))
+    good = write_png(
+        tmp_path / "good.png", draw_disc(draw_horizon(canvas(96, 128), 2 / 3), 1 / 3, 0.45, 0.1, (0.85, 0.2, 0.15))
+    )
     blank = write_png(tmp_path / "blank.png", canvas(64, 64))
     return good, blank
 
@@ -110,7 +112,9 @@ def test_teachers_list_and_convert(tmp_path, capsys):
     assert capsys.readouterr().out.splitlines()[:2] == ["composition  (default)", "ven"]
     src = tmp_path / "EvaluationNet.pth.tar"
     ven = VENTeacher.random(seed=3)
-    torch.save({"state_dict": {f"single_pass_net.{k}": v for k, v in ven.net.state_dict().items()}, "best": np.float64(1)}, src)
+    torch.save(
+        {"state_dict": {f"single_pass_net.{k}": v for k, v in ven.net.state_dict().items()}, "best": np.float64(1)}, src
+    )
     assert main(["teachers", "convert-ven", str(src), str(tmp_path / "ven.pt")]) == 0
     assert "--weights" in capsys.readouterr().out
     assert set(torch.load(tmp_path / "ven.pt", weights_only=True)) == set(ven.net.state_dict())

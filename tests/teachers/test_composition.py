@@ -82,8 +82,10 @@ def test_counterweight_restores_balance(teacher):
 
 def test_horizon_on_a_third_beats_the_middle_and_level_beats_tilted(teacher):
     third, middle, tilt3, tilt8 = (
-        draw_horizon(canvas(H, W), 2 / 3), draw_horizon(canvas(H, W), 0.5),
-        draw_horizon(canvas(H, W), 2 / 3, 3.0), draw_horizon(canvas(H, W), 2 / 3, -8.0),
+        draw_horizon(canvas(H, W), 2 / 3),
+        draw_horizon(canvas(H, W), 0.5),
+        draw_horizon(canvas(H, W), 2 / 3, 3.0),
+        draw_horizon(canvas(H, W), 2 / 3, -8.0),
     )
     e = explain(teacher, third, middle, tilt3, tilt8)
     assert all(x["horizon_presence"] > 0.4 for x in e)  # all four are found as horizons
@@ -127,7 +129,11 @@ def test_subject_size_prefers_a_sensible_share_of_the_frame(teacher):
         ("blank wall", canvas(H, W, WALL)),
         ("black", canvas(H, W, (0, 0, 0))),
         ("white", canvas(H, W, (1, 1, 1))),
-        ("sky gradient", torch.stack([torch.linspace(0.55, 0.9, H)[:, None].expand(H, W)] * 3) * torch.tensor([0.7, 0.8, 1.0])[:, None, None]),
+        (
+            "sky gradient",
+            torch.stack([torch.linspace(0.55, 0.9, H)[:, None].expand(H, W)] * 3)
+            * torch.tensor([0.7, 0.8, 1.0])[:, None, None],
+        ),
         ("faint shading", canvas(H, W, WALL) + 0.02 * torch.linspace(0, 1, W)),
     ],
 )
@@ -144,7 +150,9 @@ def test_texture_without_a_subject_scores_below_a_composition(teacher):
     checker = ((torch.arange(H)[:, None] // 8 + torch.arange(W)[None] // 8) % 2).float().expand(3, H, W)
     e = explain(teacher, noise, checker, draw_disc(draw_horizon(canvas(H, W), 2 / 3), 1 / 3, 0.45, 0.1, RED))
     assert e[0]["content"] > 0.9 and e[1]["content"] > 0.9  # not empty ...
-    assert max(e[0]["subject_presence"], e[1]["subject_presence"]) < 0.35 < 0.95 < e[2]["subject_presence"]  # ... no subject ...
+    assert (
+        max(e[0]["subject_presence"], e[1]["subject_presence"]) < 0.35 < 0.95 < e[2]["subject_presence"]
+    )  # ... no subject ...
     assert max(e[0]["score"], e[1]["score"]) < 0.3 < 0.75 < e[2]["score"]  # ... and no composition either
 
 
@@ -160,19 +168,40 @@ def test_a_lone_object_beats_the_same_object_repeated_as_a_pattern(teacher):
     # Each disc of a pattern is as compact, bounded and colourful as the lone one: only its
     # repetition (the same colour's contrast all over the frame, evidence all around it) tells
     # a texture from a subject.
-    lone, small, large = explain(teacher, subject(1 / 3, 1 / 3, r=0.08), _pattern_of(0.06, 6, 4), _pattern_of(0.1, 4, 3))
+    lone, small, large = explain(
+        teacher, subject(1 / 3, 1 / 3, r=0.08), _pattern_of(0.06, 6, 4), _pattern_of(0.1, 4, 3)
+    )
     assert lone["subject_presence"] > 0.8 > 0.65 > large["subject_presence"] > small["subject_presence"]
     assert small["subject_presence"] < 0.4
     assert lone["score"] > large["score"] + 0.2 and lone["score"] > small["score"] + 0.3
 
 
 def test_bare_architecture_has_no_subject_until_an_object_enters(teacher):
-    room = draw_box(draw_box(draw_box(canvas(H, W, (0.78, 0.78, 0.76)), 0.0, 0.0, 0.45, 1.0, (0.62, 0.62, 0.6)),
-                             0.0, 0.7, 1.0, 1.0, (0.5, 0.42, 0.33)), 0.0, 0.0, 1.0, 0.12, (0.92, 0.92, 0.9))
+    room = draw_box(
+        draw_box(
+            draw_box(canvas(H, W, (0.78, 0.78, 0.76)), 0.0, 0.0, 0.45, 1.0, (0.62, 0.62, 0.6)),
+            0.0,
+            0.7,
+            1.0,
+            1.0,
+            (0.5, 0.42, 0.33),
+        ),
+        0.0,
+        0.0,
+        1.0,
+        0.12,
+        (0.92, 0.92, 0.9),
+    )
     boards = canvas(H, W, (0.55, 0.4, 0.25))
     for k in range(16):
         boards = draw_box(boards, k / 16, 0.0, k / 16 + 0.008, 1.0, (0.3, 0.2, 0.12))
-    e = explain(teacher, room, draw_disc(room, 2 / 3, 0.55, 0.1, RED), boards, draw_disc(boards, 1 / 3, 0.4, 0.12, (0.2, 0.5, 0.85)))
+    e = explain(
+        teacher,
+        room,
+        draw_disc(room, 2 / 3, 0.55, 0.1, RED),
+        boards,
+        draw_disc(boards, 1 / 3, 0.4, 0.12, (0.2, 0.5, 0.85)),
+    )
     for bare, furnished in ((e[0], e[1]), (e[2], e[3])):
         assert bare["subject_presence"] < 0.15 < 0.95 < furnished["subject_presence"]
         assert bare["score"] < 0.4 and furnished["score"] > bare["score"] + 0.3
@@ -248,7 +277,14 @@ def test_float64_gradcheck_of_the_head():
     fmap = teacher.features(subject(0.4, 0.45)[None].double()).detach()
     # Move off the kinks of clamp/relu at exactly 0 (flat regions have exactly zero energy).
     fmap = (fmap + 0.01 * torch.rand_like(fmap)).requires_grad_(True)
-    assert torch.autograd.gradcheck(lambda m: torch.stack(list(teacher.explain_map(m).values())), (fmap,), eps=1e-7, atol=1e-6, rtol=1e-4, fast_mode=True)
+    assert torch.autograd.gradcheck(
+        lambda m: torch.stack(list(teacher.explain_map(m).values())),
+        (fmap,),
+        eps=1e-7,
+        atol=1e-6,
+        rtol=1e-4,
+        fast_mode=True,
+    )
 
 
 def test_float64_gradcheck_of_the_features_on_a_small_image():
@@ -285,9 +321,13 @@ def test_all_zero_weights_refused():
 
 
 def test_weights_change_the_total():
-    only_thirds = CompositionTeacher(CompositionConfig(weights=CompositionWeights(**{t: float(t == "thirds") for t in TERMS})))
+    only_thirds = CompositionTeacher(
+        CompositionConfig(weights=CompositionWeights(**{t: float(t == "thirds") for t in TERMS}))
+    )
     e = only_thirds.explain(subject(1 / 3, 1 / 3)[None])
-    assert e["score"].item() == pytest.approx(e["content"].item() * e["subject_presence"].item() * e["thirds"].item(), rel=1e-5)
+    assert e["score"].item() == pytest.approx(
+        e["content"].item() * e["subject_presence"].item() * e["thirds"].item(), rel=1e-5
+    )
 
 
 @pytest.mark.parametrize(

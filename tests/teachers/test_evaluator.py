@@ -74,7 +74,12 @@ def test_correlation_with_the_composition_teacher_is_positive_and_partial(evalua
 
 
 def test_correlation_accepts_mixed_sizes(evaluator):
-    images = [canvas(40, 60), draw_disc(canvas(50, 50), 0.3, 0.3, 0.1, RED), draw_horizon(canvas(40, 60), 0.6), torch.rand(3, 33, 20)]
+    images = [
+        canvas(40, 60),
+        draw_disc(canvas(50, 50), 0.3, 0.3, 0.1, RED),
+        draw_horizon(canvas(40, 60), 0.6),
+        torch.rand(3, 33, 20),
+    ]
     r = correlation(CompositionTeacher(), images, evaluator, batch_size=2)
     assert r["n"] == 4 and -1 <= r["plcc"] <= 1
     with pytest.raises(TeacherError, match="at least 3"):

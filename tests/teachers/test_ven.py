@@ -83,7 +83,9 @@ def test_architecture_matches_torchvision_indices_and_the_release(ven):
     assert list(ven.net.state_dict()) == EXPECTED_KEYS
     n = sum(p.numel() for p in ven.parameters())
     assert n == 40_931_137  # 14.71 M conv + 25.69 M + 0.52 M + 513 classifier
-    head = sum(p.numel() for p in ven.net.features[SPLIT:].parameters()) + sum(p.numel() for p in ven.net.classifier.parameters())
+    head = sum(p.numel() for p in ven.net.features[SPLIT:].parameters()) + sum(
+        p.numel() for p in ven.net.classifier.parameters()
+    )
     assert 32e6 < head < 34e6
     assert ven.feature_channels == 512 and ven.feature_size == (14, 14)
 
@@ -212,7 +214,12 @@ def test_pickled_extras_load_as_inert_placeholders(ven, tmp_path, x224, ven_scor
     as placeholders; it scores exactly like its weights, and converts to bare tensors."""
     released = tmp_path / "EvaluationNet.pth.tar"
     state = {f"single_pass_net.{k}": v for k, v in ven.net.state_dict().items()}
-    extras = {"best_prec": np.float64(0.77), "hist": np.zeros(3), "args": argparse.Namespace(lr=0.1), "cfg": _Training()}
+    extras = {
+        "best_prec": np.float64(0.77),
+        "hist": np.zeros(3),
+        "args": argparse.Namespace(lr=0.1),
+        "cfg": _Training(),
+    }
     torch.save({"state_dict": state, **extras}, released, _use_new_zipfile_serialization=zip_format)
     with pytest.raises(pickle.UnpicklingError):
         torch.load(released, weights_only=True)  # what a plain weights-only load says
