@@ -32,16 +32,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import dynamixel_sdk as sdk
-from aes_planner.drivers.dynamixel_models import (
-    JointCalibration,
-    ServoModel,
-    decode_hardware_error,
-    model_by_name,
-    model_by_number,
-    to_signed,
-    to_unsigned,
-)
-from aes_planner.drivers.protocol import ERRBIT_ALERT, ErrNum
 
 from aes_planner.config import ConfigError, require, require_numbers
 from aes_planner.devices import (
@@ -54,6 +44,16 @@ from aes_planner.devices import (
     GimbalState,
     GimbalTimeoutError,
 )
+from aes_planner.drivers.dynamixel_models import (
+    JointCalibration,
+    ServoModel,
+    decode_hardware_error,
+    model_by_name,
+    model_by_number,
+    to_signed,
+    to_unsigned,
+)
+from aes_planner.drivers.protocol import ERRBIT_ALERT, ErrNum
 from aes_planner.geometry.rig import JointCommandError, JointLimits, PanTiltConfig
 
 log = logging.getLogger(__name__)

@@ -8,6 +8,8 @@ Installed as ``aes_planner.sim``. It depends on :mod:`aes_planner.geometry`,
 * :func:`render` (scene, cam2world, intrinsics) -> :class:`RenderOutput` (RGB, depth, ids).
 * :class:`SimCamera` renders :class:`~aes_planner.messages.PosedFrame` records from poses or
   rig joint angles, with optional pixel noise, pose noise and latency.
+* :class:`SimSource`: a scene as an :class:`~aes_planner.sources.SceneSource` (frames and
+  ground truth at any pose, for training and evaluation).
 * :data:`FAMILIES`: the procedural scene families (``indoor``, ``outdoor``, ``tabletop``,
   ``gallery``), each a function ``seed -> SceneSpec``.
 """
@@ -16,6 +18,7 @@ from aes_planner.sim.camera import SimCamera, SimCameraConfig
 from aes_planner.sim.families import FAMILIES
 from aes_planner.sim.raycast import RenderError, RenderOutput, render
 from aes_planner.sim.scene import Scene, SceneError, load_scene, save_scene, scene_to_yaml
+from aes_planner.sim.source import SimSource, platform_of
 from aes_planner.sim.spec import CameraSpec, DroneSpec, RigSpec, SceneSpec
 
 __all__ = [
@@ -30,7 +33,9 @@ __all__ = [
     "SceneSpec",
     "SimCamera",
     "SimCameraConfig",
+    "SimSource",
     "load_scene",
+    "platform_of",
     "render",
     "save_scene",
     "scene_to_yaml",

@@ -29,13 +29,13 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from aes_planner.sim.raycast import MAX_SUPERSAMPLE, render
-from aes_planner.sim.scene import Scene
 
 from aes_planner.config import require, require_numbers
 from aes_planner.errors import AesPlannerError
 from aes_planner.geometry import Intrinsics, validate_cam2world
 from aes_planner.messages import PosedFrame
+from aes_planner.sim.raycast import MAX_SUPERSAMPLE, render
+from aes_planner.sim.scene import Scene
 
 __all__ = ["SimCamera", "SimCameraConfig", "SimCameraError"]
 

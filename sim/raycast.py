@@ -33,13 +33,13 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from aes_planner.errors import AesPlannerError
+from aes_planner.geometry import Intrinsics, validate_cam2world
 from aes_planner.sim.scene import Scene
 from aes_planner.sim.shapes import SHAPES
 from aes_planner.sim.spec import AmbientLightSpec, DirectionalLightSpec, SkySpec, frame_from_axis
 from aes_planner.sim.texture import sample_image
-
-from aes_planner.errors import AesPlannerError
-from aes_planner.geometry import Intrinsics, validate_cam2world
 
 __all__ = ["FAR_M", "NEAR_M", "RenderError", "RenderOutput", "render"]
 

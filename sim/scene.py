@@ -13,12 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from aes_planner.sim.shapes import SHAPES, shape_of
-from aes_planner.sim.spec import SceneSpec, spec_to_dict
-from aes_planner.sim.texture import MaterialTable, load_image
 
 from aes_planner.config import ConfigError, from_dict, load_yaml
 from aes_planner.errors import AesPlannerError
+from aes_planner.sim.shapes import SHAPES, shape_of
+from aes_planner.sim.spec import SceneSpec, spec_to_dict
+from aes_planner.sim.texture import MaterialTable, load_image
 
 __all__ = ["Scene", "SceneError", "load_scene", "save_scene", "scene_to_yaml"]
 

@@ -27,6 +27,7 @@ drawn in them (per primitive in ``sim/README.md``).
 from __future__ import annotations
 
 import numpy as np
+
 from aes_planner.sim import spec as S
 
 __all__ = ["Box", "Cylinder", "Plane", "Quad", "Shape", "SHAPES", "shape_of"]

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from aes_planner.sim.spec import PATTERN_KINDS, MaterialSpec
 
 from aes_planner.config import ConfigError
+from aes_planner.sim.spec import PATTERN_KINDS, MaterialSpec
 
 __all__ = ["MaterialTable", "load_image", "pattern_weight", "sample_image", "value_noise"]
 

@@ -10,6 +10,8 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+
+from aes_planner.geometry import PanTiltConfig
 from aes_planner.sim.spec import (
     AmbientLightSpec,
     BoxSpec,
@@ -25,8 +27,6 @@ from aes_planner.sim.spec import (
     SkySpec,
     SphereSpec,
 )
-
-from aes_planner.geometry import PanTiltConfig
 
 RGB = tuple[float, float, float]
 

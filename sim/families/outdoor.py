@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from aes_planner.sim.families._kit import ACCENTS, Builder, ambient, rig, sun, tree, wall_frame
 from aes_planner.sim.spec import SceneSpec, SkySpec
 

@@ -1,10 +1,10 @@
 """``aes-planner sim render`` and ``demo`` write dataset folders that load back with the same poses."""
 
 import numpy as np
-from aes_planner.sim import load_scene
 
 from aes_planner.cli import main
 from aes_planner.dataset import load_dataset
+from aes_planner.sim import load_scene
 
 
 def test_sim_render_round_trip(tmp_path, capsys):

@@ -7,6 +7,7 @@ Short timeouts keep fault tests quick: the SDK waits 2 x latency_timer_ms + 2 ms
 import sys
 
 import pytest
+
 from aes_planner.drivers.dynamixel import DynamixelPanTilt, DynamixelPanTiltConfig
 from aes_planner.drivers.emulator import ServoEmulator
 

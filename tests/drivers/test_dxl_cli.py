@@ -3,9 +3,9 @@
 import signal
 
 import pytest
-from aes_planner.drivers.emulator import EmulatorProcess
 
 from aes_planner.cli import main
+from aes_planner.drivers.emulator import EmulatorProcess
 
 
 @pytest.fixture

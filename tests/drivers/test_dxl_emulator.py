@@ -5,6 +5,7 @@ import time
 
 import dynamixel_sdk as sdk
 import pytest
+
 from aes_planner.drivers.dynamixel_models import model_by_name, to_signed, to_unsigned
 from aes_planner.drivers.emulator import ServoEmulator
 from aes_planner.drivers.protocol import ErrNum, Inst, PacketParser, build_packet

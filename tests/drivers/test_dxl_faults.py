@@ -6,10 +6,10 @@ import threading
 
 import dynamixel_sdk as sdk
 import pytest
-from aes_planner.drivers.dynamixel_models import model_by_name
-from aes_planner.drivers.emulator import ServoEmulator
 
 from aes_planner.devices import GimbalCommError, GimbalHardwareError, GimbalPortLostError
+from aes_planner.drivers.dynamixel_models import model_by_name
+from aes_planner.drivers.emulator import ServoEmulator
 
 PRESENT_POSITION = model_by_name("xm430-w350").item("present_position").addr
 

@@ -4,12 +4,12 @@ import dataclasses
 import math
 
 import pytest
-from aes_planner.drivers import dynamixel_models as dm
-from aes_planner.drivers.dynamixel import DynamixelPanTiltConfig, EmulatedPanTiltConfig
 from hypothesis import given
 from hypothesis import strategies as st
 
 from aes_planner.config import ConfigError, from_dict
+from aes_planner.drivers import dynamixel_models as dm
+from aes_planner.drivers.dynamixel import DynamixelPanTiltConfig, EmulatedPanTiltConfig
 
 # REFERENCE.md: (address, size) of the items the driver and emulator rely on.
 REFERENCE_ITEMS = {

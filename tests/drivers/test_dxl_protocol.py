@@ -3,9 +3,10 @@ with dynamixel-sdk's own CRC and stuffing."""
 
 import dynamixel_sdk as sdk
 import pytest
-from aes_planner.drivers.protocol import HEADER, Inst, PacketParser, build_packet, build_status, crc16, stuff, unstuff
 from hypothesis import given
 from hypothesis import strategies as st
+
+from aes_planner.drivers.protocol import HEADER, Inst, PacketParser, build_packet, build_status, crc16, stuff, unstuff
 
 # (bytes before the CRC, CRC_L CRC_H) from REFERENCE.md (ROBOTIS e-manual examples).
 VECTORS = [

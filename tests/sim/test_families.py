@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+
 from aes_planner.sim import FAMILIES, load_scene, render, save_scene
 from aes_planner.sim.shapes import SHAPES
 

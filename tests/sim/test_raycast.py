@@ -6,6 +6,10 @@ import math
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from aes_planner.geometry import Intrinsics, look_at, view_to_cam2world
 from aes_planner.sim import RenderError, Scene, SceneSpec, render
 from aes_planner.sim.raycast import _BATCH_BELOW
 from aes_planner.sim.spec import (
@@ -22,10 +26,6 @@ from aes_planner.sim.spec import (
     SphereSpec,
 )
 from aes_planner.sim.texture import pattern_weight, value_noise
-from hypothesis import given
-from hypothesis import strategies as st
-
-from aes_planner.geometry import Intrinsics, look_at, view_to_cam2world
 
 K128 = Intrinsics.from_fov(128, 128, 60.0)
 

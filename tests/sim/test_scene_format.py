@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from aes_planner.sim import SceneError, SceneSpec, load_scene, render, save_scene, scene_to_yaml
-from aes_planner.sim.spec import OBJECT_TYPES, PATTERN_KINDS, spec_to_dict
 
 from aes_planner.config import ConfigError, from_dict
+from aes_planner.sim import SceneError, SceneSpec, load_scene, render, save_scene, scene_to_yaml
+from aes_planner.sim.spec import OBJECT_TYPES, PATTERN_KINDS, spec_to_dict
 
 SCENES = Path(str(resources.files("aes_planner.sim") / "scenes"))
 SHOWCASE = SCENES / "showcase.yaml"

@@ -4,13 +4,13 @@ import math
 
 import numpy as np
 import pytest
-from aes_planner.sim import SimCamera, SimCameraConfig, load_scene, render
-from aes_planner.sim.camera import SimCameraError
-from aes_planner.sim.spec import CameraSpec, DroneSpec, SceneSpec, SphereSpec
 
 from aes_planner.config import ConfigError, from_dict
 from aes_planner.geometry import look_at
 from aes_planner.messages import PosedFrame
+from aes_planner.sim import SimCamera, SimCameraConfig, load_scene, render
+from aes_planner.sim.camera import SimCameraError
+from aes_planner.sim.spec import CameraSpec, DroneSpec, SceneSpec, SphereSpec
 
 
 @pytest.fixture(scope="module")
