@@ -1,0 +1,81 @@
+"""Scene sources and platforms: what training, evaluation and the search need from a scene.
+
+The core never imports the simulator. Training and evaluation take a :class:`SceneSource`:
+anything that yields posed frames at poses asked for and renders ground truth there. The
+simulator is one (``aes_planner.sim.SimSource``); a source backed by a real rig that captures at
+commanded poses is another. A :class:`Platform` says where the camera can go: a pan-tilt rig
+(its kinematics and joint limits) or a drone (an axis-aligned flight box).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+
+from aes_planner.config import require, require_finite
+from aes_planner.geometry.camera import Intrinsics
+from aes_planner.geometry.rig import PanTiltConfig
+from aes_planner.messages import PosedFrame
+
+__all__ = ["DroneBox", "Platform", "SceneSource"]
+
+
+@dataclass(frozen=True)
+class DroneBox:
+    """The axis-aligned box a drone may fly in, world metres."""
+
+    bounds_min_m: tuple[float, float, float]
+    bounds_max_m: tuple[float, float, float]
+
+    def __post_init__(self):
+        require_finite(list(self.bounds_min_m) + list(self.bounds_max_m), "bounds_m")
+        require(
+            all(lo < hi for lo, hi in zip(self.bounds_min_m, self.bounds_max_m)),
+            "bounds_max_m",
+            f"every component must exceed bounds_min_m, got {list(self.bounds_min_m)} / {list(self.bounds_max_m)}",
+        )
+
+    def contains(self, xyz_m) -> np.ndarray:  # [..., 3] -> [...] bool
+        p = np.asarray(xyz_m, dtype=np.float64)
+        return np.all((p >= self.bounds_min_m) & (p <= self.bounds_max_m), axis=-1)
+
+    def clamp(self, xyz_m) -> np.ndarray:  # [..., 3] -> [..., 3]
+        return np.clip(np.asarray(xyz_m, dtype=np.float64), self.bounds_min_m, self.bounds_max_m)
+
+
+@dataclass(frozen=True)
+class Platform:
+    """Where the camera can go: ``kind = "rig"`` with ``rig`` set, or ``"drone"`` with ``drone``."""
+
+    kind: str
+    intrinsics: Intrinsics
+    rig: PanTiltConfig | None = None
+    drone: DroneBox | None = None
+
+    def __post_init__(self):
+        require(self.kind in ("rig", "drone"), "kind", f"must be 'rig' or 'drone', got {self.kind!r}")
+        require(
+            (self.rig is not None) == (self.kind == "rig") and (self.drone is not None) == (self.kind == "drone"),
+            self.kind,
+            f"a {self.kind!r} platform needs its {self.kind!r} section and not the other one",
+        )
+
+
+class SceneSource(ABC):
+    """A scene that can be imaged at any pose: frames for the field, ground truth for scoring."""
+
+    #: A name for reports (``indoor:3``, a file name...).
+    name: str
+    #: The camera's platform and intrinsics.
+    platform: Platform
+
+    @abstractmethod
+    def capture(self, cam2world: np.ndarray, depth: bool = True, stamp_s: float = 0.0) -> PosedFrame:
+        """One frame at ``cam2world [4, 4]`` (world, float64), with depth when ``depth`` and available."""
+
+    @abstractmethod
+    def render_rgb(self, cam2world: np.ndarray, intrinsics: Intrinsics | None = None) -> np.ndarray:
+        """Ground-truth RGB ``[B, H, W, 3]`` float32 in [0, 1] at ``cam2world [B, 4, 4]``
+        (the platform's intrinsics unless given)."""

@@ -1,0 +1,42 @@
+import numpy as np
+import pytest
+import torch
+
+from aes_planner.config import ConfigError
+from aes_planner.field import ScorerError, check_poses
+from aes_planner.sim import SimSource
+from aes_planner.sources import DroneBox, Platform
+
+
+def test_sim_source_rig_renders_ground_truth_at_any_pose():
+    src = SimSource("indoor:1")
+    assert src.platform.kind == "rig" and src.platform.rig is not None
+    kin = src.scene.rig.kinematics()
+    poses = np.stack([kin.forward(0.0, 0.0), kin.forward(0.4, -0.1)])
+    rgb = src.render_rgb(poses)
+    k = src.platform.intrinsics
+    assert rgb.shape == (2, k.height, k.width, 3) and rgb.dtype == np.float32
+    assert 0.0 <= rgb.min() and rgb.max() <= 1.0 and not np.allclose(rgb[0], rgb[1])
+    frame = src.capture(poses[1], depth=False)
+    assert frame.depth_m is None and np.allclose(frame.image / 255.0, rgb[1], atol=1 / 255 + 1e-6)
+
+
+def test_drone_box_and_platform_validate():
+    box = DroneBox((0, 0, 0), (1, 2, 3))
+    assert box.contains([[0.5, 1, 1], [2, 0, 0]]).tolist() == [True, False]
+    assert np.allclose(box.clamp([5, -1, 1]), [1, 0, 1])
+    with pytest.raises(ConfigError):
+        DroneBox((0, 0, 0), (1, 0, 1))
+    src = SimSource("indoor:1")
+    with pytest.raises(ConfigError):
+        Platform("drone", src.platform.intrinsics, rig=src.platform.rig)
+
+
+def test_check_poses_refuses_bad_batches():
+    with pytest.raises(ScorerError, match="empty"):
+        check_poses(torch.zeros(0, 4, 4), "t")
+    with pytest.raises(ScorerError, match="NaN"):
+        check_poses(torch.full((1, 4, 4), float("nan")), "t")
+    with pytest.raises(ScorerError, match=r"\[B, 4, 4\]"):
+        check_poses(torch.eye(4), "t")
+    assert check_poses(torch.eye(4)[None].float(), "t").dtype == torch.float64
