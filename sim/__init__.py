@@ -10,6 +10,7 @@ Installed as ``aes_planner.sim``. It depends on :mod:`aes_planner.geometry`,
   rig joint angles, with optional pixel noise, pose noise and latency.
 * :class:`SimSource`: a scene as an :class:`~aes_planner.sources.SceneSource` (frames and
   ground truth at any pose, for training and evaluation).
+* :func:`render_survey`: a scene from survey poses, saved as a dataset folder.
 * :data:`FAMILIES`: the procedural scene families (``indoor``, ``outdoor``, ``tabletop``,
   ``gallery``), each a function ``seed -> SceneSpec``.
 """
@@ -20,6 +21,7 @@ from aes_planner.sim.raycast import RenderError, RenderOutput, render
 from aes_planner.sim.scene import Scene, SceneError, load_scene, save_scene, scene_to_yaml
 from aes_planner.sim.source import SimSource, platform_of
 from aes_planner.sim.spec import CameraSpec, DroneSpec, RigSpec, SceneSpec
+from aes_planner.sim.survey import render_survey
 
 __all__ = [
     "FAMILIES",
@@ -37,6 +39,7 @@ __all__ = [
     "load_scene",
     "platform_of",
     "render",
+    "render_survey",
     "save_scene",
     "scene_to_yaml",
 ]

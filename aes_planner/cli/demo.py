@@ -23,9 +23,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from aes_planner.cli.sim import render_survey
     from aes_planner.dataset import load_dataset
     from aes_planner.geometry import cam2world_to_view
+    from aes_planner.sim import render_survey
 
     stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = Path(args.runs) / f"demo-{stamp}"

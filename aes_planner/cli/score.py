@@ -11,9 +11,6 @@ import argparse
 import json
 import math
 import sys
-from pathlib import Path
-
-from aes_planner.errors import AesPlannerError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,40 +29,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def read_image(path: str | Path):  # -> Tensor [3, H, W] float in [0, 1]
-    """An image file as RGB float in [0, 1]; grey is repeated, alpha dropped, 16 bit kept."""
-    import cv2
-    import numpy as np
-    import torch
-
-    path = Path(path)
-    if not path.is_file():
-        raise AesPlannerError(f"{path}: no such image file")
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if raw is None or raw.size == 0:
-        raise AesPlannerError(f"{path}: not an image OpenCV can read (PNG, JPEG, TIFF, BMP, ...)")
-    if raw.dtype == np.uint8:
-        arr = raw.astype(np.float32) / 255.0
-    elif raw.dtype == np.uint16:
-        arr = raw.astype(np.float32) / 65535.0
-    elif raw.dtype in (np.float32, np.float64):
-        arr = np.clip(np.nan_to_num(raw.astype(np.float32)), 0.0, 1.0)
-    else:
-        raise AesPlannerError(f"{path}: unsupported pixel type {raw.dtype}; save it as 8- or 16-bit PNG")
-    if arr.ndim == 2:
-        arr = np.repeat(arr[..., None], 3, axis=2)
-    elif arr.shape[2] == 4:
-        arr = arr[..., [2, 1, 0]]  # BGRA -> RGB, alpha dropped
-    elif arr.shape[2] == 3:
-        arr = arr[..., ::-1]
-    else:
-        raise AesPlannerError(f"{path}: {arr.shape[2]} channels; expected grey, RGB or RGBA")
-    return torch.from_numpy(np.ascontiguousarray(arr)).permute(2, 0, 1).contiguous()
-
-
 def run(args: argparse.Namespace) -> int:
     import torch
 
+    from aes_planner.images import read_image
     from aes_planner.teachers import DEFAULT_TEACHER, get_teacher
 
     kwargs = {"weights": args.weights} if args.weights else {}

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from aes_planner.cli import main
-from aes_planner.cli.score import read_image
+from aes_planner.images import read_image
 from aes_planner.teachers.composition import TERMS
 from aes_planner.teachers.synthetic import canvas, draw_disc, draw_horizon
 from aes_planner.teachers.ven import VENTeacher

@@ -1,0 +1,56 @@
+"""Survey renders: a scene seen from poses spread over the rig's joint range (or the drone's box),
+saved as a dataset folder (``aes-planner sim render`` and ``aes-planner demo``)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from aes_planner.dataset import DatasetError, save_dataset
+from aes_planner.images import write_contact_sheet
+from aes_planner.sim.camera import SimCamera, SimCameraConfig
+from aes_planner.sim.scene import load_scene
+
+log = logging.getLogger(__name__)
+
+__all__ = ["render_survey"]
+
+
+def render_survey(
+    scene_spec: str,
+    views: int,
+    out: str | Path,
+    width: int | None = None,
+    height: int | None = None,
+    supersample: int = 2,
+    depth: bool = True,
+    contact_sheet: bool = False,
+) -> Path:
+    """Render ``views`` frames of a scene from survey poses and save them as a dataset folder; returns the folder."""
+    if views < 1:
+        raise DatasetError(f"--views must be at least 1, got {views}")
+    scene = load_scene(scene_spec)
+    cam = SimCamera(scene, SimCameraConfig(width=width, height=height, supersample=supersample))
+    frames, frame_meta = [], []
+    if scene.rig is not None:
+        for i, (pan, tilt) in enumerate(cam.kinematics.sweep(views)):
+            frames.append(cam.capture_joints(pan, tilt, stamp_s=float(i)))
+            frame_meta.append({"joints_rad": [float(pan), float(tilt)]})
+    else:
+        for i, pose in enumerate(scene.drone.survey_poses(views)):
+            frames.append(cam.capture_pose(pose, stamp_s=float(i)))
+            frame_meta.append({})
+    if not depth:
+        for f in frames:
+            f.depth_m = None
+    meta = {
+        "source": "aes-planner sim render",
+        "scene": scene_spec,
+        "scene_name": scene.name,
+        "platform": "rig" if scene.rig is not None else "drone",
+    }
+    path = save_dataset(out, frames, meta=meta, frame_meta=frame_meta)
+    if contact_sheet:
+        write_contact_sheet(frames, Path(out) / "contact_sheet.png")
+    log.info("rendered %d views of %s into %s", len(frames), scene_spec, path.parent)
+    return path.parent
