@@ -45,6 +45,7 @@ from aes_planner.devices import (
     GimbalTimeoutError,
 )
 from aes_planner.drivers.dynamixel_models import (
+    MODELS,
     JointCalibration,
     ServoModel,
     decode_hardware_error,
@@ -72,6 +73,13 @@ JOINTS = ("pan", "tilt")
 # Rates both the SDK (PortHandler.getCFlagBaud) and the X series accept.
 SDK_BAUD_RATES = (9_600, 57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
 POSITION_MODE = 3
+# Upper bounds of the time-like settings: a value that passes validation never hangs a command.
+MAX_LATENCY_TIMER_MS = 255.0  # the FTDI latency timer's own maximum
+MAX_BACKOFF_S = 1.0  # also the cap of each doubled wait between retries
+MAX_POLL_INTERVAL_S = 1.0
+MAX_MOVE_TIMEOUT_S = 600.0
+MAX_REBOOT_TIMEOUT_S = 60.0
+MAX_ARRIVAL_TOLERANCE_DEG = 45.0
 # One sync read covers Goal Position (116) .. Present Temperature (146) on every X-series table.
 STATE_FIRST_ITEM, STATE_LAST_ITEM = "goal_position", "present_temperature"
 
@@ -101,13 +109,18 @@ class DynamixelPanTiltConfig:
       (2048) to the joint's zero; ``*_direction``: +1 when positive servo ticks turn the joint
       positive (pan left, tilt up), else -1.
     * ``*_limits_deg``: joint limits, written to Min/Max Position Limit and enforced in software.
-    * ``profile_velocity_deg_s``/``profile_acceleration_deg_s2``: motion profile (0 = no limit).
-    * ``retries``/``backoff_s``: retries of a failed exchange, the first wait (doubling after).
+    * ``profile_velocity_deg_s``/``profile_acceleration_deg_s2``: motion profile (0 = no limit);
+      refused beyond what the servos' 32-bit registers hold (about 45000 deg/s, 700000 deg/s^2).
+    * ``retries``/``backoff_s``: retries of a failed exchange (0..20), the first wait (doubling
+      after, each wait at most :data:`MAX_BACKOFF_S`).
     * ``latency_timer_ms``: the USB adapter's latency timer; the SDK waits ``2 x`` this plus
       transmission time for a reply. 16 is the FTDI default; 1 after the udev rule of the README.
     * ``move_timeout_s``: default of :meth:`DynamixelPanTilt.wait_until_reached`;
       ``arrival_tolerance_deg``: how close counts as arrived; ``poll_interval_s``: its poll rate.
     * ``reboot_timeout_s``: how long a rebooted servo may take to answer again.
+
+    Every time-like setting has an upper bound (``MAX_*`` in this module), so that no value that
+    passes validation can make a command hang.
     """
 
     port: str
@@ -160,6 +173,29 @@ class DynamixelPanTiltConfig:
         require_numbers(
             self, ("latency_timer_ms", "move_timeout_s", "arrival_tolerance_deg", "poll_interval_s", "reboot_timeout_s")
         )
+        for name, bound, unit in (
+            ("latency_timer_ms", MAX_LATENCY_TIMER_MS, "ms (the FTDI latency timer's maximum; 16 is its default)"),
+            ("backoff_s", MAX_BACKOFF_S, "s"),
+            ("poll_interval_s", MAX_POLL_INTERVAL_S, "s"),
+            ("move_timeout_s", MAX_MOVE_TIMEOUT_S, "s"),
+            ("reboot_timeout_s", MAX_REBOOT_TIMEOUT_S, "s"),
+            ("arrival_tolerance_deg", MAX_ARRIVAL_TOLERANCE_DEG, "deg"),
+        ):
+            require(
+                getattr(self, name) <= bound, name, f"must be at most {bound:g} {unit}, got {getattr(self, name)!r}"
+            )
+        # in the control table's units, for every model the driver may find on the bus: a value the
+        # 32-bit register cannot hold would wrap (1e30 deg/s -> 0 = "no limit")
+        for name, limit in (
+            ("profile_velocity_deg_s", "max_profile_velocity_deg_s"),
+            ("profile_acceleration_deg_s2", "max_profile_acceleration_deg_s2"),
+        ):
+            bound = min(getattr(m, limit) for m in MODELS)
+            require(
+                getattr(self, name) <= bound,
+                name,
+                f"must be at most {bound:.6g} (the servos' register range; 0 = no limit), got {getattr(self, name)!r}",
+            )
 
     def calibration(self, joint: str) -> JointCalibration:
         lo, hi = getattr(self, f"{joint}_limits_deg")
@@ -330,8 +366,10 @@ class DynamixelPanTilt(Gimbal):
 
     def wait_until_reached(self, timeout_s: float | None = None) -> GimbalState:
         timeout_s = self.config.move_timeout_s if timeout_s is None else float(timeout_s)
-        if not (math.isfinite(timeout_s) and timeout_s > 0):
-            raise ValueError(f"timeout_s must be a finite number > 0, got {timeout_s!r}")
+        if not (math.isfinite(timeout_s) and 0 < timeout_s <= MAX_MOVE_TIMEOUT_S):
+            raise ConfigError(
+                "timeout_s", f"must be a number of seconds in (0, {MAX_MOVE_TIMEOUT_S:g}], got {timeout_s!r}"
+            )
         tol_rad = math.radians(self.config.arrival_tolerance_deg)
         deadline = time.monotonic() + timeout_s
         while True:
@@ -346,12 +384,13 @@ class DynamixelPanTilt(Gimbal):
                 and abs(st.pitch_rad - st.goal_pitch_rad) <= tol_rad
             ):
                 return st
-            if time.monotonic() >= deadline:
+            remaining_s = deadline - time.monotonic()
+            if remaining_s <= 0:
                 raise GimbalTimeoutError(
                     f"the gimbal did not reach its goal within {timeout_s:g} s: {st.summary()}; check for an obstruction, "
                     "raise profile_velocity_deg_s, or allow a longer timeout"
                 )
-            time.sleep(self.config.poll_interval_s)
+            time.sleep(min(self.config.poll_interval_s, remaining_s))
 
     def reboot(self) -> None:
         """REBOOT the faulted servos (all when none is), wait until they answer, clear the latch.
@@ -378,7 +417,7 @@ class DynamixelPanTilt(Gimbal):
                                 f"the {joint} servo (id {self.config.joint_id(joint)}) did not answer within "
                                 f"{self.config.reboot_timeout_s:g} s of its reboot; {_NO_REPLY_HINT}"
                             ) from None
-                        time.sleep(0.01)
+                        time.sleep(min(0.01, max(0.0, deadline - time.monotonic())))
             self._faults.clear()
             self._in_control = False
             self._identify()
@@ -563,7 +602,7 @@ class DynamixelPanTilt(Gimbal):
             if attempt < retries:
                 log.debug("%s: %s; retry %d/%d in %.3f s", what, reason, attempt + 1, retries, wait_s)
                 time.sleep(wait_s)
-                wait_s *= 2
+                wait_s = min(2 * wait_s, MAX_BACKOFF_S)
         if fatal:
             log.error("%s failed after %d tries: %s", what, retries + 1, reason)
             if self._in_control:
@@ -592,7 +631,13 @@ class DynamixelPanTilt(Gimbal):
 
     def _write_item(self, joint: str, name: str, value: int, retries: int | None = None) -> None:
         item = self._models[joint].item(name)
-        data = list(to_unsigned(int(value), item.size).to_bytes(item.size, "little"))
+        value = int(value)
+        if (item.lo is not None and value < item.lo) or (item.hi is not None and value > item.hi):
+            # never let to_unsigned() wrap a value into something else
+            raise DeviceError(
+                f"refusing to write {name}={value} to the {joint} servo: its range is {item.lo}..{item.hi}"
+            )
+        data = list(to_unsigned(value, item.size).to_bytes(item.size, "little"))
         what = "torque off" if (name, value) == ("torque_enable", 0) else f"write {name}={value} to {joint}"
         self._exchange(
             joint,
@@ -631,10 +676,12 @@ class DynamixelPanTilt(Gimbal):
                 return None, comm, 0
             blocks, errors = {}, 0
             for dxl_id in ids:
-                while True:  # as the SDK's readRx, without trusting the length
+                for _ in range(8):  # as the SDK's readRx, without trusting the length; bounded
                     rx, comm = self._ph.rxPacket(port, False)
                     if comm != sdk.COMM_SUCCESS or rx[4] == dxl_id:
                         break
+                else:
+                    return None, sdk.COMM_RX_CORRUPT, 0  # a stream of replies from other ids
                 data, comm, err = _status_data(rx, comm, length)
                 if comm != sdk.COMM_SUCCESS or data is None:
                     return None, comm, err

@@ -178,17 +178,50 @@ class ServoModel:
         return addr < self.ram_start
 
     def velocity_units(self, deg_s: float) -> int:
-        """Profile Velocity register value for ``deg_s`` (0 = no limit)."""
+        """Profile Velocity register value for ``deg_s`` (0 = no limit).
+
+        Raises :class:`ValueError` for a value the register cannot hold (it would wrap: 1e30
+        deg/s must never become 0, which means "no limit"); see :attr:`max_profile_velocity_deg_s`.
+        """
+        if not math.isfinite(deg_s):
+            raise ValueError(f"profile velocity must be finite, got {deg_s!r} deg/s")
         if deg_s <= 0:
             return 0
-        return max(1, round(deg_s / 6.0 / self.velocity_unit_rpm))  # 1 rpm = 6 deg/s
+        units = max(1, round(deg_s / 6.0 / self.velocity_unit_rpm))  # 1 rpm = 6 deg/s
+        self._check_register("profile_velocity", units, f"{deg_s:g} deg/s")
+        return units
 
     def acceleration_units(self, deg_s2: float) -> int:
-        """Profile Acceleration register value for ``deg_s2`` (0 = no limit)."""
+        """Profile Acceleration register value for ``deg_s2`` (0 = no limit); raises
+        :class:`ValueError` beyond the register's range (see :attr:`max_profile_acceleration_deg_s2`)."""
+        if not math.isfinite(deg_s2):
+            raise ValueError(f"profile acceleration must be finite, got {deg_s2!r} deg/s^2")
         if deg_s2 <= 0:
             return 0
-        unit_deg_s2 = self.acceleration_unit_rev_min2 * 360.0 / 3600.0
-        return max(1, round(deg_s2 / unit_deg_s2))
+        units = max(1, round(deg_s2 / self._acceleration_unit_deg_s2))
+        self._check_register("profile_acceleration", units, f"{deg_s2:g} deg/s^2")
+        return units
+
+    @property
+    def _acceleration_unit_deg_s2(self) -> float:
+        return self.acceleration_unit_rev_min2 * 360.0 / 3600.0  # rev/min^2 -> deg/s^2
+
+    @property
+    def max_profile_velocity_deg_s(self) -> float:
+        """The largest profile velocity the Profile Velocity register holds, in deg/s."""
+        return (self.item("profile_velocity").hi + 0.49) * 6.0 * self.velocity_unit_rpm
+
+    @property
+    def max_profile_acceleration_deg_s2(self) -> float:
+        """The largest profile acceleration the Profile Acceleration register holds, in deg/s^2."""
+        return (self.item("profile_acceleration").hi + 0.49) * self._acceleration_unit_deg_s2
+
+    def _check_register(self, name: str, units: int, what: str) -> None:
+        item = self.item(name)
+        if (item.hi is not None and units > item.hi) or (item.lo is not None and units < item.lo):
+            raise ValueError(
+                f"{what} is {units} units of {self.name}'s {name} register, whose range is {item.lo}..{item.hi}"
+            )
 
 
 _XM430_TABLE = {

@@ -62,10 +62,20 @@ from aes_planner.drivers.protocol import (
     PacketParser,
     build_status,
 )
+from aes_planner.errors import AesPlannerError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["BAUD_RATES", "FaultPlan", "EmulatedServo", "ServoBus", "ServoEmulator", "EmulatorProcess"]
+__all__ = [
+    "BAUD_RATES",
+    "LinkError",
+    "check_link_path",
+    "FaultPlan",
+    "EmulatedServo",
+    "ServoBus",
+    "ServoEmulator",
+    "EmulatorProcess",
+]
 
 # Baud Rate register value -> bits per second (X series).
 BAUD_RATES: dict[int, int] = {
@@ -92,6 +102,34 @@ def _termios_bauds() -> dict[int, int]:
 
 
 _TERMIOS_BAUDS = _termios_bauds()
+
+
+class LinkError(AesPlannerError, ValueError):
+    """``--link PATH`` names something the emulator must not replace."""
+
+
+def check_link_path(link: Path) -> None:
+    """Raise :class:`LinkError` unless the emulator may put its symlink at ``link``.
+
+    Allowed: nothing there, or a *dangling* symlink (what an emulator that was killed leaves
+    behind; its pty is gone). Refused: a file, a directory, a device, or a symlink that still
+    points at something that exists (another running emulator's pty, a ``/dev/serial/by-id``
+    link, a user's file): never touch what is not ours.
+    """
+    if not os.path.lexists(link):
+        if not link.parent.is_dir():
+            raise LinkError(f"--link {link}: the folder {link.parent} does not exist")
+        return
+    if not link.is_symlink():
+        kind = "folder" if link.is_dir() else "file"
+        raise LinkError(
+            f"--link {link}: a {kind} exists there; choose a path that does not exist (it is never replaced)"
+        )
+    if link.exists():
+        raise LinkError(
+            f"--link {link}: a symlink to {os.readlink(link)}, which exists (another emulator or device?), is there; "
+            "remove it yourself or choose another path"
+        )
 
 
 @dataclass
@@ -547,6 +585,8 @@ class ServoEmulator:
         self.bus = ServoBus(EmulatedServo(model_by_name(name), i, baud) for name, i in zip(models, ids))
         self.faults = faults or FaultPlan()
         self.link = Path(link) if link is not None else None
+        if self.link is not None:
+            check_link_path(self.link)  # before anything is opened: refuse early, touch nothing
         self.wire_timing = wire_timing
         self.lock = threading.RLock()
         self.packets_seen = 0
@@ -558,7 +598,12 @@ class ServoEmulator:
         self._wake_r, self._wake_w = os.pipe()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._open_pty()
+        try:
+            self._open_pty(strict=True)
+        except BaseException:
+            for fd in (self._wake_r, self._wake_w):
+                os.close(fd)
+            raise
 
     # ------------------------------------------------------------------------------ public
     @property
@@ -683,7 +728,7 @@ class ServoEmulator:
             finally:
                 done.set()
 
-    def _open_pty(self) -> None:
+    def _open_pty(self, strict: bool = False) -> None:
         if self._master is not None:
             return
         master, slave = os.openpty()
@@ -693,19 +738,49 @@ class ServoEmulator:
         self._pty_path = os.ttyname(slave)
         self._parser.clear()
         if self.link is not None:
-            tmp = self.link.with_name(self.link.name + ".tmp")
-            tmp.unlink(missing_ok=True)
-            tmp.symlink_to(self._pty_path)
-            os.replace(tmp, self.link)
+            try:
+                self._point_link()
+            except (OSError, LinkError) as exc:
+                if strict:
+                    self._close_pty()
+                    raise exc if isinstance(exc, LinkError) else LinkError(f"--link {self.link}: {exc}") from None
+                # on restore() (in the I/O loop): serve on the pty anyway, say why the link is missing
+                log.error("servo emulator: cannot keep the link %s: %s", self.link, exc)
         log.info("servo emulator on %s", self.port)
 
-    def _close_pty(self) -> None:
-        if self.link is not None:
+    def _point_link(self) -> None:
+        """Point ``link`` at the current pty: atomically, and only over a path we may replace."""
+        check_link_path(self.link)
+        # a fresh temporary name beside the link: never overwrite anything that exists
+        for _ in range(100):
+            tmp = self.link.with_name(f".{self.link.name}.{os.getpid()}.{random.getrandbits(32):08x}.tmp")
             try:
-                if self.link.is_symlink():
-                    self.link.unlink()
-            except OSError:
-                pass
+                tmp.symlink_to(self._pty_path)
+                break
+            except FileExistsError:
+                continue
+        else:
+            raise LinkError(f"cannot create a temporary link beside {self.link}")
+        try:
+            os.replace(tmp, self.link)
+        except OSError:
+            tmp.unlink(missing_ok=True)
+            raise
+
+    def _remove_link(self) -> None:
+        """Remove the link only while it is still ours: a symlink pointing at our pty."""
+        if self.link is None or self._pty_path is None:
+            return
+        try:
+            if self.link.is_symlink() and os.readlink(self.link) == self._pty_path:
+                self.link.unlink()
+            elif os.path.lexists(self.link):
+                log.warning("servo emulator: %s no longer points at %s; leaving it alone", self.link, self._pty_path)
+        except OSError as exc:
+            log.warning("servo emulator: could not remove the link %s: %s", self.link, exc)
+
+    def _close_pty(self) -> None:
+        self._remove_link()
         for fd in (self._master, self._slave):
             if fd is not None:
                 try:

@@ -107,6 +107,26 @@ def _gimbal(args: argparse.Namespace):
     return DynamixelPanTilt(_driver_config(args))
 
 
+def _driving(run):
+    """Run a command that talks to the servos under :func:`~aes_planner.devices.stop_on_signals`:
+    SIGTERM is handled like Ctrl-C (the ``with gimbal`` block turns torque off on the way out),
+    and the command exits with 128 + the signal's number."""
+
+    def wrapped(args: argparse.Namespace) -> int:
+        from aes_planner.devices import SignalShutdown, stop_on_signals
+
+        try:
+            with stop_on_signals():
+                return run(args)
+        except SignalShutdown as exc:
+            print(f"{exc}: stopped, torque off", file=sys.stderr, flush=True)
+            return exc.exit_code
+
+    wrapped.__name__ = run.__name__
+    wrapped.__doc__ = run.__doc__
+    return wrapped
+
+
 def run_emulate(args: argparse.Namespace) -> int:
     from aes_planner.drivers.emulator import FaultPlan, ServoEmulator
 
@@ -131,6 +151,7 @@ def run_emulate(args: argparse.Namespace) -> int:
     return 0
 
 
+@_driving
 def run_scan(args: argparse.Namespace) -> int:
     from aes_planner.drivers.dynamixel import scan
 
@@ -141,14 +162,19 @@ def run_scan(args: argparse.Namespace) -> int:
     return 0
 
 
+@_driving
 def run_move(args: argparse.Namespace) -> int:
     for name in ("yaw_deg", "pitch_deg"):
         if not math.isfinite(getattr(args, name)):
             raise AesPlannerError(
                 f"--{name.replace('_', '-')} must be a finite number of degrees, got {getattr(args, name)}"
             )
-    if args.timeout_s is not None and not (math.isfinite(args.timeout_s) and args.timeout_s > 0):
-        raise AesPlannerError(f"--timeout-s must be a number of seconds > 0, got {args.timeout_s}")
+    from aes_planner.drivers.dynamixel import MAX_MOVE_TIMEOUT_S
+
+    if args.timeout_s is not None and not (math.isfinite(args.timeout_s) and 0 < args.timeout_s <= MAX_MOVE_TIMEOUT_S):
+        raise AesPlannerError(
+            f"--timeout-s must be a number of seconds in (0, {MAX_MOVE_TIMEOUT_S:g}], got {args.timeout_s}"
+        )
     with _gimbal(args) as gimbal:
         yaw_rad, pitch_rad = gimbal.move_to(math.radians(args.yaw_deg), math.radians(args.pitch_deg))
         clamped = (math.degrees(yaw_rad), math.degrees(pitch_rad))
@@ -164,6 +190,7 @@ def run_move(args: argparse.Namespace) -> int:
     return 0
 
 
+@_driving
 def run_state(args: argparse.Namespace) -> int:
     with _gimbal(args) as gimbal:
         state = gimbal.state()
@@ -173,6 +200,7 @@ def run_state(args: argparse.Namespace) -> int:
     return 0
 
 
+@_driving
 def run_reboot(args: argparse.Namespace) -> int:
     with _gimbal(args) as gimbal:
         before = gimbal.faults

@@ -1,0 +1,146 @@
+"""Safety on the way out: signals stop the servos with torque off; the emulator's ``--link`` never
+touches what is not its own."""
+
+import os
+import select
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from aes_planner.cli import main
+from aes_planner.devices import SignalShutdown, stop_on_signals
+from aes_planner.drivers.emulator import LinkError, ServoEmulator
+
+
+# ------------------------------------------------------------------------------ stop_on_signals
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_raises_signal_shutdown_and_handlers_are_restored(sig):
+    before = signal.getsignal(sig)
+    with pytest.raises(SignalShutdown) as info:
+        with stop_on_signals():
+            os.kill(os.getpid(), sig)
+            time.sleep(5.0)  # interrupted
+    assert info.value.signum == sig and info.value.exit_code == 128 + sig
+    assert isinstance(info.value, KeyboardInterrupt)  # every Ctrl-C clean-up path applies
+    assert signal.getsignal(sig) is before
+
+
+def test_further_signals_do_not_interrupt_the_cleanup():
+    cleaned = []
+    with pytest.raises(SignalShutdown):
+        with stop_on_signals():
+            try:
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(5.0)
+            finally:
+                os.kill(os.getpid(), signal.SIGTERM)  # a supervisor repeats itself mid-cleanup
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.01)
+                cleaned.append(True)
+    assert cleaned == [True]
+
+
+def test_on_signal_callback_first_then_raise():
+    seen = []
+    with pytest.raises(SignalShutdown):
+        with stop_on_signals(on_signal=seen.append):
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.01)
+            assert seen == [signal.SIGTERM]  # asked to stop, nothing raised yet
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5.0)
+
+
+# ------------------------------------------------------------------------------ gimbal move + SIGTERM
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_during_gimbal_move_stops_with_torque_off(tmp_path, sig):
+    cfg = tmp_path / "slow.yaml"
+    cfg.write_text("profile_velocity_deg_s: 10.0\nprofile_acceleration_deg_s2: 100.0\nlatency_timer_ms: 25\n")
+    with ServoEmulator() as emu:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "aes_planner", "gimbal", "move", "--port", emu.port, "--config", str(cfg)]
+            + ["--yaw-deg", "90", "--pitch-deg", "0"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            ready, _, _ = select.select([proc.stdout], [], [], 60.0)
+            assert ready, "gimbal move printed nothing"
+            assert proc.stdout.readline().startswith("moving to yaw +90.00 deg")
+            time.sleep(0.3)  # well on the way (90 deg at 10 deg/s takes 9 s)
+            with emu.lock:
+                assert [s.torque_on for _, s in sorted(emu.servos.items())] == [True, True]
+            proc.send_signal(sig)
+            rc = proc.wait(20.0)
+            err = proc.stderr.read()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(5.0)
+            proc.stdout.close()
+            proc.stderr.close()
+        assert rc == 128 + sig, err
+        assert f"stopped by {signal.Signals(sig).name}: stopped, torque off" in err and "Traceback" not in err
+        with emu.lock:
+            servos = [s for _, s in sorted(emu.servos.items())]
+            assert [s.torque_on for s in servos] == [False, False]
+            pan = servos[0]
+            pan.update()
+            stopped_at = pan.get("present_position")
+            assert pan.velocity_ticks_s == 0.0 and pan.get("moving") == 0
+            assert 2048 < stopped_at < 2048 + 1024  # stopped on the way, short of +90 deg
+        time.sleep(0.1)
+        with emu.lock:
+            pan.update()
+            assert pan.get("present_position") == stopped_at  # and stays there
+
+
+# ------------------------------------------------------------------------------ --link
+def test_link_refuses_an_existing_file_and_leaves_it_alone(tmp_path, capsys):
+    victim = tmp_path / "notes.txt"
+    victim.write_text("precious")
+    with pytest.raises(LinkError, match="a file exists there"):
+        ServoEmulator(link=victim)
+    assert main(["gimbal", "emulate", "--link", str(victim)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "a file exists there" in err and err.count("\n") == 1
+    assert victim.read_text() == "precious" and not victim.is_symlink()
+
+
+def test_link_refuses_a_folder_and_a_live_symlink(tmp_path):
+    folder = tmp_path / "d"
+    folder.mkdir()
+    with pytest.raises(LinkError, match="a folder exists there"):
+        ServoEmulator(link=folder)
+    assert folder.is_dir()
+    target = tmp_path / "device"
+    target.write_text("x")
+    live = tmp_path / "by-id"
+    live.symlink_to(target)
+    with pytest.raises(LinkError, match="which exists"):
+        ServoEmulator(link=live)
+    assert os.readlink(live) == str(target)
+    with pytest.raises(LinkError, match="does not exist"):
+        ServoEmulator(link=tmp_path / "missing" / "tty")
+
+
+def test_link_replaces_a_dangling_symlink_and_removes_only_its_own(tmp_path):
+    link = tmp_path / "ttyDXL"
+    link.symlink_to(tmp_path / "gone")  # what a killed emulator leaves behind
+    beside = tmp_path / "ttyDXL.tmp"
+    beside.write_text("not ours")  # the old code deleted this
+    with ServoEmulator(link=link) as emu:
+        assert os.readlink(link) == emu.pty_path
+    assert not os.path.lexists(link)
+    assert beside.read_text() == "not ours"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ttyDXL.tmp"]  # no temporary left over
+
+    # the link was re-pointed by someone else meanwhile: it is theirs now, left alone
+    with ServoEmulator(link=link):
+        link.unlink()
+        link.symlink_to(beside)
+    assert os.readlink(link) == str(beside) and beside.read_text() == "not ours"
