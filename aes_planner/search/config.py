@@ -1,0 +1,140 @@
+"""``SearchConfig``: every knob of the two-stage viewpoint search, with presets.
+
+Presets (``fast``, ``balanced``, ``accurate``) fix the speed/accuracy knobs; any field can be
+overridden (``SearchConfig.preset("balanced", steps=30)``). Their place on the speed/accuracy
+curve is measured by ``aes-planner bench search`` and written to ``docs/benchmarks.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from aes_planner.config import ConfigError, require, require_finite
+
+__all__ = ["PRESETS", "SearchConfig"]
+
+
+@dataclass
+class SearchConfig:
+    """Knobs of :func:`aes_planner.search.search_views` (and of the scorer built for it).
+
+    Stage 1 (coarse sampling):
+
+    * ``samples_per_segment`` (S): poses per segment of the interpolated input trajectory.
+    * ``neighbours`` (N): perturbed poses around each trajectory sample (direction jitter; in free
+      mode also in-plane shifts).
+    * ``jitter_fov``: direction jitter, as a fraction of the horizontal field of view (uniform in
+      +-jitter on yaw/pan and pitch/tilt).
+    * ``shift_frac``: in-plane shift (free mode), as a fraction of the flight box's diagonal.
+    * ``top_k`` (K): distinct candidates handed to stage 2.
+    * ``dedup_fov`` / ``dedup_frac``: two candidates closer than this angle (fraction of the hfov)
+      plus position distance (fraction of the box diagonal) are duplicates.
+
+    Stage 2 (refinement): ``steps`` Adam steps of learning rate ``lr`` on the pose parameters
+    (rig: pan, tilt in radians; free: x, y, z in metres, yaw, pitch in radians), projected back into
+    the joint limits / flight box after every step. A scorer that is not differentiable is refined
+    with central finite differences of step ``fd_step`` (``nondiff_refine = "fd"``) or not at all
+    (``"skip"``).
+
+    Coverage: the objective is ``score - coverage_penalty * max(0, coverage_min - coverage)``; final
+    suggestions with coverage below ``coverage_min`` are dropped unless nothing else is left (then
+    the result says so in ``warnings``).
+
+    Scorer knobs (used when the search builds the scorer: ``suggest``, ``eval``, ``bench``):
+    ``render_scale`` (fraction of the camera's resolution the field/RGB renders at) and
+    ``gaussian_budget`` (``None``: the reconstruction's default).
+
+    ``pitch_limits_deg``: the pitch range searched in free mode (a drone gimbal's range).
+    ``batch_size``: poses per scorer call in stage 1. ``seed``: the sampling seed.
+    """
+
+    samples_per_segment: int = 16
+    neighbours: int = 8
+    top_k: int = 2
+    steps: int = 25
+    lr: float = 0.01
+    jitter_fov: float = 0.35
+    shift_frac: float = 0.05
+    dedup_fov: float = 0.2
+    dedup_frac: float = 0.05
+    coverage_min: float = 0.8
+    coverage_penalty: float = 2.0
+    fd_step: float = 0.02
+    nondiff_refine: str = "fd"
+    render_scale: float = 0.5
+    gaussian_budget: int | None = None
+    pitch_limits_deg: tuple[float, float] = (-60.0, 30.0)
+    batch_size: int = 64
+    seed: int = 0
+    preset_name: str = "custom"
+
+    def __post_init__(self):
+        for name in ("samples_per_segment", "neighbours", "top_k", "batch_size"):
+            v = getattr(self, name)
+            require(
+                isinstance(v, int) and not isinstance(v, bool) and v >= 1, name, f"must be an integer >= 1, got {v!r}"
+            )
+        require(
+            isinstance(self.steps, int) and not isinstance(self.steps, bool) and self.steps >= 0,
+            "steps",
+            f"must be an integer >= 0, got {self.steps!r}",
+        )
+        require(
+            isinstance(self.seed, int) and not isinstance(self.seed, bool),
+            "seed",
+            f"must be an integer, got {self.seed!r}",
+        )
+        for name in ("lr", "jitter_fov", "shift_frac", "dedup_fov", "dedup_frac", "fd_step", "render_scale"):
+            v = getattr(self, name)
+            require_finite(v, name)
+            require(v > 0, name, f"must be > 0, got {v}")
+        for name in ("coverage_min", "coverage_penalty"):
+            v = getattr(self, name)
+            require_finite(v, name)
+            require(v >= 0, name, f"must be >= 0, got {v}")
+        require(self.coverage_min <= 1.0, "coverage_min", f"must be in [0, 1], got {self.coverage_min}")
+        require(self.render_scale <= 4.0, "render_scale", f"must be in (0, 4], got {self.render_scale}")
+        require(self.lr <= 1.0, "lr", f"must be in (0, 1] (radians or metres per step), got {self.lr}")
+        require(
+            self.nondiff_refine in ("fd", "skip"),
+            "nondiff_refine",
+            f"must be 'fd' (finite differences) or 'skip', got {self.nondiff_refine!r}",
+        )
+        if self.gaussian_budget is not None:
+            require(
+                isinstance(self.gaussian_budget, int) and self.gaussian_budget >= 1,
+                "gaussian_budget",
+                f"must be a positive integer or None, got {self.gaussian_budget!r}",
+            )
+        p = tuple(self.pitch_limits_deg)
+        require(len(p) == 2, "pitch_limits_deg", f"must be (min, max), got {self.pitch_limits_deg!r}")
+        require_finite(list(p), "pitch_limits_deg")
+        require(-90.0 <= p[0] < p[1] <= 90.0, "pitch_limits_deg", f"must satisfy -90 <= min < max <= 90, got {p}")
+        self.pitch_limits_deg = (float(p[0]), float(p[1]))
+
+    @property
+    def pitch_limits_rad(self) -> tuple[float, float]:
+        return (math.radians(self.pitch_limits_deg[0]), math.radians(self.pitch_limits_deg[1]))
+
+    @classmethod
+    def preset(cls, name: str = "balanced", **overrides: Any) -> SearchConfig:
+        """The named preset with ``overrides`` applied; unknown names or keys are errors."""
+        if name not in PRESETS:
+            raise ConfigError("preset", f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
+        known = {f.name for f in dataclasses.fields(cls)}
+        for key in overrides:
+            if key not in known:
+                raise ConfigError(key, f"unknown search setting; expected one of: {', '.join(sorted(known))}")
+        values = {**PRESETS[name], "preset_name": name, **overrides}
+        return cls(**values)
+
+
+#: Preset name -> the fields it sets (everything else keeps the dataclass default).
+PRESETS: dict[str, dict[str, Any]] = {
+    "fast": dict(samples_per_segment=4, neighbours=4, top_k=1, steps=10, render_scale=0.25),
+    "balanced": dict(samples_per_segment=16, neighbours=8, top_k=2, steps=25, render_scale=0.5),
+    "accurate": dict(samples_per_segment=32, neighbours=16, top_k=3, steps=30, render_scale=1.0),
+}

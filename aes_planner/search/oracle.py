@@ -1,0 +1,203 @@
+"""The oracle: exhaustive search of the feasible space on ground-truth renders, cached on disk.
+
+* rig: a pan x tilt grid over the joint limits (``step_deg`` apart), then a local pattern search
+  (halving steps down to ``min_step_deg``) from the best ``refine_starts`` grid points;
+* free: a grid of positions in the flight box x yaw x pitch (inside ``pitch_limits_deg``), then the
+  same pattern search in 5-DoF (positions step a fraction of the box).
+
+It also scores ``random_samples`` uniformly random feasible poses: their mean is the "chance"
+level of the oracle-normalised score ``(s - mean random) / (oracle - mean random)``.
+
+Results are cached as ``.npz`` (arrays) + ``.json`` (settings) under ``cache_dir`` (default
+``$AES_PLANNER_CACHE/oracle`` or ``~/.cache/aes-planner/oracle``), keyed by a hash of the scene key,
+the platform, the teacher, the intrinsics and the settings. Never pickle.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import logging
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from aes_planner.search.config import SearchConfig
+from aes_planner.search.ground_truth import GroundTruthScorer
+from aes_planner.search.space import SearchSpace, space_for
+from aes_planner.sources import Platform, SceneSource
+
+log = logging.getLogger(__name__)
+
+__all__ = ["default_cache_dir", "oracle_search"]
+
+ORACLE_VERSION = 1
+
+
+def default_cache_dir() -> Path:
+    root = os.environ.get("AES_PLANNER_CACHE")
+    return Path(root) if root else Path.home() / ".cache" / "aes-planner"
+
+
+def _platform_dict(platform: Platform) -> dict[str, Any]:
+    d: dict[str, Any] = {"kind": platform.kind, "intrinsics": dataclasses.asdict(platform.intrinsics)}
+    if platform.rig is not None:
+        d["rig"] = dataclasses.asdict(platform.rig)
+    if platform.drone is not None:
+        d["drone"] = dataclasses.asdict(platform.drone)
+    return d
+
+
+def _grid(space: SearchSpace, step_rad: float, free_positions: tuple[int, int, int]) -> torch.Tensor:  # [G, D]
+    lo, hi = space.lower.numpy(), space.upper.numpy()
+
+    def span(a: float, b: float, step: float) -> np.ndarray:
+        n = max(2, int(math.floor((b - a) / step)) + 1)
+        return np.linspace(a, b, n)
+
+    if space.kind == "rig":
+        pans, tilts = np.meshgrid(span(lo[0], hi[0], step_rad), span(lo[1], hi[1], step_rad), indexing="xy")
+        return torch.as_tensor(np.stack([pans.ravel(), tilts.ravel()], -1))
+    axes = []
+    for i, n in enumerate(free_positions):  # cell centres, so no view sits on a wall
+        edges = np.linspace(lo[i], hi[i], n + 1)
+        axes.append(0.5 * (edges[:-1] + edges[1:]))
+    yaws = np.arange(0.0, 2 * math.pi, step_rad) - math.pi
+    pitches = span(lo[4], hi[4], step_rad)
+    mesh = np.meshgrid(*axes, yaws, pitches, indexing="ij")
+    return torch.as_tensor(np.stack([m.ravel() for m in mesh], -1))
+
+
+def _pattern_search(
+    scorer: GroundTruthScorer,
+    space: SearchSpace,
+    start: torch.Tensor,
+    score0: float,
+    steps: np.ndarray,
+    min_scale: float,
+) -> tuple[torch.Tensor, float]:
+    """Compass search from ``start [D]``: try +-step on each axis, move to the best, else halve."""
+    p, best, scale = start.clone(), score0, 1.0
+    while scale >= min_scale:
+        probes = []
+        for d in range(space.dims):
+            for sign in (1.0, -1.0):
+                q = p.clone()
+                q[d] += sign * scale * steps[d]
+                probes.append(q)
+        probes_t = space.project(torch.stack(probes))
+        out = scorer.score_batched(space.to_poses(probes_t))
+        i = int(torch.argmax(out.score))
+        if float(out.score[i]) > best + 1e-9:
+            p, best = probes_t[i], float(out.score[i])
+        else:
+            scale /= 2
+    return p, best
+
+
+def oracle_search(
+    source: SceneSource,
+    teacher,
+    platform: Platform | None = None,
+    *,
+    step_deg: float = 5.0,
+    free_positions: tuple[int, int, int] = (3, 3, 2),
+    free_step_deg: float = 30.0,
+    refine_starts: int = 3,
+    min_step_deg: float = 0.5,
+    random_samples: int = 64,
+    pitch_limits_deg: tuple[float, float] = (-60.0, 30.0),
+    scene_key: str | None = None,
+    cache_dir: str | Path | None = None,
+    use_cache: bool = True,
+    seed: int = 0,
+) -> tuple[float, np.ndarray, dict[str, Any]]:
+    """Best ground-truth teacher score over the feasible space, its pose ``[4, 4]``, and extras.
+
+    ``extras``: ``grid_params [G, D]`` and ``grid_scores [G]`` (the exhaustive grid; on a rig
+    ``pan_values``/``tilt_values`` give its axes, scores reshape to ``[tilt, pan]``),
+    ``random_scores [R]``, ``mean_random``, ``renders`` and ``cached``.
+    """
+    platform = platform or source.platform
+    cfg = SearchConfig(pitch_limits_deg=pitch_limits_deg)
+    space = space_for(platform, cfg)
+    settings = {
+        "version": ORACLE_VERSION,
+        "scene": scene_key or source.name,
+        "platform": _platform_dict(platform),
+        "teacher": [getattr(teacher, "name", type(teacher).__name__), repr(getattr(teacher, "config", None))],
+        "supersample": getattr(source, "supersample", None),
+        "step_deg": step_deg,
+        "free_positions": list(free_positions),
+        "free_step_deg": free_step_deg,
+        "refine_starts": refine_starts,
+        "min_step_deg": min_step_deg,
+        "random_samples": random_samples,
+        "pitch_limits_deg": list(pitch_limits_deg),
+        "seed": seed,
+    }
+    key = hashlib.sha256(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()[:20]
+    cache = Path(cache_dir) if cache_dir is not None else default_cache_dir() / "oracle"
+    npz_path, json_path = cache / f"{key}.npz", cache / f"{key}.json"
+    if use_cache and npz_path.is_file():
+        with np.load(npz_path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+        extras = _extras(space, data, cached=True)
+        return float(data["best_score"]), data["best_cam2world"], extras
+
+    scorer = GroundTruthScorer(source, teacher)
+    step = math.radians(step_deg if space.kind == "rig" else free_step_deg)
+    grid = _grid(space, step, free_positions)
+    log.info("oracle: scoring %d grid poses of %s", len(grid), settings["scene"])
+    grid_scores = scorer.score_batched(space.to_poses(grid)).score.double()
+    rng = np.random.default_rng(seed)
+    rand = space.random(random_samples, rng)
+    random_scores = scorer.score_batched(space.to_poses(rand)).score.double()
+
+    steps = np.full(space.dims, step / 2)
+    if space.kind == "free":
+        lo, hi = space.lower.numpy()[:3], space.upper.numpy()[:3]
+        steps[:3] = (hi - lo) / np.asarray(free_positions) / 2
+    best_p, best_s = grid[int(torch.argmax(grid_scores))], float(grid_scores.max())
+    for i in torch.argsort(grid_scores, descending=True)[:refine_starts].tolist():
+        p, s = _pattern_search(
+            scorer, space, grid[i], float(grid_scores[i]), steps, math.radians(min_step_deg) / step * 2
+        )
+        if s > best_s:
+            best_p, best_s = p, s
+    best_pose = space.to_poses(best_p[None])[0].numpy()
+    data = {
+        "best_score": np.float64(best_s),
+        "best_cam2world": best_pose,
+        "best_params": best_p.numpy(),
+        "grid_params": grid.numpy(),
+        "grid_scores": grid_scores.numpy(),
+        "random_scores": random_scores.numpy(),
+        "renders": np.int64(scorer.renders),
+    }
+    if use_cache:
+        cache.mkdir(parents=True, exist_ok=True)
+        np.savez(npz_path, **data)
+        json_path.write_text(json.dumps(settings, indent=1, default=str) + "\n")
+    return best_s, best_pose, _extras(space, data, cached=False)
+
+
+def _extras(space: SearchSpace, data: dict[str, np.ndarray], cached: bool) -> dict[str, Any]:
+    extras: dict[str, Any] = {
+        "grid_params": data["grid_params"],
+        "grid_scores": data["grid_scores"],
+        "random_scores": data["random_scores"],
+        "mean_random": float(np.mean(data["random_scores"])),
+        "best_params": data["best_params"],
+        "renders": int(data["renders"]),
+        "cached": cached,
+    }
+    if space.kind == "rig":
+        extras["pan_values"] = np.unique(data["grid_params"][:, 0])
+        extras["tilt_values"] = np.unique(data["grid_params"][:, 1])
+    return extras

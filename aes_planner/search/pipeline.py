@@ -1,0 +1,278 @@
+"""The two-stage viewpoint search (the paper's section 3.2), top to bottom.
+
+1. **Coarse sampling.** The input poses are joined into a trajectory (slerp on rotations, lerp on
+   positions: :func:`aes_planner.geometry.interpolate_poses`), sampled ``S`` times per segment and
+   projected into the search space (rig: the joints that aim the camera there; free: the 5-DoF
+   view, inside the box). Around each sample ``N`` neighbours are drawn (direction jitter; in free
+   mode also in-plane shifts along the image axes). Every candidate is scored in batches; the
+   top ``K`` by objective survive a distance-based duplicate check.
+2. **Refinement.** Each survivor is refined by Adam on its parameters (lr 0.01, 25 steps by
+   default), projected into the joint limits / box after every step. The best iterate of each is
+   kept; they are returned ranked.
+
+The objective is the scorer's score minus a coverage penalty, so views of space the scorer has
+not observed lose; suggestions below ``coverage_min`` are dropped unless nothing else remains.
+Any :class:`~aes_planner.field.scorer.Scorer` plugs in; a non-differentiable one is refined with
+central finite differences (or not at all: ``nondiff_refine="skip"``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from aes_planner.errors import AesPlannerError
+from aes_planner.field.scorer import ScoreOutput, Scorer
+from aes_planner.geometry.poses import cam2world_to_view
+from aes_planner.geometry.trajectory import interpolate_poses
+from aes_planner.search.config import SearchConfig
+from aes_planner.search.space import SearchSpace, space_for
+from aes_planner.sources import Platform
+
+log = logging.getLogger(__name__)
+
+__all__ = ["SearchError", "SearchResult", "Suggestion", "search_views"]
+
+
+class SearchError(AesPlannerError, ValueError):
+    """The search cannot run on these inputs (no poses, non-finite poses, wrong shapes)."""
+
+
+@dataclass
+class Suggestion:
+    """One suggested view, world frame. ``pan_rad``/``tilt_rad`` are set on a rig only."""
+
+    cam2world: np.ndarray  # [4, 4] float64, world
+    position_m: np.ndarray  # [3]
+    yaw_rad: float
+    pitch_rad: float
+    score: float
+    coverage: float
+    terms: dict[str, float]
+    pan_rad: float | None = None
+    tilt_rad: float | None = None
+    objective: float = 0.0
+    stage1_score: float = 0.0
+
+    def to_json(self) -> dict:
+        """The ``suggest --json`` entry (degrees at the edge)."""
+        out = {
+            "cam2world": self.cam2world.tolist(),
+            "position_m": self.position_m.tolist(),
+            "yaw_deg": math.degrees(self.yaw_rad),
+            "pitch_deg": math.degrees(self.pitch_rad),
+            "score": self.score,
+            "coverage": self.coverage,
+            "terms": dict(self.terms),
+        }
+        if self.pan_rad is not None:
+            out = {"cam2world": out.pop("cam2world"), "pan_deg": math.degrees(self.pan_rad),
+                   "tilt_deg": math.degrees(self.tilt_rad), **out}  # fmt: skip
+        return out
+
+
+@dataclass
+class SearchResult:
+    """Suggestions best first, the stage-1 candidates (for plots) and where the time went."""
+
+    suggestions: list[Suggestion]
+    mode: str
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    candidates_cam2world: np.ndarray | None = None  # [C, 4, 4] stage-1 candidates
+    candidates_score: np.ndarray | None = None  # [C]
+    candidates_coverage: np.ndarray | None = None  # [C]
+    scored: int = 0  # poses scored in total
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def best(self) -> Suggestion:
+        return self.suggestions[0]
+
+
+def _check_inputs(inputs_cam2world) -> np.ndarray:  # -> [N, 4, 4] float64
+    poses = inputs_cam2world.detach().cpu().numpy() if isinstance(inputs_cam2world, Tensor) else inputs_cam2world
+    poses = np.asarray(poses, dtype=np.float64)
+    if poses.ndim == 2 and poses.shape == (4, 4):
+        poses = poses[None]
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
+        raise SearchError(f"inputs_cam2world must be [N, 4, 4], got shape {poses.shape}")
+    if len(poses) == 0:
+        raise SearchError("inputs_cam2world is empty; the search needs at least one input view")
+    if not np.all(np.isfinite(poses)):
+        raise SearchError("inputs_cam2world contains NaN or inf; pass finite world-frame poses")
+    return poses
+
+
+def _objective(out: ScoreOutput, cfg: SearchConfig) -> Tensor:  # -> [B]
+    shortfall = torch.clamp(cfg.coverage_min - out.coverage.to(out.score.dtype), min=0.0)
+    return out.score - cfg.coverage_penalty * shortfall
+
+
+def _select_distinct(space: SearchSpace, params: Tensor, objective: Tensor, k: int, avoid: Tensor | None) -> Tensor:
+    """Indices of the top ``k`` by objective, skipping near-duplicates of kept ones and of ``avoid``."""
+    order = torch.argsort(objective, descending=True)
+    kept: list[int] = []
+    dist_avoid = space.distance(params, avoid) if avoid is not None and len(avoid) else None  # [C, A]
+    for idx in order.tolist():
+        if dist_avoid is not None and bool((dist_avoid[idx] < 1.0).any()):
+            continue
+        if kept and bool((space.distance(params[idx : idx + 1], params[kept]) < 1.0).any()):
+            continue
+        kept.append(idx)
+        if len(kept) == k:
+            break
+    if not kept:  # everything is near an avoided pose: fall back to the best
+        kept = order[:k].tolist()
+    return torch.tensor(kept, dtype=torch.long)
+
+
+def _gradient(scorer: Scorer, space: SearchSpace, params: Tensor, cfg: SearchConfig, differentiable: bool):
+    """Objective ``[K]`` at ``params [K, D]`` and its gradient ``[K, D]`` (autograd or central FD)."""
+    if differentiable:
+        p = params.detach().clone().requires_grad_(True)
+        out = scorer.score(space.to_poses(p))
+        obj = _objective(out, cfg)
+        if obj.requires_grad:
+            (grad,) = torch.autograd.grad(obj.sum(), p, allow_unused=True)
+            if grad is not None:
+                return obj.detach(), out.detach(), torch.nan_to_num(grad, nan=0.0, posinf=0.0, neginf=0.0)
+        return obj.detach(), out.detach(), torch.zeros_like(params)
+    k, d = params.shape
+    eye = torch.eye(d, dtype=params.dtype) * cfg.fd_step
+    probes = torch.cat([params[:, None], params[:, None] + eye, params[:, None] - eye], dim=1)  # [K, 1 + 2D, D]
+    probes = space.project(probes.reshape(-1, d)).reshape(k, 1 + 2 * d, d)
+    out = scorer.score_batched(space.to_poses(probes.reshape(-1, d)), cfg.batch_size)
+    obj = _objective(out, cfg).reshape(k, 1 + 2 * d)
+    step = (probes[:, 1 : 1 + d] - probes[:, 1 + d :]).diagonal(dim1=1, dim2=2)  # [K, D] actual spacing
+    grad = (obj[:, 1 : 1 + d] - obj[:, 1 + d :]) / torch.where(step.abs() > 1e-12, step, torch.ones_like(step))
+    grad = torch.where(step.abs() > 1e-12, grad, torch.zeros_like(grad))
+    first = ScoreOutput(
+        out.score.reshape(k, -1)[:, 0],
+        out.coverage.reshape(k, -1)[:, 0],
+        {n: v.reshape(k, -1)[:, 0] for n, v in out.terms.items()},
+    )
+    return obj[:, 0], first, grad.to(params.dtype)
+
+
+def search_views(
+    scorer: Scorer,
+    inputs_cam2world,
+    platform: Platform,
+    cfg: SearchConfig | None = None,
+    avoid=None,
+) -> SearchResult:
+    """Suggest views from input poses ``[N, 4, 4]`` (world, float64) on ``platform``.
+
+    ``avoid``: poses ``[M, 4, 4]`` already captured or suggested; stage 1 skips candidates that
+    duplicate them (same distance test as between candidates), so an active loop gets new views.
+    Returns at most ``cfg.top_k`` suggestions, best first.
+    """
+    cfg = cfg or SearchConfig.preset("balanced")
+    t_start = time.perf_counter()
+    inputs = _check_inputs(inputs_cam2world)
+    space = space_for(platform, cfg)
+    rng = np.random.default_rng(cfg.seed)
+    avoid_params = space.from_poses(_check_inputs(avoid)) if avoid is not None and len(avoid) else None
+
+    # ---- stage 1: trajectory samples + neighbours, scored in batches
+    trajectory = interpolate_poses(inputs, cfg.samples_per_segment)  # [T, 4, 4]
+    anchors = space.from_poses(trajectory)  # [T, D]
+    candidates = torch.cat([anchors, space.neighbours(anchors, cfg.neighbours, rng)])  # [T * (1 + N), D]
+    cand_poses = space.to_poses(candidates)  # [C, 4, 4]
+    t_sampled = time.perf_counter()
+    out1 = scorer.score_batched(cand_poses, cfg.batch_size)
+    obj1 = torch.nan_to_num(_objective(out1, cfg).double(), nan=-math.inf)
+    keep = _select_distinct(space, candidates, obj1, cfg.top_k, avoid_params)
+    t_stage1 = time.perf_counter()
+
+    # ---- stage 2: Adam on the parameters, projected into the bounds after every step
+    params = candidates[keep].clone()  # [K, D]
+    best_params, best_obj = params.clone(), obj1[keep].clone()
+    differentiable = bool(scorer.differentiable)
+    refine = cfg.steps > 0 and (differentiable or cfg.nondiff_refine == "fd")
+    if refine:
+        params.requires_grad_(True)
+        opt = torch.optim.Adam([params], lr=cfg.lr)
+        for _ in range(cfg.steps):
+            obj, _, grad = _gradient(scorer, space, params.detach(), cfg, differentiable)
+            better = obj.double() > best_obj
+            best_params[better], best_obj[better] = params.detach()[better], obj.double()[better]
+            opt.zero_grad()
+            params.grad = -grad  # ascent
+            opt.step()
+            with torch.no_grad():
+                params.copy_(space.project(params))
+    t_stage2 = time.perf_counter()
+
+    # ---- final scores of the refined poses, ranked
+    final_params = best_params
+    if refine:  # the last step's parameters were never scored: score them beside the best
+        final_params = torch.cat([best_params, params.detach()])
+    final_poses = space.to_poses(final_params).detach()
+    out2 = scorer.score_batched(final_poses, cfg.batch_size)
+    obj2 = torch.nan_to_num(_objective(out2, cfg).double(), nan=-math.inf)
+    if refine:  # per candidate, the better of its best iterate and its last one
+        k = len(best_params)
+        pick = torch.where(obj2[k:] > obj2[:k], torch.arange(k) + k, torch.arange(k))
+    else:
+        pick = torch.arange(len(final_params))
+    order = pick[torch.argsort(obj2[pick], descending=True)]
+    suggestions, warnings = [], []
+    for i in order.tolist():
+        sug = _suggestion(space, final_params[i], final_poses[i], out2, i, float(obj2[i]))
+        sug.stage1_score = float(out1.score[keep[i % len(keep)]])
+        suggestions.append(sug)
+    covered = [s for s in suggestions if s.coverage >= cfg.coverage_min]
+    if not covered:
+        warnings.append(
+            f"no suggestion reaches coverage {cfg.coverage_min:.2f} (best {max(s.coverage for s in suggestions):.2f}): "
+            "the scorer has not observed the space around the inputs; capture more views"
+        )
+        log.warning(warnings[-1])
+    else:
+        suggestions = covered
+    t_end = time.perf_counter()
+    timings = {
+        "sample": (t_sampled - t_start) * 1e3,
+        "stage1_score": (t_stage1 - t_sampled) * 1e3,
+        "stage2": (t_stage2 - t_stage1) * 1e3,
+        "final": (t_end - t_stage2) * 1e3,
+        "total": (t_end - t_start) * 1e3,
+    }
+    steps_scored = cfg.steps * len(keep) * (1 if differentiable else 1 + 2 * space.dims) if refine else 0
+    return SearchResult(
+        suggestions=suggestions,
+        mode=space.kind,
+        timings_ms=timings,
+        candidates_cam2world=cand_poses.detach().numpy(),
+        candidates_score=out1.score.detach().double().numpy(),
+        candidates_coverage=out1.coverage.detach().double().numpy(),
+        scored=len(candidates) + steps_scored + len(final_params),
+        warnings=warnings,
+    )
+
+
+def _suggestion(space: SearchSpace, params: Tensor, pose: Tensor, out: ScoreOutput, i: int, obj: float) -> Suggestion:
+    pose_np = pose.detach().double().numpy()
+    view = cam2world_to_view(pose_np)
+    pan = tilt = None
+    if space.kind == "rig":
+        pan, tilt = float(params[0]), float(params[1])
+    return Suggestion(
+        cam2world=pose_np,
+        position_m=pose_np[:3, 3].copy(),
+        yaw_rad=float(view[3]),
+        pitch_rad=float(view[4]),
+        score=float(out.score[i]),
+        coverage=float(out.coverage[i]),
+        terms={k: float(v[i]) for k, v in out.terms.items()},
+        pan_rad=pan,
+        tilt_rad=tilt,
+        objective=obj,
+    )

@@ -1,0 +1,172 @@
+"""Search spaces: the parameters the search moves, their bounds, and the poses they map to.
+
+* :class:`RigSpace` — a pan-tilt rig: ``params = (pan, tilt)`` in radians, inside the joint limits,
+  mapped to cam2world through :class:`~aes_planner.geometry.PanTilt` (tilt offset and lever arm
+  included, so the camera centre moves as the joints turn).
+* :class:`FreeSpace` — a drone: ``params = (x, y, z, yaw, pitch)`` (the 5-DoF view of
+  :mod:`aes_planner.geometry`), position inside the flight box, pitch inside the gimbal's range,
+  yaw free (wrapped on output).
+
+Both keep the search inside the feasible set by **projection**: every candidate and every stage-2
+step is clamped to the bounds (the Adam state is kept; the clamp is the projection onto the box).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from aes_planner.geometry.pantilt import PanTilt
+from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world, wrap_angle
+from aes_planner.sources import DroneBox, Platform
+
+__all__ = ["FreeSpace", "RigSpace", "SearchSpace", "space_for"]
+
+
+def _forward_dirs(cam2world: Tensor) -> Tensor:  # [M, 4, 4] -> [M, 3]
+    return cam2world[:, :3, 2]
+
+
+def _angle_matrix(a: Tensor, b: Tensor) -> Tensor:  # [M, 3], [P, 3] unit -> [M, P] radians
+    cross = torch.linalg.cross(a[:, None, :].expand(-1, b.shape[0], -1), b[None, :, :].expand(a.shape[0], -1, -1))
+    return torch.atan2(cross.norm(dim=-1), a @ b.T)
+
+
+class SearchSpace:
+    """Parameters ``[M, D]`` float64 <-> poses; bounds; neighbours; a distance for duplicates."""
+
+    kind: str
+    dims: int
+    lower: Tensor  # [D]
+    upper: Tensor  # [D]
+
+    def __init__(self, platform: Platform, jitter_rad: float, dedup_rad: float):
+        self.platform = platform
+        self.jitter_rad = jitter_rad
+        self.dedup_rad = dedup_rad
+
+    def to_poses(self, params: Tensor) -> Tensor:  # [M, D] -> [M, 4, 4] float64, differentiable
+        raise NotImplementedError
+
+    def from_poses(self, cam2world: np.ndarray) -> Tensor:  # [M, 4, 4] -> [M, D], projected into bounds
+        raise NotImplementedError
+
+    def project(self, params: Tensor) -> Tensor:  # [M, D] -> [M, D] inside the bounds
+        return torch.maximum(torch.minimum(params, self.upper), self.lower)
+
+    def neighbours(self, params: Tensor, n: int, rng: np.random.Generator) -> Tensor:  # [M, D] -> [M * n, D]
+        raise NotImplementedError
+
+    def distance(self, a: Tensor, b: Tensor) -> Tensor:  # [M, D], [P, D] -> [M, P], 1 = duplicate threshold
+        """Normalised distance between parameter sets: below 1 means 'the same view'."""
+        da = _forward_dirs(self.to_poses(a).detach())
+        db = _forward_dirs(self.to_poses(b).detach())
+        return _angle_matrix(da, db) / self.dedup_rad
+
+    def random(self, n: int, rng: np.random.Generator) -> Tensor:  # -> [n, D] uniform in the bounds
+        lo, hi = self.lower.numpy(), self.upper.numpy()
+        return torch.as_tensor(rng.uniform(lo, hi, size=(n, self.dims)))
+
+
+class RigSpace(SearchSpace):
+    """Pan and tilt inside the joint limits, through the rig's kinematics."""
+
+    kind = "rig"
+    dims = 2
+
+    def __init__(self, platform: Platform, jitter_rad: float, dedup_rad: float):
+        super().__init__(platform, jitter_rad, dedup_rad)
+        self.kinematics = PanTilt(platform.rig)
+        (plo, phi), (tlo, thi) = self.kinematics.pan_limits_rad, self.kinematics.tilt_limits_rad
+        self.lower = torch.tensor([plo, tlo], dtype=torch.float64)
+        self.upper = torch.tensor([phi, thi], dtype=torch.float64)
+
+    def to_poses(self, params: Tensor) -> Tensor:  # [M, 2] -> [M, 4, 4]
+        return self.kinematics.forward(params[:, 0], params[:, 1])
+
+    def from_poses(self, cam2world: np.ndarray) -> Tensor:  # [M, 4, 4] -> [M, 2]
+        out, hint = [], 0.5 * float(self.lower[0] + self.upper[0])
+        for pose in np.asarray(cam2world, dtype=np.float64):
+            sol = self.kinematics.inverse_direction(pose[:3, 2], pan_hint_rad=hint)
+            out.append((sol.pan_rad, sol.tilt_rad))
+            hint = sol.pan_rad
+        return self.project(torch.tensor(out, dtype=torch.float64).reshape(-1, 2))
+
+    def neighbours(self, params: Tensor, n: int, rng: np.random.Generator) -> Tensor:  # [M, 2] -> [M * n, 2]
+        jitter = torch.as_tensor(rng.uniform(-self.jitter_rad, self.jitter_rad, size=(params.shape[0], n, 2)))
+        return self.project((params[:, None, :] + jitter).reshape(-1, 2))
+
+
+class FreeSpace(SearchSpace):
+    """5-DoF views (x, y, z, yaw, pitch): position in the box, pitch in its limits, yaw free."""
+
+    kind = "free"
+    dims = 5
+
+    def __init__(
+        self,
+        platform: Platform,
+        jitter_rad: float,
+        dedup_rad: float,
+        shift_m: float,
+        dedup_m: float,
+        pitch_limits_rad: tuple[float, float],
+    ):
+        super().__init__(platform, jitter_rad, dedup_rad)
+        box: DroneBox = platform.drone
+        self.box = box
+        self.shift_m = shift_m
+        self.dedup_m = dedup_m
+        inf = math.inf
+        self.lower = torch.tensor([*box.bounds_min_m, -inf, pitch_limits_rad[0]], dtype=torch.float64)
+        self.upper = torch.tensor([*box.bounds_max_m, inf, pitch_limits_rad[1]], dtype=torch.float64)
+
+    def to_poses(self, params: Tensor) -> Tensor:  # [M, 5] -> [M, 4, 4]
+        return view_to_cam2world(params)
+
+    def from_poses(self, cam2world: np.ndarray) -> Tensor:  # [M, 4, 4] -> [M, 5]
+        views = torch.as_tensor(cam2world_to_view(np.asarray(cam2world, dtype=np.float64)))
+        return self.project(views.reshape(-1, 5))
+
+    def project(self, params: Tensor) -> Tensor:  # [M, 5] -> [M, 5]; yaw wrapped
+        p = torch.maximum(torch.minimum(params, self.upper), self.lower)
+        return torch.cat([p[:, :3], wrap_angle(p[:, 3:4]), p[:, 4:5]], dim=-1)
+
+    def neighbours(self, params: Tensor, n: int, rng: np.random.Generator) -> Tensor:  # [M, 5] -> [M * n, 5]
+        m = params.shape[0]
+        poses = self.to_poses(params)  # [M, 4, 4]
+        right, down = poses[:, :3, 0], poses[:, :3, 1]  # [M, 3] image axes in the world
+        shift = torch.as_tensor(rng.uniform(-self.shift_m, self.shift_m, size=(m, n, 2)))
+        jitter = torch.as_tensor(rng.uniform(-self.jitter_rad, self.jitter_rad, size=(m, n, 2)))
+        pos = params[:, None, :3] + shift[..., :1] * right[:, None] + shift[..., 1:] * down[:, None]  # [M, n, 3]
+        ang = params[:, None, 3:] + jitter  # [M, n, 2]
+        return self.project(torch.cat([pos, ang], dim=-1).reshape(-1, 5))
+
+    def distance(self, a: Tensor, b: Tensor) -> Tensor:  # [M, 5], [P, 5] -> [M, P]
+        angle = super().distance(a, b)
+        return angle + torch.cdist(a[:, :3], b[:, :3]) / self.dedup_m
+
+    def random(self, n: int, rng: np.random.Generator) -> Tensor:  # [n, 5]
+        lo, hi = self.lower.numpy().copy(), self.upper.numpy().copy()
+        lo[3], hi[3] = -math.pi, math.pi
+        return torch.as_tensor(rng.uniform(lo, hi, size=(n, 5)))
+
+
+def space_for(platform: Platform, cfg) -> SearchSpace:
+    """The search space of a platform under a :class:`~aes_planner.search.SearchConfig`."""
+    hfov = platform.intrinsics.hfov_rad
+    if platform.kind == "rig":
+        return RigSpace(platform, cfg.jitter_fov * hfov, cfg.dedup_fov * hfov)
+    box = platform.drone
+    diag = float(np.linalg.norm(np.subtract(box.bounds_max_m, box.bounds_min_m)))
+    return FreeSpace(
+        platform,
+        cfg.jitter_fov * hfov,
+        cfg.dedup_fov * hfov,
+        cfg.shift_frac * diag,
+        cfg.dedup_frac * diag,
+        cfg.pitch_limits_rad,
+    )

@@ -1,0 +1,253 @@
+"""The two-stage search on analytic scorers (fast, exact optimum known) and on tiny sim scenes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from aes_planner.config import ConfigError
+from aes_planner.field.scorer import ScoreOutput, Scorer, check_poses
+from aes_planner.geometry import Intrinsics, PanTilt, PanTiltConfig, view_to_cam2world
+from aes_planner.search import SearchConfig, SearchError, search_views
+from aes_planner.sources import DroneBox, Platform
+
+K = Intrinsics.from_fov(32, 24, 60.0)
+
+
+class AimScorer(Scorer):
+    """Score = cos(angle between the optical axis and ``target_dir``) minus a small distance term
+    to ``target_pos``; coverage 1 (or 0 for views whose axis has ``forward . unseen_dir > 0``)."""
+
+    name = "aim"
+
+    def __init__(self, target_dir, target_pos=None, differentiable=True, unseen_dir=None, constant=None):
+        self.target = torch.as_tensor(target_dir, dtype=torch.float64)
+        self.target = self.target / self.target.norm()
+        self.target_pos = None if target_pos is None else torch.as_tensor(target_pos, dtype=torch.float64)
+        self.differentiable = differentiable
+        self.unseen = None if unseen_dir is None else torch.as_tensor(unseen_dir, dtype=torch.float64)
+        self.constant = constant
+        self.intrinsics = K
+        self.calls = 0
+
+    def score(self, cam2world):
+        c2w = check_poses(cam2world, "AimScorer") if not cam2world.requires_grad else cam2world
+        self.calls += 1
+        fwd = c2w[:, :3, 2]
+        s = fwd @ self.target
+        if self.target_pos is not None:
+            s = s - 0.1 * (c2w[:, :3, 3] - self.target_pos).norm(dim=-1)
+        if self.constant is not None:
+            s = torch.full_like(s, self.constant)
+        if not self.differentiable:
+            s = s.detach()
+        cov = torch.ones_like(s.detach())
+        if self.unseen is not None:
+            cov = (fwd.detach() @ self.unseen <= 0).to(s.dtype)
+        return ScoreOutput(s, cov, {"score": s.detach(), "aim": s.detach()})
+
+
+def rig_platform(**kw) -> Platform:
+    return Platform("rig", K, rig=PanTiltConfig(**kw))
+
+
+def drone_platform(lo=(-2.0, -2.0, 0.5), hi=(2.0, 2.0, 2.5)) -> Platform:
+    return Platform("drone", K, drone=DroneBox(lo, hi))
+
+
+def rig_inputs(platform: Platform, n: int = 4) -> np.ndarray:
+    pt = PanTilt(platform.rig)
+    j = pt.sweep(n)
+    return pt.forward(j[:, 0], j[:, 1])
+
+
+def assert_inside(result, platform: Platform, cfg: SearchConfig):
+    assert result.suggestions
+    for s in result.suggestions:
+        assert np.all(np.isfinite(s.cam2world)) and math.isfinite(s.score) and math.isfinite(s.coverage)
+        assert all(math.isfinite(v) for v in s.terms.values())
+        if platform.kind == "rig":
+            pt = PanTilt(platform.rig)
+            assert pt.within_limits(s.pan_rad, s.tilt_rad)
+            np.testing.assert_allclose(pt.forward(s.pan_rad, s.tilt_rad), s.cam2world, atol=1e-9)
+        else:
+            assert platform.drone.contains(s.position_m)
+            lo, hi = cfg.pitch_limits_rad
+            assert lo - 1e-9 <= s.pitch_rad <= hi + 1e-9
+
+
+def angle_to(pose: np.ndarray, direction) -> float:
+    d = np.asarray(direction, float) / np.linalg.norm(direction)
+    return math.degrees(math.acos(np.clip(pose[:3, 2] @ d, -1, 1)))
+
+
+# ------------------------------------------------------------------------------------ config
+def test_presets_and_overrides():
+    fast, bal, acc = (SearchConfig.preset(n) for n in ("fast", "balanced", "accurate"))
+    assert fast.samples_per_segment * fast.neighbours < bal.samples_per_segment * bal.neighbours
+    assert bal.samples_per_segment * bal.neighbours < acc.samples_per_segment * acc.neighbours
+    assert (bal.lr, bal.steps, bal.top_k, bal.samples_per_segment, bal.neighbours) == (0.01, 25, 2, 16, 8)
+    assert SearchConfig.preset("balanced", steps=30).steps == 30
+    with pytest.raises(ConfigError, match="preset"):
+        SearchConfig.preset("turbo")
+    with pytest.raises(ConfigError, match="stepz"):
+        SearchConfig.preset("fast", stepz=3)
+    with pytest.raises(ConfigError, match="lr"):
+        SearchConfig(lr=float("nan"))
+    with pytest.raises(ConfigError, match="top_k"):
+        SearchConfig(top_k=0)
+    with pytest.raises(ConfigError, match="pitch_limits_deg"):
+        SearchConfig(pitch_limits_deg=(10.0, -10.0))
+
+
+# ------------------------------------------------------------------------------------ rig
+@pytest.mark.parametrize("differentiable", [True, False])
+def test_rig_finds_target_and_refinement_helps(differentiable):
+    platform = rig_platform(pan_limits_deg=(-120.0, 120.0), tilt_limits_deg=(-40.0, 40.0))
+    target = np.array([math.cos(0.5) * math.cos(0.2), math.sin(0.5) * math.cos(0.2), math.sin(0.2)])
+    scorer = AimScorer(target, differentiable=differentiable)
+    cfg = SearchConfig.preset("fast", steps=25, lr=0.02)
+    result = search_views(scorer, rig_inputs(platform), platform, cfg)
+    assert_inside(result, platform, cfg)
+    best = result.best
+    assert angle_to(best.cam2world, target) < 2.0
+    assert best.score >= best.stage1_score - 1e-12  # refinement never returns something worse
+    assert result.timings_ms["total"] > 0 and result.scored > 0
+
+
+def test_rig_target_outside_limits_stays_at_the_limit():
+    platform = rig_platform(pan_limits_deg=(-60.0, 60.0), tilt_limits_deg=(-20.0, 20.0))
+    scorer = AimScorer([0.0, 1.0, 0.6])  # pan 90 deg, tilt ~31 deg: beyond both limits
+    cfg = SearchConfig.preset("fast", steps=40, lr=0.05)
+    result = search_views(scorer, rig_inputs(platform), platform, cfg)
+    assert_inside(result, platform, cfg)
+    assert result.best.pan_rad == pytest.approx(math.radians(60.0), abs=1e-6)
+    assert result.best.tilt_rad == pytest.approx(math.radians(20.0), abs=1e-6)
+
+
+def test_rig_lever_arm_moves_the_camera():
+    platform = rig_platform(lever_arm_m=(0.2, 0.0, 0.1), base_rpy_deg=(0.0, 10.0, 30.0))
+    scorer = AimScorer([1.0, 0.3, -0.2])
+    cfg = SearchConfig.preset("fast")
+    result = search_views(scorer, rig_inputs(platform), platform, cfg)
+    assert_inside(result, platform, cfg)  # includes pose == forward kinematics of the joints
+
+
+# ------------------------------------------------------------------------------------ free
+@pytest.mark.parametrize("differentiable", [True, False])
+def test_free_finds_target_inside_box(differentiable):
+    platform = drone_platform()
+    target_dir = [0.3, -1.0, -0.3]
+    scorer = AimScorer(target_dir, target_pos=[1.0, 0.5, 1.0], differentiable=differentiable)
+    cfg = SearchConfig.preset("fast", steps=30, lr=0.03)
+    inputs = view_to_cam2world(np.array([[-1.0, -1.0, 1.5, 0.0, 0.0], [1.0, 1.0, 1.5, -1.5, -0.2], [0, 0, 1, 2.0, 0]]))
+    result = search_views(scorer, inputs, platform, cfg)
+    assert_inside(result, platform, cfg)
+    assert angle_to(result.best.cam2world, target_dir) < 6.0
+    assert result.best.score >= result.best.stage1_score - 1e-12
+
+
+def test_free_never_suggests_unobserved_views():
+    platform = drone_platform()
+    # The best direction (+y) is in unobserved space (coverage 0 whenever the view faces +y).
+    scorer = AimScorer([0.0, 1.0, 0.0], unseen_dir=[0.0, 1.0, 0.0])
+    cfg = SearchConfig.preset("fast", steps=20, lr=0.05)
+    inputs = view_to_cam2world(np.array([[0.0, 0.0, 1.5, 0.0, 0.0], [0.0, -1.0, 1.5, -0.5, 0.0]]))
+    result = search_views(scorer, inputs, platform, cfg)
+    assert_inside(result, platform, cfg)
+    for s in result.suggestions:
+        assert s.coverage >= cfg.coverage_min
+        assert s.cam2world[:3, 2] @ np.array([0.0, 1.0, 0.0]) <= 1e-9
+
+
+def test_avoid_gives_a_new_view():
+    platform = rig_platform()
+    scorer = AimScorer([1.0, 0.2, 0.0])
+    cfg = SearchConfig.preset("fast", steps=0)
+    first = search_views(scorer, rig_inputs(platform), platform, cfg)
+    second = search_views(scorer, rig_inputs(platform), platform, cfg, avoid=first.best.cam2world[None])
+    gap = angle_to(second.best.cam2world, first.best.cam2world[:3, 2])
+    assert gap >= math.degrees(cfg.dedup_fov * K.hfov_rad) - 1e-6
+
+
+def test_top_k_distinct():
+    platform = rig_platform()
+    cfg = SearchConfig.preset("balanced", top_k=3, steps=0)
+    result = search_views(AimScorer([1.0, 0.0, 0.0]), rig_inputs(platform), platform, cfg)
+    assert len(result.suggestions) == 3
+    scores = [s.score for s in result.suggestions]
+    assert scores == sorted(scores, reverse=True)
+    for i in range(3):
+        for j in range(i):
+            d = angle_to(result.suggestions[i].cam2world, result.suggestions[j].cam2world[:3, 2])
+            assert d >= math.degrees(cfg.dedup_fov * K.hfov_rad) - 1e-6
+
+
+# ------------------------------------------------------------------------------------ stability
+@pytest.mark.parametrize("kind", ["rig", "drone"])
+@pytest.mark.parametrize("pitch", [math.pi / 2, -math.pi / 2])
+def test_pole_inputs(kind, pitch):
+    platform = rig_platform(tilt_limits_deg=(-90.0, 90.0)) if kind == "rig" else drone_platform()
+    inputs = view_to_cam2world(np.array([[0.0, 0.0, 1.2, 0.3, pitch], [0.0, 0.0, 1.2, 1.0, pitch]]))
+    cfg = SearchConfig.preset("fast", steps=5)
+    result = search_views(AimScorer([0.0, 0.0, math.copysign(1.0, pitch)]), inputs, platform, cfg)
+    assert_inside(result, platform, cfg)
+
+
+@pytest.mark.parametrize("kind", ["rig", "drone"])
+def test_single_and_identical_inputs(kind):
+    platform = rig_platform() if kind == "rig" else drone_platform()
+    pose = view_to_cam2world(np.array([0.0, 0.0, 1.2, 0.4, -0.1]))
+    cfg = SearchConfig.preset("fast", steps=5)
+    for inputs in (pose, pose[None], np.stack([pose] * 3)):
+        result = search_views(AimScorer([1.0, 0.0, 0.0]), inputs, platform, cfg)
+        assert_inside(result, platform, cfg)
+
+
+@pytest.mark.parametrize("kind", ["rig", "drone"])
+def test_nothing_in_view_flat_score(kind):
+    platform = rig_platform() if kind == "rig" else drone_platform()
+    inputs = rig_inputs(rig_platform()) if kind == "rig" else view_to_cam2world(np.array([[0.0, 0, 1, 0, 0]]))
+    cfg = SearchConfig.preset("fast", steps=5)
+    for differentiable in (True, False):
+        result = search_views(AimScorer([1, 0, 0], constant=0.0, differentiable=differentiable), inputs, platform, cfg)
+        assert_inside(result, platform, cfg)
+        assert result.best.score == 0.0
+
+
+def test_far_from_origin_drone():
+    """1e5 m from the origin the search gives the same views as at the origin (float64 throughout)."""
+    cfg = SearchConfig.preset("fast", steps=10, lr=0.03)
+    results = []
+    for far in (np.zeros(3), np.array([1e5, -2e5, 0.0])):
+        platform = drone_platform(tuple(far + [-2, -2, 0.5]), tuple(far + [2, 2, 2.5]))
+        views = np.array([[*(far + [-1, 0, 1.5]), 0.0, 0.0], [*(far + [1, 0, 1.5]), -1.2, -0.1]])
+        scorer = AimScorer([0.0, -1.0, 0.0], target_pos=far + [0.5, 0.5, 1.0])
+        result = search_views(scorer, view_to_cam2world(views), platform, cfg)
+        assert_inside(result, platform, cfg)
+        results.append((result, far))
+    (near, _), (far_result, far) = results
+    assert angle_to(far_result.best.cam2world, [0.0, -1.0, 0.0]) < 20.0
+    np.testing.assert_allclose(far_result.best.position_m - far, near.best.position_m, atol=1e-6)
+    assert far_result.best.score == pytest.approx(near.best.score, abs=1e-6)
+
+
+def test_far_from_origin_rig():
+    platform = rig_platform(base_xyz_m=(1e5, 1e5, 10.0))
+    cfg = SearchConfig.preset("fast", steps=25, lr=0.02)
+    result = search_views(AimScorer([1.0, 0.5, 0.1]), rig_inputs(platform), platform, cfg)
+    assert_inside(result, platform, cfg)
+    assert angle_to(result.best.cam2world, [1.0, 0.5, 0.1]) < 3.0
+
+
+def test_bad_inputs_are_clear_errors():
+    platform = rig_platform()
+    cfg = SearchConfig.preset("fast")
+    bad = rig_inputs(platform)
+    bad[1, 0, 3] = np.nan
+    for inputs, match in ((bad, "NaN"), (np.zeros((0, 4, 4)), "empty"), (np.zeros((3, 3)), "shape")):
+        with pytest.raises(SearchError, match=match):
+            search_views(AimScorer([1, 0, 0]), inputs, platform, cfg)
