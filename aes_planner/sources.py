@@ -9,6 +9,7 @@ commanded poses is another. A :class:`Platform` says where the camera can go: a 
 
 from __future__ import annotations
 
+import dataclasses
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
@@ -19,7 +20,7 @@ from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.rig import PanTiltConfig
 from aes_planner.messages import PosedFrame
 
-__all__ = ["DroneBox", "Platform", "SceneSource"]
+__all__ = ["DroneBox", "Platform", "SceneSource", "platform_from_meta", "platform_to_meta"]
 
 
 @dataclass(frozen=True)
@@ -61,6 +62,41 @@ class Platform:
             self.kind,
             f"a {self.kind!r} platform needs its {self.kind!r} section and not the other one",
         )
+
+
+def platform_to_meta(platform: Platform) -> dict:
+    """The JSON-ready description a dataset folder's ``meta`` carries: ``{"platform": "rig",
+    "rig": {PanTiltConfig fields}}`` or ``{"platform": "drone", "drone": {"bounds_min_m", "bounds_max_m"}}``."""
+    if platform.kind == "rig":
+        return {"platform": "rig", "rig": {k: list(v) for k, v in dataclasses.asdict(platform.rig).items()}}
+    box = platform.drone
+    return {
+        "platform": "drone",
+        "drone": {"bounds_min_m": list(box.bounds_min_m), "bounds_max_m": list(box.bounds_max_m)},
+    }
+
+
+def platform_from_meta(meta: dict, intrinsics: Intrinsics) -> Platform | None:
+    """The :class:`Platform` written by :func:`platform_to_meta`, or ``None`` when ``meta`` has none.
+
+    Malformed sections raise :class:`~aes_planner.config.ConfigError` naming the key."""
+    from aes_planner.config import from_dict
+
+    kind = meta.get("platform")
+    if kind == "rig" and isinstance(meta.get("rig"), dict):
+        rig = from_dict(PanTiltConfig, {k: tuple(v) for k, v in meta["rig"].items()}, "meta.rig")
+        return Platform("rig", intrinsics, rig=rig)
+    if kind == "drone" and isinstance(meta.get("drone"), dict):
+        d = meta["drone"]
+        require(set(d) == {"bounds_min_m", "bounds_max_m"}, "meta.drone", "needs bounds_min_m and bounds_max_m only")
+        lo, hi = d["bounds_min_m"], d["bounds_max_m"]
+        require(
+            isinstance(lo, list) and isinstance(hi, list) and len(lo) == 3 and len(hi) == 3,
+            "meta.drone",
+            f"bounds must be 3 numbers each, got {lo!r} / {hi!r}",
+        )
+        return Platform("drone", intrinsics, drone=DroneBox(tuple(lo), tuple(hi)))
+    return None
 
 
 class SceneSource(ABC):

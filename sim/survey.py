@@ -10,6 +10,8 @@ from aes_planner.dataset import DatasetError, save_dataset
 from aes_planner.images import write_contact_sheet
 from aes_planner.sim.camera import SimCamera, SimCameraConfig
 from aes_planner.sim.scene import load_scene
+from aes_planner.sim.source import platform_of
+from aes_planner.sources import platform_to_meta
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +49,8 @@ def render_survey(
         "source": "aes-planner sim render",
         "scene": scene_spec,
         "scene_name": scene.name,
-        "platform": "rig" if scene.rig is not None else "drone",
+        # the rig's kinematics and joint limits (or the drone's box), for `aes-planner suggest`
+        **platform_to_meta(platform_of(scene, cam.intrinsics)),
     }
     path = save_dataset(out, frames, meta=meta, frame_meta=frame_meta)
     if contact_sheet:

@@ -19,13 +19,16 @@ from aes_planner.search.config import PRESETS, SearchConfig
 from aes_planner.search.ground_truth import GroundTruthScorer
 from aes_planner.search.oracle import oracle_search
 from aes_planner.search.pipeline import SearchError, SearchResult, Suggestion, search_views
+from aes_planner.search.scorers import SCORERS, build_search_scorer
 
 __all__ = [
     "PRESETS",
+    "SCORERS",
     "GroundTruthScorer",
     "SearchConfig",
     "SearchError",
     "SearchResult",
+    "build_search_scorer",
     "Suggestion",
     "oracle_search",
     "search_views",

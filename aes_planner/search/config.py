@@ -43,9 +43,10 @@ class SearchConfig:
     suggestions with coverage below ``coverage_min`` are dropped unless nothing else is left (then
     the result says so in ``warnings``).
 
-    Scorer knobs (used when the search builds the scorer: ``suggest``, ``eval``, ``bench``):
-    ``render_scale`` (fraction of the camera's resolution the field/RGB renders at) and
-    ``gaussian_budget`` (``None``: the reconstruction's default).
+    Scorer knobs (used when the search builds the scorer: ``suggest``, ``eval``, ``bench``; see
+    :func:`aes_planner.search.build_search_scorer`): ``render_width_px`` (width of the views the
+    field/RGB scorer renders; the height keeps the aspect) and ``max_gaussians`` (the Gaussian
+    budget; ``None``: the scorer's default).
 
     ``pitch_limits_deg``: the pitch range searched in free mode (a drone gimbal's range).
     ``batch_size``: poses per scorer call in stage 1. ``seed``: the sampling seed.
@@ -64,15 +65,15 @@ class SearchConfig:
     coverage_penalty: float = 2.0
     fd_step: float = 0.02
     nondiff_refine: str = "fd"
-    render_scale: float = 0.5
-    gaussian_budget: int | None = None
+    render_width_px: int = 48
+    max_gaussians: int | None = None
     pitch_limits_deg: tuple[float, float] = (-60.0, 30.0)
     batch_size: int = 64
     seed: int = 0
     preset_name: str = "custom"
 
     def __post_init__(self):
-        for name in ("samples_per_segment", "neighbours", "top_k", "batch_size"):
+        for name in ("samples_per_segment", "neighbours", "top_k", "batch_size", "render_width_px"):
             v = getattr(self, name)
             require(
                 isinstance(v, int) and not isinstance(v, bool) and v >= 1, name, f"must be an integer >= 1, got {v!r}"
@@ -87,7 +88,7 @@ class SearchConfig:
             "seed",
             f"must be an integer, got {self.seed!r}",
         )
-        for name in ("lr", "jitter_fov", "shift_frac", "dedup_fov", "dedup_frac", "fd_step", "render_scale"):
+        for name in ("lr", "jitter_fov", "shift_frac", "dedup_fov", "dedup_frac", "fd_step"):
             v = getattr(self, name)
             require_finite(v, name)
             require(v > 0, name, f"must be > 0, got {v}")
@@ -96,18 +97,20 @@ class SearchConfig:
             require_finite(v, name)
             require(v >= 0, name, f"must be >= 0, got {v}")
         require(self.coverage_min <= 1.0, "coverage_min", f"must be in [0, 1], got {self.coverage_min}")
-        require(self.render_scale <= 4.0, "render_scale", f"must be in (0, 4], got {self.render_scale}")
+        require(
+            8 <= self.render_width_px <= 4096, "render_width_px", f"must be in [8, 4096] px, got {self.render_width_px}"
+        )
         require(self.lr <= 1.0, "lr", f"must be in (0, 1] (radians or metres per step), got {self.lr}")
         require(
             self.nondiff_refine in ("fd", "skip"),
             "nondiff_refine",
             f"must be 'fd' (finite differences) or 'skip', got {self.nondiff_refine!r}",
         )
-        if self.gaussian_budget is not None:
+        if self.max_gaussians is not None:
             require(
-                isinstance(self.gaussian_budget, int) and self.gaussian_budget >= 1,
-                "gaussian_budget",
-                f"must be a positive integer or None, got {self.gaussian_budget!r}",
+                isinstance(self.max_gaussians, int) and self.max_gaussians >= 1,
+                "max_gaussians",
+                f"must be a positive integer or None, got {self.max_gaussians!r}",
             )
         p = tuple(self.pitch_limits_deg)
         require(len(p) == 2, "pitch_limits_deg", f"must be (min, max), got {self.pitch_limits_deg!r}")
@@ -134,7 +137,7 @@ class SearchConfig:
 
 #: Preset name -> the fields it sets (everything else keeps the dataclass default).
 PRESETS: dict[str, dict[str, Any]] = {
-    "fast": dict(samples_per_segment=4, neighbours=4, top_k=1, steps=10, render_scale=0.25),
-    "balanced": dict(samples_per_segment=16, neighbours=8, top_k=2, steps=25, render_scale=0.5),
-    "accurate": dict(samples_per_segment=32, neighbours=16, top_k=3, steps=30, render_scale=1.0),
+    "fast": dict(samples_per_segment=4, neighbours=4, top_k=1, steps=10, render_width_px=32),
+    "balanced": dict(samples_per_segment=16, neighbours=8, top_k=2, steps=25, render_width_px=48),
+    "accurate": dict(samples_per_segment=32, neighbours=16, top_k=3, steps=30, render_width_px=64),
 }

@@ -1,0 +1,147 @@
+"""``aes-planner suggest DATASET_DIR``: suggest better views from a posed-frame folder."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import time
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "suggest",
+        help="suggest camera views with better composition from a posed-frame folder",
+        description=(
+            "Build the aesthetic field (or RGB scoring) from the folder's frames and run the two-stage view "
+            "search: rig mode searches the gimbal's pan/tilt inside its limits (kinematics from the folder's "
+            "metadata, as `sim render` writes it, or --rig FILE); free mode searches 5-DoF views inside the "
+            "drone's box."
+        ),
+    )
+    p.add_argument("dataset", metavar="DATASET_DIR", help="folder with cameras.json and images/")
+    p.add_argument("--preset", default="balanced", choices=["fast", "balanced", "accurate"], help="speed/accuracy")
+    p.add_argument("--mode", choices=["rig", "free"], help="default: the folder's platform (rig if it has none)")
+    p.add_argument("--rig", metavar="FILE", help="rig kinematics and joint limits as YAML (PanTiltConfig fields)")
+    p.add_argument("--top", type=int, metavar="K", help="number of suggestions (default: the preset's K)")
+    p.add_argument("--scorer", default="field", choices=["field", "rgb"], help="what scores views (default field)")
+    p.add_argument("--json", metavar="OUT", help="write the suggestions as JSON")
+    p.add_argument("--out", metavar="DIR", help="write the report image (report.png) into DIR")
+    p.set_defaults(func=run)
+
+
+def _platform(meta: dict, frames, mode: str | None, rig_file: str | None):
+    import numpy as np
+
+    from aes_planner.config import from_dict, load_yaml
+    from aes_planner.geometry.rig import PanTiltConfig
+    from aes_planner.search import SearchError
+    from aes_planner.sources import DroneBox, Platform, platform_from_meta
+
+    k = frames[0].intrinsics
+    stored = platform_from_meta(meta, k)
+    mode = mode or ("free" if (stored is not None and stored.kind == "drone") else "rig")
+    if mode == "rig":
+        if rig_file:
+            return Platform("rig", k, rig=from_dict(PanTiltConfig, load_yaml(rig_file), "rig"))
+        if stored is not None and stored.kind == "rig":
+            return stored
+        raise SearchError(
+            "rig mode needs the rig's kinematics and joint limits: this folder's cameras.json meta has no 'rig' "
+            "section; pass --rig FILE (YAML with PanTiltConfig fields) or use --mode free"
+        )
+    if stored is not None and stored.kind == "drone":
+        return stored
+    pos = np.stack([f.cam2world[:3, 3] for f in frames])
+    lo, hi = pos.min(0) - 1.0, pos.max(0) + 1.0
+    log.warning("no drone box in the folder's metadata: searching the inputs' bounding box grown by 1 m")
+    return Platform("drone", k, drone=DroneBox(tuple(lo), tuple(hi)))
+
+
+def print_table(result, top: int) -> None:
+    rig = result.mode == "rig"
+    head = "pan_deg tilt_deg" if rig else "x_m     y_m     z_m     yaw_deg pitch_deg"
+    print(f" #  {head}  score   coverage  strongest terms")
+    for i, s in enumerate(result.suggestions[:top]):
+        if rig:
+            where = f"{math.degrees(s.pan_rad):7.1f} {math.degrees(s.tilt_rad):8.1f}"
+        else:
+            x, y, z = s.position_m
+            where = f"{x:7.2f} {y:7.2f} {z:7.2f} {math.degrees(s.yaw_rad):7.1f} {math.degrees(s.pitch_rad):9.1f}"
+        terms = sorted(((k, v) for k, v in s.terms.items() if k != "score"), key=lambda kv: -kv[1])[:3]
+        print(f"{i + 1:2d}  {where}  {s.score:6.3f}  {s.coverage:8.2f}  " + ", ".join(f"{k} {v:.2f}" for k, v in terms))
+
+
+def run(args: argparse.Namespace) -> int:
+    from aes_planner.dataset import load_dataset
+    from aes_planner.search import SearchConfig, build_search_scorer, search_views
+    from aes_planner.search.report import render_with, write_report
+
+    if args.top is not None and args.top < 1:
+        from aes_planner.search import SearchError
+
+        raise SearchError(f"--top must be at least 1, got {args.top}")
+    data = load_dataset(args.dataset, load_depth=True)
+    if not data.frames:
+        from aes_planner.search import SearchError
+
+        raise SearchError(f"{args.dataset}: the folder has no frames")
+    platform = _platform(data.meta, data.frames, args.mode, args.rig)
+    overrides = {"top_k": args.top} if args.top else {}
+    cfg = SearchConfig.preset(args.preset, **overrides)
+    t0 = time.perf_counter()
+    scorer = build_search_scorer(args.scorer, data.frames, cfg)
+    result = search_views(scorer, data.cam2worlds(), platform, cfg)
+    latency_ms = (time.perf_counter() - t0) * 1e3
+    top = args.top or cfg.top_k
+    print(f"{len(result.suggestions[:top])} suggestion(s), {result.mode} mode, preset {args.preset}, "
+          f"scorer {args.scorer}, {latency_ms:.0f} ms")  # fmt: skip
+    print_table(result, top)
+    for w in result.warnings:
+        print(f"warning: {w}")
+    if args.json:
+        doc = {
+            "mode": result.mode,
+            "preset": args.preset,
+            "scorer": args.scorer,
+            "latency_ms": latency_ms,
+            "suggestions": [s.to_json() for s in result.suggestions[:top]],
+        }
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(doc, indent=1) + "\n")
+        print(f"wrote {args.json}")
+    if args.out:
+        renderers = {}
+        own = render_with(scorer)
+        if own is not None:
+            renderers[args.scorer] = own
+        if args.scorer != "rgb":
+            rgb = render_with(build_search_scorer("rgb", data.frames, cfg))
+            if rgb is not None:
+                renderers["rgb"] = rgb
+        gt = _ground_truth(data.meta, data.frames[0].intrinsics)
+        if gt is not None:
+            renderers["truth"] = gt
+        report = write_report(Path(args.out) / "report.png", [f.image for f in data.frames], result, renderers)
+        print(f"wrote {report}")
+    return 0
+
+
+def _ground_truth(meta: dict, intrinsics):
+    """Ground-truth renders for a folder that `sim render` wrote (its scene is named in the metadata)."""
+    if meta.get("source") != "aes-planner sim render" or not meta.get("scene"):
+        return None
+    import numpy as np
+
+    from aes_planner.sim import SimSource
+
+    try:
+        source = SimSource(meta["scene"], supersample=2)
+    except Exception as exc:
+        log.warning("no ground truth in the report: %s", exc)
+        return None
+    return lambda poses: (source.render_rgb(poses, intrinsics) * 255).round().astype(np.uint8)

@@ -1,0 +1,92 @@
+"""The ``suggest`` report: input views on top, then one column per suggestion and one row per
+renderer (the field's/RGB reconstruction's view, the ground truth for simulator folders)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from aes_planner.search.pipeline import SearchResult, Suggestion
+
+__all__ = ["render_with", "suggestion_label", "write_report"]
+
+PAD = 4
+LABEL_H = 14
+
+
+def suggestion_label(i: int, s: Suggestion) -> str:
+    if s.pan_rad is not None:
+        where = f"pan {math.degrees(s.pan_rad):.0f} tilt {math.degrees(s.tilt_rad):.0f}"
+    else:
+        where = f"yaw {math.degrees(s.yaw_rad):.0f} pitch {math.degrees(s.pitch_rad):.0f}"
+    return f"#{i + 1} {where} s={s.score:.2f}"
+
+
+def render_with(scorer) -> Callable[[np.ndarray], np.ndarray] | None:
+    """A function poses ``[B, 4, 4]`` -> RGB ``[B, H, W, 3]`` uint8 from a scorer's ``render``, if it
+    renders RGB (``RGBScorer.render`` does); ``None`` otherwise."""
+    render = getattr(scorer, "render", None)
+    if render is None:
+        return None
+
+    def fn(poses: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            out = render(torch.as_tensor(poses, dtype=torch.float64))
+        rgb = out[0] if isinstance(out, tuple) else out
+        if not isinstance(rgb, torch.Tensor) or rgb.dim() != 4 or rgb.shape[1] != 3:
+            raise TypeError("not an RGB render")
+        return (rgb.permute(0, 2, 3, 1).clamp(0, 1).numpy() * 255).round().astype(np.uint8)
+
+    return fn
+
+
+def _tile(image: np.ndarray, size: tuple[int, int], label: str) -> np.ndarray:  # RGB uint8 -> BGR tile
+    w, h = size
+    img = cv2.resize(image, (w, h), interpolation=cv2.INTER_NEAREST if image.shape[1] < w else cv2.INTER_AREA)
+    tile = np.full((h + LABEL_H, w, 3), 255, np.uint8)
+    tile[LABEL_H:] = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
+    cv2.putText(tile, label[: max(4, w // 6)], (2, LABEL_H - 3), cv2.FONT_HERSHEY_PLAIN, 0.8, (0, 0, 0), 1, cv2.LINE_AA)
+    return tile
+
+
+def _row(tiles: list[np.ndarray], width: int) -> np.ndarray:
+    row = np.hstack([np.pad(t, ((PAD, PAD), (PAD, PAD), (0, 0)), constant_values=255) for t in tiles])
+    if row.shape[1] < width:
+        row = np.pad(row, ((0, 0), (0, width - row.shape[1]), (0, 0)), constant_values=255)
+    return row
+
+
+def write_report(
+    path: str | Path,
+    input_images: Sequence[np.ndarray],
+    result: SearchResult,
+    renderers: dict[str, Callable[[np.ndarray], np.ndarray]],
+    tile_width: int = 192,
+) -> Path:
+    """Write the report PNG; ``renderers`` maps a row name to poses -> ``[B, H, W, 3]`` uint8."""
+    h0, w0 = input_images[0].shape[:2]
+    size = (tile_width, max(8, int(round(tile_width * h0 / w0))))
+    poses = np.stack([s.cam2world for s in result.suggestions])
+    rows = [[_tile(img, size, f"input {i + 1}") for i, img in enumerate(input_images)]]
+    for name, fn in renderers.items():
+        try:
+            images = fn(poses)
+        except (TypeError, ValueError, RuntimeError):
+            continue
+        rows.append(
+            [
+                _tile(img, size, f"{name} {suggestion_label(i, s)}")
+                for i, (img, s) in enumerate(zip(images, result.suggestions))
+            ]
+        )
+    width = max(len(r) for r in rows) * (size[0] + 2 * PAD)
+    sheet = np.vstack([_row(r, width) for r in rows])
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), sheet)
+    return path

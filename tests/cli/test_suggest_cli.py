@@ -1,0 +1,96 @@
+"""``aes-planner suggest`` on a tiny ``sim render`` folder: table, JSON shape, report, clear errors."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from aes_planner.cli import main
+from aes_planner.dataset import load_dataset, save_dataset
+from aes_planner.geometry import PanTilt
+from aes_planner.sim import load_scene
+from aes_planner.sources import platform_from_meta
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    out = tmp_path_factory.mktemp("suggest") / "tabletop0"
+    args = ["sim", "render", "--scene", "tabletop:0", "--views", "3", "--out", str(out)]
+    assert main([*args, "--supersample", "1", "--width", "32", "--height", "24"]) == 0
+    return out
+
+
+def test_sim_render_writes_the_rig(folder):
+    ds = load_dataset(folder)
+    platform = platform_from_meta(ds.meta, ds.frames[0].intrinsics)
+    assert platform.kind == "rig" and platform.rig == load_scene("tabletop:0").rig.pan_tilt
+
+
+def test_suggest_rig_json_and_report(folder, tmp_path, capsys):
+    out_json, out_dir = tmp_path / "s.json", tmp_path / "report"
+    argv = ["suggest", str(folder), "--preset", "fast", "--scorer", "rgb", "--top", "2", "--json", str(out_json)]
+    assert main([*argv, "--out", str(out_dir)]) == 0
+    text = capsys.readouterr().out
+    assert "pan_deg" in text and "rig mode" in text
+    doc = json.loads(out_json.read_text())
+    assert doc["mode"] == "rig" and doc["preset"] == "fast" and doc["latency_ms"] > 0
+    assert 1 <= len(doc["suggestions"]) <= 2
+    pt = PanTilt(load_scene("tabletop:0").rig.pan_tilt)
+    scores = [s["score"] for s in doc["suggestions"]]
+    assert scores == sorted(scores, reverse=True)
+    for s in doc["suggestions"]:
+        assert set(s) >= {
+            "cam2world",
+            "pan_deg",
+            "tilt_deg",
+            "position_m",
+            "yaw_deg",
+            "pitch_deg",
+            "score",
+            "coverage",
+            "terms",
+        }
+        pan, tilt = math.radians(s["pan_deg"]), math.radians(s["tilt_deg"])
+        assert pt.within_limits(pan, tilt)
+        np.testing.assert_allclose(pt.forward(pan, tilt), np.array(s["cam2world"]), atol=1e-9)
+    assert (out_dir / "report.png").stat().st_size > 1000
+
+
+def test_suggest_free_mode_and_rig_file(folder, tmp_path, capsys):
+    ds = load_dataset(folder)
+    bare = tmp_path / "bare"
+    save_dataset(bare, ds.frames, meta={})  # a folder from elsewhere: no platform metadata
+    assert main(["suggest", str(bare), "--preset", "fast", "--scorer", "rgb"]) == 2
+    assert "--rig FILE" in capsys.readouterr().err
+    rig_file = tmp_path / "rig.yaml"
+    rig = load_scene("tabletop:0").rig.pan_tilt
+    rig_file.write_text(yaml.safe_dump({"base_xyz_m": list(rig.base_xyz_m), "pan_limits_deg": [-30.0, 30.0]}))
+    out_json = tmp_path / "r.json"
+    assert (
+        main(
+            [
+                "suggest",
+                str(bare),
+                "--preset",
+                "fast",
+                "--scorer",
+                "rgb",
+                "--rig",
+                str(rig_file),
+                "--json",
+                str(out_json),
+            ]
+        )
+        == 0
+    )
+    for s in json.loads(out_json.read_text())["suggestions"]:
+        assert -30.0 - 1e-9 <= s["pan_deg"] <= 30.0 + 1e-9
+    out_json = tmp_path / "f.json"
+    assert (
+        main(["suggest", str(bare), "--preset", "fast", "--scorer", "rgb", "--mode", "free", "--json", str(out_json)])
+        == 0
+    )
+    doc = json.loads(out_json.read_text())
+    assert doc["mode"] == "free" and "pan_deg" not in doc["suggestions"][0]
