@@ -36,6 +36,7 @@ GROUPS: dict[str, str] = {
     "reconstruct": "aes_planner.bench.reconstruct",
     "teachers": "aes_planner.bench.teachers",
     "gimbal": "aes_planner.bench.gimbal",
+    "search": "aes_planner.bench.search",
 }
 
 __all__ = ["GROUPS", "Recorder", "run_groups", "time_ms", "machine_info"]

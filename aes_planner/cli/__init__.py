@@ -20,6 +20,7 @@ COMMANDS = [
     "aes_planner.cli.sim",
     "aes_planner.cli.dataset",
     "aes_planner.cli.suggest",
+    "aes_planner.cli.eval",
     "aes_planner.cli.bench",
     "aes_planner.cli.score",
     "aes_planner.cli.teachers",

@@ -37,7 +37,7 @@ from aes_planner.sources import Platform
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SearchError", "SearchResult", "Suggestion", "search_views"]
+__all__ = ["SearchError", "SearchResult", "Suggestion", "refine_params", "search_views"]
 
 
 class SearchError(AesPlannerError, ValueError):
@@ -160,6 +160,33 @@ def _gradient(scorer: Scorer, space: SearchSpace, params: Tensor, cfg: SearchCon
     return obj[:, 0], first, grad.to(params.dtype)
 
 
+def refine_params(scorer: Scorer, space: SearchSpace, start: Tensor, start_obj: Tensor, cfg: SearchConfig):
+    """Stage 2: ``cfg.steps`` Adam steps (lr ``cfg.lr``) of gradient ascent on the objective from
+    ``start [K, D]`` (objective ``start_obj [K]``), projected into the bounds after every step.
+
+    Returns ``(last [K, D], best [K, D], best_obj [K])``: the last iterate (never scored) and the
+    best scored iterate of each start. Autograd when the scorer is differentiable, else central
+    finite differences (``cfg.nondiff_refine = "fd"``) or no steps at all (``"skip"``).
+    """
+    differentiable = bool(scorer.differentiable)
+    params = start.detach().clone()
+    best_params, best_obj = params.clone(), start_obj.detach().double().clone()
+    if cfg.steps == 0 or not (differentiable or cfg.nondiff_refine == "fd"):
+        return params, best_params, best_obj
+    params.requires_grad_(True)
+    opt = torch.optim.Adam([params], lr=cfg.lr)
+    for _ in range(cfg.steps):
+        obj, _, grad = _gradient(scorer, space, params.detach(), cfg, differentiable)
+        better = obj.double() > best_obj
+        best_params[better], best_obj[better] = params.detach()[better], obj.double()[better]
+        opt.zero_grad()
+        params.grad = -grad  # ascent
+        opt.step()
+        with torch.no_grad():
+            params.copy_(space.project(params))
+    return params.detach(), best_params, best_obj
+
+
 def search_views(
     scorer: Scorer,
     inputs_cam2world,
@@ -192,28 +219,15 @@ def search_views(
     t_stage1 = time.perf_counter()
 
     # ---- stage 2: Adam on the parameters, projected into the bounds after every step
-    params = candidates[keep].clone()  # [K, D]
-    best_params, best_obj = params.clone(), obj1[keep].clone()
     differentiable = bool(scorer.differentiable)
     refine = cfg.steps > 0 and (differentiable or cfg.nondiff_refine == "fd")
-    if refine:
-        params.requires_grad_(True)
-        opt = torch.optim.Adam([params], lr=cfg.lr)
-        for _ in range(cfg.steps):
-            obj, _, grad = _gradient(scorer, space, params.detach(), cfg, differentiable)
-            better = obj.double() > best_obj
-            best_params[better], best_obj[better] = params.detach()[better], obj.double()[better]
-            opt.zero_grad()
-            params.grad = -grad  # ascent
-            opt.step()
-            with torch.no_grad():
-                params.copy_(space.project(params))
+    params, best_params, best_obj = refine_params(scorer, space, candidates[keep], obj1[keep], cfg)
     t_stage2 = time.perf_counter()
 
     # ---- final scores of the refined poses, ranked
     final_params = best_params
     if refine:  # the last step's parameters were never scored: score them beside the best
-        final_params = torch.cat([best_params, params.detach()])
+        final_params = torch.cat([best_params, params])
     final_poses = space.to_poses(final_params).detach()
     out2 = scorer.score_batched(final_poses, cfg.batch_size)
     obj2 = torch.nan_to_num(_objective(out2, cfg).double(), nan=-math.inf)

@@ -1,0 +1,123 @@
+"""Benchmark group ``search``: each preset's place on the speed/accuracy curve.
+
+For each preset (``fast``, ``balanced``, ``accurate``, on the field) and for ``rgb`` (the
+balanced search on RGB scoring), on held-out scenes with 4 input frames of 128x96 (rig mode):
+
+* ``search.<preset>.latency_ms``: median time of one suggestion, scorer build (reconstruction,
+  field) included;
+* ``search.<preset>.normalized``: mean oracle-normalised ground-truth score of the best
+  suggestion, ``(s - mean random) / (oracle - mean random)`` (oracle: :func:`oracle_search`,
+  cached on disk);
+* ``search.<preset>.build_ms``, ``.stage1_ms``, ``.stage2_ms``: where the latency goes (medians);
+* ``search.<preset>.scored``: poses scored per suggestion.
+
+``search_pareto.png`` (latency against normalised score) is written beside the JSON's folder
+(``bench/``). When the field is not available in this build, the presets run on RGB scoring and
+``_meta.backends.search_scorer`` says so.
+"""
+
+from __future__ import annotations
+
+import logging
+import statistics
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from aes_planner.bench import Recorder
+from aes_planner.search import GroundTruthScorer, SearchConfig, SearchError, build_search_scorer, oracle_search
+from aes_planner.search import search_views as _search
+from aes_planner.teachers import get_teacher
+
+log = logging.getLogger(__name__)
+
+SCENES = ["indoor:1001", "outdoor:1002", "tabletop:1003", "gallery:1004"]
+CASES = [("fast", "field"), ("balanced", "field"), ("accurate", "field"), ("rgb", "rgb")]
+
+
+def run(rec: Recorder, quick: bool) -> None:
+    from aes_planner.geometry.pantilt import PanTilt
+    from aes_planner.sim import SimSource
+
+    teacher = get_teacher()
+    scenes = SCENES[:1] if quick else SCENES
+    repeats = 1 if quick else 3
+    field_ok = True
+    points = {}
+    for case, kind in CASES:
+        lat, build, st1, st2, norm, scored = [], [], [], [], [], []
+        for spec in scenes:
+            source = SimSource(spec, supersample=1)
+            pt = PanTilt(source.platform.rig)
+            j = pt.sweep(4)
+            inputs = pt.forward(j[:, 0], j[:, 1])
+            frames = [source.capture(p) for p in inputs]
+            cfg = SearchConfig.preset("balanced" if case == "rgb" else case)
+            use = kind if field_ok else "rgb"
+            for r in range(repeats + 1):  # the first run warms up (numba caches, allocations)
+                t0 = time.perf_counter()
+                try:
+                    scorer = build_search_scorer(use, frames, cfg, teacher)
+                except SearchError as exc:
+                    log.warning("search bench: %s; the presets run on RGB scoring", exc)
+                    field_ok, use = False, "rgb"
+                    scorer = build_search_scorer(use, frames, cfg, teacher)
+                t1 = time.perf_counter()
+                result = _search(scorer, inputs, source.platform, cfg)
+                t2 = time.perf_counter()
+                if r == 0:
+                    continue
+                lat.append((t2 - t0) * 1e3)
+                build.append((t1 - t0) * 1e3)
+                st1.append(result.timings_ms["stage1_score"] + result.timings_ms["sample"])
+                st2.append(result.timings_ms["stage2"] + result.timings_ms["final"])
+                scored.append(result.scored)
+            o_score, _, extras = oracle_search(source, teacher, scene_key=spec, step_deg=10.0 if quick else 5.0)
+            gt = GroundTruthScorer(source, teacher)
+            s = float(gt.score(torch.as_tensor(result.best.cam2world[None])).score[0])
+            span = o_score - extras["mean_random"]
+            norm.append((s - extras["mean_random"]) / span if span > 1e-9 else 0.0)
+        key = f"search.{case}"
+        rec.record(f"{key}.latency_ms", statistics.median(lat), "ms", len(lat))
+        rec.record(f"{key}.build_ms", statistics.median(build), "ms", len(build))
+        rec.record(f"{key}.stage1_ms", statistics.median(st1), "ms", len(st1))
+        rec.record(f"{key}.stage2_ms", statistics.median(st2), "ms", len(st2))
+        rec.record(f"{key}.scored", statistics.median(scored), "poses", len(scored))
+        rec.record(f"{key}.normalized", float(np.mean(norm)), "ratio", len(norm))
+        points[case] = (statistics.median(lat), float(np.mean(norm)))
+    rec.meta.setdefault("backends", {})["search_scorer"] = "field" if field_ok else "rgb (field not available)"
+    rec.meta["search_scenes"] = scenes
+    write_pareto(points, Path("bench") / "search_pareto.png")
+
+
+def write_pareto(points: dict[str, tuple[float, float]], path: Path) -> Path:
+    """Latency (log x) against normalised score (y); the presets joined, rgb apart."""
+    w, h, m = 520, 360, 50
+    img = np.full((h, w, 3), 255, np.uint8)
+    lats = [p[0] for p in points.values()]
+    lo, hi = np.log10(max(min(lats) / 2, 1.0)), np.log10(max(lats) * 2)
+
+    def px(lat: float, norm: float) -> tuple[int, int]:
+        x = m + (np.log10(max(lat, 1.0)) - lo) / max(hi - lo, 1e-9) * (w - 2 * m)
+        y = h - m - np.clip(norm, -0.2, 1.1) / 1.1 * (h - 2 * m)
+        return int(x), int(y)
+
+    cv2.rectangle(img, (m, m), (w - m, h - m), (0, 0, 0), 1)
+    for goal, colour in ((0.8, (0, 160, 0)), (0.9, (0, 100, 0))):
+        cv2.line(img, px(10**lo, goal), px(10**hi, goal), colour, 1)
+    cv2.line(img, px(1000, -0.2), px(1000, 1.1), (0, 0, 200), 1)  # the 1 s goal
+    chain = [points[c] for c in ("fast", "balanced", "accurate") if c in points]
+    for a, b in zip(chain, chain[1:]):
+        cv2.line(img, px(*a), px(*b), (200, 120, 0), 2)
+    for name, (lat, norm) in points.items():
+        colour = (0, 0, 200) if name == "rgb" else (200, 120, 0)
+        cv2.circle(img, px(lat, norm), 5, colour, -1)
+        cv2.putText(img, f"{name} {lat:.0f}ms {norm:.2f}", (px(lat, norm)[0] + 6, px(lat, norm)[1] - 6),
+                    cv2.FONT_HERSHEY_PLAIN, 0.9, (0, 0, 0), 1, cv2.LINE_AA)  # fmt: skip
+    cv2.putText(img, "latency (ms, log) vs oracle-normalised score", (m, m - 12), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), img)
+    return path

@@ -1,0 +1,70 @@
+"""``aes-planner eval field|search``: the paper's experiments on held-out simulated scenes."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("eval", help="run the paper's experiments on simulated scenes (tables and plots)")
+    esub = p.add_subparsers(dest="eval_command", metavar="EXPERIMENT", required=True)
+    register_search(esub)
+
+
+def _int_list(text: str) -> list[int]:
+    try:
+        return [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+
+
+def register_search(esub: argparse._SubParsersAction) -> None:
+    s = esub.add_parser(
+        "search",
+        help="suggestion quality against an exhaustive ground-truth oracle and the baselines (Tables 2-4, S1)",
+    )
+    s.add_argument("--scene", action="append", metavar="FILE_OR_FAMILY:SEED", help="a scene (repeatable)")
+    s.add_argument("--scenes", type=int, default=4, help="number of held-out scenes when no --scene (default 4)")
+    s.add_argument("--views", type=_int_list, default=[4], help="input view counts, e.g. 2,4,6 (default 4)")
+    s.add_argument("--modes", default="rig,free", help="rig, free or rig,free (default both)")
+    s.add_argument("--methods", help="comma-separated subset of the methods (default all)")
+    s.add_argument("--no-ablations", action="store_true", help="skip Tables 3, 4 and S1")
+    s.add_argument("--oracle-step-deg", type=float, default=5.0, help="rig oracle grid step (default 5)")
+    s.add_argument("--json", metavar="OUT", help="write the results as JSON")
+    s.add_argument("--out", metavar="DIR", help="write markdown tables and plots into DIR")
+    s.set_defaults(func=run_search)
+
+
+def run_search(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from aes_planner.eval.search import HELD_OUT_SCENES, METHODS, SearchEvalConfig, markdown, run_search_eval
+
+    scenes = args.scene or HELD_OUT_SCENES[: max(1, args.scenes)]
+    cfg = SearchEvalConfig(
+        scenes=scenes,
+        views=args.views,
+        modes=[m.strip() for m in args.modes.split(",") if m.strip()],
+        methods=[m.strip() for m in args.methods.split(",")] if args.methods else list(METHODS),
+        ablations=not args.no_ablations,
+        oracle_step_deg=args.oracle_step_deg,
+    )
+    bar = tqdm(desc="eval search", unit="step", leave=False)
+
+    def progress(text: str) -> None:
+        bar.set_postfix_str(text)
+        bar.update()
+
+    doc = run_search_eval(cfg, out_dir=args.out, progress=progress)
+    bar.close()
+    print(markdown(doc))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(doc, indent=1) + "\n")
+        print(f"wrote {args.json}")
+    return 0

@@ -1,0 +1,513 @@
+"""``aes-planner eval search``: the paper's suggestion experiments against a true oracle.
+
+For every scene (held-out seeds by default), number of input views and mode (rig: the scene's
+pan-tilt rig; free: a drone box around the rig's base), each method suggests one view and is
+measured on the **ground-truth render** at that view:
+
+* ``teacher``: the teacher's score (what the search maximises; the paper's VEN column),
+* ``evaluator``: the independent evaluator's score (the paper's SAMPNet column; never searched on),
+* ``normalized``: ``(teacher - mean random) / (oracle - mean random)`` — 1 optimal, 0 chance.
+
+Methods: ``field_fast``/``field_balanced``/``field_accurate`` (the two-stage search on the field
+at each preset), ``rgb`` (the same pipeline on RGB scoring, balanced), ``best_input``,
+``inplane`` and ``rotation`` (exhaustive local sampling around each input, scored on ground
+truth: the paper's starred upper bounds of single-view methods), ``random`` (feasible random
+views: its mean) and ``oracle`` (:func:`aes_planner.search.oracle_search`).
+
+Also Table 3 (gradient-ascent gain from random starts, field vs RGB), Tables 4/S1 (K, steps and
+S x N ablations of the field search), the Fig. 5 analogue (stage-1 candidates coloured by score
+over a top view) and, on a rig, the pan x tilt map of the field's score beside ground truth.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+
+from aes_planner.geometry.pantilt import PanTilt
+from aes_planner.search import GroundTruthScorer, SearchConfig, build_search_scorer, oracle_search, search_views
+from aes_planner.search.pipeline import SearchError, refine_params
+from aes_planner.search.space import SearchSpace, space_for
+from aes_planner.sources import DroneBox, Platform
+from aes_planner.teachers import get_teacher
+from aes_planner.teachers.evaluator import CompositionEvaluator
+
+log = logging.getLogger(__name__)
+
+__all__ = ["HELD_OUT_SCENES", "METHODS", "SearchEvalConfig", "run_search_eval"]
+
+#: Held-out scene seeds: the field is trained on seeds below 1000; evaluation uses these.
+HELD_OUT_SCENES = ["indoor:1001", "outdoor:1002", "tabletop:1003", "gallery:1004", "indoor:1005", "outdoor:1006"]
+METHODS = [
+    "field_fast",
+    "field_balanced",
+    "field_accurate",
+    "rgb",
+    "best_input",
+    "inplane",
+    "rotation",
+    "random",
+    "oracle",
+]
+FIELD_PRESETS = {"field_fast": "fast", "field_balanced": "balanced", "field_accurate": "accurate"}
+
+
+@dataclasses.dataclass
+class SearchEvalConfig:
+    """What ``eval search`` runs. ``scenes``: FILE_OR_FAMILY:SEED specs; ``views``: input counts;
+    ``modes``: ``rig`` and/or ``free``; ``oracle_step_deg``: the rig oracle's grid step;
+    ``supersample``: of the ground-truth renders; ``ablations``: run Tables 3, 4 and S1 on the first
+    ``ablation_scenes`` scenes (rig, 4 views); ``free_box_m``: half-size of the drone box around
+    the rig base in free mode; ``width``/``height`` override the scenes' camera (tests)."""
+
+    scenes: list[str] = dataclasses.field(default_factory=lambda: HELD_OUT_SCENES[:4])
+    views: list[int] = dataclasses.field(default_factory=lambda: [4])
+    modes: list[str] = dataclasses.field(default_factory=lambda: ["rig", "free"])
+    methods: list[str] = dataclasses.field(default_factory=lambda: list(METHODS))
+    oracle_step_deg: float = 5.0
+    oracle_free_positions: tuple[int, int, int] = (3, 3, 2)
+    oracle_free_step_deg: float = 30.0
+    oracle_min_step_deg: float = 0.5
+    oracle_refine_starts: int = 3
+    supersample: int = 1
+    ablations: bool = True
+    ablation_scenes: int = 2
+    gradient_starts: int = 4
+    free_box_m: tuple[float, float, float] = (0.8, 0.8, 0.3)
+    local_grid: int = 5
+    random_samples: int = 64
+    width: int | None = None
+    height: int | None = None
+    cache_dir: str | None = None
+    seed: int = 0
+
+    def __post_init__(self):
+        from aes_planner.config import require
+
+        require(len(self.scenes) >= 1, "scenes", "give at least one scene (FAMILY:SEED or a YAML file)")
+        require(all(isinstance(v, int) and v >= 1 for v in self.views), "views", f"must be integers >= 1: {self.views}")
+        require(set(self.modes) <= {"rig", "free"} and self.modes, "modes", f"must be rig and/or free: {self.modes}")
+        unknown = sorted(set(self.methods) - set(METHODS))
+        require(not unknown, "methods", f"unknown {unknown}; choose from {METHODS}")
+        require(self.oracle_step_deg > 0, "oracle_step_deg", "must be > 0")
+
+
+# ------------------------------------------------------------------------------------ set-up
+def _free_platform(source, box_half_m) -> Platform:
+    """A drone box around the rig's base (the scenes are rig scenes; free mode flies near the rig)."""
+    rig = source.platform.rig
+    base = np.asarray(rig.base_xyz_m)
+    half = np.asarray(box_half_m)
+    lo, hi = base - half, base + half
+    lo[2] = max(lo[2], 0.3)
+    return Platform("drone", source.platform.intrinsics, drone=DroneBox(tuple(lo), tuple(hi)))
+
+
+def _inputs(source, platform: Platform, n: int) -> np.ndarray:  # -> [n, 4, 4]
+    """Rig: the survey sweep. Free: the sweep's directions from positions along the box's diagonal."""
+    pt = PanTilt(source.platform.rig)
+    j = pt.sweep(n)
+    poses = pt.forward(j[:, 0], j[:, 1])
+    if platform.kind == "drone":
+        lo, hi = np.asarray(platform.drone.bounds_min_m), np.asarray(platform.drone.bounds_max_m)
+        ts = np.linspace(0.25, 0.75, n) if n > 1 else np.array([0.5])
+        poses = poses.copy()
+        poses[:, :3, 3] = lo + ts[:, None] * (hi - lo) * np.array([1.0, 1.0, 0.0]) + np.array([0, 0, 0.5]) * (hi - lo)
+    return poses
+
+
+def _local_grid(space: SearchSpace, anchor: torch.Tensor, half_rad: float, half_m: float, n: int, kind: str):
+    """``inplane``: shifts of the image plane (free: translations along right/down; rig: the
+    small pan/tilt equivalent of a crop shift); ``rotation``: pan/tilt or yaw/pitch offsets."""
+    offs = np.linspace(-1.0, 1.0, n)
+    a, b = np.meshgrid(offs, offs, indexing="ij")
+    a, b = torch.as_tensor(a.ravel()), torch.as_tensor(b.ravel())
+    if space.kind == "rig":
+        scale = half_rad * (0.3 if kind == "inplane" else 1.0)
+        return space.project(anchor[None] + torch.stack([a, b], -1) * scale)
+    p = anchor[None].repeat(len(a), 1)
+    if kind == "rotation":
+        p[:, 3] += a * half_rad
+        p[:, 4] += b * half_rad
+    else:
+        pose = space.to_poses(anchor[None])[0]
+        p[:, :3] += (a[:, None] * pose[:3, 0] + b[:, None] * pose[:3, 1]) * half_m
+    return space.project(p)
+
+
+# ------------------------------------------------------------------------------------ measuring
+class Judge:
+    """Ground-truth teacher and evaluator scores at poses of one scene (renders cached by pose)."""
+
+    def __init__(self, source, teacher, evaluator: CompositionEvaluator):
+        self.gt = GroundTruthScorer(source, teacher)
+        self.evaluator = evaluator
+
+    def measure(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # [B, 4, 4] -> teacher [B], evaluator [B]
+        images = self.gt.render(torch.as_tensor(poses, dtype=torch.float64))
+        with torch.no_grad():
+            t = self.gt.teacher.score(images).double().numpy()
+        e = np.asarray(self.evaluator.evaluate(images), dtype=np.float64)
+        return t, e
+
+
+def _method_pose(
+    method: str, frames, inputs, platform, judge: Judge, teacher, cfg: SearchEvalConfig, timings: dict
+) -> np.ndarray | None:
+    """The pose ``[4, 4]`` a method suggests (None when the method cannot run in this build)."""
+    t0 = time.perf_counter()
+    try:
+        if method in FIELD_PRESETS or method == "rgb":
+            preset = FIELD_PRESETS.get(method, "balanced")
+            scfg = SearchConfig.preset(preset, seed=cfg.seed)
+            scorer = build_search_scorer("field" if method != "rgb" else "rgb", frames, scfg, teacher)
+            result = search_views(scorer, inputs, platform, scfg)
+            return result.best.cam2world
+        if method == "best_input":
+            t, _ = judge.measure(inputs)
+            return inputs[int(np.argmax(t))]
+        if method in ("inplane", "rotation"):
+            space = space_for(platform, SearchConfig())
+            hfov = platform.intrinsics.hfov_rad
+            diag = 0.0
+            if platform.kind == "drone":
+                diag = float(np.linalg.norm(np.subtract(platform.drone.bounds_max_m, platform.drone.bounds_min_m)))
+            anchors = space.from_poses(inputs)
+            cands = torch.cat(
+                [_local_grid(space, a, 0.35 * hfov, 0.1 * diag, cfg.local_grid, method) for a in anchors]
+            )  # [n * g * g, D]
+            poses = space.to_poses(cands).numpy()
+            t = judge.gt.score_batched(torch.as_tensor(poses)).score.numpy()
+            return poses[int(np.argmax(t))]
+    except SearchError as exc:
+        log.warning("%s: skipped (%s)", method, exc)
+        return None
+    finally:
+        timings[method] = (time.perf_counter() - t0) * 1e3
+    raise ValueError(method)
+
+
+def run_search_eval(
+    cfg: SearchEvalConfig, out_dir: str | Path | None = None, progress: Callable[[str], None] | None = None
+) -> dict[str, Any]:
+    """Run the evaluation; returns the JSON document (``views -> mode -> method -> figures``)."""
+    from aes_planner.sim.scene import load_scene, scene_to_yaml
+
+    teacher = get_teacher()
+    evaluator = CompositionEvaluator()
+    per_scene: list[dict[str, Any]] = []
+    figures: dict[str, Any] = {}
+    out = Path(out_dir) if out_dir else None
+    if out:
+        out.mkdir(parents=True, exist_ok=True)
+    for spec in cfg.scenes:
+        scene = load_scene(spec)
+        source = _source(scene, cfg)
+        source.name = spec
+        key = f"{spec}#{hash_text(scene_to_yaml(scene))}"
+        for mode in cfg.modes:
+            platform = source.platform if mode == "rig" else _free_platform(source, cfg.free_box_m)
+            if progress:
+                progress(f"{spec} {mode}: oracle")
+            o_score, o_pose, o_extra = oracle_search(
+                source, teacher, platform, **_oracle_kw(cfg),
+                scene_key=key, cache_dir=cfg.cache_dir, seed=cfg.seed,
+            )  # fmt: skip
+            judge = Judge(source, teacher, evaluator)
+            mean_random = o_extra["mean_random"]
+            # the oracle's own random poses (same space, seed and count), so 'random' normalises to 0
+            space = space_for(platform, SearchConfig())
+            rand_poses = space.to_poses(space.random(cfg.random_samples, np.random.default_rng(cfg.seed))).numpy()
+            _, rand_e = judge.measure(rand_poses)
+            for n in cfg.views:
+                inputs = _inputs(source, platform, n)
+                frames = [source.capture(p) for p in inputs]
+                row: dict[str, Any] = {"scene": spec, "mode": mode, "views": n, "oracle": o_score,
+                                       "mean_random": mean_random, "methods": {}, "latency_ms": {}}  # fmt: skip
+                for method in cfg.methods:
+                    if progress:
+                        progress(f"{spec} {mode} {n} views: {method}")
+                    if method == "random":
+                        t, e = mean_random, float(np.mean(rand_e))
+                    elif method == "oracle":
+                        t, e = o_score, float(judge.measure(o_pose[None])[1][0])
+                    else:
+                        pose = _method_pose(method, frames, inputs, platform, judge, teacher, cfg, row["latency_ms"])
+                        if pose is None:
+                            continue
+                        tt, ee = judge.measure(pose[None])
+                        t, e = float(tt[0]), float(ee[0])
+                    row["methods"][method] = {
+                        "teacher": t,
+                        "evaluator": e,
+                        "normalized": _normalise(t, o_score, mean_random),
+                    }
+                per_scene.append(row)
+            if out and mode == "rig" and {"field_balanced", "rgb"} & set(cfg.methods):
+                _rig_map(out, spec, source, platform, frames, teacher, o_extra, cfg)
+            if out and mode == "free" and {"field_balanced", "rgb"} & set(cfg.methods):
+                _top_view(out, spec, platform, frames, inputs, teacher, cfg)
+    doc = _aggregate(per_scene, cfg)
+    if cfg.ablations:
+        doc["ablations"] = run_ablations(cfg, teacher, progress)
+    doc["per_scene"] = per_scene
+    doc["figures"] = figures
+    if out:
+        (out / "search_eval.json").write_text(json.dumps(doc, indent=1) + "\n")
+        (out / "search_eval.md").write_text(markdown(doc))
+    return doc
+
+
+def _oracle_kw(cfg: SearchEvalConfig) -> dict[str, Any]:
+    return dict(
+        step_deg=cfg.oracle_step_deg,
+        free_positions=tuple(cfg.oracle_free_positions),
+        free_step_deg=cfg.oracle_free_step_deg,
+        min_step_deg=cfg.oracle_min_step_deg,
+        refine_starts=cfg.oracle_refine_starts,
+        random_samples=cfg.random_samples,
+    )
+
+
+def _source(scene, cfg: SearchEvalConfig):
+    from aes_planner.sim import SimCameraConfig, SimSource
+
+    camera = SimCameraConfig(width=cfg.width, height=cfg.height, supersample=cfg.supersample)
+    return SimSource(scene, supersample=cfg.supersample, camera=camera)
+
+
+def hash_text(text: str) -> str:
+    import hashlib
+
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def _normalise(t: float, oracle: float, mean_random: float) -> float:
+    span = oracle - mean_random
+    return float((t - mean_random) / span) if span > 1e-9 else 0.0
+
+
+def _aggregate(rows: list[dict[str, Any]], cfg: SearchEvalConfig) -> dict[str, Any]:
+    views: dict[str, Any] = {}
+    for n in cfg.views:
+        for mode in cfg.modes:
+            sel = [r for r in rows if r["views"] == n and r["mode"] == mode]
+            table = {}
+            for method in cfg.methods:
+                vals = [r["methods"][method] for r in sel if method in r["methods"]]
+                if vals:
+                    table[method] = {
+                        k: float(np.mean([v[k] for v in vals])) for k in ("teacher", "evaluator", "normalized")
+                    }
+                    table[method]["n"] = len(vals)
+            lat = {}
+            for method in cfg.methods:
+                ms = [r["latency_ms"][method] for r in sel if method in r["latency_ms"] and method in r["methods"]]
+                if ms:
+                    lat[method] = float(np.median(ms))
+            views.setdefault(str(n), {})[mode] = table
+            views[str(n)].setdefault("latency_ms", {})[mode] = lat
+    return {"views": views, "scenes": list(cfg.scenes)}
+
+
+# ------------------------------------------------------------------------------------ ablations
+def run_ablations(cfg: SearchEvalConfig, teacher, progress=None) -> dict[str, Any]:
+    """Table 3 (gradient gain from random starts, field vs RGB) and Tables 4/S1 (K, steps, S x N),
+    on the first ``cfg.ablation_scenes`` scenes, rig mode, 4 input views."""
+    from aes_planner.sim.scene import load_scene, scene_to_yaml
+
+    gains: dict[str, list[float]] = {"field": [], "rgb": []}
+    by_k: dict[int, list[float]] = {1: [], 2: [], 3: []}
+    by_steps: dict[int, list[float]] = {15: [], 20: [], 25: [], 30: []}
+    sn_values = (4, 8, 16, 32)
+    by_sn: dict[str, list[float]] = {f"{s}x{n}": [] for s in sn_values for n in sn_values}
+    scorer_kind = "field"
+    for spec in cfg.scenes[: cfg.ablation_scenes]:
+        scene = load_scene(spec)
+        source = _source(scene, cfg)
+        platform = source.platform
+        key = f"{spec}#{hash_text(scene_to_yaml(scene))}"
+        o_score, _, o_extra = oracle_search(
+            source, teacher, platform, **_oracle_kw(cfg),
+            scene_key=key, cache_dir=cfg.cache_dir, seed=cfg.seed,
+        )  # fmt: skip
+        mean_random = o_extra["mean_random"]
+        gt = GroundTruthScorer(source, teacher)
+        inputs = _inputs(source, platform, 4)
+        frames = [source.capture(p) for p in inputs]
+        base = SearchConfig.preset("balanced", seed=cfg.seed)
+        scorers = {}
+        for kind in ("field", "rgb"):
+            try:
+                scorers[kind] = build_search_scorer(kind, frames, base, teacher)
+            except SearchError as exc:
+                log.warning("ablations: no %s scorer (%s)", kind, exc)
+        if not scorers:
+            continue
+        scorer_kind = "field" if "field" in scorers else "rgb"
+        space = space_for(platform, base)
+        starts = space.random(cfg.gradient_starts, np.random.default_rng(cfg.seed + 7))
+        start_gt = gt.score(space.to_poses(starts)).score.double()
+        for kind, scorer in scorers.items():  # Table 3: 25 Adam steps from the same random starts
+            if progress:
+                progress(f"{spec}: gradient ascent on {kind}")
+            obj0 = scorer.score_batched(space.to_poses(starts)).score.double()
+            last, _, _ = refine_params(scorer, space, starts, obj0, dataclasses.replace(base, steps=25))
+            end_gt = gt.score(space.to_poses(last)).score.double()
+            gains[kind].extend((end_gt - start_gt).tolist())
+        scorer = scorers[scorer_kind]
+
+        def norm_of(
+            scfg: SearchConfig, scorer=scorer, inputs=inputs, platform=platform, gt=gt, o=o_score, r=mean_random
+        ):
+            best = search_views(scorer, inputs, platform, scfg).best.cam2world
+            return _normalise(float(gt.score(torch.as_tensor(best[None])).score[0]), o, r)
+
+        if progress:
+            progress(f"{spec}: K / steps / S x N ablations on {scorer_kind}")
+        for k in by_k:
+            by_k[k].append(norm_of(dataclasses.replace(base, top_k=k)))
+        for steps in by_steps:
+            by_steps[steps].append(norm_of(dataclasses.replace(base, steps=steps)))
+        for s in sn_values:
+            for n in sn_values:
+                by_sn[f"{s}x{n}"].append(norm_of(dataclasses.replace(base, samples_per_segment=s, neighbours=n)))
+
+    def mean(d):
+        return {str(k): (float(np.mean(v)) if v else None) for k, v in d.items()}
+
+    return {
+        "scorer": scorer_kind,
+        "gradient_gain": {k: (float(np.mean(v)) if v else None) for k, v in gains.items()},
+        "top_k": mean(by_k),
+        "steps": mean(by_steps),
+        "samples_x_neighbours": mean(by_sn),
+    }
+
+
+# ------------------------------------------------------------------------------------ report
+def markdown(doc: dict[str, Any]) -> str:
+    lines = ["# Search evaluation", "", f"Scenes: {', '.join(doc['scenes'])}", ""]
+    for n, modes in doc["views"].items():
+        for mode, table in modes.items():
+            if mode == "latency_ms":
+                continue
+            lat = modes.get("latency_ms", {}).get(mode, {})
+            lines += [f"## {n} input views, {mode} (Table 2 analogue)", "",
+                      "| method | teacher | evaluator | normalized | latency ms |", "|---|---|---|---|---|"]  # fmt: skip
+            for method, v in table.items():
+                ms = f"{lat[method]:.0f}" if method in lat else ""
+                lines.append(f"| {method} | {v['teacher']:.3f} | {v['evaluator']:.3f} | {v['normalized']:.3f} | {ms} |")
+            lines.append("")
+    ab = doc.get("ablations")
+    if ab:
+        lines += ["## Table 3 analogue: gradient-ascent gain over 25 steps (ground-truth teacher score)", "",
+                  "| scorer | mean gain |", "|---|---|"]  # fmt: skip
+        for k, v in ab["gradient_gain"].items():
+            lines.append(f"| {k} | {'' if v is None else f'{v:+.3f}'} |")
+        lines += [
+            "",
+            f"## Table 4 analogue ({ab['scorer']} scorer, normalized score)",
+            "",
+            "| K | normalized |",
+            "|---|---|",
+        ]
+        lines += [f"| {k} | {_fmt(v)} |" for k, v in ab["top_k"].items()]
+        lines += ["", "| steps | normalized |", "|---|---|"]
+        lines += [f"| {k} | {_fmt(v)} |" for k, v in ab["steps"].items()]
+        lines += ["", "## Table S1 analogue (S x N, normalized)", ""]
+        ss = sorted({int(k.split("x")[0]) for k in ab["samples_x_neighbours"]})
+        lines += ["| N \\ S | " + " | ".join(str(s) for s in ss) + " |", "|---" * (len(ss) + 1) + "|"]
+        for n in ss:
+            lines.append(f"| {n} | " + " | ".join(_fmt(ab["samples_x_neighbours"][f"{s}x{n}"]) for s in ss) + " |")
+        lines.append("")
+    return "\n".join(lines) + "\n"
+
+
+def _fmt(v) -> str:
+    return "" if v is None else f"{v:.3f}"
+
+
+def _colour(values: np.ndarray) -> np.ndarray:  # [N] -> [N, 3] BGR uint8 (viridis)
+    v = np.asarray(values, dtype=np.float64)
+    lo, hi = np.nanmin(v), np.nanmax(v)
+    u8 = np.clip((v - lo) / max(hi - lo, 1e-9) * 255, 0, 255).astype(np.uint8)
+    return cv2.applyColorMap(u8[:, None], cv2.COLORMAP_VIRIDIS)[:, 0]
+
+
+def _rig_map(out: Path, spec: str, source, platform, frames, teacher, o_extra, cfg: SearchEvalConfig) -> None:
+    """Pan x tilt map: the field's score beside ground truth, suggestions marked."""
+    scfg = SearchConfig.preset("balanced", seed=cfg.seed)
+    try:
+        scorer = build_search_scorer("field", frames, scfg, teacher)
+        label = "field"
+    except SearchError:
+        scorer = build_search_scorer("rgb", frames, scfg, teacher)
+        label = "rgb"
+    grid = torch.as_tensor(o_extra["grid_params"])
+    space = space_for(platform, scfg)
+    pred = scorer.score_batched(space.to_poses(grid)).score.double().numpy()
+    result = search_views(scorer, np.stack([f.cam2world for f in frames]), platform, scfg)
+    pans, tilts = o_extra["pan_values"], o_extra["tilt_values"]
+    panels = []
+    for name, values in ((label, pred), ("ground truth", o_extra["grid_scores"])):
+        img = _colour(values).reshape(len(tilts), len(pans), 3)[::-1]  # tilt up
+        img = cv2.resize(img, (len(pans) * 6, len(tilts) * 6), interpolation=cv2.INTER_NEAREST)
+        h, w = img.shape[:2]
+
+        def px(pan, tilt, w=w, h=h):
+            x = (pan - pans[0]) / max(pans[-1] - pans[0], 1e-9) * (w - 1)
+            y = (1 - (tilt - tilts[0]) / max(tilts[-1] - tilts[0], 1e-9)) * (h - 1)
+            return int(round(x)), int(round(y))
+
+        for f in frames:
+            p = space.from_poses(f.cam2world[None])[0]
+            cv2.drawMarker(img, px(float(p[0]), float(p[1])), (255, 255, 255), cv2.MARKER_SQUARE, 8, 1)
+        for s in result.suggestions:
+            cv2.drawMarker(img, px(s.pan_rad, s.tilt_rad), (0, 0, 255), cv2.MARKER_CROSS, 12, 2)
+        ob = o_extra["best_params"]
+        cv2.drawMarker(img, px(float(ob[0]), float(ob[1])), (255, 0, 255), cv2.MARKER_STAR, 12, 1)
+        canvas = np.full((h + 20, w, 3), 255, np.uint8)
+        canvas[20:] = img
+        cv2.putText(canvas, f"{name} (pan x tilt)", (2, 14), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1, cv2.LINE_AA)
+        panels.append(np.pad(canvas, ((4, 4), (4, 4), (0, 0)), constant_values=255))
+    cv2.imwrite(str(out / f"rig_map_{spec.replace(':', '_').replace('/', '_')}.png"), np.hstack(panels))
+
+
+def _top_view(out: Path, spec: str, platform, frames, inputs, teacher, cfg: SearchEvalConfig) -> None:
+    """Fig. 5 analogue: stage-1 candidates seen from above (x right, y up), coloured by score."""
+    scfg = SearchConfig.preset("balanced", seed=cfg.seed)
+    try:
+        scorer = build_search_scorer("field", frames, scfg, teacher)
+    except SearchError:
+        scorer = build_search_scorer("rgb", frames, scfg, teacher)
+    result = search_views(scorer, inputs, platform, scfg)
+    lo, hi = np.asarray(platform.drone.bounds_min_m), np.asarray(platform.drone.bounds_max_m)
+    size, margin = 480, 40
+    scale = (size - 2 * margin) / max(hi[0] - lo[0], hi[1] - lo[1])
+    img = np.full((size, size, 3), 255, np.uint8)
+
+    def px(p):  # world x right, world y up
+        return int(margin + (p[0] - lo[0]) * scale), int(size - margin - (p[1] - lo[1]) * scale)
+
+    cv2.rectangle(img, px(lo), px(hi), (160, 160, 160), 1)
+    colours = _colour(result.candidates_score)
+    for pose, c in zip(result.candidates_cam2world, colours):
+        a = px(pose[:3, 3])
+        b = px(pose[:3, 3] + 0.15 * pose[:3, 2])
+        cv2.arrowedLine(img, a, b, tuple(int(v) for v in c), 1, tipLength=0.3)
+    for pose in inputs:
+        cv2.drawMarker(img, px(pose[:3, 3]), (0, 0, 0), cv2.MARKER_SQUARE, 10, 2)
+    for s in result.suggestions:
+        cv2.drawMarker(img, px(s.position_m), (0, 0, 255), cv2.MARKER_CROSS, 14, 2)
+    cv2.putText(img, f"{spec}: candidates by score (top view)", (4, 16), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1)
+    cv2.imwrite(str(out / f"top_view_{spec.replace(':', '_').replace('/', '_')}.png"), img)
