@@ -1,0 +1,119 @@
+"""``Diagnostics`` (a node's health: named counters and values, and its state) and
+``PlannerRequest`` (ask the planner for something)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+from aes_planner.messages.codec import Message, MessageError, Reader, Writer, register_message
+from aes_planner.messages.fields import check_finite, check_name_map, check_sequence, check_text
+
+__all__ = ["Diagnostics", "PlannerRequest", "REQUEST_KINDS", "MAX_DIAG_ENTRIES"]
+
+MAX_DIAG_ENTRIES = 128
+REQUEST_KINDS = ("suggest", "reset", "stop")
+
+
+@register_message
+@dataclass
+class Diagnostics(Message):
+    """What ``<node>/diagnostics`` carries.
+
+    * ``node``: the node's id; ``state``: its state word (``"exploring"``, ``"settled"``...).
+    * ``counters``: named non-negative integers (``frames_in``, ``frames_dropped``...).
+    * ``values``: named finite floats (``latency_p50_s``, ``field_gaussians``...).
+    At most ``MAX_DIAG_ENTRIES`` of each; names are 1-64 chars of ``[A-Za-z0-9_.:/-]``.
+    """
+
+    TYPE_NAME: ClassVar[str] = "Diagnostics"
+    SCHEMA_VERSION: ClassVar[int] = 1
+    MAX_BYTES: ClassVar[int] = 64 << 10
+
+    stamp_s: float
+    node: str
+    state: str = ""
+    counters: dict[str, int] = field(default_factory=dict)
+    values: dict[str, float] = field(default_factory=dict)
+    sequence: int = 0
+
+    def __post_init__(self):
+        self.stamp_s = check_finite(self.stamp_s, "Diagnostics.stamp_s")
+        self.node = check_text(self.node, "Diagnostics.node", 64)
+        self.state = check_text(self.state, "Diagnostics.state", 256)
+        self.counters = check_name_map(self.counters, "Diagnostics.counters", int, MAX_DIAG_ENTRIES)
+        self.values = check_name_map(self.values, "Diagnostics.values", float, MAX_DIAG_ENTRIES)
+        self.sequence = check_sequence(self.sequence, "Diagnostics.sequence")
+
+    def _write(self, w: Writer) -> None:
+        w.f64(self.stamp_s)
+        w.u64(self.sequence)
+        w.str(self.node)
+        w.str(self.state)
+        w.u32(len(self.counters))
+        for k, v in self.counters.items():
+            w.str(k)
+            w.u64(v)
+        w.u32(len(self.values))
+        for k, v in self.values.items():
+            w.str(k)
+            w.f64(v)
+
+    @classmethod
+    def _read(cls, r: Reader, version: int) -> Diagnostics:
+        stamp_s = r.f64("stamp_s")
+        sequence = r.u64("sequence")
+        node = r.str("node", 256)
+        state = r.str("state", 1024)
+        counters: dict[str, int] = {}
+        values: dict[str, float] = {}
+        for what, target, read in (("counters", counters, r.u64), ("values", values, r.f64)):
+            n = r.u32(what)
+            if n > MAX_DIAG_ENTRIES:
+                raise MessageError(f"Diagnostics.{what}: {n} entries exceed the cap of {MAX_DIAG_ENTRIES}")
+            for _ in range(n):
+                key = r.str(f"{what} key", 64)
+                target[key] = read(f"{what}[{key!r}]")
+        return cls(stamp_s, node, state, counters, values, sequence)
+
+
+@register_message
+@dataclass
+class PlannerRequest(Message):
+    """What ``planner/request`` carries.
+
+    * ``kind``: ``"suggest"`` (publish a suggestion now, and reply with it), ``"reset"``
+      (forget the field and start over), ``"stop"`` (end the active loop and settle).
+    * ``max_candidates``: how many candidates to return; 0 = the planner's default.
+    """
+
+    TYPE_NAME: ClassVar[str] = "PlannerRequest"
+    SCHEMA_VERSION: ClassVar[int] = 1
+    MAX_BYTES: ClassVar[int] = 1024
+
+    kind: str = "suggest"
+    max_candidates: int = 0
+    stamp_s: float = 0.0
+    sequence: int = 0
+
+    def __post_init__(self):
+        if self.kind not in REQUEST_KINDS:
+            raise MessageError(f"PlannerRequest.kind must be one of {REQUEST_KINDS}, got {self.kind!r}")
+        self.max_candidates = check_sequence(self.max_candidates, "PlannerRequest.max_candidates")
+        if self.max_candidates > 64:
+            raise MessageError(f"PlannerRequest.max_candidates must be <= 64, got {self.max_candidates}")
+        self.stamp_s = check_finite(self.stamp_s, "PlannerRequest.stamp_s")
+        self.sequence = check_sequence(self.sequence, "PlannerRequest.sequence")
+
+    def _write(self, w: Writer) -> None:
+        w.u8(REQUEST_KINDS.index(self.kind))
+        w.u32(self.max_candidates)
+        w.f64(self.stamp_s)
+        w.u64(self.sequence)
+
+    @classmethod
+    def _read(cls, r: Reader, version: int) -> PlannerRequest:
+        code = r.u8("kind")
+        if code >= len(REQUEST_KINDS):
+            raise MessageError(f"PlannerRequest.kind code {code} unknown")
+        return cls(REQUEST_KINDS[code], r.u32("max_candidates"), r.f64("stamp_s"), r.u64("sequence"))

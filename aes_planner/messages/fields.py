@@ -1,0 +1,66 @@
+"""Field checks shared by the message types; each raises :class:`MessageError` naming the field."""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Mapping
+
+import numpy as np
+
+from aes_planner.messages.codec import MessageError
+
+__all__ = ["check_finite", "check_optional_finite", "check_sequence", "check_text", "check_name_map"]
+
+MAX_SEQUENCE = (1 << 63) - 1
+MAX_TEXT = 256
+_NAME = re.compile(r"^[A-Za-z0-9_.:/\-]{1,64}$")
+
+
+def check_finite(value, name: str) -> float:
+    """A finite real number (not bool), returned as float."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise MessageError(f"{name} must be a finite number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise MessageError(f"{name} must be a finite number, got {v}")
+    return v
+
+
+def check_optional_finite(value, name: str) -> float | None:
+    return None if value is None else check_finite(value, name)
+
+
+def check_sequence(value, name: str) -> int:
+    """A counter: an integer in [0, 2**63)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise MessageError(f"{name} must be an integer >= 0, got {value!r}")
+    v = int(value)
+    if not 0 <= v <= MAX_SEQUENCE:
+        raise MessageError(f"{name} must be in [0, 2**63), got {v}")
+    return v
+
+
+def check_text(value, name: str, max_len: int = MAX_TEXT) -> str:
+    """A printable string (no control characters: echo prints it to terminals) of bounded length."""
+    if not isinstance(value, str):
+        raise MessageError(f"{name} must be a string, got {type(value).__name__}")
+    if len(value) > max_len:
+        raise MessageError(f"{name} is {len(value)} characters; the cap is {max_len}")
+    if value and not value.isprintable():
+        raise MessageError(f"{name} contains control characters; use printable text")
+    return value
+
+
+def check_name_map(value, name: str, kind: type, max_entries: int) -> dict:
+    """A mapping of short names (``[A-Za-z0-9_.:/-]``, <= 64 chars) to finite floats or ints >= 0."""
+    if not isinstance(value, Mapping):
+        raise MessageError(f"{name} must be a mapping of names to numbers, got {type(value).__name__}")
+    if len(value) > max_entries:
+        raise MessageError(f"{name} has {len(value)} entries; the cap is {max_entries}")
+    out = {}
+    for k, v in value.items():
+        if not isinstance(k, str) or not _NAME.match(k):
+            raise MessageError(f"{name}: key {k!r} must be 1-64 characters of letters, digits and _ . : / -")
+        out[k] = check_sequence(v, f"{name}[{k!r}]") if kind is int else check_finite(v, f"{name}[{k!r}]")
+    return out

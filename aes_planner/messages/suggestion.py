@@ -1,0 +1,178 @@
+"""``ViewSuggestion``: the planner's ranked candidate views, each with its score explained."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from aes_planner.geometry.poses import PoseError, validate_cam2world
+from aes_planner.messages.codec import Message, MessageError, Reader, Writer, register_message
+from aes_planner.messages.fields import (
+    check_finite,
+    check_name_map,
+    check_optional_finite,
+    check_sequence,
+    check_text,
+)
+
+__all__ = ["Candidate", "ViewSuggestion", "MAX_CANDIDATES", "MAX_TERMS"]
+
+MAX_CANDIDATES = 64
+MAX_TERMS = 32
+
+
+@dataclass
+class Candidate:
+    """One suggested view.
+
+    * ``cam2world``: ``[4, 4]`` float64 WORLD pose (OpenCV camera axes), rigid.
+    * ``score``: the predicted aesthetic score (the scorer's units; higher is better).
+    * ``coverage``: fraction of the view the field covers, in [0, 1].
+    * ``pan_rad``, ``tilt_rad``: the joint angles that reach it on a rig (both or neither).
+    * ``terms``: named parts of the score (``{"thirds": 0.3, ...}``), at most ``MAX_TERMS``.
+
+    ``position_m``, ``yaw_rad``, ``pitch_rad`` and ``view`` (x, y, z, yaw, pitch) are read from
+    ``cam2world`` with the conventions of :mod:`aes_planner.geometry`.
+    """
+
+    cam2world: np.ndarray
+    score: float
+    coverage: float = 1.0
+    pan_rad: float | None = None
+    tilt_rad: float | None = None
+    terms: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self):
+        try:
+            self.cam2world = validate_cam2world(self.cam2world, "Candidate.cam2world")
+        except PoseError as exc:
+            raise MessageError(str(exc)) from None
+        self.score = check_finite(self.score, "Candidate.score")
+        self.coverage = check_finite(self.coverage, "Candidate.coverage")
+        if not 0.0 <= self.coverage <= 1.0:
+            raise MessageError(f"Candidate.coverage must be in [0, 1], got {self.coverage}")
+        self.pan_rad = check_optional_finite(self.pan_rad, "Candidate.pan_rad")
+        self.tilt_rad = check_optional_finite(self.tilt_rad, "Candidate.tilt_rad")
+        if (self.pan_rad is None) != (self.tilt_rad is None):
+            raise MessageError("Candidate.pan_rad and tilt_rad must be given together (or neither)")
+        self.terms = check_name_map(self.terms, "Candidate.terms", float, MAX_TERMS)
+
+    @property
+    def position_m(self) -> np.ndarray:
+        return self.cam2world[:3, 3].copy()
+
+    @property
+    def view(self) -> np.ndarray:
+        """``[5]`` (x, y, z, yaw, pitch), yaw in (-pi, pi], pitch in [-pi/2, pi/2]."""
+        from aes_planner.geometry.poses import cam2world_to_view
+
+        return np.asarray(cam2world_to_view(self.cam2world), dtype=np.float64)
+
+    @property
+    def yaw_rad(self) -> float:
+        return float(self.view[3])
+
+    @property
+    def pitch_rad(self) -> float:
+        return float(self.view[4])
+
+    def _write(self, w: Writer) -> None:
+        w.array(self.cam2world, "f8")
+        w.f64(self.score)
+        w.f64(self.coverage)
+        w.opt_f64(self.pan_rad)
+        w.opt_f64(self.tilt_rad)
+        w.u32(len(self.terms))
+        for k, v in self.terms.items():
+            w.str(k)
+            w.f64(v)
+
+    @classmethod
+    def _read(cls, r: Reader, i: int) -> Candidate:
+        c2w = r.array(f"candidates[{i}].cam2world", "f8", 2, (4, 4))
+        score = r.f64(f"candidates[{i}].score")
+        coverage = r.f64(f"candidates[{i}].coverage")
+        pan = r.opt_f64(f"candidates[{i}].pan_rad")
+        tilt = r.opt_f64(f"candidates[{i}].tilt_rad")
+        n = r.u32(f"candidates[{i}].terms")
+        if n > MAX_TERMS:
+            raise MessageError(f"ViewSuggestion.candidates[{i}]: {n} terms exceed the cap of {MAX_TERMS}")
+        terms = {}
+        for _ in range(n):
+            key = r.str(f"candidates[{i}].terms key", 64)
+            terms[key] = r.f64(f"candidates[{i}].terms[{key!r}]")
+        return cls(c2w, score, coverage, pan, tilt, terms)
+
+
+@register_message
+@dataclass
+class ViewSuggestion(Message):
+    """What ``planner/suggestion`` carries: ranked candidates, best first.
+
+    * ``stamp_s``: when the suggestion was made (the planner's clock).
+    * ``sequence``: the planner's suggestion counter.
+    * ``field_version``: the version of the aesthetic field the candidates were scored on
+      (bumped on every update; two suggestions with the same version come from the same field).
+    * ``candidates``: at most ``MAX_CANDIDATES`` :class:`Candidate`, best first; may be empty
+      (nothing better to suggest).
+    * ``frame_id``: the frame of the poses, ``"world"``.
+    * ``mode``: ``"rig"`` (pan/tilt given) or ``"free"`` (5-DoF views for a drone).
+    """
+
+    TYPE_NAME: ClassVar[str] = "ViewSuggestion"
+    SCHEMA_VERSION: ClassVar[int] = 1
+    MAX_BYTES: ClassVar[int] = 1 << 20
+
+    stamp_s: float
+    candidates: list[Candidate] = field(default_factory=list)
+    field_version: int = 0
+    sequence: int = 0
+    frame_id: str = "world"
+    mode: str = "free"
+
+    def __post_init__(self):
+        self.stamp_s = check_finite(self.stamp_s, "ViewSuggestion.stamp_s")
+        if not isinstance(self.candidates, (list, tuple)):
+            raise MessageError(f"ViewSuggestion.candidates must be a list, got {type(self.candidates).__name__}")
+        if len(self.candidates) > MAX_CANDIDATES:
+            raise MessageError(f"ViewSuggestion has {len(self.candidates)} candidates; the cap is {MAX_CANDIDATES}")
+        for i, c in enumerate(self.candidates):
+            if not isinstance(c, Candidate):
+                raise MessageError(f"ViewSuggestion.candidates[{i}] must be a Candidate, got {type(c).__name__}")
+        self.candidates = list(self.candidates)
+        self.field_version = check_sequence(self.field_version, "ViewSuggestion.field_version")
+        self.sequence = check_sequence(self.sequence, "ViewSuggestion.sequence")
+        self.frame_id = check_text(self.frame_id, "ViewSuggestion.frame_id")
+        if self.mode not in ("rig", "free"):
+            raise MessageError(f"ViewSuggestion.mode must be 'rig' or 'free', got {self.mode!r}")
+
+    @property
+    def best(self) -> Candidate | None:
+        return self.candidates[0] if self.candidates else None
+
+    def _write(self, w: Writer) -> None:
+        w.f64(self.stamp_s)
+        w.u64(self.sequence)
+        w.u64(self.field_version)
+        w.str(self.frame_id)
+        w.u8(0 if self.mode == "rig" else 1)
+        w.u32(len(self.candidates))
+        for c in self.candidates:
+            c._write(w)
+
+    @classmethod
+    def _read(cls, r: Reader, version: int) -> ViewSuggestion:
+        stamp_s = r.f64("stamp_s")
+        sequence = r.u64("sequence")
+        field_version = r.u64("field_version")
+        frame_id = r.str("frame_id")
+        mode_code = r.u8("mode")
+        if mode_code > 1:
+            raise MessageError(f"ViewSuggestion.mode code {mode_code} unknown")
+        n = r.u32("candidates")
+        if n > MAX_CANDIDATES:
+            raise MessageError(f"ViewSuggestion: {n} candidates exceed the cap of {MAX_CANDIDATES}")
+        candidates = [Candidate._read(r, i) for i in range(n)]
+        return cls(stamp_s, candidates, field_version, sequence, frame_id, ("rig", "free")[mode_code])

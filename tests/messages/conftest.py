@@ -1,0 +1,54 @@
+"""One valid sample of every message type, for round-trip, fuzz and bus tests."""
+
+import numpy as np
+import pytest
+
+from aes_planner.geometry import Intrinsics, view_to_cam2world
+from aes_planner.messages import (
+    Candidate,
+    Diagnostics,
+    GimbalCommand,
+    GimbalState,
+    PlannerRequest,
+    PosedFrame,
+    ViewSuggestion,
+)
+
+
+def sample_messages():
+    rng = np.random.default_rng(1)
+    c2w = view_to_cam2world(np.array([0.5, -0.2, 1.2, 0.3, -0.1]))
+    frame = PosedFrame(
+        rng.integers(0, 256, (6, 8, 3), dtype=np.uint8),
+        Intrinsics.from_fov(8, 6, 60.0),
+        c2w,
+        stamp_s=2.5,
+        depth_m=rng.uniform(0, 3, (6, 8)).astype(np.float32),
+        frame_id="cam0",
+        sequence=7,
+        pan_rad=0.3,
+        tilt_rad=-0.1,
+    )
+    suggestion = ViewSuggestion(
+        3.0,
+        [
+            Candidate(c2w, 0.8, 0.95, 0.3, -0.1, {"thirds": 0.4, "balance": -0.1}),
+            Candidate(view_to_cam2world(np.array([0, 0, 1.0, -1.0, 0.2])), 0.5, 0.5),
+        ],
+        field_version=4,
+        sequence=2,
+        mode="rig",
+    )
+    return {
+        "PosedFrame": frame,
+        "ViewSuggestion": suggestion,
+        "GimbalCommand": GimbalCommand("move", 0.25, -0.5, 1.5, stamp_s=1.0, sequence=9),
+        "GimbalState": GimbalState(0.1, 0.2, 0.3, 0.4, True, (35.0, 36.5), ("pan: overload",), 4.0, 11, "fault"),
+        "Diagnostics": Diagnostics(5.0, "planner", "exploring", {"frames_in": 10}, {"latency_p50_s": 0.12}),
+        "PlannerRequest": PlannerRequest("suggest", 3, 6.0, 1),
+    }
+
+
+@pytest.fixture
+def samples():
+    return sample_messages()
