@@ -64,3 +64,27 @@ def check_name_map(value, name: str, kind: type, max_entries: int) -> dict:
             raise MessageError(f"{name}: key {k!r} must be 1-64 characters of letters, digits and _ . : / -")
         out[k] = check_sequence(v, f"{name}[{k!r}]") if kind is int else check_finite(v, f"{name}[{k!r}]")
     return out
+
+
+MAX_COORD_M = 1e12  # beyond any GNSS/UTM coordinate; keeps R^T R and products finite
+
+
+def check_pose(value, name: str) -> np.ndarray:
+    """A rigid ``[4, 4]`` (or ``[3, 4]``) cam2world, returned as float64 ``[4, 4]``.
+
+    Entries are bounded before the orthonormality test so that no product overflows."""
+    from aes_planner.geometry.poses import PoseError, validate_cam2world
+
+    try:
+        m = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise MessageError(f"{name} must be a 4x4 matrix of numbers, got {type(value).__name__}") from None
+    if m.shape in ((4, 4), (3, 4)) and np.all(np.isfinite(m)):
+        if np.abs(m[:3, :3]).max() > 1.001:
+            raise MessageError(f"{name}: rotation entries exceed 1; the rotation is not orthonormal")
+        if np.abs(m[:3, 3]).max() > MAX_COORD_M:
+            raise MessageError(f"{name}: translation beyond {MAX_COORD_M:g} m")
+    try:
+        return validate_cam2world(m, name)
+    except PoseError as exc:
+        raise MessageError(str(exc)) from None

@@ -9,9 +9,8 @@ from typing import ClassVar
 import numpy as np
 
 from aes_planner.geometry.camera import Intrinsics
-from aes_planner.geometry.poses import PoseError, validate_cam2world
 from aes_planner.messages.codec import Message, MessageError, Reader, Writer, register_message
-from aes_planner.messages.fields import check_optional_finite, check_sequence, check_text
+from aes_planner.messages.fields import check_optional_finite, check_pose, check_sequence, check_text
 
 __all__ = ["MessageError", "PosedFrame", "MAX_IMAGE_SIDE_PX", "MAX_IMAGE_PIXELS"]
 
@@ -79,10 +78,7 @@ class PosedFrame(Message):
                 f"PosedFrame.intrinsics are for {self.intrinsics.width}x{self.intrinsics.height} but the image is {w}x{h}; "
                 "rescale them with Intrinsics.scaled(width, height)"
             )
-        try:
-            self.cam2world = validate_cam2world(self.cam2world, "PosedFrame.cam2world")
-        except PoseError as exc:
-            raise MessageError(str(exc)) from None
+        self.cam2world = check_pose(self.cam2world, "PosedFrame.cam2world")
         if (
             isinstance(self.stamp_s, bool)
             or not isinstance(self.stamp_s, (int, float, np.integer, np.floating))

@@ -7,12 +7,12 @@ from typing import ClassVar
 
 import numpy as np
 
-from aes_planner.geometry.poses import PoseError, validate_cam2world
 from aes_planner.messages.codec import Message, MessageError, Reader, Writer, register_message
 from aes_planner.messages.fields import (
     check_finite,
     check_name_map,
     check_optional_finite,
+    check_pose,
     check_sequence,
     check_text,
 )
@@ -45,10 +45,7 @@ class Candidate:
     terms: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self):
-        try:
-            self.cam2world = validate_cam2world(self.cam2world, "Candidate.cam2world")
-        except PoseError as exc:
-            raise MessageError(str(exc)) from None
+        self.cam2world = check_pose(self.cam2world, "Candidate.cam2world")
         self.score = check_finite(self.score, "Candidate.score")
         self.coverage = check_finite(self.coverage, "Candidate.coverage")
         if not 0.0 <= self.coverage <= 1.0:

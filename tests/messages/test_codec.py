@@ -10,8 +10,7 @@ from hypothesis import strategies as st
 
 from aes_planner.messages import MESSAGE_TYPES, MessageError, PosedFrame, decode, encode, peek_header, to_jsonable
 from aes_planner.messages.codec import HEADER_SIZE
-
-from .conftest import sample_messages
+from aes_planner.messages.samples import sample_messages
 
 SAMPLES = sample_messages()
 ENCODED = {name: encode(m) for name, m in SAMPLES.items()}
@@ -200,3 +199,14 @@ def test_frame_size_caps():
         PosedFrame(np.zeros((1, 9000, 3), np.uint8), Intrinsics.from_fov(9000, 1, 60.0), np.eye(4))
     with pytest.raises(MessageError, match="non-empty"):
         PosedFrame(np.zeros((0, 4, 3), np.uint8), Intrinsics.from_fov(4, 1, 60.0), np.eye(4))
+
+
+@pytest.mark.parametrize("value", [1e300, -1e200, 1.5])
+def test_huge_rotation_entries_are_refused_without_overflow(value):
+    frame = SAMPLES["PosedFrame"]
+    data = _patch_f64(ENCODED["PosedFrame"], float(frame.cam2world[0, 0]), value)
+    with pytest.raises(MessageError, match="orthonormal"):
+        decode(data)
+    far = _patch_f64(ENCODED["PosedFrame"], float(frame.cam2world[0, 3]), 1e200)
+    with pytest.raises(MessageError, match="translation"):
+        decode(far)

@@ -1,0 +1,103 @@
+"""``BusConfig`` / ``ZenohConfig``: the ``bus:`` block of a launch file and the CLI's bus flags."""
+
+from __future__ import annotations
+
+import ipaddress
+import re
+from dataclasses import dataclass, field
+from typing import Literal
+
+from aes_planner.config import ConfigError, require
+
+__all__ = ["BusConfig", "ZenohConfig", "open_bus", "DEFAULT_ENDPOINT", "EPHEMERAL_ENDPOINT"]
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+EPHEMERAL_ENDPOINT = "tcp/127.0.0.1:0"
+_ENDPOINT = re.compile(r"^(tcp|udp|quic|tls)/(\[[0-9A-Fa-f:]+\]|[A-Za-z0-9.\-]+):(\d{1,5})$")
+
+
+def _endpoint_host(endpoint: str, key: str) -> str:
+    m = _ENDPOINT.match(endpoint) if isinstance(endpoint, str) else None
+    require(m is not None, key, f"endpoint must look like 'tcp/127.0.0.1:7447', got {endpoint!r}")
+    require(int(m.group(3)) <= 65535, key, f"port out of range in {endpoint!r}")
+    return m.group(2).strip("[]")
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+@dataclass
+class ZenohConfig:
+    """How a process joins the Zenoh network (peer mode).
+
+    * ``connect``: endpoints to connect to (retried in the background until they answer, so a
+      peer that restarts is picked up again). By default the launcher's endpoint on loopback.
+    * ``listen``: endpoints to listen on. Non-loopback addresses need ``allow_remote: true``.
+      By default an ephemeral loopback port: the peers learn each other's address from the one
+      they connect to (gossip) and then talk directly, so the graph survives any one of them.
+    * ``multicast_scouting``: discover peers by UDP multicast on the LAN; off by default.
+    * ``prefix``: key prefix of every topic (like a ROS domain): buses with different prefixes
+      do not see each other.
+    * ``open_timeout_s``: how long a ``request`` or a latched catch-up waits for peers.
+    """
+
+    connect: tuple[str, ...] = (DEFAULT_ENDPOINT,)
+    listen: tuple[str, ...] = (EPHEMERAL_ENDPOINT,)
+    multicast_scouting: bool = False
+    allow_remote: bool = False
+    prefix: str = "aes"
+    open_timeout_s: float = 2.0
+
+    def __post_init__(self):
+        self.connect = tuple(self.connect)
+        self.listen = tuple(self.listen)
+        for i, ep in enumerate(self.connect):
+            _endpoint_host(ep, f"connect[{i}]")
+        for i, ep in enumerate(self.listen):
+            host = _endpoint_host(ep, f"listen[{i}]")
+            require(
+                self.allow_remote or _is_loopback(host),
+                f"listen[{i}]",
+                f"{ep} listens beyond loopback; set allow_remote: true (or --allow-remote) if you mean it",
+            )
+        require(
+            not self.multicast_scouting or self.allow_remote,
+            "multicast_scouting",
+            "multicast scouting reaches the LAN; set allow_remote: true as well if you mean it",
+        )
+        require(
+            isinstance(self.prefix, str) and re.fullmatch(r"[A-Za-z0-9_\-]{1,64}", self.prefix) is not None,
+            "prefix",
+            f"must be 1-64 letters, digits, '_' or '-', got {self.prefix!r}",
+        )
+        require(0 < self.open_timeout_s <= 60, "open_timeout_s", f"must be in (0, 60], got {self.open_timeout_s}")
+
+
+@dataclass
+class BusConfig:
+    """``backend``: ``inprocess`` (one process) or ``zenoh`` (processes and machines)."""
+
+    backend: Literal["inprocess", "zenoh"] = "inprocess"
+    zenoh: ZenohConfig = field(default_factory=ZenohConfig)
+
+    def __post_init__(self):
+        if self.backend not in ("inprocess", "zenoh"):
+            raise ConfigError("backend", f"must be 'inprocess' or 'zenoh', got {self.backend!r}")
+
+
+def open_bus(config: BusConfig | None = None):
+    """A new bus for ``config`` (default: in-process)."""
+    config = config or BusConfig()
+    if config.backend == "zenoh":
+        from aes_planner.transport.zenoh_bus import ZenohBus
+
+        return ZenohBus(config.zenoh)
+    from aes_planner.transport.inprocess import InProcessBus
+
+    return InProcessBus()
