@@ -25,6 +25,7 @@ COMMANDS = [
     "aes_planner.cli.score",
     "aes_planner.cli.teachers",
     "aes_planner.cli.gimbal",
+    "aes_planner.cli.bus",
 ]
 
 

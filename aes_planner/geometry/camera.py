@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
-from torch import Tensor
 
 from aes_planner.errors import AesPlannerError
+
+if TYPE_CHECKING:  # torch is imported where a tensor is asked for: messages and the bus tools need no torch
+    import torch
+    from torch import Tensor
 
 __all__ = ["Intrinsics", "IntrinsicsError"]
 
@@ -78,9 +81,11 @@ class Intrinsics:
         """The 3x3 intrinsics matrix, float64."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
-    def K_tensor(self, dtype: torch.dtype = torch.float32, device: str | torch.device = "cpu") -> Tensor:
-        """The 3x3 intrinsics matrix as a tensor ``[3, 3]``."""
-        return torch.tensor(self.K, dtype=dtype, device=device)
+    def K_tensor(self, dtype: torch.dtype | None = None, device: str | torch.device = "cpu") -> Tensor:
+        """The 3x3 intrinsics matrix as a tensor ``[3, 3]`` (float32 unless ``dtype`` says)."""
+        import torch
+
+        return torch.tensor(self.K, dtype=dtype or torch.float32, device=device)
 
     @property
     def hfov_rad(self) -> float:

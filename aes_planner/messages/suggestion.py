@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -21,6 +22,17 @@ __all__ = ["Candidate", "ViewSuggestion", "MAX_CANDIDATES", "MAX_TERMS"]
 
 MAX_CANDIDATES = 64
 MAX_TERMS = 32
+
+
+def view_of(cam2world: np.ndarray) -> np.ndarray:
+    """cam2world ``[4, 4]`` -> ``[5]`` (x, y, z, yaw, pitch) by the conventions of
+    :mod:`aes_planner.geometry` (yaw from the optical axis, or from the right axis at the poles)."""
+    right, forward = cam2world[:3, 0], cam2world[:3, 2]
+    at_pole = forward[0] ** 2 + forward[1] ** 2 < 1e-12
+    yaw = math.atan2(right[0], -right[1]) if at_pole else math.atan2(forward[1], forward[0])
+    pitch = math.atan2(forward[2], forward[0] * math.cos(yaw) + forward[1] * math.sin(yaw))
+    pitch = min(math.pi / 2, max(-math.pi / 2, pitch))
+    return np.array([*cam2world[:3, 3], yaw, pitch], dtype=np.float64)
 
 
 @dataclass
@@ -62,10 +74,11 @@ class Candidate:
 
     @property
     def view(self) -> np.ndarray:
-        """``[5]`` (x, y, z, yaw, pitch), yaw in (-pi, pi], pitch in [-pi/2, pi/2]."""
-        from aes_planner.geometry.poses import cam2world_to_view
+        """``[5]`` (x, y, z, yaw, pitch), yaw in (-pi, pi], pitch in [-pi/2, pi/2].
 
-        return np.asarray(cam2world_to_view(self.cam2world), dtype=np.float64)
+        The numpy twin of :func:`aes_planner.geometry.cam2world_to_view` (a test compares them),
+        so that reading a suggestion needs no torch."""
+        return view_of(self.cam2world)
 
     @property
     def yaw_rad(self) -> float:

@@ -159,6 +159,7 @@ class Subscription:
         self.callback_errors = 0
         self.last_error = ""
         self.closed = False
+        self.catch_up = True  # receive latched values published before it joined
         self._queue: deque = deque(maxlen=depth)
         self._lock = threading.Lock()
 
@@ -449,11 +450,18 @@ class Bus(ABC):
         return sub
 
     def subscribe_raw(
-        self, pattern: str = "**", *, depth: int = 100, callback: Callable[[RawSample], None] | None = None
+        self,
+        pattern: str = "**",
+        *,
+        depth: int = 100,
+        callback: Callable[[RawSample], None] | None = None,
+        catch_up: bool = True,
     ) -> Subscription:
-        """Undecoded :class:`RawSample` of every topic matching ``pattern`` (``*``/``**`` tokens)."""
+        """Undecoded :class:`RawSample` of every topic matching ``pattern`` (``*``/``**`` tokens).
+        ``catch_up=False``: not the latched values published before (for measuring rates)."""
         self._check_open()
         sub = Subscription(self, validate_pattern(pattern), None, depth, callback, None, raw=True)
+        sub.catch_up = catch_up
         self._declare_subscription(sub)
         return sub
 

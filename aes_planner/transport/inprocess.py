@@ -57,7 +57,7 @@ class InProcessBus(Bus):
             if not sub.raw:
                 self._check_type(sub.topic, sub.msg_type)
             self._subs.append(sub)
-            latched = [(t, d) for t, d in self._latched.items() if self._wants(sub, t)]
+            latched = [(t, d) for t, d in self._latched.items() if sub.catch_up and self._wants(sub, t)]
         for topic, data in latched:
             sub._deliver(topic, data)
 

@@ -66,6 +66,9 @@ def zenoh_config(cfg: ZenohConfig) -> zenoh.Config:
     conf.insert_json5("connect/endpoints", json.dumps(list(cfg.connect)))
     conf.insert_json5("listen/endpoints", json.dumps(list(cfg.listen)))
     conf.insert_json5("scouting/multicast/enabled", "true" if cfg.multicast_scouting else "false")
+    # Retry unreachable endpoints every 0.2-1 s (Zenoh's default backs off to 4 s): a peer that
+    # starts late or restarts is picked up within a second.
+    conf.insert_json5("connect/retry", '{"period_init_ms": 200, "period_max_ms": 1000, "period_increase_factor": 2}')
     return conf
 
 
@@ -151,13 +154,16 @@ class ZenohBus(Bus):
         handles: list = [self.session.declare_subscriber(key, on_sample)]
         # Late joiners: ask each latched publisher of the topic (pattern) for its last sample.
         watch = self._key(f"*/1/*/{sub.topic}", "@meta/pub")
-        handles.append(
-            self.session.liveliness().declare_subscriber(
-                watch,
-                lambda s, inbox=inbox: self._post(self._catch_up, inbox) if s.kind == zenoh.SampleKind.PUT else None,
-                history=True,
+        if sub.catch_up:
+            handles.append(
+                self.session.liveliness().declare_subscriber(
+                    watch,
+                    lambda s, inbox=inbox: (
+                        self._post(self._catch_up, inbox) if s.kind == zenoh.SampleKind.PUT else None
+                    ),
+                    history=True,
+                )
             )
-        )
         if not sub.raw:
             handles.append(
                 self.session.liveliness().declare_token(self._key(f"{self.id}-{id(sub)}/{sub.topic}", "@meta/sub"))

@@ -66,3 +66,22 @@ def test_gimbal_state_converts_from_and_to_the_device_layer():
     back = GimbalState.from_device(dev, sequence=3)
     assert (back.pan_rad, back.tilt_rad, back.goal_pan_rad, back.goal_tilt_rad) == (0.1, 0.2, 0.3, 0.4)
     assert back.hardware_error == ("tilt: overload",) and back.status == "fault" and back.sequence == 3
+
+
+@pytest.mark.parametrize("pitch", [-math.pi / 2, -0.7, 0.0, 0.3, math.pi / 2])
+@pytest.mark.parametrize("yaw", [-3.0, -0.5, 0.0, 1.2, math.pi])
+def test_candidate_view_matches_the_geometry_reference(yaw, pitch):
+    from aes_planner.geometry import cam2world_to_view
+    from aes_planner.messages.suggestion import view_of
+
+    c2w = view_to_cam2world(np.array([1.0, -2.0, 0.5, yaw, pitch]))
+    assert np.allclose(view_of(c2w), np.asarray(cam2world_to_view(c2w)), atol=1e-9)
+
+
+def test_messages_import_without_torch():
+    import subprocess
+    import sys
+
+    code = "import sys, aes_planner.messages, aes_planner.transport; print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

@@ -1,0 +1,264 @@
+"""What our messages look like in Foxglove: typed ``foxglove.*`` messages beside our own bytes.
+
+For a message on topic ``T`` (shown as ``/T``), :func:`foxglove_view` returns:
+
+* ``PosedFrame``: ``/T/image`` (``foxglove.CompressedImage``, PNG), ``/tf``
+  (``foxglove.FrameTransform`` world -> the camera), ``/T/scene`` (``foxglove.SceneUpdate``:
+  the camera's frustum in white).
+* ``ViewSuggestion``: ``/T/scene`` (``foxglove.SceneUpdate``: a frustum per candidate coloured
+  by score, red = worst to green = best, with its rank and score as text), ``/tf`` (world ->
+  ``suggestion``, the best candidate), ``/T/scores`` (JSON: best score, coverage, each term,
+  the best view in degrees, all scores: plottable).
+* every other type: ``/T/json`` (JSON of :func:`aes_planner.messages.to_jsonable`, plottable).
+
+Our own channel ``/T`` carries the message's bytes unchanged (message encoding
+``aes-planner``), so a replay feeds a node exactly what it saw.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from aes_planner.messages import (
+    Message,
+    PosedFrame,
+    ViewSuggestion,
+    to_jsonable,
+)
+
+__all__ = ["VizMessage", "foxglove_view", "OUR_ENCODING", "our_schema", "FrustumStyle"]
+
+OUR_ENCODING = "aes-planner"
+_SCHEMA_DOC = (
+    "aes-planner binary message (see aes_planner.messages.codec): 12-byte header "
+    "(magic AESM, format, name length, schema version, payload length), type name, payload."
+)
+
+
+@dataclass(frozen=True)
+class VizMessage:
+    """One message for a Foxglove-readable channel."""
+
+    topic: str
+    schema_name: str
+    schema_encoding: str
+    schema_data: bytes
+    message_encoding: str
+    data: bytes
+
+
+def our_schema(type_name: str, version: int) -> tuple[str, str, bytes]:
+    """(name, encoding, data) of the schema of our own channel for ``type_name``."""
+    return f"aes_planner.{type_name}", OUR_ENCODING, f"{_SCHEMA_DOC} type {type_name} v{version}".encode()
+
+
+@dataclass(frozen=True)
+class FrustumStyle:
+    depth_m: float = 0.25
+    hfov_rad: float = math.radians(60.0)
+    aspect: float = 4.0 / 3.0
+    thickness_px: float = 2.0
+
+
+_SCHEMAS: dict[str, tuple[str, str, bytes]] = {}
+
+
+def _proto_schema(cls) -> tuple[str, str, bytes]:
+    key = cls.__name__
+    if key not in _SCHEMAS:
+        s = cls.get_schema()
+        _SCHEMAS[key] = (s.name, s.encoding, bytes(s.data))
+    return _SCHEMAS[key]
+
+
+def _proto(topic: str, msg) -> VizMessage:
+    name, enc, data = _proto_schema(type(msg))
+    return VizMessage(topic, name, enc, data, "protobuf", msg.encode())
+
+
+_JSON_SCHEMA = json.dumps({"type": "object", "additionalProperties": True}).encode()
+
+
+def _json(topic: str, name: str, obj) -> VizMessage:
+    return VizMessage(topic, name, "jsonschema", _JSON_SCHEMA, "json", json.dumps(obj).encode())
+
+
+def _stamp(log_time_ns: int):
+    from foxglove.messages import Timestamp
+
+    return Timestamp(log_time_ns // 1_000_000_000, log_time_ns % 1_000_000_000)
+
+
+def _quat_xyzw(rotation: np.ndarray):
+    from foxglove.messages import Quaternion
+
+    from aes_planner.geometry import matrix_to_quat
+
+    w, x, y, z = (float(v) for v in np.asarray(matrix_to_quat(rotation), dtype=np.float64))
+    return Quaternion(x=x, y=y, z=z, w=w)
+
+
+def _transform(parent: str, child: str, cam2world: np.ndarray, log_time_ns: int):
+    from foxglove.messages import FrameTransform, Vector3
+
+    t = cam2world[:3, 3]
+    return FrameTransform(
+        timestamp=_stamp(log_time_ns),
+        parent_frame_id=parent,
+        child_frame_id=child,
+        translation=Vector3(x=float(t[0]), y=float(t[1]), z=float(t[2])),
+        rotation=_quat_xyzw(cam2world[:3, :3]),
+    )
+
+
+def _frustum_points(cam2world: np.ndarray, style: FrustumStyle, hfov_rad: float, aspect: float) -> list:
+    """LINE_LIST points (pairs) of a pyramid from the optical centre to the image corners."""
+    from foxglove.messages import Point3
+
+    half_w = math.tan(hfov_rad / 2) * style.depth_m
+    half_h = half_w / aspect
+    d = style.depth_m
+    corners = np.array([[-half_w, -half_h, d], [half_w, -half_h, d], [half_w, half_h, d], [-half_w, half_h, d]])
+    world = corners @ cam2world[:3, :3].T + cam2world[:3, 3]  # [4, 3]
+    origin = cam2world[:3, 3]
+    pts = []
+    for i in range(4):
+        pts += [origin, world[i], world[i], world[(i + 1) % 4]]
+    return [Point3(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in pts]
+
+
+def _entity(eid: str, cam2world, color, label: str, log_time_ns: int, style: FrustumStyle, hfov, aspect):
+    from foxglove.messages import (
+        Color,
+        LinePrimitive,
+        LinePrimitiveLineType,
+        Pose,
+        Quaternion,
+        SceneEntity,
+        TextPrimitive,
+        Vector3,
+    )
+
+    r, g, b, a = color
+    identity = Pose(position=Vector3(x=0.0, y=0.0, z=0.0), orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
+    line = LinePrimitive(
+        type=LinePrimitiveLineType.LineList,
+        pose=identity,
+        thickness=style.thickness_px,
+        scale_invariant=True,
+        points=_frustum_points(cam2world, style, hfov, aspect),
+        color=Color(r=r, g=g, b=b, a=a),
+    )
+    t = cam2world[:3, 3]
+    texts = []
+    if label:
+        texts.append(
+            TextPrimitive(
+                pose=Pose(
+                    position=Vector3(x=float(t[0]), y=float(t[1]), z=float(t[2]) + 0.05),
+                    orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
+                ),
+                billboard=True,
+                font_size=12.0,
+                scale_invariant=True,
+                color=Color(r=r, g=g, b=b, a=1.0),
+                text=label,
+            )
+        )
+    return SceneEntity(timestamp=_stamp(log_time_ns), frame_id="world", id=eid, lines=[line], texts=texts)
+
+
+def score_color(score: float, lo: float, hi: float) -> tuple[float, float, float, float]:
+    """Red (worst) to green (best) over [lo, hi]; green when all scores are equal."""
+    t = 1.0 if hi - lo <= 1e-12 else (score - lo) / (hi - lo)
+    t = min(1.0, max(0.0, t))
+    return (1.0 - t, t, 0.15, 1.0)
+
+
+class _ViewState:
+    """Remembers the last camera's field of view so suggestion frustums match it."""
+
+    hfov_rad = FrustumStyle.hfov_rad
+    aspect = FrustumStyle.aspect
+
+
+def foxglove_view(
+    topic: str, msg: Message, log_time_ns: int, style: FrustumStyle | None = None, state: _ViewState | None = None
+) -> list[VizMessage]:
+    """The Foxglove-typed messages showing ``msg`` (published on ``topic``); see the module doc."""
+    import cv2
+    from foxglove.messages import CompressedImage, SceneUpdate
+
+    style = style or FrustumStyle()
+    state = state or _ViewState()
+    base = "/" + topic
+    out: list[VizMessage] = []
+    if isinstance(msg, PosedFrame):
+        ok, png = cv2.imencode(".png", np.ascontiguousarray(msg.image[..., ::-1]))
+        camera = msg.frame_id or "camera"
+        if ok:
+            out.append(
+                _proto(
+                    f"{base}/image",
+                    CompressedImage(timestamp=_stamp(log_time_ns), frame_id=camera, data=png.tobytes(), format="png"),
+                )
+            )
+        out.append(_proto("/tf", _transform("world", camera, msg.cam2world, log_time_ns)))
+        state.hfov_rad = msg.intrinsics.hfov_rad
+        state.aspect = msg.width / msg.height
+        ent = _entity(
+            "camera", msg.cam2world, (1.0, 1.0, 1.0, 1.0), "", log_time_ns, style, state.hfov_rad, state.aspect
+        )
+        out.append(_proto(f"{base}/scene", SceneUpdate(entities=[ent])))
+        return out
+    if isinstance(msg, ViewSuggestion):
+        scores = [c.score for c in msg.candidates]
+        lo, hi = (min(scores), max(scores)) if scores else (0.0, 0.0)
+        entities = [
+            _entity(
+                f"candidate_{i}",
+                c.cam2world,
+                score_color(c.score, lo, hi),
+                f"#{i + 1} {c.score:.3f}",
+                log_time_ns,
+                style,
+                state.hfov_rad,
+                state.aspect,
+            )
+            for i, c in enumerate(msg.candidates)
+        ]
+        from foxglove.messages import SceneEntityDeletion, SceneEntityDeletionType
+
+        deletions = [SceneEntityDeletion(timestamp=_stamp(log_time_ns), type=SceneEntityDeletionType.All, id="")]
+        out.append(_proto(f"{base}/scene", SceneUpdate(deletions=deletions, entities=entities)))
+        summary: dict = {"stamp_s": msg.stamp_s, "field_version": msg.field_version, "count": len(scores)}
+        best = msg.best
+        if best is not None:
+            out.append(_proto("/tf", _transform("world", "suggestion", best.cam2world, log_time_ns)))
+            x, y, z, yaw, pitch = best.view.tolist()
+            summary["best"] = {
+                "score": best.score,
+                "coverage": best.coverage,
+                "terms": dict(best.terms),
+                "x_m": x,
+                "y_m": y,
+                "z_m": z,
+                "yaw_deg": math.degrees(yaw),
+                "pitch_deg": math.degrees(pitch),
+            }
+            if best.pan_rad is not None:
+                summary["best"]["pan_deg"] = math.degrees(best.pan_rad)
+                summary["best"]["tilt_deg"] = math.degrees(best.tilt_rad)
+        summary["scores"] = scores
+        out.append(_json(f"{base}/scores", "aes_planner.SuggestionScores", summary))
+        return out
+    obj = to_jsonable(msg)
+    for key in ("pan_rad", "tilt_rad", "goal_pan_rad", "goal_tilt_rad"):
+        if isinstance(obj.get(key), float):
+            obj[key.replace("_rad", "_deg")] = math.degrees(obj[key])
+    out.append(_json(f"{base}/json", f"aes_planner.{type(msg).TYPE_NAME}Json", obj))
+    return out

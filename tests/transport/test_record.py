@@ -1,0 +1,124 @@
+"""MCAP recordings: our exact bytes beside Foxglove's types; replay feeds a bus the same bytes."""
+
+import json
+
+import pytest
+from mcap.reader import make_reader
+
+from aes_planner.messages import GimbalCommand, PosedFrame, ViewSuggestion, encode
+from aes_planner.messages.samples import sample_messages
+from aes_planner.transport import InProcessBus
+from aes_planner.transport.record import Recorder, RecordingError, read_recording, recording_summary, replay
+
+FOXGLOVE_SCHEMAS = {"foxglove.CompressedImage", "foxglove.FrameTransform", "foxglove.SceneUpdate"}
+
+
+def record_samples(path):
+    bus = InProcessBus()
+    samples = sample_messages()
+    with Recorder(path) as rec:
+        rec.attach(bus)
+        for name, msg in samples.items():
+            bus.publish(f"t/{name.lower()}", msg)
+        bus.publish("t/posedframe", samples["PosedFrame"])
+        bus.publisher("t/posedframe", PosedFrame).publish_raw(b"garbage")
+        assert rec.rejected == 0  # the raw subscription refuses it before the recorder
+    bus.close()
+    return samples
+
+
+def test_recording_holds_our_bytes_and_foxglove_types(tmp_path):
+    path = tmp_path / "run.mcap"
+    samples = record_samples(path)
+    got = list(read_recording(path))
+    assert [t for t, _, _ in got] == [f"t/{n.lower()}" for n in samples] + ["t/posedframe"]
+    for (_topic, data, _t), msg in zip(got, samples.values()):
+        assert data == encode(msg)
+    assert recording_summary(path)["t/posedframe"] == {"type": "PosedFrame", "count": 2}
+
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        schemas = {s.name for s in summary.schemas.values()}
+        topics = {c.topic: c for c in summary.channels.values()}
+        assert FOXGLOVE_SCHEMAS <= schemas
+        assert topics["/t/posedframe/image"].message_encoding == "protobuf"
+        assert {"/tf", "/t/viewsuggestion/scene", "/t/viewsuggestion/scores", "/t/gimbalstate/json"} <= set(topics)
+        scores = [json.loads(m.data) for _s, c, m in reader.iter_messages(topics=["/t/viewsuggestion/scores"])]
+    best = samples["ViewSuggestion"].best
+    assert scores[0]["best"]["score"] == best.score and scores[0]["best"]["terms"] == best.terms
+    assert scores[0]["scores"] == [c.score for c in samples["ViewSuggestion"].candidates]
+
+
+def test_scene_update_colours_frustums_by_score(tmp_path):
+    from foxglove.messages import SceneUpdate  # noqa: F401 (the schema the file names)
+
+    from aes_planner.transport.foxglove_view import foxglove_view, score_color
+
+    views = foxglove_view("planner/suggestion", sample_messages()["ViewSuggestion"], 1_000)
+    assert {v.topic for v in views} == {"/planner/suggestion/scene", "/tf", "/planner/suggestion/scores"}
+    assert score_color(1.0, 0.0, 1.0)[1] == 1.0 and score_color(0.0, 0.0, 1.0)[0] == 1.0
+
+
+def test_replay_feeds_a_fresh_bus_the_same_bytes(tmp_path):
+    path = tmp_path / "run.mcap"
+    samples = record_samples(path)
+    bus = InProcessBus()
+    frames = bus.subscribe("t/posedframe", PosedFrame, depth=10)
+    raw = bus.subscribe_raw("**", depth=100)
+    n = replay(path, bus, rate=0)
+    assert n == len(samples) + 1
+    assert [s.data for s in raw.take()] == [d for _, d, _ in read_recording(path)]
+    assert frames.received == 2 and frames.rejected == 0
+    assert replay(path, bus, rate=0, topics=["t/gimbalcommand"]) == 1
+
+
+def test_replay_loops_until_stopped(tmp_path):
+    import threading
+
+    path = tmp_path / "cmd.mcap"
+    bus = InProcessBus()
+    with Recorder(path) as rec:
+        rec.attach(bus)
+        bus.publish("gimbal/command", GimbalCommand())
+    stop = threading.Event()
+    seen = []
+
+    def on_msg(m):
+        seen.append(m)
+        if len(seen) >= 5:
+            stop.set()
+
+    bus.subscribe("gimbal/command", GimbalCommand, callback=on_msg)
+    assert replay(path, bus, rate=0, loop=True, stop=stop) >= 5
+
+
+def test_bad_recordings_and_paths_are_clear_errors(tmp_path):
+    with pytest.raises(RecordingError, match="no such"):
+        list(read_recording(tmp_path / "missing.mcap"))
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not an mcap file at all")
+    with pytest.raises(RecordingError, match="not an MCAP"):
+        list(read_recording(junk))
+    good = tmp_path / "good.mcap"
+    record_samples(good)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    with pytest.raises(RecordingError):
+        list(read_recording(cut))
+    with pytest.raises(RecordingError, match="exists"):
+        Recorder(good)
+    with pytest.raises(RecordingError, match="cannot write"):
+        Recorder(tmp_path / "no" / "such" / "dir.mcap")
+    with pytest.raises(RecordingError, match="rate"):
+        replay(good, InProcessBus(), rate=float("nan"))
+
+
+def test_suggestion_only_recording_has_best_transform(tmp_path):
+    path = tmp_path / "s.mcap"
+    with Recorder(path) as rec:
+        rec.write("planner/suggestion", ViewSuggestion(1.0))  # empty: no best, no transform
+        rec.write("planner/suggestion", sample_messages()["ViewSuggestion"])
+    with open(path, "rb") as f:
+        tfs = list(make_reader(f).iter_messages(topics=["/tf"]))
+    assert len(tfs) == 1
