@@ -59,7 +59,9 @@ def test_echo_topics_record_replay(hub, capsys, tmp_path):
     got = bus.subscribe("planner/suggestion", ViewSuggestion, depth=100)
     time.sleep(0.2)
     got.take()
-    assert main(["replay", str(rec), "--rate", "0", "--wait", "1", "--connect", ep, "--topics", "planner/suggestion"]) == 0
+    assert (
+        main(["replay", str(rec), "--rate", "0", "--wait", "1", "--connect", ep, "--topics", "planner/suggestion"]) == 0
+    )
     end = time.monotonic() + 5
     while got.received < 1 and time.monotonic() < end:
         time.sleep(0.05)
