@@ -5,13 +5,17 @@ files, scene files and CLI flags load into the same dataclasses through :func:`f
 rejects unknown keys and values of the wrong type with a :class:`ConfigError` naming the full
 key path (``rig.joint_limits_deg.pan``) and what to do about it.
 
-YAML is only ever read with ``yaml.safe_load``.
+YAML is only ever read through :func:`load_yaml`: ``yaml.SafeLoader`` (no object construction)
+plus limits (file size, nesting, aliases expanding to at most :data:`YAML_MAX_NODES` values),
+duplicate keys refused, and ``1e30`` read as a number as YAML 1.2 does.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import re
+import reprlib
 import types
 import typing
 from collections.abc import Mapping
@@ -24,7 +28,27 @@ from aes_planner.errors import AesPlannerError
 
 T = TypeVar("T")
 
-__all__ = ["ConfigError", "from_dict", "to_dict", "load_yaml", "require", "require_finite", "require_numbers"]
+__all__ = [
+    "ConfigError",
+    "from_dict",
+    "to_dict",
+    "load_yaml",
+    "load_yaml_text",
+    "require",
+    "require_finite",
+    "require_numbers",
+    "short_repr",
+]
+
+_REPR = reprlib.Repr()
+_REPR.maxstring, _REPR.maxother, _REPR.maxlist, _REPR.maxtuple, _REPR.maxdict, _REPR.maxlevel = 60, 60, 6, 6, 4, 3
+
+
+def short_repr(value: Any, limit: int = 200) -> str:
+    """``repr(value)`` bounded in size (long strings, lists and nesting elided), for error messages:
+    an error must never print, or build, a huge value."""
+    text = _REPR.repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 class ConfigError(AesPlannerError, ValueError):
@@ -56,7 +80,7 @@ def require_finite(value: Any, key: str) -> None:
     values = value if isinstance(value, (tuple, list)) else (value,)
     for v in values:
         if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
-            raise ConfigError(key, f"expected finite numbers, got {value!r}")
+            raise ConfigError(key, f"expected finite numbers, got {short_repr(value)}")
 
 
 def require_numbers(obj: Any, names: tuple[str, ...], *, minimum: float = 0.0, strict: bool = True) -> None:
@@ -69,7 +93,7 @@ def require_numbers(obj: Any, names: tuple[str, ...], *, minimum: float = 0.0, s
         require(
             ok and (v > minimum if strict else v >= minimum),
             name,
-            f"must be a finite number {op} {minimum:g}, got {v!r}",
+            f"must be a finite number {op} {minimum:g}, got {short_repr(v)}",
         )
 
 
@@ -97,10 +121,10 @@ def _convert(tp: Any, value: Any, key: str) -> Any:
                 return _convert(arg, value, key)
             except ConfigError:
                 continue
-        raise ConfigError(key, f"value {value!r} matches none of {[_describe(a) for a in args]}")
+        raise ConfigError(key, f"value {short_repr(value)} matches none of {[_describe(a) for a in args]}")
     if origin is Literal:
         if value not in args:
-            raise ConfigError(key, f"must be one of {list(args)}, got {value!r}")
+            raise ConfigError(key, f"must be one of {list(args)}, got {short_repr(value)}")
         return value
     if dataclasses.is_dataclass(tp):
         if isinstance(value, tp):
@@ -108,15 +132,15 @@ def _convert(tp: Any, value: Any, key: str) -> Any:
         return from_dict(tp, value, key)
     if origin in (tuple,):
         if not isinstance(value, (list, tuple)):
-            raise ConfigError(key, f"expected a list, got {type(value).__name__} {value!r}")
+            raise ConfigError(key, f"expected a list, got {type(value).__name__} {short_repr(value)}")
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(_convert(args[0], v, _join(key, i)) for i, v in enumerate(value))
         if args and len(value) != len(args):
-            raise ConfigError(key, f"expected {len(args)} values, got {len(value)}: {value!r}")
+            raise ConfigError(key, f"expected {len(args)} values, got {len(value)}: {short_repr(value)}")
         return tuple(_convert(a, v, _join(key, i)) for i, (a, v) in enumerate(zip(args, value)))
     if origin in (list,):
         if not isinstance(value, (list, tuple)):
-            raise ConfigError(key, f"expected a list, got {type(value).__name__} {value!r}")
+            raise ConfigError(key, f"expected a list, got {type(value).__name__} {short_repr(value)}")
         (arg,) = args or (Any,)
         return [_convert(arg, v, _join(key, i)) for i, v in enumerate(value)]
     if origin in (dict,):
@@ -126,26 +150,26 @@ def _convert(tp: Any, value: Any, key: str) -> Any:
         return {_convert(kt, k, key): _convert(vt, v, _join(key, str(k))) for k, v in value.items()}
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(key, f"expected a number, got {value!r}")
+            raise ConfigError(key, f"expected a number, got {short_repr(value)}")
         value = float(value)
         if not math.isfinite(value):
-            raise ConfigError(key, f"expected a finite number, got {value!r}")
+            raise ConfigError(key, f"expected a finite number, got {short_repr(value)}")
         return value
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(key, f"expected an integer, got {value!r}")
+            raise ConfigError(key, f"expected an integer, got {short_repr(value)}")
         return value
     if tp is bool:
         if not isinstance(value, bool):
-            raise ConfigError(key, f"expected true or false, got {value!r}")
+            raise ConfigError(key, f"expected true or false, got {short_repr(value)}")
         return value
     if tp is str:
         if not isinstance(value, str):
-            raise ConfigError(key, f"expected a string, got {value!r}")
+            raise ConfigError(key, f"expected a string, got {short_repr(value)}")
         return value
     if tp is Path:
         if not isinstance(value, (str, Path)):
-            raise ConfigError(key, f"expected a path, got {value!r}")
+            raise ConfigError(key, f"expected a path, got {short_repr(value)}")
         return Path(value)
     return value
 
@@ -160,7 +184,7 @@ def from_dict(cls: type[T], data: Any, key: str = "") -> T:
     if data is None:
         data = {}
     if not isinstance(data, Mapping):
-        raise ConfigError(key, f"expected a mapping of {cls.__name__} fields, got {data!r}")
+        raise ConfigError(key, f"expected a mapping of {cls.__name__} fields, got {short_repr(data)}")
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     unknown = [k for k in data if k not in fields]
     if unknown:
@@ -196,14 +220,131 @@ def to_dict(obj: Any) -> Any:
     return obj
 
 
+#: Most values (scalars, lists, mappings) a YAML document may expand to, aliases counted each time
+#: they are used: a billion-laughs document of half a kilobyte expands to 10^9 and is refused.
+YAML_MAX_NODES = 200_000
+#: Deepest nesting of lists and mappings in a YAML document.
+YAML_MAX_DEPTH = 64
+#: Largest YAML file read (scene files with thousands of objects are well under 1 MiB).
+YAML_MAX_BYTES = 8 << 20
+
+# YAML 1.1 (PyYAML) needs a dot in a float: ``1e30`` would be the string "1e30". YAML 1.2 reads it
+# as a number, and so does everyone writing a config file.
+_FLOAT_12 = re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$")
+
+
+class _StrictLoader(yaml.SafeLoader):
+    """SafeLoader that refuses duplicate keys and reads ``1e30`` as a float."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen: dict[Any, Any] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    hash(key)
+                except TypeError:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, "a mapping key must be a plain value, not a list or mapping", key_node.start_mark
+                    ) from None
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None,
+                        None,
+                        f"duplicate key {short_repr(key)} (first at line {seen[key].line + 1}); "
+                        "each key may appear once per mapping",
+                        key_node.start_mark,
+                    )
+                seen[key] = key_node.start_mark
+        return super().construct_mapping(node, deep=deep)
+
+
+_StrictLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789"))
+
+
+def _expanded_size(node: yaml.Node, path: str) -> int:
+    """Values the node graph expands to (aliases counted at every use), without expanding it;
+    raises past :data:`YAML_MAX_NODES` or :data:`YAML_MAX_DEPTH`."""
+    sizes: dict[int, int] = {}
+    # Iterative post-order walk: a deeply nested document must not exhaust Python's stack here.
+    stack: list[tuple[yaml.Node, int, bool]] = [(node, 1, False)]
+    while stack:
+        n, depth, done = stack.pop()
+        if id(n) in sizes:
+            continue
+        if depth > YAML_MAX_DEPTH:
+            raise ConfigError("", f"{path}: nested deeper than {YAML_MAX_DEPTH} levels (line {n.start_mark.line + 1})")
+        if isinstance(n, yaml.ScalarNode):
+            sizes[id(n)] = 1
+            continue
+        children = [c for pair in n.value for c in pair] if isinstance(n, yaml.MappingNode) else list(n.value)
+        if done:
+            total = 1 + sum(sizes.get(id(c), 0) for c in children)
+            if total > YAML_MAX_NODES:
+                raise ConfigError(
+                    "",
+                    f"{path}: expands to more than {YAML_MAX_NODES} values (anchors and aliases '*' are counted at "
+                    "every use); write the values out or split the file",
+                )
+            sizes[id(n)] = total
+            continue
+        if any(c is n for c in children):
+            raise ConfigError("", f"{path}: a recursive alias (a value that contains itself) is not supported")
+        stack.append((n, depth, True))
+        stack.extend((c, depth + 1, False) for c in children if id(c) not in sizes)
+    return sizes[id(node)]
+
+
+def load_yaml_text(text: str, path: str = "<string>") -> Any:
+    """Parse YAML text safely (see the module docstring); errors are :class:`ConfigError` naming ``path``."""
+    if len(text) > YAML_MAX_BYTES:
+        raise ConfigError("", f"{path}: {len(text)} characters; YAML files are limited to {YAML_MAX_BYTES} bytes")
+    loader = None
+    try:
+        loader = _StrictLoader(text)
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _expanded_size(node, path)
+        return loader.construct_document(node)
+    except yaml.YAMLError as exc:
+        raise ConfigError("", f"{path}: not valid YAML: {_yaml_problem(exc)}") from None
+    except RecursionError:
+        raise ConfigError("", f"{path}: nested too deeply to read (more than {YAML_MAX_DEPTH} levels)") from None
+    finally:
+        if loader is not None:
+            loader.dispose()
+
+
+def _yaml_problem(exc: yaml.YAMLError) -> str:
+    """One bounded line from a PyYAML error: what and where."""
+    problem = getattr(exc, "problem", None) or getattr(exc, "reason", None) or str(exc).splitlines()[0]
+    mark = getattr(exc, "problem_mark", None)
+    where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+    if isinstance(exc, yaml.reader.ReaderError):
+        where = f" (character {exc.position})"
+    text = " ".join(str(problem).split())
+    return (text if len(text) <= 300 else text[:297] + "...") + where
+
+
 def load_yaml(path: str | Path) -> Any:
-    """Read a YAML file with ``yaml.safe_load``; errors name the file and line."""
+    """Read a YAML file safely (see the module docstring); errors name the file and line."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        with path.open("rb") as f:
+            raw = f.read(YAML_MAX_BYTES + 1)
     except FileNotFoundError:
         raise ConfigError("", f"{path}: file not found") from None
+    except IsADirectoryError:
+        raise ConfigError("", f"{path}: is a folder; give a YAML file") from None
+    except OSError as exc:
+        raise ConfigError("", f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if len(raw) > YAML_MAX_BYTES:
+        raise ConfigError("", f"{path}: larger than {YAML_MAX_BYTES} bytes; this is not a config file")
     try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError("", f"{path}: not valid YAML: {exc}") from None
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError("", f"{path}: not UTF-8 text (byte {exc.start}); is it a YAML file?") from None
+    return load_yaml_text(text, str(path))

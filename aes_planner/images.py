@@ -1,7 +1,16 @@
-"""Image files in and out, outside the dataset format: images to score, contact sheets to look at."""
+"""Image files in and out: bounded reading (every image file the package reads goes through
+:func:`imread_bounded`), images to score, contact sheets to look at.
+
+Decoding a small compressed file can allocate gigabytes (a "decompression bomb": a 40 kB PNG
+of 100000 x 100000 pixels). :func:`imread_bounded` reads the image size from the file header
+before decoding and refuses images above :data:`MAX_IMAGE_PIXELS`; formats whose header it does
+not read are refused too (OpenCV's own ``CV_IO_MAX_IMAGE_PIXELS`` check allows 2^30 pixels, and
+not for every codec).
+"""
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -9,9 +18,144 @@ import cv2
 import numpy as np
 
 from aes_planner.errors import AesPlannerError
+from aes_planner.geometry.camera import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE
 from aes_planner.messages import PosedFrame
 
-__all__ = ["read_image", "write_contact_sheet"]
+__all__ = [
+    "MAX_IMAGE_PIXELS",
+    "MAX_IMAGE_SIDE",
+    "ImageError",
+    "check_image_size",
+    "image_size",
+    "imread_bounded",
+    "read_image",
+    "write_contact_sheet",
+]
+
+
+class ImageError(AesPlannerError, ValueError):
+    """An image file that is missing, unreadable, of an unsupported format or too large."""
+
+
+def check_image_size(width: int, height: int, what: str) -> None:
+    """Raise :class:`ImageError` unless ``width x height`` is within :data:`MAX_IMAGE_PIXELS` and
+    :data:`MAX_IMAGE_SIDE` (checked before anything of that size is allocated)."""
+    if width > MAX_IMAGE_SIDE or height > MAX_IMAGE_SIDE or width * height > MAX_IMAGE_PIXELS:
+        raise ImageError(
+            f"{what} is {width}x{height} pixels; at most {MAX_IMAGE_SIDE} per side and {MAX_IMAGE_PIXELS} "
+            "in all are supported; downscale it"
+        )
+
+
+def _jpeg_size(f) -> tuple[int, int] | None:
+    f.seek(2)
+    while True:
+        byte = f.read(1)
+        while byte and byte != b"\xff":
+            byte = f.read(1)
+        while byte == b"\xff":
+            byte = f.read(1)
+        if not byte:
+            return None
+        marker = byte[0]
+        if marker in (0x01, *range(0xD0, 0xD9)):  # standalone markers
+            continue
+        raw = f.read(2)
+        if len(raw) < 2:
+            return None
+        length = struct.unpack(">H", raw)[0]
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):  # start of frame
+            data = f.read(5)
+            if len(data) < 5:
+                return None
+            h, w = struct.unpack(">HH", data[1:5])
+            return w, h
+        if length < 2:
+            return None
+        f.seek(length - 2, 1)
+
+
+def _tiff_size(f, head: bytes) -> tuple[int, int] | None:
+    end = "<" if head[:2] == b"II" else ">"
+    f.seek(4)
+    (offset,) = struct.unpack(end + "I", f.read(4))
+    f.seek(offset)
+    raw = f.read(2)
+    if len(raw) < 2:
+        return None
+    (count,) = struct.unpack(end + "H", raw)
+    dims = {}
+    for _ in range(min(count, 1000)):
+        entry = f.read(12)
+        if len(entry) < 12:
+            break
+        tag, typ = struct.unpack(end + "HH", entry[:4])
+        if tag in (256, 257):
+            dims[tag] = struct.unpack(end + ("H" if typ == 3 else "I"), entry[8:10] if typ == 3 else entry[8:12])[0]
+    return (dims[256], dims[257]) if len(dims) == 2 else None
+
+
+def image_size(path: Path) -> tuple[int, int] | None:
+    """``(width, height)`` from the header of a PNG, JPEG, BMP, TIFF, WebP, PNM or GIF file, without
+    decoding it; None when the format is none of these or the header is damaged."""
+    try:
+        with Path(path).open("rb") as f:
+            head = f.read(32)
+            if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+                return struct.unpack(">II", head[16:24])
+            if head[:2] == b"\xff\xd8":
+                return _jpeg_size(f)
+            if head[:2] == b"BM" and len(head) >= 26:
+                w, h = struct.unpack("<ii", head[18:26])
+                return abs(w), abs(h)
+            if head[:4] in (b"II*\x00", b"MM\x00*"):
+                return _tiff_size(f, head)
+            if head[:6] in (b"GIF87a", b"GIF89a"):
+                return struct.unpack("<HH", head[6:10])
+            if head[:4] == b"RIFF" and head[8:12] == b"WEBP":
+                chunk = head[12:16]
+                if chunk == b"VP8X":
+                    return 1 + int.from_bytes(head[24:27], "little"), 1 + int.from_bytes(head[27:30], "little")
+                if chunk == b"VP8L":
+                    b = int.from_bytes(head[21:25], "little")
+                    return 1 + (b & 0x3FFF), 1 + ((b >> 14) & 0x3FFF)
+                if chunk == b"VP8 ":
+                    more = head + f.read(8)
+                    w, h = struct.unpack("<HH", more[26:30])
+                    return w & 0x3FFF, h & 0x3FFF
+                return None
+            if head[:1] == b"P" and head[1:2] in b"123456":
+                tokens = head[2:].split(b"#")[0].split()
+                return (int(tokens[0]), int(tokens[1])) if len(tokens) >= 2 else None
+    except (OSError, struct.error, ValueError, IndexError):
+        return None
+    return None
+
+
+def imread_bounded(path: str | Path, flags: int, what: str, error: type[AesPlannerError] = ImageError) -> np.ndarray:
+    """``cv2.imread(path, flags)`` after checking that the file exists, is a format whose size can be
+    read from its header (PNG, JPEG, BMP, TIFF, WebP, PNM, GIF) and is within :data:`MAX_IMAGE_PIXELS`.
+    Errors are ``error`` (an :class:`AesPlannerError` subclass) and start with ``what``."""
+    path = Path(path)
+    if not path.is_file():
+        raise error(f"{what}: image file {path} not found")
+    size = image_size(path)
+    if size is None:
+        raise error(
+            f"{what}: {path} is not an image OpenCV can read here (PNG, JPEG, BMP, TIFF, WebP, PNM or GIF, "
+            "with an intact header)"
+        )
+    try:
+        check_image_size(int(size[0]), int(size[1]), f"{path}")
+    except ImageError as exc:
+        raise error(f"{what}: {exc}") from None
+    try:
+        img = cv2.imread(str(path), flags)
+    except cv2.error as exc:
+        raise error(f"{what}: OpenCV cannot decode {path} ({str(exc).strip().splitlines()[-1][:120]})") from None
+    if img is None or img.size == 0:
+        raise error(f"{what}: {path} is not an image OpenCV can read (damaged or truncated?)")
+    return img
 
 
 def read_image(path: str | Path):  # -> Tensor [3, H, W] float in [0, 1]
@@ -20,10 +164,8 @@ def read_image(path: str | Path):  # -> Tensor [3, H, W] float in [0, 1]
 
     path = Path(path)
     if not path.is_file():
-        raise AesPlannerError(f"{path}: no such image file")
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if raw is None or raw.size == 0:
-        raise AesPlannerError(f"{path}: not an image OpenCV can read (PNG, JPEG, TIFF, BMP, ...)")
+        raise ImageError(f"{path}: no such image file")
+    raw = imread_bounded(path, cv2.IMREAD_UNCHANGED, str(path))
     if raw.dtype == np.uint8:
         arr = raw.astype(np.float32) / 255.0
     elif raw.dtype == np.uint16:
@@ -55,5 +197,10 @@ def write_contact_sheet(frames: Sequence[PosedFrame], path: str | Path) -> Path:
         d8 = np.where(valid, 255 - np.clip(d / scale * 255, 0, 255), 0).astype(np.uint8)
         cols.append(np.vstack([rgb, cv2.applyColorMap(d8, cv2.COLORMAP_VIRIDIS)]))
     sheet = np.hstack([np.pad(c, ((2, 2), (2, 2), (0, 0)), constant_values=255) for c in cols])
-    cv2.imwrite(str(path), sheet)
+    try:
+        ok = cv2.imwrite(str(path), sheet)
+    except cv2.error:
+        ok = False
+    if not ok:
+        raise ImageError(f"{path}: could not write the contact sheet; check the folder exists and is writable")
     return path

@@ -33,6 +33,7 @@ import numpy as np
 from aes_planner.config import require, require_numbers
 from aes_planner.errors import AesPlannerError
 from aes_planner.geometry import Intrinsics, validate_cam2world
+from aes_planner.geometry.camera import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE
 from aes_planner.messages import PosedFrame
 from aes_planner.sim.raycast import MAX_SUPERSAMPLE, render
 from aes_planner.sim.scene import Scene
@@ -74,8 +75,15 @@ class SimCameraConfig:
         for name in ("width", "height"):
             v = getattr(self, name)
             require(
-                v is None or (isinstance(v, int) and v >= 1), name, f"must be a positive number of pixels, got {v!r}"
+                v is None or (isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= MAX_IMAGE_SIDE),
+                name,
+                f"must be a number of pixels in [1, {MAX_IMAGE_SIDE}], got {v!r}",
             )
+        require(
+            self.width is None or self.height is None or self.width * self.height <= MAX_IMAGE_PIXELS,
+            "width",
+            f"a {self.width}x{self.height} camera is too large: at most {MAX_IMAGE_PIXELS} pixels in all",
+        )
         require(
             self.hfov_deg is None or 0.0 < self.hfov_deg < 180.0,
             "hfov_deg",

@@ -16,13 +16,16 @@ import yaml
 
 from aes_planner.config import ConfigError, from_dict, load_yaml
 from aes_planner.errors import AesPlannerError
+from aes_planner.paths import PathOutsideError, resolve_inside
 from aes_planner.sim.shapes import SHAPES, shape_of
 from aes_planner.sim.spec import SceneSpec, spec_to_dict
 from aes_planner.sim.texture import MaterialTable, load_image
 
 __all__ = ["Scene", "SceneError", "load_scene", "save_scene", "scene_to_yaml"]
 
-_FAMILY_SPEC = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):(-?\d+)$")
+_FAMILY_SPEC = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):([-+]?\d+)$")
+#: Images bundled with the package (the showcase scene's picture), readable from any scene file.
+ASSETS_DIR = Path(__file__).resolve().parent / "assets"
 
 
 class SceneError(AesPlannerError, ValueError):
@@ -36,9 +39,13 @@ class Scene:
     Treat it as immutable: to change a scene, change a copy of ``spec`` and build a new
     ``Scene``. ``base_dir`` is where relative image paths start (the YAML file's folder; the
     working directory when None). Instance id ``k`` (in renders) is ``objects[k - 1]``.
+
+    With a ``base_dir`` (a scene read from a file), image paths must lead inside it or into the
+    package's bundled ``assets/`` (absolute paths, ``..`` and symlinks that leave are refused);
+    ``allow_outside=True`` lifts that for a scene file you trust.
     """
 
-    def __init__(self, spec: SceneSpec, base_dir: str | Path | None = None):
+    def __init__(self, spec: SceneSpec, base_dir: str | Path | None = None, allow_outside: bool = False):
         if not isinstance(spec, SceneSpec):
             raise SceneError(
                 f"Scene needs a SceneSpec, got {type(spec).__name__}; use load_scene() for files and families"
@@ -59,6 +66,12 @@ class Scene:
         self.textures: dict[int, np.ndarray] = {}  # object index -> RGB float32 [h, w, 3]
         for i, obj in enumerate(spec.objects):
             path = self.image_path(obj.material.image)
+            if path is not None and self.base_dir is not None:
+                key = f"objects[{i}].material.image"
+                try:
+                    path = resolve_inside(self.base_dir, obj.material.image, key, allow_outside, (ASSETS_DIR,))
+                except PathOutsideError as exc:
+                    raise ConfigError(key, str(exc).split(": ", 1)[1]) from None
             if path is not None:
                 if path not in cache:
                     cache[path] = load_image(path, f"objects[{i}].material.image")
@@ -115,18 +128,23 @@ def _load_family(name: str, seed: int) -> Scene:
         raise SceneError(
             f"unknown scene family {name!r}; families: {', '.join(FAMILIES)} (write FAMILY:SEED, e.g. indoor:3)"
         )
+    if not 0 <= seed < 2**63:
+        raise SceneError(
+            f"scene seed {seed} is out of range; write FAMILY:SEED with a seed in [0, 2^63), e.g. indoor:3"
+        )
     return Scene(FAMILIES[name](seed))
 
 
-def load_scene(spec: str | Path | SceneSpec) -> Scene:
+def load_scene(spec: str | Path | SceneSpec, allow_outside: bool = False) -> Scene:
     """A :class:`Scene` from ``"family:seed"`` (e.g. ``"indoor:3"``), a YAML file path, or a
-    :class:`SceneSpec`. Errors in a YAML file raise :class:`ConfigError` naming the key."""
+    :class:`SceneSpec`. Errors in a YAML file raise :class:`ConfigError` naming the key.
+    ``allow_outside``: see :class:`Scene` (image paths that leave the scene file's folder)."""
     if isinstance(spec, Scene):
         return spec
     if isinstance(spec, SceneSpec):
         return Scene(spec)
     text = str(spec)
-    match = _FAMILY_SPEC.match(text)
+    match = _FAMILY_SPEC.match(text) if len(text) < 100 else None
     if match and not Path(text).exists():
         return _load_family(match.group(1), int(match.group(2)))
     path = Path(text).expanduser()
@@ -144,7 +162,7 @@ def load_scene(spec: str | Path | SceneSpec) -> Scene:
         scene_spec = from_dict(SceneSpec, data)
     except ConfigError as exc:
         raise ConfigError(exc.key, f"{exc.message} (in {path})") from None
-    return Scene(scene_spec, base_dir=path.parent.resolve())
+    return Scene(scene_spec, base_dir=path.parent.resolve(), allow_outside=allow_outside)
 
 
 def scene_to_yaml(scene: Scene, relative_to: str | Path | None = None) -> str:

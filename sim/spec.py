@@ -23,6 +23,7 @@ import numpy as np
 
 from aes_planner.config import ConfigError, from_dict, require, require_finite, to_dict
 from aes_planner.geometry import Intrinsics, PanTilt, PanTiltConfig, rot_x, rot_y, rot_z, view_to_cam2world
+from aes_planner.geometry.camera import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE
 
 __all__ = [
     "AmbientLightSpec",
@@ -58,6 +59,16 @@ def _require_rgb(value: RGB, key: str) -> None:
 def _require_positive(values: Any, key: str) -> None:
     values = list(values) if isinstance(values, (tuple, list)) else [values]
     require(all(v > 0 for v in values), key, f"must be > 0, got {values if len(values) > 1 else values[0]}")
+
+
+def _require_camera_size(width: int | None, height: int | None, base: tuple[int, int] = (1, 1)) -> None:
+    """Refuse cameras beyond :data:`~aes_planner.geometry.camera.MAX_IMAGE_PIXELS` before they allocate."""
+    w, h = width or base[0], height or base[1]
+    require(
+        max(w, h) <= MAX_IMAGE_SIDE and w * h <= MAX_IMAGE_PIXELS,
+        "width" if w >= h else "height",
+        f"a {w}x{h} camera is too large: at most {MAX_IMAGE_SIDE} pixels per side and {MAX_IMAGE_PIXELS} in all",
+    )
 
 
 def _require_direction(value: Vec3, key: str) -> None:
@@ -314,6 +325,7 @@ class CameraSpec:
         require(self.width >= 1, "width", f"must be >= 1 pixel, got {self.width}")
         require(self.height >= 1, "height", f"must be >= 1 pixel, got {self.height}")
         require(0.0 < self.hfov_deg < 180.0, "hfov_deg", f"must be in (0, 180), got {self.hfov_deg}")
+        _require_camera_size(self.width, self.height)
 
     def intrinsics(self) -> Intrinsics:
         return Intrinsics.from_fov(self.width, self.height, self.hfov_deg)

@@ -7,6 +7,7 @@ import logging
 from pathlib import Path
 
 from aes_planner.dataset import DatasetError, save_dataset
+from aes_planner.dataset.folder import check_output_folder
 from aes_planner.images import write_contact_sheet
 from aes_planner.sim.camera import SimCamera, SimCameraConfig
 from aes_planner.sim.scene import load_scene
@@ -14,6 +15,9 @@ from aes_planner.sim.source import platform_of
 from aes_planner.sources import platform_to_meta
 
 log = logging.getLogger(__name__)
+
+#: Most views one survey renders (each is a full ray-cast render kept in memory until saved).
+MAX_VIEWS = 10_000
 
 __all__ = ["render_survey"]
 
@@ -27,11 +31,15 @@ def render_survey(
     supersample: int = 2,
     depth: bool = True,
     contact_sheet: bool = False,
+    allow_outside: bool = False,
 ) -> Path:
-    """Render ``views`` frames of a scene from survey poses and save them as a dataset folder; returns the folder."""
-    if views < 1:
-        raise DatasetError(f"--views must be at least 1, got {views}")
-    scene = load_scene(scene_spec)
+    """Render ``views`` frames of a scene from survey poses and save them as a dataset folder; returns the folder.
+
+    ``allow_outside``: let a scene file's image paths leave its folder (see :class:`~aes_planner.sim.Scene`)."""
+    if isinstance(views, bool) or not isinstance(views, int) or not 1 <= views <= MAX_VIEWS:
+        raise DatasetError(f"--views must be an integer in [1, {MAX_VIEWS}], got {views!r}")
+    check_output_folder(out)
+    scene = load_scene(scene_spec, allow_outside=allow_outside)
     cam = SimCamera(scene, SimCameraConfig(width=width, height=height, supersample=supersample))
     frames, frame_meta = [], []
     if scene.rig is not None:

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from aes_planner.config import ConfigError
+from aes_planner.images import ImageError, imread_bounded
 from aes_planner.sim.spec import PATTERN_KINDS, MaterialSpec
 
 __all__ = ["MaterialTable", "load_image", "pattern_weight", "sample_image", "value_noise"]
@@ -154,9 +155,10 @@ def load_image(path: Path, key: str) -> np.ndarray:
     """An image file as RGB float32 ``[h, w, 3]`` in ``[0, 1]``; errors name the scene ``key``."""
     if not path.is_file():
         raise ConfigError(key, f"image file not found: {path} (paths are relative to the scene file)")
-    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if bgr is None:
-        raise ConfigError(key, f"cannot read {path} as an image; use PNG or JPEG")
+    try:
+        bgr = imread_bounded(path, cv2.IMREAD_COLOR, str(path))
+    except ImageError as exc:
+        raise ConfigError(key, f"cannot read it as an image; use PNG or JPEG ({exc})") from None
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB).astype(np.float32) / 255.0
 
 

@@ -2,7 +2,9 @@
 
 Each subcommand lives in its own module of this package with a ``register(subparsers)``
 function; :data:`COMMANDS` lists them in help order. User errors
-(:class:`~aes_planner.errors.AesPlannerError`) print one line and exit with status 2.
+(:class:`~aes_planner.errors.AesPlannerError`) print one line and exit with status 2. Any other
+exception is a bug: it prints one line asking for a report and exits 2 as well, and with ``-v``
+its traceback.
 """
 
 from __future__ import annotations
@@ -57,3 +59,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
+    except Exception as exc:  # a bug: say so in one line; -v keeps the traceback
+        if args.verbose:
+            raise
+        text = " ".join(str(exc).split())
+        print(
+            f"error: unexpected {type(exc).__name__}: {text[:300]} (this is a bug in aes-planner; please report it "
+            "with the command line; rerun with -v for the traceback)",
+            file=sys.stderr,
+        )
+        return 2

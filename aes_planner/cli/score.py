@@ -12,6 +12,8 @@ import json
 import math
 import sys
 
+from aes_planner.errors import AesPlannerError
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     # Nothing heavy here: every command builds this parser, and torch takes a second to import.
@@ -42,6 +44,11 @@ def run(args: argparse.Namespace) -> int:
         for path in args.images:
             terms = {k: float(v[0]) for k, v in teacher.explain(read_image(path)[None]).items()}
             score = terms.pop("score")
+            if not all(math.isfinite(v) for v in (score, *terms.values())):
+                raise AesPlannerError(
+                    f"{path}: teacher {teacher.name} gave a non-finite score or term; its weights overflow "
+                    "(check the weights file)"
+                )
             rows.append({"path": str(path), "score": score, "terms": terms})
     if args.json:
         json.dump(rows, sys.stdout, indent=2, allow_nan=False)
@@ -51,6 +58,5 @@ def run(args: argparse.Namespace) -> int:
     width = max(len(r["path"]) for r in rows)
     for r in rows:
         terms = "  ".join(f"{k} {v:.3f}" for k, v in r["terms"].items())
-        score = f"{r['score']:.4f}" if math.isfinite(r["score"]) else str(r["score"])
-        print(f"{r['path']:<{width}}  score {score}" + (f"  [{terms}]" if terms else ""))
+        print(f"{r['path']:<{width}}  score {r['score']:.4f}" + (f"  [{terms}]" if terms else ""))
     return 0

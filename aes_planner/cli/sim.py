@@ -21,6 +21,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--supersample", type=int, default=2, help="anti-aliasing samples per pixel side (default 2)")
     r.add_argument("--no-depth", action="store_true", help="do not write depth files")
     r.add_argument("--contact-sheet", action="store_true", help="also write contact_sheet.png (RGB over depth)")
+    r.add_argument(
+        "--allow-outside-paths",
+        action="store_true",
+        help="let the scene file's image paths leave its folder (absolute, '..', symlinks); only for files you trust",
+    )
     r.set_defaults(func=run_render)
 
     f = ssub.add_parser("families", help="list the procedural scene families")
@@ -39,6 +44,7 @@ def run_render(args: argparse.Namespace) -> int:
         args.supersample,
         depth=not args.no_depth,
         contact_sheet=args.contact_sheet,
+        allow_outside=args.allow_outside_paths,
     )
     print(f"wrote {args.views} views of {args.scene} to {out}")
     return 0

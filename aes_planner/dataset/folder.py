@@ -37,10 +37,13 @@ from typing import Any
 import cv2
 import numpy as np
 
+from aes_planner.config import short_repr
 from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.camera import Intrinsics, IntrinsicsError
 from aes_planner.geometry.poses import PoseError, validate_cam2world
+from aes_planner.images import ImageError, check_image_size, imread_bounded
 from aes_planner.messages import MessageError, PosedFrame
+from aes_planner.paths import PathOutsideError, resolve_inside
 
 log = logging.getLogger(__name__)
 
@@ -74,9 +77,7 @@ def read_rgb(path: Path, key: str) -> np.ndarray:
     """An image file -> ``[H, W, 3]`` uint8 RGB; errors name ``key``."""
     if not path.is_file():
         raise DatasetError(f"{key}: image file {path} not found; check the path (relative to the dataset folder)")
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise DatasetError(f"{key}: {path} is not an image OpenCV can read")
+    img = imread_bounded(path, cv2.IMREAD_COLOR, key, DatasetError)
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
@@ -85,13 +86,10 @@ def read_depth(path: Path, key: str, png_scale_m: float = 0.001) -> np.ndarray:
     if not path.is_file():
         raise DatasetError(f"{key}: depth file {path} not found")
     if path.suffix == ".npy":
-        try:
-            d = np.load(path, allow_pickle=False)
-        except ValueError as exc:
-            raise DatasetError(f"{key}: {path} is not a plain numeric .npy array ({exc})") from None
+        d = _load_npy(path, key)
     else:
-        d = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if d is None or d.ndim != 2 or d.dtype != np.uint16:
+        d = imread_bounded(path, cv2.IMREAD_UNCHANGED, key, DatasetError)
+        if d.ndim != 2 or d.dtype != np.uint16:
             raise DatasetError(f"{key}: {path} must be a .npy array or a single-channel 16-bit PNG")
         d = d.astype(np.float32) * np.float32(png_scale_m)
     if d.ndim != 2 or not np.issubdtype(d.dtype, np.number):
@@ -100,6 +98,37 @@ def read_depth(path: Path, key: str, png_scale_m: float = 0.001) -> np.ndarray:
     if not np.all(np.isfinite(d)):
         raise DatasetError(f"{key}: depth contains NaN or Inf; mark missing depth with 0")
     return d
+
+
+def _load_npy(path: Path, key: str) -> np.ndarray:
+    """A ``.npy`` array, its header checked first (shape within the image bounds, the data all there),
+    so that a header claiming a huge shape never allocates it; never unpickles."""
+    try:
+        with path.open("rb") as f:
+            version = np.lib.format.read_magic(f)
+            if version == (1, 0):
+                shape, _, dtype = np.lib.format.read_array_header_1_0(f)
+            elif version in ((2, 0), (3, 0)):
+                shape, _, dtype = np.lib.format.read_array_header_2_0(f)
+            else:
+                raise ValueError(f"unknown .npy version {version}")
+            data_bytes = path.stat().st_size - f.tell()
+    except (ValueError, OSError, EOFError, SyntaxError) as exc:
+        raise DatasetError(f"{key}: {path} is not a plain numeric .npy array ({str(exc)[:120]})") from None
+    if dtype.hasobject:
+        raise DatasetError(f"{key}: {path} is not a plain numeric .npy array (it holds Python objects)")
+    if len(shape) != 2 or not (np.issubdtype(dtype, np.integer) or np.issubdtype(dtype, np.floating)):
+        raise DatasetError(f"{key}: depth must be a 2D numeric array, got shape {shape} dtype {dtype}")
+    try:
+        check_image_size(int(shape[1]), int(shape[0]), f"{key}: depth {path}")
+    except ImageError as exc:
+        raise DatasetError(str(exc)) from None
+    if data_bytes < shape[0] * shape[1] * dtype.itemsize:
+        raise DatasetError(f"{key}: {path} is truncated ({data_bytes} bytes of data for shape {shape} {dtype})")
+    try:
+        return np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise DatasetError(f"{key}: {path} is not a plain numeric .npy array ({str(exc)[:120]})") from None
 
 
 def _write_rgb(path: Path, image: np.ndarray) -> None:
@@ -136,8 +165,33 @@ def save_dataset(
     ``frame_meta`` (optional, one dict per frame) is stored with each frame. Existing files of
     the same names are overwritten; other files in the folder are left alone.
     """
+    root = check_output_folder(out_dir)
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DatasetError(f"{root}: cannot create the output folder ({exc.strerror or exc}); choose another") from None
+    try:
+        return _save(root, frames, meta, frame_meta)
+    except OSError as exc:
+        raise DatasetError(
+            f"{root}: writing the dataset failed ({exc.strerror or exc}); check space and permissions"
+        ) from None
+
+
+def check_output_folder(out_dir: str | Path) -> Path:
+    """``out_dir`` as a Path if a dataset can be written there: not an existing file, and none of
+    the names a dataset writes (``cameras.json``, ``images/``, ``depth/``) a symlink that would send
+    the writes elsewhere."""
     root = Path(out_dir)
-    root.mkdir(parents=True, exist_ok=True)
+    if root.exists() and not root.is_dir():
+        raise DatasetError(f"{root}: exists and is not a folder; choose a new or existing folder for the output")
+    for name in ("cameras.json", "images", "depth", "contact_sheet.png"):
+        if (root / name).is_symlink():
+            raise DatasetError(f"{root / name}: is a symlink; the output folder must not redirect its writes elsewhere")
+    return root
+
+
+def _save(root: Path, frames, meta, frame_meta) -> Path:
     entries = []
     frames = list(frames)
     if frame_meta is not None and len(frame_meta) != len(frames):
@@ -187,14 +241,26 @@ def finite_number(entry: dict, name: str, key: str, default: Any = _MISSING) -> 
     return float(v)
 
 
+#: Largest JSON file read (``cameras.json`` of 100k frames is about 50 MB).
+JSON_MAX_BYTES = 256 << 20
+
+
 def read_json(path: Path, hint: str) -> Any:
-    """Parse a JSON file; a missing or malformed file raises :class:`DatasetError` with ``hint``."""
+    """Parse a JSON file; a missing, huge, malformed or too deeply nested file raises :class:`DatasetError`."""
     if not path.is_file():
         raise DatasetError(f"{path}: not found; {hint}")
+    if path.stat().st_size > JSON_MAX_BYTES:
+        raise DatasetError(f"{path}: larger than {JSON_MAX_BYTES} bytes; {hint}")
     try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        return json.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError:
+        raise DatasetError(f"{path}: not valid JSON (not UTF-8 text); {hint}") from None
+    except json.JSONDecodeError as exc:
         raise DatasetError(f"{path}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise DatasetError(f"{path}: not valid JSON here (nested too deeply)") from None
+    except ValueError as exc:  # e.g. an integer of more digits than Python converts
+        raise DatasetError(f"{path}: not valid JSON here ({str(exc)[:120]})") from None
 
 
 def _matrix(value: Any, key: str) -> np.ndarray:
@@ -206,6 +272,42 @@ def _matrix(value: Any, key: str) -> np.ndarray:
         return validate_cam2world(m, key)
     except PoseError as exc:
         raise DatasetError(str(exc)) from None
+
+
+def _inside(root: Path, entry: str, key: str, allow_outside: bool) -> Path:
+    try:
+        return resolve_inside(root, entry, key, allow_outside)
+    except PathOutsideError as exc:
+        raise DatasetError(str(exc)) from None
+
+
+#: Fields of view a dataset camera may have, in degrees (a focal length of 1e300 or 1e-300 pixels is
+#: a broken file, not a lens).
+FOV_RANGE_DEG = (0.1, 175.0)
+
+
+def check_intrinsics(k: Intrinsics, key: str) -> Intrinsics:
+    """Refuse intrinsics no real camera has: a field of view outside :data:`FOV_RANGE_DEG`, or a
+    principal point more than half the image size outside the image."""
+    lo, hi = FOV_RANGE_DEG
+    for name, fov, f in (("fx", k.hfov_rad, k.fx), ("fy", k.vfov_rad, k.fy)):
+        if not lo <= math.degrees(fov) <= hi:
+            raise DatasetError(
+                f"{key}.{name}: a focal length of {f:g} px gives a {math.degrees(fov):.3g} deg field of view over "
+                f"{k.width}x{k.height} px; expected {lo} to {hi} deg (are the intrinsics in pixels?)"
+            )
+    for name, c, size in (("cx", k.cx, k.width), ("cy", k.cy, k.height)):
+        if not -0.5 * size <= c <= 1.5 * size:
+            raise DatasetError(
+                f"{key}.{name}: principal point {c:g} px is far outside the {size} px image; expected about {size / 2:g}"
+            )
+    return k
+
+
+def check_depth_scale(scale: float, key: str) -> None:
+    """A depth unit (metres per stored unit) must be a positive, plausible number."""
+    if not (1e-9 <= scale <= 1e3):
+        raise DatasetError(f"{key}: {scale!r} metres per depth unit; expected a positive scale such as 0.001 (mm)")
 
 
 def frame_from_parts(
@@ -224,8 +326,11 @@ def frame_from_parts(
         raise DatasetError(f"{key}: {exc}") from None
 
 
-def load_dataset(path: str | Path, load_depth: bool = True) -> PosedDataset:
-    """Read a dataset folder (or its ``cameras.json``) into :class:`PosedFrame` records."""
+def load_dataset(path: str | Path, load_depth: bool = True, allow_outside: bool = False) -> PosedDataset:
+    """Read a dataset folder (or its ``cameras.json``) into :class:`PosedFrame` records.
+
+    Image and depth paths must lead to files inside the folder (:func:`aes_planner.paths.resolve_inside`);
+    ``allow_outside=True`` lifts that for a ``cameras.json`` you trust."""
     path = Path(path)
     cameras = path / "cameras.json" if path.is_dir() else path
     root = cameras.parent
@@ -247,7 +352,7 @@ def load_dataset(path: str | Path, load_depth: bool = True) -> PosedDataset:
             raise DatasetError(f"{key}: expected an object")
         if "image" not in e or not isinstance(e["image"], str):
             raise DatasetError(f"{key}.image: missing (a path relative to {root})")
-        image = read_rgb(root / e["image"], f"{key}.image")
+        image = read_rgb(_inside(root, e["image"], f"{key}.image", allow_outside), f"{key}.image")
         width, height = e.get("width", image.shape[1]), e.get("height", image.shape[0])
         if (width, height) != (image.shape[1], image.shape[0]):
             raise DatasetError(
@@ -255,7 +360,7 @@ def load_dataset(path: str | Path, load_depth: bool = True) -> PosedDataset:
             )
         try:
             fx, fy, cx, cy = (finite_number(e, name, key) for name in ("fx", "fy", "cx", "cy"))
-            k = Intrinsics(fx, fy, cx, cy, image.shape[1], image.shape[0])
+            k = check_intrinsics(Intrinsics(fx, fy, cx, cy, image.shape[1], image.shape[0]), key)
         except IntrinsicsError as exc:
             raise DatasetError(f"{key}: {exc}") from None
         if "cam2world" not in e:
@@ -264,7 +369,11 @@ def load_dataset(path: str | Path, load_depth: bool = True) -> PosedDataset:
         stamp = finite_number(e, "stamp_s", key, 0.0)
         depth = None
         if load_depth and e.get("depth"):
-            depth = read_depth(root / e["depth"], f"{key}.depth", float(e.get("depth_png_scale_m", 0.001)))
+            if not isinstance(e["depth"], str):
+                raise DatasetError(f"{key}.depth: expected a path relative to {root}, got {short_repr(e['depth'])}")
+            scale = finite_number(e, "depth_png_scale_m", key, 0.001)
+            check_depth_scale(scale, f"{key}.depth_png_scale_m")
+            depth = read_depth(_inside(root, e["depth"], f"{key}.depth", allow_outside), f"{key}.depth", scale)
         frames.append(frame_from_parts(key, image, k, c2w, stamp, depth, str(e.get("frame_id", i))))
         frame_meta.append(e.get("meta", {}))
     for f, m in zip(frames, frame_meta):

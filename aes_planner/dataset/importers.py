@@ -29,8 +29,12 @@ from typing import Literal
 import numpy as np
 
 from aes_planner.dataset.folder import (
+    FOV_RANGE_DEG,
     DatasetError,
     PosedDataset,
+    _inside,
+    check_depth_scale,
+    check_intrinsics,
     finite_number,
     frame_from_parts,
     read_depth,
@@ -48,6 +52,7 @@ __all__ = ["import_nerfstudio", "import_re10k", "align_up_to_cameras", "OPENGL_T
 OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 UpMode = Literal["cameras", "keep"]
+_RE10K_MAX_BYTES = 64 << 20  # a clip's camera file is about 200 bytes per frame
 
 
 def align_up_to_cameras(cam2worlds: np.ndarray) -> np.ndarray:
@@ -85,8 +90,12 @@ def _apply_up(frames_c2w: list[np.ndarray], up: UpMode) -> tuple[list[np.ndarray
     return [r @ m for m in frames_c2w], r
 
 
-def import_nerfstudio(transforms_json: str | Path, up: UpMode = "keep", load_depth: bool = True) -> PosedDataset:
-    """Read a nerfstudio ``transforms.json`` (see the module docstring)."""
+def import_nerfstudio(
+    transforms_json: str | Path, up: UpMode = "keep", load_depth: bool = True, allow_outside: bool = False
+) -> PosedDataset:
+    """Read a nerfstudio ``transforms.json`` (see the module docstring).
+
+    Image and depth paths must lead inside the JSON file's folder unless ``allow_outside``."""
     path = Path(transforms_json)
     if path.is_dir():
         path = path / "transforms.json"
@@ -99,7 +108,7 @@ def import_nerfstudio(transforms_json: str | Path, up: UpMode = "keep", load_dep
         key = f"frames[{i}]"
         if not isinstance(fr, dict) or not isinstance(fr.get("file_path"), str):
             raise DatasetError(f"{key}.file_path: missing")
-        image = read_rgb(root / fr["file_path"], f"{key}.file_path")
+        image = read_rgb(_inside(root, fr["file_path"], f"{key}.file_path", allow_outside), f"{key}.file_path")
         h, w = image.shape[:2]
         merged = {**doc, **fr}
         for dist in ("k1", "k2", "k3", "k4", "p1", "p2"):
@@ -115,14 +124,21 @@ def import_nerfstudio(transforms_json: str | Path, up: UpMode = "keep", load_dep
         fx = finite_number(merged, "fl_x", key, None)
         fy = finite_number(merged, "fl_y", key, None)
         if fx is None and "camera_angle_x" in merged:
-            fx = 0.5 * w / math.tan(finite_number(merged, "camera_angle_x", key) / 2)
+            angle = finite_number(merged, "camera_angle_x", key)
+            lo, hi = (math.radians(a) for a in FOV_RANGE_DEG)
+            if not lo <= angle <= hi:
+                raise DatasetError(
+                    f"{key}.camera_angle_x: {angle:g} rad; it is the horizontal field of view in radians, "
+                    f"expected {lo:.4f} to {hi:.4f}"
+                )
+            fx = 0.5 * w / math.tan(angle / 2)
         if fx is None:
             raise DatasetError(f"{key}: no focal length (fl_x, or camera_angle_x) at the top level or in the frame")
         fy = fy if fy is not None else fx
         cx = finite_number(merged, "cx", key, w / 2.0)
         cy = finite_number(merged, "cy", key, h / 2.0)
         try:
-            k = Intrinsics(fx, fy, cx, cy, w, h)
+            k = check_intrinsics(Intrinsics(fx, fy, cx, cy, w, h), key)
         except IntrinsicsError as exc:
             raise DatasetError(f"{key}: {exc}") from None
         if "transform_matrix" not in fr:
@@ -135,9 +151,15 @@ def import_nerfstudio(transforms_json: str | Path, up: UpMode = "keep", load_dep
             ) from None
         depth = None
         if load_depth and fr.get("depth_file_path"):
+            if not isinstance(fr["depth_file_path"], str):
+                raise DatasetError(f"{key}.depth_file_path: expected a path relative to {root}")
             scale = finite_number(merged, "depth_unit_scale_factor", key, 1e-3)
-            depth = read_depth(root / fr["depth_file_path"], f"{key}.depth_file_path", scale)
+            check_depth_scale(scale, f"{key}.depth_unit_scale_factor")
+            depth_path = _inside(root, fr["depth_file_path"], f"{key}.depth_file_path", allow_outside)
+            depth = read_depth(depth_path, f"{key}.depth_file_path", scale)
         parts.append((key, image, k, m @ OPENGL_TO_OPENCV, depth, Path(fr["file_path"]).stem))
+    if not parts:
+        raise DatasetError(f"{path}: 'frames' is empty; there is nothing to import")
     poses, rot = _apply_up([p[3] for p in parts], up)
     frames = [
         frame_from_parts(key, image, k, c2w, float(i), depth, fid)
@@ -147,27 +169,44 @@ def import_nerfstudio(transforms_json: str | Path, up: UpMode = "keep", load_dep
     return PosedDataset(frames, meta, root)
 
 
-def _find_frame_image(frames_dir: Path, stamp: str, key: str) -> Path:
+def _find_frame_image(frames_dir: Path, stamp: str, key: str, allow_outside: bool) -> Path:
     for ext in (".png", ".jpg", ".jpeg"):
         p = frames_dir / f"{stamp}{ext}"
         if p.is_file():
-            return p
+            return _inside(frames_dir, p.name, key, allow_outside)
     raise DatasetError(
         f"{key}: no image {stamp}.png/.jpg in {frames_dir}; extract the clip's frames named by timestamp"
     )
 
 
 def import_re10k(
-    camera_txt: str | Path, frames_dir: str | Path, up: UpMode = "cameras", every: int = 1
+    camera_txt: str | Path,
+    frames_dir: str | Path,
+    up: UpMode = "cameras",
+    every: int = 1,
+    allow_outside: bool = False,
 ) -> PosedDataset:
-    """Read a RealEstate10K clip (see the module docstring); ``every`` keeps every n-th frame."""
+    """Read a RealEstate10K clip (see the module docstring); ``every`` keeps every n-th frame.
+
+    Frame images must be files inside ``frames_dir`` (symlinks that leave it are refused) unless
+    ``allow_outside``."""
     path = Path(camera_txt)
     if not path.is_file():
         raise DatasetError(f"{path}: not found")
-    if every < 1:
-        raise DatasetError(f"every must be >= 1, got {every}")
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise DatasetError(f"every must be an integer >= 1, got {every!r}")
     frames_dir = Path(frames_dir)
-    lines = [(no, ln.strip()) for no, ln in enumerate(path.read_text().splitlines(), start=1) if ln.strip()]
+    if not frames_dir.is_dir():
+        raise DatasetError(f"{frames_dir}: not a folder; --frames is the folder of the clip's frames")
+    if path.stat().st_size > _RE10K_MAX_BYTES:
+        raise DatasetError(f"{path}: larger than {_RE10K_MAX_BYTES} bytes; not a RealEstate10K camera file")
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        raise DatasetError(
+            f"{path}: not a text file; a RealEstate10K camera file is text, one frame per line"
+        ) from None
+    lines = [(no, ln.strip()) for no, ln in enumerate(text.splitlines(), start=1) if ln.strip()]
     if not lines:
         raise DatasetError(f"{path}: empty file")
     body = lines if _looks_numeric(lines[0][1]) else lines[1:]  # the first line is the video URL
@@ -179,17 +218,19 @@ def import_re10k(
             raise DatasetError(
                 f"{key}: expected 19 numbers (timestamp, fx fy cx cy 0 0, 12 of world-to-camera), got {len(fields)}"
             )
+        if not fields[0].isascii() or not fields[0].isdigit():
+            raise DatasetError(f"{key}: the first field must be the timestamp in microseconds (digits only)")
         try:
             values = np.array([float(v) for v in fields[1:]])
         except ValueError:
             raise DatasetError(f"{key}: not all fields are numbers") from None
         if not np.all(np.isfinite(values)):
             raise DatasetError(f"{key}: contains NaN or Inf")
-        image = read_rgb(_find_frame_image(frames_dir, fields[0], key), key)
+        image = read_rgb(_find_frame_image(frames_dir, fields[0], key, allow_outside), key)
         h, w = image.shape[:2]
         fx_n, fy_n, cx_n, cy_n = values[:4]
         try:
-            k = Intrinsics.from_normalized(fx_n, fy_n, cx_n, cy_n, w, h)
+            k = check_intrinsics(Intrinsics.from_normalized(fx_n, fy_n, cx_n, cy_n, w, h), key)
         except IntrinsicsError as exc:
             raise DatasetError(f"{key}: {exc}") from None
         w2c = np.vstack([values[6:].reshape(3, 4), [0.0, 0.0, 0.0, 1.0]])
@@ -198,6 +239,8 @@ def import_re10k(
         except PoseError as exc:
             raise DatasetError(str(exc)) from None
         parts.append((key, image, k, rigid_inverse(w2c), int(fields[0]) * 1e-6, fields[0]))
+    if not parts:
+        raise DatasetError(f"{path}: no frame lines; there is nothing to import")
     poses, rot = _apply_up([p[3] for p in parts], up)
     frames = [
         frame_from_parts(key, image, k, c2w, stamp, None, fid)

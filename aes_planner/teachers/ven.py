@@ -31,6 +31,8 @@ import hashlib
 import logging
 import pickle
 import re
+import struct
+import warnings
 import zipfile
 from collections import OrderedDict
 from collections.abc import Mapping
@@ -41,7 +43,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from aes_planner.teachers.base import Teacher, WeightsError, check_feature_map, check_images
+from aes_planner.teachers.base import Teacher, TeacherError, WeightsError, check_feature_map, check_images
 
 log = logging.getLogger(__name__)
 
@@ -140,7 +142,25 @@ class _Inert:
 _MAX_PLACEHOLDERS = 64  # distinct classes a checkpoint may pickle besides tensors
 _UNSUPPORTED = re.compile(r"Unsupported global: GLOBAL ([\w.]+)")
 _BLOCKED = re.compile(r"unsupported GLOBAL ([\w.]+) whose module ([\w.]+) is blocked")
-_BAD_FILE = (RuntimeError, EOFError, OSError, ValueError, zipfile.BadZipFile, KeyError, AttributeError, TypeError)
+_BAD_FILE = (
+    RuntimeError,
+    EOFError,
+    OSError,
+    ValueError,
+    zipfile.BadZipFile,
+    KeyError,
+    AttributeError,
+    TypeError,
+    IndexError,
+    struct.error,
+    OverflowError,
+    NotImplementedError,
+    MemoryError,
+    RecursionError,
+)
+#: Largest magnitude a VEN weight may have. Trained VGG-16 / VEN weights stay below about 10; a
+#: file with 1e30 in it is not VEN's weights, and would make every score overflow to NaN.
+MAX_ABS_WEIGHT = 1e3
 
 
 def _placeholder(name: str) -> tuple[type, str]:
@@ -155,7 +175,8 @@ def _read_checkpoint(path: Path) -> Any:
     names: list[str] = []
     while True:
         try:
-            with torch.serialization.safe_globals([_placeholder(n) for n in names]):
+            with torch.serialization.safe_globals([_placeholder(n) for n in names]), warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)  # torch's notes on odd pickle protocols of broken files
                 obj = torch.load(path, map_location="cpu", weights_only=True)
             break
         except pickle.UnpicklingError as exc:
@@ -292,6 +313,12 @@ class VENTeacher(Teacher):
                 raise WeightsError(f"VEN weight {k} has shape {tuple(state[k].shape)}, expected {tuple(v.shape)}")
             if not state[k].is_floating_point() or not torch.isfinite(state[k]).all():
                 raise WeightsError(f"VEN weight {k} is not finite floating point: the file is damaged; re-download it")
+            peak = float(state[k].detach().abs().max()) if state[k].numel() else 0.0
+            if peak > MAX_ABS_WEIGHT:
+                raise WeightsError(
+                    f"VEN weight {k} holds values up to {peak:.3g}; trained VEN weights stay below {MAX_ABS_WEIGHT:g}, "
+                    "so this file is damaged or not VEN's. " + WEIGHTS_ADVICE
+                )
         tensors = {k: state[k].detach().to(device="cpu", dtype=torch.float32, copy=True).contiguous() for k in expected}
         self.net.load_state_dict(tensors, strict=True, assign=True)
 
@@ -311,4 +338,10 @@ class VENTeacher(Teacher):
     def head(self, fmap: Tensor) -> Tensor:  # [B, 512, 14, 14] -> [B]
         check_feature_map(fmap, self.feature_channels, self.feature_size, "VEN head")
         x = self.net.features[SPLIT:](fmap)
-        return self.net.classifier(torch.flatten(x, 1))[:, 0]
+        score = self.net.classifier(torch.flatten(x, 1))[:, 0]
+        if not torch.isfinite(score.detach()).all():
+            raise TeacherError(
+                "VEN gave a non-finite score (the activations overflowed float32): the weights or the feature "
+                "map hold values far beyond trained ones; check the weights file"
+            )
+        return score
