@@ -59,6 +59,10 @@ def _require_rgb(value: RGB, key: str) -> None:
 def _require_positive(values: Any, key: str) -> None:
     values = list(values) if isinstance(values, (tuple, list)) else [values]
     require(all(v > 0 for v in values), key, f"must be > 0, got {values if len(values) > 1 else values[0]}")
+    # Beyond 1000 km a size squares past float64 in the ray-box arithmetic; no scene needs it.
+    require(
+        all(v <= 1e6 for v in values), key, f"must be at most 1e6 m, got {values if len(values) > 1 else values[0]}"
+    )
 
 
 def _require_camera_size(width: int | None, height: int | None, base: tuple[int, int] = (1, 1)) -> None:
@@ -69,6 +73,17 @@ def _require_camera_size(width: int | None, height: int | None, base: tuple[int,
         "width" if w >= h else "height",
         f"a {w}x{h} camera is too large: at most {MAX_IMAGE_SIDE} pixels per side and {MAX_IMAGE_PIXELS} in all",
     )
+
+
+#: Pattern scales and texture tiles, metres: finer than a tenth of a millimetre is noise at any
+#: camera distance, and overflows the texel arithmetic (a 1e-320 m tile cast inf to int: black);
+#: coarser than 1000 km loses the float64 precision of the surface coordinates.
+FEATURE_SIZE_RANGE_M = (1e-4, 1e6)
+
+
+def _require_feature_size(value: float, key: str) -> None:
+    lo, hi = FEATURE_SIZE_RANGE_M
+    require(lo <= value <= hi, key, f"must be in [{lo:g}, {hi:g}] metres, got {value!r}")
 
 
 def _require_direction(value: Vec3, key: str) -> None:
@@ -129,7 +144,7 @@ class PatternSpec:
 
     def __post_init__(self):
         _require_rgb(self.colour2, "colour2")
-        _require_positive(self.scale_m, "scale_m")
+        _require_feature_size(self.scale_m, "scale_m")
         require(0.0 < self.duty < 1.0, "duty", f"must be in (0, 1), got {self.duty}")
         require(1 <= self.octaves <= 8, "octaves", f"must be in [1, 8], got {self.octaves}")
 
@@ -158,7 +173,7 @@ class MaterialSpec:
         require(self.pattern is None or self.image is None, "image", "give a pattern or an image, not both")
         require(self.image is None or bool(self.image.strip()), "image", "must be a file path, got an empty string")
         if self.tile_m is not None:
-            _require_positive(self.tile_m, "tile_m")
+            _require_feature_size(self.tile_m, "tile_m")
         require(self.emission >= 0.0, "emission", f"must be >= 0, got {self.emission}")
 
 
