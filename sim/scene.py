@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from aes_planner.config import ConfigError, from_dict, load_yaml
+from aes_planner.config import ConfigError, from_dict, load_yaml, short_repr
 from aes_planner.errors import AesPlannerError
 from aes_planner.paths import PathOutsideError, resolve_inside
 from aes_planner.sim.shapes import SHAPES, shape_of
@@ -65,13 +65,18 @@ class Scene:
         cache: dict[Path, np.ndarray] = {}
         self.textures: dict[int, np.ndarray] = {}  # object index -> RGB float32 [h, w, 3]
         for i, obj in enumerate(spec.objects):
-            path = self.image_path(obj.material.image)
-            if path is not None and self.base_dir is not None:
-                key = f"objects[{i}].material.image"
-                try:
+            key = f"objects[{i}].material.image"
+            if obj.material.image is None:
+                continue
+            try:
+                if self.base_dir is not None:  # a scene file: its image paths stay inside its folder
                     path = resolve_inside(self.base_dir, obj.material.image, key, allow_outside, (ASSETS_DIR,))
-                except PathOutsideError as exc:
-                    raise ConfigError(key, str(exc).split(": ", 1)[1]) from None
+                else:
+                    path = self.image_path(obj.material.image)
+            except PathOutsideError as exc:
+                raise ConfigError(key, str(exc).split(": ", 1)[1]) from None
+            except (OSError, ValueError) as exc:
+                raise ConfigError(key, f"not a usable file path ({exc})") from None
             if path is not None:
                 if path not in cache:
                     cache[path] = load_image(path, f"objects[{i}].material.image")
@@ -145,14 +150,19 @@ def load_scene(spec: str | Path | SceneSpec, allow_outside: bool = False) -> Sce
         return Scene(spec)
     text = str(spec)
     match = _FAMILY_SPEC.match(text) if len(text) < 100 else None
-    if match and not Path(text).exists():
+    try:
+        family = match is not None and not Path(text).exists()
+        path = Path(text).expanduser()
+        is_file = not family and "\x00" not in text and path.is_file()
+    except OSError:  # a name too long for the file system
+        family, is_file = False, False
+    if family:
         return _load_family(match.group(1), int(match.group(2)))
-    path = Path(text).expanduser()
-    if not path.is_file():
+    if not is_file:
         from aes_planner.sim.families import FAMILIES
 
         raise SceneError(
-            f"scene {text!r} is neither a file nor FAMILY:SEED (families: {', '.join(FAMILIES)}); "
+            f"scene {short_repr(text)} is neither a file nor FAMILY:SEED (families: {', '.join(FAMILIES)}); "
             "give a path to a scene YAML file or e.g. indoor:3"
         )
     data = load_yaml(path)

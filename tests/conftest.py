@@ -34,3 +34,72 @@ def wiring_recorder(monkeypatch):
 
     monkeypatch.setattr(rec, "time", once)
     return rec
+
+
+# ---------------------------------------------------------------- the bad-input sweep (issue 13)
+def _one_clean_line(text: str) -> str:
+    lines = [ln for ln in text.splitlines() if ln.strip()]
+    assert "Traceback" not in text, text
+    assert len(lines) == 1, f"expected one error line, got {len(lines)}:\n{text[:2000]}"
+    assert lines[0].startswith("error: ") and "this is a bug" not in lines[0], lines[0]
+    assert len(lines[0]) < 1200, f"error line of {len(lines[0])} characters"
+    return lines[0]
+
+
+@pytest.fixture
+def deadline():
+    """``with deadline(s):`` fails the test if the block runs longer than ``s`` seconds (a hang)."""
+    import contextlib
+    import signal
+
+    @contextlib.contextmanager
+    def limit(seconds: float):
+        def expired(signum, frame):
+            raise TimeoutError(f"took longer than {seconds} s (a hang?)")
+
+        old = signal.signal(signal.SIGALRM, expired)
+        signal.setitimer(signal.ITIMER_REAL, seconds)
+        try:
+            yield
+        finally:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, old)
+
+    return limit
+
+
+@pytest.fixture
+def cli_error(capsys, deadline):
+    """``cli_error(argv, match)``: the CLI exits 2 with one ``error: ...`` line (no traceback, not the
+    last-resort "bug" line) containing ``match``, within 60 s; returns the line."""
+    from aes_planner.cli import main
+
+    def run(argv, match: str = "", seconds: float = 60.0) -> str:
+        capsys.readouterr()
+        with deadline(seconds):
+            rc = main([str(a) for a in argv])
+        out = capsys.readouterr()
+        assert rc == 2, f"exit {rc}; stdout {out.out[-500:]!r} stderr {out.err[-500:]!r}"
+        line = _one_clean_line(out.err)
+        assert match.lower() in line.lower(), line
+        return line
+
+    return run
+
+
+@pytest.fixture
+def clean_error(deadline):
+    """``clean_error(fn, *args, match=...)``: ``fn`` raises an ``AesPlannerError`` (a one-line message
+    of bounded size containing ``match``) within 60 s, nothing else."""
+    from aes_planner.errors import AesPlannerError
+
+    def run(fn, *args, match: str = "", seconds: float = 60.0, **kwargs) -> AesPlannerError:
+        with deadline(seconds), pytest.raises(AesPlannerError) as info:
+            fn(*args, **kwargs)
+        text = str(info.value)
+        assert "\n" not in text.strip(), f"a multi-line message: {text[:2000]}"
+        assert len(text) < 1200, f"message of {len(text)} characters"
+        assert match.lower() in text.lower(), text
+        return info.value
+
+    return run

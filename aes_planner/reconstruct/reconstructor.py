@@ -378,11 +378,15 @@ def reconstruct(frames: list[PosedFrame], config: ReconstructConfig | None = Non
         rec._map = refit_colors(
             rec._map, [(it.frame.cam2world, it.frame.intrinsics, it.frame.image) for it in items], cfg.refit_iterations
         )
-    if not len(rec._map):
-        raise ReconstructError(
-            f"reconstruct made no Gaussians from {len(frames)} frame(s) (modes {sorted(set(modes) - {''}) or 'none'}): "
-            "depth maps with no usable depth (all 0 or absurdly far), or stereo without a neighbour frame that "
-            "translates; give frames with valid depth, or several RGB frames from different positions"
-        )
+    if not len(rec._map) and cfg.unknown_depth != "skip":  # "skip" asks to drop pixels without depth
+        if not any(modes):
+            why = (
+                "stereo found no neighbour frame with parallax for any frame (one frame, identical poses, or "
+                "frames too small to match); give several RGB frames from different positions, or depth, or "
+                "mode 'sphere'"
+            )
+        else:
+            why = "no pixel had usable depth (non-positive or absurdly far); check the depth maps and their units"
+        raise ReconstructError(f"reconstruct made no Gaussians from {len(frames)} frame(s): {why}")
     stats = {"unpruned": unpruned, "hidden_pruned": hidden, "budget": rec.budget, "count": len(rec._map)}
     return Reconstruction(rec.gaussians, rec.local_frame, modes, stats, rec.splats)

@@ -170,6 +170,8 @@ def _placeholder(name: str) -> tuple[type, str]:
 def _read_checkpoint(path: Path) -> Any:
     """``torch.load(path, weights_only=True)``, with inert placeholders (:class:`_Inert`) for
     the classes a checkpoint pickles besides tensors, and errors that say what to do."""
+    if path.is_dir():
+        raise WeightsError(f"{path} is a folder, not a readable PyTorch checkpoint; give the weights file itself")
     if not path.is_file():
         raise WeightsError(f"VEN weights file {path} does not exist. " + WEIGHTS_ADVICE)
     names: list[str] = []

@@ -306,7 +306,9 @@ def test_tiny_frames_in_every_mode(size):
                 depth_m=rng.uniform(1, 3, (h, w)).astype(np.float32),
             )
         )
-    for mode in ("depth", "stereo", "sphere"):
+    with pytest.raises(ReconstructError, match="no neighbour frame with parallax"):  # too small to match
+        reconstruct([rgb_only(f) for f in frames], ReconstructConfig(mode="stereo"))
+    for mode in ("depth", "sphere"):
         rec = reconstruct(frames if mode == "depth" else [rgb_only(f) for f in frames], ReconstructConfig(mode=mode))
         g = rec.gaussians
         for t in (g.means, g.quats, g.log_scales, g.opacities, g.colors):
