@@ -200,7 +200,7 @@ def run_search_eval(
     cfg: SearchEvalConfig, out_dir: str | Path | None = None, progress: Callable[[str], None] | None = None
 ) -> dict[str, Any]:
     """Run the evaluation; returns the JSON document (``views -> mode -> method -> figures``)."""
-    from aes_planner.sim.scene import load_scene, scene_to_yaml
+    from aes_planner.sim.scene import load_scene
 
     teacher = get_teacher()
     evaluator = CompositionEvaluator()
@@ -213,15 +213,11 @@ def run_search_eval(
         scene = load_scene(spec)
         source = _source(scene, cfg)
         source.name = spec
-        key = f"{spec}#{hash_text(scene_to_yaml(scene))}"
         for mode in cfg.modes:
             platform = source.platform if mode == "rig" else _free_platform(source, cfg.free_box_m)
             if progress:
                 progress(f"{spec} {mode}: oracle")
-            o_score, o_pose, o_extra = oracle_search(
-                source, teacher, platform, **_oracle_kw(cfg),
-                scene_key=key, cache_dir=cfg.cache_dir, seed=cfg.seed,
-            )  # fmt: skip
+            o_score, o_pose, o_extra = scene_oracle(spec, source, teacher, platform, cfg)
             judge = Judge(source, teacher, evaluator)
             mean_random = o_extra["mean_random"]
             # the oracle's own random poses (same space, seed and count), so 'random' normalises to 0
@@ -278,6 +274,16 @@ def _oracle_kw(cfg: SearchEvalConfig) -> dict[str, Any]:
     )
 
 
+def scene_oracle(spec: str, source, teacher, platform, cfg: SearchEvalConfig):
+    """``oracle_search`` keyed by the scene spec and its YAML (so an edited file is a new entry)."""
+    from aes_planner.sim.scene import scene_to_yaml
+
+    key = f"{spec}#{hash_text(scene_to_yaml(source.scene))}"
+    return oracle_search(
+        source, teacher, platform, **_oracle_kw(cfg), scene_key=key, cache_dir=cfg.cache_dir, seed=cfg.seed
+    )
+
+
 def _source(scene, cfg: SearchEvalConfig):
     from aes_planner.sim import SimCameraConfig, SimSource
 
@@ -323,7 +329,7 @@ def _aggregate(rows: list[dict[str, Any]], cfg: SearchEvalConfig) -> dict[str, A
 def run_ablations(cfg: SearchEvalConfig, teacher, progress=None) -> dict[str, Any]:
     """Table 3 (gradient gain from random starts, field vs RGB) and Tables 4/S1 (K, steps, S x N),
     on the first ``cfg.ablation_scenes`` scenes, rig mode, 4 input views."""
-    from aes_planner.sim.scene import load_scene, scene_to_yaml
+    from aes_planner.sim.scene import load_scene
 
     gains: dict[str, list[float]] = {"field": [], "rgb": []}
     by_k: dict[int, list[float]] = {1: [], 2: [], 3: []}
@@ -335,11 +341,7 @@ def run_ablations(cfg: SearchEvalConfig, teacher, progress=None) -> dict[str, An
         scene = load_scene(spec)
         source = _source(scene, cfg)
         platform = source.platform
-        key = f"{spec}#{hash_text(scene_to_yaml(scene))}"
-        o_score, _, o_extra = oracle_search(
-            source, teacher, platform, **_oracle_kw(cfg),
-            scene_key=key, cache_dir=cfg.cache_dir, seed=cfg.seed,
-        )  # fmt: skip
+        o_score, _, o_extra = scene_oracle(spec, source, teacher, platform, cfg)
         mean_random = o_extra["mean_random"]
         gt = GroundTruthScorer(source, teacher)
         inputs = _inputs(source, platform, 4)

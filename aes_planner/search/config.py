@@ -61,7 +61,7 @@ class SearchConfig:
     shift_frac: float = 0.05
     dedup_fov: float = 0.2
     dedup_frac: float = 0.05
-    coverage_min: float = 0.8
+    coverage_min: float = 0.7
     coverage_penalty: float = 2.0
     fd_step: float = 0.02
     nondiff_refine: str = "fd"

@@ -28,9 +28,24 @@ def suggestion_label(i: int, s: Suggestion) -> str:
 
 
 def render_with(scorer) -> Callable[[np.ndarray], np.ndarray] | None:
-    """A function poses ``[B, 4, 4]`` -> RGB ``[B, H, W, 3]`` uint8 from a scorer's ``render``, if it
-    renders RGB (``RGBScorer.render`` does); ``None`` otherwise."""
+    """A function poses ``[B, 4, 4]`` -> RGB ``[B, H, W, 3]`` uint8 from a scorer's ``render`` (RGB,
+    as ``RGBScorer.render``) or, failing that, its ``render_maps`` (the field's rendered teacher
+    feature map, first three channels in false colour); ``None`` when it has neither."""
     render = getattr(scorer, "render", None)
+    maps = getattr(scorer, "render_maps", None)
+    if render is None and maps is not None:
+
+        def false_colour(poses: np.ndarray) -> np.ndarray:
+            with torch.no_grad():
+                fmap = maps(torch.as_tensor(poses, dtype=torch.float64))[0][:, :3].float()  # [B, <=3, h, w]
+            if fmap.shape[1] < 3:
+                fmap = torch.cat([fmap, fmap[:, -1:].expand(-1, 3 - fmap.shape[1], -1, -1)], 1)
+            lo = fmap.amin(dim=(2, 3), keepdim=True)
+            hi = fmap.amax(dim=(2, 3), keepdim=True)
+            norm = (fmap - lo) / (hi - lo).clamp_min(1e-6)
+            return (norm.permute(0, 2, 3, 1).numpy() * 255).round().astype(np.uint8)
+
+        return false_colour
     if render is None:
         return None
 

@@ -10,6 +10,7 @@ import yaml
 from aes_planner.cli import main
 from aes_planner.dataset import load_dataset, save_dataset
 from aes_planner.geometry import PanTilt
+from aes_planner.search import SearchConfig
 from aes_planner.sim import load_scene
 from aes_planner.sources import platform_from_meta
 
@@ -38,8 +39,11 @@ def test_suggest_rig_json_and_report(folder, tmp_path, capsys):
     assert doc["mode"] == "rig" and doc["preset"] == "fast" and doc["latency_ms"] > 0
     assert 1 <= len(doc["suggestions"]) <= 2
     pt = PanTilt(load_scene("tabletop:0").rig.pan_tilt)
-    scores = [s["score"] for s in doc["suggestions"]]
-    assert scores == sorted(scores, reverse=True)
+    cfg = SearchConfig.preset("fast")  # ranked by the objective: score less the coverage penalty
+    objective = [
+        s["score"] - cfg.coverage_penalty * max(0.0, cfg.coverage_min - s["coverage"]) for s in doc["suggestions"]
+    ]
+    assert objective == sorted(objective, reverse=True)
     for s in doc["suggestions"]:
         assert set(s) >= {
             "cam2world",
