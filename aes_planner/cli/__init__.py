@@ -19,6 +19,7 @@ from aes_planner.errors import AesPlannerError
 
 COMMANDS = [
     "aes_planner.cli.demo",
+    "aes_planner.cli.launch",
     "aes_planner.cli.sim",
     "aes_planner.cli.dataset",
     "aes_planner.cli.suggest",

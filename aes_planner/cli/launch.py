@@ -1,0 +1,71 @@
+"""``aes-planner launch FILE [--set ID.KEY=VALUE ...]``: run a launch file's nodes in one process.
+
+FILE is a path or the name of a shipped launch file (``sim_closed_loop``, ``pan_tilt_rig``,
+``drone``). The nodes run on the in-process bus until the planner finishes, ``--timeout``
+passes, or Ctrl-C / SIGTERM: every node is then stopped in reverse order, so a gimbal's servos
+are left unpowered.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import threading
+
+log = logging.getLogger(__name__)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "launch",
+        help="run the nodes of a launch file in one process",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "file", metavar="FILE", help="launch file path or shipped name (sim_closed_loop, pan_tilt_rig, drone)"
+    )
+    p.add_argument("--set", action="append", default=[], metavar="ID.KEY=VALUE", help="override a value (repeatable)")
+    p.add_argument("--timeout", type=float, default=None, help="stop after this many seconds")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from aes_planner.node import Launch, build_nodes, load_launch
+
+    spec = load_launch(args.file, args.set)
+    nodes = build_nodes(spec)
+    print(f"launch {spec.path}: " + ", ".join(f"{n.node_id} ({type(n).__name__})" for n, _ in nodes), flush=True)
+    stop = threading.Event()
+
+    def on_signal(signum, frame):
+        log.warning("signal %d: stopping the nodes", signum)
+        stop.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    launch = Launch(nodes)
+    try:
+        launch.start()
+        finished = launch.run(timeout_s=args.timeout, until=lambda: stop.is_set() or _all_finished(launch))
+    finally:
+        launch.stop()
+        for s, h in old.items():
+            signal.signal(s, h)
+    for r in launch.runners:
+        node = r.node
+        if hasattr(node, "result") and node.finished:
+            res = node.result()
+            best = res.get("best")
+            if best is not None:
+                print(
+                    f"{node.node_id}: {res['state']} after {res['moves']} moves; best captured score {best.score:.3f}"
+                )
+    return 0 if finished else 1
+
+
+def _all_finished(launch) -> bool:
+    from aes_planner.node.base import Node
+
+    finishing = [r.node for r in launch.runners if type(r.node).finished is not Node.finished]
+    return bool(finishing) and all(n.finished for n in finishing)

@@ -1,0 +1,149 @@
+"""The node contract: a pure ``step(inputs, now) -> outputs`` core, and a registry of node types.
+
+A node declares the topics it reads (:attr:`Node.inputs`: default topic -> message type and
+keep-last depth) and writes (:attr:`Node.outputs`: default topic -> message type and whether the
+topic is latched). Its :meth:`Node.step` takes the messages that arrived since the last step, per
+input topic (oldest first), and the present time, and returns the messages to publish, per
+output topic. It never touches a bus: tests call ``step`` directly, and
+:class:`aes_planner.node.runner.NodeRunner` (the thin loop) moves messages between a bus and
+``step``. Topic remaps are the runner's business; inside a node topics keep their default names.
+
+Devices and other resources are opened in :meth:`Node.start` and released in :meth:`Node.stop`
+(safe to call twice, and after a failed start), so a node can be built cheaply from a launch
+entry in any process and started there.
+
+Node types are registered by a ``type:`` word (``planner``, ``gimbal``, ``sim_camera``,
+``sim_drone``, ``camera``); :func:`make_node` builds one from a launch entry's config mapping
+through the type's config dataclass (unknown keys are errors naming the key).
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+from aes_planner.config import ConfigError, from_dict
+from aes_planner.errors import AesPlannerError
+
+__all__ = [
+    "NODE_TYPES",
+    "LaunchContext",
+    "Node",
+    "NodeError",
+    "Outputs",
+    "make_node",
+    "node_class",
+    "percentile",
+]
+
+Outputs = dict[str, list]
+
+
+class NodeError(AesPlannerError):
+    """A node cannot be built or run as configured; the message says what to change."""
+
+
+@dataclass
+class LaunchContext:
+    """What a launch file shares with every node it builds.
+
+    ``scene``: the simulated scene spec (``"indoor:3"`` or a YAML path) of a sim launch, else None;
+    ``values``: free-form extras (the run folder...).
+    """
+
+    scene: str | None = None
+    values: dict[str, Any] = field(default_factory=dict)
+    _scene_obj: Any = None
+
+    def load_scene(self):
+        """The :class:`aes_planner.sim.Scene` (loaded once)."""
+        if self.scene is None:
+            raise NodeError(
+                "this node needs a simulated scene: add 'scene: FAMILY:SEED' (or a scene file) to the launch file"
+            )
+        if self._scene_obj is None:
+            from aes_planner.sim import load_scene
+
+            self._scene_obj = load_scene(self.scene)
+        return self._scene_obj
+
+
+class Node(ABC):
+    """A node core. Subclasses set the class attributes and implement :meth:`step`."""
+
+    #: The dataclass a launch entry's ``config`` loads into.
+    config_class: ClassVar[type]
+    #: default input topic -> (message type, keep-last depth)
+    inputs: ClassVar[dict[str, tuple[type, int]]] = {}
+    #: default output topic -> (message type, latched)
+    outputs: ClassVar[dict[str, tuple[type, bool]]] = {}
+
+    def __init__(self, config: Any, node_id: str = "", context: LaunchContext | None = None):
+        self.config = config
+        self.node_id = node_id or type(self).__name__.lower()
+        self.context = context or LaunchContext()
+
+    @property
+    def period_s(self) -> float:
+        """How often the loop steps the node when no input arrives (seconds)."""
+        return 0.05
+
+    @property
+    def finished(self) -> bool:
+        """True once the node has done its job (the planner settled); the launch may end."""
+        return False
+
+    def start(self) -> None:
+        """Open devices and resources (called once, in the process that runs the node)."""
+        return None
+
+    def stop(self) -> None:
+        """Release everything and leave hardware safe; safe to call twice and after a failed start."""
+        return None
+
+    @abstractmethod
+    def step(self, inputs: Mapping[str, list], now: float) -> Outputs:
+        """Messages in (per default input topic, oldest first) -> messages out (per output topic)."""
+
+
+# type word -> "module:Class"
+NODE_TYPES: dict[str, str] = {
+    "planner": "aes_planner.node.planner:PlannerNode",
+    "gimbal": "aes_planner.node.gimbal:GimbalNode",
+    "sim_camera": "aes_planner.node.sim_camera:SimCameraNode",
+    "sim_drone": "aes_planner.node.sim_drone:SimDroneNode",
+    "sim": "aes_planner.node.sim_drone:SimDroneNode",  # drone.yaml: --set drone.type=sim
+    "camera": "aes_planner.node.camera:CameraNode",
+}
+
+
+def node_class(type_name: str, key: str = "type") -> type[Node]:
+    target = NODE_TYPES.get(type_name) if isinstance(type_name, str) else None
+    if target is None:
+        raise ConfigError(key, f"unknown node type {type_name!r}; known types: {', '.join(sorted(NODE_TYPES))}")
+    module_name, _, attr = target.partition(":")
+    return getattr(importlib.import_module(module_name), attr)
+
+
+def make_node(
+    type_name: str, config: Mapping[str, Any] | None, node_id: str, context: LaunchContext | None = None, key: str = ""
+) -> Node:
+    """Build an unstarted node of ``type_name`` from a config mapping (unknown keys are errors)."""
+    cls = node_class(type_name, f"{key}.type" if key else "type")
+    cfg = from_dict(cls.config_class, config or {}, f"{key}.config" if key else "config")
+    return cls(cfg, node_id=node_id, context=context)
+
+
+def percentile(values, q: float) -> float:
+    """The ``q``-th percentile (0-100) of ``values`` by linear interpolation; 0.0 when empty."""
+    xs = sorted(float(v) for v in values if math.isfinite(v))
+    if not xs:
+        return 0.0
+    pos = (len(xs) - 1) * q / 100.0
+    lo = int(math.floor(pos))
+    hi = min(lo + 1, len(xs) - 1)
+    return xs[lo] + (xs[hi] - xs[lo]) * (pos - lo)

@@ -1,0 +1,260 @@
+"""``GimbalNode``: any :class:`~aes_planner.devices.Gimbal` on the bus.
+
+It publishes ``gimbal/state`` at ``rate_hz`` and executes ``gimbal/command``:
+
+* ``move``: clamped to the joint limits (the device's, and the platform's when configured);
+  a command that is not finite is refused and counted (nothing reaches the servos);
+* ``stop``: hold where the joints are now;
+* ``reboot``: clear a latched hardware error (the only way out of ``fault``).
+
+On a hardware error the node stops commanding (moves are refused and counted), reports
+``status: fault`` with the faults in every state message, and resumes only after a reboot
+request. Communication errors are counted and reported (``status: comm_error``); the driver
+reconnects a port that comes back. :meth:`GimbalNode.stop` disconnects the device, which leaves
+the motors unpowered.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from aes_planner.config import require, require_numbers
+from aes_planner.devices import DeviceError, Gimbal, GimbalCommError, GimbalHardwareError, make_device
+from aes_planner.geometry.rig import JointCommandError
+from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState
+from aes_planner.node.base import LaunchContext, Node, Outputs
+
+log = logging.getLogger(__name__)
+
+__all__ = ["GimbalNode", "GimbalNodeConfig"]
+
+
+@dataclass
+class GimbalNodeConfig:
+    """* ``device``: the gimbal as a launch-file device mapping (``type:`` word + its settings).
+    * ``rate_hz``: ``gimbal/state`` rate.
+    * ``pan_limits_deg``, ``tilt_limits_deg``: extra joint limits (the platform's; a sim launch
+      takes them from the scene's rig); the device's own limits apply too.
+    * ``diagnostics_period_s``: how often ``gimbal/diagnostics`` is published.
+    * ``emulate``: start the Protocol 2.0 servo emulator in a child process (its own GIL, like
+      real servos) and connect the ``dynamixel_pan_tilt`` device to its pty (the device's
+      ``port`` is replaced); ``emulator_args`` are extra ``aes-planner gimbal emulate`` options.
+    """
+
+    device: dict[str, Any] = field(default_factory=lambda: {"type": "emulated_pan_tilt"})
+    rate_hz: float = 20.0
+    pan_limits_deg: tuple[float, float] | None = None
+    tilt_limits_deg: tuple[float, float] | None = None
+    diagnostics_period_s: float = 1.0
+    emulate: bool = False
+    emulator_args: list[str] = field(default_factory=list)
+
+    def __post_init__(self):
+        require_numbers(self, ("rate_hz", "diagnostics_period_s"))
+        require(
+            not self.emulate or self.device.get("type") == "dynamixel_pan_tilt",
+            "emulate",
+            f"the emulator speaks to the dynamixel_pan_tilt driver; device.type is {self.device.get('type')!r}",
+        )
+        require(self.rate_hz <= 1000, "rate_hz", f"must be <= 1000, got {self.rate_hz}")
+        for name in ("pan_limits_deg", "tilt_limits_deg"):
+            lim = getattr(self, name)
+            require(lim is None or lim[0] < lim[1], name, f"min must be below max, got {lim}")
+
+
+class GimbalNode(Node):
+    """See the module docstring. ``device`` replaces the configured one (tests)."""
+
+    config_class = GimbalNodeConfig
+    inputs = {"gimbal/command": (GimbalCommand, 16)}
+    outputs = {"gimbal/state": (GimbalState, False), "gimbal/diagnostics": (Diagnostics, False)}
+
+    def __init__(
+        self,
+        config: GimbalNodeConfig | None = None,
+        node_id: str = "gimbal",
+        context: LaunchContext | None = None,
+        device: Gimbal | None = None,
+    ):
+        config = config or GimbalNodeConfig()
+        super().__init__(config, node_id, context)
+        spec = dict(config.device)
+        if config.emulate:
+            spec["port"] = "<emulator>"  # replaced by the emulator's pty on start()
+        self.device: Gimbal = device if device is not None else make_device(spec, "device")
+        self.emulator = None
+        self.limits_rad = self._limits(context)
+        self.status = "idle"
+        self.faults: tuple[str, ...] = ()
+        self.counters = dict.fromkeys(
+            ("commands_in", "moves", "commands_refused", "comm_errors", "hardware_errors", "reboots", "states"), 0
+        )
+        self._seq = 0
+        self._last_state_s = -math.inf
+        self._last_diag_s = -math.inf
+        self.last_state: GimbalState | None = None
+
+    def _limits(self, context: LaunchContext | None):
+        c = self.config
+        pan, tilt = c.pan_limits_deg, c.tilt_limits_deg
+        if (pan is None or tilt is None) and context is not None and context.scene is not None:
+            scene = context.load_scene()
+            if scene.rig is not None:
+                pan = pan or scene.rig.pan_tilt.pan_limits_deg
+                tilt = tilt or scene.rig.pan_tilt.tilt_limits_deg
+        if pan is None and tilt is None:
+            return None
+        pan = pan or (-180.0, 180.0)
+        tilt = tilt or (-90.0, 90.0)
+        return tuple(math.radians(a) for a in pan), tuple(math.radians(a) for a in tilt)
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.config.rate_hz
+
+    def start(self) -> None:
+        if self.config.emulate:
+            import dataclasses
+
+            from aes_planner.drivers.emulator import EmulatorProcess
+
+            dev = self.device
+            self.emulator = EmulatorProcess(
+                tuple(getattr(dev.config, "models", ("xm430-w350", "xm430-w350"))),
+                baud=dev.config.baud,
+                args=self.config.emulator_args,
+            ).__enter__()
+            dev.config = dataclasses.replace(dev.config, port=self.emulator.port)
+        try:
+            self.device.connect()
+        except BaseException:
+            self.stop()
+            raise
+        self.status = "ok"
+
+    def stop(self) -> None:
+        try:
+            self.device.disconnect()
+        finally:
+            self.status = "stopped"
+            if self.emulator is not None:
+                self.emulator.stop()
+                self.emulator = None
+
+    # ----------------------------------------------------------------------------------- step
+    def step(self, inputs: Mapping[str, list], now: float) -> Outputs:
+        out: Outputs = {"gimbal/state": [], "gimbal/diagnostics": []}
+        for cmd in inputs.get("gimbal/command", ()):
+            self.counters["commands_in"] += 1
+            self._execute(cmd)
+        if now - self._last_state_s >= self.period_s * 0.999:
+            self._last_state_s = now
+            state = self._read_state()
+            if state is not None:
+                out["gimbal/state"].append(state)
+        if now - self._last_diag_s >= self.config.diagnostics_period_s:
+            self._last_diag_s = now
+            out["gimbal/diagnostics"].append(
+                Diagnostics(now, self.node_id, self.status, dict(self.counters), {}, self._seq)
+            )
+        return out
+
+    def clamp(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
+        """Finite joints clamped to the node's limits; :class:`JointCommandError` otherwise."""
+        if not (isinstance(pan_rad, (int, float)) and isinstance(tilt_rad, (int, float))):
+            raise JointCommandError(f"joint command must be numbers, got {pan_rad!r}, {tilt_rad!r}")
+        if not (math.isfinite(pan_rad) and math.isfinite(tilt_rad)):
+            raise JointCommandError(f"joint command must be finite, got pan {pan_rad!r}, tilt {tilt_rad!r}")
+        if self.limits_rad is not None:
+            (plo, phi), (tlo, thi) = self.limits_rad
+            pan_rad = min(max(pan_rad, plo), phi)
+            tilt_rad = min(max(tilt_rad, tlo), thi)
+        return float(pan_rad), float(tilt_rad)
+
+    def _execute(self, cmd) -> None:
+        kind = getattr(cmd, "kind", None)
+        try:
+            if kind == "reboot":
+                self.device.reboot()
+                self.counters["reboots"] += 1
+                self.faults = ()
+                self.status = "ok"
+                log.warning("%s: rebooted; accepting commands again", self.node_id)
+            elif self.status == "fault":
+                self.counters["commands_refused"] += 1
+                log.warning(
+                    "%s: %s refused: hardware fault (%s); send a reboot request",
+                    self.node_id,
+                    kind,
+                    ", ".join(self.faults),
+                )
+            elif kind == "move":
+                pan, tilt = self.clamp(cmd.pan_rad, cmd.tilt_rad)
+                self.device.move_to(pan, tilt)
+                self.counters["moves"] += 1
+                if self.status == "comm_error":
+                    self.status = "ok"
+            elif kind == "stop":
+                s = self.device.state()
+                self.device.move_to(*self.clamp(*_joints(s)))
+            else:
+                self.counters["commands_refused"] += 1
+        except JointCommandError as exc:
+            self.counters["commands_refused"] += 1
+            log.warning("%s: command refused: %s", self.node_id, exc)
+        except GimbalHardwareError as exc:
+            self._on_fault(tuple(f"{j}: {f}" for j, fs in exc.faults.items() for f in fs) or (str(exc),))
+        except GimbalCommError as exc:
+            self.counters["comm_errors"] += 1
+            self.status = "comm_error" if self.status != "fault" else self.status
+            log.warning("%s: %s", self.node_id, exc)
+        except DeviceError as exc:
+            self.counters["comm_errors"] += 1
+            log.warning("%s: %s", self.node_id, exc)
+
+    def _on_fault(self, faults: tuple[str, ...]) -> None:
+        if self.status != "fault":
+            self.counters["hardware_errors"] += 1
+            log.error("%s: hardware error %s: stopped; resumes after a reboot request", self.node_id, ", ".join(faults))
+        self.status = "fault"
+        self.faults = tuple(faults)[:16]
+
+    def _read_state(self) -> GimbalState | None:
+        try:
+            s = self.device.state()
+        except GimbalHardwareError as exc:
+            self._on_fault(tuple(f"{j}: {f}" for j, fs in exc.faults.items() for f in fs) or (str(exc),))
+            return None
+        except DeviceError as exc:
+            self.counters["comm_errors"] += 1
+            if self.status != "fault":
+                self.status = "comm_error"
+            log.debug("%s: state read failed: %s", self.node_id, exc)
+            return None
+        if s.hardware_error:
+            self._on_fault(tuple(s.hardware_error))
+        elif self.status == "comm_error":
+            self.status = "ok"
+        self._seq += 1
+        self.counters["states"] += 1
+        faults = tuple(s.hardware_error) or (self.faults if self.status == "fault" else ())
+        try:
+            msg = GimbalState.from_device(s, sequence=self._seq, status=self.status)
+            if faults != msg.hardware_error:
+                msg.hardware_error = faults
+        except Exception as exc:  # a device that reports NaN must not publish it
+            self.counters["comm_errors"] += 1
+            log.warning("%s: unpublishable state %s: %s", self.node_id, s, exc)
+            return None
+        self.last_state = msg
+        return msg
+
+
+def _joints(state) -> tuple[float, float]:
+    if hasattr(state, "pan_rad"):
+        return state.pan_rad, state.tilt_rad
+    return state.yaw_rad, state.pitch_rad

@@ -1,0 +1,181 @@
+"""Launch files: YAML that names the nodes of a graph, their types, configs and topic remaps.
+
+::
+
+    scene: indoor:3                  # optional: the simulated scene every sim node (and the
+                                     # planner's platform) uses; a family:seed or a scene file
+    nodes:
+      - id: gimbal                   # unique; the node's name on the bus and in --set
+        type: gimbal                 # planner | gimbal | sim_camera | sim_drone | camera | external
+        config: {rate_hz: 20, device: {type: emulated_pan_tilt}}   # the type's config dataclass
+        remap: {gimbal/state: rig/state}                            # default topic -> actual
+        respawn: false               # restart when it dies (multi-process launches)
+
+``external`` marks a node that runs elsewhere (a flight stack): it is listed, not started.
+Files are read with ``yaml.safe_load``; every unknown key, unknown type, bad value or remap is
+a :class:`~aes_planner.config.ConfigError` naming the key (``nodes[2].config.rate_hz``).
+``--set ID.KEY=VALUE`` overrides (VALUE parsed as YAML): ``ID.type``, ``ID.respawn``, any
+config key (dotted for nested ones: ``gimbal.device.type=dynamixel_pan_tilt``), and the top-level
+``scene=FAMILY:SEED``.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from aes_planner.config import ConfigError, load_yaml
+from aes_planner.node.base import NODE_TYPES, LaunchContext, Node, make_node
+
+__all__ = ["LaunchEntry", "LaunchSpec", "apply_overrides", "build_nodes", "find_launch_file", "load_launch"]
+
+_ENTRY_KEYS = ("id", "type", "config", "remap", "respawn")
+_TOP_KEYS = ("scene", "nodes")
+
+
+@dataclass
+class LaunchEntry:
+    id: str
+    type: str
+    config: dict[str, Any] = field(default_factory=dict)
+    remap: dict[str, str] = field(default_factory=dict)
+    respawn: bool = False
+
+
+@dataclass
+class LaunchSpec:
+    nodes: list[LaunchEntry]
+    scene: str | None = None
+    path: str = ""
+
+    def entry(self, node_id: str) -> LaunchEntry:
+        for e in self.nodes:
+            if e.id == node_id:
+                return e
+        raise ConfigError(node_id, f"no node with this id; the launch has {[e.id for e in self.nodes]}")
+
+
+def find_launch_file(name: str | Path) -> Path:
+    """A path as given, or the name of a shipped launch file (``sim_closed_loop.yaml``)."""
+    p = Path(name)
+    if p.exists():
+        return p
+    shipped = resources.files("aes_planner.launch") / (p.name if p.suffix else f"{p.name}.yaml")
+    if shipped.is_file():
+        return Path(str(shipped))
+    raise ConfigError("", f"{name}: no such launch file (shipped ones: sim_closed_loop, pan_tilt_rig, drone)")
+
+
+def parse_launch(data: Any, path: str = "") -> LaunchSpec:
+    if not isinstance(data, Mapping):
+        raise ConfigError("", f"{path}: a launch file is a mapping with 'nodes' (and optionally 'scene')")
+    for k in data:
+        if k not in _TOP_KEYS:
+            raise ConfigError(str(k), f"unknown key; expected one of: {', '.join(_TOP_KEYS)}")
+    scene = data.get("scene")
+    if scene is not None and not isinstance(scene, str):
+        raise ConfigError("scene", f"expected FAMILY:SEED or a scene file path, got {scene!r}")
+    nodes_raw = data.get("nodes")
+    if not isinstance(nodes_raw, list) or not nodes_raw:
+        raise ConfigError("nodes", "expected a non-empty list of nodes")
+    entries, seen = [], set()
+    for i, raw in enumerate(nodes_raw):
+        key = f"nodes[{i}]"
+        if not isinstance(raw, Mapping):
+            raise ConfigError(key, f"expected a mapping with id and type, got {raw!r}")
+        for k in raw:
+            if k not in _ENTRY_KEYS:
+                raise ConfigError(f"{key}.{k}", f"unknown key; expected one of: {', '.join(_ENTRY_KEYS)}")
+        node_id = raw.get("id")
+        if not isinstance(node_id, str) or not node_id.replace("_", "").isalnum():
+            raise ConfigError(f"{key}.id", f"expected a word like 'planner', got {node_id!r}")
+        if node_id in seen:
+            raise ConfigError(f"{key}.id", f"duplicate node id {node_id!r}")
+        seen.add(node_id)
+        node_type = raw.get("type")
+        if node_type != "external" and node_type not in NODE_TYPES:
+            raise ConfigError(
+                f"{key}.type", f"unknown node type {node_type!r}; known: {', '.join(sorted(NODE_TYPES))}, external"
+            )
+        config = raw.get("config") or {}
+        if not isinstance(config, Mapping):
+            raise ConfigError(f"{key}.config", f"expected a mapping, got {config!r}")
+        remap = raw.get("remap") or {}
+        if not isinstance(remap, Mapping) or not all(
+            isinstance(a, str) and isinstance(b, str) for a, b in remap.items()
+        ):
+            raise ConfigError(f"{key}.remap", f"expected a mapping of topic names, got {remap!r}")
+        from aes_planner.transport import validate_topic
+
+        for a, b in remap.items():
+            for t in (a, b):
+                try:
+                    validate_topic(t)
+                except Exception as exc:
+                    raise ConfigError(f"{key}.remap", str(exc)) from None
+        respawn = raw.get("respawn", False)
+        if not isinstance(respawn, bool):
+            raise ConfigError(f"{key}.respawn", f"expected true or false, got {respawn!r}")
+        entries.append(LaunchEntry(node_id, node_type, dict(config), dict(remap), respawn))
+    return LaunchSpec(entries, scene, path)
+
+
+def apply_overrides(data: Mapping[str, Any], overrides: Sequence[str]) -> dict:
+    """``ID.KEY=VALUE`` overrides applied to the raw launch mapping (see the module docstring)."""
+    out = copy.deepcopy(dict(data))
+    for item in overrides:
+        if "=" not in item:
+            raise ConfigError("--set", f"expected ID.KEY=VALUE, got {item!r}")
+        path, _, text = item.partition("=")
+        try:
+            value = yaml.safe_load(text) if text.strip() else ""
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"--set {path}", f"value is not valid YAML: {exc}") from None
+        if path == "scene":
+            out["scene"] = str(value)
+            continue
+        node_id, _, key = path.partition(".")
+        if not key:
+            raise ConfigError("--set", f"expected ID.KEY=VALUE, got {item!r}")
+        nodes = out.get("nodes") or []
+        entry = next((n for n in nodes if isinstance(n, Mapping) and n.get("id") == node_id), None)
+        if entry is None:
+            raise ConfigError(f"--set {path}", f"no node {node_id!r}; the launch has {[n.get('id') for n in nodes]}")
+        if key in ("type", "respawn"):
+            entry[key] = value
+            continue
+        target = entry.setdefault("config", {}) or {}
+        entry["config"] = target
+        parts = key.split(".")
+        for p in parts[:-1]:
+            nxt = target.get(p)
+            if not isinstance(nxt, dict):
+                nxt = target[p] = {}
+            target = nxt
+        target[parts[-1]] = value
+    return out
+
+
+def load_launch(path: str | Path, overrides: Sequence[str] = ()) -> LaunchSpec:
+    p = find_launch_file(path)
+    data = load_yaml(p)
+    return parse_launch(apply_overrides(data or {}, overrides), str(p))
+
+
+def build_nodes(spec: LaunchSpec, context: LaunchContext | None = None) -> list[tuple[Node, dict[str, str]]]:
+    """Unstarted nodes of every non-external entry, with their remaps."""
+    context = context or LaunchContext(scene=spec.scene)
+    if context.scene is None:
+        context.scene = spec.scene
+    out = []
+    for i, e in enumerate(spec.nodes):
+        if e.type == "external":
+            continue
+        out.append((make_node(e.type, e.config, e.id, context, key=f"nodes[{i}]"), e.remap))
+    return out

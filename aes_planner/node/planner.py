@@ -1,0 +1,689 @@
+"""``PlannerNode``: keeps the aesthetic field up to date from ``camera/frame``, suggests views, and
+on a rig (or a drone that flies its suggestions) runs the **active loop**.
+
+The active loop, readable top to bottom in :meth:`PlannerNode._advance`::
+
+    initial   capture the view the camera starts at (it is the baseline)
+    explore   visit a few poses spread over the joint range (rig) or around the start (drone),
+              capturing each
+    plan      build the scorer from every capture, search, and pick the best candidate that the
+              same scorer expects to beat the best captured view by ``margin``
+              (none, or ``max_moves`` spent -> settle)
+    move      command it (``gimbal/command``; a drone flies the top candidate of
+              ``planner/suggestion``), wait for arrival (``gimbal/state``, or frames at the pose)
+    verify    capture there, score the real capture with the teacher, feed it into the field -> plan
+    settle    go back to the best captured view, capture it once more -> done
+
+A capture is the first frame stamped at least ``settle_s`` after arrival. Every command is
+clamped to the joint limits and checked finite before it leaves; a gimbal that reports a
+hardware fault stops the loop (state ``fault``) until the fault clears (a reboot request to the
+gimbal node), and after ``fault_timeout_s`` the loop ends (state ``failed``) with the best view
+captured so far.
+
+Passive mode (``active: false``): integrate the newest frame of each step (older ones of the same
+batch are dropped and counted), publish ``planner/suggestion`` when the field changed (at most
+every ``min_suggest_period_s``) or on ``planner/request``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from aes_planner.config import require, require_numbers
+from aes_planner.geometry.pantilt import PanTilt, PanTiltConfig
+from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
+from aes_planner.messages import (
+    Candidate,
+    Diagnostics,
+    GimbalCommand,
+    GimbalState,
+    MessageError,
+    PlannerRequest,
+    PosedFrame,
+    ViewSuggestion,
+)
+from aes_planner.node.base import LaunchContext, Node, NodeError, Outputs, percentile
+from aes_planner.node.proposer import FieldProposer, Proposer
+from aes_planner.sources import DroneBox, Platform
+
+log = logging.getLogger(__name__)
+
+__all__ = ["Capture", "DroneBoxConfig", "PlannerConfig", "PlannerNode"]
+
+
+@dataclass
+class DroneBoxConfig:
+    """The flight box of a drone (world metres)."""
+
+    bounds_min_m: tuple[float, float, float]
+    bounds_max_m: tuple[float, float, float]
+
+    def box(self) -> DroneBox:
+        return DroneBox(tuple(self.bounds_min_m), tuple(self.bounds_max_m))
+
+    def __post_init__(self):
+        self.box()
+
+
+@dataclass
+class PlannerConfig:
+    """How the planner builds its field, searches and (on a rig) drives the active loop.
+
+    * ``scorer``: ``"field"`` (the aesthetic field) or ``"rgb"`` (RGB scoring of a reconstruction).
+    * ``preset``: search preset (``fast``, ``balanced``, ``accurate``); ``teacher``: the teacher name.
+    * ``active``: run the active loop (commands the gimbal / flies the drone); false = suggest only.
+    * ``explore_views``: captures spread over the range before the first suggestion.
+    * ``max_moves``: suggestion-driven moves at most; ``margin``: the gain (scorer units) a
+      suggestion must promise over the best captured view to be worth a move.
+    * ``min_move_deg``: a candidate closer than this (view direction) to a captured view, with
+      no more than ``min_move_m`` of translation, is not a new view.
+    * ``top_k``: candidates per published suggestion.
+    * ``max_frames``: frames the field holds (memory bound); captures are kept before passive frames.
+    * ``arrival_tolerance_deg`` / ``arrival_tolerance_m``: how close counts as arrived;
+      ``settle_s``: wait after arrival before a frame counts as the capture;
+      ``move_timeout_s``: give up on a target after this long.
+    * ``fault_timeout_s``: how long a hardware fault may last before the loop ends.
+    * ``min_suggest_period_s``: passive mode, the shortest time between suggestions.
+    * ``diagnostics_period_s``: how often ``planner/diagnostics`` is published.
+    * ``rig`` / ``drone``: the platform (a sim launch fills it from the scene).
+    * ``mode``: ``auto`` (the platform given or the scene's), ``rig`` or ``free`` (a drone; on a
+      rig scene, a box around the rig's base).
+    * ``seed``: for the search's sampling.
+    """
+
+    scorer: str = "field"
+    preset: str = "balanced"
+    teacher: str = "composition"
+    active: bool = True
+    explore_views: int = 6
+    max_moves: int = 6
+    margin: float = 0.01
+    min_move_deg: float = 3.0
+    min_move_m: float = 0.1
+    top_k: int = 3
+    max_frames: int = 24
+    arrival_tolerance_deg: float = 1.5
+    arrival_tolerance_m: float = 0.05
+    settle_s: float = 0.05
+    move_timeout_s: float = 20.0
+    fault_timeout_s: float = 10.0
+    min_suggest_period_s: float = 0.5
+    diagnostics_period_s: float = 1.0
+    rig: PanTiltConfig | None = None
+    drone: DroneBoxConfig | None = None
+    mode: str = "auto"
+    seed: int = 0
+
+    def __post_init__(self):
+        require(self.scorer in ("field", "rgb"), "scorer", f"must be 'field' or 'rgb', got {self.scorer!r}")
+        require(
+            self.preset in ("fast", "balanced", "accurate"),
+            "preset",
+            f"must be fast, balanced or accurate, got {self.preset!r}",
+        )
+        for name in ("explore_views", "max_moves", "top_k", "max_frames"):
+            v = getattr(self, name)
+            require(
+                isinstance(v, int) and not isinstance(v, bool) and v >= 0, name, f"must be an integer >= 0, got {v!r}"
+            )
+        require(self.top_k >= 1, "top_k", f"must be >= 1, got {self.top_k}")
+        require(self.max_frames >= 2, "max_frames", f"must be >= 2, got {self.max_frames}")
+        require_numbers(self, ("margin", "min_move_deg", "min_move_m", "settle_s"), strict=False)
+        require_numbers(
+            self,
+            (
+                "arrival_tolerance_deg",
+                "arrival_tolerance_m",
+                "move_timeout_s",
+                "fault_timeout_s",
+                "min_suggest_period_s",
+                "diagnostics_period_s",
+            ),
+        )
+        require(self.rig is None or self.drone is None, "drone", "give a rig or a drone, not both")
+        require(self.mode in ("auto", "rig", "free"), "mode", f"must be auto, rig or free, got {self.mode!r}")
+
+
+@dataclass
+class Capture:
+    """A view the active loop captured and scored with the teacher (the real image)."""
+
+    kind: str  # initial | explore | move | settle
+    cam2world: np.ndarray  # [4, 4]
+    score: float
+    stamp_s: float
+    pan_rad: float | None = None
+    tilt_rad: float | None = None
+    predicted: float | None = None
+    image: np.ndarray | None = field(default=None, repr=False)  # [H, W, 3] uint8
+
+
+@dataclass
+class _Target:
+    kind: str
+    cam2world: np.ndarray  # [4, 4]
+    pan_rad: float | None = None
+    tilt_rad: float | None = None
+    predicted: float | None = None
+    sent_s: float = -1.0
+    arrived_s: float | None = None
+    resent: bool = False
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle between two rotations' optical axes, degrees."""
+    za, zb = a[:3, 2], b[:3, 2]
+    return math.degrees(math.atan2(np.linalg.norm(np.cross(za, zb)), float(np.dot(za, zb))))
+
+
+class PlannerNode(Node):
+    """The planner; see the module docstring. ``proposer`` replaces the field + search (tests)."""
+
+    config_class = PlannerConfig
+    inputs = {
+        "camera/frame": (PosedFrame, 4),
+        "gimbal/state": (GimbalState, 8),
+        "planner/request": (PlannerRequest, 8),
+    }
+    outputs = {
+        "gimbal/command": (GimbalCommand, False),
+        "planner/suggestion": (ViewSuggestion, True),
+        "planner/diagnostics": (Diagnostics, False),
+    }
+
+    def __init__(
+        self,
+        config: PlannerConfig | None = None,
+        node_id: str = "planner",
+        context: LaunchContext | None = None,
+        proposer: Proposer | None = None,
+        teacher=None,
+    ):
+        config = config or PlannerConfig()
+        if config.rig is None and config.drone is None and context is not None and context.scene is not None:
+            config = _platform_from_scene(config, context.load_scene())
+        super().__init__(config, node_id, context)
+        c = self.config
+        self.kinematics = PanTilt(c.rig) if c.rig is not None else None
+        self.mode = "rig" if c.rig is not None else "free"
+        self._teacher = teacher
+        self.proposer = proposer
+        self.state = "waiting"
+        self.platform: Platform | None = None
+        self.captures: list[Capture] = []
+        self.suggestions: list[ViewSuggestion] = []  # every suggestion published (bounded)
+        self.moves = 0
+        self.counters = dict.fromkeys(
+            (
+                "frames_in",
+                "frames_dropped",
+                "frames_rejected",
+                "frames_used",
+                "states_in",
+                "requests_in",
+                "commands_sent",
+                "commands_refused",
+                "suggestions",
+                "captures",
+                "moves",
+                "move_timeouts",
+                "faults",
+            ),
+            0,
+        )
+        self.latencies_s: deque[float] = deque(maxlen=256)
+        self._intrinsics = None
+        self._frame: PosedFrame | None = None  # newest accepted frame
+        self._gimbal: GimbalState | None = None  # newest gimbal state
+        self._queue: list[_Target] = []
+        self._target: _Target | None = None
+        self._fault_since: float | None = None
+        self._last_diag = -math.inf
+        self._last_suggest = -math.inf
+        self._dirty = False
+        self._suggest_requested = False
+        self._seq = {"cmd": 0, "sugg": 0, "diag": 0}
+        self.started_s: float | None = None
+        self.finished_s: float | None = None
+
+    # ------------------------------------------------------------------------------ lifecycle
+    @property
+    def period_s(self) -> float:
+        return 0.02
+
+    @property
+    def finished(self) -> bool:
+        return self.state in ("done", "failed")
+
+    @property
+    def teacher(self):
+        if self._teacher is None:
+            from aes_planner.teachers import get_teacher
+
+            self._teacher = get_teacher(self.config.teacher).freeze()
+        return self._teacher
+
+    def start(self) -> None:
+        if self.proposer is None:
+            c = self.config
+            self.proposer = FieldProposer(c.scorer, c.preset, self.teacher, c.max_frames, c.seed)
+        _ = self.teacher
+
+    # ----------------------------------------------------------------------------------- step
+    def step(self, inputs: Mapping[str, list], now: float) -> Outputs:
+        out: Outputs = {"gimbal/command": [], "planner/suggestion": [], "planner/diagnostics": []}
+        if self.proposer is None:
+            self.start()
+        if self.started_s is None:
+            self.started_s = now
+        self._take_inputs(inputs)
+        if self.config.active:
+            if not self.finished:
+                self._advance(now, out)
+        else:
+            self._passive(now, out)
+        if self._suggest_requested and self.suggestions and not out["planner/suggestion"]:
+            out["planner/suggestion"].append(self.suggestions[-1])
+        self._suggest_requested = False
+        if now - self._last_diag >= self.config.diagnostics_period_s or (self.finished and self.finished_s == now):
+            self._last_diag = now
+            out["planner/diagnostics"].append(self.diagnostics(now))
+        return out
+
+    def _take_inputs(self, inputs: Mapping[str, list]) -> None:
+        frames = list(inputs.get("camera/frame", ()))
+        self.counters["frames_in"] += len(frames)
+        if len(frames) > 1:  # dropped to the latest: only the newest of a batch is looked at
+            self.counters["frames_dropped"] += len(frames) - 1
+        if frames:
+            self._accept_frame(frames[-1])
+        states = list(inputs.get("gimbal/state", ()))
+        self.counters["states_in"] += len(states)
+        for s in states:
+            if isinstance(s, GimbalState) and (self._gimbal is None or s.stamp_s >= self._gimbal.stamp_s):
+                self._gimbal = s
+        for req in inputs.get("planner/request", ()):
+            self.counters["requests_in"] += 1
+            self._on_request(req)
+
+    def _accept_frame(self, frame) -> None:
+        if not isinstance(frame, PosedFrame):
+            self.counters["frames_rejected"] += 1
+            return
+        k = frame.intrinsics
+        if self._intrinsics is None:
+            self._intrinsics = k
+        elif (k.width, k.height) != (self._intrinsics.width, self._intrinsics.height):
+            self.counters["frames_rejected"] += 1
+            log.warning(
+                "%s: frame %s is %dx%d, the field is %dx%d: rejected",
+                self.node_id,
+                frame.frame_id,
+                k.width,
+                k.height,
+                self._intrinsics.width,
+                self._intrinsics.height,
+            )
+            return
+        if self._frame is not None and frame.stamp_s < self._frame.stamp_s:
+            self.counters["frames_rejected"] += 1  # out of order: older than what we have
+            return
+        self._frame = frame
+        if self.platform is None:
+            self.platform = self._make_platform(k)
+
+    def _make_platform(self, intrinsics) -> Platform:
+        c = self.config
+        if c.rig is not None:
+            return Platform("rig", intrinsics, rig=c.rig)
+        if c.drone is not None:
+            return Platform("drone", intrinsics, drone=c.drone.box())
+        raise NodeError(
+            f"{self.node_id}: no platform: give the planner a 'rig' (pan_tilt kinematics and limits) or a 'drone' box, "
+            "or a 'scene' in the launch file"
+        )
+
+    def _on_request(self, req) -> None:
+        kind = getattr(req, "kind", "suggest")
+        if kind == "suggest":
+            self._suggest_requested = True
+            self._dirty = self._dirty or not self.config.active
+        elif kind == "reset":
+            if self.proposer is not None:
+                self.proposer.reset()
+            self.captures.clear()
+            self._queue.clear()
+            self._target = None
+            self.moves = 0
+            self.state = "waiting"
+        elif kind == "stop" and self.config.active and not self.finished:
+            self._queue.clear()
+            self._target = None
+            self._begin_settle()
+
+    # ------------------------------------------------------------------------- active loop
+    def _advance(self, now: float, out: Outputs) -> None:
+        if self.mode == "rig" and self._gimbal_fault(now):
+            return
+        if self.state == "waiting":
+            if self._frame is None or (self.mode == "rig" and (self._gimbal is None or self._gimbal.moving)):
+                return
+            self._target = self._here("initial")
+            self._target.sent_s = now
+            self._target.arrived_s = now
+            self.state = "initial"
+        if self._target is not None:
+            if self._target.arrived_s is None:
+                self._check_arrival(now, out)
+                return
+            frame = self._frame
+            if frame is None or frame.stamp_s < self._target.arrived_s + self.config.settle_s:
+                return
+            self._record_capture(self._target, frame)
+            finished_target = self._target
+            self._target = None
+            if finished_target.kind == "settle":
+                self._finish(now, "done")
+                return
+        # choose what comes next
+        if self.state == "initial":
+            self._queue = self._explore_targets()
+            self.state = "exploring"
+        if self.state == "exploring" and not self._queue:
+            self.state = "planning"
+        if self.state == "planning":
+            t0 = time.perf_counter()
+            nxt = self._plan(now, out)
+            now += time.perf_counter() - t0  # the command leaves after the planning, not before
+            if nxt is None:
+                self._begin_settle()
+            else:
+                self._queue = [nxt]
+                self.state = "moving"
+        elif self.state == "moving" and not self._queue:
+            self.state = "planning"
+            return
+        if self._queue:
+            self._target = self._queue.pop(0)
+            self._send(self._target, now, out)
+
+    def _here(self, kind: str) -> _Target:
+        f = self._frame
+        g = self._gimbal
+        if self.mode == "rig" and g is not None:
+            return _Target(kind, self.kinematics.forward(g.pan_rad, g.tilt_rad), g.pan_rad, g.tilt_rad)
+        return _Target(kind, f.cam2world.copy())
+
+    def _explore_targets(self) -> list[_Target]:
+        n = self.config.explore_views
+        if n == 0:
+            return []
+        if self.mode == "rig":
+            joints = self.kinematics.sweep(n)  # [n, 2] left to right
+            start = self.captures[-1].pan_rad if self.captures else 0.0
+            if start is not None and abs(joints[-1, 0] - start) < abs(joints[0, 0] - start):
+                joints = joints[::-1]
+            return [_Target("explore", self.kinematics.forward(p, t), float(p), float(t)) for p, t in joints]
+        # free: turn in place at the start position, yaw spread around the circle, level
+        x, y, z, yaw0, _ = cam2world_to_view(self._frame.cam2world)
+        targets = []
+        for i in range(1, n + 1):
+            yaw = yaw0 + 2 * math.pi * i / (n + 1)
+            pitch = math.radians(-10.0) if i % 2 else math.radians(5.0)
+            view = torch.tensor([x, y, z, math.atan2(math.sin(yaw), math.cos(yaw)), pitch], dtype=torch.float64)
+            targets.append(_Target("explore", view_to_cam2world(view).numpy()))
+        return targets
+
+    def _plan(self, now: float, out: Outputs) -> _Target | None:
+        """Search on the field of every capture; the best candidate worth a move, or None."""
+        c = self.config
+        if self.moves >= c.max_moves:
+            return None
+        captured = np.stack([cap.cam2world for cap in self.captures])  # [M, 4, 4]
+        t0 = time.perf_counter()
+        try:
+            proposal = self.proposer.propose(self.platform, captured, max(c.top_k, 4))
+        except Exception:
+            log.exception("%s: planning failed; settling on the best captured view", self.node_id)
+            return None
+        self.latencies_s.append(time.perf_counter() - t0)
+        cands = [cd for cd in proposal.candidates if self._safe_candidate(cd)]
+        out["planner/suggestion"].append(self._suggestion(cands[: c.top_k], proposal.field_version, now))
+        best_pred = float(np.max(proposal.captured_pred)) if len(proposal.captured_pred) else -math.inf
+        for cd in cands:
+            if cd.score - best_pred < c.margin:
+                break  # ranked best first: no later one does better
+            if self._near_captured(cd.cam2world):
+                continue
+            return _Target("move", cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=cd.score)
+        return None
+
+    def _safe_candidate(self, cd: Candidate) -> bool:
+        if not np.all(np.isfinite(cd.cam2world)) or not math.isfinite(cd.score):
+            return False
+        if self.mode == "rig":
+            if cd.pan_rad is None:
+                return False
+            pan, tilt = self.kinematics.clamp(cd.pan_rad, cd.tilt_rad)
+            cd.pan_rad, cd.tilt_rad = pan, tilt
+            cd.cam2world = self.kinematics.forward(pan, tilt)
+        return True
+
+    def _near_captured(self, cam2world: np.ndarray) -> bool:
+        c = self.config
+        for cap in self.captures:
+            if (
+                _angle_deg(cap.cam2world, cam2world) < c.min_move_deg
+                and np.linalg.norm(cap.cam2world[:3, 3] - cam2world[:3, 3]) <= c.min_move_m
+            ):
+                return True
+        return False
+
+    def _begin_settle(self) -> None:
+        if not self.captures:
+            self._finish(time.time(), "failed")
+            return
+        best = max(self.captures, key=lambda cap: cap.score)
+        self._queue = [_Target("settle", best.cam2world.copy(), best.pan_rad, best.tilt_rad, predicted=best.score)]
+        self.state = "settling"
+
+    def _finish(self, now: float, state: str) -> None:
+        self.state = state
+        self.finished_s = now
+        self._queue.clear()
+        self._target = None
+
+    def _send(self, target: _Target, now: float, out: Outputs) -> None:
+        target.sent_s = now
+        target.arrived_s = None
+        if target.kind == "move":
+            self.moves += 1
+            self.counters["moves"] += 1
+        if self.mode == "rig":
+            try:
+                pan, tilt = self.kinematics.clamp(target.pan_rad, target.tilt_rad)
+                cmd = GimbalCommand("move", pan, tilt, stamp_s=now, sequence=self._next("cmd"))
+            except (MessageError, ValueError) as exc:
+                self.counters["commands_refused"] += 1
+                log.warning("%s: refused to command %s: %s", self.node_id, target, exc)
+                target.arrived_s = None
+                self._target = None
+                return
+            target.pan_rad, target.tilt_rad = pan, tilt
+            target.cam2world = self.kinematics.forward(pan, tilt)
+            out["gimbal/command"].append(cmd)
+            self.counters["commands_sent"] += 1
+        else:
+            cand = Candidate(target.cam2world, target.predicted if target.predicted is not None else 0.0)
+            out["planner/suggestion"].append(
+                self._suggestion([cand], self.proposer.version if self.proposer else 0, now)
+            )
+
+    def _check_arrival(self, now: float, out: Outputs) -> None:
+        t, c = self._target, self.config
+        if self.mode == "rig":
+            g = self._gimbal
+            tol = math.radians(c.arrival_tolerance_deg)
+            if g is not None and g.stamp_s > t.sent_s and not g.moving:
+                at_goal = abs(g.pan_rad - g.goal_pan_rad) < tol and abs(g.tilt_rad - g.goal_tilt_rad) < tol
+                goal_ok = abs(g.goal_pan_rad - t.pan_rad) < tol and abs(g.goal_tilt_rad - t.tilt_rad) < tol
+                # a goal other than ours: the device clamped it (narrower limits), or this state
+                # predates our command; accept it only once the device had time to see the command
+                if at_goal and (goal_ok or (now - t.sent_s > 2.0 and g.stamp_s > t.sent_s + 1.0)):
+                    t.arrived_s = now
+                    return
+        else:
+            f = self._frame
+            if f is not None and f.stamp_s > t.sent_s:
+                close = _angle_deg(f.cam2world, t.cam2world) < c.arrival_tolerance_deg
+                near = np.linalg.norm(f.cam2world[:3, 3] - t.cam2world[:3, 3]) < c.arrival_tolerance_m
+                if close and near:
+                    t.arrived_s = now
+                    return
+        waited = now - t.sent_s
+        if waited > c.move_timeout_s / 2 and not t.resent:
+            t.resent = True
+            log.warning("%s: no arrival after %.1f s; sending the command again", self.node_id, waited)
+            if t.kind == "move":
+                self.moves -= 1
+                self.counters["moves"] -= 1
+            self._send(t, now, out)
+            t.sent_s = now - waited
+        elif waited > c.move_timeout_s:
+            self.counters["move_timeouts"] += 1
+            log.warning("%s: target %s not reached in %.1f s; skipped", self.node_id, t.kind, waited)
+            self._target = None
+            if t.kind == "settle":
+                self._finish(now, "failed")
+
+    def _gimbal_fault(self, now: float) -> bool:
+        g = self._gimbal
+        faulty = g is not None and (bool(g.hardware_error) or g.status == "fault")
+        if not faulty:
+            if self._fault_since is not None:
+                log.warning("%s: gimbal fault cleared; resuming", self.node_id)
+                self._fault_since = None
+                if self._target is not None and self._target.arrived_s is None:
+                    self._target.resent = False
+                    self._target.sent_s = now  # re-command below on the timeout path
+                    self._queue.insert(0, self._target)
+                    self._target = None
+            return False
+        if self._fault_since is None:
+            self._fault_since = now
+            self.counters["faults"] += 1
+            log.error("%s: gimbal reports %s; commands stopped", self.node_id, ", ".join(g.hardware_error) or g.status)
+        if now - self._fault_since > self.config.fault_timeout_s and not self.finished:
+            self._finish(now, "failed")
+        return True
+
+    def _record_capture(self, target: _Target, frame: PosedFrame) -> None:
+        img = torch.from_numpy(np.ascontiguousarray(frame.image)).permute(2, 0, 1)[None].float() / 255.0
+        with torch.no_grad():
+            score = float(self.teacher.score(img)[0])
+        pan = frame.pan_rad if getattr(frame, "pan_rad", None) is not None else target.pan_rad
+        tilt = frame.tilt_rad if getattr(frame, "tilt_rad", None) is not None else target.tilt_rad
+        if self.mode == "rig" and self._gimbal is not None and pan is None:
+            pan, tilt = self._gimbal.pan_rad, self._gimbal.tilt_rad
+        cap = Capture(
+            target.kind, frame.cam2world.copy(), score, frame.stamp_s, pan, tilt, target.predicted, frame.image
+        )
+        self.captures.append(cap)
+        self.counters["captures"] += 1
+        self.counters["frames_used"] += 1
+        self.proposer.add_frame(frame, keep=True)
+        log.info(
+            "%s: captured (%s) score %.3f%s",
+            self.node_id,
+            target.kind,
+            score,
+            f" (predicted {target.predicted:.3f})" if target.predicted is not None else "",
+        )
+
+    # ---------------------------------------------------------------------------- passive
+    def _passive(self, now: float, out: Outputs) -> None:
+        f = self._frame
+        if f is not None and (not self.captures or f.stamp_s > self.captures[-1].stamp_s):
+            self.proposer.add_frame(f)
+            self.counters["frames_used"] += 1
+            self.captures.append(Capture("passive", f.cam2world.copy(), math.nan, f.stamp_s))
+            del self.captures[:-1]  # passive mode keeps only the last pose seen
+            self._dirty = True
+        due = now - self._last_suggest >= self.config.min_suggest_period_s
+        if self.platform is not None and self._dirty and (due or self._suggest_requested):
+            self._dirty = False
+            self._last_suggest = now
+            t0 = time.perf_counter()
+            try:
+                proposal = self.proposer.propose(self.platform, np.zeros((0, 4, 4)), self.config.top_k)
+            except Exception:
+                log.exception("%s: suggestion failed", self.node_id)
+                return
+            self.latencies_s.append(time.perf_counter() - t0)
+            cands = [cd for cd in proposal.candidates if self._safe_candidate(cd)]
+            out["planner/suggestion"].append(self._suggestion(cands[: self.config.top_k], proposal.field_version, now))
+            self.state = "suggesting"
+
+    # ---------------------------------------------------------------------------- messages
+    def _suggestion(self, candidates: list[Candidate], version: int, now: float) -> ViewSuggestion:
+        msg = ViewSuggestion(now, list(candidates), int(version), self._next("sugg"), "world", self.mode)
+        self.suggestions.append(msg)
+        del self.suggestions[:-64]
+        self.counters["suggestions"] += 1
+        return msg
+
+    def _next(self, key: str) -> int:
+        self._seq[key] += 1
+        return self._seq[key]
+
+    def diagnostics(self, now: float) -> Diagnostics:
+        lat = list(self.latencies_s)
+        values = {
+            "field_frames": float(self.proposer.size if self.proposer else 0),
+            "field_version": float(self.proposer.version if self.proposer else 0),
+            "latency_p50_s": percentile(lat, 50),
+            "latency_p95_s": percentile(lat, 95),
+        }
+        scored = [cap for cap in self.captures if math.isfinite(cap.score)]
+        if scored:
+            values["initial_score"] = scored[0].score
+            values["best_captured_score"] = max(cap.score for cap in scored)
+        return Diagnostics(now, self.node_id, self.state, dict(self.counters), values, self._next("diag"))
+
+    # ------------------------------------------------------------------------------ results
+    def result(self) -> dict:
+        """The loop's outcome: initial and best captured views (teacher scores of the real captures)."""
+        scored = [cap for cap in self.captures if math.isfinite(cap.score)]
+        if not scored:
+            return {"state": self.state, "moves": self.moves}
+        best = max(scored, key=lambda cap: cap.score)
+        final = scored[-1] if scored[-1].kind == "settle" else best
+        return {
+            "state": self.state,
+            "moves": self.moves,
+            "captures": len(scored),
+            "initial": scored[0],
+            "best": best,
+            "final": final,
+        }
+
+
+def _platform_from_scene(config: PlannerConfig, scene) -> PlannerConfig:
+    import dataclasses
+
+    from aes_planner.node.sim_drone import _drone_box
+
+    if scene.rig is not None and config.mode != "free":
+        return dataclasses.replace(config, rig=scene.rig.pan_tilt)
+    if config.mode == "rig":
+        raise NodeError(f"scene {scene.name!r} has a drone, not a rig: use mode free")
+    box = _drone_box(scene)
+    return dataclasses.replace(config, drone=DroneBoxConfig(tuple(box.bounds_min_m), tuple(box.bounds_max_m)))

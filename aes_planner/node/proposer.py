@@ -1,0 +1,138 @@
+"""What the planner asks of the field and the search: candidate views, and what the field thinks
+of the views already captured.
+
+:class:`FieldProposer` keeps a bounded set of frames, builds a scorer from them
+(:func:`aes_planner.field.build_scorer`: the aesthetic field, or RGB scoring of a
+reconstruction) when they changed, and runs the two-stage search
+(:func:`aes_planner.search.search_views`). The planner node talks only to the small
+:class:`Proposer` interface, so its state machine is tested with any proposer.
+"""
+
+from __future__ import annotations
+
+import logging
+from abc import ABC, abstractmethod
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from aes_planner.messages import Candidate, PosedFrame
+from aes_planner.sources import Platform
+
+log = logging.getLogger(__name__)
+
+__all__ = ["FieldProposer", "Proposal", "Proposer"]
+
+
+@dataclass
+class Proposal:
+    """Ranked candidates (best first, the scorer's units) and the same scorer's scores of the
+    views already captured (``captured_pred [M]``), so a gain is measured on one scale."""
+
+    candidates: list[Candidate]
+    captured_pred: np.ndarray  # [M]
+    field_version: int
+
+
+class Proposer(ABC):
+    """Frames in, candidate views out."""
+
+    #: bumped whenever the frames behind the proposals change
+    version: int = 0
+
+    @abstractmethod
+    def add_frame(self, frame: PosedFrame, keep: bool = False) -> None:
+        """Integrate a frame; ``keep`` frames (the active loop's captures) are never evicted."""
+
+    @abstractmethod
+    def propose(self, platform: Platform, captured_cam2world: np.ndarray, top_k: int) -> Proposal:
+        """Candidates for ``platform``, avoiding the captured poses ``[M, 4, 4]``."""
+
+    @abstractmethod
+    def reset(self) -> None:
+        """Forget every frame."""
+
+    @property
+    @abstractmethod
+    def size(self) -> int:
+        """Frames held."""
+
+
+class FieldProposer(Proposer):
+    """The field (or RGB scoring) + the two-stage search, over at most ``max_frames`` frames.
+
+    Passive frames beyond the budget are evicted oldest first; kept frames (captures) stay,
+    and when they alone exceed the budget the oldest of them go too.
+    """
+
+    def __init__(
+        self, scorer: str = "field", preset: str = "balanced", teacher=None, max_frames: int = 24, seed: int = 0
+    ):
+        self.scorer_kind = scorer
+        self.preset = preset
+        self.teacher = teacher
+        self.max_frames = max_frames
+        self.seed = seed
+        self._frames: deque[tuple[PosedFrame, bool]] = deque()
+        self._scorer = None
+        self._scorer_version = -1
+        self.version = 0
+
+    @property
+    def size(self) -> int:
+        return len(self._frames)
+
+    def reset(self) -> None:
+        self._frames.clear()
+        self._scorer = None
+        self.version += 1
+
+    def add_frame(self, frame: PosedFrame, keep: bool = False) -> None:
+        self._frames.append((frame, keep))
+        while len(self._frames) > self.max_frames:
+            passive = next((i for i, (_, k) in enumerate(self._frames) if not k), None)
+            del self._frames[passive if passive is not None else 0]
+        self.version += 1
+
+    def scorer(self):
+        """The scorer of the present frames (rebuilt only when they changed)."""
+        if self._scorer is None or self._scorer_version != self.version:
+            from aes_planner.field import build_scorer
+
+            frames = [f for f, _ in self._frames]
+            self._scorer = build_scorer(self.scorer_kind, frames, teacher=self.teacher)
+            self._scorer_version = self.version
+        return self._scorer
+
+    def propose(self, platform: Platform, captured_cam2world: np.ndarray, top_k: int) -> Proposal:
+        from aes_planner.search import SearchConfig, search_views
+
+        scorer = self.scorer()
+        frames = [f for f, _ in self._frames]
+        inputs = np.stack([f.cam2world for f in frames])  # [N, 4, 4]
+        captured = np.asarray(captured_cam2world, dtype=np.float64).reshape(-1, 4, 4)
+        config = SearchConfig.preset(self.preset, top_k=max(top_k, 1), seed=self.seed)
+        result = search_views(scorer, inputs, platform, config, avoid=captured if len(captured) else None)
+        candidates = []
+        for s in result.suggestions:
+            pan = getattr(s, "pan_rad", None)
+            tilt = getattr(s, "tilt_rad", None)
+            terms = {k: float(v) for k, v in (getattr(s, "terms", None) or {}).items()}
+            candidates.append(
+                Candidate(
+                    np.asarray(s.cam2world, dtype=np.float64),
+                    float(s.score),
+                    float(min(max(getattr(s, "coverage", 1.0), 0.0), 1.0)),
+                    None if pan is None else float(pan),
+                    None if tilt is None else float(tilt),
+                    dict(list(terms.items())[:32]),
+                )
+            )
+        if len(captured):
+            with torch.no_grad():
+                pred = scorer.score_batched(torch.as_tensor(captured, dtype=torch.float64)).score.numpy()
+        else:
+            pred = np.zeros(0)
+        return Proposal(candidates, np.asarray(pred, dtype=np.float64), self.version)

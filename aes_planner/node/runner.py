@@ -1,0 +1,194 @@
+"""The thin loop around a node core, and a launch: several nodes on one bus in one process.
+
+:class:`NodeRunner` subscribes a node's inputs (keep-last depth as the node declares), declares
+its outputs (latched where declared; ``camera/frame`` best-effort, the rest reliable), and calls
+``step`` with whatever arrived, at the node's period or as soon as an input arrives. A step that
+raises is logged and counted; the node keeps running. Subscription counters (received, dropped,
+rejected) are added to the node's own diagnostics as ``<topic>.<counter>``.
+
+:class:`Launch` starts the nodes of a launch file in order, each in its own thread, and stops them
+in reverse order (devices left safe) however the run ends.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Mapping
+
+from aes_planner.messages import Diagnostics
+from aes_planner.node.base import Node
+
+log = logging.getLogger(__name__)
+
+__all__ = ["Launch", "NodeRunner"]
+
+BEST_EFFORT_TOPICS = ("camera/frame",)
+
+
+class NodeRunner:
+    """Moves messages between ``bus`` and ``node.step``; ``remap`` maps default topic -> actual."""
+
+    def __init__(self, node: Node, bus, remap: Mapping[str, str] | None = None):
+        self.node = node
+        self.bus = bus
+        self.remap = dict(remap or {})
+        self.subs: dict = {}
+        self.pubs: dict = {}
+        self.step_errors = 0
+        self.steps = 0
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self.error: BaseException | None = None
+
+    def topic(self, name: str) -> str:
+        return self.remap.get(name, name)
+
+    def open(self) -> None:
+        """Declare the node's subscriptions and publishers on the bus."""
+        for name, (msg_type, depth) in self.node.inputs.items():
+            self.subs[name] = self.bus.subscribe(self.topic(name), msg_type, depth=depth)
+        for name, (msg_type, latched) in self.node.outputs.items():
+            self.pubs[name] = self.bus.publisher(
+                self.topic(name), msg_type, latched=latched, reliable=name not in BEST_EFFORT_TOPICS
+            )
+
+    def close(self) -> None:
+        for s in self.subs.values():
+            s.close()
+        for p in self.pubs.values():
+            p.close()
+
+    def run_once(self, now: float | None = None) -> None:
+        now = time.time() if now is None else now
+        inputs = {name: sub.take() for name, sub in self.subs.items()}
+        try:
+            outputs = self.node.step(inputs, now)
+        except Exception:
+            self.step_errors += 1
+            log.exception("%s: step failed (%d so far); the node keeps running", self.node.node_id, self.step_errors)
+            return
+        self.steps += 1
+        for name, msgs in outputs.items():
+            pub = self.pubs.get(name)
+            if pub is None:
+                continue
+            for msg in msgs:
+                if isinstance(msg, Diagnostics):
+                    self._add_transport_counters(msg)
+                pub.publish(msg)
+
+    def _add_transport_counters(self, msg: Diagnostics) -> None:
+        counters = dict(msg.counters)
+        for name, sub in self.subs.items():
+            for key, value in sub.stats().items():
+                if key != "callback_errors":
+                    counters[f"{name}.{key}"] = int(value)
+        counters["step_errors"] = self.step_errors
+        msg.counters = dict(list(counters.items())[:128])
+
+    def loop(self) -> None:
+        """Step until :meth:`request_stop` (or the node finishes and ``stop_when_finished``)."""
+        from aes_planner.transport.bus import wait_any
+
+        next_s = time.time()
+        subs = list(self.subs.values())
+        while not self._stop.is_set():
+            self.run_once()
+            next_s = max(next_s + self.node.period_s, time.time() - self.node.period_s)
+            timeout = max(0.0, next_s - time.time())
+            if subs and not any(s.pending for s in subs):
+                wait_any(subs, timeout)
+            elif timeout > 0:
+                self._stop.wait(timeout)
+
+    def start_thread(self) -> None:
+        def target():
+            try:
+                self.loop()
+            except BaseException as exc:  # reported by Launch.run
+                self.error = exc
+                log.exception("%s: loop died", self.node.node_id)
+
+        self._thread = threading.Thread(target=target, name=f"node-{self.node.node_id}", daemon=True)
+        self._thread.start()
+
+    def request_stop(self) -> None:
+        self._stop.set()
+
+    def join(self, timeout_s: float = 5.0) -> None:
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            if self._thread.is_alive():
+                log.error("%s: loop did not stop within %.1f s", self.node.node_id, timeout_s)
+
+
+class Launch:
+    """Nodes (``[(node, remap)]``) on one bus, each in a thread; use as a context manager."""
+
+    def __init__(self, nodes: list[tuple[Node, Mapping[str, str]]], bus=None):
+        if bus is None:
+            from aes_planner.transport import InProcessBus
+
+            bus = InProcessBus()
+        self.bus = bus
+        self.runners = [NodeRunner(node, bus, remap) for node, remap in nodes]
+        self._started: list[NodeRunner] = []
+
+    def node(self, node_id: str) -> Node:
+        for r in self.runners:
+            if r.node.node_id == node_id:
+                return r.node
+        raise KeyError(node_id)
+
+    def start(self) -> None:
+        try:
+            for r in self.runners:
+                r.open()
+            for r in self.runners:
+                r.node.start()
+                self._started.append(r)
+            for r in self.runners:
+                r.start_thread()
+        except BaseException:
+            self.stop()
+            raise
+
+    def run(self, timeout_s: float | None = None, until=None, poll_s: float = 0.05) -> bool:
+        """Wait until every node that can finish has finished (or ``until()`` is true); False on
+        timeout or when a node's loop died."""
+        deadline = None if timeout_s is None else time.time() + timeout_s
+        finishing = [r for r in self.runners if type(r.node).finished is not Node.finished]
+        while True:
+            if any(r.error is not None for r in self.runners):
+                return False
+            if until is not None and until():
+                return True
+            if until is None and finishing and all(r.node.finished for r in finishing):
+                time.sleep(poll_s * 2)  # let the last messages out
+                return True
+            if deadline is not None and time.time() > deadline:
+                return False
+            time.sleep(poll_s)
+
+    def stop(self) -> None:
+        for r in self.runners:
+            r.request_stop()
+        for r in self.runners:
+            r.join()
+        for r in reversed(self._started):
+            try:
+                r.node.stop()
+            except Exception:
+                log.exception("%s: stop failed", r.node.node_id)
+        self._started.clear()
+        for r in self.runners:
+            r.close()
+
+    def __enter__(self) -> Launch:
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
