@@ -150,7 +150,10 @@ def evaluate_run(planner, scene: str, mode: str, out: Path, loop_s: float) -> di
     poses = np.stack([_true_pose(planner, c) for c in caps])  # [M, 4, 4]
     truth = true_scores(source, teacher, poses)  # [M]
     best_oracle, oracle_c2w, extras = oracle(source, teacher, platform)
-    rand = float(true_scores(source, teacher, random_poses(platform, 48, seed=7)).mean())
+    if "mean_random" in extras:  # the search's oracle samples feasible random views itself
+        rand = float(extras["mean_random"])
+    else:
+        rand = float(true_scores(source, teacher, random_poses(platform, 48, seed=7)).mean())
     final_i = len(caps) - 1 if caps[-1].kind == "settle" else int(np.argmax([c.score for c in caps]))
     initial, final = float(truth[0]), float(truth[final_i])
     summary = {
@@ -254,6 +257,10 @@ def write_report(path, planner, caps, truth, source, teacher, platform, oracle_c
         rig = PanTilt(platform.rig)
         if "grid_scores" in extras and "grid_joints" in extras:
             joints, scores = np.asarray(extras["grid_joints"]), np.asarray(extras["grid_scores"])
+        elif "grid_scores" in extras and "pan_values" in extras and "tilt_values" in extras:
+            pans, tilts = np.asarray(extras["pan_values"]), np.asarray(extras["tilt_values"])
+            scores = np.asarray(extras["grid_scores"]).reshape(len(tilts), len(pans))
+            joints = np.stack(np.meshgrid(pans, tilts), -1)
         else:
             joints, scores = score_map(source, teacher, rig, 25, 9)
         last.insert(0, _score_map_image(rig, joints, scores, caps, 2 * tile_w))

@@ -470,7 +470,8 @@ class PlannerNode(Node):
         if not np.all(np.isfinite(cd.cam2world)) or not math.isfinite(cd.score):
             return False
         if self.mode == "rig":
-            if cd.pan_rad is None:
+            if cd.pan_rad is None or not (math.isfinite(cd.pan_rad) and math.isfinite(cd.tilt_rad)):
+                self.counters["commands_refused"] += 1
                 return False
             pan, tilt = self.kinematics.clamp(cd.pan_rad, cd.tilt_rad)
             cd.pan_rad, cd.tilt_rad = pan, tilt

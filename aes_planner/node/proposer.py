@@ -101,8 +101,14 @@ class FieldProposer(Proposer):
         if self._scorer is None or self._scorer_version != self.version:
             from aes_planner.field import build_scorer
 
+            from aes_planner.search import SearchConfig
+
             frames = [f for f, _ in self._frames]
-            self._scorer = build_scorer(self.scorer_kind, frames, teacher=self.teacher)
+            cfg = SearchConfig.preset(self.preset)
+            knobs = {"render_width_px": max(16, round(frames[-1].intrinsics.width * cfg.render_scale))}
+            if cfg.gaussian_budget is not None:
+                knobs["max_gaussians"] = cfg.gaussian_budget
+            self._scorer = build_scorer(self.scorer_kind, frames, teacher=self.teacher, **knobs)
             self._scorer_version = self.version
         return self._scorer
 

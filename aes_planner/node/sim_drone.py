@@ -58,13 +58,14 @@ class SimDroneConfig:
 
 
 def _approach(x: float, v: float, goal: float, v_max: float, a_max: float, dt: float) -> tuple[float, float]:
-    """One axis: new (position, velocity) after ``dt`` toward ``goal``."""
+    """One axis: new (position, velocity) after ``dt`` toward ``goal``. A step that would pass the
+    goal stops on it; the speed left over (the discrete braking curve) decays at ``a_max``."""
     err = goal - x
-    v_des = math.copysign(min(v_max, math.sqrt(2.0 * a_max * abs(err))), err)
+    v_des = math.copysign(min(v_max, math.sqrt(2.0 * a_max * abs(err))), err) if err else 0.0
     v = v + max(-a_max * dt, min(a_max * dt, v_des - v))
     step = v * dt
-    if abs(step) >= abs(err) and (err == 0 or step * err > 0):
-        return goal, 0.0 if abs(v) <= a_max * dt * 2 else v
+    if err == 0 or (step * err >= 0 and abs(step) >= abs(err)):
+        return goal, v
     return x + step, v
 
 
@@ -114,12 +115,14 @@ class SimDrone:
         dist = float(np.linalg.norm(delta))
         speed = float(np.dot(self.velocity_m_s, delta / dist)) if dist > 1e-9 else 0.0
         if dist > 1e-9:
-            _, speed = _approach(0.0, speed, dist, c.max_speed_m_s, c.max_accel_m_s2, dt_s)
-            step = min(speed * dt_s, dist)
-            self.position_m = self.box.clamp(self.position_m + delta / dist * max(step, 0.0))
+            moved, speed = _approach(0.0, speed, dist, c.max_speed_m_s, c.max_accel_m_s2, dt_s)
+            step = min(max(moved, 0.0), dist)
+            self.position_m = self.box.clamp(self.position_m + delta / dist * step)
             self.velocity_m_s = delta / dist * speed
-        else:
-            self.velocity_m_s = np.zeros(3)
+        else:  # at the target: any residual speed decays at the acceleration limit
+            speed = float(np.linalg.norm(self.velocity_m_s))
+            keep = max(speed - c.max_accel_m_s2 * dt_s, 0.0)
+            self.velocity_m_s = self.velocity_m_s * (keep / speed) if speed > 0 else np.zeros(3)
         # yaw (wrapped) and pitch
         a = math.radians(c.max_angular_accel_deg_s2)
         yaw_err = math.atan2(math.sin(self.target[3] - self.yaw_rad), math.cos(self.target[3] - self.yaw_rad))

@@ -1,0 +1,131 @@
+"""GimbalNode: state at its rate, clamped commands, NaN refused, fault -> stop -> reboot."""
+
+import math
+import time
+from types import SimpleNamespace
+
+import pytest
+
+from aes_planner.devices import Gimbal, GimbalHardwareError, GimbalState
+from aes_planner.messages import GimbalCommand
+from aes_planner.node.gimbal import GimbalNode, GimbalNodeConfig
+
+
+class FakeGimbal(Gimbal):
+    def __init__(self):
+        self.goal = (0.0, 0.0)
+        self.moves = []
+        self.fault = None
+        self.reboots = 0
+        self._connected = False
+
+    def connect(self):
+        self._connected = True
+
+    def disconnect(self):
+        self._connected = False
+
+    @property
+    def connected(self):
+        return self._connected
+
+    def move_to(self, pan_rad, tilt_rad):
+        if self.fault:
+            raise GimbalHardwareError("overload", {"pan": ("overload",)})
+        self.goal = (pan_rad, tilt_rad)
+        self.moves.append(self.goal)
+        return self.goal
+
+    def state(self):
+        p, t = self.goal
+        names = {f.name for f in __import__("dataclasses").fields(GimbalState)}
+        j = ("pan", "tilt") if "pan_rad" in names else ("yaw", "pitch")
+        return GimbalState(
+            **{f"{j[0]}_rad": p, f"{j[1]}_rad": t, f"goal_{j[0]}_rad": p, f"goal_{j[1]}_rad": t},
+            moving=False,
+            temperature_c=(30.0, 31.0),
+            hardware_error=("pan: overload",) if self.fault else (),
+            stamp_s=time.time(),
+        )
+
+    def wait_until_reached(self, timeout_s=None):
+        return self.state()
+
+    def reboot(self):
+        self.reboots += 1
+        self.fault = None
+
+
+def make(**kw):
+    dev = FakeGimbal()
+    node = GimbalNode(GimbalNodeConfig(pan_limits_deg=(-90.0, 90.0), tilt_limits_deg=(-30.0, 30.0), **kw), device=dev)
+    node.start()
+    return node, dev
+
+
+def test_publishes_state_at_its_rate():
+    node, _ = make(rate_hz=10.0)
+    published = sum(len(node.step({}, 100.0 + 0.01 * i)["gimbal/state"]) for i in range(100))  # 1 s of 100 Hz steps
+    assert 9 <= published <= 11
+
+
+def test_commands_are_clamped_to_the_limits():
+    node, dev = make()
+    node.step({"gimbal/command": [GimbalCommand("move", 3.0, -2.0)]}, 1.0)
+    assert dev.moves[-1] == pytest.approx((math.radians(90), math.radians(-30)))
+
+
+def test_nonfinite_commands_are_refused_and_counted():
+    node, dev = make()
+    bad = SimpleNamespace(kind="move", pan_rad=float("nan"), tilt_rad=0.0)  # what a buggy in-process sender could pass
+    inf = SimpleNamespace(kind="move", pan_rad=0.1, tilt_rad=float("inf"))
+    node.step({"gimbal/command": [bad, inf]}, 1.0)
+    assert dev.moves == [] and node.counters["commands_refused"] == 2
+    with pytest.raises(Exception, match="finite"):
+        GimbalCommand("move", float("nan"), 0.0)  # the message itself refuses NaN too
+
+
+def test_hardware_error_stops_until_a_reboot_request():
+    node, dev = make()
+    dev.fault = "overload"
+    out = node.step({"gimbal/command": [GimbalCommand("move", 0.2, 0.1)]}, 1.0)
+    assert node.status == "fault"
+    assert out["gimbal/state"][0].hardware_error and out["gimbal/state"][0].status == "fault"
+    dev.fault = None  # the cause is gone, but the node still waits for the reboot request
+    node.step({"gimbal/command": [GimbalCommand("move", 0.3, 0.1)]}, 2.0)
+    assert dev.moves == [] and node.counters["commands_refused"] == 1
+    node.step({"gimbal/command": [GimbalCommand("reboot"), GimbalCommand("move", 0.3, 0.1)]}, 3.0)
+    assert node.status == "ok" and dev.reboots == 1 and dev.moves == [(0.3, 0.1)]
+
+
+def test_stop_disconnects():
+    node, dev = make()
+    node.stop()
+    node.stop()
+    assert not dev.connected and node.status == "stopped"
+
+
+def test_emulated_servos_never_receive_a_goal_outside_the_limits():
+    """The real Dynamixel driver on the emulator's pty: goals in ticks stay inside the limits."""
+    from aes_planner.drivers.dynamixel_models import CENTER_TICKS, TICKS_PER_REV
+
+    cfg = GimbalNodeConfig(
+        device={"type": "emulated_pan_tilt", "profile_velocity_deg_s": 360.0},
+        pan_limits_deg=(-60.0, 60.0),
+        tilt_limits_deg=(-20.0, 20.0),
+    )
+    node = GimbalNode(cfg)
+    node.start()
+    try:
+        emu = node.device.emulator
+        for i, (p, t) in enumerate([(5.0, 5.0), (-5.0, -5.0), (0.5, 0.1)]):
+            node.step({"gimbal/command": [GimbalCommand("move", p, t)]}, 10.0 + i)
+        with emu.lock:
+            log = list(emu.goal_log)
+    finally:
+        node.stop()
+    assert log
+    for dxl_id, ticks in log:
+        lim = 60.0 if dxl_id == 1 else 20.0
+        deg = (ticks - CENTER_TICKS) * 360.0 / TICKS_PER_REV
+        assert -lim - 0.2 <= deg <= lim + 0.2

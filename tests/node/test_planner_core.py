@@ -1,0 +1,184 @@
+"""The planner's step core, driven by hand (no bus): the active loop's states, its safety rules,
+passive suggestions and the bounded frame store."""
+
+import math
+
+import numpy as np
+import pytest
+
+from aes_planner.messages import Candidate, PlannerRequest
+from aes_planner.node.planner import PlannerConfig, PlannerNode
+
+from .nodekit import RIG, FakeTeacher, ScriptedProposer, SimRig, frame_at
+
+
+def make(proposer=None, **kw):
+    cfg = PlannerConfig(rig=RIG, settle_s=0.0, **kw)
+    return PlannerNode(cfg, proposer=proposer or ScriptedProposer(), teacher=FakeTeacher())
+
+
+def drive(node, sim, steps=400, dt=0.05, t0=100.0):
+    now = t0
+    for _ in range(steps):
+        out = node.step(sim.inputs(now), now)
+        sim.apply(out)
+        now += dt
+        if node.finished:
+            break
+    return now
+
+
+def test_active_loop_explores_moves_and_settles_on_the_best_capture():
+    prop = ScriptedProposer()
+    node = make(prop, explore_views=4, max_moves=3)
+    sim = SimRig(prop)
+    drive(node, sim)
+    assert node.state == "done"
+    kinds = [c.kind for c in node.captures]
+    assert kinds[0] == "initial" and kinds.count("explore") == 4 and kinds[-1] == "settle"
+    assert 1 <= node.moves <= 3
+    best = max(node.captures[:-1], key=lambda c: c.score)
+    assert node.captures[-1].pan_rad == pytest.approx(best.pan_rad)
+    # the scripted optimum is reached: the move found the peak the exploration missed
+    assert max(c.score for c in node.captures if c.kind == "move") > max(c.score for c in node.captures if c.kind == "explore")
+    lo, hi = math.radians(-90), math.radians(90)
+    assert all(lo <= c.pan_rad <= hi and math.radians(-30) <= c.tilt_rad <= math.radians(30) for c in sim.commands)
+
+
+def test_moves_are_bounded_by_the_budget():
+    prop = ScriptedProposer()
+    # a proposer that always promises more (and never the same view) would move forever
+    counter = iter(range(1000))
+
+    def always_better():
+        i = next(counter)
+        pan = -1.2 + 0.1 * (i % 24)
+        return [Candidate(prop.rig.forward(pan, 0.1), 10.0 + i, 1.0, pan, 0.1)]
+
+    prop.fixed = always_better
+    node = make(prop, explore_views=2, max_moves=3)
+    drive(node, SimRig(prop))
+    assert node.state == "done" and node.moves == 3
+
+
+def test_no_move_when_no_candidate_beats_the_best_capture():
+    prop = ScriptedProposer()
+    prop.fixed = lambda: [Candidate(prop.rig.forward(0.1, 0.0), -5.0, 1.0, 0.1, 0.0)]
+    node = make(prop, explore_views=2, max_moves=5)
+    drive(node, SimRig(prop))
+    assert node.state == "done" and node.moves == 0
+
+
+def test_out_of_range_candidates_are_clamped_and_nonfinite_ones_never_commanded():
+    prop = ScriptedProposer()
+    calls = iter(range(1000))
+
+    def wild():
+        i = next(calls)
+        c = Candidate(prop.rig.forward(0.0, 0.0), 9.0 + i, 1.0, 5.0 + i, -3.0)  # far outside the limits
+        c.pan_rad = float("nan") if i == 0 else c.pan_rad  # a NaN sneaking past validation
+        return [c]
+
+    prop.fixed = wild
+    node = make(prop, explore_views=1, max_moves=3)
+    sim = SimRig(prop)
+    drive(node, sim)
+    for cmd in sim.commands:
+        assert math.isfinite(cmd.pan_rad) and math.isfinite(cmd.tilt_rad)
+        assert math.radians(-90) - 1e-9 <= cmd.pan_rad <= math.radians(90) + 1e-9
+        assert math.radians(-30) - 1e-9 <= cmd.tilt_rad <= math.radians(30) + 1e-9
+
+
+def test_hardware_fault_stops_commands_then_ends_failed_after_the_timeout():
+    prop = ScriptedProposer()
+    node = make(prop, explore_views=6, fault_timeout_s=1.0)
+    sim = SimRig(prop)
+    now = drive(node, sim, steps=5)
+    sent = len(sim.commands)
+    assert sent >= 1 and not node.finished
+    sim.faults = ("pan: overload",)
+    now = drive(node, sim, steps=60, t0=now)
+    assert len(sim.commands) == sent  # nothing commanded while the gimbal is faulted
+    assert node.state == "failed" and node.counters["faults"] == 1
+
+
+def test_fault_that_clears_resumes_the_loop():
+    prop = ScriptedProposer()
+    node = make(prop, explore_views=3, max_moves=2, fault_timeout_s=30.0)
+    sim = SimRig(prop)
+    now = drive(node, sim, steps=10)
+    sim.faults = ("tilt: overheating",)
+    now = drive(node, sim, steps=20, t0=now)
+    assert node.state not in ("done", "failed")
+    sim.faults = ()
+    drive(node, sim, t0=now)
+    assert node.state == "done"
+
+
+def test_frames_are_dropped_to_the_latest_and_counted(rig):
+    prop = ScriptedProposer()
+    node = make(prop, active=False, min_suggest_period_s=0.01)
+    frames = [frame_at(rig, 0.1 * i, 0.0, 10.0 + i, seq=i) for i in range(5)]
+    out = node.step({"camera/frame": frames}, 20.0)
+    assert node.counters["frames_in"] == 5 and node.counters["frames_dropped"] == 4
+    assert prop.frames[-1].sequence == 4 and len(prop.frames) == 1
+    assert len(out["planner/suggestion"]) == 1
+
+
+def test_passive_suggests_on_change_and_on_request(rig):
+    prop = ScriptedProposer()
+    node = make(prop, active=False, min_suggest_period_s=1.0)
+    out = node.step({"camera/frame": [frame_at(rig, 0.0, 0.0, 1.0)]}, 1.0)
+    assert len(out["planner/suggestion"]) == 1
+    out = node.step({}, 1.1)  # nothing new: nothing published
+    assert out["planner/suggestion"] == []
+    out = node.step({"planner/request": [PlannerRequest("suggest")]}, 1.2)
+    assert len(out["planner/suggestion"]) == 1  # the last one again, on request
+    s = out["planner/suggestion"][0]
+    assert s.mode == "rig" and all(np.isfinite(c.cam2world).all() for c in s.candidates)
+
+
+def test_stale_and_resized_frames_are_rejected(rig):
+    from aes_planner.geometry.camera import Intrinsics
+    from aes_planner.messages import PosedFrame
+
+    node = make(active=False)
+    node.step({"camera/frame": [frame_at(rig, 0.0, 0.0, 5.0)]}, 5.0)
+    node.step({"camera/frame": [frame_at(rig, 0.0, 0.0, 4.0)]}, 5.1)  # older than what it has
+    k = Intrinsics.from_fov(16, 12, 60.0)
+    big = PosedFrame(np.zeros((12, 16, 3), np.uint8), k, rig.forward(0.0, 0.0), 6.0)
+    node.step({"camera/frame": [big]}, 6.0)
+    assert node.counters["frames_rejected"] == 2
+
+
+def test_diagnostics_report_counts_and_latency():
+    prop = ScriptedProposer()
+    node = make(prop, explore_views=2, max_moves=2, diagnostics_period_s=0.2)
+    sim = SimRig(prop)
+    drive(node, sim)
+    d = node.diagnostics(1e3)
+    assert d.state == "done" and d.counters["captures"] == len(node.captures)
+    assert d.values["latency_p95_s"] >= d.values["latency_p50_s"] >= 0.0
+    assert d.values["best_captured_score"] >= d.values["initial_score"]
+
+
+def test_stop_request_settles_at_once():
+    prop = ScriptedProposer()
+    node = make(prop, explore_views=6)
+    sim = SimRig(prop)
+    now = drive(node, sim, steps=8)
+    node.step({"planner/request": [PlannerRequest("stop")], **sim.inputs(now)}, now)
+    drive(node, sim, t0=now + 0.05)
+    assert node.state == "done" and node.captures[-1].kind == "settle"
+    assert sum(c.kind == "explore" for c in node.captures) < 6
+
+
+def test_config_errors_name_the_key():
+    from aes_planner.config import ConfigError, from_dict
+
+    with pytest.raises(ConfigError, match="max_movez"):
+        from_dict(PlannerConfig, {"max_movez": 3})
+    with pytest.raises(ConfigError, match="scorer"):
+        PlannerConfig(scorer="gt")
+    with pytest.raises(ConfigError, match="margin"):
+        PlannerConfig(margin=float("nan"))
