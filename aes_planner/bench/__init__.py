@@ -37,6 +37,7 @@ GROUPS: dict[str, str] = {
     "teachers": "aes_planner.bench.teachers",
     "gimbal": "aes_planner.bench.gimbal",
     "search": "aes_planner.bench.search",
+    "node": "aes_planner.bench.node",
 }
 
 __all__ = ["GROUPS", "Recorder", "run_groups", "time_ms", "machine_info"]

@@ -18,10 +18,12 @@ The last line printed is the path of ``summary.json``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as dt
 import json
 import math
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -75,6 +77,7 @@ def run_demo(
     planner_overrides: dict | None = None,
 ) -> dict:
     """Run the closed loop and write the run folder; returns the summary dict (plus ``state``)."""
+    from aes_planner.devices import stop_on_signals
     from aes_planner.node import Launch, build_nodes, load_launch
     from aes_planner.sim import load_scene
 
@@ -112,11 +115,14 @@ def run_demo(
         return planner.finished
 
     launch = Launch(nodes)
-    try:
-        launch.start()
-        ok = launch.run(timeout_s=timeout_s, until=report_progress)
-    finally:
-        launch.stop()
+    stop = threading.Event()
+    guard = stop_on_signals(on_signal=lambda _s: stop.set()) if _main_thread() else contextlib.nullcontext()
+    with guard:  # SIGTERM / Ctrl-C: the nodes stop, the servos are left with torque off
+        try:
+            launch.start()
+            ok = launch.run(timeout_s=timeout_s, until=lambda: report_progress() or stop.is_set())
+        finally:
+            launch.stop()
     report_progress()
     loop_s = time.time() - t0
     if not ok and not planner.finished:
@@ -126,6 +132,10 @@ def run_demo(
     summary["time_s"] = round(time.time() - t0, 2)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
+
+
+def _main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
 
 
 def _view(c2w: np.ndarray) -> np.ndarray:

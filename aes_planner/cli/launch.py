@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import threading
 
 log = logging.getLogger(__name__)
@@ -32,6 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from aes_planner.devices import stop_on_signals
     from aes_planner.node import Launch, build_nodes, load_launch
 
     spec = load_launch(args.file, args.set)
@@ -39,19 +39,19 @@ def run(args: argparse.Namespace) -> int:
     print(f"launch {spec.path}: " + ", ".join(f"{n.node_id} ({type(n).__name__})" for n, _ in nodes), flush=True)
     stop = threading.Event()
 
-    def on_signal(signum, frame):
-        log.warning("signal %d: stopping the nodes", signum)
+    def on_signal(signum: int) -> None:
+        log.warning("signal %d: stopping the nodes (servos are left with torque off)", signum)
         stop.set()
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     launch = Launch(nodes)
-    try:
-        launch.start()
-        finished = launch.run(timeout_s=args.timeout, until=lambda: stop.is_set() or _all_finished(launch))
-    finally:
-        launch.stop()
-        for s, h in old.items():
-            signal.signal(s, h)
+    # the drivers' safe shutdown: the first SIGINT/SIGTERM stops the loop, a second one raises,
+    # and either way every node's stop() (a gimbal's torque-off) runs inside this block
+    with stop_on_signals(on_signal=on_signal):
+        try:
+            launch.start()
+            finished = launch.run(timeout_s=args.timeout, until=lambda: stop.is_set() or _all_finished(launch))
+        finally:
+            launch.stop()
     for r in launch.runners:
         node = r.node
         if hasattr(node, "result") and node.finished:

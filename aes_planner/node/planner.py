@@ -77,12 +77,17 @@ class DroneBoxConfig:
 class PlannerConfig:
     """How the planner builds its field, searches and (on a rig) drives the active loop.
 
-    * ``scorer``: ``"field"`` (the aesthetic field) or ``"rgb"`` (RGB scoring of a reconstruction).
+    * ``scorer``: ``"rgb"`` (RGB scoring of the reconstruction; the default until the trained
+      field ships) or ``"field"`` (the aesthetic field).
     * ``preset``: search preset (``fast``, ``balanced``, ``accurate``); ``teacher``: the teacher name.
     * ``active``: run the active loop (commands the gimbal / flies the drone); false = suggest only.
     * ``explore_views``: captures spread over the range before the first suggestion.
-    * ``max_moves``: suggestion-driven moves at most; ``margin``: the gain (scorer units) a
-      suggestion must promise over the best captured view to be worth a move.
+    * ``max_moves``: suggestion-driven moves at most; ``margin``: the gain (teacher units) a
+      suggestion must promise over the best captured view to be worth a move. The promise is the
+      scorer's prediction calibrated on the captures (their true teacher scores: ``true = pred +
+      offset``, offset the median residual) plus ``optimism`` times the residuals' spread (at
+      least ``min_sigma``): a scorer that is often wrong earns more checks. Errors at captures
+      within about ``residual_length_deg`` of a candidate correct it most (and shrink its spread).
     * ``min_move_deg``: a candidate closer than this (view direction) to a captured view, with
       no more than ``min_move_m`` of translation, is not a new view.
     * ``top_k``: candidates per published suggestion.
@@ -99,13 +104,16 @@ class PlannerConfig:
     * ``seed``: for the search's sampling.
     """
 
-    scorer: str = "field"
+    scorer: str = "rgb"
     preset: str = "balanced"
     teacher: str = "composition"
     active: bool = True
     explore_views: int = 6
     max_moves: int = 6
     margin: float = 0.01
+    optimism: float = 1.0
+    min_sigma: float = 0.02
+    residual_length_deg: float = 15.0
     min_move_deg: float = 3.0
     min_move_m: float = 0.1
     top_k: int = 3
@@ -136,7 +144,10 @@ class PlannerConfig:
             )
         require(self.top_k >= 1, "top_k", f"must be >= 1, got {self.top_k}")
         require(self.max_frames >= 2, "max_frames", f"must be >= 2, got {self.max_frames}")
-        require_numbers(self, ("margin", "min_move_deg", "min_move_m", "settle_s"), strict=False)
+        require_numbers(
+            self, ("margin", "optimism", "min_sigma", "min_move_deg", "min_move_m", "settle_s"), strict=False
+        )
+        require_numbers(self, ("residual_length_deg",))
         require_numbers(
             self,
             (
@@ -438,6 +449,8 @@ class PlannerNode(Node):
         for i in range(1, n + 1):
             yaw = yaw0 + 2 * math.pi * i / (n + 1)
             pitch = math.radians(-10.0) if i % 2 else math.radians(5.0)
+            if self.config.drone is not None:
+                x, y, z = self.config.drone.box().clamp([x, y, z])
             view = torch.tensor([x, y, z, math.atan2(math.sin(yaw), math.cos(yaw)), pitch], dtype=torch.float64)
             targets.append(_Target("explore", view_to_cam2world(view).numpy()))
         return targets
@@ -450,21 +463,46 @@ class PlannerNode(Node):
         captured = np.stack([cap.cam2world for cap in self.captures])  # [M, 4, 4]
         t0 = time.perf_counter()
         try:
-            proposal = self.proposer.propose(self.platform, captured, max(c.top_k, 4))
+            best = int(np.argmax([cap.score for cap in self.captures]))
+            proposal = self.proposer.propose(self.platform, captured, max(c.top_k, 4), keep_near=best)
         except Exception:
             log.exception("%s: planning failed; settling on the best captured view", self.node_id)
             return None
         self.latencies_s.append(time.perf_counter() - t0)
         cands = [cd for cd in proposal.candidates if self._safe_candidate(cd)]
         out["planner/suggestion"].append(self._suggestion(cands[: c.top_k], proposal.field_version, now))
-        best_pred = float(np.max(proposal.captured_pred)) if len(proposal.captured_pred) else -math.inf
-        for cd in cands:
-            if cd.score - best_pred < c.margin:
-                break  # ranked best first: no later one does better
+        hopes = self._hopes(cands, proposal.captured_pred)
+        best_true = max(cap.score for cap in self.captures)
+        for i in np.argsort(-hopes, kind="stable"):
+            cd = cands[int(i)]
+            if hopes[i] - best_true < c.margin:
+                break  # sorted by hope: no later one promises more
             if self._near_captured(cd.cam2world):
                 continue
-            return _Target("move", cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=cd.score)
+            return _Target("move", cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=float(hopes[i]))
         return None
+
+    def _hopes(self, cands: list[Candidate], captured_pred: np.ndarray) -> np.ndarray:  # -> [C]
+        """What each candidate may score (teacher units): the scorer's prediction corrected by its
+        errors at the captures (true teacher score - prediction; the median error everywhere, the
+        nearby captures' errors on top, by a Gaussian kernel of ``residual_length_deg`` on the view
+        direction), plus ``optimism`` times the errors' spread, shrinking near the captures."""
+        c = self.config
+        scores = np.array([cd.score for cd in cands], dtype=np.float64)
+        true = np.array([cap.score for cap in self.captures], dtype=np.float64)
+        pred = np.asarray(captured_pred, dtype=np.float64)
+        if not len(cands) or pred.shape != true.shape or not len(true) or not np.all(np.isfinite(pred)):
+            return scores
+        resid = true - pred
+        offset = float(np.median(resid))
+        sigma = max(float(np.sqrt(np.mean((resid - offset) ** 2))) if len(resid) > 1 else 0.0, c.min_sigma)
+        hopes = np.empty(len(cands))
+        for j, cd in enumerate(cands):
+            ang = np.array([_angle_deg(cd.cam2world, cap.cam2world) for cap in self.captures])
+            w = np.exp(-((ang / c.residual_length_deg) ** 2))
+            local = float(np.sum(w * (resid - offset)) / (1.0 + np.sum(w)))
+            hopes[j] = cd.score + offset + local + c.optimism * sigma / math.sqrt(1.0 + float(np.sum(w)))
+        return hopes
 
     def _safe_candidate(self, cd: Candidate) -> bool:
         if not np.all(np.isfinite(cd.cam2world)) or not math.isfinite(cd.score):
@@ -476,6 +514,11 @@ class PlannerNode(Node):
             pan, tilt = self.kinematics.clamp(cd.pan_rad, cd.tilt_rad)
             cd.pan_rad, cd.tilt_rad = pan, tilt
             cd.cam2world = self.kinematics.forward(pan, tilt)
+        elif self.config.drone is not None:
+            box = self.config.drone.box()
+            if not box.contains(cd.cam2world[:3, 3]):
+                cd.cam2world = cd.cam2world.copy()
+                cd.cam2world[:3, 3] = box.clamp(cd.cam2world[:3, 3])
         return True
 
     def _near_captured(self, cam2world: np.ndarray) -> bool:

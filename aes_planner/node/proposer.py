@@ -47,8 +47,11 @@ class Proposer(ABC):
         """Integrate a frame; ``keep`` frames (the active loop's captures) are never evicted."""
 
     @abstractmethod
-    def propose(self, platform: Platform, captured_cam2world: np.ndarray, top_k: int) -> Proposal:
-        """Candidates for ``platform``, avoiding the captured poses ``[M, 4, 4]``."""
+    def propose(
+        self, platform: Platform, captured_cam2world: np.ndarray, top_k: int, keep_near: int | None = None
+    ) -> Proposal:
+        """Candidates for ``platform``, avoiding the captured poses ``[M, 4, 4]`` except the
+        neighbourhood of capture ``keep_near`` (the best one: refining around it is allowed)."""
 
     @abstractmethod
     def reset(self) -> None:
@@ -100,7 +103,6 @@ class FieldProposer(Proposer):
         """The scorer of the present frames (rebuilt only when they changed)."""
         if self._scorer is None or self._scorer_version != self.version:
             from aes_planner.field import build_scorer
-
             from aes_planner.search import SearchConfig
 
             frames = [f for f, _ in self._frames]
@@ -112,7 +114,9 @@ class FieldProposer(Proposer):
             self._scorer_version = self.version
         return self._scorer
 
-    def propose(self, platform: Platform, captured_cam2world: np.ndarray, top_k: int) -> Proposal:
+    def propose(
+        self, platform: Platform, captured_cam2world: np.ndarray, top_k: int, keep_near: int | None = None
+    ) -> Proposal:
         from aes_planner.search import SearchConfig, search_views
 
         scorer = self.scorer()
@@ -120,7 +124,8 @@ class FieldProposer(Proposer):
         inputs = np.stack([f.cam2world for f in frames])  # [N, 4, 4]
         captured = np.asarray(captured_cam2world, dtype=np.float64).reshape(-1, 4, 4)
         config = SearchConfig.preset(self.preset, top_k=max(top_k, 1), seed=self.seed)
-        result = search_views(scorer, inputs, platform, config, avoid=captured if len(captured) else None)
+        avoid = captured if keep_near is None else np.delete(captured, keep_near, axis=0)
+        result = search_views(scorer, inputs, platform, config, avoid=avoid if len(avoid) else None)
         candidates = []
         for s in result.suggestions:
             pan = getattr(s, "pan_rad", None)

@@ -1,4 +1,5 @@
-"""``aes-planner sim render`` and ``demo`` write dataset folders that load back with the same poses."""
+"""``aes-planner sim render`` writes dataset folders that load back with the same poses (the demo is
+tested in tests/node)."""
 
 import numpy as np
 
@@ -30,11 +31,3 @@ def test_sim_render_errors_are_one_line(tmp_path, capsys):
     bad.write_text("objects:\n  - type: sphere\n    centre_m: [0, 0, 1]\n    radius_m: 1\n    colour: red\n")
     assert main(["sim", "render", "--scene", str(bad), "--out", str(tmp_path / "o")]) == 2
     assert "objects[0].colour" in capsys.readouterr().err
-
-
-def test_demo_writes_a_run_folder(tmp_path, capsys):
-    assert main(["demo", "--views", "2", "--runs", str(tmp_path)]) == 0
-    out = capsys.readouterr().out
-    run = next(tmp_path.glob("demo-*"))
-    assert f"run folder: {run.resolve()}" in out
-    assert (run / "contact_sheet.png").is_file() and len(load_dataset(run)) == 2

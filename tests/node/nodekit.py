@@ -41,7 +41,7 @@ class ScriptedProposer(Proposer):
     def size(self):
         return len(self.frames)
 
-    def propose(self, platform, captured, top_k):
+    def propose(self, platform, captured, top_k, keep_near=None):
         self.calls += 1
         captured = np.asarray(captured).reshape(-1, 4, 4)
         pred = []
@@ -91,7 +91,9 @@ class SimRig:
         self.seq += 1
         v = self.proposer.value(self.pan, self.tilt)
         return {
-            "gimbal/state": [state(self.pan, self.tilt, stamp=now, faults=self.faults, status="fault" if self.faults else "ok")],
+            "gimbal/state": [
+                state(self.pan, self.tilt, stamp=now, faults=self.faults, status="fault" if self.faults else "ok")
+            ],
             "camera/frame": [frame_at(self.kin, self.pan, self.tilt, now, v, self.seq)],
         }
 

@@ -44,7 +44,9 @@ def test_unknown_keys_are_errors_naming_them():
 
 
 def test_overrides_set_nested_keys_and_values_as_yaml():
-    spec = load_launch("sim_closed_loop", ["planner.max_moves=2", "gimbal.device.profile_velocity_deg_s=90", "camera.respawn=true"])
+    spec = load_launch(
+        "sim_closed_loop", ["planner.max_moves=2", "gimbal.device.profile_velocity_deg_s=90", "camera.respawn=true"]
+    )
     assert spec.entry("planner").config["max_moves"] == 2
     assert spec.entry("gimbal").config["device"]["profile_velocity_deg_s"] == 90
     assert spec.entry("camera").respawn is True

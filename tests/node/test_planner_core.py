@@ -40,7 +40,9 @@ def test_active_loop_explores_moves_and_settles_on_the_best_capture():
     best = max(node.captures[:-1], key=lambda c: c.score)
     assert node.captures[-1].pan_rad == pytest.approx(best.pan_rad)
     # the scripted optimum is reached: the move found the peak the exploration missed
-    assert max(c.score for c in node.captures if c.kind == "move") > max(c.score for c in node.captures if c.kind == "explore")
+    assert max(c.score for c in node.captures if c.kind == "move") > max(
+        c.score for c in node.captures if c.kind == "explore"
+    )
     lo, hi = math.radians(-90), math.radians(90)
     assert all(lo <= c.pan_rad <= hi and math.radians(-30) <= c.tilt_rad <= math.radians(30) for c in sim.commands)
 

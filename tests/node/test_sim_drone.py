@@ -49,7 +49,9 @@ def test_sim_drone_node_flies_the_top_candidate():
     from aes_planner.node.base import LaunchContext
     from aes_planner.node.sim_drone import SimDroneNode, SimDroneNodeConfig
 
-    node = SimDroneNode(SimDroneNodeConfig(rate_hz=5.0, camera={"width": 32, "height": 24}), context=LaunchContext("indoor:3"))
+    node = SimDroneNode(
+        SimDroneNodeConfig(rate_hz=5.0, camera={"width": 32, "height": 24}), context=LaunchContext("indoor:3")
+    )
     start = node.drone.view.copy()
     goal = node.drone.cam2world()
     goal[:3, 3] += [0.3, 0.2, 0.0]

@@ -1,0 +1,30 @@
+"""The soak: frames at 30 Hz into a planning planner, garbage on every topic (short form here;
+the long form is marked slow and runs in make bench)."""
+
+import pytest
+
+from aes_planner.node.soak import run_soak
+
+
+def check(r, duration_s):
+    assert r.frames_sent >= 30 * duration_s * 0.6  # the publisher kept its rate on a loaded machine
+    assert r.frames_in + r.frames_dropped >= r.frames_sent * 0.9  # each frame was taken or dropped
+    assert r.frames_dropped > 0 and r.frames_used >= 1  # busy planning drops to the latest
+    assert r.field_frames_max <= 8  # bounded memory: the field keeps max_frames
+    assert all(n > 0 for n in r.rejected.values()), r.rejected  # garbage rejected on every topic
+    assert r.nonfinite == 0 and r.step_errors == 0
+    assert r.suggestions >= 1  # it kept serving while rejecting garbage
+    assert r.rss_end_mb - r.rss_start_mb < 150.0, (r.rss_start_mb, r.rss_end_mb)
+
+
+def test_soak_short():
+    r = run_soak(duration_s=8.0)
+    check(r, 8.0)
+
+
+@pytest.mark.slow
+def test_soak_long():
+    r = run_soak(duration_s=180.0)
+    check(r, 180.0)
+    late = r.rss_samples_mb[len(r.rss_samples_mb) // 2 :]
+    assert max(late) - min(late) < 100.0  # flat in the second half
