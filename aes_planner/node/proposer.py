@@ -102,15 +102,11 @@ class FieldProposer(Proposer):
     def scorer(self):
         """The scorer of the present frames (rebuilt only when they changed)."""
         if self._scorer is None or self._scorer_version != self.version:
-            from aes_planner.field import build_scorer
-            from aes_planner.search import SearchConfig
+            from aes_planner.search import SearchConfig, build_search_scorer
 
             frames = [f for f, _ in self._frames]
             cfg = SearchConfig.preset(self.preset)
-            knobs = {"render_width_px": max(16, round(frames[-1].intrinsics.width * cfg.render_scale))}
-            if cfg.gaussian_budget is not None:
-                knobs["max_gaussians"] = cfg.gaussian_budget
-            self._scorer = build_scorer(self.scorer_kind, frames, teacher=self.teacher, **knobs)
+            self._scorer = build_search_scorer(self.scorer_kind, frames, cfg, teacher=self.teacher)
             self._scorer_version = self.version
         return self._scorer
 

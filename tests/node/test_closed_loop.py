@@ -15,9 +15,9 @@ def test_short_closed_loop_improves_the_view(tmp_path):
         "rig",
         out,
         moves=3,
-        overrides=["camera.camera.width=64", "camera.camera.height=48", "camera.rate_hz=10"],
+        overrides=["camera.rate_hz=10"],
         timeout_s=600,
-        planner_overrides={"preset": "fast", "explore_views": 5, "scorer": "rgb", "seed": 0},
+        planner_overrides={"preset": "fast", "explore_views": 8, "scorer": "rgb", "seed": 0},
     )
     on_disk = json.loads((out / "summary.json").read_text())
     assert on_disk["final"] == summary["final"]
