@@ -12,8 +12,10 @@ keys (unknown keys are errors naming the key) and returns an unconnected device.
 are named by import path, so this module never imports ``aes_planner.drivers`` (or any vendor
 SDK) until a launch file asks for one.
 
-Joint angles follow :mod:`aes_planner.geometry`: radians, ``yaw`` = pan joint (about the base's
-+z), ``pitch`` = tilt joint, positive looks up.
+Joint angles are **pan** and **tilt** (radians), never yaw/pitch: the kinematics of
+:mod:`aes_planner.geometry.rig` turn them into a view, and with a tilted or rotated base the
+view's yaw/pitch differ from the joint angles. ``pan`` turns about the base's +z (positive turns
+left), ``tilt`` about the pan link's axis (positive looks up).
 """
 
 from __future__ import annotations
@@ -89,38 +91,46 @@ class GimbalHardwareError(DeviceError):
 class GimbalState:
     """What a gimbal reports.
 
-    * ``yaw_rad``, ``pitch_rad``: present pan and tilt joint angles.
-    * ``goal_yaw_rad``, ``goal_pitch_rad``: the goal the servos are moving to.
+    * ``pan_rad``, ``tilt_rad``: present pan and tilt joint angles (``pan_deg``/``tilt_deg`` too).
+    * ``goal_pan_rad``, ``goal_tilt_rad``: the goal the servos are moving to.
     * ``moving``: True while either joint is still moving (or not yet at its goal).
     * ``temperature_c``: (pan, tilt) motor temperatures.
     * ``hardware_error``: active faults as ``"joint: fault"`` strings, empty when healthy.
     * ``stamp_s``: wall-clock time of the reading (``time.time()``), to match camera frames.
     """
 
-    yaw_rad: float
-    pitch_rad: float
-    goal_yaw_rad: float
-    goal_pitch_rad: float
+    pan_rad: float
+    tilt_rad: float
+    goal_pan_rad: float
+    goal_tilt_rad: float
     moving: bool
     temperature_c: tuple[float, float]
     hardware_error: tuple[str, ...]
     stamp_s: float
 
     @property
-    def yaw_deg(self) -> float:
-        return math.degrees(self.yaw_rad)
+    def pan_deg(self) -> float:
+        return math.degrees(self.pan_rad)
 
     @property
-    def pitch_deg(self) -> float:
-        return math.degrees(self.pitch_rad)
+    def tilt_deg(self) -> float:
+        return math.degrees(self.tilt_rad)
+
+    @property
+    def goal_pan_deg(self) -> float:
+        return math.degrees(self.goal_pan_rad)
+
+    @property
+    def goal_tilt_deg(self) -> float:
+        return math.degrees(self.goal_tilt_rad)
 
     def summary(self) -> str:
         """One line for logs and the CLI."""
         temps = "/".join(f"{t:.0f}" for t in self.temperature_c)
         fault = ", ".join(self.hardware_error) or "none"
         return (
-            f"yaw {self.yaw_deg:+.2f} deg, pitch {self.pitch_deg:+.2f} deg "
-            f"(goal {math.degrees(self.goal_yaw_rad):+.2f}, {math.degrees(self.goal_pitch_rad):+.2f}), "
+            f"pan {self.pan_deg:+.2f} deg, tilt {self.tilt_deg:+.2f} deg "
+            f"(goal {math.degrees(self.goal_pan_rad):+.2f}, {math.degrees(self.goal_tilt_rad):+.2f}), "
             f"{'moving' if self.moving else 'still'}, {temps} C, hardware error: {fault}"
         )
 
@@ -166,7 +176,7 @@ class Gimbal(Device):
     """
 
     @abstractmethod
-    def move_to(self, yaw_rad: float, pitch_rad: float) -> tuple[float, float]:
+    def move_to(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
         """Start moving to the joint angles; return the (clamped) angles actually commanded.
 
         Returns without waiting; see :meth:`wait_until_reached`.

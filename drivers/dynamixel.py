@@ -2,7 +2,7 @@
 
 Protocol 2.0, position mode. The life of a command::
 
-    move_to(yaw_rad, pitch_rad)
+    move_to(pan_rad, tilt_rad)
       -> NaN/Inf refused (JointCommandError, nothing sent); clamped to the joint limits
       -> JointCalibration: radians -> ticks, clamped again to the tick limits
       -> first move only: EEPROM checked (position mode, Min/Max Position Limit = joint limits;
@@ -315,22 +315,19 @@ class DynamixelPanTilt(Gimbal):
             self._connected = self._lost = self._in_control = False
 
     # ------------------------------------------------------------------------------ Gimbal
-    def move_to(self, yaw_rad: float, pitch_rad: float) -> tuple[float, float]:
+    def move_to(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
         """Send both goals in one sync write; returns the clamped joint angles commanded."""
         try:
-            yaw_rad, pitch_rad = float(yaw_rad), float(pitch_rad)
+            pan_rad, tilt_rad = float(pan_rad), float(tilt_rad)
         except (TypeError, ValueError, OverflowError) as exc:
             raise JointCommandError(
                 f"joint command must be two finite numbers of radians: {exc}; refusing to move"
             ) from None
-        pan_rad, tilt_rad = self._limits.clamp(yaw_rad, pitch_rad)  # NaN/Inf raise here, nothing is sent
-        if (pan_rad, tilt_rad) != (yaw_rad, pitch_rad):
+        asked = (pan_rad, tilt_rad)
+        pan_rad, tilt_rad = self._limits.clamp(pan_rad, tilt_rad)  # NaN/Inf raise here, nothing is sent
+        if (pan_rad, tilt_rad) != asked:
             log.warning(
-                "command (%.4g, %.4g) rad clamped to the joint limits: (%.4f, %.4f) rad",
-                yaw_rad,
-                pitch_rad,
-                pan_rad,
-                tilt_rad,
+                "command (%.4g, %.4g) rad clamped to the joint limits: (%.4f, %.4f) rad", *asked, pan_rad, tilt_rad
             )
         goals = {"pan": self._cal["pan"].to_ticks(pan_rad), "tilt": self._cal["tilt"].to_ticks(tilt_rad)}
         with self._lock:
@@ -354,10 +351,10 @@ class DynamixelPanTilt(Gimbal):
         stamp_s = time.time()
         pan, tilt = rows["pan"], rows["tilt"]
         return GimbalState(
-            yaw_rad=self._cal["pan"].to_rad(pan["present_position"]),
-            pitch_rad=self._cal["tilt"].to_rad(tilt["present_position"]),
-            goal_yaw_rad=self._cal["pan"].to_rad(pan["goal_position"]),
-            goal_pitch_rad=self._cal["tilt"].to_rad(tilt["goal_position"]),
+            pan_rad=self._cal["pan"].to_rad(pan["present_position"]),
+            tilt_rad=self._cal["tilt"].to_rad(tilt["present_position"]),
+            goal_pan_rad=self._cal["pan"].to_rad(pan["goal_position"]),
+            goal_tilt_rad=self._cal["tilt"].to_rad(tilt["goal_position"]),
             moving=bool(pan["moving"] or tilt["moving"]),
             temperature_c=(float(pan["present_temperature"]), float(tilt["present_temperature"])),
             hardware_error=hardware_error,
@@ -380,8 +377,8 @@ class DynamixelPanTilt(Gimbal):
                 )
             if (
                 not st.moving
-                and abs(st.yaw_rad - st.goal_yaw_rad) <= tol_rad
-                and abs(st.pitch_rad - st.goal_pitch_rad) <= tol_rad
+                and abs(st.pan_rad - st.goal_pan_rad) <= tol_rad
+                and abs(st.tilt_rad - st.goal_tilt_rad) <= tol_rad
             ):
                 return st
             remaining_s = deadline - time.monotonic()

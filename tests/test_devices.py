@@ -39,8 +39,8 @@ class _ToyGimbal(Gimbal):
         self._on = False
         self.log.append("disconnect")
 
-    def move_to(self, yaw_rad, pitch_rad):
-        self._goal = (yaw_rad, pitch_rad)
+    def move_to(self, pan_rad, tilt_rad):
+        self._goal = (pan_rad, tilt_rad)
         return self._goal
 
     def state(self):
@@ -70,10 +70,10 @@ def test_context_manager_disconnects_even_on_error(toy_type):
 
 def test_state_summary_and_degrees():
     st = GimbalState(math.radians(10), math.radians(-5), 0.0, 0.0, True, (31.0, 33.0), ("tilt: overload",), 1.0)
-    assert st.yaw_deg == pytest.approx(10) and st.pitch_deg == pytest.approx(-5)
+    assert st.pan_deg == pytest.approx(10) and st.tilt_deg == pytest.approx(-5)
     assert (
         st.summary()
-        == "yaw +10.00 deg, pitch -5.00 deg (goal +0.00, +0.00), moving, 31/33 C, hardware error: tilt: overload"
+        == "pan +10.00 deg, tilt -5.00 deg (goal +0.00, +0.00), moving, 31/33 C, hardware error: tilt: overload"
     )
 
 

@@ -40,9 +40,9 @@ def run(rec: Recorder, quick: bool) -> None:
             half_degrees = itertools.cycle([0.5, 0.0])  # alternate so that every goal is new
 
             def command_round_trip():
-                yaw = math.radians(next(half_degrees))
-                gimbal.move_to(yaw, 0.0)
-                if abs(gimbal.state().goal_yaw_rad - yaw) > 1e-3:
+                pan = math.radians(next(half_degrees))
+                gimbal.move_to(pan, 0.0)
+                if abs(gimbal.state().goal_pan_rad - pan) > 1e-3:
                     raise AesPlannerError("the emulated servos did not take the goal; the driver or emulator is broken")
 
             rec.time("gimbal.move.ms", command_round_trip, runs=runs, warmup=5)

@@ -54,13 +54,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     m = gsub.add_parser(
         "move",
-        help="move to a yaw/pitch and wait until the servos report arrival",
+        help="move to a pan/tilt and wait until the servos report arrival",
         description="Move the pan-tilt to the joint angles (clamped to the joint limits) and wait until "
-        "both servos report arrival; exits with an error on timeout. Torque is turned off on exit.",
+        "both servos report arrival; exits with an error on timeout. Torque is turned off on exit, "
+        "also on Ctrl-C or SIGTERM (exit status 130 / 143).",
     )
     _driver_args(m)
-    m.add_argument("--yaw-deg", type=float, required=True, help="pan joint angle, degrees (positive turns left)")
-    m.add_argument("--pitch-deg", type=float, required=True, help="tilt joint angle, degrees (positive looks up)")
+    m.add_argument("--pan-deg", type=float, help="pan joint angle, degrees (positive turns left); required")
+    m.add_argument("--tilt-deg", type=float, help="tilt joint angle, degrees (positive looks up); required")
+    # deprecated spellings (joint angles are not the view's yaw/pitch); hidden, they warn
+    m.add_argument("--yaw-deg", type=float, dest="yaw_deg_deprecated", help=argparse.SUPPRESS)
+    m.add_argument("--pitch-deg", type=float, dest="pitch_deg_deprecated", help=argparse.SUPPRESS)
     m.add_argument("--timeout-s", type=float, default=None, help="how long to wait for arrival (default: config, 10 s)")
     m.set_defaults(func=run_move)
 
@@ -162,28 +166,46 @@ def run_scan(args: argparse.Namespace) -> int:
     return 0
 
 
+def _joint_args(args: argparse.Namespace) -> tuple[float, float]:
+    """--pan-deg/--tilt-deg, accepting the deprecated --yaw-deg/--pitch-deg with a warning."""
+    out = []
+    for name, old in (("pan_deg", "yaw_deg"), ("tilt_deg", "pitch_deg")):
+        flag, old_flag = f"--{name.replace('_', '-')}", f"--{old.replace('_', '-')}"
+        value, deprecated = getattr(args, name), getattr(args, f"{old}_deprecated")
+        if deprecated is not None:
+            if value is not None:
+                raise AesPlannerError(f"give {flag} only ({old_flag} is its deprecated spelling)")
+            print(
+                f"warning: {old_flag} is deprecated, use {flag} (joint angles, not the view's {old.split('_')[0]})",
+                file=sys.stderr,
+            )
+            value = deprecated
+        if value is None:
+            raise AesPlannerError(f"give {flag} DEGREES (the {name.split('_')[0]} joint angle)")
+        if not math.isfinite(value):
+            raise AesPlannerError(f"{flag} must be a finite number of degrees, got {value}")
+        out.append(value)
+    return out[0], out[1]
+
+
 @_driving
 def run_move(args: argparse.Namespace) -> int:
-    for name in ("yaw_deg", "pitch_deg"):
-        if not math.isfinite(getattr(args, name)):
-            raise AesPlannerError(
-                f"--{name.replace('_', '-')} must be a finite number of degrees, got {getattr(args, name)}"
-            )
     from aes_planner.drivers.dynamixel import MAX_MOVE_TIMEOUT_S
 
+    pan_deg, tilt_deg = _joint_args(args)
     if args.timeout_s is not None and not (math.isfinite(args.timeout_s) and 0 < args.timeout_s <= MAX_MOVE_TIMEOUT_S):
         raise AesPlannerError(
             f"--timeout-s must be a number of seconds in (0, {MAX_MOVE_TIMEOUT_S:g}], got {args.timeout_s}"
         )
     with _gimbal(args) as gimbal:
-        yaw_rad, pitch_rad = gimbal.move_to(math.radians(args.yaw_deg), math.radians(args.pitch_deg))
-        clamped = (math.degrees(yaw_rad), math.degrees(pitch_rad))
+        pan_rad, tilt_rad = gimbal.move_to(math.radians(pan_deg), math.radians(tilt_deg))
+        clamped = (math.degrees(pan_rad), math.degrees(tilt_rad))
         note = (
             ""
-            if math.isclose(clamped[0], args.yaw_deg) and math.isclose(clamped[1], args.pitch_deg)
+            if math.isclose(clamped[0], pan_deg) and math.isclose(clamped[1], tilt_deg)
             else " (clamped to the joint limits)"
         )
-        print(f"moving to yaw {clamped[0]:+.2f} deg, pitch {clamped[1]:+.2f} deg{note}", flush=True)
+        print(f"moving to pan {clamped[0]:+.2f} deg, tilt {clamped[1]:+.2f} deg{note}", flush=True)
         state = gimbal.wait_until_reached(args.timeout_s)
         print(f"arrived: {state.summary()}")
     print("torque off", file=sys.stderr)

@@ -23,15 +23,15 @@ def test_emulate_scan_move_state(emulate, capsys):
     out = capsys.readouterr().out
     assert "2 servo(s)" in out and "id   1  model  1020 XM430-W350    firmware 45" in out and "id   2" in out
 
-    assert main(["gimbal", "move", "--port", port, "--yaw-deg", "25", "--pitch-deg", "-12"]) == 0
+    assert main(["gimbal", "move", "--port", port, "--pan-deg", "25", "--tilt-deg", "-12"]) == 0
     out = capsys.readouterr().out
-    assert "moving to yaw +25.00 deg, pitch -12.00 deg" in out and "arrived: yaw +24.96 deg, pitch -12.04 deg" in out
+    assert "moving to pan +25.00 deg, tilt -12.00 deg" in out and "arrived: pan +24.96 deg, tilt -12.04 deg" in out
 
     assert main(["gimbal", "state", "--port", str(link)]) == 0  # the symlink works as well
     out = capsys.readouterr().out
-    assert "pan XM430-W350, tilt XM430-W350" in out and "yaw +24.96 deg, pitch -12.04 deg" in out and "still" in out
+    assert "pan XM430-W350, tilt XM430-W350" in out and "pan +24.96 deg, tilt -12.04 deg" in out and "still" in out
 
-    assert main(["gimbal", "move", "--port", port, "--yaw-deg", "400", "--pitch-deg", "0"]) == 0
+    assert main(["gimbal", "move", "--port", port, "--pan-deg", "400", "--tilt-deg", "0"]) == 0
     assert "(clamped to the joint limits)" in capsys.readouterr().out
 
     assert main(["gimbal", "reboot", "--port", port]) == 0
@@ -46,10 +46,15 @@ def test_emulate_scan_move_state(emulate, capsys):
     "argv, message",
     [
         (
-            ["gimbal", "move", "--port", "P", "--yaw-deg", "nan", "--pitch-deg", "0"],
-            "--yaw-deg must be a finite number",
+            ["gimbal", "move", "--port", "P", "--pan-deg", "nan", "--tilt-deg", "0"],
+            "--pan-deg must be a finite number",
         ),
-        (["gimbal", "move", "--yaw-deg", "1", "--pitch-deg", "0"], "give the serial port"),
+        (["gimbal", "move", "--pan-deg", "1", "--tilt-deg", "0"], "give the serial port"),
+        (["gimbal", "move", "--port", "P", "--tilt-deg", "0"], "give --pan-deg DEGREES"),
+        (
+            ["gimbal", "move", "--port", "P", "--pan-deg", "1", "--yaw-deg", "1", "--tilt-deg", "0"],
+            "give --pan-deg only",
+        ),
         (["gimbal", "state", "--port", "/dev/ttyUSB_missing"], "cannot open serial port /dev/ttyUSB_missing"),
         (["gimbal", "state", "--port", "/dev/x", "--baud", "1234"], "baud"),
         (["gimbal", "scan", "--port", "/dev/ttyUSB_missing"], "cannot open serial port"),
@@ -74,3 +79,12 @@ def test_wrong_baud_explains_there_is_no_status_packet(emulate, capsys):
     assert main(["gimbal", "state", "--port", port, "--baud", "57600"]) == 2
     err = capsys.readouterr().err
     assert "There is no status packet!" in err and "--baud matches their Baud Rate register" in err
+
+
+def test_deprecated_yaw_pitch_flags_still_move_the_joints_and_warn(emulate, capsys):
+    _, port, _ = emulate
+    assert main(["gimbal", "move", "--port", port, "--yaw-deg", "10", "--pitch-deg", "-5"]) == 0
+    captured = capsys.readouterr()
+    assert "moving to pan +10.00 deg, tilt -5.00 deg" in captured.out
+    assert "--yaw-deg is deprecated, use --pan-deg" in captured.err
+    assert "--pitch-deg is deprecated, use --tilt-deg" in captured.err

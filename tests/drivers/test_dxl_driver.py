@@ -29,10 +29,10 @@ def test_connect_identifies_and_writes_nothing(emulator, gimbal):
 
 
 def test_move_takes_control_and_arrives(emulator, gimbal):
-    yaw, pitch = gimbal.move_to(math.radians(20), math.radians(-10))
-    assert (yaw, pitch) == (math.radians(20), math.radians(-10))
+    pan, tilt = gimbal.move_to(math.radians(20), math.radians(-10))
+    assert (pan, tilt) == (math.radians(20), math.radians(-10))
     st = gimbal.wait_until_reached(3.0)
-    assert st.yaw_deg == pytest.approx(20, abs=0.1) and st.pitch_deg == pytest.approx(-10, abs=0.1)
+    assert st.pan_deg == pytest.approx(20, abs=0.1) and st.tilt_deg == pytest.approx(-10, abs=0.1)
     assert not st.moving and st.hardware_error == () and st.temperature_c == (30.0, 30.0)
     assert _goal(emulator, 1) == 2048 + round(20 / 360 * 4096)
     assert _goal(emulator, 2) == 2048 - round(10 / 360 * 4096)
@@ -61,9 +61,9 @@ def test_state_reports_motion_and_goal(emulator, make_gimbal):
     with g:
         g.move_to(math.radians(10), 0.0)
         st = g.state()
-        assert st.moving and st.goal_yaw_rad == pytest.approx(math.radians(10), abs=1e-3)
-        assert abs(st.yaw_rad) < math.radians(10)
-        assert g.wait_until_reached(3.0).yaw_deg == pytest.approx(10, abs=0.1)
+        assert st.moving and st.goal_pan_rad == pytest.approx(math.radians(10), abs=1e-3)
+        assert abs(st.pan_rad) < math.radians(10)
+        assert g.wait_until_reached(3.0).pan_deg == pytest.approx(10, abs=0.1)
 
 
 def test_direction_and_zero_offset(emulator, make_gimbal):
@@ -73,12 +73,12 @@ def test_direction_and_zero_offset(emulator, make_gimbal):
         st = g.wait_until_reached(3.0)
         assert _goal(emulator, 1) == 2048 + 100 - 512
         assert _goal(emulator, 2) == 2048 - 50
-        assert st.yaw_deg == pytest.approx(45, abs=0.1) and st.pitch_deg == pytest.approx(0, abs=0.1)
+        assert st.pan_deg == pytest.approx(45, abs=0.1) and st.tilt_deg == pytest.approx(0, abs=0.1)
 
 
 def test_commands_are_clamped_to_the_limits(emulator, gimbal):
-    yaw, pitch = gimbal.move_to(10.0, -10.0)
-    assert (yaw, pitch) == (math.radians(150), math.radians(-60))
+    pan, tilt = gimbal.move_to(10.0, -10.0)
+    assert (pan, tilt) == (math.radians(150), math.radians(-60))
     gimbal.state()  # round trip: the emulator has taken the sync write
     assert _goal(emulator, 1) == gimbal.config.calibration("pan").tick_limits[1]
     assert _goal(emulator, 2) == gimbal.config.calibration("tilt").tick_limits[0]
@@ -149,7 +149,7 @@ def test_a_new_model_works_from_data_alone(monkeypatch, make_gimbal):
         assert g.models == {"pan": "XM430-TEST", "tilt": "XL430-W250"}
         g.move_to(0.3, -0.3)
         st = g.wait_until_reached(3.0)
-        assert st.yaw_rad == pytest.approx(0.3, abs=2e-3) and st.pitch_rad == pytest.approx(-0.3, abs=2e-3)
+        assert st.pan_rad == pytest.approx(0.3, abs=2e-3) and st.tilt_rad == pytest.approx(-0.3, abs=2e-3)
 
 
 def test_missing_servo_and_missing_port_say_what_to_check(emulator, tmp_path, make_gimbal):
@@ -178,7 +178,7 @@ def test_launch_type_words_switch_implementations(emulator, fast):
     with emulated:
         assert emulated.models == {"pan": "XM430-W350", "tilt": "XL430-W250"}
         emulated.move_to(0.2, 0.1)
-        assert emulated.wait_until_reached(3.0).pitch_rad == pytest.approx(0.1, abs=2e-3)
+        assert emulated.wait_until_reached(3.0).tilt_rad == pytest.approx(0.1, abs=2e-3)
         emu = emulated.emulator
     assert emulated.emulator is None and emu.pty_path is None  # stopped with the device
     with pytest.raises(ConfigError) as info:

@@ -26,7 +26,7 @@ def test_a_bad_reply_is_retried(emulator, gimbal, caplog, fault):
     seen = emulator.packets_seen
     with caplog.at_level(logging.DEBUG, logger="aes_planner.drivers.dynamixel"):
         st = gimbal.state()
-    assert st.goal_yaw_rad == pytest.approx(0.1, abs=2e-3)
+    assert st.goal_pan_rad == pytest.approx(0.1, abs=2e-3)
     assert getattr(emulator.faults, fault) == 0
     assert emulator.packets_seen >= seen + 2  # the sync read went out again
     assert "retry 1/3" in caplog.text
@@ -44,7 +44,7 @@ def test_a_dead_bus_is_fatal_torque_goes_off(emulator, gimbal, fault, message):
     setattr(emulator.faults, fault, 0)
     assert _torque(emulator) == [False, False]
     gimbal.move_to(0.2, 0.2)  # takes control again once the bus answers
-    assert gimbal.wait_until_reached(3.0).yaw_rad == pytest.approx(0.2, abs=2e-3)
+    assert gimbal.wait_until_reached(3.0).pan_rad == pytest.approx(0.2, abs=2e-3)
 
 
 def test_short_status_packets_are_never_trusted(emulator, gimbal):
@@ -78,7 +78,7 @@ def test_is_using_is_reset_after_an_exception_mid_exchange(gimbal, monkeypatch):
         return original(*args)
 
     monkeypatch.setattr(gimbal._ph, "rxPacket", explode_once)
-    assert gimbal.state().yaw_rad == 0.0
+    assert gimbal.state().pan_rad == 0.0
     assert calls and not gimbal._port.is_using
 
 
@@ -113,7 +113,7 @@ def test_hardware_error_is_reported_and_blocks_motion_until_reboot(emulator, gim
     gimbal.reboot()
     assert gimbal.faults == {} and gimbal.state().hardware_error == ()
     gimbal.move_to(-0.1, -0.1)
-    assert gimbal.wait_until_reached(3.0).yaw_rad == pytest.approx(-0.1, abs=2e-3)
+    assert gimbal.wait_until_reached(3.0).pan_rad == pytest.approx(-0.1, abs=2e-3)
 
 
 def test_a_fault_on_the_way_stops_the_wait(emulator, make_gimbal):
@@ -149,9 +149,9 @@ def test_a_vanishing_port_is_reported_and_reconnected(tmp_path, make_gimbal):
         with pytest.raises(GimbalPortLostError, match="still missing"):
             g.move_to(0.0, 0.0)
         emu.restore()
-        assert g.state().yaw_rad == pytest.approx(0.2, abs=2e-3)  # servos kept their state
+        assert g.state().pan_rad == pytest.approx(0.2, abs=2e-3)  # servos kept their state
         g.move_to(-0.2, 0.0)
-        assert g.wait_until_reached(3.0).yaw_rad == pytest.approx(-0.2, abs=2e-3)
+        assert g.wait_until_reached(3.0).pan_rad == pytest.approx(-0.2, abs=2e-3)
     assert not link.exists()
 
 
@@ -165,4 +165,4 @@ def test_flaky_bus_by_rate_still_works(emulator, make_gimbal):
         gimbal.move_to(0.01 * i, 0.0)
         gimbal.state()
     emulator.faults.drop_rate = emulator.faults.corrupt_rate = 0.0
-    assert gimbal.wait_until_reached(3.0).yaw_rad == pytest.approx(0.19, abs=2e-3)
+    assert gimbal.wait_until_reached(3.0).pan_rad == pytest.approx(0.19, abs=2e-3)

@@ -39,13 +39,13 @@ def test_no_goal_outside_the_limits(emulator, calibration, make_gimbal):
         def check(commands):
             start = len(emulator.goal_log)
             sent = 0
-            for yaw, pitch in commands:
-                if math.isfinite(yaw) and math.isfinite(pitch):
-                    g.move_to(yaw, pitch)
+            for pan, tilt in commands:
+                if math.isfinite(pan) and math.isfinite(tilt):
+                    g.move_to(pan, tilt)
                     sent += 1
                 else:
                     with pytest.raises(JointCommandError):
-                        g.move_to(yaw, pitch)
+                        g.move_to(pan, tilt)
             g.state()  # a round trip: every sync write before it has been handled
             received = emulator.goal_log[start:]
             assert len(received) == 2 * sent
@@ -69,7 +69,7 @@ def test_concurrent_reads_and_moves(emulator, make_gimbal):
             while not stop.is_set():
                 try:
                     st_ = g.state()
-                    assert math.isfinite(st_.yaw_rad) and st_.hardware_error == ()
+                    assert math.isfinite(st_.pan_rad) and st_.hardware_error == ()
                     counts["state"] += 1
                 except Exception as exc:
                     errors.append(exc)

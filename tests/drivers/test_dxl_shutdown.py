@@ -62,7 +62,7 @@ def test_a_signal_during_gimbal_move_stops_with_torque_off(tmp_path, sig):
     with ServoEmulator() as emu:
         proc = subprocess.Popen(
             [sys.executable, "-m", "aes_planner", "gimbal", "move", "--port", emu.port, "--config", str(cfg)]
-            + ["--yaw-deg", "90", "--pitch-deg", "0"],
+            + ["--pan-deg", "90", "--tilt-deg", "0"],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
@@ -70,7 +70,7 @@ def test_a_signal_during_gimbal_move_stops_with_torque_off(tmp_path, sig):
         try:
             ready, _, _ = select.select([proc.stdout], [], [], 60.0)
             assert ready, "gimbal move printed nothing"
-            assert proc.stdout.readline().startswith("moving to yaw +90.00 deg")
+            assert proc.stdout.readline().startswith("moving to pan +90.00 deg")
             time.sleep(0.3)  # well on the way (90 deg at 10 deg/s takes 9 s)
             with emu.lock:
                 assert [s.torque_on for _, s in sorted(emu.servos.items())] == [True, True]
