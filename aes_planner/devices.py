@@ -4,8 +4,8 @@ registry that maps the ``type:`` word of a launch file to an implementation.
 Real and simulated implementations are registered side by side::
 
     gimbal:
-      type: dynamixel_pan_tilt        # or emulated_pan_tilt: same driver on the built-in emulator
-      port: /dev/ttyUSB0
+      type: dynamixel_pan_tilt        # or emulated_pan_tilt: same driver on the built-in emulator,
+      port: /dev/ttyUSB0              # or sim_pan_tilt: an in-process simulation, no serial port
 
 :func:`make_device` looks the type word up, builds the class's config dataclass from the other
 keys (unknown keys are errors naming the key) and returns an unconnected device. Implementations
@@ -48,6 +48,7 @@ __all__ = [
     "register_device",
     "device_class",
     "make_device",
+    "joint_command",
     "SignalShutdown",
     "stop_on_signals",
 ]
@@ -198,10 +199,29 @@ class Gimbal(Device):
         """Clear a latched hardware error (after its cause is removed). No-op by default."""
 
 
+def joint_command(pan_rad: Any, tilt_rad: Any) -> tuple[float, float]:
+    """Two joint angles as floats, or :class:`~aes_planner.geometry.rig.JointCommandError`.
+
+    Accepts anything ``float()`` takes except text and booleans (numpy and 0-d torch scalars
+    work); finiteness is checked by the clamp that follows (:meth:`JointLimits.clamp`).
+    """
+    from aes_planner.geometry.rig import JointCommandError
+
+    try:
+        if any(isinstance(v, (str, bytes, bool)) for v in (pan_rad, tilt_rad)):
+            raise TypeError(f"got {type(pan_rad).__name__}, {type(tilt_rad).__name__}")
+        return float(pan_rad), float(tilt_rad)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise JointCommandError(
+            f"joint command must be two finite numbers of radians: {exc}; refusing to move"
+        ) from None
+
+
 # type word -> "module:Class". Simulated gimbals register here beside the real ones.
 DEVICE_TYPES: dict[str, str | type[Device]] = {
     "dynamixel_pan_tilt": "aes_planner.drivers.dynamixel:DynamixelPanTilt",
     "emulated_pan_tilt": "aes_planner.drivers.dynamixel:EmulatedPanTilt",
+    "sim_pan_tilt": "aes_planner.drivers.sim_gimbal:SimPanTilt",
 }
 
 

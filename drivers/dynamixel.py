@@ -43,6 +43,7 @@ from aes_planner.devices import (
     GimbalProtocolError,
     GimbalState,
     GimbalTimeoutError,
+    joint_command,
 )
 from aes_planner.drivers.dynamixel_models import (
     MODELS,
@@ -55,7 +56,7 @@ from aes_planner.drivers.dynamixel_models import (
     to_unsigned,
 )
 from aes_planner.drivers.protocol import ERRBIT_ALERT, ErrNum
-from aes_planner.geometry.rig import JointCommandError, JointLimits, PanTiltConfig
+from aes_planner.geometry.rig import JointLimits, PanTiltConfig
 
 log = logging.getLogger(__name__)
 
@@ -317,12 +318,7 @@ class DynamixelPanTilt(Gimbal):
     # ------------------------------------------------------------------------------ Gimbal
     def move_to(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
         """Send both goals in one sync write; returns the clamped joint angles commanded."""
-        try:
-            pan_rad, tilt_rad = float(pan_rad), float(tilt_rad)
-        except (TypeError, ValueError, OverflowError) as exc:
-            raise JointCommandError(
-                f"joint command must be two finite numbers of radians: {exc}; refusing to move"
-            ) from None
+        pan_rad, tilt_rad = joint_command(pan_rad, tilt_rad)
         asked = (pan_rad, tilt_rad)
         pan_rad, tilt_rad = self._limits.clamp(pan_rad, tilt_rad)  # NaN/Inf raise here, nothing is sent
         if (pan_rad, tilt_rad) != asked:
