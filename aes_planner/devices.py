@@ -220,7 +220,7 @@ def joint_command(pan_rad: Any, tilt_rad: Any) -> tuple[float, float]:
 # type word -> "module:Class". Simulated gimbals register here beside the real ones.
 DEVICE_TYPES: dict[str, str | type[Device]] = {
     "dynamixel_pan_tilt": "aes_planner.drivers.dynamixel:DynamixelPanTilt",
-    "emulated_pan_tilt": "aes_planner.drivers.dynamixel:EmulatedPanTilt",
+    "emulated_pan_tilt": "aes_planner.drivers.emulated:EmulatedPanTilt",
     "sim_pan_tilt": "aes_planner.drivers.sim_gimbal:SimPanTilt",
 }
 

@@ -21,7 +21,6 @@ retry is fatal too (torque off, best effort). A port that disappears raises
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import termios
@@ -33,7 +32,7 @@ from typing import Any
 
 import dynamixel_sdk as sdk
 
-from aes_planner.config import ConfigError, require, require_numbers
+from aes_planner.config import ConfigError
 from aes_planner.devices import (
     DeviceError,
     Gimbal,
@@ -45,13 +44,24 @@ from aes_planner.devices import (
     GimbalTimeoutError,
     joint_command,
 )
+from aes_planner.drivers.dynamixel_config import (  # noqa: F401  (re-exported: the old import paths)
+    JOINTS,
+    MAX_ARRIVAL_TOLERANCE_DEG,
+    MAX_BACKOFF_S,
+    MAX_LATENCY_TIMER_MS,
+    MAX_MOVE_TIMEOUT_S,
+    MAX_POLL_INTERVAL_S,
+    MAX_REBOOT_TIMEOUT_S,
+    DynamixelPanTiltConfig,
+    EmulatedPanTiltConfig,
+)
 from aes_planner.drivers.dynamixel_models import (
-    MODELS,
-    JointCalibration,
+    SDK_BAUD_RATES,
+    OperatingMode,
     ServoModel,
     decode_hardware_error,
-    model_by_name,
     model_by_number,
+    supported_models,
     to_signed,
     to_unsigned,
 )
@@ -64,23 +74,11 @@ __all__ = [
     "DynamixelPanTiltConfig",
     "DynamixelPanTilt",
     "EmulatedPanTiltConfig",
-    "EmulatedPanTilt",
     "ScanResult",
     "scan",
     "SDK_BAUD_RATES",
 ]
 
-JOINTS = ("pan", "tilt")
-# Rates both the SDK (PortHandler.getCFlagBaud) and the X series accept.
-SDK_BAUD_RATES = (9_600, 57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
-POSITION_MODE = 3
-# Upper bounds of the time-like settings: a value that passes validation never hangs a command.
-MAX_LATENCY_TIMER_MS = 255.0  # the FTDI latency timer's own maximum
-MAX_BACKOFF_S = 1.0  # also the cap of each doubled wait between retries
-MAX_POLL_INTERVAL_S = 1.0
-MAX_MOVE_TIMEOUT_S = 600.0
-MAX_REBOOT_TIMEOUT_S = 60.0
-MAX_ARRIVAL_TOLERANCE_DEG = 45.0
 # One sync read covers Goal Position (116) .. Present Temperature (146) on every X-series table.
 STATE_FIRST_ITEM, STATE_LAST_ITEM = "goal_position", "present_temperature"
 
@@ -98,116 +96,6 @@ _NO_REPLY_HINT = (
     "(factory default 57600), that the ids are right (aes-planner gimbal scan), that they speak "
     "Protocol 2.0, and the USB adapter's latency timer (README: Real hardware)"
 )
-
-
-@dataclass
-class DynamixelPanTiltConfig:
-    """Settings of a Dynamixel pan-tilt (the ``dynamixel_pan_tilt`` launch type).
-
-    * ``port``: serial device (``/dev/ttyUSB0``, ``/dev/serial/by-id/...``); ``baud``: the servos'
-      rate (one of :data:`SDK_BAUD_RATES`).
-    * ``pan_id``/``tilt_id``: servo ids. ``*_zero_offset_ticks``: servo ticks from the centre
-      (2048) to the joint's zero; ``*_direction``: +1 when positive servo ticks turn the joint
-      positive (pan left, tilt up), else -1.
-    * ``*_limits_deg``: joint limits, written to Min/Max Position Limit and enforced in software.
-    * ``profile_velocity_deg_s``/``profile_acceleration_deg_s2``: motion profile (0 = no limit);
-      refused beyond what the servos' 32-bit registers hold (about 45000 deg/s, 700000 deg/s^2).
-    * ``retries``/``backoff_s``: retries of a failed exchange (0..20), the first wait (doubling
-      after, each wait at most :data:`MAX_BACKOFF_S`).
-    * ``latency_timer_ms``: the USB adapter's latency timer; the SDK waits ``2 x`` this plus
-      transmission time for a reply. 16 is the FTDI default; 1 after the udev rule of the README.
-    * ``move_timeout_s``: default of :meth:`DynamixelPanTilt.wait_until_reached`;
-      ``arrival_tolerance_deg``: how close counts as arrived; ``poll_interval_s``: its poll rate.
-    * ``reboot_timeout_s``: how long a rebooted servo may take to answer again.
-
-    Every time-like setting has an upper bound (``MAX_*`` in this module), so that no value that
-    passes validation can make a command hang.
-    """
-
-    port: str
-    baud: int = 1_000_000
-    pan_id: int = 1
-    tilt_id: int = 2
-    pan_zero_offset_ticks: int = 0
-    tilt_zero_offset_ticks: int = 0
-    pan_direction: int = 1
-    tilt_direction: int = 1
-    pan_limits_deg: tuple[float, float] = (-150.0, 150.0)
-    tilt_limits_deg: tuple[float, float] = (-60.0, 60.0)
-    profile_velocity_deg_s: float = 60.0
-    profile_acceleration_deg_s2: float = 300.0
-    retries: int = 3
-    backoff_s: float = 0.005
-    latency_timer_ms: float = 16.0
-    move_timeout_s: float = 10.0
-    arrival_tolerance_deg: float = 1.0
-    poll_interval_s: float = 0.01
-    reboot_timeout_s: float = 2.0
-
-    def __post_init__(self):
-        require(isinstance(self.port, str) and bool(self.port), "port", "set the serial device, e.g. /dev/ttyUSB0")
-        require(
-            self.baud in SDK_BAUD_RATES,
-            "baud",
-            f"{self.baud} is not a rate both dynamixel-sdk and X-series servos use; one of {list(SDK_BAUD_RATES)}",
-        )
-        for name in ("pan_id", "tilt_id"):
-            require(0 <= getattr(self, name) <= 252, name, f"servo ids are 0..252, got {getattr(self, name)}")
-        require(self.pan_id != self.tilt_id, "tilt_id", f"pan and tilt need different ids, both are {self.pan_id}")
-        for name in ("pan_direction", "tilt_direction"):
-            require(getattr(self, name) in (1, -1), name, f"must be 1 or -1, got {getattr(self, name)}")
-        try:
-            # the rig's own checks: finite, min < max, tilt within +-90 deg, pan within 360 deg
-            PanTiltConfig(pan_limits_deg=tuple(self.pan_limits_deg), tilt_limits_deg=tuple(self.tilt_limits_deg))
-        except ConfigError as exc:
-            raise ConfigError(exc.key, exc.message) from None
-        for joint in JOINTS:
-            lo, hi = self.calibration(joint).tick_limits
-            require(
-                0 <= lo and hi <= 4095,
-                f"{joint}_limits_deg",
-                f"the limits map to ticks {lo}..{hi}, outside the servo's 0..4095 in position mode; "
-                f"narrow the limits or change {joint}_zero_offset_ticks",
-            )
-        require_numbers(self, ("profile_velocity_deg_s", "profile_acceleration_deg_s2", "backoff_s"), strict=False)
-        require(0 <= self.retries <= 20, "retries", f"must be 0..20, got {self.retries}")
-        require_numbers(
-            self, ("latency_timer_ms", "move_timeout_s", "arrival_tolerance_deg", "poll_interval_s", "reboot_timeout_s")
-        )
-        for name, bound, unit in (
-            ("latency_timer_ms", MAX_LATENCY_TIMER_MS, "ms (the FTDI latency timer's maximum; 16 is its default)"),
-            ("backoff_s", MAX_BACKOFF_S, "s"),
-            ("poll_interval_s", MAX_POLL_INTERVAL_S, "s"),
-            ("move_timeout_s", MAX_MOVE_TIMEOUT_S, "s"),
-            ("reboot_timeout_s", MAX_REBOOT_TIMEOUT_S, "s"),
-            ("arrival_tolerance_deg", MAX_ARRIVAL_TOLERANCE_DEG, "deg"),
-        ):
-            require(
-                getattr(self, name) <= bound, name, f"must be at most {bound:g} {unit}, got {getattr(self, name)!r}"
-            )
-        # in the control table's units, for every model the driver may find on the bus: a value the
-        # 32-bit register cannot hold would wrap (1e30 deg/s -> 0 = "no limit")
-        for name, limit in (
-            ("profile_velocity_deg_s", "max_profile_velocity_deg_s"),
-            ("profile_acceleration_deg_s2", "max_profile_acceleration_deg_s2"),
-        ):
-            bound = min(getattr(m, limit) for m in MODELS)
-            require(
-                getattr(self, name) <= bound,
-                name,
-                f"must be at most {bound:.6g} (the servos' register range; 0 = no limit), got {getattr(self, name)!r}",
-            )
-
-    def calibration(self, joint: str) -> JointCalibration:
-        lo, hi = getattr(self, f"{joint}_limits_deg")
-        return JointCalibration(
-            zero_offset_ticks=getattr(self, f"{joint}_zero_offset_ticks"),
-            direction=getattr(self, f"{joint}_direction"),
-            limits_rad=(math.radians(lo), math.radians(hi)),
-        )
-
-    def joint_id(self, joint: str) -> int:
-        return getattr(self, f"{joint}_id")
 
 
 class _Port(sdk.PortHandler):
@@ -426,7 +314,7 @@ class DynamixelPanTilt(Gimbal):
             if model is None:
                 raise DeviceError(
                     f"the {joint} servo (id {dxl_id}) reports model number {number}, which has no control table here; "
-                    "supported: XM430-W350 (1020), XL430-W250 (1060); add a ServoModel to "
+                    f"supported: {supported_models()}; add a ServoModel to "
                     "aes_planner/drivers/dynamixel_models.py"
                 )
             self._models[joint] = model
@@ -456,7 +344,7 @@ class DynamixelPanTilt(Gimbal):
         for joint in JOINTS:
             model = self._models[joint]
             lo, hi = self._cal[joint].tick_limits
-            wanted = {"operating_mode": POSITION_MODE, "min_position_limit": lo, "max_position_limit": hi}
+            wanted = {"operating_mode": OperatingMode.POSITION, "min_position_limit": lo, "max_position_limit": hi}
             present = {name: self._read_item(joint, name) for name in wanted}
             if present != wanted:
                 if self._read_item(joint, "torque_enable"):
@@ -746,69 +634,10 @@ def scan(port: str, baud: int = 1_000_000, latency_timer_ms: float = 16.0) -> li
     return out
 
 
-@dataclass
-class EmulatedPanTiltConfig(DynamixelPanTiltConfig):
-    """The ``emulated_pan_tilt`` launch type: the same driver on a built-in servo emulator.
+def __getattr__(name: str):
+    # EmulatedPanTilt lives in .emulated (it imports this module); the old import path still works
+    if name == "EmulatedPanTilt":
+        from aes_planner.drivers.emulated import EmulatedPanTilt
 
-    ``models`` are the emulated servos, ids 1..N in order (pan and tilt ids must be among them);
-    ``port``, when set, is a symlink path the emulator keeps pointing at its pty.
-    """
-
-    port: str = ""
-    models: tuple[str, ...] = ("xm430-w350", "xm430-w350")
-
-    def __post_init__(self):
-        link = self.port
-        self.port = link or "<emulator>"
-        super().__post_init__()
-        self.port = link
-        for i, name in enumerate(self.models):
-            try:
-                model_by_name(name)
-            except KeyError as exc:
-                raise ConfigError(f"models[{i}]", str(exc.args[0])) from None
-        for name in ("pan_id", "tilt_id"):
-            require(
-                1 <= getattr(self, name) <= len(self.models),
-                name,
-                f"the emulator gives ids 1..{len(self.models)}; got {getattr(self, name)}",
-            )
-
-
-class EmulatedPanTilt(DynamixelPanTilt):
-    """:class:`DynamixelPanTilt` on a :class:`~aes_planner.drivers.emulator.ServoEmulator` that it
-    starts on ``connect()`` and stops on ``disconnect()``: the gimbal of the simulated closed loop.
-    ``emulator`` is the running emulator (None while disconnected), for fault injection."""
-
-    config_class = EmulatedPanTiltConfig
-
-    def __init__(self, config: EmulatedPanTiltConfig):
-        super().__init__(config)
-        self._link = config.port or None
-        self.emulator = None
-
-    def connect(self) -> None:
-        from aes_planner.drivers.emulator import ServoEmulator
-
-        with self._lock:
-            if self.connected:
-                return
-            self.emulator = ServoEmulator(self.config.models, baud=self.config.baud, link=self._link).start()
-            self.config = dataclasses.replace(self.config, port=self.emulator.port)
-            try:
-                super().connect()
-            except BaseException:
-                self._stop_emulator()
-                raise
-
-    def disconnect(self) -> None:
-        with self._lock:
-            try:
-                super().disconnect()
-            finally:
-                self._stop_emulator()
-
-    def _stop_emulator(self) -> None:
-        if self.emulator is not None:
-            self.emulator.stop()
-            self.emulator = None
+        return EmulatedPanTilt
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

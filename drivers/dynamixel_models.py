@@ -1,7 +1,9 @@
-"""Servo models as data: control tables, units, factory defaults; and the tick <-> radian map.
+"""Servo facts as data: control tables, units, factory defaults, model numbers, operating modes,
+baud-rate tables, hardware-error bits; and the tick <-> radian map.
 
-Adding a model is adding a :class:`ServoModel` to :data:`MODELS` (its control table, units and
-defaults); the driver and the emulator read everything from here. Addresses, sizes and
+The one place for servo facts: the driver (:mod:`.dynamixel`), its config
+(:mod:`.dynamixel_config`) and the emulator (:mod:`.emulator`) read them from here. Adding a model
+is adding a :class:`ServoModel` to :data:`MODELS` (its control table, units and defaults). Addresses, sizes and
 the ROBOTIS e-manual (X series, Protocol 2.0) and the tables shipped with dynamixel-sdk's
 easy-SDK; factory defaults matter only to the emulator (the driver writes what it relies on).
 
@@ -13,6 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from enum import IntEnum
 from typing import Literal
 
 __all__ = [
@@ -28,10 +31,42 @@ __all__ = [
     "JointCalibration",
     "TICKS_PER_REV",
     "CENTER_TICKS",
+    "OperatingMode",
+    "BAUD_RATES",
+    "SDK_BAUD_RATES",
+    "supported_models",
 ]
 
 TICKS_PER_REV = 4096
 CENTER_TICKS = 2048
+
+
+class OperatingMode(IntEnum):
+    """Values of the Operating Mode register (addr 11) on the X series; each model lists the ones
+    it has in :attr:`ServoModel.operating_modes`. The driver uses :attr:`POSITION` only."""
+
+    CURRENT = 0
+    VELOCITY = 1
+    POSITION = 3
+    EXTENDED_POSITION = 4
+    CURRENT_BASED_POSITION = 5
+    PWM = 16
+
+
+# Baud Rate register (addr 8) value -> bits per second (X series).
+BAUD_RATES: dict[int, int] = {
+    0: 9_600,
+    1: 57_600,
+    2: 115_200,
+    3: 1_000_000,
+    4: 2_000_000,
+    5: 3_000_000,
+    6: 4_000_000,
+    7: 4_500_000,
+}
+# The rates both dynamixel-sdk (PortHandler.getCFlagBaud) and the X series accept: what the
+# driver may be configured with (4.5 Mbps is not one of the SDK's).
+SDK_BAUD_RATES: tuple[int, ...] = (9_600, 57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
 
 # Hardware Error Status (addr 70) bits -> fault names, as the e-manual lists them.
 HARDWARE_ERROR_BITS: dict[int, str] = {
@@ -142,7 +177,7 @@ class ServoModel:
     * ``acceleration_unit_rev_min2``: one unit of Profile Acceleration (rev/min^2).
     * ``no_load_speed_rpm``: top speed at nominal voltage (what the emulator moves at when the
       profile velocity is 0 = unlimited).
-    * ``operating_modes``: legal Operating Mode values; 3 is position control.
+    * ``operating_modes``: legal :class:`OperatingMode` values of this model.
     * ``ram_start``: first RAM address; items below it are EEPROM.
     * ``table_end``: one past the last address (reads beyond it are an access error).
     * ``nominal_voltage_dv``, ``idle_temperature_c``: what the emulator reports at rest.
@@ -155,7 +190,12 @@ class ServoModel:
     velocity_unit_rpm: float = 0.229
     acceleration_unit_rev_min2: float = 214.577
     no_load_speed_rpm: float = 46.0
-    operating_modes: tuple[int, ...] = (1, 3, 4, 16)
+    operating_modes: tuple[OperatingMode, ...] = (
+        OperatingMode.VELOCITY,
+        OperatingMode.POSITION,
+        OperatingMode.EXTENDED_POSITION,
+        OperatingMode.PWM,
+    )
     ram_start: int = 64
     table_end: int = 147
     nominal_voltage_dv: int = 120
@@ -247,7 +287,7 @@ MODELS: tuple[ServoModel, ...] = (
         firmware_version=45,
         table=_XM430_TABLE,
         no_load_speed_rpm=46.0,
-        operating_modes=(0, 1, 3, 4, 5, 16),
+        operating_modes=tuple(OperatingMode),
         nominal_voltage_dv=120,
     ),
     ServoModel(
@@ -256,7 +296,12 @@ MODELS: tuple[ServoModel, ...] = (
         firmware_version=46,
         table=dict(_X_SERIES),
         no_load_speed_rpm=57.0,
-        operating_modes=(1, 3, 4, 16),
+        operating_modes=(
+            OperatingMode.VELOCITY,
+            OperatingMode.POSITION,
+            OperatingMode.EXTENDED_POSITION,
+            OperatingMode.PWM,
+        ),
         table_end=147,
         nominal_voltage_dv=111,
     ),
@@ -274,6 +319,11 @@ def model_by_name(name: str) -> ServoModel:
             return model
     known = ", ".join(m.name.lower() for m in MODELS)
     raise KeyError(f"unknown servo model {name!r}; known models: {known}")
+
+
+def supported_models() -> str:
+    """``"XM430-W350 (1020), XL430-W250 (1060)"``: the models with a control table, for messages."""
+    return ", ".join(f"{m.name} ({m.model_number})" for m in MODELS)
 
 
 def model_by_number(model_number: int) -> ServoModel | None:

@@ -45,9 +45,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from aes_planner.drivers.dynamixel_models import (
+    BAUD_RATES,
     CENTER_TICKS,
     HARDWARE_ERROR_BITS,
     TICKS_PER_REV,
+    OperatingMode,
     ServoModel,
     model_by_name,
     to_signed,
@@ -77,17 +79,6 @@ __all__ = [
     "EmulatorProcess",
 ]
 
-# Baud Rate register value -> bits per second (X series).
-BAUD_RATES: dict[int, int] = {
-    0: 9_600,
-    1: 57_600,
-    2: 115_200,
-    3: 1_000_000,
-    4: 2_000_000,
-    5: 3_000_000,
-    6: 4_000_000,
-    7: 4_500_000,
-}
 _FAULT_BITS = {name: bit for bit, name in HARDWARE_ERROR_BITS.items()}
 _BOOT_TIME_S = 0.05  # a rebooting servo does not answer for this long
 
@@ -279,7 +270,7 @@ class EmulatedServo:
                 return ErrNum.DATA_RANGE
             elif (item.lo is not None and value < item.lo) or (item.hi is not None and value > item.hi):
                 return ErrNum.DATA_RANGE
-            if name == "goal_position" and self.get("operating_mode") == 3:
+            if name == "goal_position" and self.get("operating_mode") == OperatingMode.POSITION:
                 if not self.get("min_position_limit") <= value <= self.get("max_position_limit"):
                     return ErrNum.DATA_LIMIT
             pos += item.size

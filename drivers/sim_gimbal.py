@@ -46,6 +46,7 @@ from aes_planner.devices import (
     GimbalTimeoutError,
     joint_command,
 )
+from aes_planner.drivers.dynamixel_models import HARDWARE_ERROR_BITS
 from aes_planner.geometry.rig import JointLimits, PanTiltConfig
 
 log = logging.getLogger(__name__)
@@ -53,7 +54,7 @@ log = logging.getLogger(__name__)
 __all__ = ["SimPanTiltConfig", "SimPanTilt", "SimClock", "HARDWARE_FAULTS"]
 
 JOINTS = ("pan", "tilt")
-HARDWARE_FAULTS = ("input voltage", "overheating", "motor encoder", "electrical shock", "overload")
+HARDWARE_FAULTS = tuple(HARDWARE_ERROR_BITS.values())
 _STEP_S = 0.002
 _MAX_VELOCITY_DEG_S = 36_000.0
 _MAX_ACCELERATION_DEG_S2 = 1e6

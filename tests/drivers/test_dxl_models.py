@@ -170,3 +170,36 @@ def test_a_new_model_is_data_only():
     xm = dm.model_by_name("xm430-w350")
     new = dataclasses.replace(xm, name="XM430-TEST", model_number=9999)
     assert new.by_addr[116][0] == "goal_position"  # the address index is rebuilt from the table
+
+
+def test_servo_facts_live_in_one_place_and_old_import_paths_work():
+    import subprocess
+    import sys
+
+    from aes_planner.drivers import dynamixel, dynamixel_config, emulated, emulator
+
+    assert dynamixel.EmulatedPanTilt is emulated.EmulatedPanTilt  # the pre-split import paths
+    assert dynamixel.EmulatedPanTiltConfig is dynamixel_config.EmulatedPanTiltConfig
+    assert dynamixel.SDK_BAUD_RATES is dm.SDK_BAUD_RATES and emulator.BAUD_RATES is dm.BAUD_RATES
+    assert set(dm.SDK_BAUD_RATES) <= set(dm.BAUD_RATES.values())
+    for model in dm.MODELS:
+        assert dm.OperatingMode.POSITION in model.operating_modes
+        assert all(isinstance(m, dm.OperatingMode) for m in model.operating_modes)
+    assert "XM430-W350 (1020)" in dm.supported_models()
+    # the config validates without the SDK (a launch file is checked before any hardware import)
+    code = (
+        "import sys; sys.modules['dynamixel_sdk'] = None\n"
+        "from aes_planner.drivers.dynamixel_config import DynamixelPanTiltConfig\n"
+        "print(DynamixelPanTiltConfig(port='/dev/x').baud)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.strip() == "1000000", out.stderr
+
+
+def test_emulated_config_port_is_never_overwritten_to_pass_validation():
+    c = EmulatedPanTiltConfig(port="")
+    assert c.port == ""
+    with pytest.raises(ConfigError, match="port"):
+        from_dict(EmulatedPanTiltConfig, {"port": 5})
+    with pytest.raises(ConfigError, match="port"):
+        DynamixelPanTiltConfig(port="")
