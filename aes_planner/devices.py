@@ -29,7 +29,7 @@ import threading
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Protocol, runtime_checkable
 
 from aes_planner.config import ConfigError, from_dict
 from aes_planner.errors import AesPlannerError
@@ -38,6 +38,7 @@ __all__ = [
     "Device",
     "Gimbal",
     "GimbalState",
+    "GimbalFaults",
     "DeviceError",
     "GimbalCommError",
     "GimbalPortLostError",
@@ -215,6 +216,39 @@ def joint_command(pan_rad: Any, tilt_rad: Any) -> tuple[float, float]:
         raise JointCommandError(
             f"joint command must be two finite numbers of radians: {exc}; refusing to move"
         ) from None
+
+
+@runtime_checkable
+class GimbalFaults(Protocol):
+    """Fault injection offered by the simulated gimbals (``emulated_pan_tilt``: the real driver on
+    the servo emulator; ``sim_pan_tilt``), for closed-loop fault tests. Callable mid-run, from any
+    thread, while the gimbal is connected. Arguments out of range raise :class:`ValueError`.
+
+    * ``inject_comm_faults(lost=0, corrupt=0, delayed=0, delay_s=None)``: the next replies are
+      lost, corrupt (bad CRC) or ``delay_s`` late; the driver retries, then raises
+      :class:`GimbalCommError` with torque off.
+    * ``inject_hardware_error(joint, fault="overload")``: the servo's alert (``"overload"``,
+      ``"overheating"``, ``"input voltage"``, ``"motor encoder"``, ``"electrical shock"``): torque
+      off, latched, motion refused until :meth:`Gimbal.reboot`.
+    * ``inject_stall(joint, stalled=True)``: an obstruction; waits end in :class:`GimbalTimeoutError`.
+    * ``vanish_port()`` / ``restore_port()``: the adapter unplugged (:class:`GimbalPortLostError`)
+      and back (the next call reconnects).
+    * ``clear_faults()``: no more injected faults (hardware errors stay latched until reboot).
+    """
+
+    def inject_comm_faults(
+        self, lost: int = 0, corrupt: int = 0, delayed: int = 0, delay_s: float | None = None
+    ) -> None: ...
+
+    def inject_hardware_error(self, joint: str, fault: str = "overload") -> None: ...
+
+    def inject_stall(self, joint: str, stalled: bool = True) -> None: ...
+
+    def vanish_port(self) -> None: ...
+
+    def restore_port(self) -> None: ...
+
+    def clear_faults(self) -> None: ...
 
 
 # type word -> "module:Class". Simulated gimbals register here beside the real ones.

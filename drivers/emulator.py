@@ -58,6 +58,7 @@ from aes_planner.drivers.dynamixel_models import (
 from aes_planner.drivers.protocol import (
     BROADCAST_ID,
     ERRBIT_ALERT,
+    MAX_ID,
     ErrNum,
     Inst,
     Packet,
@@ -81,6 +82,7 @@ __all__ = [
 
 _FAULT_BITS = {name: bit for bit, name in HARDWARE_ERROR_BITS.items()}
 _BOOT_TIME_S = 0.05  # a rebooting servo does not answer for this long
+MAX_SERVOS = 32  # more than any pan-tilt needs; keeps a typo in --models from building a huge bus
 
 
 def _termios_bauds() -> dict[int, int]:
@@ -150,8 +152,11 @@ class FaultPlan:
         for name in ("drop_rate", "corrupt_rate"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be within [0, 1], got {getattr(self, name)}")
-        if self.delay_s < 0:
-            raise ValueError(f"delay_s must be >= 0, got {self.delay_s}")
+        if not (isinstance(self.delay_s, (int, float)) and math.isfinite(self.delay_s) and 0 <= self.delay_s <= 10.0):
+            raise ValueError(f"delay_s must be within [0, 10] s, got {self.delay_s!r}")
+        for name in ("drop_next", "corrupt_next", "truncate_next", "delay_next"):
+            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 0):
+                raise ValueError(f"{name} must be a count >= 0, got {getattr(self, name)!r}")
         self._rng = random.Random(self.seed)
 
     def take(self, has_data: bool) -> str | None:
@@ -185,6 +190,7 @@ class EmulatedServo:
         self.pending: tuple[int, bytes] | None = None  # REG_WRITE waiting for ACTION
         self.boot_until = 0.0
         self.load_percent = 0.0
+        self.stalled = False  # an obstruction: the motor holds where it is, short of its goal
         self.factory_defaults()
         self.set("id", dxl_id)
         baud_index = next((k for k, v in BAUD_RATES.items() if v == baud), None)
@@ -342,7 +348,7 @@ class EmulatedServo:
         now = self.clock() if now is None else now
         dt_total = max(0.0, now - self.t_last)
         self.t_last = now
-        if not self.torque_on:
+        if not self.torque_on or self.stalled:
             self.velocity_ticks_s = 0.0
         else:
             goal = float(self.get("goal_position"))
@@ -573,6 +579,11 @@ class ServoEmulator:
         ids = list(ids) if ids is not None else list(range(1, len(models) + 1))
         if len(ids) != len(models):
             raise ValueError(f"{len(models)} models but {len(ids)} ids")
+        if len(models) > MAX_SERVOS:
+            raise ValueError(f"at most {MAX_SERVOS} servos on one emulated bus, got {len(models)}")
+        bad = [i for i in ids if not (isinstance(i, int) and 0 <= i <= MAX_ID)]
+        if bad:
+            raise ValueError(f"servo ids must be 0..{MAX_ID}, got {bad[:3]}")
         self.bus = ServoBus(EmulatedServo(model_by_name(name), i, baud) for name, i in zip(models, ids))
         self.faults = faults or FaultPlan()
         self.link = Path(link) if link is not None else None
@@ -584,6 +595,7 @@ class ServoEmulator:
         self._master: int | None = None
         self._slave: int | None = None
         self._pty_path: str | None = None
+        self._link_made = False  # True while the link is one this emulator made for its pty
         self._parser = PacketParser()
         self._commands: queue.Queue = queue.Queue()
         self._wake_r, self._wake_w = os.pipe()
@@ -664,7 +676,20 @@ class ServoEmulator:
 
     def inject_hardware_error(self, dxl_id: int, fault: str) -> None:
         with self.lock:
-            self.servos[dxl_id].inject_fault(fault)
+            self._servo(dxl_id).inject_fault(fault)
+
+    def inject_stall(self, dxl_id: int, stalled: bool = True) -> None:
+        """Block (or free) a servo's motion: it stays where it is, Moving stays 1."""
+        with self.lock:
+            servo = self._servo(dxl_id)
+            servo.update()
+            servo.stalled = bool(stalled)
+
+    def _servo(self, dxl_id: int) -> EmulatedServo:
+        try:
+            return self.servos[dxl_id]
+        except KeyError:
+            raise ValueError(f"no emulated servo with id {dxl_id!r}; ids: {sorted(self.servos)}") from None
 
     def serve_forever(self) -> None:
         """The I/O loop: read instructions, answer them. Returns after :meth:`stop`."""
@@ -757,11 +782,13 @@ class ServoEmulator:
         except OSError:
             tmp.unlink(missing_ok=True)
             raise
+        self._link_made = True
 
     def _remove_link(self) -> None:
         """Remove the link only while it is still ours: a symlink pointing at our pty."""
-        if self.link is None or self._pty_path is None:
+        if self.link is None or self._pty_path is None or not self._link_made:
             return
+        self._link_made = False
         try:
             if self.link.is_symlink() and os.readlink(self.link) == self._pty_path:
                 self.link.unlink()

@@ -9,6 +9,15 @@ from aes_planner.drivers.emulator import EmulatorProcess
 
 
 @pytest.fixture
+def patient(tmp_path):
+    """``--config`` for a loaded CI machine: the emulator is another process that may wait for a
+    CPU; a 16 ms latency timer (2 x 16 + 2 ms per reply) and 3 retries are too tight there."""
+    cfg = tmp_path / "patient.yaml"
+    cfg.write_text("latency_timer_ms: 100\nretries: 5\n")
+    return ["--config", str(cfg)]
+
+
+@pytest.fixture
 def emulate(tmp_path):
     """``aes-planner gimbal emulate`` in a separate process; yields (process, pty path, link)."""
     link = tmp_path / "ttyDXL"
@@ -17,24 +26,24 @@ def emulate(tmp_path):
         yield emulator, emulator.port, link
 
 
-def test_emulate_scan_move_state(emulate, capsys):
+def test_emulate_scan_move_state(emulate, patient, capsys):
     proc, port, link = emulate
     assert main(["gimbal", "scan", "--port", port]) == 0
     out = capsys.readouterr().out
     assert "2 servo(s)" in out and "id   1  model  1020 XM430-W350    firmware 45" in out and "id   2" in out
 
-    assert main(["gimbal", "move", "--port", port, "--pan-deg", "25", "--tilt-deg", "-12"]) == 0
+    assert main(["gimbal", "move", "--port", port, "--pan-deg", "25", "--tilt-deg", "-12", *patient]) == 0
     out = capsys.readouterr().out
     assert "moving to pan +25.00 deg, tilt -12.00 deg" in out and "arrived: pan +24.96 deg, tilt -12.04 deg" in out
 
-    assert main(["gimbal", "state", "--port", str(link)]) == 0  # the symlink works as well
+    assert main(["gimbal", "state", "--port", str(link), *patient]) == 0  # the symlink works as well
     out = capsys.readouterr().out
     assert "pan XM430-W350, tilt XM430-W350" in out and "pan +24.96 deg, tilt -12.04 deg" in out and "still" in out
 
-    assert main(["gimbal", "move", "--port", port, "--pan-deg", "400", "--tilt-deg", "0"]) == 0
+    assert main(["gimbal", "move", "--port", port, "--pan-deg", "400", "--tilt-deg", "0", *patient]) == 0
     assert "(clamped to the joint limits)" in capsys.readouterr().out
 
-    assert main(["gimbal", "reboot", "--port", port]) == 0
+    assert main(["gimbal", "reboot", "--port", port, *patient]) == 0
     assert "no hardware error was latched" in capsys.readouterr().out
 
     proc.proc.send_signal(signal.SIGTERM)
@@ -81,9 +90,9 @@ def test_wrong_baud_explains_there_is_no_status_packet(emulate, capsys):
     assert "There is no status packet!" in err and "--baud matches their Baud Rate register" in err
 
 
-def test_deprecated_yaw_pitch_flags_still_move_the_joints_and_warn(emulate, capsys):
+def test_deprecated_yaw_pitch_flags_still_move_the_joints_and_warn(emulate, patient, capsys):
     _, port, _ = emulate
-    assert main(["gimbal", "move", "--port", port, "--yaw-deg", "10", "--pitch-deg", "-5"]) == 0
+    assert main(["gimbal", "move", "--port", port, "--yaw-deg", "10", "--pitch-deg", "-5", *patient]) == 0
     captured = capsys.readouterr()
     assert "moving to pan +10.00 deg, tilt -5.00 deg" in captured.out
     assert "--yaw-deg is deprecated, use --pan-deg" in captured.err

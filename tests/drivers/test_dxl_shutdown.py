@@ -58,7 +58,9 @@ def test_on_signal_callback_first_then_raise():
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_a_signal_during_gimbal_move_stops_with_torque_off(tmp_path, sig):
     cfg = tmp_path / "slow.yaml"
-    cfg.write_text("profile_velocity_deg_s: 10.0\nprofile_acceleration_deg_s2: 100.0\nlatency_timer_ms: 25\n")
+    cfg.write_text(
+        "profile_velocity_deg_s: 10.0\nprofile_acceleration_deg_s2: 100.0\nlatency_timer_ms: 100\nretries: 5\n"
+    )
     with ServoEmulator() as emu:
         proc = subprocess.Popen(
             [sys.executable, "-m", "aes_planner", "gimbal", "move", "--port", emu.port, "--config", str(cfg)]
