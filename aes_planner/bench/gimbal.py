@@ -30,7 +30,9 @@ def run(rec: Recorder, quick: bool) -> None:
 
     runs = 20 if quick else 200
     with EmulatorProcess(baud=BAUD) as emulator:
-        config = DynamixelPanTiltConfig(port=emulator.port, baud=BAUD)
+        # a generous reply timeout and retries: they cost nothing on a successful exchange (what is
+        # timed) and keep a loaded machine, where the emulator process waits for a CPU, from failing
+        config = DynamixelPanTiltConfig(port=emulator.port, baud=BAUD, latency_timer_ms=100.0, retries=5)
         with DynamixelPanTilt(config) as gimbal:
             rec.meta["backends"]["gimbal"] = f"dynamixel-sdk on emulator ({', '.join(gimbal.models.values())}) at {BAUD} baud"
             gimbal.move_to(0.0, 0.0)
