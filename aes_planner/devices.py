@@ -26,6 +26,7 @@ import logging
 import math
 import signal
 import threading
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
@@ -50,6 +51,7 @@ __all__ = [
     "device_class",
     "make_device",
     "joint_command",
+    "wait_for_arrival",
     "SignalShutdown",
     "stop_on_signals",
 ]
@@ -249,6 +251,52 @@ class GimbalFaults(Protocol):
     def restore_port(self) -> None: ...
 
     def clear_faults(self) -> None: ...
+
+
+MAX_WAIT_S = 600.0  # the longest wait_until_reached() accepts
+
+
+def wait_for_arrival(
+    read_state: Callable[[], GimbalState],
+    timeout_s: float,
+    tolerance_rad: float,
+    poll_interval_s: float,
+    *,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] = time.sleep,
+    faults: Callable[[], Mapping[str, tuple[str, ...]]] = dict,
+    hint: str = "",
+) -> GimbalState:
+    """The loop behind :meth:`Gimbal.wait_until_reached`: poll ``read_state()`` until the joints are
+    still and within ``tolerance_rad`` of the goal.
+
+    Raises :class:`GimbalHardwareError` (with ``faults()``) as soon as a state reports one,
+    :class:`GimbalTimeoutError` after ``timeout_s`` (the last sleep is cut to the deadline, so the
+    wait ends at most one ``read_state()`` late), and a :class:`ConfigError` for a timeout outside
+    (0, :data:`MAX_WAIT_S`]. ``hint`` is appended to the errors (what to do).
+    """
+    timeout_s = float(timeout_s)
+    if not (math.isfinite(timeout_s) and 0 < timeout_s <= MAX_WAIT_S):
+        raise ConfigError("timeout_s", f"must be a number of seconds in (0, {MAX_WAIT_S:g}], got {timeout_s!r}")
+    deadline = clock() + timeout_s
+    while True:
+        st = read_state()
+        if st.hardware_error:
+            raise GimbalHardwareError(f"stopped on the way: {', '.join(st.hardware_error)}{hint}", faults())
+        still = not st.moving
+        if (
+            still
+            and abs(st.pan_rad - st.goal_pan_rad) <= tolerance_rad
+            and abs(st.tilt_rad - st.goal_tilt_rad) <= tolerance_rad
+        ):
+            return st
+        remaining_s = deadline - clock()
+        if remaining_s <= 0:
+            raise GimbalTimeoutError(
+                f"the gimbal did not reach its goal within {timeout_s:g} s: {st.summary()}; check for an "
+                "obstruction, raise the profile velocity, or allow a longer timeout"
+            )
+        sleep(min(poll_interval_s, remaining_s))
 
 
 # type word -> "module:Class". Simulated gimbals register here beside the real ones.

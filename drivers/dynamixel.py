@@ -32,7 +32,6 @@ from typing import Any
 
 import dynamixel_sdk as sdk
 
-from aes_planner.config import ConfigError
 from aes_planner.devices import (
     DeviceError,
     Gimbal,
@@ -41,8 +40,8 @@ from aes_planner.devices import (
     GimbalPortLostError,
     GimbalProtocolError,
     GimbalState,
-    GimbalTimeoutError,
     joint_command,
+    wait_for_arrival,
 )
 from aes_planner.drivers.dynamixel_config import (  # noqa: F401  (re-exported: the old import paths)
     JOINTS,
@@ -246,32 +245,16 @@ class DynamixelPanTilt(Gimbal):
         )
 
     def wait_until_reached(self, timeout_s: float | None = None) -> GimbalState:
-        timeout_s = self.config.move_timeout_s if timeout_s is None else float(timeout_s)
-        if not (math.isfinite(timeout_s) and 0 < timeout_s <= MAX_MOVE_TIMEOUT_S):
-            raise ConfigError(
-                "timeout_s", f"must be a number of seconds in (0, {MAX_MOVE_TIMEOUT_S:g}], got {timeout_s!r}"
-            )
-        tol_rad = math.radians(self.config.arrival_tolerance_deg)
-        deadline = time.monotonic() + timeout_s
-        while True:
-            st = self.state()
-            if st.hardware_error:
-                raise GimbalHardwareError(
-                    f"stopped on the way: {', '.join(st.hardware_error)}; {self._reboot_hint()}", self._faults
-                )
-            if (
-                not st.moving
-                and abs(st.pan_rad - st.goal_pan_rad) <= tol_rad
-                and abs(st.tilt_rad - st.goal_tilt_rad) <= tol_rad
-            ):
-                return st
-            remaining_s = deadline - time.monotonic()
-            if remaining_s <= 0:
-                raise GimbalTimeoutError(
-                    f"the gimbal did not reach its goal within {timeout_s:g} s: {st.summary()}; check for an obstruction, "
-                    "raise profile_velocity_deg_s, or allow a longer timeout"
-                )
-            time.sleep(min(self.config.poll_interval_s, remaining_s))
+        return wait_for_arrival(
+            self.state,
+            self.config.move_timeout_s if timeout_s is None else timeout_s,
+            math.radians(self.config.arrival_tolerance_deg),
+            self.config.poll_interval_s,
+            clock=time.monotonic,
+            sleep=time.sleep,
+            faults=lambda: self._faults,
+            hint=f"; {self._reboot_hint()}",
+        )
 
     def reboot(self) -> None:
         """REBOOT the faulted servos (all when none is), wait until they answer, clear the latch.

@@ -11,6 +11,7 @@ import math
 from dataclasses import dataclass
 
 from aes_planner.config import ConfigError, require, require_numbers
+from aes_planner.devices import MAX_WAIT_S
 from aes_planner.drivers.dynamixel_models import MODELS, SDK_BAUD_RATES, JointCalibration, model_by_name
 from aes_planner.geometry.rig import PanTiltConfig
 
@@ -31,7 +32,7 @@ JOINTS = ("pan", "tilt")
 MAX_LATENCY_TIMER_MS = 255.0  # the FTDI latency timer's own maximum
 MAX_BACKOFF_S = 1.0  # also the cap of each doubled wait between retries
 MAX_POLL_INTERVAL_S = 1.0
-MAX_MOVE_TIMEOUT_S = 600.0
+MAX_MOVE_TIMEOUT_S = MAX_WAIT_S
 MAX_REBOOT_TIMEOUT_S = 60.0
 MAX_ARRIVAL_TOLERANCE_DEG = 45.0
 

@@ -55,6 +55,7 @@ from aes_planner.drivers.dynamixel_models import (
     to_signed,
     to_unsigned,
 )
+from aes_planner.drivers.motion import trapezoid_step
 from aes_planner.drivers.protocol import (
     BROADCAST_ID,
     ERRBIT_ALERT,
@@ -357,34 +358,12 @@ class EmulatedServo:
             while remaining > 0.0:
                 dt = min(remaining, 0.002)
                 remaining -= dt
-                if self._step(goal, v_max, a_max, dt):
+                self.position_ticks, self.velocity_ticks_s, settled = trapezoid_step(
+                    self.position_ticks, self.velocity_ticks_s, goal, v_max, a_max, dt
+                )
+                if settled:
                     break
         self._publish()
-
-    def _step(self, goal: float, v_max: float, a_max: float, dt: float) -> bool:
-        """One integration step of the trapezoidal profile; True once settled at the goal.
-
-        Toward the goal the speed is the least of the profile velocity, the speed after
-        accelerating for ``dt`` and the braking curve ``sqrt(2 a d)`` that stops exactly at the
-        goal; moving away from it (a goal changed mid-move), the motor first brakes.
-        """
-        d = goal - self.position_ticks
-        v = self.velocity_ticks_s
-        if d == 0.0 and v == 0.0:
-            return True
-        s = 1.0 if d > 0 else -1.0
-        if math.isinf(a_max):
-            v = s * v_max
-        elif v * s < 0:
-            v += s * a_max * dt
-        else:
-            v = s * min(v_max, abs(v) + a_max * dt, math.sqrt(2.0 * a_max * abs(d)))
-        nxt = self.position_ticks + v * dt
-        if v * s > 0 and (goal - nxt) * s <= 0:  # reaches the goal within this step
-            self.position_ticks, self.velocity_ticks_s = goal, 0.0
-            return True
-        self.position_ticks, self.velocity_ticks_s = nxt, v
-        return False
 
     def _publish(self) -> None:
         m = self.model

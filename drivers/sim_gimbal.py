@@ -43,10 +43,12 @@ from aes_planner.devices import (
     GimbalHardwareError,
     GimbalPortLostError,
     GimbalState,
-    GimbalTimeoutError,
     joint_command,
+    wait_for_arrival,
 )
+from aes_planner.drivers.dynamixel_config import MAX_ARRIVAL_TOLERANCE_DEG, MAX_MOVE_TIMEOUT_S, MAX_POLL_INTERVAL_S
 from aes_planner.drivers.dynamixel_models import HARDWARE_ERROR_BITS
+from aes_planner.drivers.motion import trapezoid_step
 from aes_planner.geometry.rig import JointLimits, PanTiltConfig
 
 log = logging.getLogger(__name__)
@@ -103,9 +105,9 @@ class SimPanTiltConfig:
         for name, bound in (
             ("max_velocity_deg_s", _MAX_VELOCITY_DEG_S),
             ("max_acceleration_deg_s2", _MAX_ACCELERATION_DEG_S2),
-            ("move_timeout_s", 600.0),
-            ("arrival_tolerance_deg", 45.0),
-            ("poll_interval_s", 1.0),
+            ("move_timeout_s", MAX_MOVE_TIMEOUT_S),
+            ("arrival_tolerance_deg", MAX_ARRIVAL_TOLERANCE_DEG),
+            ("poll_interval_s", MAX_POLL_INTERVAL_S),
             ("temperature_c", 200.0),
         ):
             require(getattr(self, name) <= bound, name, f"must be at most {bound:g}, got {getattr(self, name)!r}")
@@ -155,26 +157,11 @@ class _Joint:
         while dt > 0.0:
             step = min(dt, _STEP_S)
             dt -= step
-            if self._step(step, v_max, a_max):
+            self.position, self.velocity, settled = trapezoid_step(
+                self.position, self.velocity, self.goal, v_max, a_max, step
+            )
+            if settled:
                 return
-
-    def _step(self, dt: float, v_max: float, a_max: float) -> bool:
-        """One step of the trapezoidal profile (as the emulator's servos); True once settled."""
-        d = self.goal - self.position
-        v = self.velocity
-        if d == 0.0 and v == 0.0:
-            return True
-        s = 1.0 if d > 0 else -1.0
-        if v * s < 0:  # moving away from a goal that changed: brake first
-            v += s * a_max * dt
-        else:
-            v = s * min(v_max, abs(v) + a_max * dt, math.sqrt(2.0 * a_max * abs(d)))
-        nxt = self.position + v * dt
-        if v * s > 0 and (self.goal - nxt) * s <= 0:
-            self.position, self.velocity = self.goal, 0.0
-            return True
-        self.position, self.velocity = nxt, v
-        return False
 
 
 class SimPanTilt(Gimbal):
@@ -269,25 +256,16 @@ class SimPanTilt(Gimbal):
             )
 
     def wait_until_reached(self, timeout_s: float | None = None) -> GimbalState:
-        timeout_s = self.config.move_timeout_s if timeout_s is None else float(timeout_s)
-        if not (math.isfinite(timeout_s) and 0 < timeout_s <= 600.0):
-            raise ConfigError("timeout_s", f"must be a number of seconds in (0, 600], got {timeout_s!r}")
-        tol = math.radians(self.config.arrival_tolerance_deg)
-        deadline = self.clock() + timeout_s
-        while True:
-            st = self.state()
-            if st.hardware_error:
-                raise GimbalHardwareError(f"stopped on the way: {', '.join(st.hardware_error)}", self._faults)
-            if (
-                not st.moving
-                and abs(st.pan_rad - st.goal_pan_rad) <= tol
-                and abs(st.tilt_rad - st.goal_tilt_rad) <= tol
-            ):
-                return st
-            remaining = deadline - self.clock()
-            if remaining <= 0:
-                raise GimbalTimeoutError(f"the gimbal did not reach its goal within {timeout_s:g} s: {st.summary()}")
-            self.sleep(min(self.config.poll_interval_s, remaining))
+        return wait_for_arrival(
+            self.state,
+            self.config.move_timeout_s if timeout_s is None else timeout_s,
+            math.radians(self.config.arrival_tolerance_deg),
+            self.config.poll_interval_s,
+            clock=self.clock,
+            sleep=self.sleep,
+            faults=lambda: self._faults,
+            hint="; call reboot()",
+        )
 
     def reboot(self) -> None:
         """Clear latched faults; torque stays off until the next :meth:`move_to`."""
