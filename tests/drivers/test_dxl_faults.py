@@ -82,12 +82,12 @@ def test_is_using_is_reset_after_an_exception_mid_exchange(gimbal, monkeypatch):
     assert calls and not gimbal._port.is_using
 
 
-# The reply timeout is 2 x 25 + 2 ms (FAST); a late reply within it is taken, a later one is
+# The reply timeout is 2 x 100 + 2 ms (FAST); a late reply within it is taken, a later one is
 # waited out by the retries (the stale reply then answers a retry of the same read). The late
-# reply comes 150 ms late, three timeouts' worth: at 80 ms a test process starved of CPU for
-# 30 ms (a loaded CI machine) found the reply already waiting when its first poll resumed.
-# The tries end at 52, 109, 171 and 243 ms (5 ms backoff, doubling), so it lands in the third.
-@pytest.mark.parametrize("delay_s, retried", [(0.002, False), (0.15, True)])
+# reply comes 500 ms late, more than two timeouts' worth, so that a test process starved of CPU
+# for a while still finds the first try timed out. The tries end at 202, 405, 609 and 815 ms
+# (1 ms backoff, doubling), so it lands in the third.
+@pytest.mark.parametrize("delay_s, retried", [(0.002, False), (0.5, True)])
 def test_delayed_replies(emulator, gimbal, caplog, delay_s, retried):
     emulator.faults.delay_s = delay_s
     emulator.faults.delay_next = 1
