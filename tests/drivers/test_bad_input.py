@@ -60,6 +60,14 @@ def test_cli_bad_input_is_one_line_exit_2(argv, message, capsys):
         ("port: /dev/x\nretries: 1000\n", "retries: must be 0..20"),
         ("port: [1, 2]\n", "port"),
         ("port: /dev/x\npan_direction: true\n", "pan_direction"),
+        ("port: /dev/x\nport: /dev/y\n", "port"),  # duplicate keys are refused, not last-wins
+        ("port: /dev/x\nprofile_velocity_deg_s: 1e30\n", "profile_velocity_deg_s: must be at most"),
+        ("port: [1\n", "not valid YAML"),
+        (
+            "a: &a [1,2,3,4,5,6,7,8,9]\nb: &b [*a,*a,*a,*a,*a,*a,*a,*a,*a]\nc: &c [*b,*b,*b,*b,*b,*b,*b,*b,*b]\n"
+            "d: &d [*c,*c,*c,*c,*c,*c,*c,*c,*c]\ne: &e [*d,*d,*d,*d,*d,*d,*d,*d,*d]\nf: [*e,*e,*e,*e,*e,*e,*e,*e,*e]\n",
+            "gimbal.yaml",  # an alias bomb: refused by the shared loader, bounded message
+        ),
     ],
 )
 def test_config_file_bad_values_are_one_line_exit_2(tmp_path, text, message, capsys):
@@ -67,7 +75,19 @@ def test_config_file_bad_values_are_one_line_exit_2(tmp_path, text, message, cap
     cfg.write_text(text)
     assert main(["gimbal", "state", "--config", str(cfg)]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("error: ") and message in err and err.count("\n") == 1, err
+    assert err.startswith("error: ") and message in err and err.count("\n") == 1 and len(err) < 600, err
+
+
+@pytest.mark.parametrize("kind", ["folder", "binary"])
+def test_config_that_is_not_a_yaml_file(tmp_path, kind, capsys):
+    cfg = tmp_path / "gimbal.yaml"
+    if kind == "folder":
+        cfg.mkdir()
+    else:
+        cfg.write_bytes(b"\xff\xfe\x00\x81" * 10)
+    assert main(["gimbal", "move", "--config", str(cfg), "--pan-deg", "1", "--tilt-deg", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and str(cfg) in err and err.count("\n") == 1, err
 
 
 # ------------------------------------------------------------------------------ driver config
