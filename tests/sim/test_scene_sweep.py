@@ -13,8 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from aes_planner.sim import SimCamera, SimCameraConfig, load_scene, render
+from aes_planner.config import from_dict
+from aes_planner.errors import AesPlannerError
+from aes_planner.sim import Scene, SceneSpec, SimCamera, SimCameraConfig, load_scene, render
 from aes_planner.sim.survey import render_survey
 
 SHOWCASE = Path(str(resources.files("aes_planner.sim") / "scenes" / "showcase.yaml"))
@@ -177,3 +181,38 @@ def test_huge_camera_refused_before_allocating(clean_error, tmp_path):
     for views in (0, -1, 10**9, 2.5, True):
         clean_error(render_survey, "indoor:3", views, tmp_path / "out", match="--views")
     assert not (tmp_path / "out").exists()
+
+
+_EXTREMES = st.one_of(
+    st.sampled_from([0.0, -0.0, 1e-320, 1e-300, 1e-5, 1e6, 1e12, 1e300, -1e300, 180.0, 1e30]),
+    st.floats(allow_nan=True, allow_infinity=True),
+)
+_FIELDS = [
+    ("rig.camera.hfov_deg", lambda d, v: d["rig"]["camera"].update(hfov_deg=v)),
+    ("objects[1].size_m", lambda d, v: d["objects"][1].update(size_m=[v, 1.0, 1.0])),
+    ("objects[2].radius_m", lambda d, v: d["objects"][2].update(radius_m=v)),
+    ("objects[2].centre_m", lambda d, v: d["objects"][2].update(centre_m=[v, 0.0, 1.0])),
+    ("objects[3].material.pattern.scale_m", lambda d, v: d["objects"][3]["material"]["pattern"].update(scale_m=v)),
+    ("objects[3].material.pattern.angle_deg", lambda d, v: d["objects"][3]["material"]["pattern"].update(angle_deg=v)),
+    ("objects[6].material.tile_m", lambda d, v: d["objects"][6]["material"].update(tile_m=v)),
+    ("objects[1].material.emission", lambda d, v: d["objects"][1]["material"].update(emission=v)),
+    ("lights[1].intensity", lambda d, v: d["lights"][1].update(intensity=v)),
+    ("lights[1].direction", lambda d, v: d["lights"][1].update(direction=[v, 0.1, -1.0])),
+    ("rig.pan_tilt.base_xyz_m", lambda d, v: d["rig"]["pan_tilt"].update(base_xyz_m=[v, 0.0, 1.0])),
+]
+
+
+@settings(max_examples=80)
+@given(field=st.sampled_from(_FIELDS), value=_EXTREMES)
+def test_extreme_numbers_give_a_config_error_or_a_finite_render(field, value):
+    data = yaml.safe_load(SHOWCASE.read_text())
+    data["objects"][IMAGE_OBJ]["material"]["image"] = str(ASSET)
+    data["rig"]["camera"].update(width=12, height=9)
+    field[1](data, value)
+    try:
+        scene = Scene(from_dict(SceneSpec, data))
+        out = render(scene, scene.rig.kinematics().forward(0.1, -0.1), scene.rig.intrinsics())
+    except AesPlannerError as exc:
+        assert "\n" not in str(exc)
+        return
+    assert np.isfinite(out.rgb).all() and np.isfinite(out.depth_m).all() and (out.depth_m >= 0).all(), field[0]
