@@ -29,7 +29,7 @@ from aes_planner.errors import AesPlannerError
 
 log = logging.getLogger(__name__)
 
-# Group name -> module. Groups of DESIGN.md that are not built yet are absent, not stubbed.
+# Group name -> module. Planned groups that are not built yet are absent, not stubbed.
 GROUPS: dict[str, str] = {
     "sim": "aes_planner.bench.sim",
     "raster": "aes_planner.bench.raster",
