@@ -248,10 +248,18 @@ def convert_checkpoint(src: str | Path, dst: str | Path) -> Path:
     """
     src, dst = Path(src).expanduser(), Path(dst).expanduser()
     log.info("reading %s (sha256 %s)", src, _sha256(src) if src.is_file() else "missing")
+    if dst.is_dir():  # checked before the (slow) load
+        raise WeightsError(f"{dst} is a folder; give the file to write, e.g. {dst / 'ven_weights.pt'}")
+    try:
+        dst.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise WeightsError(f"{dst}: cannot write the converted weights ({exc.strerror or exc})") from None
     state = load_ven_state_dict(src)
     VENTeacher(state)  # refuse to write weights that do not fit
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    torch.save({k: v.detach().clone().contiguous() for k, v in state.items()}, dst)
+    try:
+        torch.save({k: v.detach().clone().contiguous() for k, v in state.items()}, dst)
+    except (OSError, RuntimeError) as exc:
+        raise WeightsError(f"{dst}: cannot write the converted weights ({str(exc).strip()[:160]})") from None
     log.info("wrote %s (%d tensors, sha256 %s)", dst, len(state), _sha256(dst))
     return dst
 

@@ -130,3 +130,11 @@ def test_score_image_bomb_header_is_refused_before_decoding(tmp_path, cli_error)
     cli_error(["score", tmp_path], "no such image file")
     cli_error(["teachers", "convert-ven", tmp_path / "bomb.png", tmp_path / "out.pt"], "not a readable")
     assert not (tmp_path / "out.pt").exists()
+
+
+def test_convert_ven_to_a_bad_destination(tmp_path, cli_error):
+    (tmp_path / "ven.pt").write_bytes(b"never read: the destination is checked first")
+    (tmp_path / "afile").write_text("x")
+    cli_error(["teachers", "convert-ven", tmp_path / "ven.pt", tmp_path], "is a folder")
+    cli_error(["teachers", "convert-ven", tmp_path / "ven.pt", tmp_path / "afile" / "w.pt"], "cannot write")
+    assert (tmp_path / "afile").read_text() == "x"
