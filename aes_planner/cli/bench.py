@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+from pathlib import Path
+
+from aes_planner.errors import AesPlannerError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -24,6 +27,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from aes_planner.bench import run_groups, write_json
 
+    if args.json:  # a bad --json fails before minutes of benchmarks, not after
+        json_path = Path(args.json)
+        try:
+            if json_path.is_dir():
+                raise AesPlannerError(
+                    f"--json {json_path} is a folder; give a file name, e.g. {json_path / 'bench.json'}"
+                )
+            json_path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise AesPlannerError(f"--json {json_path}: cannot write there ({exc.strerror or exc})") from None
     # Benchmarks always report their figures, whatever -v says.
     logging.getLogger("aes_planner.bench").setLevel(logging.INFO)
     rec = run_groups(args.groups, quick=args.quick)

@@ -146,3 +146,9 @@ def test_unexpected_exceptions_are_one_line_and_visible_with_v(monkeypatch, caps
     assert err.count("\n") == 1 and "unexpected RuntimeError: boom second line" in err and "bug" in err
     with pytest.raises(RuntimeError, match="boom"):
         main(["-v", "sim", "families"])
+
+
+def test_bench_json_destination_is_checked_before_running(tmp_path, cli_error):
+    (tmp_path / "afile").write_text("x")
+    cli_error(["bench", "sim", "--quick", "--json", tmp_path], "is a folder", seconds=10)
+    cli_error(["bench", "sim", "--quick", "--json", tmp_path / "afile" / "b.json"], "cannot write", seconds=10)
