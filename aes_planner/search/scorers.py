@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from aes_planner.errors import AesPlannerError
 from aes_planner.field.scorer import Scorer
 from aes_planner.search.config import SearchConfig
 from aes_planner.search.pipeline import SearchError
@@ -25,3 +26,7 @@ def build_search_scorer(kind: str, frames: list, cfg: SearchConfig, teacher=None
         return build_scorer(kind, frames, teacher=teacher, **knobs)
     except ImportError as exc:  # the field's model is not part of this build yet
         raise SearchError(f"the {kind!r} scorer is not available in this build ({exc}); use --scorer rgb") from None
+    except SearchError:
+        raise
+    except AesPlannerError as exc:  # e.g. no field checkpoint, frames the reconstruction refuses
+        raise SearchError(f"cannot build the {kind!r} scorer: {exc}") from None

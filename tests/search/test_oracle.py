@@ -76,3 +76,19 @@ def test_oracle_free_inside_box(tiny, tmp_path):
     )  # fmt: skip
     assert box.contains(pose[:3, 3]) and np.isfinite(best)
     assert best >= float(extras["grid_scores"].max()) - 1e-9
+
+
+def test_search_on_an_empty_scene(tmp_path):
+    """Nothing in view (sky only): the ground-truth search still returns a finite view inside the limits."""
+    scene = tmp_path / "empty.yaml"
+    scene.write_text("name: empty\nobjects: []\nrig:\n  pan_tilt:\n    pan_limits_deg: [-90, 90]\n")
+    source = SimSource(str(scene), supersample=1, camera=SimCameraConfig(width=16, height=12))
+    pt = PanTilt(source.platform.rig)
+    j = pt.sweep(2)
+    result = search_views(
+        GroundTruthScorer(source, get_teacher()), pt.forward(j[:, 0], j[:, 1]), source.platform,
+        SearchConfig.preset("fast", steps=2),
+    )  # fmt: skip
+    best = result.best
+    assert np.isfinite(best.score) and np.all(np.isfinite(best.cam2world))
+    assert pt.within_limits(best.pan_rad, best.tilt_rad)

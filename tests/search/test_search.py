@@ -251,3 +251,18 @@ def test_bad_inputs_are_clear_errors():
     for inputs, match in ((bad, "NaN"), (np.zeros((0, 4, 4)), "empty"), (np.zeros((3, 3)), "shape")):
         with pytest.raises(SearchError, match=match):
             search_views(AimScorer([1, 0, 0]), inputs, platform, cfg)
+
+
+def test_unavailable_scorer_is_a_search_error(monkeypatch):
+    import aes_planner.field as field
+    from aes_planner.errors import AesPlannerError
+    from aes_planner.search import build_search_scorer
+
+    def boom(*a, **k):
+        raise AesPlannerError("no checkpoint")
+
+    monkeypatch.setattr(field, "build_scorer", boom)
+    with pytest.raises(SearchError, match="no checkpoint"):
+        build_search_scorer("field", [], SearchConfig.preset("fast"))
+    with pytest.raises(SearchError, match="scorer must be one of"):
+        build_search_scorer("magic", [], SearchConfig.preset("fast"))
