@@ -177,6 +177,7 @@ def evaluate_run(planner, scene: str, mode: str, out: Path, loop_s: float) -> di
         "normalized": round(normalized(final, max(best_oracle, final), rand), 4),
         "initial_normalized": round(normalized(initial, max(best_oracle, final), rand), 4),
         "moves": planner.moves,
+        "explore_captures": sum(c.kind == "explore" for c in caps),
         "captures": len(caps),
         "loop_s": round(loop_s, 2),
         "time_s": None,
@@ -320,7 +321,7 @@ def print_summary(s: dict) -> None:
     print(
         f"{s['mode']} on {s['scene']}: initial {s['initial']:.3f} -> final {s['final']:.3f} "
         f"(oracle {s['oracle']:.3f}, random {s['random_mean']:.3f}); normalized {s['normalized']:.2f} "
-        f"(initial view {s['initial_normalized']:.2f}) in {s['moves']} moves after {s['captures'] - s['moves'] - 1} "
+        f"(initial view {s['initial_normalized']:.2f}) in {s['moves']} moves after {s['explore_captures']} "
         f"exploration captures; {s['time_s']:.1f} s ({s['loop_s']:.1f} s in the loop)"
     )
     if "final_pan_deg" in s:

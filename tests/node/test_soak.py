@@ -28,3 +28,16 @@ def test_soak_long():
     check(r, 180.0)
     late = r.rss_samples_mb[len(r.rss_samples_mb) // 2 :]
     assert max(late) - min(late) < 100.0  # flat in the second half
+
+
+def test_bench_node_records_the_soak_figures(wiring_recorder, monkeypatch):
+    """Wiring only: which keys ``aes-planner bench node`` writes (the soak itself is tested above)."""
+    import aes_planner.node.soak as soak
+    from aes_planner.bench import node as bench_node
+
+    fake = soak.SoakResult(10.0, 300, 290, 250, 12, 6, 40, {"camera/frame": 10}, 400.0, 410.0, 0.5, 0.9, 8, 0, 0)
+    monkeypatch.setattr(soak, "run_soak", lambda duration_s: fake)
+    bench_node.run(wiring_recorder, quick=True)
+    r = wiring_recorder.results
+    assert r["node.soak.frames_dropped"]["value"] == 250 and r["node.soak.rss_end_mb"]["value"] == 410.0
+    assert r["node.soak.suggestion_p95_ms"]["value"] == pytest.approx(900.0)
