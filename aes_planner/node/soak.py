@@ -162,8 +162,10 @@ def run_soak(
     for t in threads:
         t.start()
     rss_samples = []
-    warm = min(2.0, duration_s / 4)
-    time.sleep(warm)
+    # warm-up: until the first suggestion is out (kernels loaded, allocator primed), at most half the run
+    warm_until = t0 + duration_s / 2
+    while time.time() < warm_until and not (seen["suggestions"] and time.time() - t0 > 2.0):
+        time.sleep(0.1)
     rss_start = rss_mb()
     while time.time() - t0 < duration_s:
         time.sleep(0.25)
