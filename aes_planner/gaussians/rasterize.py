@@ -32,6 +32,11 @@ log = logging.getLogger(__name__)
 
 BACKENDS = ("auto", "numba", "torch")
 BACKEND_ENV = "AES_PLANNER_RASTER_BACKEND"
+# max |R R^T - I| accepted in world2cam: float32 poses and poses read from files with 6-7
+# significant digits are off by ~1e-6; a scale or shear of 1e-4 is a wrong pose, not rounding.
+RIGID_TOL = 1e-4
+# Pixels (cameras x height x width) per call: the outputs alone take 4 * (5 + C) bytes per pixel.
+MAX_PIXELS = 1 << 28
 
 
 @dataclass
@@ -103,6 +108,8 @@ def _check_inputs(gaussians, world2cam, K, width, height, background):
             raise GaussianError(f"{name} must be a positive int (pixels), got {v!r}")
     device = gaussians.device
     world2cam = _batched(world2cam, "world2cam", (4, 4), device)
+    if world2cam.shape[0] == 0:
+        raise GaussianError("world2cam holds 0 cameras: pass one pose [4, 4] or a batch [B, 4, 4] with B >= 1")
     K = _batched(K, "K", (3, 3), device)
     if K.shape[0] == 1 and world2cam.shape[0] > 1:
         K = K.expand(world2cam.shape[0], 3, 3)
@@ -116,15 +123,41 @@ def _check_inputs(gaussians, world2cam, K, width, height, background):
     off = torch.stack([kd[:, 0, 1], kd[:, 1, 0], kd[:, 2, 0], kd[:, 2, 1], kd[:, 2, 2] - 1])
     if bool((off != 0).any()):
         raise GaussianError("K must read [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew); use Intrinsics.K_tensor()")
-    bottom = world2cam.detach()[:, 3]
-    if bool((bottom != torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=bottom.dtype, device=device)).any()):
-        raise GaussianError("world2cam must be rigid 4x4 matrices with bottom row [0, 0, 0, 1]")
+    _check_rigid(world2cam.detach())
+    if height * width * world2cam.shape[0] > MAX_PIXELS:
+        raise GaussianError(
+            f"{world2cam.shape[0]} cameras of {width}x{height} px are more than {MAX_PIXELS:.0e} pixels in one call; "
+            "render fewer cameras per call or a smaller image"
+        )
     if background is not None:
         background = torch.as_tensor(background, dtype=gaussians.dtype, device=device)
         if background.shape not in ((3,), (1, 3), (world2cam.shape[0], 3)):
             raise GaussianError(f"background must have shape [3] or [B, 3], got {tuple(background.shape)}")
+        if not bool(torch.isfinite(background.detach()).all()):
+            raise GaussianError("background has NaN or Inf entries; pass finite colours (e.g. [0, 0, 0])")
         background = background.reshape(-1, 3)
     return world2cam, K, background
+
+
+def _check_rigid(world2cam: Tensor) -> None:  # [B, 4, 4]
+    """Bottom row [0, 0, 0, 1] and a proper rotation (R R^T = I, det R = +1) within RIGID_TOL."""
+    bottom = world2cam[:, 3]
+    if bool((bottom != torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=bottom.dtype, device=bottom.device)).any()):
+        raise GaussianError("world2cam must be rigid 4x4 matrices with bottom row [0, 0, 0, 1]")
+    rot = world2cam[:, :3, :3].to(torch.float64)  # [B, 3, 3]
+    eye = torch.eye(3, dtype=torch.float64, device=rot.device)
+    err = (rot @ rot.transpose(1, 2) - eye).abs().amax(dim=(1, 2))  # [B]
+    det = (rot[:, 0] * torch.cross(rot[:, 1], rot[:, 2], dim=1)).sum(1)  # [B]
+    bad = (err > RIGID_TOL) | (det <= 0)
+    if bool(bad.any()):
+        b = int(bad.nonzero()[0, 0])
+        what = (
+            "is a reflection (det < 0)" if float(det[b]) <= 0 and float(err[b]) <= RIGID_TOL else "is not orthonormal"
+        )
+        raise GaussianError(
+            f"world2cam[{b}] must be rigid: its rotation block {what} (max |R R^T - I| = {float(err[b]):.2e}, "
+            f"det = {float(det[b]):.3g}); build poses with aes_planner.geometry (e.g. rigid_inverse(cam2world))"
+        )
 
 
 def rasterize(
