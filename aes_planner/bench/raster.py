@@ -9,6 +9,11 @@ Keys per case (``raster.<case>.<figure>``), all per view:
   ``speedup_fwd`` = dense / fast. ``dense_fwdbwd_ms`` where the dense graph fits in memory.
 * ``pairs``: Gaussian-pixel pairs with ``alpha >= 1/255`` in the view (the work a rasterizer
   cannot avoid, up to early termination); ``pairs_per_s_fwd``, ``pairs_per_s_fwdbwd``.
+* ``cpu_<stage>_ms`` (numba backend): where the process CPU time of one forward+backward goes,
+  from :func:`aes_planner.gaussians.numba_backend.profile_stages` in separate runs: the kernels
+  ``project``, ``bin``, ``raster_fwd``, ``raster_bwd``, ``project_bwd``; ``glue`` = the numpy
+  code around them inside the autograd Function; ``outside`` = everything else of the call
+  (input checks, torch autograd, the loss and its ``backward()`` call).
 * ``dense_extrapolated``: 1 when the dense time was measured on a subset (some cameras of a
   batch; with ``--quick`` one camera and the top quarter of the rows, 1/32 for 50k Gaussians)
   and scaled by the pixel count (the dense cost is linear in it).
@@ -81,7 +86,7 @@ def _wall_and_cpu_ms(fn, runs: int, warmup: int = 2) -> tuple[float, float]:
 
 def _count_pairs(g, world2cam, K, width, height, rows: int) -> int:
     """Pairs with alpha >= 1/255 in the first ``rows`` rows of camera 0 (chunked, no grad)."""
-    from aes_planner.gaussians.numerics import ALPHA_MIN
+    from aes_planner.gaussians.numerics import ALPHA_MIN, SIGMA_CLAMP
     from aes_planner.gaussians.projection import project
 
     with torch.no_grad():
@@ -94,14 +99,17 @@ def _count_pairs(g, world2cam, K, width, height, rows: int) -> int:
         for y in ys.split(max(1, 2048 // width)):
             pix = torch.stack(torch.meshgrid(y, xs, indexing="ij"), -1).reshape(-1, 2)[:, [1, 0]]
             d = pix[:, None, :] - uv[None]
-            sigma = 0.5 * (conic[:, 0] * d[..., 0] ** 2 + conic[:, 2] * d[..., 1] ** 2) + conic[:, 1] * d[..., 0] * d[..., 1]
-            alpha = (o * torch.exp(-sigma.clamp(0, 80))).clamp(max=0.99)
+            sigma = (
+                0.5 * (conic[:, 0] * d[..., 0] ** 2 + conic[:, 2] * d[..., 1] ** 2)
+                + conic[:, 1] * d[..., 0] * d[..., 1]
+            )
+            alpha = (o * torch.exp(-sigma.clamp(0, SIGMA_CLAMP))).clamp(max=0.99)
             total += int(((alpha >= ALPHA_MIN) & (sigma >= 0)).sum())
     return total
 
 
 def _bench_case(rec: Recorder, name: str, case: Case, quick: bool) -> None:
-    from aes_planner.gaussians import random_scene, rasterize
+    from aes_planner.gaussians import random_scene, rasterize, resolve_backend
     from aes_planner.gaussians.reference import rasterize_dense
 
     g, world2cam, K = random_scene(case.n, case.channels, case.size, case.size, case.cameras, seed=0)
@@ -127,6 +135,9 @@ def _bench_case(rec: Recorder, name: str, case: Case, quick: bool) -> None:
     rec.record(f"{prefix}.fwdbwd_ms", fast_fb, "ms", runs)
     rec.record(f"{prefix}.fwd_cpu_ms", cpu_fwd, "ms", runs)
     rec.record(f"{prefix}.fwdbwd_cpu_ms", cpu_fb, "ms", runs)
+
+    if resolve_backend("auto") == "numba":
+        _breakdown(rec, prefix, fwdbwd, runs, views)
 
     # Dense reference (float32 per-pixel maths) on the same scene, in the same run. A crop to the
     # top rows is the same camera with a smaller height (pixel centres do not depend on it).
@@ -160,13 +171,41 @@ def _bench_case(rec: Recorder, name: str, case: Case, quick: bool) -> None:
     rec.record(f"{prefix}.pairs", pairs, "pairs")
     rec.record(f"{prefix}.pairs_per_s_fwd", pairs / (fast_fwd / 1e3), "1/s")
     rec.record(f"{prefix}.pairs_per_s_fwdbwd", pairs / (fast_fb / 1e3), "1/s")
-    log.info("%s: fwd %.2f ms, fwd+bwd %.2f ms per view, dense %.0f ms (%.0fx)", name, fast_fwd, fast_fb,
-             dense_fwd, dense_fwd / fast_fwd)
+    log.info(
+        "%s: fwd %.2f ms, fwd+bwd %.2f ms per view, dense %.0f ms (%.0fx)",
+        name,
+        fast_fwd,
+        fast_fb,
+        dense_fwd,
+        dense_fwd / fast_fwd,
+    )
+
+
+KERNELS = ("project", "bin", "raster_fwd", "raster_bwd", "project_bwd")
+
+
+def _breakdown(rec: Recorder, prefix: str, fwdbwd, runs: int, views: int) -> None:
+    """Per-view process CPU ms of one forward+backward by stage (kernels, glue, outside)."""
+    from aes_planner.gaussians import numba_backend
+
+    total = 0.0
+    with numba_backend.profile_stages() as prof:
+        for _ in range(runs):
+            c0 = time.process_time()
+            fwdbwd()
+            total += time.process_time() - c0
+    per = {name: prof[name][0] / runs / views * 1e3 for name in (*KERNELS, "fwd_body", "bwd_body")}
+    for name in KERNELS:
+        rec.record(f"{prefix}.cpu_{name}_ms", per[name], "ms", runs)
+    glue = per["fwd_body"] + per["bwd_body"] - sum(per[name] for name in KERNELS)
+    rec.record(f"{prefix}.cpu_glue_ms", glue, "ms", runs)
+    rec.record(f"{prefix}.cpu_outside_ms", total / runs / views * 1e3 - per["fwd_body"] - per["bwd_body"], "ms", runs)
 
 
 def _subprocess_seconds(env: dict) -> tuple[float, float]:
-    out = subprocess.run([sys.executable, "-c", _LOAD_SNIPPET], capture_output=True, text=True, env=env,
-                         timeout=900, check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", _LOAD_SNIPPET], capture_output=True, text=True, env=env, timeout=900, check=True
+    )
     kernel_s, import_s = (float(v) for v in out.stdout.split()[-2:])
     return kernel_s, import_s
 
@@ -195,8 +234,9 @@ def run(rec: Recorder, quick: bool) -> None:
         import numba
 
         numba_backend.warmup(torch.float32)
-        info.update(numba=numba.__version__, threading_layer=numba.threading_layer(),
-                    numba_threads=numba.get_num_threads())
+        info.update(
+            numba=numba.__version__, threading_layer=numba.threading_layer(), numba_threads=numba.get_num_threads()
+        )
     rec.meta["backends"]["raster"] = info
     rec.meta.setdefault("load_average", {})["raster_start"] = os.getloadavg()
     t0 = time.perf_counter()

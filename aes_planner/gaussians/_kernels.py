@@ -45,16 +45,18 @@ from aes_planner.gaussians.numerics import (
     ALPHA_MAX,
     ALPHA_MIN,
     BLUR_PX2,
+    BOX_MARGIN_PX,
     DET_MIN,
     FAR_M,
     FRUSTUM_SLACK,
     LOG_INV_ALPHA_MIN,
     NEAR_M,
     ONE_MINUS_ALPHA_MIN,
+    SIGMA_CLAMP,
     T_STOP,
+    TILE,
 )
 
-TILE = 16
 HALF_TILE = TILE // 2  # lanes of a narrow row window in the forward
 PIXEL_MAJOR_MIN_CHANNELS = 8  # value channels + depth from which the channel loops go innermost
 DONE_CHECK_EVERY = 32  # Gaussians between checks whether every pixel of a tile is saturated
@@ -64,7 +66,6 @@ NPROJ = 7
 # Image-space gradients per (camera, Gaussian): mean2d, conic, opacity, depth.
 G_U, G_V, G_A, G_B, G_C, G_O, G_Z = range(7)
 NGRAD = 7
-BOX_MARGIN_PX = 1e-2  # widen the alpha >= 1/255 box against rounding; the per-pixel test decides
 
 _opts = dict(cache=True, error_model="numpy")
 
@@ -400,12 +401,12 @@ def _fill_lists_parallel(box, tiles_x, order, n_visible, offsets, lists):
 # Typed constants come in the `consts` array (same dtype as the image-space parameters), so the
 # float32 pipeline never widens to float64 inside a loop.
 C_ZERO, C_ONE, C_HALF, C_ALPHA_MAX, C_ALPHA_MIN, C_T_STOP, C_EXP_CLAMP, C_ONE_MINUS_ALPHA_MIN = range(8)
-CONSTS = (0.0, 1.0, 0.5, ALPHA_MAX, ALPHA_MIN, T_STOP, 16.0, ONE_MINUS_ALPHA_MIN)
+CONSTS = (0.0, 1.0, 0.5, ALPHA_MAX, ALPHA_MIN, T_STOP, SIGMA_CLAMP, ONE_MINUS_ALPHA_MIN)
 _fast = dict(_opts, fastmath={"reassoc", "contract", "nsz"})
 
 
 def exp_neg(s):
-    """exp(-s) for 0 <= s <= 16 (numba only): range reduction by ln 2, polynomial, exact 2^-n."""
+    """exp(-s) for 0 <= s <= SIGMA_CLAMP = 16 (numba only): range reduction by ln 2, polynomial, exact 2^-n."""
     raise NotImplementedError("exp_neg is only available inside numba-compiled code")
 
 

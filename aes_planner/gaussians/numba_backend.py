@@ -5,21 +5,53 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
+from collections import defaultdict
 
 import numpy as np
 import torch
 from torch import Tensor
 
-from aes_planner.gaussians.numerics import DEPTH_ALPHA_MIN
+from aes_planner.gaussians.numerics import DEPTH_ALPHA_MIN, TILE
 
 log = logging.getLogger(__name__)
 
-__all__ = ["available", "render", "warmup"]
+__all__ = ["available", "profile_stages", "render", "warmup"]
 
 _kernels = None
 _import_error: str | None = None
+_profile: dict[str, list[float]] | None = None  # stage -> [process CPU s, wall s, calls] while profiling
+
+
+@contextlib.contextmanager
+def profile_stages():
+    """Collect process CPU and wall seconds per stage of every render in the block: the kernels
+    (``project``, ``bin``, ``raster_fwd``, ``raster_bwd``, ``project_bwd``) and the bodies of the
+    autograd Function (``fwd_body``, ``bwd_body``: kernels plus the numpy glue around them).
+    Yields the dict ``{stage: [cpu_s, wall_s, calls]}``; not thread-safe (a measuring aid)."""
+    global _profile
+    _profile = defaultdict(lambda: [0.0, 0.0, 0])
+    try:
+        yield _profile
+    finally:
+        _profile = None
+
+
+@contextlib.contextmanager
+def _stage(name: str):
+    if _profile is None:
+        yield
+        return
+    c0, w0 = time.process_time(), time.perf_counter()
+    try:
+        yield
+    finally:
+        entry = _profile[name]
+        entry[0] += time.process_time() - c0
+        entry[1] += time.perf_counter() - w0
+        entry[2] += 1
 
 
 def _load():
@@ -49,46 +81,53 @@ def _forward_arrays(means, quats, log_scales, opacities, values, channels, world
     k = _kernels
     dtype = means.dtype
     n_cam, n = world2cam.shape[0], means.shape[0]
-    tiles_x = -(-width // k.TILE)
-    tiles_y = -(-height // k.TILE)
+    tiles_x = -(-width // TILE)
+    tiles_y = -(-height // TILE)
     n_tiles = tiles_x * tiles_y
     cov = np.empty((n, 6))
     proj = np.empty((n_cam, n, k.NPROJ), dtype)
     box = np.empty((n_cam, n, 4), np.int32)
     threads = k.numba.get_num_threads()
-    if n:
-        k.project_fwd(
-            means,
-            quats,
-            log_scales,
-            opacities,
-            k.camera_table(world2cam, K, width, height),
-            width,
-            height,
-            cov,
-            proj,
-            box,
-        )
-    order = np.empty((n_cam, n), np.int32)
-    n_visible = np.zeros(n_cam, np.int64)
-    counts = np.zeros((n_cam, n_tiles), np.int64)
-    parallel_bins = n_cam >= threads  # one camera per thread at least, else the caller bins
-    if n:
-        k.bin_cameras(proj, box, tiles_x, parallel_bins, order, n_visible, counts)
-    offsets = np.zeros(n_cam * n_tiles + 1, np.int64)
-    np.cumsum(counts.reshape(-1), out=offsets[1:])
-    lists = np.empty(int(offsets[-1]), np.int32)
-    if n:
-        k.fill_lists(box, tiles_x, parallel_bins, order, n_visible, offsets, lists)
+    with _stage("project"):
+        if n:
+            cams = k.camera_table(world2cam, K, width, height)
+            k.project_fwd(means, quats, log_scales, opacities, cams, width, height, cov, proj, box)
+    with _stage("bin"):
+        order = np.empty((n_cam, n), np.int32)
+        n_visible = np.zeros(n_cam, np.int64)
+        counts = np.zeros((n_cam, n_tiles), np.int64)
+        parallel_bins = n_cam >= threads  # one camera per thread at least, else the caller bins
+        if n:
+            k.bin_cameras(proj, box, tiles_x, parallel_bins, order, n_visible, counts)
+        offsets = np.zeros(n_cam * n_tiles + 1, np.int64)
+        np.cumsum(counts.reshape(-1), out=offsets[1:])
+        lists = np.empty(int(offsets[-1]), np.int32)
+        if n:
+            k.fill_lists(box, tiles_x, parallel_bins, order, n_visible, offsets, lists)
     rgb = np.empty((n_cam, 3, height, width), dtype)
     feat = np.empty((n_cam, channels, height, width), dtype)
     depth_sum = np.empty((n_cam, height, width), dtype)
     t_final = np.empty((n_cam, height, width), dtype)
     last = np.empty((n_cam, height, width), np.int32)
     consts = np.array(k.CONSTS, dtype)
-    k.raster_fwd(
-        proj, box, values, offsets, lists, tiles_x, width, height, consts, threads, rgb, feat, depth_sum, t_final, last
-    )
+    with _stage("raster_fwd"):
+        k.raster_fwd(
+            proj,
+            box,
+            values,
+            offsets,
+            lists,
+            tiles_x,
+            width,
+            height,
+            consts,
+            threads,
+            rgb,
+            feat,
+            depth_sum,
+            t_final,
+            last,
+        )
     state = (cov, proj, box, offsets, lists, tiles_x, last, consts)
     return rgb, feat, depth_sum, t_final, state
 
@@ -104,7 +143,17 @@ class _Raster(torch.autograd.Function):
     pool set passive)."""
 
     @staticmethod
-    def forward(ctx, means, quats, log_scales, opacities, colors, features, background, world2cam, K, width, height):
+    def forward(ctx, *args):
+        with _stage("fwd_body"):
+            return _Raster._forward(ctx, *args)
+
+    @staticmethod
+    def backward(ctx, *grads):
+        with _stage("bwd_body"):
+            return _Raster._backward(ctx, *grads)
+
+    @staticmethod
+    def _forward(ctx, means, quats, log_scales, opacities, colors, features, background, world2cam, K, width, height):
         arrays = [_np(t) for t in (means, quats, log_scales, opacities)]
         dtype = arrays[0].dtype
         values = np.concatenate([_np(colors), _np(features)], axis=1)  # [N, 3 + C]
@@ -124,7 +173,7 @@ class _Raster(torch.autograd.Function):
         return torch.from_numpy(rgb), torch.from_numpy(feat), torch.from_numpy(depth), torch.from_numpy(alpha)
 
     @staticmethod
-    def backward(ctx, v_rgb, v_feat, v_depth, v_alpha):
+    def _backward(ctx, v_rgb, v_feat, v_depth, v_alpha):
         k = _kernels
         means, quats, log_scales, opacities = ctx.arrays
         values, bg = ctx.values, ctx.bg
@@ -149,47 +198,49 @@ class _Raster(torch.autograd.Function):
         by_camera = n_cam >= 2 * threads
         g2d = np.zeros((1 if by_camera else threads, n_cam, n, k.NGRAD), dtype)
         gvals = np.zeros((threads, n, values.shape[1]), dtype)
-        k.raster_bwd(
-            proj,
-            box,
-            values,
-            offsets,
-            lists,
-            tiles_x,
-            width,
-            height,
-            consts,
-            t_final,
-            last,
-            v_rgb,
-            v_feat,
-            v_depth_sum,
-            v_t,
-            by_camera,
-            threads,
-            g2d,
-            gvals,
-        )
+        with _stage("raster_bwd"):
+            k.raster_bwd(
+                proj,
+                box,
+                values,
+                offsets,
+                lists,
+                tiles_x,
+                width,
+                height,
+                consts,
+                t_final,
+                last,
+                v_rgb,
+                v_feat,
+                v_depth_sum,
+                v_t,
+                by_camera,
+                threads,
+                g2d,
+                gvals,
+            )
         g_means = np.empty_like(means)
         g_quats = np.empty_like(quats)
         g_log_scales = np.empty_like(log_scales)
         g_opac = np.empty_like(opacities)
         g_cam = np.zeros((threads, n_cam, 12))
-        if n:
-            k.project_bwd(
-                means,
-                quats,
-                log_scales,
-                cov,
-                k.camera_table(w2c, kk, width, height),
-                box,
-                g2d,
-                g_means,
-                g_quats,
-                g_log_scales,
-                g_opac,
-                g_cam,
-            )
+        with _stage("project_bwd"):
+            if n:
+                k.project_bwd(
+                    means,
+                    quats,
+                    log_scales,
+                    cov,
+                    k.camera_table(w2c, kk, width, height),
+                    box,
+                    g2d,
+                    g_means,
+                    g_quats,
+                    g_log_scales,
+                    g_opac,
+                    g_cam,
+                )
         g_w2c = np.zeros((n_cam, 4, 4))
         g_w2c[:, :3, :] = g_cam.sum(0).reshape(n_cam, 3, 4)
         g_values = gvals.sum(0) if threads > 1 else gvals[0]

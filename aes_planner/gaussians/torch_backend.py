@@ -13,12 +13,10 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from aes_planner.gaussians.numerics import ALPHA_MAX, ALPHA_MIN, SIGMA_CLAMP, T_STOP
+from aes_planner.gaussians.numerics import ALPHA_MAX, ALPHA_MIN, SIGMA_CLAMP, T_STOP, TILE
 from aes_planner.gaussians.projection import project
 
-__all__ = ["TILE", "render"]
-
-TILE = 16
+__all__ = ["render"]
 
 
 def _tile_lists(proj, b: int, width: int, height: int, tiles_x: int, tiles_y: int):
