@@ -28,7 +28,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mode", choices=["rig", "free"], help="default: the folder's platform (rig if it has none)")
     p.add_argument("--rig", metavar="FILE", help="rig kinematics and joint limits as YAML (PanTiltConfig fields)")
     p.add_argument("--top", type=int, metavar="K", help="number of suggestions (default: the preset's K)")
-    p.add_argument("--scorer", default="field", choices=["field", "rgb"], help="what scores views (default field)")
+    p.add_argument(
+        "--scorer",
+        choices=["field", "rgb"],
+        help="what scores views (default: the field; RGB scoring, with a warning, when this build has no field)",
+    )
     p.add_argument("--json", metavar="OUT", help="write the suggestions as JSON")
     p.add_argument("--out", metavar="DIR", help="write the report image (report.png) into DIR")
     p.set_defaults(func=run)
@@ -78,23 +82,28 @@ def print_table(result, top: int) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from aes_planner.dataset import load_dataset
-    from aes_planner.search import SearchConfig, build_search_scorer, search_views
+    from aes_planner.search import SearchConfig, SearchError, build_search_scorer, search_views
     from aes_planner.search.report import render_with, write_report
 
     if args.top is not None and args.top < 1:
-        from aes_planner.search import SearchError
-
         raise SearchError(f"--top must be at least 1, got {args.top}")
     data = load_dataset(args.dataset, load_depth=True)
     if not data.frames:
-        from aes_planner.search import SearchError
-
         raise SearchError(f"{args.dataset}: the folder has no frames")
     platform = _platform(data.meta, data.frames, args.mode, args.rig)
     overrides = {"top_k": args.top} if args.top else {}
     cfg = SearchConfig.preset(args.preset, **overrides)
     t0 = time.perf_counter()
-    scorer = build_search_scorer(args.scorer, data.frames, cfg)
+    kind = args.scorer or "field"
+    try:
+        scorer = build_search_scorer(kind, data.frames, cfg)
+    except SearchError as exc:
+        if args.scorer:  # asked for explicitly: no silent substitute
+            raise
+        print(f"warning: {exc}; scoring with rgb instead")
+        kind = "rgb"
+        scorer = build_search_scorer(kind, data.frames, cfg)
+    args.scorer = kind
     result = search_views(scorer, data.cam2worlds(), platform, cfg)
     latency_ms = (time.perf_counter() - t0) * 1e3
     top = args.top or cfg.top_k

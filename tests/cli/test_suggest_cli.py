@@ -98,3 +98,23 @@ def test_suggest_free_mode_and_rig_file(folder, tmp_path, capsys):
     )
     doc = json.loads(out_json.read_text())
     assert doc["mode"] == "free" and "pan_deg" not in doc["suggestions"][0]
+
+
+def test_suggest_falls_back_to_rgb_only_when_not_asked(folder, tmp_path, capsys, monkeypatch):
+    import aes_planner.field as field
+    from aes_planner.field.scorer import ScorerError
+
+    real = field.build_scorer
+
+    def no_field(kind, *a, **k):
+        if kind == "field":
+            raise ScorerError("no field checkpoint")
+        return real(kind, *a, **k)
+
+    monkeypatch.setattr(field, "build_scorer", no_field)
+    out_json = tmp_path / "s.json"
+    assert main(["suggest", str(folder), "--preset", "fast", "--json", str(out_json)]) == 0
+    assert "scoring with rgb instead" in capsys.readouterr().out
+    assert json.loads(out_json.read_text())["scorer"] == "rgb"
+    assert main(["suggest", str(folder), "--preset", "fast", "--scorer", "field"]) == 2
+    assert "no field checkpoint" in capsys.readouterr().err
