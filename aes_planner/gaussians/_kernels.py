@@ -200,6 +200,9 @@ def _cov2d(j00, j02, j11, j12, s):
     return a, b, c
 
 
+CULL_SLACK = 1.01  # world2cam rotations are orthonormal to 1e-4 (rasterize checks), bounds hold with margin
+
+
 @njit(parallel=True, **_opts)
 def project_fwd(means, quats, log_scales, opacities, cams, width, height, cov, proj, box):
     """cov [N, 6] float64 (kept for the backward), proj [B, N, NPROJ] (Gaussians' dtype), box
@@ -211,6 +214,10 @@ def project_fwd(means, quats, log_scales, opacities, cams, width, height, cov, p
         sig = _sym((cov[n, 0], cov[n, 1], cov[n, 2], cov[n, 3], cov[n, 4], cov[n, 5]))
         o = np.float64(opacities[n])
         level = math.log(max(o, 1e-30)) + LOG_INV_ALPHA_MIN
+        # Largest variance of the Gaussian (its largest scale squared), for the early cull below.
+        s_max2 = math.exp(
+            2.0 * max(np.float64(log_scales[n, 0]), np.float64(log_scales[n, 1]), np.float64(log_scales[n, 2]))
+        )
         for b in range(n_cam):
             box[b, n, 0] = 1
             box[b, n, 1] = 0
@@ -229,6 +236,12 @@ def project_fwd(means, quats, log_scales, opacities, cams, width, height, cov, p
             ry, _ = _clamp_ratio(y * iz, -lim_yn, lim_yp)
             j00, j11 = fx * iz, fy * iz
             j02, j12 = -fx * rx * iz, -fy * ry * iz
+            # Early cull, before the covariance: the rows of T = J W below have norms^2 j00^2 + j02^2
+            # and j11^2 + j12^2 (W is a rotation), so a <= (j00^2 + j02^2) s_max^2 + blur, and so on.
+            bx = math.sqrt(2.0 * level * ((j00 * j00 + j02 * j02) * s_max2 + BLUR_PX2)) * CULL_SLACK + 1.0
+            by = math.sqrt(2.0 * level * ((j11 * j11 + j12 * j12) * s_max2 + BLUR_PX2)) * CULL_SLACK + 1.0
+            if u + bx < 0.0 or u - bx > width or v + by < 0.0 or v - by > height:
+                continue
             # cov2d = T Sigma T^T with T = J W (2 x 3)
             t0 = (j00 * w[0] + j02 * w[6], j00 * w[1] + j02 * w[7], j00 * w[2] + j02 * w[8])
             t1 = (j11 * w[3] + j12 * w[6], j11 * w[4] + j12 * w[7], j11 * w[5] + j12 * w[8])
@@ -619,8 +632,11 @@ def _lane_sum(buf, q):
 
 
 @njit(**_fast)
-def _bwd_values_pixel_major(v_pix, behind, row, lane_fac, lane_t, lane_ra, lane_va, vals, g, z, g_val, zero):
-    """The value/depth part of a tile row's backward with channels innermost, hit pixels only."""
+def _bwd_values_pixel_major(
+    v_pix, behind, row, lane_fac, lane_t, lane_ra, lane_va, vals, g, z, g_val, zero, need_values
+):
+    """The value/depth part of a tile row's backward with channels innermost, hit pixels only
+    (value gradients into g_val only when ``need_values``)."""
     cv = vals.shape[1]
     for j in range(TILE):
         fac = lane_fac[j]
@@ -629,13 +645,21 @@ def _bwd_values_pixel_major(v_pix, behind, row, lane_fac, lane_t, lane_ra, lane_
         t, ra = lane_t[j], lane_ra[j]
         base = (row + np.uint64(j)) * np.uint64(cv + 1)
         va = zero
-        for c in range(cv):
-            q = base + np.uint64(c)
-            vp = v_pix[q]
-            val = vals[g, c]
-            g_val[c] += fac * vp
-            va += (val * t - behind[q] * ra) * vp
-            behind[q] += val * fac
+        if need_values:
+            for c in range(cv):
+                q = base + np.uint64(c)
+                vp = v_pix[q]
+                val = vals[g, c]
+                g_val[c] += fac * vp
+                va += (val * t - behind[q] * ra) * vp
+                behind[q] += val * fac
+        else:
+            for c in range(cv):
+                q = base + np.uint64(c)
+                vp = v_pix[q]
+                val = vals[g, c]
+                va += (val * t - behind[q] * ra) * vp
+                behind[q] += val * fac
         q = base + np.uint64(cv)
         vp = v_pix[q]
         g_val[cv] += fac * vp
@@ -665,8 +689,10 @@ def _raster_tile_bwd(
     v_t,
     g2d,
     gvals,
+    need_values,
 ):
-    """Reverse traversal of one tile; adds into g2d [B, N, NGRAD] and gvals [N, Cv].
+    """Reverse traversal of one tile; adds into g2d [B, N, NGRAD] and gvals [N, Cv] (when
+    ``need_values``).
 
     Per-pixel gradient terms are accumulated lane-wise ([quantity, lane] buffers) and reduced
     once per Gaussian, so the row loops have no horizontal reductions.
@@ -756,19 +782,28 @@ def _raster_tile_bwd(
                 continue
             hit = True
             if pixel_major:
-                _bwd_values_pixel_major(v_pix, behind, row, lane_fac, lane_t, lane_ra, lane_va, vals, g, z, g_val, zero)
+                _bwd_values_pixel_major(
+                    v_pix, behind, row, lane_fac, lane_t, lane_ra, lane_va, vals, g, z, g_val, zero, need_values
+                )
             else:
                 for c in range(cv + 1):
                     val = vals[g, c] if c < cv else z
                     base = np.uint64(c * npx) + row
                     lane_base = np.uint64(c * TILE)
-                    for j in range(TILE):
-                        i = np.uint64(j)
-                        vp = v_pix[base + i]
-                        fac = lane_fac[i]
-                        acc_val[lane_base + i] += fac * vp
-                        lane_va[i] += (val * lane_t[i] - behind[base + i] * lane_ra[i]) * vp
-                        behind[base + i] += val * fac
+                    if need_values or c == cv:  # the depth channel's gradient is z's, which the poses need
+                        for j in range(TILE):
+                            i = np.uint64(j)
+                            vp = v_pix[base + i]
+                            fac = lane_fac[i]
+                            acc_val[lane_base + i] += fac * vp
+                            lane_va[i] += (val * lane_t[i] - behind[base + i] * lane_ra[i]) * vp
+                            behind[base + i] += val * fac
+                    else:
+                        for j in range(TILE):
+                            i = np.uint64(j)
+                            vp = v_pix[base + i]
+                            lane_va[i] += (val * lane_t[i] - behind[base + i] * lane_ra[i]) * vp
+                            behind[base + i] += val * lane_fac[i]
             for j in range(TILE):
                 i = np.uint64(j)
                 dx = xs[i] - u
@@ -788,6 +823,8 @@ def _raster_tile_bwd(
             g2d[b, g, G_U] += _lane_sum(acc_g, 4)
             g2d[b, g, G_V] += _lane_sum(acc_g, 5)
             for c in range(cv + 1):
+                if c < cv and not need_values:
+                    continue
                 sc = g_val[c] if pixel_major else _lane_sum(acc_val, c)
                 if c < cv:
                     gvals[g, c] += sc
@@ -816,8 +853,10 @@ def raster_bwd(
     threads,
     g2d,
     gvals,
+    need_values,
 ):
-    """g2d [nbuf, B, N, NGRAD] (nbuf = 1 when by_camera else threads), gvals [threads, N, Cv]."""
+    """g2d [nbuf, B, N, NGRAD] (nbuf = 1 when by_camera else threads), gvals [threads, N, Cv]
+    (left at zero unless ``need_values``)."""
     n_cam = proj.shape[0]
     n_tiles = (offsets.shape[0] - 1) // n_cam
     n_items = n_cam if by_camera else n_cam * n_tiles
@@ -848,6 +887,7 @@ def raster_bwd(
                     v_t,
                     g2d[0],
                     gvals[tid],
+                    need_values,
                 )
         else:
             _raster_tile_bwd(
@@ -870,14 +910,19 @@ def raster_bwd(
                 v_t,
                 g2d[tid],
                 gvals[tid],
+                need_values,
             )
 
 
 # ---------------------------------------------------------------------------- 6. backward projection
 @njit(parallel=True, **_opts)
-def project_bwd(means, quats, log_scales, cov, cams, box, g2d, g_means, g_quats, g_log_scales, g_opacities, g_cam):
+def project_bwd(
+    means, quats, log_scales, cov, cams, box, g2d, g_means, g_quats, g_log_scales, g_opacities, g_cam, need_gaussians
+):
     """Chain rule from g2d [nbuf, B, N, NGRAD] to the Gaussians and to g_cam [threads, B, 12]
-    (rows 0..2 of world2cam, row-major)."""
+    (rows 0..2 of world2cam, row-major). With ``need_gaussians`` False (only the poses need a
+    gradient: the search's refinement) the covariance chain is skipped and g_means, g_quats,
+    g_log_scales, g_opacities are left as they are."""
     n_cam = cams.shape[0]
     nbuf = g2d.shape[0]
     for n in prange(means.shape[0]):
@@ -945,7 +990,10 @@ def project_bwd(means, quats, log_scales, cov, cams, box, g2d, g_means, g_quats,
             gj11 = 2.0 * (hb * r0[1] + g_c * r1[1])
             gj12 = 2.0 * (hb * r0[2] + g_c * r1[2])
             # S = W Sigma W^T: dSigma = W^T gS W, dW += 2 gS W Sigma
-            gsig = _mm(_mm(_t(w), gS), w)
+            if need_gaussians:
+                gsig = _mm(_mm(_t(w), gS), w)
+            else:
+                gsig = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             gs = (
                 gs[0] + gsig[0],
                 gs[1] + gsig[1],
@@ -983,6 +1031,8 @@ def project_bwd(means, quats, log_scales, cov, cams, box, g2d, g_means, g_quats,
                 for j in range(3):
                     g_cam[tid, b, 4 * i + j] += 2.0 * gw[3 * i + j] + gp[i] * mm[j]
                 g_cam[tid, b, 4 * i + 3] += gp[i]
+        if not need_gaussians:
+            continue
         g_means[n, 0] = gm0
         g_means[n, 1] = gm1
         g_means[n, 2] = gm2

@@ -196,8 +196,11 @@ class _Raster(torch.autograd.Function):
         n_cam, n = w2c.shape[0], means.shape[0]
         threads = k.numba.get_num_threads()
         by_camera = n_cam >= 2 * threads
+        # Gradients the caller does not need are not computed (the search differentiates the poses only).
+        need_gaussians = any(ctx.needs_input_grad[:4])  # means, quats, log_scales, opacities
+        need_values = any(ctx.needs_input_grad[4:6])  # colors, features
         g2d = np.zeros((1 if by_camera else threads, n_cam, n, k.NGRAD), dtype)
-        gvals = np.zeros((threads, n, values.shape[1]), dtype)
+        gvals = np.zeros((threads, n if need_values else 0, values.shape[1]), dtype)
         with _stage("raster_bwd"):
             k.raster_bwd(
                 proj,
@@ -219,6 +222,7 @@ class _Raster(torch.autograd.Function):
                 threads,
                 g2d,
                 gvals,
+                need_values,
             )
         g_means = np.empty_like(means)
         g_quats = np.empty_like(quats)
@@ -240,17 +244,20 @@ class _Raster(torch.autograd.Function):
                     g_log_scales,
                     g_opac,
                     g_cam,
+                    need_gaussians,
                 )
         g_w2c = np.zeros((n_cam, 4, 4))
         g_w2c[:, :3, :] = g_cam.sum(0).reshape(n_cam, 3, 4)
         g_values = gvals.sum(0) if threads > 1 else gvals[0]
+        g_gauss = [
+            torch.from_numpy(a) if need_gaussians and n else None for a in (g_means, g_quats, g_log_scales, g_opac)
+        ]
+        if need_gaussians and not n:
+            g_gauss = [torch.from_numpy(np.zeros_like(a)) for a in (means, quats, log_scales, opacities)]
         return (
-            torch.from_numpy(g_means),
-            torch.from_numpy(g_quats),
-            torch.from_numpy(g_log_scales),
-            torch.from_numpy(g_opac),
-            torch.from_numpy(np.ascontiguousarray(g_values[:, :3])),
-            torch.from_numpy(np.ascontiguousarray(g_values[:, 3:])),
+            *g_gauss,
+            torch.from_numpy(np.ascontiguousarray(g_values[:, :3])) if need_values else None,
+            torch.from_numpy(np.ascontiguousarray(g_values[:, 3:])) if need_values else None,
             None if g_bg is None else torch.from_numpy(g_bg.astype(dtype, copy=False)),
             torch.from_numpy(g_w2c.astype(w2c.dtype)).to(cam_dtype),
             None,
