@@ -1,0 +1,135 @@
+"""Transport options of ``aes-planner launch`` and ``demo``: ``--processes`` (one process per node
+over Zenoh, supervised), ``--listen``, ``--foxglove [PORT]`` (live view) and ``--record FILE``.
+
+Not a command of its own: :mod:`aes_planner.cli.launch` and :mod:`aes_planner.cli.demo` call
+:func:`add_transport_flags`, :func:`run_processes` and :func:`attach_viewers`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import signal
+import sys
+import threading
+
+from aes_planner.errors import AesPlannerError
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None = None) -> None:
+    g = p.add_argument_group("transport")
+    g.add_argument(
+        "--processes",
+        action="store_true",
+        help=processes_help or "run each node in its own process over Zenoh (supervised; respawn: true restarts)",
+    )
+    g.add_argument(
+        "--listen",
+        default=DEFAULT_ENDPOINT,
+        metavar="ENDPOINT",
+        help=f"with --processes: where the graph's hub listens (default {DEFAULT_ENDPOINT}); "
+        "echo/record/replay and other machines connect here",
+    )
+    g.add_argument("--allow-remote", action="store_true", help="allow --listen beyond loopback")
+    g.add_argument(
+        "--foxglove",
+        nargs="?",
+        const=8765,
+        type=int,
+        default=None,
+        metavar="PORT",
+        help="serve every topic live to the Foxglove app on ws://127.0.0.1:PORT (default 8765)",
+    )
+    g.add_argument("--record", default=None, metavar="FILE.mcap", help="record every topic to an MCAP file")
+
+
+def attach_viewers(bus, args: argparse.Namespace) -> list:
+    """The Foxglove server and/or recorder that ``--foxglove`` / ``--record`` ask for, attached to
+    ``bus``; close them (in reverse) when the run ends."""
+    from aes_planner.transport.record import FoxgloveLive, Recorder
+
+    sinks = []
+    try:
+        if getattr(args, "record", None):
+            sinks.append(Recorder(args.record).attach(bus))
+        port = getattr(args, "foxglove", None)
+        if port is not None:
+            if not 0 <= port <= 65535:
+                raise AesPlannerError(f"--foxglove port must be in 0..65535, got {port}")
+            live = FoxgloveLive(port=port).attach(bus)
+            print(f"Foxglove: open ws://127.0.0.1:{live.port} in the Foxglove app", file=sys.stderr, flush=True)
+            sinks.append(live)
+    except BaseException:
+        close_viewers(sinks)
+        raise
+    return sinks
+
+
+def close_viewers(sinks: list) -> None:
+    for s in reversed(sinks):
+        try:
+            s.close()
+        except Exception:
+            logging.getLogger(__name__).exception("closing %s failed", type(s).__name__)
+
+
+@contextlib.contextmanager
+def stop_on_signals():
+    """An event set on SIGINT/SIGTERM (restored afterwards)."""
+    stop = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    for s in old:
+        signal.signal(s, lambda signum, frame: stop.set())
+    try:
+        yield stop
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def supervisor_from_args(args: argparse.Namespace, in_process=(), out=None):
+    """A :class:`~aes_planner.transport.supervisor.Supervisor` for ``args.file`` / ``args.set``."""
+    from aes_planner.config import ConfigError
+    from aes_planner.transport.config import ZenohConfig
+    from aes_planner.transport.supervisor import Supervisor
+
+    try:
+        ZenohConfig(listen=(args.listen,), connect=(), allow_remote=args.allow_remote)
+    except ConfigError as exc:
+        raise ConfigError("--listen", exc.message) from None
+    level = logging.getLogger().getEffectiveLevel()
+    return Supervisor(args.file, args.set, endpoint=args.listen, in_process=in_process, out=out, log_level=level)
+
+
+def run_processes(args: argparse.Namespace) -> int:
+    """``aes-planner launch FILE --processes``: supervise until the planner finishes, Ctrl-C or
+    ``--timeout``; 0 when a node finished, 1 otherwise."""
+    sup = supervisor_from_args(args)
+    timeout = getattr(args, "timeout", None)
+    print(
+        f"launch {sup.spec.path} (one process per node, hub {args.listen}): "
+        + ", ".join(c.node_id for c in sup.children),
+        flush=True,
+    )
+    with stop_on_signals() as stop:
+        sup.start()
+        sinks = []
+        try:
+            sinks = attach_viewers(sup.bus, args)
+            finished = sup.run(timeout_s=timeout, until=stop.is_set)
+            if stop.is_set():
+                print("[launch] interrupted: stopping the nodes", flush=True)
+                finished = False
+        finally:
+            close_viewers(sinks)
+            sup.shutdown()
+    died = [c.node_id for c in sup.children if any(code not in (0, 143, -15) for code in c.exit_codes)]
+    if died:
+        print(f"[launch] nodes that died during the run: {', '.join(died)}", flush=True)
+    return 0 if finished else 1

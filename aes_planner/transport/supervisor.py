@@ -1,0 +1,344 @@
+"""Multi-process launch: one process per node over Zenoh, supervised.
+
+:class:`Supervisor` opens the hub of the graph (a Zenoh peer listening on ``endpoint``, loopback
+by default; the children connect to it and then find each other), starts one child process per
+node of a launch file (``python -m aes_planner.transport.supervisor --child ...``), and:
+
+* forwards each child's output line by line with a ``[node_id]`` prefix;
+* reports a child that dies, and restarts it (after a short back-off, at most ``max_respawns``
+  times) when its launch entry says ``respawn: true``; the others keep running and pick the new
+  process up through Zenoh;
+* ends when a node finishes (the planner settled: its process exits 0 by itself), on Ctrl-C /
+  SIGTERM, or at ``timeout_s``: children get SIGTERM in reverse launch order (so devices are
+  left safe), then SIGKILL after ``grace_s``. A child that hangs never hangs the launch.
+
+A child runs its single node with the node package's own runner on a :class:`ZenohBus` and exits
+0 when its node finishes, 128 + the signal on SIGTERM/SIGINT after stopping it cleanly, 1 when
+its loop fails, 2 on a configuration error.
+Nodes can also stay in the supervising process (``in_process``: e.g. the demo keeps the planner
+to read its result, or ``local_nodes`` built by the caller); they share :attr:`Supervisor.bus`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from aes_planner.errors import AesPlannerError
+from aes_planner.transport.config import DEFAULT_ENDPOINT, ZenohConfig
+
+__all__ = ["Supervisor", "ChildSpec", "main_child"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class ChildSpec:
+    """One supervised node process."""
+
+    node_id: str
+    respawn: bool = False
+    proc: subprocess.Popen | None = None
+    restarts: int = 0
+    exit_codes: list[int] = field(default_factory=list)
+    finished: bool = False
+    next_start_s: float = 0.0
+    reader: threading.Thread | None = None
+
+
+class Supervisor:
+    """See the module docstring. Use as a context manager or call :meth:`start` / :meth:`shutdown`."""
+
+    def __init__(
+        self,
+        launch_file: str,
+        overrides: Sequence[str] = (),
+        *,
+        endpoint: str = DEFAULT_ENDPOINT,
+        in_process: Sequence[str] = (),
+        local_nodes: Sequence = (),
+        max_respawns: int = 5,
+        respawn_delay_s: float = 0.5,
+        grace_s: float = 5.0,
+        out=None,
+        log_level: int = logging.WARNING,
+    ) -> None:
+        from aes_planner.node import load_launch
+
+        self.launch_file = launch_file
+        self.overrides = list(overrides)
+        self.spec = load_launch(launch_file, self.overrides)
+        self._check_configs()
+        self.endpoint = endpoint
+        self.hub_config = ZenohConfig(listen=(endpoint,), connect=())
+        ZenohConfig(connect=(endpoint,))  # the children's config: fails here, not in each child
+        self._prebuilt = list(local_nodes)  # [(node, remap)] built by the caller
+        self.in_process = set(in_process) | {n.node_id for n, _ in self._prebuilt}
+        self.max_respawns = max_respawns
+        self.respawn_delay_s = respawn_delay_s
+        self.grace_s = grace_s
+        self.out = out or sys.stdout
+        self.log_level = log_level
+        self.children = [
+            ChildSpec(e.id, e.respawn) for e in self.spec.nodes if e.type != "external" and e.id not in self.in_process
+        ]
+        self.bus = None
+        self.local = None  # the Launch of the in-process nodes
+        self.local_nodes: dict = {}
+        self.events: list[str] = []
+        self._out_lock = threading.Lock()
+        self._stop = threading.Event()
+
+    def _check_configs(self) -> None:
+        """Every node's config parses here, so a typo fails once, naming the key, not in a child."""
+        from aes_planner.config import from_dict
+        from aes_planner.node.base import node_class
+
+        for i, e in enumerate(self.spec.nodes):
+            if e.type != "external":
+                from_dict(node_class(e.type).config_class, e.config, f"nodes[{i}].config")
+
+    # -- children ----------------------------------------------------------------------------------
+
+    def _command(self, child: ChildSpec) -> list[str]:
+        cmd = [sys.executable, "-m", "aes_planner.transport.supervisor", "--child", child.node_id]
+        cmd += ["--launch", self.launch_file, "--connect", self.endpoint, "--log-level", str(self.log_level)]
+        for s in self.overrides:
+            cmd += ["--set", s]
+        return cmd
+
+    def _spawn(self, child: ChildSpec) -> None:
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        child.proc = subprocess.Popen(
+            self._command(child),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            env=env,
+            start_new_session=True,  # Ctrl-C reaches the supervisor only; it stops the children in order
+        )
+        child.reader = threading.Thread(target=self._forward, args=(child, child.proc), daemon=True)
+        child.reader.start()
+        self._say(f"started {child.node_id} (pid {child.proc.pid})")
+
+    def _forward(self, child: ChildSpec, proc: subprocess.Popen) -> None:
+        for raw in proc.stdout:
+            line = raw.decode("utf-8", "replace").rstrip("\n")
+            with self._out_lock:
+                print(f"[{child.node_id}] {line}", file=self.out, flush=True)
+        proc.stdout.close()
+
+    def _say(self, text: str) -> None:
+        self.events.append(text)
+        with self._out_lock:
+            print(f"[launch] {text}", file=self.out, flush=True)
+
+    def start(self) -> Supervisor:
+        from aes_planner.transport.zenoh_bus import ZenohBus
+
+        try:
+            self.bus = ZenohBus(self.hub_config)
+        except AesPlannerError as exc:
+            raise AesPlannerError(
+                f"cannot listen on {self.endpoint} ({exc}); is another launch running? choose another with --listen"
+            ) from None
+        for child in self.children:
+            self._spawn(child)
+        if self.in_process:
+            from aes_planner.node import Launch, build_nodes
+
+            nodes = list(self._prebuilt)
+            missing = self.in_process - {n.node_id for n, _ in nodes}
+            if missing:
+                nodes += [(n, r) for n, r in build_nodes(self.spec) if n.node_id in missing]
+            self.local_nodes = {n.node_id: n for n, _ in nodes}
+            self.local = Launch(nodes, bus=self.bus)
+            self.local.start()
+        return self
+
+    def node(self, node_id: str):
+        """An in-process node (see ``in_process``); still readable after :meth:`shutdown`."""
+        return self.local_nodes[node_id]
+
+    def _local_done(self) -> bool:
+        if self.local is None:
+            return False
+        from aes_planner.node.base import Node
+
+        if any(r.error is not None for r in self.local.runners):
+            self._say("an in-process node's loop died")
+            return True
+        finishing = [r.node for r in self.local.runners if type(r.node).finished is not Node.finished]
+        return bool(finishing) and all(n.finished for n in finishing)
+
+    def poll(self) -> bool:
+        """Check the children once: report deaths, respawn, notice a finished node. True when
+        the launch should end (a node finished)."""
+        now = time.monotonic()
+        done = False
+        for child in self.children:
+            proc = child.proc
+            if proc is None:
+                if child.respawn and now >= child.next_start_s and not self._stop.is_set():
+                    child.restarts += 1
+                    self._say(f"respawning {child.node_id} (restart {child.restarts})")
+                    self._spawn(child)
+                continue
+            code = proc.poll()
+            if code is None:
+                continue
+            if child.reader is not None:
+                child.reader.join(timeout=1.0)
+            child.exit_codes.append(code)
+            child.proc = None
+            if code == 0:
+                child.finished = True
+                self._say(f"{child.node_id} finished")
+                done = True
+                continue
+            self._say(f"{child.node_id} died (exit code {code})")
+            if child.respawn and child.restarts < self.max_respawns:
+                child.next_start_s = now + self.respawn_delay_s
+            else:
+                if child.respawn:
+                    self._say(f"{child.node_id}: not respawning after {child.restarts} restarts")
+                child.respawn = False
+        return done
+
+    def run(self, timeout_s: float | None = None, until=None, poll_s: float = 0.1) -> bool:
+        """Supervise until a node finishes (True), ``until()`` is true (True), Ctrl-C/SIGTERM or
+        ``timeout_s`` (False)."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while not self._stop.is_set():
+            if self.poll() or self._local_done():
+                return True
+            if until is not None and until():
+                return True
+            if deadline is not None and time.monotonic() > deadline:
+                self._say(f"timeout after {timeout_s:g} s")
+                return False
+            if self.local is None and self.children and all(c.proc is None and not c.respawn for c in self.children):
+                self._say("every node process has ended")
+                return False
+            self._stop.wait(poll_s)
+        return False
+
+    def request_stop(self) -> None:
+        self._stop.set()
+
+    def shutdown(self) -> None:
+        """Stop the in-process nodes, then SIGTERM every child in reverse launch order and SIGKILL
+        what is left after ``grace_s``."""
+        self._stop.set()
+        if self.local is not None:
+            try:
+                self.local.stop()
+            finally:
+                self.local = None
+        for child in reversed(self.children):
+            child.respawn = False
+            if child.proc is not None and child.proc.poll() is None:
+                try:
+                    child.proc.send_signal(signal.SIGTERM)
+                except ProcessLookupError:
+                    pass
+        end = time.monotonic() + self.grace_s
+        for child in reversed(self.children):
+            proc = child.proc
+            if proc is None:
+                continue
+            try:
+                proc.wait(timeout=max(0.0, end - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                self._say(f"{child.node_id} did not stop within {self.grace_s:g} s; killing it")
+                proc.kill()
+                proc.wait(timeout=5.0)
+            if child.reader is not None:
+                child.reader.join(timeout=1.0)
+            child.exit_codes.append(proc.returncode)
+            child.proc = None
+        if self.bus is not None:
+            self.bus.close()
+            self.bus = None
+
+    stop = shutdown  # the same shape as aes_planner.node.Launch
+
+    def __enter__(self) -> Supervisor:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.shutdown()
+
+
+# -- the child process ----------------------------------------------------------------------------
+
+
+def main_child(argv: Sequence[str] | None = None) -> int:
+    """Run one node of a launch file on a Zenoh bus until it finishes or is signalled."""
+    p = argparse.ArgumentParser(prog="aes_planner.transport.supervisor")
+    p.add_argument("--child", required=True, metavar="NODE_ID")
+    p.add_argument("--launch", required=True)
+    p.add_argument("--connect", required=True)
+    p.add_argument("--set", action="append", default=[])
+    p.add_argument("--log-level", type=int, default=logging.WARNING)
+    args = p.parse_args(argv)
+    logging.basicConfig(level=args.log_level, format="%(levelname)s %(name)s: %(message)s")
+
+    stop = threading.Event()
+    got: list[int] = []
+
+    def on_signal(signum, frame):
+        got.append(signum)
+        stop.set()
+
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, on_signal)
+    try:
+        from aes_planner.node import Launch, build_nodes, load_launch
+        from aes_planner.node.base import Node
+        from aes_planner.transport.zenoh_bus import ZenohBus
+
+        spec = load_launch(args.launch, args.set)
+        entry = spec.entry(args.child)
+        nodes = [(n, r) for n, r in build_nodes(spec) if n.node_id == entry.id]
+        bus = ZenohBus(ZenohConfig(connect=(args.connect,)))
+    except AesPlannerError as exc:
+        print(f"error: {exc}", file=sys.stderr, flush=True)
+        return 2
+    try:
+        launch = Launch(nodes, bus=bus)
+        node = nodes[0][0]
+        can_finish = type(node).finished is not Node.finished
+        try:
+            launch.start()
+            launch.run(until=lambda: stop.is_set() or (can_finish and node.finished))
+        finally:
+            launch.stop()
+        if any(r.error is not None for r in launch.runners):
+            return 1
+        if can_finish and node.finished and hasattr(node, "result"):
+            res = node.result()
+            best = res.get("best")
+            if best is not None:
+                print(
+                    f"{node.node_id}: {res['state']} after {res['moves']} moves; best captured score {best.score:.3f}"
+                )
+            return 0
+        return 0 if can_finish and node.finished else 128 + (got[0] if got else signal.SIGTERM)
+    except AesPlannerError as exc:
+        print(f"error: {exc}", file=sys.stderr, flush=True)
+        return 2
+    finally:
+        bus.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main_child())

@@ -1,0 +1,74 @@
+"""Multi-process launch on loopback: the gimbal and the camera in their own processes over Zenoh,
+the planner in the test's process, through a few moves; a killed node is reported and respawned;
+Ctrl-C-like shutdown leaves no process behind."""
+
+import io
+import logging
+import signal
+import time
+
+import pytest
+
+FAST = [
+    "planner.scorer=rgb",
+    "planner.preset=fast",
+    "planner.explore_views=3",
+    "planner.max_moves=2",
+    "camera.respawn=true",
+]
+
+
+def test_processes_run_the_closed_loop_and_respawn_a_killed_node(endpoint):
+    from aes_planner.transport.supervisor import Supervisor
+
+    out = io.StringIO()
+    sup = Supervisor(
+        "sim_closed_loop",
+        FAST,
+        endpoint=endpoint,
+        in_process=["planner"],
+        out=out,
+        respawn_delay_s=0.2,
+        log_level=logging.INFO,
+    )
+    killed = []
+
+    def kill_camera_once():
+        planner = sup.node("planner")
+        camera = next(c for c in sup.children if c.node_id == "camera")
+        if not killed and planner.result().get("captures", 0) >= 2 and camera.proc is not None:
+            camera.proc.send_signal(signal.SIGKILL)
+            killed.append(time.monotonic())
+        return False
+
+    with sup:
+        assert [c.node_id for c in sup.children] == ["gimbal", "camera"]
+        finished = sup.run(timeout_s=240, until=kill_camera_once)
+        procs = [c.proc for c in sup.children]
+    res = sup.node("planner").result()
+    log = out.getvalue()
+    assert finished, log[-3000:]
+    assert killed, "the planner never captured twice"
+    assert "[launch] camera died (exit code -9)" in log and "respawning camera (restart 1)" in log
+    assert res["moves"] >= 1 and res["best"] is not None, res
+    assert "[gimbal] INFO" in log  # forwarded output with the node prefix
+    assert all(p is None for p in procs) or all(p.poll() is not None for p in procs if p is not None)
+    for c in sup.children:
+        assert c.proc is None and c.exit_codes[-1] in (143, -15, -9), (c.node_id, c.exit_codes)
+
+
+def test_a_bad_launch_is_a_clear_error(endpoint):
+    from aes_planner.config import ConfigError
+    from aes_planner.transport.supervisor import Supervisor
+
+    with pytest.raises(ConfigError, match="max_movez"):
+        Supervisor("sim_closed_loop", ["planner.max_movez=2"], endpoint=endpoint)
+
+
+def test_launch_processes_flags_are_checked(capsys):
+    from aes_planner.cli import main
+
+    assert main(["launch", "sim_closed_loop", "--processes", "--listen", "tcp/0.0.0.0:7447"]) == 2
+    assert "allow_remote" in capsys.readouterr().err
+    assert main(["launch", "sim_closed_loop", "--processes", "--set", "planner.max_movez=1"]) == 2
+    assert "max_movez" in capsys.readouterr().err
