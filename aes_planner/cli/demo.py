@@ -51,6 +51,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--set", action="append", default=[], metavar="ID.KEY=VALUE", help="override a launch-file value (repeatable)"
     )
     p.add_argument("--timeout", type=float, default=600.0, help="give up after this many seconds (default 600)")
+    from aes_planner.cli.processes import add_transport_flags
+
+    add_transport_flags(p, "run the gimbal and the camera each in its own process over Zenoh (the planner stays here)")
     p.set_defaults(func=run)
 
 
@@ -60,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     if args.moves < 0:
         raise ConfigError("--moves", f"must be >= 0, got {args.moves}")
     out = Path(args.out) if args.out else Path("runs") / f"demo-{dt.datetime.now().strftime('%Y%m%d-%H%M%S')}"
-    result = run_demo(args.scene, args.mode, out, args.moves, args.set, args.timeout, progress=print)
+    result = run_demo(args.scene, args.mode, out, args.moves, args.set, args.timeout, progress=print, transport=args)
     print_summary(result)
     print(out.resolve() / "summary.json")
     return 0 if result["state"] == "done" else 1
@@ -75,8 +78,13 @@ def run_demo(
     timeout_s: float = 600.0,
     progress=None,
     planner_overrides: dict | None = None,
+    transport: argparse.Namespace | None = None,
 ) -> dict:
-    """Run the closed loop and write the run folder; returns the summary dict (plus ``state``)."""
+    """Run the closed loop and write the run folder; returns the summary dict (plus ``state``).
+
+    ``transport``: the ``--processes/--listen/--foxglove/--record`` flags (see
+    :mod:`aes_planner.cli.processes`); every topic is recorded to ``out/recording.mcap``."""
+    from aes_planner.cli.processes import attach_viewers, close_viewers
     from aes_planner.devices import stop_on_signals
     from aes_planner.node import Launch, build_nodes, load_launch
     from aes_planner.sim import load_scene
@@ -114,15 +122,30 @@ def run_demo(
             shown += 1
         return planner.finished
 
-    launch = Launch(nodes)
+    transport = transport or argparse.Namespace(processes=False, foxglove=None, record=None)
+    if transport.processes:  # the other nodes in their own processes over Zenoh, supervised
+        from aes_planner.transport.supervisor import Supervisor
+
+        local = [(n, r) for n, r in nodes if n.node_id == "planner"]
+        launch = Supervisor(
+            launch_file, [*sets, *overrides], endpoint=transport.listen, local_nodes=local, out=sys.stdout
+        )
+    else:
+        launch = Launch(nodes)
+    out.mkdir(parents=True, exist_ok=True)
+    recording = out / "recording.mcap"
+    viewers = argparse.Namespace(foxglove=transport.foxglove, record=transport.record or str(recording))
     stop = threading.Event()
     guard = stop_on_signals(on_signal=lambda _s: stop.set()) if _main_thread() else contextlib.nullcontext()
     with guard:  # SIGTERM / Ctrl-C: the nodes stop, the servos are left with torque off
+        sinks = []
         try:
             launch.start()
+            sinks = attach_viewers(launch.bus, viewers)
             ok = launch.run(timeout_s=timeout_s, until=lambda: report_progress() or stop.is_set())
         finally:
             launch.stop()
+            close_viewers(sinks)
     report_progress()
     loop_s = time.time() - t0
     if not ok and not planner.finished:

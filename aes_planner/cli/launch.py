@@ -27,13 +27,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--set", action="append", default=[], metavar="ID.KEY=VALUE", help="override a value (repeatable)")
     p.add_argument("--timeout", type=float, default=None, help="stop after this many seconds")
+    from aes_planner.cli.processes import add_transport_flags
+
+    add_transport_flags(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from aes_planner.cli.processes import attach_viewers, close_viewers, run_processes
     from aes_planner.devices import stop_on_signals
     from aes_planner.node import Launch, build_nodes, load_launch
 
+    if args.processes:  # one process per node over Zenoh (aes_planner.transport.supervisor)
+        return run_processes(args)
     spec = load_launch(args.file, args.set)
     nodes = build_nodes(spec)
     print(f"launch {spec.path}: " + ", ".join(f"{n.node_id} ({type(n).__name__})" for n, _ in nodes), flush=True)
@@ -47,11 +53,13 @@ def run(args: argparse.Namespace) -> int:
     # the drivers' safe shutdown: the first SIGINT/SIGTERM stops the loop, a second one raises,
     # and either way every node's stop() (a gimbal's torque-off) runs inside this block
     with stop_on_signals(on_signal=on_signal):
+        sinks = attach_viewers(launch.bus, args)  # --foxglove / --record
         try:
             launch.start()
             finished = launch.run(timeout_s=args.timeout, until=lambda: stop.is_set() or _all_finished(launch))
         finally:
             launch.stop()
+            close_viewers(sinks)
     for r in launch.runners:
         node = r.node
         if hasattr(node, "result") and node.finished:
