@@ -128,7 +128,13 @@ def run_demo(
 
         local = [(n, r) for n, r in nodes if n.node_id == "planner"]
         launch = Supervisor(
-            launch_file, [*sets, *overrides], endpoint=transport.listen, local_nodes=local, out=sys.stdout
+            launch_file,
+            [*sets, *overrides],
+            endpoint=transport.listen,
+            connect=transport.connect,
+            allow_remote=transport.allow_remote,
+            local_nodes=local,
+            out=sys.stdout,
         )
     else:
         launch = Launch(nodes)

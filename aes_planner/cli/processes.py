@@ -33,6 +33,13 @@ def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None =
         help=f"with --processes: where the graph's hub listens (default {DEFAULT_ENDPOINT}); "
         "echo/record/replay and other machines connect here",
     )
+    g.add_argument(
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="with --processes: also join the graph at this endpoint (another machine's hub; repeatable)",
+    )
     g.add_argument("--allow-remote", action="store_true", help="allow --listen beyond loopback")
     g.add_argument(
         "--foxglove",
@@ -100,11 +107,20 @@ def supervisor_from_args(args: argparse.Namespace, in_process=(), out=None):
     from aes_planner.transport.supervisor import Supervisor
 
     try:
-        ZenohConfig(listen=(args.listen,), connect=(), allow_remote=args.allow_remote)
+        ZenohConfig(listen=(args.listen,), connect=tuple(args.connect), allow_remote=args.allow_remote)
     except ConfigError as exc:
-        raise ConfigError("--listen", exc.message) from None
+        raise ConfigError("--listen" if exc.key.startswith("listen") else "--connect", exc.message) from None
     level = logging.getLogger().getEffectiveLevel()
-    return Supervisor(args.file, args.set, endpoint=args.listen, in_process=in_process, out=out, log_level=level)
+    return Supervisor(
+        args.file,
+        args.set,
+        endpoint=args.listen,
+        connect=args.connect,
+        allow_remote=args.allow_remote,
+        in_process=in_process,
+        out=out,
+        log_level=level,
+    )
 
 
 def run_processes(args: argparse.Namespace) -> int:

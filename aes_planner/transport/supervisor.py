@@ -63,6 +63,8 @@ class Supervisor:
         overrides: Sequence[str] = (),
         *,
         endpoint: str = DEFAULT_ENDPOINT,
+        connect: Sequence[str] = (),
+        allow_remote: bool = False,
         in_process: Sequence[str] = (),
         local_nodes: Sequence = (),
         max_respawns: int = 5,
@@ -78,7 +80,8 @@ class Supervisor:
         self.spec = load_launch(launch_file, self.overrides)
         self._check_configs()
         self.endpoint = endpoint
-        self.hub_config = ZenohConfig(listen=(endpoint,), connect=())
+        # The hub listens for the children (and tools); ``connect`` joins other machines' graphs.
+        self.hub_config = ZenohConfig(listen=(endpoint,), connect=tuple(connect), allow_remote=allow_remote)
         ZenohConfig(connect=(endpoint,))  # the children's config: fails here, not in each child
         self._prebuilt = list(local_nodes)  # [(node, remap)] built by the caller
         self.in_process = set(in_process) | {n.node_id for n, _ in self._prebuilt}
