@@ -72,3 +72,14 @@ def test_launch_processes_flags_are_checked(capsys):
     assert "allow_remote" in capsys.readouterr().err
     assert main(["launch", "sim_closed_loop", "--processes", "--set", "planner.max_movez=1"]) == 2
     assert "max_movez" in capsys.readouterr().err
+
+
+def test_a_busy_hub_port_is_a_clear_error(endpoint, capsys):
+    from aes_planner.cli import main
+    from aes_planner.transport import ZenohConfig
+    from aes_planner.transport.zenoh_bus import ZenohBus
+
+    with ZenohBus(ZenohConfig(listen=(endpoint,), connect=())):
+        assert main(["launch", "sim_closed_loop", "--processes", "--listen", endpoint, "--timeout", "5"]) == 2
+    err = capsys.readouterr().err
+    assert "another launch running" in err and len(err.strip().splitlines()) == 1
