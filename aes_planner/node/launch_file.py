@@ -36,7 +36,7 @@ from aes_planner.node.base import NODE_TYPES, LaunchContext, Node, make_node
 __all__ = ["LaunchEntry", "LaunchSpec", "apply_overrides", "build_nodes", "find_launch_file", "load_launch"]
 
 _ENTRY_KEYS = ("id", "type", "config", "remap", "respawn")
-_TOP_KEYS = ("scene", "nodes")
+_TOP_KEYS = ("scene", "nodes", "bus")
 
 
 @dataclass
@@ -53,6 +53,7 @@ class LaunchSpec:
     nodes: list[LaunchEntry]
     scene: str | None = None
     path: str = ""
+    bus: Any = None  # aes_planner.transport.ZenohConfig of a multi-process launch (the ``bus:`` block)
 
     def entry(self, node_id: str) -> LaunchEntry:
         for e in self.nodes:
@@ -123,7 +124,13 @@ def parse_launch(data: Any, path: str = "") -> LaunchSpec:
         if not isinstance(respawn, bool):
             raise ConfigError(f"{key}.respawn", f"expected true or false, got {respawn!r}")
         entries.append(LaunchEntry(node_id, node_type, dict(config), dict(remap), respawn))
-    return LaunchSpec(entries, scene, path)
+    bus = None
+    if data.get("bus") is not None:  # where a multi-process launch's hub listens, whom it joins
+        from aes_planner.config import from_dict
+        from aes_planner.transport.config import ZenohConfig
+
+        bus = from_dict(ZenohConfig, data["bus"], "bus")
+    return LaunchSpec(entries, scene, path, bus)
 
 
 def apply_overrides(data: Mapping[str, Any], overrides: Sequence[str]) -> dict:
