@@ -28,10 +28,10 @@ def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None =
     )
     g.add_argument(
         "--listen",
-        default=DEFAULT_ENDPOINT,
+        default=None,
         metavar="ENDPOINT",
-        help=f"with --processes: where the graph's hub listens (default {DEFAULT_ENDPOINT}); "
-        "echo/record/replay and other machines connect here",
+        help=f"with --processes: where the graph's hub listens (default: the launch file's bus.listen, else "
+        f"{DEFAULT_ENDPOINT}); echo/record/replay and other machines connect here",
     )
     g.add_argument(
         "--connect",
@@ -107,7 +107,9 @@ def supervisor_from_args(args: argparse.Namespace, in_process=(), out=None):
     from aes_planner.transport.supervisor import Supervisor
 
     try:
-        ZenohConfig(listen=(args.listen,), connect=tuple(args.connect), allow_remote=args.allow_remote)
+        ZenohConfig(
+            listen=(args.listen or DEFAULT_ENDPOINT,), connect=tuple(args.connect), allow_remote=args.allow_remote
+        )
     except ConfigError as exc:
         raise ConfigError("--listen" if exc.key.startswith("listen") else "--connect", exc.message) from None
     level = logging.getLogger().getEffectiveLevel()
@@ -129,7 +131,7 @@ def run_processes(args: argparse.Namespace) -> int:
     sup = supervisor_from_args(args)
     timeout = getattr(args, "timeout", None)
     print(
-        f"launch {sup.spec.path} (one process per node, hub {args.listen}): "
+        f"launch {sup.spec.path} (one process per node, hub {sup.endpoint}): "
         + ", ".join(c.node_id for c in sup.children),
         flush=True,
     )

@@ -62,7 +62,7 @@ class Supervisor:
         launch_file: str,
         overrides: Sequence[str] = (),
         *,
-        endpoint: str = DEFAULT_ENDPOINT,
+        endpoint: str | None = None,
         connect: Sequence[str] = (),
         allow_remote: bool = False,
         in_process: Sequence[str] = (),
@@ -79,10 +79,21 @@ class Supervisor:
         self.overrides = list(overrides)
         self.spec = load_launch(launch_file, self.overrides)
         self._check_configs()
-        self.endpoint = endpoint
         # The hub listens for the children (and tools); ``connect`` joins other machines' graphs.
-        self.hub_config = ZenohConfig(listen=(endpoint,), connect=tuple(connect), allow_remote=allow_remote)
-        ZenohConfig(connect=(endpoint,))  # the children's config: fails here, not in each child
+        # Arguments win over the launch file's ``bus:`` block, which wins over the defaults.
+        file_bus = getattr(self.spec, "bus", None)
+        if endpoint is None:
+            endpoint = file_bus.listen[0] if file_bus is not None and file_bus.listen else DEFAULT_ENDPOINT
+        if not connect and file_bus is not None and file_bus.connect != ZenohConfig().connect:
+            connect = file_bus.connect
+        allow_remote = allow_remote or bool(file_bus is not None and file_bus.allow_remote)
+        self.prefix = file_bus.prefix if file_bus is not None else "aes"
+        self.endpoint = endpoint
+        self.hub_config = ZenohConfig(
+            listen=(endpoint,), connect=tuple(connect), allow_remote=allow_remote, prefix=self.prefix
+        )
+        # the children's side: a bad endpoint fails here, not in each child
+        ZenohConfig(connect=(_child_endpoint(endpoint),), prefix=self.prefix)
         self._prebuilt = list(local_nodes)  # [(node, remap)] built by the caller
         self.in_process = set(in_process) | {n.node_id for n, _ in self._prebuilt}
         self.max_respawns = max_respawns
@@ -113,7 +124,8 @@ class Supervisor:
 
     def _command(self, child: ChildSpec) -> list[str]:
         cmd = [sys.executable, "-m", "aes_planner.transport.supervisor", "--child", child.node_id]
-        cmd += ["--launch", self.launch_file, "--connect", self.endpoint, "--log-level", str(self.log_level)]
+        cmd += ["--launch", self.launch_file, "--connect", _child_endpoint(self.endpoint), "--prefix", self.prefix]
+        cmd += ["--log-level", str(self.log_level)]
         for s in self.overrides:
             cmd += ["--set", s]
         return cmd
@@ -281,6 +293,15 @@ class Supervisor:
         self.shutdown()
 
 
+def _child_endpoint(listen: str) -> str:
+    """Where a child on this machine reaches a hub listening on ``listen`` (0.0.0.0 -> loopback)."""
+    proto, _, rest = listen.partition("/")
+    host, _, port = rest.rpartition(":")
+    if host in ("0.0.0.0", "[::]"):
+        host = "127.0.0.1"
+    return f"{proto}/{host}:{port}"
+
+
 # -- the child process ----------------------------------------------------------------------------
 
 
@@ -290,6 +311,7 @@ def main_child(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--child", required=True, metavar="NODE_ID")
     p.add_argument("--launch", required=True)
     p.add_argument("--connect", required=True)
+    p.add_argument("--prefix", default="aes")
     p.add_argument("--set", action="append", default=[])
     p.add_argument("--log-level", type=int, default=logging.WARNING)
     args = p.parse_args(argv)
@@ -312,7 +334,7 @@ def main_child(argv: Sequence[str] | None = None) -> int:
         spec = load_launch(args.launch, args.set)
         entry = spec.entry(args.child)
         nodes = [(n, r) for n, r in build_nodes(spec) if n.node_id == entry.id]
-        bus = ZenohBus(ZenohConfig(connect=(args.connect,)))
+        bus = ZenohBus(ZenohConfig(connect=(args.connect,), prefix=args.prefix))
     except AesPlannerError as exc:
         print(f"error: {exc}", file=sys.stderr, flush=True)
         return 2

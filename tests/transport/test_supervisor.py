@@ -83,3 +83,30 @@ def test_a_busy_hub_port_is_a_clear_error(endpoint, capsys):
         assert main(["launch", "sim_closed_loop", "--processes", "--listen", endpoint, "--timeout", "5"]) == 2
     err = capsys.readouterr().err
     assert "another launch running" in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_launch_files_bus_block_sets_the_hub(tmp_path, endpoint):
+    import yaml
+
+    from aes_planner.config import ConfigError
+    from aes_planner.node.launch_file import find_launch_file
+    from aes_planner.transport.supervisor import Supervisor
+
+    data = yaml.safe_load(find_launch_file("sim_closed_loop").read_text())
+    data["bus"] = {"listen": [endpoint], "connect": ["tcp/127.0.0.1:7999"], "prefix": "lab2"}
+    f = tmp_path / "two_machines.yaml"
+    f.write_text(yaml.safe_dump(data))
+    sup = Supervisor(str(f))
+    assert sup.endpoint == endpoint and sup.prefix == "lab2"
+    assert sup.hub_config.connect == ("tcp/127.0.0.1:7999",) and sup.hub_config.prefix == "lab2"
+    assert "--prefix" in sup._command(sup.children[0]) and Supervisor(
+        str(f), endpoint="tcp/127.0.0.1:1"
+    ).endpoint.endswith(":1")
+    data["bus"] = {"listen": ["tcp/0.0.0.0:7447"]}
+    f.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match="allow_remote"):
+        Supervisor(str(f))
+    data["bus"] = {"lissen": ["tcp/127.0.0.1:7447"]}
+    f.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match="bus.lissen"):
+        Supervisor(str(f))
