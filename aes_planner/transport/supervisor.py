@@ -315,6 +315,7 @@ def main_child(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--set", action="append", default=[])
     p.add_argument("--log-level", type=int, default=logging.WARNING)
     args = p.parse_args(argv)
+    parent = os.getppid()  # a supervisor killed outright leaves no orphan: we watch for reparenting
     logging.basicConfig(level=args.log_level, format="%(levelname)s %(name)s: %(message)s")
 
     stop = threading.Event()
@@ -344,7 +345,14 @@ def main_child(argv: Sequence[str] | None = None) -> int:
         can_finish = type(node).finished is not Node.finished
         try:
             launch.start()
-            launch.run(until=lambda: stop.is_set() or (can_finish and node.finished))
+
+            def orphaned() -> bool:
+                if os.getppid() != parent:
+                    got.append(signal.SIGHUP)
+                    return True
+                return False
+
+            launch.run(until=lambda: stop.is_set() or (can_finish and node.finished) or orphaned())
         finally:
             launch.stop()
         if any(r.error is not None for r in launch.runners):

@@ -110,3 +110,44 @@ def test_the_launch_files_bus_block_sets_the_hub(tmp_path, endpoint):
     f.write_text(yaml.safe_dump(data))
     with pytest.raises(ConfigError, match="bus.lissen"):
         Supervisor(str(f))
+
+
+def test_children_of_a_killed_supervisor_stop_by_themselves(endpoint, tmp_path):
+    """SIGKILL the supervising process: its node processes notice and exit (no orphans)."""
+    import os
+    import subprocess
+    import sys
+
+    script = tmp_path / "sup.py"
+    script.write_text(
+        "import sys, time\n"
+        "from aes_planner.transport.supervisor import Supervisor\n"
+        f"sup = Supervisor('sim_closed_loop', ['planner.scorer=rgb'], endpoint={endpoint!r}, out=sys.stderr).start()\n"
+        "print(' '.join(str(c.proc.pid) for c in sup.children), flush=True)\n"
+        "time.sleep(120)\n"
+    )
+    proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    pids = [int(p) for p in proc.stdout.readline().split()]
+    assert len(pids) == 3
+    time.sleep(1.0)
+    proc.kill()
+    proc.wait(timeout=10)
+
+    def alive(pid):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        try:  # a zombie (exited, not yet reaped by init) counts as gone
+            with open(f"/proc/{pid}/stat") as f:
+                return f.read().split(") ")[1][0] != "Z"
+        except OSError:
+            return False
+
+    end = time.monotonic() + 60
+    while any(alive(p) for p in pids) and time.monotonic() < end:
+        time.sleep(0.2)
+    left = [p for p in pids if alive(p)]
+    for p in left:
+        os.kill(p, signal.SIGKILL)
+    assert not left
