@@ -27,7 +27,7 @@ def kill(proc):
     proc.stdout.close()
 
 
-def statuses_within(sub, tag, timeout_s=10.0):
+def statuses_within(sub, tag, timeout_s=20.0):
     end = time.monotonic() + timeout_s
     while time.monotonic() < end:
         if any(m.status == tag for m in sub.take()):
@@ -36,7 +36,7 @@ def statuses_within(sub, tag, timeout_s=10.0):
     return False
 
 
-def query(bus, tag_expected, timeout_s=10.0):
+def query(bus, tag_expected, timeout_s=20.0):
     end = time.monotonic() + timeout_s
     while time.monotonic() < end:
         try:

@@ -11,7 +11,7 @@ from aes_planner.messages.samples import sample_messages
 from aes_planner.transport import RemoteError, RequestTimeout, ZenohConfig, wait_any
 
 
-def wait_for(pred, timeout_s=5.0):
+def wait_for(pred, timeout_s=20.0):  # generous: the CI machine is shared and often loaded
     end = time.monotonic() + timeout_s
     while time.monotonic() < end:
         if pred():
@@ -20,7 +20,7 @@ def wait_for(pred, timeout_s=5.0):
     return False
 
 
-def matched(pub_bus, sub_bus, topic, timeout_s=5.0):
+def matched(pub_bus, sub_bus, topic, timeout_s=20.0):
     """Wait until the subscription is visible to the publisher's side (routing established)."""
     return wait_for(lambda: any(i.topic == topic and i.subscribers for i in pub_bus.topics(0.2)), timeout_s)
 
@@ -55,8 +55,7 @@ def test_every_message_type_crosses_and_keep_last_holds(zenoh_pair):
     assert matched(hub, peer, "t/cmd")
     for i in range(20):
         pub.publish(GimbalCommand(sequence=i))
-    assert wait_for(lambda: few.received + few.dropped >= 20 or few.received >= 2)
-    time.sleep(0.2)
+    assert wait_for(lambda: few.pending and few._queue[-1].sequence == 19)  # the last always arrives (reliable)
     got = [m.sequence for m in few.take()]
     assert len(got) <= 2 and got[-1] == 19 and few.rejected == 0
 
