@@ -82,8 +82,12 @@ def test_extremes_are_finite_and_match_reference(scene):
         if g.dtype == torch.float64:
             if ref is None:
                 ref = outputs_and_grads("dense", g, world2cam, K, width, height, background)
+            # Values to 1e-6 relative: huge needle-shaped Gaussians seen at fx = 1e4 (a 4096 x 1
+            # image) make the 2D covariance nearly rank one, and its determinant cancels enough
+            # digits that the kernels and the dense reference, which order the products
+            # differently, differ by ~2e-7 relative in rgb (found by hypothesis at 1e-7).
             for k in OUTPUTS:
-                assert_close(out[k], ref[0][k], 1e-7, 1e-8, f"{backend} {k}")
+                assert_close(out[k], ref[0][k], 1e-6, 1e-8, f"{backend} {k}")
             # Gradients get a looser bound than values: with huge, thin Gaussians next to the near
             # plane the 2D covariance is nearly rank one (~1e8 px^2) and its determinant cancels
             # ~9 digits, so two float64 implementations that order the products differently agree
