@@ -38,6 +38,7 @@ GROUPS: dict[str, str] = {
     "gimbal": "aes_planner.bench.gimbal",
     "search": "aes_planner.bench.search",
     "node": "aes_planner.bench.node",
+    "field": "aes_planner.bench.field",
 }
 
 __all__ = ["GROUPS", "Recorder", "run_groups", "time_ms", "machine_info"]

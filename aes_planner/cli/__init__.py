@@ -29,6 +29,7 @@ COMMANDS = [
     "aes_planner.cli.teachers",
     "aes_planner.cli.gimbal",
     "aes_planner.cli.bus",
+    "aes_planner.cli.train",
 ]
 
 

@@ -13,6 +13,7 @@ log = logging.getLogger(__name__)
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help="run the paper's experiments on simulated scenes (tables and plots)")
     esub = p.add_subparsers(dest="eval_command", metavar="EXPERIMENT", required=True)
+    register_field(esub)
     register_search(esub)
 
 
@@ -21,6 +22,25 @@ def _int_list(text: str) -> list[int]:
         return [int(v) for v in text.split(",") if v.strip()]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+
+
+def register_field(esub: argparse._SubParsersAction) -> None:
+    f = esub.add_parser("field", help="novel-view aesthetic prediction: rgb, splat, field_nocond, field")
+    f.add_argument("--scenes", type=int, default=4, help="held-out family scenes (default 4; ignored with --scene)")
+    f.add_argument("--views", default="2,4,6", help="input view counts, comma separated (default 2,4,6)")
+    f.add_argument("--source", choices=["rig", "free"], default="rig", help="rig sweep (RGB) or free trajectory")
+    f.add_argument(
+        "--scene", action="append", metavar="FILE_OR_FAMILY:SEED", help="evaluate on this scene (repeatable)"
+    )
+    f.add_argument("--targets", type=int, default=100, help="held-out poses per trajectory (default 100)")
+    f.add_argument("--model", metavar="FILE", help="field checkpoint (default: the shipped one)")
+    f.add_argument("--nocond-model", metavar="FILE", help="checkpoint without view conditioning (default: shipped)")
+    f.add_argument("--render-width", type=int, default=None, help="render width in pixels (default: the scorer's)")
+    f.add_argument("--json", metavar="OUT", help="write the summary JSON here")
+    f.add_argument(
+        "--out", metavar="DIR", default="runs/eval_field", help="markdown table and plots (default runs/eval_field)"
+    )
+    f.set_defaults(func=run_field)
 
 
 def register_search(esub: argparse._SubParsersAction) -> None:
@@ -67,4 +87,38 @@ def run_search(args: argparse.Namespace) -> int:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(doc, indent=1) + "\n")
         print(f"wrote {args.json}")
+    return 0
+
+
+def run_field(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from aes_planner.errors import AesPlannerError
+    from aes_planner.eval.field import FieldEvalConfig, default_scenes, evaluate_field, write_report
+    from aes_planner.field.common import ScorerConfig
+    from aes_planner.field.model import NOCOND_CHECKPOINT, load_model
+    from aes_planner.sim import SimSource
+    from aes_planner.teachers import get_teacher
+
+    try:
+        views = [int(v) for v in args.views.split(",") if v.strip()]
+    except ValueError:
+        raise AesPlannerError(f"--views must be comma-separated integers like 2,4,6, got {args.views!r}") from None
+    scorer = ScorerConfig(**({"render_width_px": args.render_width} if args.render_width else {}))
+    config = FieldEvalConfig(source=args.source, views=views, targets=args.targets, scorer=scorer)
+    models = {"field": load_model(args.model), "field_nocond": load_model(args.nocond_model or NOCOND_CHECKPOINT)}
+    teacher = get_teacher(models["field"].teacher_name)
+    scenes = args.scene or default_scenes(args.scenes)
+    summary, raw = evaluate_field(
+        scenes,
+        lambda name: SimSource(name, supersample=2),
+        teacher,
+        models,
+        config,
+        progress=lambda it: tqdm(it, desc=f"eval field ({args.source})", unit="scene"),
+    )
+    paths = write_report(summary, raw, Path(args.out), Path(args.json) if args.json else None)
+    for views, methods in summary["views"].items():
+        print(f"{views} views: " + ", ".join(f"{m} PLCC {r['plcc']:.3f}" for m, r in methods.items()))
+    print("wrote " + ", ".join(str(p) for p in paths))
     return 0

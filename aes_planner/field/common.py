@@ -60,10 +60,15 @@ class ScorerConfig:
         require(len(self.background) == 3, "background", f"must be 3 numbers (RGB), got {self.background!r}")
 
     def reconstruct_config(self) -> ReconstructConfig:
-        """The reconstruction config with this config's budget cap."""
+        """The reconstruction config with this config's budget cap, aiming its splat stride at the
+        render width (Gaussians finer than the views they are rendered at cost time, add nothing)."""
         from dataclasses import replace
 
-        return replace(self.reconstruct, max_gaussians=min(self.reconstruct.max_gaussians, self.max_gaussians))
+        return replace(
+            self.reconstruct,
+            max_gaussians=min(self.reconstruct.max_gaussians, self.max_gaussians),
+            target_width_px=self.render_width_px,
+        )
 
 
 def render_intrinsics(frame_intrinsics: Intrinsics, width_px: int) -> Intrinsics:

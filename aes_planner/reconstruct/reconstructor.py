@@ -1,8 +1,9 @@
 """``Reconstructor``: posed frames in, a budgeted set of Gaussians out, one frame at a time.
 
 Read top to bottom: :func:`detect_mode` (what the frames carry), :func:`parallax_px` (the
-rotation-versus-translation test), the :class:`Reconstructor` (``add_frame`` -> depth for the
-frame -> splats -> dedupe into the map -> prune -> budget), and :func:`reconstruct` (a batch of
+rotation-versus-translation test), the stages both paths share (:func:`frame_mode`,
+:func:`frame_depth`, :func:`integrate`: splats -> dedupe into the map, :func:`enforce_budget`),
+the :class:`Reconstructor` (``add_frame``, frame by frame) and :func:`reconstruct` (a batch of
 frames: stereo neighbours from the whole batch, hidden-splat pruning over every input view).
 """
 
@@ -32,7 +33,18 @@ from aes_planner.reconstruct.splats import (
 )
 from aes_planner.reconstruct.stereo import StereoResult, consistent_depth, plane_sweep_depth
 
-__all__ = ["Reconstruction", "Reconstructor", "detect_mode", "parallax_px", "reconstruct"]
+__all__ = [
+    "Reconstruction",
+    "Reconstructor",
+    "budget_for",
+    "detect_mode",
+    "enforce_budget",
+    "frame_depth",
+    "frame_mode",
+    "integrate",
+    "parallax_px",
+    "reconstruct",
+]
 
 log = logging.getLogger(__name__)
 
@@ -117,6 +129,93 @@ def render_local(
     )
 
 
+# ---------------------------------------------------------------------------- stages
+# Flat functions that both Reconstructor (frame by frame) and reconstruct (a batch) call.
+
+
+def frame_mode(frame: PosedFrame, index: int, cfg: ReconstructConfig, rgb_mode: str | None) -> str | None:
+    """The mode a frame is reconstructed with: ``depth`` when it has depth and the config allows,
+    else ``rgb_mode`` (``stereo``/``sphere``; None while undecided)."""
+    if cfg.mode == "depth" and frame.depth_m is None:
+        raise ReconstructError(
+            f"frame {index} has no depth but mode='depth'; use mode='auto' (or 'stereo'/'sphere') for RGB frames"
+        )
+    if frame.depth_m is not None and cfg.mode in ("auto", "depth"):
+        return "depth"
+    return rgb_mode
+
+
+def frame_depth(
+    frame: PosedFrame,
+    mode: str,
+    cfg: ReconstructConfig,
+    sphere_centre: np.ndarray | None,
+    depth: np.ndarray | None = None,
+    confidence: np.ndarray | None = None,
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Depth ``[H, W]`` (and confidence) a frame's splats are built from: the sphere for
+    ``sphere``, the sensor for ``depth``, ``depth`` as given for ``stereo``; pixels without depth
+    handled by ``unknown_depth``."""
+    if mode == "sphere":
+        return ray_sphere_depth(frame.intrinsics, frame.cam2world, sphere_centre, cfg.sphere_radius_m), confidence
+    if mode == "depth":
+        depth = frame.depth_m.astype(np.float64)
+    if depth is None:
+        return None, confidence
+    policy = cfg.unknown_depth if cfg.unknown_depth != "auto" else ("fill" if mode == "stereo" else "far")
+    unknown = depth <= 0
+    if unknown.any() and policy == "far":
+        far = ray_sphere_depth(frame.intrinsics, frame.cam2world, np.zeros(3), cfg.far_radius_m)
+        depth = np.where(unknown, far, depth)
+    elif unknown.any() and policy == "fill":
+        depth = fill_inverse_depth(depth)
+        if confidence is not None:
+            confidence = np.where(unknown & (depth > 0), FILL_CONFIDENCE, confidence)
+    return depth, confidence
+
+
+def integrate(
+    splat_map: SplatSet,
+    frame: PosedFrame,
+    index: int,
+    cfg: ReconstructConfig,
+    depth: np.ndarray,
+    confidence: np.ndarray | None = None,
+) -> tuple[SplatSet, int]:
+    """Splats of one (local-frame) frame merged into ``splat_map``: build, sharpen, deduplicate
+    against the map, drop faint ones. Returns the new map and how many of the frame's splats
+    entered it."""
+    params = SplatParams.from_config(cfg, cfg.stride_for(frame.width))
+    new = splats_from_depth(frame.image, depth, frame.intrinsics, frame.cam2world, params, index, confidence)
+    new = sharpen_colors(new, frame.image, frame.intrinsics, frame.cam2world, params.stride, cfg.sharpen_iterations)
+    if cfg.dedupe:
+        keep_old, keep_new = dedupe(splat_map, new, cfg.merge_cell_factor, cfg.merge_margin)
+        new = new.select(keep_new)
+        splat_map = splat_map.select(keep_old)
+    splat_map = SplatSet.cat([splat_map, new])
+    return splat_map.select(splat_map.opacities >= cfg.min_opacity), len(new)
+
+
+def budget_for(splat_map: SplatSet, cfg: ReconstructConfig) -> int:
+    """``min(max_gaussians, ceil(budget_ratio x samples))``: samples are the stride blocks the
+    deduplicated scene holds, a measure of its extent as the views see it."""
+    if cfg.budget_ratio <= 0:
+        return cfg.max_gaussians
+    return int(min(cfg.max_gaussians, max(1, math.ceil(cfg.budget_ratio * float(splat_map.samples.sum())))))
+
+
+def enforce_budget(splat_map: SplatSet, cfg: ReconstructConfig, slack: float) -> SplatSet:
+    """Merge down to ``(1 - slack) x budget`` when over the budget."""
+    budget = budget_for(splat_map, cfg)
+    if len(splat_map) <= budget:
+        return splat_map
+    target = max(1, int(budget * (1.0 - slack)))
+    merged = coarsen(splat_map, target, cfg.scale_factor)
+    log.debug("budget %d: merged %d -> %d Gaussians", budget, len(splat_map), len(merged))
+    return merged
+
+
+# ---------------------------------------------------------------------------- streaming
 class Reconstructor:
     """Incremental reconstruction: :meth:`add_frame` each posed frame; :attr:`gaussians` any time.
 
@@ -152,12 +251,8 @@ class Reconstructor:
 
     @property
     def budget(self) -> int:
-        """``min(max_gaussians, ceil(budget_ratio x samples))``: samples are the stride blocks the
-        deduplicated scene holds, a measure of its extent as the views see it."""
-        cfg = self.config
-        if cfg.budget_ratio <= 0:
-            return cfg.max_gaussians
-        return int(min(cfg.max_gaussians, max(1, math.ceil(cfg.budget_ratio * float(self._map.samples.sum())))))
+        """The current Gaussian budget (:func:`budget_for`)."""
+        return budget_for(self._map, self.config)
 
     def add_frame(self, frame: PosedFrame) -> int:
         """Integrate one frame; returns how many of its splats entered the map (0 while a stereo
@@ -182,7 +277,7 @@ class Reconstructor:
                     added += self._integrate(waiting, "sphere")
                 self._pending = []
             added += self._integrate(item, mode)
-        self._enforce_budget(self.config.budget_slack)
+        self._map = enforce_budget(self._map, self.config, self.config.budget_slack)
         return added
 
     def render(self, cam2world: np.ndarray, intrinsics: Intrinsics, background=None) -> RasterOutput:
@@ -191,69 +286,34 @@ class Reconstructor:
             raise ReconstructError("nothing to render yet: add a frame first")
         return render_local(self.gaussians, self.local_frame.pose_to_local(cam2world), intrinsics, background)
 
-    # ------------------------------------------------------------------ modes
+    # ------------------------------------------------------------------ internals
     def _mode_for(self, item: _Local) -> str:
-        f = item.frame
-        if self.config.mode == "depth" and f.depth_m is None:
-            raise ReconstructError(
-                f"frame {item.index} has no depth but mode='depth'; use mode='auto' (or 'stereo'/'sphere') for RGB frames"
-            )
-        if f.depth_m is not None and self.config.mode in ("auto", "depth"):
-            return "depth"
-        if self._rgb_mode is None:  # auto: decide once, from the first frames that overlap
-            candidates = [r.frame for r in self._recent] + [f]
-            if len(candidates) >= 2:
-                self._rgb_mode = detect_mode(candidates, self.config)
-                log.info(
-                    "reconstruct: RGB frames %s (parallax %.2f px at %.1f m)",
-                    "translate: stereo" if self._rgb_mode == "stereo" else "rotate: sphere",
-                    parallax_px(candidates, self.config.nominal_depth_m),
-                    self.config.nominal_depth_m,
-                )
-            else:
-                return "wait"  # one RGB frame cannot tell rotation from translation
-        return self._rgb_mode
-
-    # ------------------------------------------------------------------ integration
-    def _params(self, frame: PosedFrame) -> SplatParams:
-        c = self.config
-        return SplatParams(
-            c.stride_for(frame.width), c.scale_factor, c.flatness, c.max_stretch, c.opacity, c.edge_rel, c.edge_ratio
+        mode = frame_mode(item.frame, item.index, self.config, self._rgb_mode)
+        if mode is not None:
+            return mode
+        # auto with RGB frames: decide once, from the first frames that overlap
+        candidates = [r.frame for r in self._recent] + [item.frame]
+        if len(candidates) < 2:
+            return "wait"  # one RGB frame cannot tell rotation from translation
+        self._rgb_mode = detect_mode(candidates, self.config)
+        log.info(
+            "reconstruct: RGB frames %s (parallax %.2f px at %.1f m)",
+            "translate: stereo" if self._rgb_mode == "stereo" else "rotate: sphere",
+            parallax_px(candidates, self.config.nominal_depth_m),
+            self.config.nominal_depth_m,
         )
+        return self._rgb_mode
 
     def _integrate(
         self, item: _Local, mode: str, depth: np.ndarray | None = None, confidence: np.ndarray | None = None
     ) -> int:
-        f = item.frame
-        cfg = self.config
-        if mode == "sphere":
-            if self._sphere_centre is None:
-                self._sphere_centre = f.cam2world[:3, 3].copy()
-            depth = ray_sphere_depth(f.intrinsics, f.cam2world, self._sphere_centre, cfg.sphere_radius_m)
-        elif mode == "depth":
-            depth = f.depth_m.astype(np.float64)
-        policy = cfg.unknown_depth if cfg.unknown_depth != "auto" else ("fill" if mode == "stereo" else "far")
-        if mode != "sphere" and depth is not None:
-            unknown = depth <= 0
-            if unknown.any() and policy == "far":
-                far = ray_sphere_depth(f.intrinsics, f.cam2world, np.zeros(3), cfg.far_radius_m)
-                depth = np.where(unknown, far, depth)
-            elif unknown.any() and policy == "fill":
-                depth = fill_inverse_depth(depth)
-                if confidence is not None:
-                    confidence = np.where(unknown & (depth > 0), FILL_CONFIDENCE, confidence)
-        params = self._params(f)
-        new = splats_from_depth(f.image, depth, f.intrinsics, f.cam2world, params, item.index, confidence)
-        new = sharpen_colors(new, f.image, f.intrinsics, f.cam2world, params.stride, cfg.sharpen_iterations)
-        if cfg.dedupe:
-            keep_old, keep_new = dedupe(self._map, new, cfg.merge_cell_factor, cfg.merge_margin)
-            new = new.select(keep_new)
-            self._map = self._map.select(keep_old)
-        self._map = SplatSet.cat([self._map, new])
-        self._map = self._map.select(self._map.opacities >= cfg.min_opacity)
+        if mode == "sphere" and self._sphere_centre is None:
+            self._sphere_centre = item.frame.cam2world[:3, 3].copy()
+        depth, confidence = frame_depth(item.frame, mode, self.config, self._sphere_centre, depth, confidence)
+        self._map, added = integrate(self._map, item.frame, item.index, self.config, depth, confidence)
         self.mode_counts[mode] += 1
         self.last_modes.append(mode)
-        return len(new)
+        return added
 
     def _integrate_stereo_pending(self) -> int:
         added = 0
@@ -271,15 +331,6 @@ class Reconstructor:
             log.warning("reconstruct: frames %s found no stereo neighbour with parallax and were skipped", dropped)
         self._pending = [i for i in still if id(i) in in_window]
         return added
-
-    # ------------------------------------------------------------------ budget
-    def _enforce_budget(self, slack: float) -> None:
-        budget = self.budget
-        if len(self._map) > budget:
-            target = max(1, int(budget * (1.0 - slack)))
-            before = len(self._map)
-            self._map = coarsen(self._map, target, self.config.scale_factor)
-            log.debug("budget %d: merged %d -> %d Gaussians", budget, before, len(self._map))
 
 
 FILL_CONFIDENCE = 0.05  # interpolated stereo depth: kept, but any measurement beats it in a merge
@@ -349,36 +400,39 @@ def reconstruct(frames: list[PosedFrame], config: ReconstructConfig | None = Non
     for i, f in enumerate(frames):
         if not isinstance(f, PosedFrame):
             raise ReconstructError(f"frames[{i}] is a {type(f).__name__}, not a PosedFrame")
-    rec = Reconstructor(cfg)
-    rec.local_frame = LocalFrame.centred_on(frames[0].cam2world)
-    items = [_Local(_to_local(f, rec.local_frame), i) for i, f in enumerate(frames)]
-    rec.frames_added = len(frames)
+    local = LocalFrame.centred_on(frames[0].cam2world)
+    items = [_Local(_to_local(f, local), i) for i, f in enumerate(frames)]
+    rgb_mode = None if cfg.mode == "auto" else cfg.mode
     if cfg.mode == "auto":
         rgb = [f for f in frames if f.depth_m is None]
-        rec._rgb_mode = detect_mode(rgb, cfg) if rgb else None
+        rgb_mode = detect_mode(rgb, cfg) if rgb else None
+    splat_map = SplatSet.empty()
+    sphere_centre = None
     modes = [""] * len(frames)
     for item in items:
-        mode = rec._mode_for(item)
+        mode = frame_mode(item.frame, item.index, cfg, rgb_mode)
+        stereo = (None, None)
         if mode == "stereo":
-            depth = _stereo_depth(item, items, cfg)
-            if depth is None:
+            stereo = _stereo_depth(item, items, cfg)
+            if stereo is None:
                 log.warning("reconstruct: frame %d has no stereo neighbour with parallax; skipped", item.index)
                 continue
-            rec._integrate(item, "stereo", *depth)
-        else:
-            rec._integrate(item, mode)
+        if mode == "sphere" and sphere_centre is None:
+            sphere_centre = item.frame.cam2world[:3, 3].copy()
+        depth, confidence = frame_depth(item.frame, mode, cfg, sphere_centre, *stereo)
+        splat_map, _ = integrate(splat_map, item.frame, item.index, cfg, depth, confidence)
         modes[item.index] = mode
     views = [(it.frame.cam2world, it.frame.intrinsics) for it in items]
-    unpruned = len(rec._map)
-    if cfg.min_contribution > 0 and len(rec._map):
-        rec._map = rec._map.select(prune_hidden(rec._map, views, cfg.min_contribution))
-    hidden = unpruned - len(rec._map)
-    rec._enforce_budget(0.0)
+    unpruned = len(splat_map)
+    if cfg.min_contribution > 0 and len(splat_map):
+        splat_map = splat_map.select(prune_hidden(splat_map, views, cfg.min_contribution))
+    hidden = unpruned - len(splat_map)
+    splat_map = enforce_budget(splat_map, cfg, 0.0)
     if cfg.refit_iterations:
-        rec._map = refit_colors(
-            rec._map, [(it.frame.cam2world, it.frame.intrinsics, it.frame.image) for it in items], cfg.refit_iterations
+        splat_map = refit_colors(
+            splat_map, [(it.frame.cam2world, it.frame.intrinsics, it.frame.image) for it in items], cfg.refit_iterations
         )
-    if not len(rec._map) and cfg.unknown_depth != "skip":  # "skip" asks to drop pixels without depth
+    if not len(splat_map) and cfg.unknown_depth != "skip":  # "skip" asks to drop pixels without depth
         if not any(modes):
             why = (
                 "stereo found no neighbour frame with parallax for any frame (one frame, identical poses, or "
@@ -388,5 +442,10 @@ def reconstruct(frames: list[PosedFrame], config: ReconstructConfig | None = Non
         else:
             why = "no pixel had usable depth (non-positive or absurdly far); check the depth maps and their units"
         raise ReconstructError(f"reconstruct made no Gaussians from {len(frames)} frame(s): {why}")
-    stats = {"unpruned": unpruned, "hidden_pruned": hidden, "budget": rec.budget, "count": len(rec._map)}
-    return Reconstruction(rec.gaussians, rec.local_frame, modes, stats, rec.splats)
+    stats = {
+        "unpruned": unpruned,
+        "hidden_pruned": hidden,
+        "budget": budget_for(splat_map, cfg),
+        "count": len(splat_map),
+    }
+    return Reconstruction(splat_map.to_gaussians(), local, modes, stats, splat_map)

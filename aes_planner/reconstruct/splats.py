@@ -130,15 +130,30 @@ class SplatSet:
 
 @dataclass(frozen=True)
 class SplatParams:
-    """The per-frame construction knobs (a view of :class:`ReconstructConfig`)."""
+    """The per-frame construction knobs: a view of
+    :class:`~aes_planner.reconstruct.ReconstructConfig` (no defaults of its own; build it with
+    :meth:`from_config`)."""
 
-    stride: int = 1
-    scale_factor: float = 0.5
-    flatness: float = 0.1
-    max_stretch: float = 8.0
-    opacity: float = 0.95
-    edge_rel: float = 0.03
-    edge_ratio: float = 3.0
+    stride: int
+    scale_factor: float
+    flatness: float
+    max_stretch: float
+    opacity: float
+    edge_rel: float
+    edge_ratio: float
+
+    @classmethod
+    def from_config(cls, config, stride: int) -> SplatParams:
+        """The knobs of ``config`` (a ``ReconstructConfig``) for blocks of ``stride`` pixels."""
+        return cls(
+            stride=stride,
+            scale_factor=config.scale_factor,
+            flatness=config.flatness,
+            max_stretch=config.max_stretch,
+            opacity=config.opacity,
+            edge_rel=config.edge_rel,
+            edge_ratio=config.edge_ratio,
+        )
 
 
 def ray_sphere_depth(

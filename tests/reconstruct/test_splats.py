@@ -5,6 +5,7 @@ import pytest
 from conftest import SPHERE_CENTRE, capture, looking_at_ball, surface_distance
 
 from aes_planner.geometry import Intrinsics, quat_to_matrix
+from aes_planner.reconstruct import ReconstructConfig
 from aes_planner.reconstruct.splats import (
     SplatParams,
     depth_edges,
@@ -16,6 +17,11 @@ from aes_planner.reconstruct.splats import (
 K64 = Intrinsics.from_fov(64, 48, 60.0)
 
 
+def _params(stride: int) -> SplatParams:
+    # these tests were written for a splat scale of 0.5 blocks (the config's default is 0.65)
+    return SplatParams.from_config(ReconstructConfig(scale_factor=0.5), stride)
+
+
 @pytest.fixture(scope="module")
 def frame(analytic_scene):
     return capture(analytic_scene, looking_at_ball([0.0, -0.5, 1.3]), K64)
@@ -23,14 +29,14 @@ def frame(analytic_scene):
 
 @pytest.mark.parametrize("stride", [1, 2, 3])
 def test_splats_sit_on_the_true_surface(frame, stride):
-    sp = splats_from_depth(frame.image, frame.depth_m, K64, frame.cam2world, SplatParams(stride=stride), 0)
+    sp = splats_from_depth(frame.image, frame.depth_m, K64, frame.cam2world, _params(stride), 0)
     assert len(sp) == (48 // stride) * (64 // stride)  # every block has depth here (no sky)
     assert surface_distance(sp.means.astype(np.float64)).max() < 1e-4
 
 
 def test_normals_follow_the_surface(frame):
     ids = frame.extras["instance_id"]  # 1 ground, 2 ball, 3 wall
-    sp = splats_from_depth(frame.image, frame.depth_m, K64, frame.cam2world, SplatParams(), 0)
+    sp = splats_from_depth(frame.image, frame.depth_m, K64, frame.cam2world, _params(1), 0)
     col, row = sp.source_pixel[:, 0], sp.source_pixel[:, 1]
     obj = ids[row, col]
     n = sp.normals.astype(np.float64)
@@ -51,7 +57,7 @@ def test_normals_follow_the_surface(frame):
 def test_no_rubber_sheet_between_ball_and_wall(frame):
     """A splat on the ball's silhouette must not stretch back to the wall behind it: both ends
     of every splat's long axis (2 sigma out) stay near a true surface."""
-    sp = splats_from_depth(frame.image, frame.depth_m, K64, frame.cam2world, SplatParams(), 0)
+    sp = splats_from_depth(frame.image, frame.depth_m, K64, frame.cam2world, _params(1), 0)
     rot = quat_to_matrix(sp.quats.astype(np.float64))
     s = np.exp(sp.log_scales.astype(np.float64))
     for axis in (0, 1):
@@ -81,7 +87,7 @@ def test_unknown_depth_is_skipped_and_fill_interpolates():
     depth[4:9, 4:9] = 0
     image = np.full((16, 16, 3), 100, np.uint8)
     k = Intrinsics.from_fov(16, 16, 60.0)
-    sp = splats_from_depth(image, depth, k, np.eye(4), SplatParams(), 0)
+    sp = splats_from_depth(image, depth, k, np.eye(4), _params(1), 0)
     assert len(sp) == 256 - 25 and np.all(np.isfinite(sp.means))
     filled = fill_inverse_depth(depth)
     assert np.allclose(filled, 3.0)
@@ -105,7 +111,7 @@ def test_tiny_images_give_finite_splats(shape):
     image = rng.integers(0, 255, (h, w, 3), dtype=np.uint8)
     depth = rng.uniform(1, 4, (h, w)).astype(np.float32)
     for stride in (1, 4):
-        sp = splats_from_depth(image, depth, k, np.eye(4), SplatParams(stride=stride), 0)
+        sp = splats_from_depth(image, depth, k, np.eye(4), _params(stride), 0)
         assert len(sp) >= 1
         for name in ("means", "quats", "log_scales", "colors", "normals", "footprint_m", "score"):
             assert np.all(np.isfinite(getattr(sp, name))), name

@@ -1,0 +1,68 @@
+"""``aes-planner train``: distil the aesthetic field from a teacher on procedurally generated scenes.
+
+Builds (or reuses) the sample cache, then trains; ``--resume`` continues from ``OUT/last.pt``.
+Training scenes are the simulator's families at seeds >= 1000; evaluation uses seeds < 1000.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "train", help="train the aesthetic field (distillation on simulated scenes)", description=__doc__
+    )
+    p.add_argument("--config", metavar="FILE", help="YAML with TrainConfig fields (see aes_planner.field.train)")
+    p.add_argument("--out", metavar="DIR", default="runs/field", help="checkpoints go here (default runs/field)")
+    p.add_argument("--cache", metavar="DIR", default=".cache/field", help="sample cache (default .cache/field)")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
+    p.add_argument("--teacher", metavar="NAME", help="teacher to distil (overrides the config)")
+    p.add_argument("--weights", metavar="FILE", help="the teacher's weights (e.g. VEN)")
+    p.add_argument("--steps", type=int, help="training steps (overrides the config)")
+    p.add_argument("--samples", type=int, help="cached samples (overrides the config)")
+    p.add_argument("--cache-only", action="store_true", help="build the cache and stop")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from aes_planner.config import load_yaml
+    from aes_planner.field.train import build_cache, load_config, set_threads, train
+    from aes_planner.sim import SimSource
+    from aes_planner.teachers import get_teacher
+
+    data = load_yaml(args.config) if args.config else {}
+    for key, value in (("teacher", args.teacher), ("teacher_weights", args.weights), ("steps", args.steps)):
+        if value is not None:
+            data[key] = value
+    if args.samples is not None:
+        data["samples"] = args.samples
+    config = load_config(data)
+    teacher = get_teacher(config.teacher, **({"weights": config.teacher_weights} if config.teacher_weights else {}))
+
+    def make_source(name: str) -> SimSource:
+        return SimSource(name, supersample=config.gt_supersample)
+
+    set_threads(config.threads)
+    samples = build_cache(
+        config, Path(args.cache), make_source, teacher, progress=lambda it: tqdm(it, desc="cache", unit="sample")
+    )
+    val = build_cache(
+        config, Path(args.cache), make_source, teacher, progress=lambda it: tqdm(it, desc="val cache"), split="val"
+    )
+    if args.cache_only:
+        print(f"{len(samples)} samples cached in {args.cache}")
+        return 0
+    train(
+        config,
+        samples,
+        Path(args.out),
+        resume=args.resume,
+        val_samples=val,
+        progress=lambda it: tqdm(it, desc="train", unit="step"),
+    )
+    print(f"wrote {Path(args.out) / 'model.pt'} (resumable: {Path(args.out) / 'last.pt'})")
+    return 0

@@ -1,0 +1,472 @@
+"""The aesthetic field: the paper's student, in a form that trains and runs on a 2-core CPU.
+
+Pipeline (section 3.1 of the paper, CPU parts in brackets):
+
+1. **Geometry** (frozen): Gaussians from :func:`aes_planner.reconstruct.reconstruct` (depth,
+   stereo or sphere mode, as the frames allow), in the reconstruction's local frame.
+2. **Aesthetic encoder** (frozen): the teacher's ``features()`` on each input view, a map
+   ``[C, h, w]`` (4 x 16 x 16 for ``composition``).
+3. **Embedding head** (trained): per input view, a small CNN fuses the upsampled teacher map
+   with the image (opponent colour) at the reconstruction's stride resolution; each Gaussian
+   gathers that per-pixel feature through its provenance (``source_frame``, ``source_pixel``),
+   adds geometry cues (inverse distance, normal and ray direction in its source camera, its
+   size) and an MLP predicts its embedding ``f [D]``. The Gaussian also keeps the teacher map
+   of its view at its pixel ``t [C]`` (in units of each channel's RMS).
+4. **Rasterisation** of ``[t, f, d_src]`` at the target pose (``d_src``: the unit direction
+   from the Gaussian to the camera that observed it), with alpha and depth.
+5. **View conditioning** (the paper's pose conditioning): per pixel, the cosine between the
+   target ray and the rendered ``d_src`` (how far the target looks from where the content was
+   seen) and the target's inverse depth join the rendered embedding. ``condition=False`` leaves
+   them out (the ablation).
+6. **Downsampler** (a light transformer) predicting a *correction* of the splatted map ``t``
+   pooled to the teacher's size (zero at initialisation: an untrained field is the ``splat``
+   baseline): pooling to twice the teacher's map size, a per-cell MLP, pooling to the map size, a
+   3x3 convolution and one global self-attention layer (the teacher's saliency depends on what
+   else is in the frame), then a 1x1 projection to ``C`` channels, scaled per channel.
+7. **Scoring**: the teacher's own ``head`` (and ``explain_map`` for the terms).
+
+:class:`FieldModel` holds the trained parts; :class:`FieldInputs` what one set of frames gives
+them; :class:`AestheticField` is the :class:`~aes_planner.field.scorer.Scorer`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import asdict, dataclass, field, replace
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from aes_planner.config import from_dict, require
+from aes_planner.errors import AesPlannerError
+from aes_planner.field.common import ScorerConfig, local_world2cam, render_intrinsics
+from aes_planner.field.scorer import ScoreOutput, Scorer, ScorerError, check_poses
+from aes_planner.gaussians import Gaussians, rasterize
+from aes_planner.geometry.camera import Intrinsics
+from aes_planner.geometry.poses import LocalFrame
+from aes_planner.messages import PosedFrame
+from aes_planner.reconstruct import ReconstructConfig, SplatSet, reconstruct
+from aes_planner.teachers import Teacher, get_teacher
+
+__all__ = [
+    "CHECKPOINT_FORMAT",
+    "DEFAULT_CHECKPOINT",
+    "NOCOND_CHECKPOINT",
+    "AestheticField",
+    "FieldInputs",
+    "FieldModel",
+    "FieldModelConfig",
+    "ModelError",
+    "load_model",
+    "opponent",
+]
+
+log = logging.getLogger(__name__)
+
+CHECKPOINT_FORMAT = 1
+#: The shipped checkpoints, package data of ``aes_planner.field``: the field, and the same
+#: trained without view conditioning (the ablation of ``aes-planner eval field``).
+DEFAULT_CHECKPOINT = "default_field.pt"
+NOCOND_CHECKPOINT = "default_field_nocond.pt"
+_GEOM = 8  # geometry cues per Gaussian
+_COND = 2  # view-conditioning channels per pixel (cosine to the source view, inverse depth)
+_EPS = 1e-6
+
+
+class ModelError(AesPlannerError, ValueError):
+    """A field checkpoint that cannot be used (missing, wrong format, another teacher)."""
+
+
+@dataclass
+class FieldModelConfig:
+    """Architecture of the trained parts.
+
+    * ``embed_dim``: ``D``, channels each Gaussian carries and the rasterizer renders.
+    * ``encoder_channels``: width of the per-view CNN.
+    * ``hidden``: width of the per-Gaussian and per-pixel MLPs and the downsampler.
+    * ``attention_dim``: query/key width of the downsampler's global attention.
+    * ``condition``: view conditioning on the input and target poses (off = the ablation).
+    """
+
+    embed_dim: int = 8
+    encoder_channels: int = 16
+    hidden: int = 32
+    attention_dim: int = 8
+    condition: bool = True
+
+    def __post_init__(self):
+        for name in ("embed_dim", "encoder_channels", "hidden", "attention_dim"):
+            v = getattr(self, name)
+            require(isinstance(v, int) and 1 <= v <= 512, name, f"must be an integer in [1, 512], got {v!r}")
+
+
+def opponent(images: Tensor) -> Tensor:  # [B, 3, H, W] in [0, 1] -> [B, 3, H, W]
+    """Luminance, red-green, yellow-blue (the teacher's colour space), centred near 0."""
+    m = images.new_tensor([[0.299, 0.587, 0.114], [0.5, -0.5, 0.0], [0.25, 0.25, -0.5]])
+    return torch.einsum("oc,bchw->bohw", m, images) - images.new_tensor([0.5, 0.0, 0.0])[None, :, None, None]
+
+
+class FieldModel(nn.Module):
+    """The trained parts of the field (embedding head, downsampler) and the teacher map scale."""
+
+    def __init__(self, config: FieldModelConfig, feature_channels: int, feature_size: tuple[int, int], teacher: str):
+        super().__init__()
+        self.config = config
+        self.teacher_name = teacher
+        self.feature_channels = c = int(feature_channels)
+        self.feature_size = (int(feature_size[0]), int(feature_size[1]))
+        e, h, d = config.encoder_channels, config.hidden, config.embed_dim
+        self.encoder = nn.Sequential(
+            nn.Conv2d(3 + c, e, 3, padding=1), nn.ReLU(), nn.Conv2d(e, e, 3, padding=1), nn.ReLU()
+        )
+        self.embed = nn.Sequential(nn.Linear(e + c + _GEOM, h), nn.ReLU(), nn.Linear(h, d))
+        n_in = c + d + 1 + (_COND if config.condition else 0)
+        self.pixel = nn.Sequential(nn.Conv2d(n_in, h, 1), nn.ReLU(), nn.Conv2d(h, h, 1), nn.ReLU())
+        self.cell = nn.Conv2d(h + c, h, 3, padding=1)
+        self.query = nn.Linear(h, config.attention_dim)
+        self.key = nn.Linear(h, config.attention_dim)
+        self.value = nn.Linear(h, h)
+        self.out = nn.Conv2d(2 * h, c, 1)
+        # the correction starts at zero: an untrained field is the splatted teacher map
+        nn.init.zeros_(self.out.weight)
+        nn.init.zeros_(self.out.bias)
+        # per-channel scale of the teacher's maps (set from training data): the network works in units
+        self.register_buffer("map_scale", torch.ones(c))
+
+    # ------------------------------------------------------------------ per input view
+    def encode_views(self, images: Tensor, fmaps: Tensor, size: tuple[int, int]) -> Tensor:
+        """Per-pixel features ``[V, E + C, h, w]`` of input views at ``size`` (the stride grid):
+        ``images [V, 3, H, W]`` in [0, 1], teacher maps ``fmaps [V, C, fh, fw]``."""
+        img = F.adaptive_avg_pool2d(images, size) if images.shape[-2:] != size else images
+        up = F.interpolate(fmaps / self.map_scale[None, :, None, None], size=size, mode="bilinear", align_corners=False)
+        return torch.cat([self.encoder(torch.cat([opponent(img), up], 1)), up], 1)
+
+    def embed_gaussians(self, pixel_features: Tensor, geometry: Tensor) -> Tensor:  # [N, E + C], [N, 8] -> [N, D]
+        return self.embed(torch.cat([pixel_features, geometry], 1))
+
+    # ------------------------------------------------------------------ at target views
+    def decode(self, rendered: Tensor, alpha: Tensor, cond: Tensor | None) -> Tensor:
+        """Teacher-shaped maps ``[B, C, fh, fw]`` from the rendered embedding ``[B, C + D, H, W]``
+        (the splatted teacher map in channel units, then the learned channels), alpha
+        ``[B, H, W]`` and the conditioning ``[B, 2, H, W]`` (ignored when unconditioned): the
+        splatted map pooled to the teacher's size plus a learned correction."""
+        parts = [rendered, alpha[:, None]]
+        if self.config.condition:
+            parts.append(cond)
+        fh, fw = self.feature_size
+        x = F.adaptive_avg_pool2d(torch.cat(parts, 1), (2 * fh, 2 * fw))  # [B, C + D + 1 (+ 2), 2fh, 2fw]
+        base = F.avg_pool2d(x[:, : self.feature_channels], 2)  # [B, C, fh, fw] splatted map, channel units
+        x = F.avg_pool2d(self.pixel(x), 2)  # [B, h, fh, fw]
+        x = F.relu(self.cell(torch.cat([x, base], 1))) + x
+        tokens = x.flatten(2).transpose(1, 2)  # [B, n, h]
+        att = torch.softmax(
+            self.query(tokens) @ self.key(tokens).transpose(1, 2) / math.sqrt(self.query.out_features), -1
+        )
+        ctx = (att @ self.value(tokens)).transpose(1, 2).reshape_as(x)  # [B, h, fh, fw]
+        return (base + self.out(torch.cat([x, ctx], 1))) * self.map_scale[None, :, None, None]
+
+    # ------------------------------------------------------------------ checkpoints
+    def checkpoint(self, extra: dict | None = None) -> dict:
+        """A ``torch.save``-able dict of tensors and plain values (loads with ``weights_only=True``)."""
+        from aes_planner import __version__
+
+        return {
+            "format": CHECKPOINT_FORMAT,
+            "model_config": asdict(self.config),
+            "teacher": self.teacher_name,
+            "feature_channels": self.feature_channels,
+            "feature_size": list(self.feature_size),
+            "code_version": __version__,
+            "state_dict": self.state_dict(),
+            **(extra or {}),
+        }
+
+    @classmethod
+    def from_checkpoint(cls, ckpt: dict) -> FieldModel:
+        if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
+            raise ModelError(
+                f"not an aes-planner field checkpoint of format {CHECKPOINT_FORMAT}; retrain with `aes-planner train`"
+            )
+        model = cls(
+            from_dict(FieldModelConfig, ckpt["model_config"], "model_config"),
+            ckpt["feature_channels"],
+            tuple(ckpt["feature_size"]),
+            ckpt["teacher"],
+        )
+        try:
+            model.load_state_dict(ckpt["state_dict"])
+        except RuntimeError as exc:
+            raise ModelError(f"field checkpoint does not fit its architecture: {exc}") from None
+        return model.eval()
+
+
+def load_model(path: str | Path | None = None) -> FieldModel:
+    """A :class:`FieldModel` from ``path`` (default: the shipped checkpoint; a bare name such as
+    ``NOCOND_CHECKPOINT`` picks another packaged one), ``weights_only=True``."""
+    if path is None or path in (DEFAULT_CHECKPOINT, NOCOND_CHECKPOINT):
+        ref = resources.files("aes_planner.field").joinpath(path or DEFAULT_CHECKPOINT)
+        if not ref.is_file():
+            raise ModelError(
+                f"the packaged checkpoint {path or DEFAULT_CHECKPOINT} is missing from aes_planner.field; reinstall the package "
+                "or pass model=FILE (train one with `aes-planner train`)"
+            )
+        with resources.as_file(ref) as p:
+            ckpt = torch.load(p, map_location="cpu", weights_only=True)
+    else:
+        p = Path(path)
+        if not p.is_file():
+            raise ModelError(f"field checkpoint {p} does not exist; train one with `aes-planner train --out DIR`")
+        ckpt = torch.load(p, map_location="cpu", weights_only=True)
+    return FieldModel.from_checkpoint(ckpt)
+
+
+# ---------------------------------------------------------------------------------- inputs
+@dataclass
+class FieldInputs:
+    """What a set of posed frames gives the field: the reconstruction and, per input view, the
+    image and teacher map (all local-frame, float32 except poses). Cacheable as arrays."""
+
+    splats: SplatSet
+    local_frame: LocalFrame
+    images: Tensor  # [V, 3, H, W] float32 in [0, 1]
+    fmaps: Tensor  # [V, C, fh, fw] teacher maps of the input views
+    cam2world_local: np.ndarray  # [V, 4, 4] float64
+    intrinsics: Intrinsics  # of the input views
+    stride: int  # pixels per Gaussian block of the reconstruction
+    modes: list[str] = field(default_factory=list)
+
+    @classmethod
+    def from_frames(cls, frames: list[PosedFrame], teacher: Teacher, config: ReconstructConfig) -> FieldInputs:
+        rec = reconstruct(frames, config)
+        images = torch.from_numpy(np.stack([f.image for f in frames])).permute(0, 3, 1, 2).float() / 255.0
+        with torch.no_grad():
+            fmaps = teacher.features(images)
+        poses = np.stack([rec.local_frame.pose_to_local(f.cam2world) for f in frames])
+        return cls(
+            rec.splats,
+            rec.local_frame,
+            images,
+            fmaps,
+            poses,
+            frames[0].intrinsics,
+            config.stride_for(frames[0].width),
+            rec.modes,
+        )
+
+    def geometry(self) -> tuple[Tensor, Tensor, Tensor]:
+        """Per Gaussian: geometry cues ``[N, 8]``, direction to its source camera ``[N, 3]``
+        (local frame, unit) and its stride-grid pixel ``[N, 2]`` (row, column) as long."""
+        sp = self.splats
+        src = np.clip(sp.source_frame, 0, len(self.cam2world_local) - 1)
+        cam = self.cam2world_local[src]  # [N, 4, 4]
+        rot, centre = cam[:, :3, :3], cam[:, :3, 3]
+        to_point = sp.means.astype(np.float64) - centre
+        dist = np.maximum(np.linalg.norm(to_point, axis=1), 1e-6)
+        ray_cam = np.einsum("nji,nj->ni", rot, to_point / dist[:, None])  # R^T d
+        normal_cam = np.einsum("nji,nj->ni", rot, sp.normals.astype(np.float64))
+        size = sp.log_scales[:, :2].mean(1) - np.log(dist)  # angular size (log)
+        geom = np.concatenate([1.0 / (1.0 + dist[:, None]), normal_cam, ray_cam, (size[:, None] + 5.0) / 2.0], 1)
+        h, w = self.images.shape[-2:]
+        hs, ws = max(1, h // self.stride), max(1, w // self.stride)
+        rows = np.clip(sp.source_pixel[:, 1] // self.stride, 0, hs - 1)
+        cols = np.clip(sp.source_pixel[:, 0] // self.stride, 0, ws - 1)
+        pix = torch.from_numpy(np.stack([src, rows, cols], 1).astype(np.int64))
+        return (
+            torch.from_numpy(geom.astype(np.float32)),
+            torch.from_numpy((-to_point / dist[:, None]).astype(np.float32)),
+            pix,
+        )
+
+    def grid(self) -> tuple[int, int]:
+        h, w = self.images.shape[-2:]
+        return max(1, h // self.stride), max(1, w // self.stride)
+
+
+def embed_inputs(model: FieldModel, inputs: FieldInputs) -> Gaussians:
+    """The Gaussians of ``inputs`` carrying ``[embedding (D), direction to source camera (3)]``
+    (differentiable w.r.t. the model's parameters)."""
+    sp = inputs.splats
+    d = model.config.embed_dim
+    if len(sp) == 0:
+        return _empty_gaussians(model.feature_channels + d + 3)
+    geom, to_src, pix = inputs.geometry()
+    feats = model.encode_views(inputs.images, inputs.fmaps, inputs.grid())  # [V, E + C, hs, ws]
+    per_g = feats[pix[:, 0], :, pix[:, 1], pix[:, 2]]  # [N, E + C]; the last C: the teacher map, in units
+    emb = model.embed_gaussians(per_g, geom)
+    g = sp.to_gaussians()
+    g.features = torch.cat([per_g[:, -model.feature_channels :], emb, to_src], 1)  # [N, C + D + 3]
+    g.colors = torch.zeros_like(g.colors)
+    return g
+
+
+def _empty_gaussians(channels: int) -> Gaussians:
+    z = torch.zeros
+    return Gaussians(z(0, 3), z(0, 4), z(0, 3), z(0), z(0, 3), z(0, channels))
+
+
+def render_maps(
+    model: FieldModel,
+    gaussians: Gaussians,
+    local: LocalFrame | None,
+    cam2world: Tensor,  # [B, 4, 4] float64 world
+    intrinsics: Intrinsics,
+) -> tuple[Tensor, Tensor]:  # [B, C, fh, fw], [B] coverage
+    """Teacher-shaped maps at world poses and their coverage (mean alpha)."""
+    k = intrinsics
+    b = cam2world.shape[0]
+    d = model.feature_channels + model.config.embed_dim
+    if len(gaussians) == 0:
+        zero = cam2world.sum().float() * 0.0  # keep the graph to the poses
+        rendered = torch.zeros(b, d + 3, k.height, k.width) + zero
+        alpha = torch.zeros(b, k.height, k.width) + zero
+        depth = torch.zeros(b, k.height, k.width)
+    else:
+        w2c = local_world2cam(cam2world, local)
+        out = rasterize(gaussians, w2c, torch.from_numpy(k.K), k.width, k.height, validate=False)
+        rendered, alpha, depth = out.features, out.alpha, out.depth
+    emb, src = rendered[:, :d], rendered[:, d:]
+    cond = None
+    if model.config.condition:
+        rays = torch.from_numpy(k.pixel_directions().astype(np.float32))  # [H, W, 3] camera frame
+        rays = rays / rays.norm(dim=-1, keepdim=True)
+        rot = cam2world[:, :3, :3].float()  # [B, 3, 3]: local and world axes agree
+        ray_w = torch.einsum("bij,hwj->bihw", rot, rays)  # [B, 3, H, W]
+        src_dir = src / (src.norm(dim=1, keepdim=True) + _EPS)
+        cos = -(ray_w * src_dir).sum(1) * alpha  # [B, H, W]: 1 = seen from where the target looks
+        inv_depth = alpha / (1.0 + depth.clamp_min(0.0))
+        cond = torch.stack([cos, inv_depth], 1)
+    maps = model.decode(emb, alpha, cond)
+    return maps, alpha.detach().mean((1, 2)).clamp(0.0, 1.0).to(torch.float64)
+
+
+# ---------------------------------------------------------------------------------- scorer
+class AestheticField(Scorer):
+    """The distilled aesthetic field as a :class:`Scorer` (pipeline in the module docstring).
+
+    Build with :meth:`build` (a batch of frames) and grow with :meth:`add_frame`; every change
+    bumps :attr:`version`. :meth:`score` takes world-frame poses ``[B, 4, 4]`` float64 and is
+    differentiable with respect to them.
+    """
+
+    name = "field"
+    differentiable = True
+
+    def __init__(
+        self,
+        model: FieldModel,
+        teacher: Teacher,
+        intrinsics: Intrinsics | None,
+        config: ScorerConfig | None = None,
+    ):
+        if teacher.name != model.teacher_name:
+            raise ModelError(
+                f"the field model was distilled from teacher {model.teacher_name!r}, not {teacher.name!r}; "
+                f"pass teacher=get_teacher({model.teacher_name!r}) or a model trained for {teacher.name!r}"
+            )
+        self.model = model.eval()
+        self.model.requires_grad_(False)
+        self.teacher = teacher
+        self.config = config or ScorerConfig()
+        self.intrinsics = render_intrinsics(
+            intrinsics or Intrinsics.from_fov(128, 96, 60.0), self.config.render_width_px
+        )
+        self.version = 0
+        self._frames: list[PosedFrame] = []  # the frames behind the current map (bounded: see add_frame)
+        self._inputs: FieldInputs | None = None
+        self._gaussians = _empty_gaussians(model.feature_channels + model.config.embed_dim + 3)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def load_default(cls, teacher: Teacher | None = None, config: ScorerConfig | None = None) -> AestheticField:
+        """An empty field with the shipped model (add frames with :meth:`add_frame`)."""
+        model = load_model()
+        return cls(model, teacher or get_teacher(model.teacher_name), None, config)
+
+    @classmethod
+    def build(
+        cls,
+        frames: list[PosedFrame],
+        config: ScorerConfig | None = None,
+        model: FieldModel | str | Path | None = None,
+        teacher: Teacher | None = None,
+    ) -> AestheticField:
+        """A field of ``frames`` (may be empty) with ``model`` (default: the shipped checkpoint)."""
+        if not isinstance(model, FieldModel):
+            model = load_model(model)
+        frames = list(frames)
+        for i, f in enumerate(frames):
+            if not isinstance(f, PosedFrame):
+                raise ScorerError(f"AestheticField.build: frames[{i}] is a {type(f).__name__}, not a PosedFrame")
+        fld = cls(model, teacher or get_teacher(model.teacher_name), frames[0].intrinsics if frames else None, config)
+        if frames:
+            fld._rebuild(frames)
+        return fld
+
+    @classmethod
+    def from_inputs(
+        cls, inputs: FieldInputs, model: FieldModel, teacher: Teacher, config: ScorerConfig | None = None
+    ) -> AestheticField:
+        """A field of precomputed :class:`FieldInputs` (training and evaluation caches)."""
+        fld = cls(model, teacher, inputs.intrinsics, config)
+        fld._set_inputs(inputs)
+        return fld
+
+    def add_frame(self, frame: PosedFrame) -> None:
+        """Add one posed frame. The map is rebuilt from the frames that still own Gaussians plus
+        the new one, so memory stays bounded by the reconstruction budget, not by the stream."""
+        if not isinstance(frame, PosedFrame):
+            raise ScorerError(f"AestheticField.add_frame takes a PosedFrame, got {type(frame).__name__}")
+        if self._inputs is None:
+            self.intrinsics = render_intrinsics(frame.intrinsics, self.config.render_width_px)
+        self._rebuild([*self._frames, frame])
+
+    def _rebuild(self, frames: list[PosedFrame]) -> None:
+        # The field reads colour from the images, not from the splats: skip the colour passes
+        # of reconstruction (sharpening, refitting; ~20 % of its time).
+        cfg = replace(self.config.reconstruct_config(), sharpen_iterations=0, refit_iterations=0)
+        inputs = FieldInputs.from_frames(frames, self.teacher, cfg)
+        # keep only the frames that still own Gaussians (renumbering provenance)
+        used = np.unique(inputs.splats.source_frame)
+        used = used[used >= 0]
+        if len(used) < len(frames):
+            remap = np.full(len(frames), -1, np.int64)
+            remap[used] = np.arange(len(used))
+            inputs.splats.source_frame = remap[inputs.splats.source_frame].astype(np.int32)
+            inputs.images, inputs.fmaps = inputs.images[used], inputs.fmaps[used]
+            inputs.cam2world_local = inputs.cam2world_local[used]
+            frames = [frames[i] for i in used]
+        self._frames = frames
+        self._set_inputs(inputs)
+
+    def _set_inputs(self, inputs: FieldInputs) -> None:
+        self._inputs = inputs
+        with torch.no_grad():
+            self._gaussians = embed_inputs(self.model, inputs)
+        self.version += 1
+
+    # ------------------------------------------------------------------ state
+    @property
+    def gaussians(self) -> Gaussians:
+        return self._gaussians
+
+    @property
+    def local_frame(self) -> LocalFrame | None:
+        return None if self._inputs is None else self._inputs.local_frame
+
+    def __len__(self) -> int:
+        return len(self._gaussians)
+
+    # ------------------------------------------------------------------ scoring
+    def render_maps(self, cam2world: Tensor) -> tuple[Tensor, Tensor]:  # [B, 4, 4] -> [B, C, fh, fw], [B]
+        poses = check_poses(cam2world, "AestheticField")
+        return render_maps(self.model, self._gaussians, self.local_frame, poses, self.intrinsics)
+
+    def score(self, cam2world: Tensor) -> ScoreOutput:  # [B, 4, 4] float64 world
+        maps, coverage = self.render_maps(cam2world)
+        terms = self.teacher.explain_map(maps)
+        return ScoreOutput(terms["score"], coverage, {k: v.detach() for k, v in terms.items()})
