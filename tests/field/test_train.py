@@ -3,6 +3,7 @@ checkpoint loads from the installed package and predicts finite scores."""
 
 import json
 import os
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -100,7 +101,11 @@ def test_torchrun_replicas_stay_identical(cache, tmp_path):
         "torch.save(model.state_dict(), out / f\"rank{os.environ['RANK']}.pt\")\n"
     )
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--master_port", "29517"]
+    with socket.socket() as sock:  # a free port: two suites running at once must not meet
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--master_addr", "127.0.0.1"]
+    cmd += ["--master_port", str(port)]
     subprocess.run([*cmd, str(script), str(tmp_path)], check=True, env=env, timeout=600, capture_output=True)
     a = torch.load(tmp_path / "rank0.pt", weights_only=True)
     b = torch.load(tmp_path / "rank1.pt", weights_only=True)
