@@ -8,8 +8,7 @@ from hypothesis import strategies as st
 from aes_planner.errors import AesPlannerError
 from aes_planner.gaussians import BACKEND_ENV, GaussianError, numba_backend, random_scene, rasterize, resolve_backend
 from aes_planner.geometry.poses import quat_to_matrix
-
-from .conftest import FAST_BACKENDS
+from tests.helpers import FAST_BACKENDS
 
 
 @pytest.fixture

@@ -10,8 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from aes_planner.gaussians import Gaussians
-
-from .conftest import FAST_BACKENDS, GRAD_FIELDS, OUTPUTS, assert_close, outputs_and_grads
+from tests.helpers import FAST_BACKENDS, GRAD_FIELDS, OUTPUTS, assert_close, outputs_and_grads
 
 SIZES = [(1, 1), (4096, 1), (1, 4096), (7, 5), (33, 17)]
 # Where a Gaussian sits in camera coordinates: (x/z range, z range)

@@ -6,8 +6,7 @@ import torch
 from aes_planner.gaussians import random_scene, rasterize
 from aes_planner.gaussians.reference import rasterize_dense
 from aes_planner.geometry import rigid_inverse, view_to_cam2world
-
-from .conftest import GRAD_FIELDS, OUTPUTS, assert_close, outputs_and_grads
+from tests.helpers import GRAD_FIELDS, OUTPUTS, assert_close, outputs_and_grads
 
 # (rtol, atol as a fraction of the largest |value|): float64 is exact up to summation order;
 # float32 pixel maths against the float64 reference.

@@ -8,8 +8,7 @@ import torch
 
 from aes_planner.gaussians import numba_backend, random_scene, twins
 from aes_planner.gaussians.numerics import TILE
-
-from .conftest import assert_close
+from tests.helpers import assert_close
 
 pytestmark = pytest.mark.skipif(not numba_backend.available(), reason="the numba backend is not installed")
 

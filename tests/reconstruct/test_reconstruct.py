@@ -6,7 +6,6 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import SPHERE_CENTRE, WALL_X, capture, looking_at_ball
 
 from aes_planner.bench.reconstruct import psnr_db, to_uint8
 from aes_planner.config import ConfigError, from_dict
@@ -21,6 +20,7 @@ from aes_planner.reconstruct import (
     parallax_px,
     reconstruct,
 )
+from tests.helpers import SPHERE_CENTRE, WALL_X, capture, looking_at_ball
 
 K64 = Intrinsics.from_fov(64, 48, 60.0)
 

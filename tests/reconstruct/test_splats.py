@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-from conftest import SPHERE_CENTRE, capture, looking_at_ball, surface_distance
 
 from aes_planner.geometry import Intrinsics, quat_to_matrix
 from aes_planner.reconstruct import ReconstructConfig
@@ -13,6 +12,7 @@ from aes_planner.reconstruct.splats import (
     ray_sphere_depth,
     splats_from_depth,
 )
+from tests.helpers import SPHERE_CENTRE, capture, looking_at_ball, surface_distance
 
 K64 = Intrinsics.from_fov(64, 48, 60.0)
 
