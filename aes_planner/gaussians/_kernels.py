@@ -30,10 +30,9 @@ import os
 
 import numba
 
-# numba's OpenMP layer and torch's bundled OpenMP both spin-wait between parallel regions; on a
-# 2-core machine, alternating torch ops and numba kernels then ran a 10k-Gaussian 64x64 render
-# 3-5x slower (measured: 60-96 ms vs 17-49 ms with workqueue, under load). numba's own workqueue
-# pool does not spin. Respect an explicit choice.
+# numba's OpenMP layer and torch's bundled OpenMP both spin-wait between parallel regions, so
+# alternating torch ops and numba kernels fight over the cores; numba's own workqueue pool does
+# not spin (figures: docs/benchmarks.md, "Threading layer"). Respect an explicit choice.
 if "NUMBA_THREADING_LAYER" not in os.environ:
     numba.config.THREADING_LAYER = "workqueue"
 

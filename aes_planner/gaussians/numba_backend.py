@@ -139,8 +139,7 @@ def _contiguous(t: Tensor, dtype) -> np.ndarray:
 class _Raster(torch.autograd.Function):
     """Everything between the tensors and the kernels is numpy: torch ops above its parallel
     grain size wake torch's OpenMP pool, whose spinning threads then compete with numba's for
-    the cores (a 10k-Gaussian 64x64 render measured 49 ms with torch glue vs 12 ms with torch's
-    pool set passive)."""
+    the cores (figures: docs/benchmarks.md, "Figures behind code comments")."""
 
     @staticmethod
     def forward(ctx, *args):

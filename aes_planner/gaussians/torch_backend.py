@@ -4,8 +4,8 @@ Used where numba is unavailable (or on a non-CPU device). Gaussians are projecte
 :func:`~aes_planner.gaussians.projection.project`, sorted by depth per camera and binned into
 TILE x TILE tiles (a Gaussian goes to every tile its ``alpha >= 1/255`` box touches); each tile
 then composites its own ``[tile pixels, Gaussians of the tile]`` block. Memory grows with the
-number of (tile, Gaussian) pairs times the tile area, never with N x H x W. About 30x slower
-than the numba backend on a CPU (measured 33-36x at 10k Gaussians, 64x64 and 32x32).
+number of (tile, Gaussian) pairs times the tile area, never with N x H x W. Much slower than
+the numba backend on a CPU (figures: docs/benchmarks.md, "Figures behind code comments").
 """
 
 from __future__ import annotations
