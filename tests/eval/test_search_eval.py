@@ -10,7 +10,7 @@ GT_METHODS = ["best_input", "inplane", "rotation", "random", "oracle"]
 
 def tiny(tmp_path, **kw) -> SearchEvalConfig:
     base = dict(
-        scenes=["tabletop:1003"], views=[2], modes=["rig", "free"], methods=GT_METHODS, oracle_step_deg=30.0,
+        scenes=["tabletop:102"], views=[2], modes=["rig", "free"], methods=GT_METHODS, oracle_step_deg=30.0,
         random_samples=6, local_grid=3, oracle_free_positions=(1, 1, 1), oracle_free_step_deg=90.0,
         oracle_min_step_deg=45.0, oracle_refine_starts=1, width=32, height=24, ablations=False, cache_dir=str(tmp_path / "cache"),
     )  # fmt: skip
@@ -28,9 +28,9 @@ def test_eval_search_tables_and_normalisation(tmp_path):
         assert table["rotation"]["teacher"] >= table["best_input"]["teacher"] - 1e-9
         for v in table.values():
             assert set(v) >= {"teacher", "evaluator", "normalized"}
-    assert doc["scenes"] == ["tabletop:1003"]
+    assert doc["scenes"] == ["tabletop:102"]
     assert (tmp_path / "out" / "search_eval.md").read_text().startswith("# Search evaluation")
-    assert (tmp_path / "out" / "top_view_tabletop_1003.png").is_file() is False  # needs a learned scorer
+    assert (tmp_path / "out" / "top_view_tabletop_102.png").is_file() is False  # needs a learned scorer
 
 
 def test_eval_search_config_errors(tmp_path):
