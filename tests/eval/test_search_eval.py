@@ -46,3 +46,18 @@ def test_eval_cli_rejects_bad_views(capsys):
     with pytest.raises(SystemExit):
         main(["eval", "search", "--views", "four"])
     assert "comma-separated integers" in capsys.readouterr().err
+
+
+def test_held_out_scenes_are_none_of_the_fields():
+    """The search's held-out scenes are in the evaluation range and past what ``eval field`` uses
+    (docs/field.md, seeds): never trained or validated on."""
+    from aes_planner.eval.field import default_scenes
+    from aes_planner.eval.search import HELD_OUT_SCENES, HELD_OUT_SEED_START
+    from aes_planner.field.train import EVAL_SEED_END, EVAL_SEED_START, TRAIN_SEED_START, VAL_SEED_START
+
+    seeds = [int(s.rsplit(":", 1)[1]) for s in HELD_OUT_SCENES]
+    assert all(EVAL_SEED_START <= s < EVAL_SEED_END <= VAL_SEED_START < TRAIN_SEED_START for s in seeds)
+    assert not set(HELD_OUT_SCENES) & set(default_scenes(4 * HELD_OUT_SEED_START))
+    from aes_planner.bench.search import SCENES
+
+    assert set(SCENES) <= set(HELD_OUT_SCENES)
