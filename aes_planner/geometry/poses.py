@@ -17,6 +17,7 @@ import torch
 from torch import Tensor
 
 from aes_planner.errors import AesPlannerError
+from aes_planner.geometry.rigid import check_rigid
 
 Array = TypeVar("Array", np.ndarray, Tensor)
 
@@ -308,25 +309,7 @@ def validate_cam2world(cam2world: np.ndarray, name: str = "cam2world", tol: floa
 
     Returns it as a float64 ``[4, 4]``. Raises :class:`PoseError` naming ``name``.
     """
-    m = np.asarray(cam2world, dtype=np.float64)
-    if m.shape == (3, 4):
-        m = np.vstack([m, [0.0, 0.0, 0.0, 1.0]])
-    if m.shape != (4, 4):
-        raise PoseError(f"{name}: expected a 4x4 (or 3x4) matrix, got shape {m.shape}")
-    if not np.all(np.isfinite(m)):
-        raise PoseError(f"{name}: contains NaN or Inf; every pose entry must be a finite number")
-    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=tol):
-        raise PoseError(f"{name}: last row must be [0, 0, 0, 1], got {m[3].tolist()}")
-    r = m[:3, :3]
-    err = float(np.abs(r.T @ r - np.eye(3)).max())
-    if err > tol:
-        raise PoseError(
-            f"{name}: rotation is not orthonormal (max |R^T R - I| = {err:.3g}); "
-            "export the pose as a rigid transform without scale or shear"
-        )
-    if np.linalg.det(r) < 0:
-        raise PoseError(f"{name}: rotation has determinant -1 (a reflection); check the axis convention")
-    return m
+    return check_rigid(cam2world, name, tol, PoseError)
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from aes_planner.geometry.rigid import check_rigid
 from aes_planner.messages.codec import MessageError
 
 __all__ = ["check_finite", "check_optional_finite", "check_sequence", "check_text", "check_name_map"]
@@ -67,37 +68,9 @@ def check_name_map(value, name: str, kind: type, max_entries: int) -> dict:
 
 
 POSE_TOL = 1e-4  # as aes_planner.geometry.validate_cam2world
-MAX_COORD_M = 1e12  # beyond any GNSS/UTM coordinate; keeps R^T R and products finite
 
 
 def check_pose(value, name: str) -> np.ndarray:
-    """A rigid ``[4, 4]`` (or ``[3, 4]``) cam2world, returned as float64 ``[4, 4]``.
-
-    The same checks and messages as :func:`aes_planner.geometry.validate_cam2world` (numpy only,
-    so messages import without torch); entries are bounded first so that no product overflows."""
-    try:
-        m = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise MessageError(f"{name} must be a 4x4 matrix of numbers, got {type(value).__name__}") from None
-    if m.shape == (3, 4):
-        m = np.vstack([m, [0.0, 0.0, 0.0, 1.0]])
-    if m.shape != (4, 4):
-        raise MessageError(f"{name}: expected a 4x4 (or 3x4) matrix, got shape {m.shape}")
-    if not np.all(np.isfinite(m)):
-        raise MessageError(f"{name}: contains NaN or Inf; every pose entry must be a finite number")
-    if np.abs(m[:3, :3]).max() > 1.001:
-        raise MessageError(f"{name}: rotation entries exceed 1; the rotation is not orthonormal")
-    if np.abs(m[:3, 3]).max() > MAX_COORD_M:
-        raise MessageError(f"{name}: translation beyond {MAX_COORD_M:g} m")
-    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=POSE_TOL):
-        raise MessageError(f"{name}: last row must be [0, 0, 0, 1], got {m[3].tolist()}")
-    r = m[:3, :3]
-    err = float(np.abs(r.T @ r - np.eye(3)).max())
-    if err > POSE_TOL:
-        raise MessageError(
-            f"{name}: rotation is not orthonormal (max |R^T R - I| = {err:.3g}); "
-            "export the pose as a rigid transform without scale or shear"
-        )
-    if np.linalg.det(r) < 0:
-        raise MessageError(f"{name}: rotation has determinant -1 (a reflection); check the axis convention")
-    return m
+    """A rigid ``[4, 4]`` (or ``[3, 4]``) cam2world, returned as float64 ``[4, 4]``: the checks and
+    messages of :func:`aes_planner.geometry.validate_cam2world`, from its numpy-only core."""
+    return check_rigid(value, name, POSE_TOL, MessageError)
