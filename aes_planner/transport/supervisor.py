@@ -304,6 +304,24 @@ def _child_endpoint(listen: str) -> str:
 
 # -- the child process ----------------------------------------------------------------------------
 
+ORPHAN_GRACE_S = 15.0  # after its supervisor vanished, a child gets this long to stop cleanly (torque off)
+
+
+def _watch_for_orphaning(parent_pid: int, grace_s: float = ORPHAN_GRACE_S) -> None:
+    """A supervisor killed outright leaves no orphan. A daemon thread watches for reparenting from
+    the start (imports and connecting included, when the main loop is not yet polling): it then
+    signals this process (SIGTERM: the node's clean shutdown) and ends it if that has not finished
+    within ``grace_s``."""
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(0.5)
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(grace_s)
+        os._exit(128 + signal.SIGHUP)
+
+    threading.Thread(target=watch, daemon=True, name="orphan-watch").start()
+
 
 def main_child(argv: Sequence[str] | None = None) -> int:
     """Run one node of a launch file on a Zenoh bus until it finishes or is signalled."""
@@ -327,6 +345,7 @@ def main_child(argv: Sequence[str] | None = None) -> int:
 
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, on_signal)
+    _watch_for_orphaning(parent)
     try:
         from aes_planner.node import Launch, build_nodes, load_launch
         from aes_planner.node.base import Node
