@@ -77,8 +77,9 @@ class DroneBoxConfig:
 class PlannerConfig:
     """How the planner builds its field, searches and (on a rig) drives the active loop.
 
-    * ``scorer``: ``"rgb"`` (RGB scoring of the reconstruction; the default until the trained
-      field ships) or ``"field"`` (the aesthetic field).
+    * ``scorer``: ``"field"`` (the trained aesthetic field, the default: better and faster in the
+      closed loop on held-out scenes, docs/benchmarks.md) or ``"rgb"`` (RGB scoring of the
+      reconstruction).
     * ``preset``: search preset (``fast``, ``balanced``, ``accurate``); ``teacher``: the teacher name.
     * ``active``: run the active loop (commands the gimbal / flies the drone); false = suggest only.
     * ``explore_views``: captures spread over the range before the first suggestion.
@@ -104,7 +105,7 @@ class PlannerConfig:
     * ``seed``: for the search's sampling.
     """
 
-    scorer: str = "rgb"
+    scorer: str = "field"
     preset: str = "balanced"
     teacher: str = "composition"
     active: bool = True
