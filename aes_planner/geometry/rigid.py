@@ -25,7 +25,7 @@ def check_rigid(value, name: str, tol: float, error: type[Exception]) -> np.ndar
     if not np.all(np.isfinite(m)):
         raise error(f"{name}: contains NaN or Inf; every pose entry must be a finite number")
     if np.abs(m[:3, :3]).max() > 1.0 + tol:
-        raise error(f"{name}: rotation entries exceed 1; the rotation is not orthonormal")
+        raise error(f"{name}: rotation is not orthonormal (entries exceed 1); export the pose as a rigid transform")
     if np.abs(m[:3, 3]).max() > MAX_COORD_M:
         raise error(f"{name}: translation beyond {MAX_COORD_M:g} m")
     if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=tol):
