@@ -17,11 +17,10 @@ import argparse
 import contextlib
 import json
 import math
-import signal
 import sys
-import threading
 import time
 
+from aes_planner.cli.processes import stop_on_signals
 from aes_planner.errors import AesPlannerError
 
 DEFAULT_ENDPOINT = (
@@ -130,24 +129,6 @@ def _check_seconds(value: float | None, flag: str) -> None:
         raise AesPlannerError(f"{flag} must be a positive number of seconds, got {value}")
 
 
-@contextlib.contextmanager
-def _stop_on_signals():
-    """An event set on SIGINT/SIGTERM (so the tools close their bus and exit cleanly); the
-    previous handlers come back afterwards."""
-    stop = threading.Event()
-    if threading.current_thread() is not threading.main_thread():
-        yield stop
-        return
-    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    for s in old:
-        signal.signal(s, lambda signum, frame: stop.set())
-    try:
-        yield stop
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
-
-
 def _short(obj, depth: int = 0):
     """Numbers rounded for reading; 4x4 matrices kept (they are small)."""
     if isinstance(obj, float):
@@ -168,7 +149,7 @@ def run_echo(args: argparse.Namespace) -> int:
     _check_seconds(args.timeout, "--timeout")
     pattern = validate_pattern(args.topic)
     printed = rejected = 0
-    with _stop_on_signals() as stop, contextlib.closing(open_cli_bus(args)) as bus:
+    with stop_on_signals() as stop, contextlib.closing(open_cli_bus(args)) as bus:
         sub = bus.subscribe_raw(pattern, depth=100)
         end = None if args.timeout is None else time.monotonic() + args.timeout
         while not stop.is_set():
@@ -253,7 +234,7 @@ def run_record(args: argparse.Namespace) -> int:
     _check_seconds(args.duration, "--duration")
     patterns = [validate_pattern(t) for t in args.topics]
     rec = Recorder(args.output, viz=not args.no_viz)
-    with contextlib.closing(rec), _stop_on_signals() as stop, contextlib.closing(open_cli_bus(args)) as bus:
+    with contextlib.closing(rec), stop_on_signals() as stop, contextlib.closing(open_cli_bus(args)) as bus:
         rec.attach(bus, patterns)
         print(f"recording {', '.join(args.topics)} to {args.output} (Ctrl-C to stop)", file=sys.stderr)
         stop.wait(args.duration)
@@ -269,7 +250,7 @@ def run_replay(args: argparse.Namespace) -> int:
     if not math.isfinite(args.wait) or not 0 <= args.wait <= 60:
         raise AesPlannerError(f"--wait must be in [0, 60] seconds, got {args.wait}")
     next(iter(read_recording(args.file)), None)  # a clear error for a bad file before joining the bus
-    with _stop_on_signals() as stop, contextlib.closing(open_cli_bus(args)) as bus:
+    with stop_on_signals() as stop, contextlib.closing(open_cli_bus(args)) as bus:
         stop.wait(args.wait)
         n = replay(args.file, bus, rate=args.rate, loop=args.loop, topics=args.topics, stop=stop)
         time.sleep(0.2)  # let the last samples leave before the session closes
@@ -284,7 +265,7 @@ def run_foxglove(args: argparse.Namespace) -> int:
     if not 0 <= args.port <= 65535:
         raise AesPlannerError(f"--port must be in 0..65535, got {args.port}")
     live = FoxgloveLive(port=args.port)
-    with contextlib.closing(live), _stop_on_signals() as stop, contextlib.closing(open_cli_bus(args)) as bus:
+    with contextlib.closing(live), stop_on_signals() as stop, contextlib.closing(open_cli_bus(args)) as bus:
         live.attach(bus)
         print(f"Foxglove: open ws://127.0.0.1:{live.port} in the Foxglove app (Ctrl-C to stop)", file=sys.stderr)
         stop.wait(args.duration)
