@@ -147,14 +147,18 @@ class Supervisor:
     def _forward(self, child: ChildSpec, proc: subprocess.Popen) -> None:
         for raw in proc.stdout:
             line = raw.decode("utf-8", "replace").rstrip("\n")
-            with self._out_lock:
-                print(f"[{child.node_id}] {line}", file=self.out, flush=True)
+            self._emit(f"[{child.node_id}] {line}")
         proc.stdout.close()
 
     def _say(self, text: str) -> None:
         self.events.append(text)
+        self._emit(f"[launch] {text}")
+
+    def _emit(self, line: str) -> None:
+        """One line on the supervisor's output stream (the launch's console), whole, in order."""
         with self._out_lock:
-            print(f"[launch] {text}", file=self.out, flush=True)
+            self.out.write(line + "\n")
+            self.out.flush()
 
     def start(self) -> Supervisor:
         from aes_planner.transport.zenoh_bus import ZenohBus
@@ -356,7 +360,7 @@ def main_child(argv: Sequence[str] | None = None) -> int:
         nodes = [(n, r) for n, r in build_nodes(spec) if n.node_id == entry.id]
         bus = ZenohBus(ZenohConfig(connect=(args.connect,), prefix=args.prefix))
     except AesPlannerError as exc:
-        print(f"error: {exc}", file=sys.stderr, flush=True)
+        log.error("%s", exc)
         return 2
     try:
         launch = Launch(nodes, bus=bus)
@@ -380,13 +384,17 @@ def main_child(argv: Sequence[str] | None = None) -> int:
             res = node.result()
             best = res.get("best")
             if best is not None:
-                print(
-                    f"{node.node_id}: {res['state']} after {res['moves']} moves; best captured score {best.score:.3f}"
+                log.warning(  # the run's result, shown at the children's default level
+                    "%s: %s after %d moves; best captured score %.3f",
+                    node.node_id,
+                    res["state"],
+                    res["moves"],
+                    best.score,
                 )
             return 0
         return 0 if can_finish and node.finished else 128 + (got[0] if got else signal.SIGTERM)
     except AesPlannerError as exc:
-        print(f"error: {exc}", file=sys.stderr, flush=True)
+        log.error("%s", exc)
         return 2
     finally:
         bus.close()
