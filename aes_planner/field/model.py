@@ -336,7 +336,9 @@ def render_maps(
         rays = rays / rays.norm(dim=-1, keepdim=True)
         rot = cam2world[:, :3, :3].float()  # [B, 3, 3]: local and world axes agree
         ray_w = torch.einsum("bij,hwj->bihw", rot, rays)  # [B, 3, H, W]
-        src_dir = src / (src.norm(dim=1, keepdim=True) + _EPS)
+        # sqrt of a channel sum, not Tensor.norm(dim=1): torch's CPU norm over a strided channel axis
+        # is ~50x slower here (docs/benchmarks.md, figures behind code comments)
+        src_dir = src / ((src * src).sum(1, keepdim=True).sqrt() + _EPS)
         cos = -(ray_w * src_dir).sum(1) * alpha  # [B, H, W]: 1 = seen from where the target looks
         inv_depth = alpha / (1.0 + depth.clamp_min(0.0))
         cond = torch.stack([cos, inv_depth], 1)
