@@ -7,6 +7,7 @@ Training scenes are the simulator's families at seeds >= 1000; evaluation uses s
 from __future__ import annotations
 
 import argparse
+import functools
 from pathlib import Path
 
 
@@ -23,13 +24,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--steps", type=int, help="training steps (overrides the config)")
     p.add_argument("--samples", type=int, help="cached samples (overrides the config)")
     p.add_argument("--cache-only", action="store_true", help="build the cache and stop")
+    p.add_argument(
+        "--cache-workers", type=int, default=1, metavar="N", help="processes rendering the cache (default 1)"
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from aes_planner.config import load_yaml
+    from aes_planner.config import ConfigError, load_yaml
     from aes_planner.field.train import build_cache, load_config, set_threads, train
     from aes_planner.sim import SimSource
     from aes_planner.teachers import get_teacher
@@ -43,15 +47,21 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(data)
     teacher = get_teacher(config.teacher, **({"weights": config.teacher_weights} if config.teacher_weights else {}))
 
-    def make_source(name: str) -> SimSource:
-        return SimSource(name, supersample=config.gt_supersample)
-
+    if args.cache_workers < 1:
+        raise ConfigError("--cache-workers", f"must be >= 1, got {args.cache_workers}")
+    make_source = functools.partial(SimSource, supersample=config.gt_supersample)  # picklable for the workers
     set_threads(config.threads)
-    samples = build_cache(
-        config, Path(args.cache), make_source, teacher, progress=lambda it: tqdm(it, desc="cache", unit="sample")
-    )
-    val = build_cache(
-        config, Path(args.cache), make_source, teacher, progress=lambda it: tqdm(it, desc="val cache"), split="val"
+    samples, val = (
+        build_cache(
+            config,
+            Path(args.cache),
+            make_source,
+            teacher,
+            progress=lambda it, split=split: tqdm(it, desc=f"{split} cache", unit="sample"),
+            split=split,
+            workers=args.cache_workers,
+        )
+        for split in ("train", "val")
     )
     if args.cache_only:
         print(f"{len(samples)} samples cached in {args.cache}")

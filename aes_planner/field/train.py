@@ -65,11 +65,14 @@ class TrainConfig:
     * ``families``, ``sources``: scene families and input kinds (``rig`` sweeps, ``free``
       trajectories) the samples alternate over; ``samples`` cached samples in all.
     * ``min_views``, ``max_views``: input views per sample (the paper's 2-6); ``targets``:
-      held-out target poses per sample.
+      held-out target poses per sample along a trajectory, plus ``search_targets`` spread over the
+      space the viewpoint search explores (:mod:`aes_planner.field.protocol`).
     * ``steps``, ``lr``, ``weight_decay``, ``warmup_steps``: AdamW with linear warm-up and cosine
       decay to 5 % of ``lr``.
     * ``score_weight``: weight of the MSE between the head's scores of the predicted and the
       teacher's maps, beside the feature-map MSE (the head's global terms must come out right).
+    * ``rank_weight``: weight of the same MSE after removing each sample's mean score: what a
+      search needs is the order of views within one scene, not the scene's level.
     * ``checkpoint_every``: steps between checkpoints; ``seed``: everything random.
     * ``scorer``: render width and Gaussian budget (what the field is used with).
     * ``model``: the architecture.
@@ -88,11 +91,13 @@ class TrainConfig:
     min_views: int = 2
     max_views: int = 6
     targets: int = 12
+    search_targets: int = 12
     steps: int = 4000
     lr: float = 2e-3
     weight_decay: float = 1e-4
     warmup_steps: int = 100
     score_weight: float = 4.0
+    rank_weight: float = 0.0
     checkpoint_every: int = 250
     seed: int = 0
     gt_supersample: int = 2
@@ -112,6 +117,8 @@ class TrainConfig:
         require(self.targets >= 1 and self.steps >= 1, "targets", "targets and steps must be >= 1")
         require(math.isfinite(self.lr) and self.lr > 0, "lr", f"must be > 0, got {self.lr}")
         require(self.score_weight >= 0, "score_weight", f"must be >= 0, got {self.score_weight}")
+        require(self.rank_weight >= 0, "rank_weight", f"must be >= 0, got {self.rank_weight}")
+        require(self.search_targets >= 0, "search_targets", f"must be >= 0, got {self.search_targets}")
         require(self.checkpoint_every >= 1, "checkpoint_every", "must be >= 1")
         require(1 <= self.gt_supersample <= 4, "gt_supersample", f"must be in [1, 4], got {self.gt_supersample}")
 
@@ -133,19 +140,29 @@ _SPLAT_FIELDS = [f for f in SplatSet.__dataclass_fields__]
 
 
 def make_sample(
-    source: SceneSource, kind: str, n_views: int, n_targets: int, seed: int, teacher: Teacher, config: TrainConfig
+    source: SceneSource,
+    kind: str,
+    n_views: int,
+    n_targets: int,
+    seed: int,
+    teacher: Teacher,
+    config: TrainConfig,
+    n_search: int = 0,
 ) -> dict[str, np.ndarray]:
-    """One training (or evaluation) sample as arrays: inputs, reconstruction, teacher maps."""
-    plan = plan_views(source.platform, kind, n_views, n_targets, np.random.default_rng(seed))
+    """One training (or evaluation) sample as arrays: inputs, reconstruction, teacher maps at the
+    ``n_targets`` trajectory targets followed by ``n_search`` search targets."""
+    plan = plan_views(source.platform, kind, n_views, n_targets, np.random.default_rng(seed), n_search)
     frames = [source.capture(p, depth=plan.depth) for p in plan.inputs]
     inputs = FieldInputs.from_frames(frames, teacher, config.scorer.reconstruct_config())
-    gt = torch.from_numpy(source.render_rgb(plan.targets)).permute(0, 3, 1, 2)  # [T, 3, H, W]
+    targets = plan.targets if plan.search_targets is None else np.concatenate([plan.targets, plan.search_targets])
+    gt = torch.from_numpy(source.render_rgb(targets)).permute(0, 3, 1, 2)  # [T + S, 3, H, W]
     with torch.no_grad():
         maps = teacher.features(gt)
         scores = teacher.head(maps)
     return {
         **inputs_to_arrays(inputs),
-        "targets": plan.targets,
+        "targets": targets,
+        "search_targets": np.array(0 if plan.search_targets is None else len(plan.search_targets)),
         "target_maps": maps.numpy(),
         "target_scores": scores.numpy(),
     }
@@ -189,26 +206,50 @@ def build_cache(
     teacher: Teacher,
     progress: Callable[[Iterable], Iterable] = lambda it: it,
     split: str = "train",
+    workers: int = 1,
 ) -> list[Path]:
     """Render every sample of ``split`` (``train``: ``samples``, ``val``: ``val_samples``) that
     is not yet in ``cache_dir``; returns the sample files in order.
     The file name holds everything the sample depends on, so a changed config never reuses a
-    stale sample."""
+    stale sample. ``workers > 1`` renders in that many processes (``make_source`` must then be
+    picklable, e.g. a class or a ``functools.partial``; each process loads its own teacher)."""
     cache_dir.mkdir(parents=True, exist_ok=True)
-    paths = []
     sc = config.scorer
     tag = f"{teacher.name}_w{sc.render_width_px}_g{sc.max_gaussians}_t{config.targets}_s{config.gt_supersample}"
+    if config.search_targets:
+        tag += f"_q{config.search_targets}"
     count = config.samples if split == "train" else config.val_samples
-    for i in progress(range(count)):
+    jobs = []
+    for i in range(count):
         name, kind, views, seed = config.sample_spec(i, split)
-        path = cache_dir / f"{name.replace(':', '-')}_{kind}_v{views}_r{seed}_{tag}.npz"
-        if not path.exists():
-            arrays = make_sample(make_source(name), kind, views, config.targets, seed, teacher, config)
-            tmp = path.with_suffix(".tmp.npz")
-            np.savez_compressed(tmp, **arrays)
-            tmp.replace(path)
-        paths.append(path)
-    return paths
+        jobs.append(
+            (name, kind, views, seed, cache_dir / f"{name.replace(':', '-')}_{kind}_v{views}_r{seed}_{tag}.npz")
+        )
+    missing = [job for job in jobs if not job[-1].exists()]
+    if workers > 1 and len(missing) > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        ctx = multiprocessing.get_context("spawn")  # no fork of a process holding torch/numba threads
+        with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+            futures = [pool.submit(_cache_sample, make_source, None, config, *job) for job in missing]
+            for fut in progress(futures):
+                fut.result()
+    else:
+        for job in progress(missing):
+            _cache_sample(make_source, teacher, config, *job)
+    return [job[-1] for job in jobs]
+
+
+def _cache_sample(make_source, teacher, config: TrainConfig, name: str, kind: str, views: int, seed: int, path: Path):
+    """Render one sample into ``path`` (atomically); a worker process loads its own ``teacher``."""
+    if teacher is None:
+        set_threads(1)
+        teacher = get_teacher(config.teacher, **({"weights": config.teacher_weights} if config.teacher_weights else {}))
+    arrays = make_sample(make_source(name), kind, views, config.targets, seed, teacher, config, config.search_targets)
+    tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
+    np.savez_compressed(tmp, **arrays)
+    tmp.replace(path)
 
 
 # ---------------------------------------------------------------------------------- loop
@@ -239,7 +280,13 @@ def _lr(config: TrainConfig, step: int) -> float:
 
 
 def sample_loss(
-    model: FieldModel, teacher: Teacher, sample: dict, inputs: FieldInputs, score_weight: float, width_px: int
+    model: FieldModel,
+    teacher: Teacher,
+    sample: dict,
+    inputs: FieldInputs,
+    score_weight: float,
+    width_px: int,
+    rank_weight: float = 0.0,
 ) -> tuple[Tensor, dict[str, float]]:
     """The distillation loss of one cached sample at all its targets."""
     from aes_planner.field.common import render_intrinsics
@@ -250,9 +297,11 @@ def sample_loss(
     target = torch.from_numpy(sample["target_maps"])
     scale = model.map_scale[None, :, None, None]
     map_loss = ((maps - target) / scale).pow(2).mean()
-    score = teacher.head(maps)
-    score_loss = (score - torch.from_numpy(sample["target_scores"])).pow(2).mean()
-    loss = map_loss + score_weight * score_loss
+    score = teacher.head(maps)  # [T]
+    err = score - torch.from_numpy(sample["target_scores"])  # [T]
+    score_loss = err.pow(2).mean()
+    rank_loss = (err - err.mean()).pow(2).mean()  # the order within the scene, without its level
+    loss = map_loss + score_weight * score_loss + rank_weight * rank_loss
     return loss, {"map": float(map_loss.detach()), "score": float(score_loss.detach())}
 
 
@@ -301,7 +350,7 @@ def train(
         for group in opt.param_groups:
             group["lr"] = _lr(config, step)
         loss, parts = sample_loss(
-            model, teacher, data[i], inputs[i], config.score_weight, config.scorer.render_width_px
+            model, teacher, data[i], inputs[i], config.score_weight, config.scorer.render_width_px, config.rank_weight
         )
         opt.zero_grad(set_to_none=False)
         loss.backward()
@@ -332,7 +381,7 @@ def validate(model: FieldModel, teacher: Teacher, val: list[tuple[dict, FieldInp
     from aes_planner.field.metrics import plcc, srcc
 
     model.eval()
-    pred, true, per, mse = [], [], [], []
+    pred, true, per, per_search, mse = [], [], [], [], []
     with torch.no_grad():
         for d, inputs in val:
             from aes_planner.field.common import render_intrinsics
@@ -344,6 +393,9 @@ def validate(model: FieldModel, teacher: Teacher, val: list[tuple[dict, FieldInp
             pred.append(p)
             true.append(t)
             per.append(plcc(p, t))
+            n_search = int(d.get("search_targets", 0))
+            if n_search >= 3:  # the order of views the search would pick among
+                per_search.append(plcc(p[-n_search:], t[-n_search:]))
             scale = model.map_scale[None, :, None, None]
             mse.append(float(((maps - torch.from_numpy(d["target_maps"])) / scale).pow(2).mean()))
     p, t = np.concatenate(pred), np.concatenate(true)
@@ -352,6 +404,7 @@ def validate(model: FieldModel, teacher: Teacher, val: list[tuple[dict, FieldInp
         "val_srcc": srcc(p, t),
         "val_plcc_per_sample": float(np.mean(per)) if per else 0.0,
         "val_map_mse": float(np.mean(mse)),
+        **({"val_plcc_search": float(np.mean(per_search))} if per_search else {}),
     }
 
 

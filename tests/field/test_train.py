@@ -130,3 +130,51 @@ def test_shipped_checkpoint_loads_offline_from_the_package():
     )
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=Path.home())
     assert res.returncode == 0 and res.stdout.startswith("ok"), res.stderr[-2000:]
+
+
+def test_samples_carry_search_targets_and_validation_scores_their_order(cache, tmp_path):
+    train_files, val_files = cache
+    cfg = load_config(TINY)
+    for path in train_files + val_files:
+        d = load_sample(path)
+        n_search = int(d["search_targets"])
+        assert n_search == cfg.search_targets == 12
+        assert len(d["targets"]) == len(d["target_scores"]) == cfg.targets + n_search
+    model = train(load_config({**TINY, "steps": 2}), train_files, tmp_path, val_samples=val_files)
+    metrics = json.loads((tmp_path / "metrics.jsonl").read_text().splitlines()[-1])
+    assert np.isfinite(metrics["val_plcc_search"]) and model is not None
+
+
+def test_rig_search_targets_cover_the_joint_range_and_keep_the_plan():
+    from aes_planner.field.protocol import plan_views
+    from aes_planner.geometry.pantilt import PanTilt
+
+    platform = _source("indoor:1000").platform
+    plain = plan_views(platform, "rig", 4, 10, np.random.default_rng(3))
+    with_search = plan_views(platform, "rig", 4, 10, np.random.default_rng(3), n_search=200)
+    assert plain.search_targets is None
+    assert np.array_equal(plain.inputs, with_search.inputs) and np.array_equal(plain.targets, with_search.targets)
+    pt = PanTilt(platform.rig)
+    joints = np.array(
+        [[(s := pt.inverse_direction(pose[:3, 2])).pan_rad, s.tilt_rad] for pose in with_search.search_targets]
+    )  # [200, 2]
+    (plo, phi), (tlo, thi) = pt.pan_limits_rad, pt.tilt_limits_rad
+    assert joints[:, 0].min() >= plo - 1e-6 and joints[:, 0].max() <= phi + 1e-6
+    assert joints[:, 1].min() >= tlo - 1e-6 and joints[:, 1].max() <= thi + 1e-6
+    # spread over the range, unlike the trajectory (which stays within a few degrees of one tilt)
+    assert np.ptp(joints[:, 1]) > 0.8 * (thi - tlo) and np.ptp(joints[:, 0]) > 0.8 * (phi - plo)
+
+
+def test_cache_workers_render_the_same_samples(tmp_path):
+    import functools
+
+    cfg = load_config({**TINY, "samples": 2})
+    make = functools.partial(SimSource, camera=SimCameraConfig(width=32, height=24, supersample=1))
+    teacher = get_teacher()
+    one = build_cache(cfg, tmp_path / "one", make, teacher)
+    two = build_cache(cfg, tmp_path / "two", make, teacher, workers=2)
+    assert [p.name for p in one] == [p.name for p in two] and all(p.exists() for p in two)
+    for a, b in zip(one, two, strict=True):
+        da, db = load_sample(a), load_sample(b)
+        assert da.keys() == db.keys() and all(np.array_equal(da[k], db[k]) for k in da)
+    assert not list((tmp_path / "two").glob("*.tmp.npz"))
