@@ -29,6 +29,9 @@ class SearchConfig:
     * ``jitter_fov``: direction jitter, as a fraction of the horizontal field of view (uniform in
       +-jitter on yaw/pan and pitch/tilt).
     * ``shift_frac``: in-plane shift (free mode), as a fraction of the flight box's diagonal.
+    * ``grid_points``: extra candidates spread evenly over the whole space, independent of the
+      inputs (rig: a pan x tilt grid of about this many; free: none, the space is too large), so
+      views away from the input trajectory compete too. 0 = the paper's stage 1.
     * ``top_k`` (K): distinct candidates handed to stage 2.
     * ``dedup_fov`` / ``dedup_frac``: two candidates closer than this angle (fraction of the hfov)
       plus position distance (fraction of the box diagonal) are duplicates.
@@ -54,6 +57,7 @@ class SearchConfig:
 
     samples_per_segment: int = 16
     neighbours: int = 8
+    grid_points: int = 0
     top_k: int = 2
     steps: int = 25
     lr: float = 0.01
@@ -78,6 +82,13 @@ class SearchConfig:
             require(
                 isinstance(v, int) and not isinstance(v, bool) and v >= 1, name, f"must be an integer >= 1, got {v!r}"
             )
+        require(
+            isinstance(self.grid_points, int)
+            and not isinstance(self.grid_points, bool)
+            and 0 <= self.grid_points <= 10_000,
+            "grid_points",
+            f"must be an integer in [0, 10000], got {self.grid_points!r}",
+        )
         require(
             isinstance(self.steps, int) and not isinstance(self.steps, bool) and self.steps >= 0,
             "steps",

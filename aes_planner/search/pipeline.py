@@ -4,7 +4,8 @@
    positions: :func:`aes_planner.geometry.interpolate_poses`), sampled ``S`` times per segment and
    projected into the search space (rig: the joints that aim the camera there; free: the 5-DoF
    view, inside the box). Around each sample ``N`` neighbours are drawn (direction jitter; in free
-   mode also in-plane shifts along the image axes). Every candidate is scored in batches; the
+   mode also in-plane shifts along the image axes); on a rig, ``grid_points`` more spread over the
+   joint range join them (views far from the inputs compete too). Every candidate is scored in batches; the
    top ``K`` by objective survive a distance-based duplicate check.
 2. **Refinement.** Each survivor is refined by Adam on its parameters (lr 0.01, 25 steps by
    default), projected into the joint limits / box after every step. The best iterate of each is
@@ -210,7 +211,9 @@ def search_views(
     # ---- stage 1: trajectory samples + neighbours, scored in batches
     trajectory = interpolate_poses(inputs, cfg.samples_per_segment)  # [T, 4, 4]
     anchors = space.from_poses(trajectory)  # [T, D]
-    candidates = torch.cat([anchors, space.neighbours(anchors, cfg.neighbours, rng)])  # [T * (1 + N), D]
+    candidates = torch.cat(
+        [anchors, space.neighbours(anchors, cfg.neighbours, rng), space.grid(cfg.grid_points)]
+    )  # [T * (1 + N) + G, D]
     cand_poses = space.to_poses(candidates)  # [C, 4, 4]
     t_sampled = time.perf_counter()
     out1 = scorer.score_batched(cand_poses, cfg.batch_size)

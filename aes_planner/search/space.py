@@ -70,6 +70,11 @@ class SearchSpace:
         lo, hi = self.lower.numpy(), self.upper.numpy()
         return torch.as_tensor(rng.uniform(lo, hi, size=(n, self.dims)))
 
+    def grid(self, n: int) -> Tensor:  # -> [G, D], G about n, spread evenly over the whole space
+        """Stage-1 candidates independent of the input trajectory (``SearchConfig.grid_points``);
+        empty where the space is too large to grid (free flight)."""
+        return torch.zeros(0, self.dims, dtype=torch.float64)
+
 
 class RigSpace(SearchSpace):
     """Pan and tilt inside the joint limits, through the rig's kinematics."""
@@ -98,6 +103,17 @@ class RigSpace(SearchSpace):
     def neighbours(self, params: Tensor, n: int, rng: np.random.Generator) -> Tensor:  # [M, 2] -> [M * n, 2]
         jitter = torch.as_tensor(rng.uniform(-self.jitter_rad, self.jitter_rad, size=(params.shape[0], n, 2)))
         return self.project((params[:, None, :] + jitter).reshape(-1, 2))
+
+    def grid(self, n: int) -> Tensor:  # -> [n_pan * n_tilt, 2], cell centres, about n in all
+        if n <= 0:
+            return super().grid(n)
+        span = (self.upper - self.lower).clamp_min(1e-9)
+        n_pan = max(1, round(math.sqrt(n * float(span[0] / span[1]))))
+        n_tilt = max(1, round(n / n_pan))
+        pans = self.lower[0] + span[0] * (torch.arange(n_pan, dtype=torch.float64) + 0.5) / n_pan
+        tilts = self.lower[1] + span[1] * (torch.arange(n_tilt, dtype=torch.float64) + 0.5) / n_tilt
+        p, t = torch.meshgrid(pans, tilts, indexing="xy")
+        return torch.stack([p.reshape(-1), t.reshape(-1)], -1)
 
 
 class FreeSpace(SearchSpace):

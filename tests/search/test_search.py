@@ -118,6 +118,33 @@ def test_rig_finds_target_and_refinement_helps(differentiable):
     assert result.timings_ms["total"] > 0 and result.scored > 0
 
 
+def test_grid_points_reach_views_far_from_the_inputs():
+    platform = rig_platform(pan_limits_deg=(-150.0, 150.0), tilt_limits_deg=(-60.0, 60.0))
+    # the target is behind the sweep's last view and low: no trajectory sample or neighbour gets near it
+    target = np.array([math.cos(2.4) * math.cos(-0.9), math.sin(2.4) * math.cos(-0.9), math.sin(-0.9)])
+    inputs = rig_inputs(platform, 2)[:1]  # a single view near the start of the range
+    plain = SearchConfig.preset("fast", steps=0, top_k=1)
+    gridded = SearchConfig.preset("fast", steps=0, top_k=1, grid_points=60)
+    far = search_views(AimScorer(target), inputs, platform, plain)
+    near = search_views(AimScorer(target), inputs, platform, gridded)
+    assert_inside(near, platform, gridded)
+    assert near.scored > far.scored
+    assert angle_to(near.best.cam2world, target) < 25.0 < angle_to(far.best.cam2world, target)
+
+
+def test_rig_grid_covers_the_range_and_free_has_none():
+    from aes_planner.search.space import space_for
+
+    space = space_for(rig_platform(pan_limits_deg=(-90.0, 90.0), tilt_limits_deg=(-30.0, 30.0)), SearchConfig())
+    g = space.grid(48)
+    assert 40 <= len(g) <= 56 and torch.all(g >= space.lower) and torch.all(g <= space.upper)
+    assert len(torch.unique(g[:, 0])) > len(torch.unique(g[:, 1]))  # cells follow the range's aspect
+    assert len(space.grid(0)) == 0
+    assert len(space_for(drone_platform(), SearchConfig()).grid(48)) == 0
+    with pytest.raises(ConfigError, match="grid_points"):
+        SearchConfig(grid_points=-1)
+
+
 def test_rig_target_outside_limits_stays_at_the_limit():
     platform = rig_platform(pan_limits_deg=(-60.0, 60.0), tilt_limits_deg=(-20.0, 20.0))
     scorer = AimScorer([0.0, 1.0, 0.6])  # pan 90 deg, tilt ~31 deg: beyond both limits
