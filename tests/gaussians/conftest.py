@@ -1,12 +1,10 @@
-"""Fixtures of the rasterizer tests (helpers: :mod:`tests.helpers`)."""
+"""Fixtures of the rasterizer tests (helpers: :mod:`tests.helpers`, imported from there)."""
 
 from __future__ import annotations
 
 import pytest
 
-# Tests import helpers from tests.helpers; these names stay importable from here only for tests
-# written before the move (``from .conftest import assert_close``): import them from tests.helpers.
-from tests.helpers import FAST_BACKENDS, GRAD_FIELDS, OUTPUTS, assert_close, outputs_and_grads, render  # noqa: F401
+from tests.helpers import FAST_BACKENDS
 
 
 @pytest.fixture(params=FAST_BACKENDS)
