@@ -1,4 +1,4 @@
-"""Rasterizer numerics, shared by every backend (gsplat / Inria conventions, DESIGN.md).
+"""Rasterizer numerics, shared by every backend (gsplat / Inria conventions; docs/rasterizer.md).
 
 * Gaussians with camera z-depth ``<= NEAR_M`` or ``>= FAR_M`` are culled.
 * ``BLUR_PX2`` is added to the diagonal of every projected 2D covariance (anti-aliasing floor).
@@ -31,8 +31,9 @@ T_STOP = 1e-4
 ONE_MINUS_ALPHA_MIN = 1e-6
 # sigma is clamped here before exp(-sigma). Any sigma above ln(255) ~ 5.5 already gives
 # alpha < ALPHA_MIN for opacity <= 1 (the pixel is skipped, value and gradient), so the clamp never
-# changes a result; it keeps exp away from denormals (~60x slower on CPUs) and inside [0, 16], where
-# the compiled kernels' polynomial exp is accurate (relative error 1e-7 in float32).
+# changes a result; it keeps exp away from denormals (slow on CPUs; figures: docs/benchmarks.md,
+# "Figures behind code comments") and inside [0, 16], where the compiled kernels' polynomial exp
+# is accurate (relative error 1e-7 in float32).
 SIGMA_CLAMP = 16.0
 LOG_INV_ALPHA_MIN = math.log(255.0)
 # depth = sum(w z) / max(alpha, DEPTH_ALPHA_MIN); alpha is 0 or at least ~1/255 where drawn

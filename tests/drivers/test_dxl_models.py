@@ -11,7 +11,8 @@ from aes_planner.config import ConfigError, from_dict
 from aes_planner.drivers import dynamixel_models as dm
 from aes_planner.drivers.dynamixel import DynamixelPanTiltConfig, EmulatedPanTiltConfig
 
-# REFERENCE.md: (address, size) of the items the driver and emulator rely on.
+# (address, size) of the items the driver and emulator rely on, as in the ROBOTIS e-manual's
+# XM430/XL430 control tables (typed in here independently of dynamixel_models).
 REFERENCE_ITEMS = {
     "model_number": (0, 2),
     "id": (7, 1),

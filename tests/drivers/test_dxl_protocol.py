@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from aes_planner.drivers.protocol import HEADER, Inst, PacketParser, build_packet, build_status, crc16, stuff, unstuff
 
-# (bytes before the CRC, CRC_L CRC_H) from REFERENCE.md (ROBOTIS e-manual examples).
+# (bytes before the CRC, CRC_L CRC_H): the example packets of the ROBOTIS e-manual's Protocol 2.0 page.
 VECTORS = [
     ("FF FF FD 00 01 03 00 01", "19 4E"),  # ping id 1
     ("FF FF FD 00 01 07 00 02 84 00 04 00", "1D 15"),  # read present position
