@@ -194,8 +194,9 @@ class Gaussians:
         """Raise :class:`GaussianError` for non-finite values or opacities outside ``[0, 1]``."""
         if not len(self):
             return
-        # One float64 sum per field (NaN and Inf propagate, float64 cannot overflow here): ~10x
-        # cheaper than isfinite().all() per field. On the CPU in numpy, which is single-threaded:
+        # One float64 sum per field (NaN and Inf propagate, float64 cannot overflow here): cheaper
+        # than isfinite().all() per field (figures: docs/benchmarks.md, "Figures behind code
+        # comments"). On the CPU in numpy, which is single-threaded:
         # torch ops above its parallel grain size wake its OpenMP pool, whose spinning threads
         # slow down the rasterizer's own threads that run next.
         if self.device.type == "cpu":

@@ -4,9 +4,10 @@ Backends
 --------
 * ``"numba"``: compiled CPU kernels (projection, binning, raster and their backward), parallel over
   tiles or cameras. Needs numba (the ``fast`` extra) and CPU tensors. The first call in a fresh
-  environment compiles for ~30-60 s per dtype and caches to disk; later processes load in well
-  under a second.
-* ``"torch"``: pure-torch, tile-binned, autograd; any device; about 30x slower on a CPU.
+  environment compiles each dtype once and caches it to disk, so later processes only load it
+  (figures: docs/benchmarks.md, "Figures behind code comments").
+* ``"torch"``: pure-torch, tile-binned, autograd; any device; far slower than ``numba`` on a CPU
+  (same table): the fallback where numba is missing or the tensors are on another device.
 * ``"auto"`` (default): ``numba`` when it imports and the tensors are on the CPU, else ``torch``.
 
 The environment variable ``AES_PLANNER_RASTER_BACKEND`` (``auto``/``numba``/``torch``) overrides

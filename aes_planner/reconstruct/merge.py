@@ -50,9 +50,9 @@ COVER_FACTOR = 1.5  # a loser must have a winner within its own cell this many f
 COVER_BORDER_BLOCKS = 3.0  # ... that is this many blocks inside its frame (> the cell's diagonal)
 _GEO_WEIGHT = 0.05  # colour units per (plane offset / footprint)^2
 _NORMAL_WEIGHT = 0.05  # colour units per (1 - cos) of normal spread
-_SPREAD_GAIN = (
-    0.75  # measured: merged splats at 0.75 x the moment-matched spread render 0.4-0.6 dB closer (sim, 4-6 views)
-)
+# Merged splats are drawn narrower than the moment-matched spread of their members: they render
+# closer to the views (figures: docs/benchmarks.md, "Figures behind code comments").
+_SPREAD_GAIN = 0.75
 _MAX_LEVEL = 20  # quadtree levels: far beyond any image (2^20 blocks)
 _SPILL_WEIGHT = 0.03  # colour units per block whose merged tails would reach over a depth edge
 
