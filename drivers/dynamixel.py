@@ -22,7 +22,6 @@ retry is fatal too (torque off, best effort). A port that disappears raises
 from __future__ import annotations
 
 import logging
-import math
 import termios
 import threading
 import time
@@ -53,6 +52,7 @@ from aes_planner.drivers.dynamixel_config import (  # noqa: F401  (re-exported: 
     MAX_REBOOT_TIMEOUT_S,
     DynamixelPanTiltConfig,
     EmulatedPanTiltConfig,
+    arrival_settings,
 )
 from aes_planner.drivers.dynamixel_models import (
     SDK_BAUD_RATES,
@@ -65,7 +65,6 @@ from aes_planner.drivers.dynamixel_models import (
     to_unsigned,
 )
 from aes_planner.drivers.protocol import ERRBIT_ALERT, ErrNum
-from aes_planner.geometry.rig import JointLimits, PanTiltConfig
 
 log = logging.getLogger(__name__)
 
@@ -159,9 +158,7 @@ class DynamixelPanTilt(Gimbal):
         self._lost = False
         self._in_control = False
         self._cal = {j: config.calibration(j) for j in JOINTS}
-        self._limits = JointLimits.from_config(
-            PanTiltConfig(pan_limits_deg=config.pan_limits_deg, tilt_limits_deg=config.tilt_limits_deg)
-        )
+        self._limits = config.limits()
         self._models: dict[str, ServoModel] = {}
         self._firmware: dict[str, int] = {}
         self._faults: dict[str, tuple[str, ...]] = {}
@@ -247,9 +244,7 @@ class DynamixelPanTilt(Gimbal):
     def wait_until_reached(self, timeout_s: float | None = None) -> GimbalState:
         return wait_for_arrival(
             self.state,
-            self.config.move_timeout_s if timeout_s is None else timeout_s,
-            math.radians(self.config.arrival_tolerance_deg),
-            self.config.poll_interval_s,
+            *arrival_settings(self.config, timeout_s),
             clock=time.monotonic,
             sleep=time.sleep,
             faults=lambda: self._faults,

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from aes_planner.config import ConfigError, require, require_numbers
 from aes_planner.devices import MAX_WAIT_S
 from aes_planner.drivers.dynamixel_models import MODELS, SDK_BAUD_RATES, JointCalibration, model_by_name
-from aes_planner.geometry.rig import PanTiltConfig
+from aes_planner.geometry.rig import JointLimits, PanTiltConfig
 
 __all__ = [
     "DynamixelPanTiltConfig",
@@ -25,6 +25,8 @@ __all__ = [
     "MAX_MOVE_TIMEOUT_S",
     "MAX_REBOOT_TIMEOUT_S",
     "MAX_ARRIVAL_TOLERANCE_DEG",
+    "arrival_settings",
+    "joint_limits",
 ]
 
 JOINTS = ("pan", "tilt")
@@ -35,6 +37,28 @@ MAX_POLL_INTERVAL_S = 1.0
 MAX_MOVE_TIMEOUT_S = MAX_WAIT_S
 MAX_REBOOT_TIMEOUT_S = 60.0
 MAX_ARRIVAL_TOLERANCE_DEG = 45.0
+
+
+def joint_limits(pan_limits_deg, tilt_limits_deg) -> JointLimits:
+    """A gimbal config's joint limits, through the rig's own checks (finite, min < max, tilt within
+    +-90 deg, pan within 360 deg); a failure is the config's :class:`ConfigError` (its key and
+    message, no chained traceback)."""
+    try:
+        rig = PanTiltConfig(pan_limits_deg=tuple(pan_limits_deg), tilt_limits_deg=tuple(tilt_limits_deg))
+    except ConfigError as exc:
+        raise ConfigError(exc.key, exc.message) from None
+    return JointLimits.from_config(rig)
+
+
+def arrival_settings(config, timeout_s: float | None) -> tuple[float, float, float]:
+    """``(timeout_s, tolerance_rad, poll_interval_s)`` for :func:`~aes_planner.devices.wait_for_arrival`
+    from a gimbal config's ``move_timeout_s`` (unless ``timeout_s`` is given),
+    ``arrival_tolerance_deg`` and ``poll_interval_s``: the real and the simulated pan-tilt share them."""
+    return (
+        config.move_timeout_s if timeout_s is None else timeout_s,
+        math.radians(config.arrival_tolerance_deg),
+        config.poll_interval_s,
+    )
 
 
 @dataclass
@@ -93,11 +117,7 @@ class DynamixelPanTiltConfig:
         require(self.pan_id != self.tilt_id, "tilt_id", f"pan and tilt need different ids, both are {self.pan_id}")
         for name in ("pan_direction", "tilt_direction"):
             require(getattr(self, name) in (1, -1), name, f"must be 1 or -1, got {getattr(self, name)}")
-        try:
-            # the rig's own checks: finite, min < max, tilt within +-90 deg, pan within 360 deg
-            PanTiltConfig(pan_limits_deg=tuple(self.pan_limits_deg), tilt_limits_deg=tuple(self.tilt_limits_deg))
-        except ConfigError as exc:
-            raise ConfigError(exc.key, exc.message) from None
+        self.limits()  # the rig's own checks of the two ranges
         for joint in JOINTS:
             lo, hi = self.calibration(joint).tick_limits
             require(
@@ -137,6 +157,9 @@ class DynamixelPanTiltConfig:
 
     def _check_port(self) -> None:
         require(isinstance(self.port, str) and bool(self.port), "port", "set the serial device, e.g. /dev/ttyUSB0")
+
+    def limits(self) -> JointLimits:
+        return joint_limits(self.pan_limits_deg, self.tilt_limits_deg)
 
     def calibration(self, joint: str) -> JointCalibration:
         lo, hi = getattr(self, f"{joint}_limits_deg")

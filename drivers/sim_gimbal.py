@@ -35,7 +35,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from aes_planner.config import ConfigError, require, require_numbers
+from aes_planner.config import require, require_numbers
 from aes_planner.devices import (
     DeviceError,
     Gimbal,
@@ -46,10 +46,16 @@ from aes_planner.devices import (
     joint_command,
     wait_for_arrival,
 )
-from aes_planner.drivers.dynamixel_config import MAX_ARRIVAL_TOLERANCE_DEG, MAX_MOVE_TIMEOUT_S, MAX_POLL_INTERVAL_S
+from aes_planner.drivers.dynamixel_config import (
+    MAX_ARRIVAL_TOLERANCE_DEG,
+    MAX_MOVE_TIMEOUT_S,
+    MAX_POLL_INTERVAL_S,
+    arrival_settings,
+    joint_limits,
+)
 from aes_planner.drivers.dynamixel_models import HARDWARE_ERROR_BITS
 from aes_planner.drivers.motion import trapezoid_step
-from aes_planner.geometry.rig import JointLimits, PanTiltConfig
+from aes_planner.geometry.rig import JointLimits
 
 log = logging.getLogger(__name__)
 
@@ -87,10 +93,7 @@ class SimPanTiltConfig:
     temperature_c: float = 30.0
 
     def __post_init__(self):
-        try:
-            PanTiltConfig(pan_limits_deg=tuple(self.pan_limits_deg), tilt_limits_deg=tuple(self.tilt_limits_deg))
-        except ConfigError as exc:
-            raise ConfigError(exc.key, exc.message) from None
+        self.limits()  # the rig's own checks of the two ranges
         require_numbers(self, ("initial_pan_deg", "initial_tilt_deg", "temperature_c"), minimum=-math.inf)
         require_numbers(
             self,
@@ -116,9 +119,7 @@ class SimPanTiltConfig:
         )
 
     def limits(self) -> JointLimits:
-        return JointLimits.from_config(
-            PanTiltConfig(pan_limits_deg=self.pan_limits_deg, tilt_limits_deg=self.tilt_limits_deg)
-        )
+        return joint_limits(self.pan_limits_deg, self.tilt_limits_deg)
 
 
 class SimClock:
@@ -258,9 +259,7 @@ class SimPanTilt(Gimbal):
     def wait_until_reached(self, timeout_s: float | None = None) -> GimbalState:
         return wait_for_arrival(
             self.state,
-            self.config.move_timeout_s if timeout_s is None else timeout_s,
-            math.radians(self.config.arrival_tolerance_deg),
-            self.config.poll_interval_s,
+            *arrival_settings(self.config, timeout_s),
             clock=self.clock,
             sleep=self.sleep,
             faults=lambda: self._faults,
