@@ -110,25 +110,11 @@ def _forward_arrays(means, quats, log_scales, opacities, values, channels, world
     t_final = np.empty((n_cam, height, width), dtype)
     last = np.empty((n_cam, height, width), np.int32)
     consts = np.array(k.CONSTS, dtype)
+    # the leading arguments that raster_fwd and raster_bwd share, in their order
+    tiles = (proj, box, values, offsets, lists, tiles_x, width, height, consts)
     with _stage("raster_fwd"):
-        k.raster_fwd(
-            proj,
-            box,
-            values,
-            offsets,
-            lists,
-            tiles_x,
-            width,
-            height,
-            consts,
-            threads,
-            rgb,
-            feat,
-            depth_sum,
-            t_final,
-            last,
-        )
-    state = (cov, proj, box, offsets, lists, tiles_x, last, consts)
+        k.raster_fwd(*tiles, threads, rgb, feat, depth_sum, t_final, last)
+    state = (cov, box, tiles, last)
     return rgb, feat, depth_sum, t_final, state
 
 
@@ -177,7 +163,7 @@ class _Raster(torch.autograd.Function):
         means, quats, log_scales, opacities = ctx.arrays
         values, bg = ctx.values, ctx.bg
         w2c, kk, width, height, cam_dtype = ctx.camera
-        cov, proj, box, offsets, lists, tiles_x, last, consts = ctx.state
+        cov, box, tiles, last = ctx.state
         t_final, alpha, depth_sum = ctx.maps
         dtype = means.dtype
         v_rgb, v_feat, v_depth, v_alpha = (_contiguous(v, dtype) for v in (v_rgb, v_feat, v_depth, v_alpha))
@@ -202,26 +188,7 @@ class _Raster(torch.autograd.Function):
         gvals = np.zeros((threads, n if need_values else 0, values.shape[1]), dtype)
         with _stage("raster_bwd"):
             k.raster_bwd(
-                proj,
-                box,
-                values,
-                offsets,
-                lists,
-                tiles_x,
-                width,
-                height,
-                consts,
-                t_final,
-                last,
-                v_rgb,
-                v_feat,
-                v_depth_sum,
-                v_t,
-                by_camera,
-                threads,
-                g2d,
-                gvals,
-                need_values,
+                *tiles, t_final, last, v_rgb, v_feat, v_depth_sum, v_t, by_camera, threads, g2d, gvals, need_values
             )
         g_means = np.empty_like(means)
         g_quats = np.empty_like(quats)
