@@ -3,10 +3,14 @@ the conftest.py files.
 
 * rasterizer tests: render with any backend, collect every gradient, compare with a tolerance;
 * reconstruction tests: an analytic scene (ground, sphere, wall) whose surfaces are known in
-  closed form, and capturing posed frames from the simulator.
+  closed form, and capturing posed frames from the simulator;
+* import checks: run code in a fresh interpreter where optional dependencies cannot be imported.
 """
 
 from __future__ import annotations
+
+import subprocess
+import sys
 
 import numpy as np
 import torch
@@ -138,3 +142,11 @@ def capture(
 
 def looking_at_ball(eye) -> np.ndarray:
     return look_at(np.asarray(eye, float), SPHERE_CENTRE)
+
+
+# ---------------------------------------------------------------------------- import checks
+def run_python_without(blocked: tuple[str, ...], code: str) -> subprocess.CompletedProcess:
+    """Run ``code`` in a fresh interpreter in which importing any module of ``blocked`` fails
+    (``sys.modules[name] = None``): what imports without an optional dependency (stdout, stderr as text)."""
+    prelude = "import sys; " + "; ".join(f"sys.modules[{name!r}] = None" for name in blocked) + "\n"
+    return subprocess.run([sys.executable, "-c", prelude + code], capture_output=True, text=True)

@@ -1,14 +1,13 @@
 """The hardware-free device interfaces: Device ABC, Gimbal interface, type-word registry."""
 
 import math
-import subprocess
-import sys
 from dataclasses import dataclass
 
 import pytest
 
 from aes_planner.config import ConfigError, require
 from aes_planner.devices import DEVICE_TYPES, Device, Gimbal, GimbalState, device_class, make_device, register_device
+from tests.helpers import run_python_without
 
 
 @dataclass
@@ -102,7 +101,6 @@ def test_the_abc_requires_the_whole_interface():
 
 def test_real_and_emulated_types_are_registered_without_importing_drivers():
     code = (
-        "import sys; sys.modules['dynamixel_sdk'] = None; sys.modules['serial'] = None\n"
         "import aes_planner.devices as d\n"
         "assert {'dynamixel_pan_tilt', 'emulated_pan_tilt'} <= set(d.DEVICE_TYPES)\n"
         "assert not any(m.startswith('aes_planner.drivers') for m in sys.modules)\n"
@@ -111,7 +109,7 @@ def test_real_and_emulated_types_are_registered_without_importing_drivers():
         "except d.DeviceError as exc:\n"
         "    print(exc)\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    out = run_python_without(("dynamixel_sdk", "serial"), code)
     assert out.returncode == 0, out.stderr
     assert "pip install 'aes-planner[hardware]'" in out.stdout
 

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import tomllib
 
+from tests.helpers import run_python_without
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -34,12 +36,11 @@ def test_no_generic_top_level_names_installed():
 def test_import_core_without_hardware_sdk():
     # The core must import without dynamixel-sdk: block it and import everything hardware-free.
     code = (
-        "import sys; sys.modules['dynamixel_sdk'] = None; sys.modules['serial'] = None\n"
         "import aes_planner, aes_planner.geometry, aes_planner.cli, aes_planner.devices\n"
         "import aes_planner.cli.gimbal\n"
         "print('ok')"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    out = run_python_without(("dynamixel_sdk", "serial"), code)
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr
 
 

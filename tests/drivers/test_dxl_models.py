@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from aes_planner.config import ConfigError, from_dict
 from aes_planner.drivers import dynamixel_models as dm
 from aes_planner.drivers.dynamixel import DynamixelPanTiltConfig, EmulatedPanTiltConfig
+from tests.helpers import run_python_without
 
 # (address, size) of the items the driver and emulator rely on, as in the ROBOTIS e-manual's
 # XM430/XL430 control tables (typed in here independently of dynamixel_models).
@@ -174,9 +175,6 @@ def test_a_new_model_is_data_only():
 
 
 def test_servo_facts_live_in_one_place_and_old_import_paths_work():
-    import subprocess
-    import sys
-
     from aes_planner.drivers import dynamixel, dynamixel_config, emulated, emulator
 
     assert dynamixel.EmulatedPanTilt is emulated.EmulatedPanTilt  # the pre-split import paths
@@ -189,11 +187,10 @@ def test_servo_facts_live_in_one_place_and_old_import_paths_work():
     assert "XM430-W350 (1020)" in dm.supported_models()
     # the config validates without the SDK (a launch file is checked before any hardware import)
     code = (
-        "import sys; sys.modules['dynamixel_sdk'] = None\n"
         "from aes_planner.drivers.dynamixel_config import DynamixelPanTiltConfig\n"
         "print(DynamixelPanTiltConfig(port='/dev/x').baud)"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    out = run_python_without(("dynamixel_sdk",), code)
     assert out.returncode == 0 and out.stdout.strip() == "1000000", out.stderr
 
 
