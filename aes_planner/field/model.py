@@ -338,7 +338,8 @@ def render_maps(
         ray_w = torch.einsum("bij,hwj->bihw", rot, rays)  # [B, 3, H, W]
         # sqrt of a channel sum, not Tensor.norm(dim=1): torch's CPU norm over a strided channel axis
         # is ~50x slower here (docs/benchmarks.md, figures behind code comments)
-        src_dir = src / ((src * src).sum(1, keepdim=True).sqrt() + _EPS)
+        # (eps inside the root: its gradient at an empty pixel, src = 0, stays finite)
+        src_dir = src / ((src * src).sum(1, keepdim=True) + _EPS * _EPS).sqrt()
         cos = -(ray_w * src_dir).sum(1) * alpha  # [B, H, W]: 1 = seen from where the target looks
         inv_depth = alpha / (1.0 + depth.clamp_min(0.0))
         cond = torch.stack([cos, inv_depth], 1)
