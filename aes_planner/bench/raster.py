@@ -57,7 +57,7 @@ class Case:
     opacity: tuple[float, float] = (0.1, 0.9)
 
 
-# The search's workload (`balanced` preset): a 4-view field of ~8k Gaussians (a 4-frame
+# The search's workload (a field search): a 4-view field of ~8k Gaussians (a 4-frame
 # reconstruction of `indoor:3` gave 8321 under the default budget), D = 32 embedding channels
 # (the paper's f_aes), 48x36 renders (render_width_px of `balanced`, 4:3 frames), mostly opaque
 # Gaussians (the reconstruction's median opacity is 0.95); stage 1 scores batches of 64 poses

@@ -33,7 +33,7 @@ class ScorerConfig:
     * ``reconstruct``: every other reconstruction knob.
     """
 
-    render_width_px: int = 64
+    render_width_px: int = 48
     max_gaussians: int = 20_000
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     reconstruct: ReconstructConfig = field(default_factory=ReconstructConfig)
