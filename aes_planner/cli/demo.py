@@ -43,7 +43,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--scene", default=DEFAULT_SCENE, metavar="FILE_OR_FAMILY:SEED", help=f"scene (default {DEFAULT_SCENE})"
     )
     p.add_argument(
-        "--mode", choices=("rig", "free"), default="rig", help="pan-tilt rig (default) or a free-flying drone"
+        "--mode",
+        choices=("rig", "free"),
+        default=None,
+        help="pan-tilt rig or a free-flying drone (default: what the scene has, a rig or a drone box)",
     )
     p.add_argument("--out", default=None, metavar="DIR", help="run folder (default runs/demo-<time>)")
     p.add_argument("--moves", type=int, default=6, help="suggestion-driven moves at most (default 6)")
@@ -60,10 +63,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from aes_planner.config import ConfigError
 
+    from aes_planner.sim import load_scene
+
     if args.moves < 0:
         raise ConfigError("--moves", f"must be >= 0, got {args.moves}")
+    has_rig = load_scene(args.scene).rig is not None  # a bad scene fails here, with its key named
+    mode = args.mode or ("rig" if has_rig else "free")
+    if mode == "rig" and not has_rig:
+        raise ConfigError("--mode", f"scene {args.scene!r} has a drone box, not a pan-tilt rig: use --mode free")
     out = Path(args.out) if args.out else Path("runs") / f"demo-{dt.datetime.now().strftime('%Y%m%d-%H%M%S')}"
-    result = run_demo(args.scene, args.mode, out, args.moves, args.set, args.timeout, progress=print, transport=args)
+    result = run_demo(args.scene, mode, out, args.moves, args.set, args.timeout, progress=print, transport=args)
     print_summary(result)
     print(out.resolve() / "summary.json")
     return 0 if result["state"] == "done" else 1

@@ -4,6 +4,7 @@ one and reaches >= 0.7 of the oracle (oracle-normalised, true teacher scores of 
 renders). Seeded, small images, few moves."""
 
 import json
+from pathlib import Path
 
 from aes_planner.cli.demo import run_demo
 
@@ -49,3 +50,12 @@ def test_demo_cli_rejects_a_bad_scene_in_one_line(tmp_path, capsys):
     assert main(["demo", "--scene", "nowhere:3", "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "nowhere" in err[0]
+
+
+def test_demo_cli_takes_its_mode_from_the_scene(tmp_path, capsys):
+    from aes_planner.cli import main
+
+    drone_scene = str(Path(__file__).parent / "scenes" / "yard_drone.yaml")
+    assert main(["demo", "--scene", drone_scene, "--mode", "rig", "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--mode free" in err[0]
