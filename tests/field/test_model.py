@@ -112,3 +112,17 @@ def test_teacher_mismatch_is_refused(model):
     other = FieldModel(FieldModelConfig(embed_dim=4), 4, (16, 16), "someone-else")
     with pytest.raises(ModelError, match="teacher"):
         AestheticField(other, get_teacher("composition"), None, CFG)
+
+
+def test_pointwise_matches_the_convolutions_in_values_and_gradients(model):
+    from aes_planner.field.model import pointwise
+
+    x = torch.randn(3, model.pixel[0].in_channels, 6, 5, dtype=torch.float64, requires_grad=True)
+    layers = model.pixel.double()
+    try:
+        fast, plain = pointwise(layers, x), layers(x)
+        torch.testing.assert_close(fast, plain)
+        g_fast, g_plain = (torch.autograd.grad((y * y).sum(), x)[0] for y in (fast, plain))
+        torch.testing.assert_close(g_fast, g_plain)
+    finally:
+        layers.float()
