@@ -62,7 +62,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from aes_planner.config import ConfigError
-
     from aes_planner.sim import load_scene
 
     if args.moves < 0:
