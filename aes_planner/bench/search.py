@@ -13,8 +13,8 @@ balanced search on RGB scoring), on held-out scenes with 4 input frames of 128x9
 * ``search.<preset>.build_ms``, ``.stage1_ms``, ``.stage2_ms``: where the latency goes (medians);
 * ``search.<preset>.scored``: poses scored per suggestion.
 
-``search_pareto.png`` (latency against normalised score) is written beside the JSON's folder
-(``bench/``). When the field is not available in this build, the presets run on RGB scoring and
+``search_pareto.png`` (latency against normalised score) is written into ``bench/`` under the
+working directory. When the field is not available in this build, the presets run on RGB scoring and
 ``_meta.backends.search_scorer`` says so.
 """
 
