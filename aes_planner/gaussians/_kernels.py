@@ -864,34 +864,16 @@ def raster_bwd(
         if real < 0:
             continue
         tid = numba.get_thread_id()
-        if by_camera:
-            for tile in range(n_tiles):
-                _raster_tile_bwd(
-                    real,
-                    tile,
-                    proj,
-                    box,
-                    vals,
-                    offsets,
-                    lists,
-                    tiles_x,
-                    width,
-                    height,
-                    consts,
-                    t_final,
-                    last,
-                    v_rgb,
-                    v_feat,
-                    v_dep,
-                    v_t,
-                    g2d[0],
-                    gvals[tid],
-                    need_values,
-                )
-        else:
+        # by camera: one item is a whole camera (all its tiles on this thread, so one shared g2d
+        # buffer is race-free); by tile: one item is one tile, into this thread's own buffer
+        cam = real if by_camera else real // n_tiles
+        first = 0 if by_camera else real % n_tiles
+        stop = n_tiles if by_camera else first + 1
+        buf = 0 if by_camera else tid
+        for tile in range(first, stop):
             _raster_tile_bwd(
-                real // n_tiles,
-                real % n_tiles,
+                cam,
+                tile,
                 proj,
                 box,
                 vals,
@@ -907,7 +889,7 @@ def raster_bwd(
                 v_feat,
                 v_dep,
                 v_t,
-                g2d[tid],
+                g2d[buf],
                 gvals[tid],
                 need_values,
             )
