@@ -36,7 +36,6 @@ def run(args: argparse.Namespace) -> int:
     from aes_planner.config import ConfigError, load_yaml
     from aes_planner.field.train import build_cache, load_config, set_threads, train
     from aes_planner.sim import SimSource
-    from aes_planner.teachers import get_teacher
 
     data = load_yaml(args.config) if args.config else {}
     for key, value in (("teacher", args.teacher), ("teacher_weights", args.weights), ("steps", args.steps)):
@@ -45,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     if args.samples is not None:
         data["samples"] = args.samples
     config = load_config(data)
-    teacher = get_teacher(config.teacher, **({"weights": config.teacher_weights} if config.teacher_weights else {}))
+    teacher = config.make_teacher()
 
     if args.cache_workers < 1:
         raise ConfigError("--cache-workers", f"must be >= 1, got {args.cache_workers}")

@@ -122,6 +122,10 @@ class TrainConfig:
         require(self.checkpoint_every >= 1, "checkpoint_every", "must be >= 1")
         require(1 <= self.gt_supersample <= 4, "gt_supersample", f"must be in [1, 4], got {self.gt_supersample}")
 
+    def make_teacher(self) -> Teacher:
+        """The teacher this config distils (with its weights file, if any)."""
+        return get_teacher(self.teacher, **({"weights": self.teacher_weights} if self.teacher_weights else {}))
+
     def sample_spec(self, index: int, split: str = "train") -> tuple[str, str, int, int]:
         """(scene name, source, views, rng seed) of cached sample ``index`` of ``split``
         (``train`` or ``val``): families round-robin, a new scene seed per round, sources
@@ -140,18 +144,12 @@ _SPLAT_FIELDS = [f for f in SplatSet.__dataclass_fields__]
 
 
 def make_sample(
-    source: SceneSource,
-    kind: str,
-    n_views: int,
-    n_targets: int,
-    seed: int,
-    teacher: Teacher,
-    config: TrainConfig,
-    n_search: int = 0,
+    source: SceneSource, kind: str, n_views: int, seed: int, teacher: Teacher, config: TrainConfig
 ) -> dict[str, np.ndarray]:
-    """One training (or evaluation) sample as arrays: inputs, reconstruction, teacher maps at the
-    ``n_targets`` trajectory targets followed by ``n_search`` search targets."""
-    plan = plan_views(source.platform, kind, n_views, n_targets, np.random.default_rng(seed), n_search)
+    """One training sample as arrays: inputs, reconstruction, teacher maps at ``config.targets``
+    trajectory targets followed by ``config.search_targets`` search targets."""
+    rng = np.random.default_rng(seed)
+    plan = plan_views(source.platform, kind, n_views, config.targets, rng, config.search_targets)
     frames = [source.capture(p, depth=plan.depth) for p in plan.inputs]
     inputs = FieldInputs.from_frames(frames, teacher, config.scorer.reconstruct_config())
     targets = plan.targets if plan.search_targets is None else np.concatenate([plan.targets, plan.search_targets])
@@ -245,8 +243,8 @@ def _cache_sample(make_source, teacher, config: TrainConfig, name: str, kind: st
     """Render one sample into ``path`` (atomically); a worker process loads its own ``teacher``."""
     if teacher is None:
         set_threads(1)
-        teacher = get_teacher(config.teacher, **({"weights": config.teacher_weights} if config.teacher_weights else {}))
-    arrays = make_sample(make_source(name), kind, views, config.targets, seed, teacher, config, config.search_targets)
+        teacher = config.make_teacher()
+    arrays = make_sample(make_source(name), kind, views, seed, teacher, config)
     tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
     np.savez_compressed(tmp, **arrays)
     tmp.replace(path)
@@ -320,7 +318,7 @@ def train(
     rank, world = _world()
     set_threads(config.threads)
     torch.manual_seed(config.seed)
-    teacher = get_teacher(config.teacher, **({"weights": config.teacher_weights} if config.teacher_weights else {}))
+    teacher = config.make_teacher()
     model = FieldModel(config.model, teacher.feature_channels, teacher.feature_size, teacher.name)
     data = [load_sample(p) for p in samples]
     inputs = [arrays_to_inputs(d) for d in data]
