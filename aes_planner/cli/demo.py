@@ -62,16 +62,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from aes_planner.config import ConfigError
-    from aes_planner.sim import load_scene
 
     if args.moves < 0:
         raise ConfigError("--moves", f"must be >= 0, got {args.moves}")
-    has_rig = load_scene(args.scene).rig is not None  # a bad scene fails here, with its key named
-    mode = args.mode or ("rig" if has_rig else "free")
-    if mode == "rig" and not has_rig:
-        raise ConfigError("--mode", f"scene {args.scene!r} has a drone box, not a pan-tilt rig: use --mode free")
     out = Path(args.out) if args.out else Path("runs") / f"demo-{dt.datetime.now().strftime('%Y%m%d-%H%M%S')}"
-    result = run_demo(args.scene, mode, out, args.moves, args.set, args.timeout, progress=print, transport=args)
+    result = run_demo(args.scene, args.mode, out, args.moves, args.set, args.timeout, progress=print, transport=args)
     print_summary(result)
     print(out.resolve() / "summary.json")
     return 0 if result["state"] == "done" else 1
@@ -79,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
 
 def run_demo(
     scene: str,
-    mode: str,
+    mode: str | None,
     out: Path,
     moves: int = 6,
     overrides=(),
@@ -90,15 +85,21 @@ def run_demo(
 ) -> dict:
     """Run the closed loop and write the run folder; returns the summary dict (plus ``state``).
 
+    ``mode``: ``rig`` or ``free``; ``None`` takes what the scene has (a rig, else its drone box).
+
     ``transport``: the ``--processes/--listen/--foxglove/--record`` flags (see
     :mod:`aes_planner.cli.processes`); every topic is recorded to ``out/recording.mcap``."""
     from aes_planner.cli.processes import attach_viewers, close_viewers
+    from aes_planner.config import ConfigError
     from aes_planner.devices import stop_on_signals
     from aes_planner.node import Launch, build_nodes, load_launch
     from aes_planner.sim import load_scene
 
     say = progress or (lambda *_: None)
-    load_scene(scene)  # a bad scene fails here, with its key named
+    has_rig = load_scene(scene).rig is not None  # a bad scene fails here, with its key named
+    mode = mode or ("rig" if has_rig else "free")
+    if mode == "rig" and not has_rig:
+        raise ConfigError("--mode", f"scene {scene!r} has a drone box, not a pan-tilt rig: use --mode free")
     sets = [f"scene={scene}", f"planner.max_moves={moves}"]
     if mode == "rig":
         launch_file = "sim_closed_loop.yaml"
