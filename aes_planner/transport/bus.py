@@ -129,9 +129,11 @@ class Subscription:
 
     Pollable: :meth:`take` (all queued, oldest first), :meth:`latest` (the newest, queue
     cleared), :meth:`poll` (the oldest), :meth:`wait`. With a ``callback``, each message goes to
-    it instead of the queue. Counters: ``received`` (decoded and accepted), ``dropped`` (pushed
-    out of the full queue), ``rejected`` (undecodable, wrong type, oversized: never delivered),
-    ``callback_errors``; ``last_error`` says why the last one was rejected.
+    it instead of the queue. Counters: ``received`` (arrived and accepted), ``dropped`` (of those,
+    pushed out of a full queue before the consumer took them: this queue's, or a backend's inbox
+    of not yet decoded samples), ``rejected`` (undecodable, wrong type, oversized: never
+    delivered), ``callback_errors``; ``last_error`` says why the last one was rejected. So
+    ``received - dropped`` reached the consumer and ``received + rejected`` arrived.
     """
 
     def __init__(
@@ -199,6 +201,12 @@ class Subscription:
             return False
         self._push(item, direct)
         return True
+
+    def _dropped_unseen(self) -> None:
+        """Count a sample a backend's inbox pushed out before it was decoded."""
+        with self._lock:
+            self.received += 1
+            self.dropped += 1
 
     def _push(self, item, direct: bool = True) -> None:
         with self._lock:

@@ -339,6 +339,12 @@ def main_child(argv: Sequence[str] | None = None) -> int:
     args = p.parse_args(argv)
     parent = os.getppid()  # a supervisor killed outright leaves no orphan: we watch for reparenting
     logging.basicConfig(level=args.log_level, format="%(levelname)s %(name)s: %(message)s")
+    outcome = logging.getLogger("aes_planner.outcome")  # the run's result: shown at any level, without a label
+    shown = logging.StreamHandler()
+    shown.setFormatter(logging.Formatter("%(message)s"))
+    outcome.addHandler(shown)
+    outcome.setLevel(logging.INFO)
+    outcome.propagate = False
 
     stop = threading.Event()
     got: list[int] = []
@@ -384,7 +390,7 @@ def main_child(argv: Sequence[str] | None = None) -> int:
             res = node.result()
             best = res.get("best")
             if best is not None:
-                log.warning(  # the run's result, shown at the children's default level
+                outcome.info(
                     "%s: %s after %d moves; best captured score %.3f",
                     node.node_id,
                     res["state"],

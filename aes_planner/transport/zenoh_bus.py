@@ -229,7 +229,7 @@ class ZenohBus(Bus):
         with self._work:
             if len(inbox.items) >= sub.depth:
                 inbox.items.popleft()
-                sub.dropped += 1
+                sub._dropped_unseen()
             inbox.items.append((topic, data, att))
             self._dirty.add(id(sub))
             self._work.notify()

@@ -63,6 +63,9 @@ def test_every_message_type_crosses_and_keep_last_holds(zenoh_pair):
     assert wait_for(lambda: few.pending and few._queue[-1].sequence == 19)  # the last always arrives (reliable)
     got = [m.sequence for m in few.take()]
     assert len(got) <= 2 and got[-1] == 19 and few.rejected == 0
+    # counters as documented, whichever queue (the backend's inbox or the subscription's) dropped a message:
+    # all 20 arrived, and what was not dropped is what the consumer took
+    assert few.received == 20 and few.received - few.dropped == len(got)
 
 
 def test_latched_value_reaches_late_subscriber_and_late_publisher(zenoh_pair, endpoint):
