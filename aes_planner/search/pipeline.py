@@ -174,18 +174,36 @@ def refine_params(scorer: Scorer, space: SearchSpace, start: Tensor, start_obj: 
     best_params, best_obj = params.clone(), start_obj.detach().double().clone()
     if cfg.steps == 0 or not (differentiable or cfg.nondiff_refine == "fd"):
         return params, best_params, best_obj
-    params.requires_grad_(True)
-    opt = torch.optim.Adam([params], lr=cfg.lr)
+    adam = Adam(params, cfg.lr)
     for _ in range(cfg.steps):
-        obj, _, grad = _gradient(scorer, space, params.detach(), cfg, differentiable)
+        obj, _, grad = _gradient(scorer, space, params, cfg, differentiable)
         better = obj.double() > best_obj
-        best_params[better], best_obj[better] = params.detach()[better], obj.double()[better]
-        opt.zero_grad()
-        params.grad = -grad  # ascent
-        opt.step()
-        with torch.no_grad():
-            params.copy_(space.project(params))
-    return params.detach(), best_params, best_obj
+        best_params[better], best_obj[better] = params[better], obj.double()[better]
+        params = space.project(adam.step(params, -grad))  # ascent
+    return params, best_params, best_obj
+
+
+class Adam:
+    """Adam (Kingma and Ba; the defaults of ``torch.optim.Adam``) on one detached tensor.
+
+    Written out because ``torch.optim`` imports ``torch._dynamo`` when the first optimiser is
+    built, about 2 s of a process's first suggestion (docs/benchmarks.md); equal to
+    ``torch.optim.Adam`` step for step (tested).
+    """
+
+    def __init__(self, like: Tensor, lr: float, betas=(0.9, 0.999), eps: float = 1e-8):
+        self.lr, self.betas, self.eps, self.t = lr, betas, eps, 0
+        self.m = torch.zeros_like(like)  # first moment, like params
+        self.v = torch.zeros_like(like)  # second moment
+
+    def step(self, params: Tensor, grad: Tensor) -> Tensor:
+        """``params`` after one descent step along ``grad``."""
+        b1, b2 = self.betas
+        self.t += 1
+        self.m = b1 * self.m + (1 - b1) * grad
+        self.v = b2 * self.v + (1 - b2) * grad * grad
+        denom = self.v.sqrt() / math.sqrt(1 - b2**self.t) + self.eps
+        return params - self.lr / (1 - b1**self.t) * self.m / denom
 
 
 def search_views(

@@ -293,3 +293,22 @@ def test_unavailable_scorer_is_a_search_error(monkeypatch):
         build_search_scorer("field", [], SearchConfig.preset("fast"))
     with pytest.raises(SearchError, match="scorer must be one of"):
         build_search_scorer("magic", [], SearchConfig.preset("fast"))
+
+
+def test_adam_equals_torch_adam_step_for_step():
+    from aes_planner.search.pipeline import Adam
+
+    gen = torch.Generator().manual_seed(0)
+    start = torch.randn(3, 5, dtype=torch.float64, generator=gen)
+    ours, adam = start.clone(), Adam(start, lr=0.01)
+    theirs = start.clone().requires_grad_(True)
+    opt = torch.optim.Adam([theirs], lr=0.01)
+    for _ in range(30):
+        grad = torch.randn(3, 5, dtype=torch.float64, generator=gen) * 10.0 ** torch.randint(
+            -6, 3, (3, 5), generator=gen
+        )
+        ours = adam.step(ours, grad)
+        theirs.grad = grad.clone()
+        opt.step()
+    assert torch.allclose(ours, theirs.detach(), rtol=0, atol=1e-12)
+    assert not torch.equal(ours, start)
