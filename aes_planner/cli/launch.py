@@ -61,14 +61,9 @@ def run(args: argparse.Namespace) -> int:
             launch.stop()
             close_viewers(sinks)
     for r in launch.runners:
-        node = r.node
-        if hasattr(node, "result") and node.finished:
-            res = node.result()
-            best = res.get("best")
-            if best is not None:
-                print(
-                    f"{node.node_id}: {res['state']} after {res['moves']} moves; best captured score {best.score:.3f}"
-                )
+        line = r.node.outcome() if hasattr(r.node, "outcome") and r.node.finished else None
+        if line is not None:
+            print(line)
     return 0 if finished else 1
 
 

@@ -720,6 +720,17 @@ class PlannerNode(Node):
             "final": final,
         }
 
+    def outcome(self) -> str | None:
+        """One line for a person: how the loop ended (None before anything was captured)."""
+        res = self.result()
+        if res.get("best") is None:
+            return None
+        moves = res["moves"]
+        return (
+            f"{self.node_id}: {res['state']} after {moves} move{'' if moves == 1 else 's'}; "
+            f"best captured score {res['best'].score:.3f}"
+        )
+
 
 def _platform_from_scene(config: PlannerConfig, scene) -> PlannerConfig:
     import dataclasses

@@ -386,17 +386,10 @@ def main_child(argv: Sequence[str] | None = None) -> int:
             launch.stop()
         if any(r.error is not None for r in launch.runners):
             return 1
-        if can_finish and node.finished and hasattr(node, "result"):
-            res = node.result()
-            best = res.get("best")
-            if best is not None:
-                outcome.info(
-                    "%s: %s after %d moves; best captured score %.3f",
-                    node.node_id,
-                    res["state"],
-                    res["moves"],
-                    best.score,
-                )
+        if can_finish and node.finished and hasattr(node, "outcome"):
+            line = node.outcome()
+            if line is not None:
+                outcome.info("%s", line)
             return 0
         return 0 if can_finish and node.finished else 128 + (got[0] if got else signal.SIGTERM)
     except AesPlannerError as exc:

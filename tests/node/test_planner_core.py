@@ -61,6 +61,8 @@ def test_moves_are_bounded_by_the_budget():
     node = make(prop, explore_views=2, max_moves=3)
     drive(node, SimRig(prop))
     assert node.state == "done" and node.moves == 3
+    best = max(c.score for c in node.captures)
+    assert node.outcome() == f"{node.node_id}: done after 3 moves; best captured score {best:.3f}"
 
 
 def test_no_move_when_no_candidate_beats_the_best_capture():
@@ -69,6 +71,7 @@ def test_no_move_when_no_candidate_beats_the_best_capture():
     node = make(prop, explore_views=2, max_moves=5)
     drive(node, SimRig(prop))
     assert node.state == "done" and node.moves == 0
+    assert " after 0 moves; " in node.outcome()
 
 
 def test_out_of_range_candidates_are_clamped_and_nonfinite_ones_never_commanded():
