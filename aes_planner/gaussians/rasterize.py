@@ -21,6 +21,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -86,7 +87,14 @@ def resolve_backend(backend: str = "auto", device: torch.device | str = "cpu") -
     return backend
 
 
-def _batched(t: Tensor | Sequence, name: str, shape: tuple[int, int], device) -> Tensor:
+# The checks below run in numpy on float64 copies of the few pose numbers: torch's small ops cost
+# ~5-10 us each, which made the checks ~0.14 ms of every call (docs/rasterizer.md, round 4).
+def _f64(t: Tensor) -> np.ndarray:
+    return t.detach().to(torch.float64).cpu().numpy()
+
+
+def _batched(t: Tensor | Sequence, name: str, shape: tuple[int, int], device) -> tuple[Tensor, np.ndarray]:
+    """(t as [B, *shape] on ``device``, its float64 numpy copy)."""
     t = torch.as_tensor(t, device=device)
     if t.dim() == 2:
         t = t.unsqueeze(0)
@@ -96,9 +104,10 @@ def _batched(t: Tensor | Sequence, name: str, shape: tuple[int, int], device) ->
         )
     if not t.dtype.is_floating_point:
         raise GaussianError(f"{name} must be floating point (float64 recommended), got {t.dtype}")
-    if not bool(torch.isfinite(t).all()):
+    a = _f64(t)
+    if not np.isfinite(a).all():
         raise GaussianError(f"{name} has NaN or Inf entries; check the pose source")
-    return t
+    return t, a
 
 
 def _check_inputs(gaussians, world2cam, K, width, height, background):
@@ -108,23 +117,22 @@ def _check_inputs(gaussians, world2cam, K, width, height, background):
         if isinstance(v, bool) or not isinstance(v, int) or v < 1:
             raise GaussianError(f"{name} must be a positive int (pixels), got {v!r}")
     device = gaussians.device
-    world2cam = _batched(world2cam, "world2cam", (4, 4), device)
+    world2cam, w2c = _batched(world2cam, "world2cam", (4, 4), device)
     if world2cam.shape[0] == 0:
         raise GaussianError("world2cam holds 0 cameras: pass one pose [4, 4] or a batch [B, 4, 4] with B >= 1")
-    K = _batched(K, "K", (3, 3), device)
+    K, kd = _batched(K, "K", (3, 3), device)
     if K.shape[0] == 1 and world2cam.shape[0] > 1:
         K = K.expand(world2cam.shape[0], 3, 3)
     if K.shape[0] != world2cam.shape[0]:
         raise GaussianError(
             f"K has {K.shape[0]} cameras but world2cam {world2cam.shape[0]}; pass one K or one per camera"
         )
-    kd = K.detach()
-    if bool((kd[:, 0, 0] <= 0).any() | (kd[:, 1, 1] <= 0).any()):
+    if (kd[:, 0, 0] <= 0).any() or (kd[:, 1, 1] <= 0).any():
         raise GaussianError("K: focal lengths fx = K[..., 0, 0] and fy = K[..., 1, 1] must be positive pixels")
-    off = torch.stack([kd[:, 0, 1], kd[:, 1, 0], kd[:, 2, 0], kd[:, 2, 1], kd[:, 2, 2] - 1])
-    if bool((off != 0).any()):
+    off = np.stack([kd[:, 0, 1], kd[:, 1, 0], kd[:, 2, 0], kd[:, 2, 1], kd[:, 2, 2] - 1])
+    if (off != 0).any():
         raise GaussianError("K must read [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew); use Intrinsics.K_tensor()")
-    _check_rigid(world2cam.detach())
+    _check_rigid(w2c)
     if height * width * world2cam.shape[0] > MAX_PIXELS:
         raise GaussianError(
             f"{world2cam.shape[0]} cameras of {width}x{height} px are more than {MAX_PIXELS:.0e} pixels in one call; "
@@ -134,24 +142,27 @@ def _check_inputs(gaussians, world2cam, K, width, height, background):
         background = torch.as_tensor(background, dtype=gaussians.dtype, device=device)
         if background.shape not in ((3,), (1, 3), (world2cam.shape[0], 3)):
             raise GaussianError(f"background must have shape [3] or [B, 3], got {tuple(background.shape)}")
-        if not bool(torch.isfinite(background.detach()).all()):
+        if not np.isfinite(_f64(background)).all():
             raise GaussianError("background has NaN or Inf entries; pass finite colours (e.g. [0, 0, 0])")
         background = background.reshape(-1, 3)
     return world2cam, K, background
 
 
-def _check_rigid(world2cam: Tensor) -> None:  # [B, 4, 4]
+def _check_rigid(world2cam: np.ndarray) -> None:  # [B, 4, 4] float64
     """Bottom row [0, 0, 0, 1] and a proper rotation (R R^T = I, det R = +1) within RIGID_TOL."""
-    bottom = world2cam[:, 3]
-    if bool((bottom != torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=bottom.dtype, device=bottom.device)).any()):
+    if (world2cam[:, 3] != np.array([0.0, 0.0, 0.0, 1.0])).any():
         raise GaussianError("world2cam must be rigid 4x4 matrices with bottom row [0, 0, 0, 1]")
-    rot = world2cam[:, :3, :3].to(torch.float64)  # [B, 3, 3]
-    eye = torch.eye(3, dtype=torch.float64, device=rot.device)
-    err = (rot @ rot.transpose(1, 2) - eye).abs().amax(dim=(1, 2))  # [B]
-    det = (rot[:, 0] * torch.cross(rot[:, 1], rot[:, 2], dim=1)).sum(1)  # [B]
+    rot = world2cam[:, :3, :3]  # [B, 3, 3]
+    err = np.abs(rot @ rot.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))  # [B]
+    r0, r1, r2 = rot[:, 0], rot[:, 1], rot[:, 2]  # rows [B, 3]
+    det = (
+        r0[:, 0] * (r1[:, 1] * r2[:, 2] - r1[:, 2] * r2[:, 1])
+        - r0[:, 1] * (r1[:, 0] * r2[:, 2] - r1[:, 2] * r2[:, 0])
+        + r0[:, 2] * (r1[:, 0] * r2[:, 1] - r1[:, 1] * r2[:, 0])
+    )  # [B]
     bad = (err > RIGID_TOL) | (det <= 0)
-    if bool(bad.any()):
-        b = int(bad.nonzero()[0, 0])
+    if bad.any():
+        b = int(np.flatnonzero(bad)[0])
         what = (
             "is a reflection (det < 0)" if float(det[b]) <= 0 and float(err[b]) <= RIGID_TOL else "is not orthonormal"
         )
