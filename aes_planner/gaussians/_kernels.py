@@ -349,9 +349,11 @@ def _sort_camera(proj, box, b, order, n_visible):
 
 
 @njit(**_opts)
-def _count_camera(box, b, tiles_x, order, n_visible, tile_counts):
-    for i in range(n_visible[b]):
-        g = order[b, i]
+def _count_camera(box, b, tiles_x, tile_counts):
+    """Tile counts of camera b's visible Gaussians (in index order: sequential loads of box)."""
+    for g in range(box.shape[1]):
+        if box[b, g, 0] > box[b, g, 1]:
+            continue
         for ty in range(box[b, g, 2] // TILE, box[b, g, 3] // TILE + 1):
             for tx in range(box[b, g, 0] // TILE, box[b, g, 1] // TILE + 1):
                 tile_counts[b, ty * tiles_x + tx] += 1
@@ -380,14 +382,14 @@ def bin_cameras(proj, box, tiles_x, parallel, order, n_visible, tile_counts):
     else:
         for b in range(box.shape[0]):
             _sort_camera(proj, box, b, order, n_visible)
-            _count_camera(box, b, tiles_x, order, n_visible, tile_counts)
+            _count_camera(box, b, tiles_x, tile_counts)
 
 
 @njit(parallel=True, **_opts)
 def _bin_cameras_parallel(proj, box, tiles_x, order, n_visible, tile_counts):
     for b in prange(box.shape[0]):
         _sort_camera(proj, box, b, order, n_visible)
-        _count_camera(box, b, tiles_x, order, n_visible, tile_counts)
+        _count_camera(box, b, tiles_x, tile_counts)
 
 
 @njit(**_opts)
