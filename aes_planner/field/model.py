@@ -119,6 +119,8 @@ def pointwise(layers: nn.Sequential, x: Tensor) -> Tensor:  # [B, Cin, H, W] -> 
     for layer in layers:
         if isinstance(layer, nn.Conv2d):
             y = F.linear(y, layer.weight[:, :, 0, 0], layer.bias)
+        elif isinstance(layer, nn.ReLU):
+            y = torch.relu_(y)  # in place: the product before it is not needed by its backward
         else:
             y = layer(y)
     return y.permute(0, 3, 1, 2)
@@ -172,10 +174,11 @@ class FieldModel(nn.Module):
         if self.config.condition:
             parts.append(cond)
         fh, fw = self.feature_size
-        x = F.adaptive_avg_pool2d(torch.cat(parts, 1), (2 * fh, 2 * fw))  # [B, C + D + 1 (+ 2), 2fh, 2fw]
+        x = torch.cat(parts, 1).contiguous(memory_format=torch.channels_last)  # pixels channels-last from here
+        x = F.adaptive_avg_pool2d(x, (2 * fh, 2 * fw))  # [B, C + D + 1 (+ 2), 2fh, 2fw]
         base = F.avg_pool2d(x[:, : self.feature_channels], 2)  # [B, C, fh, fw] splatted map, channel units
         x = F.avg_pool2d(pointwise(self.pixel, x), 2)  # [B, h, fh, fw]
-        x = F.relu(self.cell(torch.cat([x, base], 1))) + x
+        x = torch.relu_(self.cell(torch.cat([x, base], 1))) + x
         tokens = x.flatten(2).transpose(1, 2)  # [B, n, h]
         att = torch.softmax(
             self.query(tokens) @ self.key(tokens).transpose(1, 2) / math.sqrt(self.query.out_features), -1

@@ -1,9 +1,12 @@
 """The aesthetic field: finite, differentiable scores in every corner case, incremental updates,
 checkpoints that load weights-only."""
 
+import math
+
 import numpy as np
 import pytest
 import torch
+import torch.nn.functional as F
 
 from aes_planner.field import AestheticField, ScorerConfig, ScorerError
 from aes_planner.field.model import FieldModel, FieldModelConfig, ModelError, load_model
@@ -126,3 +129,35 @@ def test_pointwise_matches_the_convolutions_in_values_and_gradients(model):
         torch.testing.assert_close(g_fast, g_plain)
     finally:
         layers.float()
+
+
+def _plain_decode(m, rendered, alpha, cond):  # the decoder written with the modules as declared: its reference
+    fh, fw = m.feature_size
+    x = F.adaptive_avg_pool2d(torch.cat([rendered, alpha[:, None], cond], 1), (2 * fh, 2 * fw))
+    base = F.avg_pool2d(x[:, : m.feature_channels], 2)
+    x = F.avg_pool2d(m.pixel(x), 2)
+    x = F.relu(m.cell(torch.cat([x, base], 1))) + x
+    tokens = x.flatten(2).transpose(1, 2)
+    att = torch.softmax(m.query(tokens) @ m.key(tokens).transpose(1, 2) / math.sqrt(m.query.out_features), -1)
+    ctx = (att @ m.value(tokens)).transpose(1, 2).reshape_as(x)
+    return (base + m.out(torch.cat([x, ctx], 1))) * m.map_scale[None, :, None, None]
+
+
+def test_decode_matches_its_plain_reference_in_values_and_gradients(model):
+    gen = torch.Generator().manual_seed(3)
+    c, d = model.feature_channels, model.config.embed_dim
+    m = model.double()
+    try:
+        inputs = [
+            torch.rand(3, c + d, 36, 48, dtype=torch.float64, generator=gen).requires_grad_(True),
+            torch.rand(3, 36, 48, dtype=torch.float64, generator=gen).requires_grad_(True),
+            torch.rand(3, 2, 36, 48, dtype=torch.float64, generator=gen).requires_grad_(True),
+        ]
+        fast, plain = m.decode(*inputs), _plain_decode(m, *inputs)
+        torch.testing.assert_close(fast, plain)
+        g_fast, g_plain = (torch.autograd.grad((y * y).sum(), inputs) for y in (fast, plain))
+        for a, b in zip(g_fast, g_plain):
+            torch.testing.assert_close(a, b)
+        assert float(g_fast[0].abs().sum()) > 0
+    finally:
+        model.float()
