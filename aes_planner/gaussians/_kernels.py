@@ -9,12 +9,13 @@ Pipeline per call (B cameras, N Gaussians, Cv = 3 + C value channels, tiles of T
    depth, then per-tile lists in that order (counting pass, prefix sum, fill): no per-tile sorts.
 4. ``raster_fwd``: parallel over (camera, tile), tiles interleaved across threads. Each Gaussian
    of the tile's depth-sorted list visits only the tile rows of its ``alpha >= 1/255`` box; a row
-   is one masked 16-lane vector (sigma, exp, alpha, transmittance, stop rule), then the values
-   are accumulated lane-wise (few channels) or per contributing pixel with the channels
-   innermost (8 or more). A tile stops once all its pixels are saturated. Stores the final
-   transmittance and, per pixel, the list position after its last contributor.
+   is one masked 8- or 16-lane vector (sigma, exp, alpha, transmittance, stop rule), then the
+   values are accumulated lane-wise (up to 63 channels) or per contributing pixel with the
+   channels innermost (64 or more). A tile stops once all its pixels are saturated. Stores the
+   final transmittance and, per pixel, the list position after its last contributor.
 5. ``raster_bwd``: the same traversal in reverse from the stored final transmittance (gsplat's
-   backward), accumulating per-lane gradient terms that are reduced once per Gaussian. Parallel
+   backward), accumulating per-lane gradient terms that are reduced once per Gaussian; channels
+   lane-wise up to 7, per contributing pixel from 8 (through one dot product per pixel). Parallel
    over cameras when there are enough of them (no write conflicts), else over tiles with
    per-thread buffers.
 6. ``project_bwd``: per Gaussian, the chain rule through projection and covariance for every
@@ -57,7 +58,12 @@ from aes_planner.gaussians.numerics import (
 )
 
 HALF_TILE = TILE // 2  # lanes of a narrow row window in the forward
-PIXEL_MAJOR_MIN_CHANNELS = 8  # value channels + depth from which the channel loops go innermost
+# Value channels + depth from which the channel loops go innermost (only contributing pixels
+# visited) instead of lanes innermost. The forward's lanes-innermost loops stayed faster up to 36
+# channels once rows became 8-lane windows (docs/rasterizer.md, round 4); the backward's need it
+# from 8 (2.2x at 36 channels).
+FWD_PIXEL_MAJOR_MIN_CHANNELS = 64
+BWD_PIXEL_MAJOR_MIN_CHANNELS = 8
 DONE_CHECK_EVERY = 32  # Gaussians between checks whether every pixel of a tile is saturated
 # Packed image-space parameters per (camera, Gaussian).
 P_U, P_V, P_A, P_B, P_C, P_O, P_Z = range(7)
@@ -512,7 +518,7 @@ def _raster_tile_fwd(
     trans = np.empty(TILE * TILE, consts.dtype)  # > 0 while compositing, -T once done
     # [channel, pixel] (lanes vectorised) for few channels; [pixel, channel] (channels vectorised,
     # only contributing pixels visited) for many
-    pixel_major = cv + 1 >= PIXEL_MAJOR_MIN_CHANNELS
+    pixel_major = cv + 1 >= FWD_PIXEL_MAJOR_MIN_CHANNELS
     acc = np.zeros((cv + 1) * TILE * TILE, consts.dtype)
     last_k = np.zeros(TILE * TILE, np.int32)
     wbuf = np.empty(TILE, consts.dtype)
@@ -701,7 +707,7 @@ def _raster_tile_bwd_many(
     gvals,
     need_values,
 ):
-    """:func:`_raster_tile_bwd` for many channels (``cv + 1 >= PIXEL_MAJOR_MIN_CHANNELS``): per
+    """:func:`_raster_tile_bwd` for many channels (``cv + 1 >= BWD_PIXEL_MAJOR_MIN_CHANNELS``): per
     row a lane loop (alpha, transmittance, the lanes' terms), the hit pixels' channel loops, and a
     lane loop accumulating the geometry gradients."""
     n_tiles = (offsets.shape[0] - 1) // proj.shape[0]
@@ -860,7 +866,7 @@ def _raster_tile_bwd(
     :func:`_raster_tile_bwd_many`; a channel's v and behind-sum sections are adjacent (v at
     S_CH + 2c, behind at S_CH + 2c + 1), so their distance is known when compiling too.
     """
-    if vals.shape[1] + 1 >= PIXEL_MAJOR_MIN_CHANNELS:
+    if vals.shape[1] + 1 >= BWD_PIXEL_MAJOR_MIN_CHANNELS:
         _raster_tile_bwd_many(
             b,
             tile,

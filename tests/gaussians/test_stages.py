@@ -15,11 +15,13 @@ pytestmark = pytest.mark.skipif(not numba_backend.available(), reason="the numba
 # (rtol, atol as a fraction of the largest |value|) against the float64 twin
 TOL = {torch.float64: (1e-9, 1e-10), torch.float32: (1e-3, 2e-4)}
 # (name, n, width, height, cameras, channels, dtype, sigma_px_at_64, opacity): lane-major values
-# (C + 4 < 8) and pixel-major (C + 4 >= 8), tiles cut by the border, narrow and wide row windows,
-# and a dense opaque scene where pixels reach the transmittance stop.
+# (C + 4 < 8), pixel-major in the backward (C + 4 >= 8) and in the forward too (C + 4 >= 64),
+# tiles cut by the border, narrow and wide row windows, and a dense opaque scene where pixels
+# reach the transmittance stop.
 SCENES = [
     ("lanes", 150, 40, 24, 2, 1, torch.float64, (0.5, 6.0), (0.1, 0.9)),
     ("pixels", 150, 33, 17, 3, 6, torch.float32, (0.5, 6.0), (0.1, 0.9)),
+    ("wide", 100, 20, 18, 2, 61, torch.float32, (0.5, 6.0), (0.1, 0.9)),
     ("opaque", 400, 32, 32, 1, 2, torch.float32, (1.0, 8.0), (0.7, 0.99)),
     ("opaque64", 400, 20, 20, 2, 5, torch.float64, (1.0, 8.0), (0.7, 0.99)),
 ]
