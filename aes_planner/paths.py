@@ -10,16 +10,53 @@ command line) is the explicit opt-in for files one trusts.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable
 from pathlib import Path
 
 from aes_planner.errors import AesPlannerError
 
-__all__ = ["PathOutsideError", "resolve_inside"]
+__all__ = ["OutputPathError", "PathOutsideError", "output_file", "output_folder", "resolve_inside"]
 
 
 class PathOutsideError(AesPlannerError, ValueError):
     """A path in a data file that leads out of the file's folder (absolute, ``..`` or a symlink)."""
+
+
+class OutputPathError(AesPlannerError, ValueError):
+    """An output destination (``--out``, ``--json``, ``--cache``...) that cannot be written."""
+
+
+def output_folder(path: str | Path, flag: str = "--out") -> Path:
+    """``path`` as a folder the command can write into, created now (with its parents): checked
+    before minutes of work rather than after. Raises :class:`OutputPathError` naming ``flag``
+    for an existing file, a parent that is a file, or a place without write permission."""
+    folder = Path(path)
+    if folder.exists() and not folder.is_dir():
+        raise OutputPathError(f"{flag} {folder}: exists and is not a folder; choose a new or existing folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputPathError(
+            f"{flag} {folder}: cannot create the folder ({exc.strerror or exc}); choose another"
+        ) from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise OutputPathError(f"{flag} {folder}: no permission to write there; choose another folder")
+    return folder
+
+
+def output_file(path: str | Path, flag: str = "--json") -> Path:
+    """``path`` as a file the command can write (its folder created now; an existing file is
+    replaced). Raises :class:`OutputPathError` naming ``flag`` for a folder or an unwritable place."""
+    file = Path(path)
+    if file.is_dir():
+        raise OutputPathError(f"{flag} {file}: is a folder; give a file name, e.g. {file / 'out.json'}")
+    if file.exists() and not file.is_file():
+        raise OutputPathError(f"{flag} {file}: is not a regular file; give a file name")
+    output_folder(file.parent if str(file.parent) else ".", f"{flag} {file}: its folder")
+    if file.exists() and not os.access(file, os.W_OK):
+        raise OutputPathError(f"{flag} {file}: no permission to replace this file; choose another name")
+    return file
 
 
 def resolve_inside(

@@ -64,6 +64,11 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # a bug: say so in one line; -v keeps the traceback
         if args.verbose:
             raise
+        if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
+            # a file the command reads or writes (disk full, permissions, a folder where a file
+            # was expected): the user's to fix, not a bug
+            print(f"error: {str(exc.filename)[:300]}: {exc.strerror}", file=sys.stderr)
+            return 2
         text = " ".join(str(exc).split())
         print(
             f"error: unexpected {type(exc).__name__}: {text[:300]} (this is a bug in aes-planner; please report it "

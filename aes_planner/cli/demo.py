@@ -61,10 +61,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from aes_planner.cli.processes import check_timeout
     from aes_planner.config import ConfigError
 
     if args.moves < 0:
         raise ConfigError("--moves", f"must be >= 0, got {args.moves}")
+    check_timeout(args.timeout)
+    if args.out:  # a bad run folder fails now, before the loop runs
+        from aes_planner.paths import output_folder
+
+        output_folder(args.out, "--out")
     out = Path(args.out) if args.out else Path("runs") / f"demo-{dt.datetime.now().strftime('%Y%m%d-%H%M%S')}"
     result = run_demo(args.scene, args.mode, out, args.moves, args.set, args.timeout, progress=print, transport=args)
     print_summary(result)
@@ -194,7 +200,12 @@ def evaluate_run(planner, scene: str, mode: str, out: Path, loop_s: float) -> di
     platform = type(platform)(platform.kind, source.platform.intrinsics, platform.rig, platform.drone)
     caps = [c for c in planner.captures if math.isfinite(c.score)]
     if not caps:
-        raise RuntimeError(f"the planner captured nothing (state {planner.state}); see the log above")
+        from aes_planner.node import NodeError
+
+        raise NodeError(
+            f"the planner captured nothing (state {planner.state}) within the run; see the log above, or give it "
+            "more time (--timeout)"
+        )
     poses = np.stack([_true_pose(planner, c) for c in caps])  # [M, 4, 4]
     truth = true_scores(source, teacher, poses)  # [M]
     best_oracle, oracle_c2w, extras = oracle(source, teacher, platform)

@@ -63,9 +63,20 @@ def register_search(esub: argparse._SubParsersAction) -> None:
 def run_search(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from aes_planner.config import ConfigError
     from aes_planner.eval.search import HELD_OUT_SCENES, METHODS, SearchEvalConfig, markdown, run_search_eval
+    from aes_planner.paths import output_file, output_folder
 
-    scenes = args.scene or HELD_OUT_SCENES[: max(1, args.scenes)]
+    if not args.scene and not 1 <= args.scenes <= len(HELD_OUT_SCENES):
+        raise ConfigError(
+            "--scenes", f"must be in [1, {len(HELD_OUT_SCENES)}] (the held-out scenes), got {args.scenes}"
+        )
+    scenes = args.scene or HELD_OUT_SCENES[: args.scenes]
+    _check_scenes(scenes)
+    if args.json:  # bad destinations fail before the evaluation, not after it
+        output_file(args.json, "--json")
+    if args.out:
+        output_folder(args.out, "--out")
     cfg = SearchEvalConfig(
         scenes=scenes,
         views=args.views,
@@ -84,7 +95,6 @@ def run_search(args: argparse.Namespace) -> int:
     bar.close()
     print(markdown(doc))
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(doc, indent=1) + "\n")
         print(f"wrote {args.json}")
     return 0
@@ -104,8 +114,18 @@ def run_field(args: argparse.Namespace) -> int:
         views = [int(v) for v in args.views.split(",") if v.strip()]
     except ValueError:
         raise AesPlannerError(f"--views must be comma-separated integers like 2,4,6, got {args.views!r}") from None
-    scorer = ScorerConfig(**({"render_width_px": args.render_width} if args.render_width else {}))
+    scorer = ScorerConfig(**({"render_width_px": args.render_width} if args.render_width is not None else {}))
     config = FieldEvalConfig(source=args.source, views=views, targets=args.targets, scorer=scorer)
+    from aes_planner.config import ConfigError
+    from aes_planner.paths import output_file, output_folder
+
+    if not args.scene and not 1 <= args.scenes <= 2000:
+        raise ConfigError("--scenes", f"must be in [1, 2000] (held-out evaluation scenes), got {args.scenes}")
+    if args.scene:
+        _check_scenes(args.scene)
+    output_folder(args.out, "--out")  # bad destinations fail before the evaluation, not after it
+    if args.json:
+        output_file(args.json, "--json")
     models = {"field": load_model(args.model), "field_nocond": load_model(args.nocond_model or NOCOND_CHECKPOINT)}
     teacher = get_teacher(models["field"].teacher_name)
     scenes = args.scene or default_scenes(args.scenes)
@@ -122,3 +142,11 @@ def run_field(args: argparse.Namespace) -> int:
         print(f"{views} views: " + ", ".join(f"{m} PLCC {r['plcc']:.3f}" for m, r in methods.items()))
     print("wrote " + ", ".join(str(p) for p in paths))
     return 0
+
+
+def _check_scenes(scenes: list[str]) -> None:
+    """Every scene spec loads (a bad one fails before the others are evaluated, not after)."""
+    from aes_planner.sim import load_scene
+
+    for spec in scenes:
+        load_scene(spec)

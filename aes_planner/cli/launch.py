@@ -34,10 +34,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from aes_planner.cli.processes import attach_viewers, close_viewers, run_processes
+    from aes_planner.cli.processes import attach_viewers, check_timeout, close_viewers, run_processes
     from aes_planner.devices import stop_on_signals
     from aes_planner.node import Launch, build_nodes, load_launch
 
+    check_timeout(args.timeout)
     if args.processes:  # one process per node over Zenoh (aes_planner.transport.supervisor)
         return run_processes(args)
     spec = load_launch(args.file, args.set)

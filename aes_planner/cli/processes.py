@@ -151,3 +151,13 @@ def run_processes(args: argparse.Namespace) -> int:
     if died:
         print(f"[launch] nodes that died during the run: {', '.join(died)}", flush=True)
     return 0 if finished else 1
+
+
+def check_timeout(timeout_s: float | None) -> None:
+    """``--timeout`` is None (no limit) or a finite number of seconds > 0."""
+    import math
+
+    from aes_planner.config import ConfigError
+
+    if timeout_s is not None and not (math.isfinite(timeout_s) and timeout_s > 0):
+        raise ConfigError("--timeout", f"must be a finite number of seconds > 0, got {timeout_s}")

@@ -87,6 +87,12 @@ def run(args: argparse.Namespace) -> int:
 
     if args.top is not None and args.top < 1:
         raise SearchError(f"--top must be at least 1, got {args.top}")
+    from aes_planner.paths import output_file, output_folder
+
+    if args.json:  # a bad destination fails before the search, not after it
+        output_file(args.json, "--json")
+    if args.out:
+        output_folder(args.out, "--out")
     data = load_dataset(args.dataset, load_depth=True)
     if not data.frames:
         raise SearchError(f"{args.dataset}: the folder has no frames")
@@ -120,7 +126,6 @@ def run(args: argparse.Namespace) -> int:
             "latency_ms": latency_ms,
             "suggestions": [s.to_json() for s in result.suggestions[:top]],
         }
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(doc, indent=1) + "\n")
         print(f"wrote {args.json}")
     if args.out:
@@ -143,6 +148,12 @@ def run(args: argparse.Namespace) -> int:
 def _ground_truth(meta: dict, intrinsics):
     """Ground-truth renders for a folder that `sim render` wrote (its scene is named in the metadata)."""
     if meta.get("source") != "aes-planner sim render" or not meta.get("scene"):
+        return None
+    import re
+
+    if not isinstance(meta["scene"], str) or not re.fullmatch(r"[a-z_]+:[0-9]{1,18}", meta["scene"]):
+        # a file named by a data file is not read (it could be anywhere): families only
+        log.info("no ground truth in the report: the folder's scene %.80r is not FAMILY:SEED", meta["scene"])
         return None
     import numpy as np
 

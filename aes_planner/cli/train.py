@@ -46,8 +46,13 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(data)
     teacher = config.make_teacher()
 
-    if args.cache_workers < 1:
-        raise ConfigError("--cache-workers", f"must be >= 1, got {args.cache_workers}")
+    if not 1 <= args.cache_workers <= 64:
+        raise ConfigError("--cache-workers", f"must be in [1, 64], got {args.cache_workers}")
+    from aes_planner.paths import output_folder
+
+    output_folder(args.cache, "--cache")  # bad destinations fail now, not after the cache is built
+    if not args.cache_only:
+        output_folder(args.out, "--out")
     make_source = functools.partial(SimSource, supersample=config.gt_supersample)  # picklable for the workers
     set_threads(config.threads)
     samples, val = (

@@ -64,7 +64,7 @@ class FieldEvalConfig:
             "views",
             f"each view count must be an integer in [1, 16], got {self.views}",
         )
-        require(self.targets >= 3, "targets", f"must be >= 3 poses, got {self.targets}")
+        require(3 <= self.targets <= 10000, "targets", f"must be in [3, 10000] poses, got {self.targets}")
 
 
 def default_scenes(n: int) -> list[str]:

@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -98,11 +99,19 @@ class SearchEvalConfig:
         from aes_planner.config import require
 
         require(len(self.scenes) >= 1, "scenes", "give at least one scene (FAMILY:SEED or a YAML file)")
-        require(all(isinstance(v, int) and v >= 1 for v in self.views), "views", f"must be integers >= 1: {self.views}")
+        require(
+            bool(self.views) and all(isinstance(v, int) and 1 <= v <= 16 for v in self.views),
+            "views",
+            f"must be integers in [1, 16]: {self.views}",
+        )
         require(set(self.modes) <= {"rig", "free"} and self.modes, "modes", f"must be rig and/or free: {self.modes}")
         unknown = sorted(set(self.methods) - set(METHODS))
         require(not unknown, "methods", f"unknown {unknown}; choose from {METHODS}")
-        require(self.oracle_step_deg > 0, "oracle_step_deg", "must be > 0")
+        require(
+            math.isfinite(self.oracle_step_deg) and 0.5 <= self.oracle_step_deg <= 45,
+            "oracle_step_deg",
+            f"must be in [0.5, 45] deg (finer grids do not fit in memory), got {self.oracle_step_deg}",
+        )
 
 
 # ------------------------------------------------------------------------------------ set-up
