@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import logging
 import math
+import pickle
 from dataclasses import asdict, dataclass, field, replace
 from importlib import resources
 from pathlib import Path
@@ -42,7 +43,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from aes_planner.config import from_dict, require
+from aes_planner.config import from_dict, require, short_repr
 from aes_planner.errors import AesPlannerError
 from aes_planner.field.common import ScorerConfig, local_world2cam, render_intrinsics
 from aes_planner.field.scorer import ScoreOutput, Scorer, ScorerError, check_poses
@@ -69,6 +70,8 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 CHECKPOINT_FORMAT = 1
+#: Largest weight a checkpoint may hold: trained weights are O(1); beyond this a file is damaged.
+MAX_ABS_WEIGHT = 1e4
 #: The shipped checkpoints, package data of ``aes_planner.field``: the field, and the same
 #: trained without view conditioning (the ablation of ``aes-planner eval field``).
 DEFAULT_CHECKPOINT = "default_field.pt"
@@ -204,21 +207,70 @@ class FieldModel(nn.Module):
 
     @classmethod
     def from_checkpoint(cls, ckpt: dict) -> FieldModel:
+        """The model of a checkpoint dict, every entry checked (a :class:`ModelError` names the
+        first bad one): the architecture's numbers, the weights' names and shapes, finite weights."""
         if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
             raise ModelError(
                 f"not an aes-planner field checkpoint of format {CHECKPOINT_FORMAT}; retrain with `aes-planner train`"
             )
-        model = cls(
-            from_dict(FieldModelConfig, ckpt["model_config"], "model_config"),
-            ckpt["feature_channels"],
-            tuple(ckpt["feature_size"]),
-            ckpt["teacher"],
-        )
+        missing = [
+            k for k in ("model_config", "feature_channels", "feature_size", "teacher", "state_dict") if k not in ckpt
+        ]
+        if missing:
+            raise ModelError(f"field checkpoint lacks {missing}; retrain with `aes-planner train`")
+        channels, size, teacher = ckpt["feature_channels"], ckpt["feature_size"], ckpt["teacher"]
+        if not (isinstance(channels, int) and not isinstance(channels, bool) and 1 <= channels <= 4096):
+            raise ModelError(
+                f"field checkpoint: feature_channels must be an integer in [1, 4096], got {short_repr(channels)}"
+            )
+        if not (
+            isinstance(size, (list, tuple))
+            and len(size) == 2
+            and all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 1024 for v in size)
+        ):
+            raise ModelError(f"field checkpoint: feature_size must be 2 integers in [1, 1024], got {short_repr(size)}")
+        if not (isinstance(teacher, str) and teacher.replace("_", "").isalnum() and len(teacher) <= 64):
+            raise ModelError(f"field checkpoint: teacher must be a teacher's name, got {short_repr(teacher)}")
+        state = ckpt["state_dict"]
+        if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+            raise ModelError("field checkpoint: state_dict must map names to tensors; retrain with `aes-planner train`")
+        for name, v in state.items():
+            if v.is_floating_point() and not bool(torch.isfinite(v).all()):
+                raise ModelError(
+                    f"field checkpoint: weight {short_repr(name)} holds NaN or Inf; retrain or use another file"
+                )
+            if v.is_floating_point() and v.numel() and float(v.abs().max()) > MAX_ABS_WEIGHT:
+                raise ModelError(
+                    f"field checkpoint: weight {short_repr(name)} reaches {float(v.abs().max()):.3g}, beyond "
+                    f"{MAX_ABS_WEIGHT:g} (trained weights are small; this file is damaged)"
+                )
+        model = cls(from_dict(FieldModelConfig, ckpt["model_config"], "model_config"), channels, tuple(size), teacher)
         try:
-            model.load_state_dict(ckpt["state_dict"])
+            model.load_state_dict(state)
         except RuntimeError as exc:
-            raise ModelError(f"field checkpoint does not fit its architecture: {exc}") from None
+            text = " ".join(str(exc).split())
+            raise ModelError(f"field checkpoint does not fit its architecture: {text[:300]}") from None
         return model.eval()
+
+
+def read_checkpoint(path: str | Path) -> dict:
+    """``torch.load(path, weights_only=True)`` with every failure (missing, truncated, not a
+    checkpoint, objects beyond plain weights) as a :class:`ModelError` naming the file."""
+    p = Path(path)
+    if not p.is_file():
+        raise ModelError(f"field checkpoint {p} does not exist; train one with `aes-planner train --out DIR`")
+    try:
+        ckpt = torch.load(p, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:
+        raise ModelError(
+            f"{p} is not a weights-only field checkpoint (it is damaged or holds Python objects, which are never "
+            "unpickled); retrain with `aes-planner train`"
+        ) from None
+    except Exception as exc:  # the unpickler's own errors on damaged bytes (struct.error, EOFError, ...)
+        raise ModelError(f"{p} is not a readable field checkpoint ({type(exc).__name__}: {str(exc)[:120]})") from None
+    if not isinstance(ckpt, dict):
+        raise ModelError(f"{p}: not an aes-planner field checkpoint; retrain with `aes-planner train`")
+    return ckpt
 
 
 def load_model(path: str | Path | None = None) -> FieldModel:
@@ -234,11 +286,11 @@ def load_model(path: str | Path | None = None) -> FieldModel:
         with resources.as_file(ref) as p:
             ckpt = torch.load(p, map_location="cpu", weights_only=True)
     else:
-        p = Path(path)
-        if not p.is_file():
-            raise ModelError(f"field checkpoint {p} does not exist; train one with `aes-planner train --out DIR`")
-        ckpt = torch.load(p, map_location="cpu", weights_only=True)
-    return FieldModel.from_checkpoint(ckpt)
+        ckpt = read_checkpoint(path)
+    try:
+        return FieldModel.from_checkpoint(ckpt)
+    except ModelError as exc:
+        raise ModelError(f"{path}: {exc}") from None
 
 
 # ---------------------------------------------------------------------------------- inputs

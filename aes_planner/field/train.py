@@ -24,6 +24,7 @@ import logging
 import math
 import os
 import time
+import zipfile
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,6 +35,7 @@ import torch.distributed as dist
 from torch import Tensor
 
 from aes_planner.config import from_dict, require, to_dict
+from aes_planner.errors import AesPlannerError
 from aes_planner.field.common import ScorerConfig
 from aes_planner.field.model import FieldInputs, FieldModel, FieldModelConfig, embed_inputs, render_maps
 from aes_planner.field.protocol import SOURCES, plan_views
@@ -121,6 +123,15 @@ class TrainConfig:
         require(self.search_targets >= 0, "search_targets", f"must be >= 0, got {self.search_targets}")
         require(self.checkpoint_every >= 1, "checkpoint_every", "must be >= 1")
         require(1 <= self.gt_supersample <= 4, "gt_supersample", f"must be in [1, 4], got {self.gt_supersample}")
+        require(self.samples <= 1_000_000, "samples", f"must be <= 1000000, got {self.samples}")
+        require(0 <= self.val_samples <= 100_000, "val_samples", f"must be in [0, 100000], got {self.val_samples}")
+        require(self.targets <= 10_000, "targets", f"must be <= 10000, got {self.targets}")
+        require(self.search_targets <= 10_000, "search_targets", f"must be <= 10000, got {self.search_targets}")
+        require(self.steps <= 10**9, "steps", f"must be <= 1e9, got {self.steps}")
+        require(self.warmup_steps >= 0, "warmup_steps", f"must be >= 0, got {self.warmup_steps}")
+        require(self.weight_decay >= 0, "weight_decay", f"must be >= 0, got {self.weight_decay}")
+        require(0 <= self.seed < 2**31, "seed", f"must be in [0, 2^31), got {self.seed}")
+        require(1 <= self.threads <= 256, "threads", f"must be in [1, 256], got {self.threads}")
 
     def make_teacher(self) -> Teacher:
         """The teacher this config distils (with its weights file, if any)."""
@@ -192,9 +203,60 @@ def arrays_to_inputs(a: dict[str, np.ndarray]) -> FieldInputs:
     )
 
 
+#: Arrays of a cached sample: name -> (dtype kind, number of dimensions).
+_SAMPLE_ARRAYS = {
+    **{f"splat_{n}": (None, None) for n in _SPLAT_FIELDS},
+    "origin": ("f", 1),
+    "images": ("u", 4),
+    "fmaps": ("f", 4),
+    "cam2world_local": ("f", 3),
+    "intrinsics": ("f", 1),
+    "stride": ("i", 0),
+    "targets": ("f", 3),
+    "target_maps": ("f", 4),
+    "target_scores": ("f", 1),
+}
+
+
+class CacheError(AesPlannerError):
+    """A cached sample file that cannot be used; the message names it (delete it to re-render)."""
+
+
 def load_sample(path: Path) -> dict[str, np.ndarray]:
-    with np.load(path, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
+    """A cached sample's arrays, checked (no pickle, every array present with its kind and rank,
+    finite numbers): a damaged file is a :class:`CacheError` naming it, not a crash mid-training."""
+    path = Path(path)
+    redo = "delete it and the cache renders it again"
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            a = {k: z[k] for k in z.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as exc:
+        raise CacheError(
+            f"{path}: not a readable sample file ({type(exc).__name__}: {str(exc)[:120]}); {redo}"
+        ) from None
+    for name, (kind, ndim) in _SAMPLE_ARRAYS.items():
+        v = a.get(name)
+        if v is None:
+            raise CacheError(f"{path}: the array {name!r} is missing; {redo}")
+        if (kind is not None and v.dtype.kind != kind) or (ndim is not None and v.ndim != ndim):
+            raise CacheError(f"{path}: {name} is {v.dtype}{list(v.shape)}, not a {kind}-array of rank {ndim}; {redo}")
+        if v.dtype.kind == "f" and not np.isfinite(v).all():
+            raise CacheError(f"{path}: {name} holds NaN or Inf; {redo}")
+    v, t = a["images"].shape[0], a["targets"].shape[0]
+    ok = (
+        a["fmaps"].shape[0] == v
+        and a["cam2world_local"].shape[1:] == (4, 4)
+        and a["cam2world_local"].shape[0] == v
+        and a["targets"].shape[1:] == (4, 4)
+        and a["target_maps"].shape[0] == t
+        and a["target_scores"].shape == (t,)
+        and a["target_maps"].shape[1:] == a["fmaps"].shape[1:]
+        and a["intrinsics"].shape == (6,)
+        and a["origin"].shape == (3,)
+    )
+    if not ok:
+        raise CacheError(f"{path}: the arrays' shapes do not agree with each other; {redo}")
+    return a
 
 
 def build_cache(
@@ -223,6 +285,13 @@ def build_cache(
         jobs.append(
             (name, kind, views, seed, cache_dir / f"{name.replace(':', '-')}_{kind}_v{views}_r{seed}_{tag}.npz")
         )
+    root = cache_dir.resolve()
+    for job in jobs:
+        p = job[-1]
+        if p.is_symlink() and root not in p.resolve().parents:
+            raise CacheError(f"{p}: a symlink that leads outside the cache {root}; remove it")
+        if p.exists() and not p.is_file():
+            raise CacheError(f"{p}: not a file; remove it and the cache renders the sample again")
     missing = [job for job in jobs if not job[-1].exists()]
     if workers > 1 and len(missing) > 1:
         import multiprocessing
@@ -329,10 +398,7 @@ def train(
     last = out_dir / "last.pt"
     start = 0
     if resume and last.exists():
-        ckpt = torch.load(last, map_location="cpu", weights_only=True)
-        model.load_state_dict(ckpt["state_dict"])
-        opt.load_state_dict(ckpt["optimizer"])
-        start = int(ckpt["step"])
+        start = _resume(model, opt, last, config.steps)
         log.info("resumed from %s at step %d", last, start)
     if world > 1:
         for p in [*model.parameters(), *model.buffers()]:
@@ -371,6 +437,35 @@ def train(
     if world > 1:
         dist.barrier()
     return model.eval()
+
+
+def _resume(model: FieldModel, opt, last: Path, steps: int) -> int:
+    """Load ``last.pt`` into ``model`` and ``opt``; returns its step. A checkpoint that is not ours,
+    damaged, of another architecture or already past ``steps`` is a :class:`CacheError`."""
+    from aes_planner.field.model import ModelError, read_checkpoint
+
+    ckpt = read_checkpoint(last)
+    redo = "delete it to start over, or train into another --out"
+    step = ckpt.get("step")
+    if not isinstance(step, int) or isinstance(step, bool) or not 0 <= step <= steps:
+        raise CacheError(f"{last}: step {step!r} is not in [0, steps={steps}]; raise --steps or {redo}")
+    if step == steps:
+        raise CacheError(f"{last}: already trained to step {step}; raise --steps to continue, or {redo}")
+    try:
+        loaded = FieldModel.from_checkpoint(ckpt)
+    except ModelError as exc:
+        raise CacheError(f"{last}: {exc}; {redo}") from None
+    try:
+        model.load_state_dict(loaded.state_dict())
+    except RuntimeError:
+        raise CacheError(f"{last}: its architecture differs from this config's model; {redo}") from None
+    try:
+        opt.load_state_dict(ckpt["optimizer"])
+    except (KeyError, ValueError, TypeError, RuntimeError, IndexError) as exc:
+        raise CacheError(
+            f"{last}: its optimizer state does not fit ({type(exc).__name__}: {str(exc)[:120]}); {redo}"
+        ) from None
+    return step
 
 
 def validate(model: FieldModel, teacher: Teacher, val: list[tuple[dict, FieldInputs]], width_px: int) -> dict:
