@@ -22,15 +22,14 @@ config key (dotted for nested ones: ``gimbal.device.type=dynamixel_pan_tilt``), 
 from __future__ import annotations
 
 import copy
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from aes_planner.config import ConfigError, load_yaml
+from aes_planner.config import ConfigError, load_yaml, load_yaml_text, short_repr
 from aes_planner.node.base import NODE_TYPES, LaunchContext, Node, make_node
 
 __all__ = ["LaunchEntry", "LaunchSpec", "apply_overrides", "build_nodes", "find_launch_file", "load_launch"]
@@ -94,8 +93,11 @@ def parse_launch(data: Any, path: str = "") -> LaunchSpec:
             if k not in _ENTRY_KEYS:
                 raise ConfigError(f"{key}.{k}", f"unknown key; expected one of: {', '.join(_ENTRY_KEYS)}")
         node_id = raw.get("id")
-        if not isinstance(node_id, str) or not node_id.replace("_", "").isalnum():
-            raise ConfigError(f"{key}.id", f"expected a word like 'planner', got {node_id!r}")
+        if not isinstance(node_id, str) or not re.fullmatch(r"[A-Za-z0-9_]{1,64}", node_id):
+            raise ConfigError(
+                f"{key}.id",
+                f"expected a word like 'planner' (ASCII letters, digits, '_'; 64 at most), got {short_repr(node_id)}",
+            )
         if node_id in seen:
             raise ConfigError(f"{key}.id", f"duplicate node id {node_id!r}")
         seen.add(node_id)
@@ -135,15 +137,19 @@ def parse_launch(data: Any, path: str = "") -> LaunchSpec:
 
 def apply_overrides(data: Mapping[str, Any], overrides: Sequence[str]) -> dict:
     """``ID.KEY=VALUE`` overrides applied to the raw launch mapping (see the module docstring)."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(
+            "", f"a launch file is a mapping with 'nodes' (and optionally 'scene'), got {short_repr(data)}"
+        )
     out = copy.deepcopy(dict(data))
     for item in overrides:
         if "=" not in item:
             raise ConfigError("--set", f"expected ID.KEY=VALUE, got {item!r}")
         path, _, text = item.partition("=")
-        try:
-            value = yaml.safe_load(text) if text.strip() else ""
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"--set {path}", f"value is not valid YAML: {exc}") from None
+        try:  # the file loader's limits (size, aliases, depth) and one-line errors
+            value = load_yaml_text(text, "value") if text.strip() else ""
+        except ConfigError as exc:
+            raise ConfigError(f"--set {short_repr(path, 80)}", exc.message) from None
         if path == "scene":
             out["scene"] = str(value)
             continue
@@ -184,5 +190,13 @@ def build_nodes(spec: LaunchSpec, context: LaunchContext | None = None) -> list[
     for i, e in enumerate(spec.nodes):
         if e.type == "external":
             continue
-        out.append((make_node(e.type, e.config, e.id, context, key=f"nodes[{i}]"), e.remap))
+        node = make_node(e.type, e.config, e.id, context, key=f"nodes[{i}]")
+        own = {*node.inputs, *node.outputs}
+        for topic in e.remap:
+            if topic not in own:
+                raise ConfigError(
+                    f"nodes[{i}].remap",
+                    f"{topic!r} is not a topic of {e.type} node {e.id!r}; its topics: {sorted(own)}",
+                )
+        out.append((node, e.remap))
     return out

@@ -99,7 +99,11 @@ class NodeRunner:
             next_s = max(next_s + self.node.period_s, time.time() - self.node.period_s)
             timeout = max(0.0, next_s - time.time())
             if subs and not any(s.pending for s in subs):
-                wait_any(subs, timeout)
+                # in slices, so a stop request is seen however long the node's period is
+                end = time.time() + timeout
+                while not self._stop.is_set() and not wait_any(subs, min(0.1, max(0.0, end - time.time()))):
+                    if time.time() >= end:
+                        break
             elif timeout > 0:
                 self._stop.wait(timeout)
 
