@@ -245,8 +245,12 @@ def run_record(args: argparse.Namespace) -> int:
 def run_replay(args: argparse.Namespace) -> int:
     from aes_planner.transport.record import read_recording, replay
 
-    if not math.isfinite(args.rate) or args.rate < 0:
-        raise AesPlannerError(f"--rate must be >= 0 (0 = as fast as possible), got {args.rate}")
+    if not math.isfinite(args.rate) or not (args.rate == 0 or 1e-3 <= args.rate <= 1e3):
+        raise AesPlannerError(f"--rate must be 0 (as fast as possible) or in [0.001, 1000], got {args.rate}")
+    from aes_planner.transport import validate_topic
+
+    for t in args.topics or ():
+        validate_topic(t)
     if not math.isfinite(args.wait) or not 0 <= args.wait <= 60:
         raise AesPlannerError(f"--wait must be in [0, 60] seconds, got {args.wait}")
     next(iter(read_recording(args.file)), None)  # a clear error for a bad file before joining the bus

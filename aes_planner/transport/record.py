@@ -24,13 +24,17 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from aes_planner.errors import AesPlannerError
-from aes_planner.messages import MessageError, decode, message_type, peek_header
+from aes_planner.messages import MessageError, decode, peek_header
 from aes_planner.transport.bus import Bus, RawSample, Subscription
 from aes_planner.transport.foxglove_view import OUR_ENCODING, _ViewState, foxglove_view, our_schema
 
 __all__ = ["Recorder", "FoxgloveLive", "RecordingError", "read_recording", "replay", "recording_summary"]
 
 log = logging.getLogger(__name__)
+
+
+#: The longest pause :func:`replay` makes between two messages (a recording's clock may jump).
+MAX_REPLAY_GAP_S = 10.0
 
 
 class RecordingError(AesPlannerError):
@@ -236,12 +240,14 @@ def replay(
     stop: threading.Event | None = None,
 ) -> int:
     """Publish a recording's messages on ``bus`` with their recorded spacing divided by ``rate``
-    (``rate <= 0``: as fast as possible). Returns the number published. Messages that do not
-    decode are skipped and logged (the bus's subscribers would reject them anyway)."""
+    (``rate <= 0``: as fast as possible; a gap longer than :data:`MAX_REPLAY_GAP_S` after the
+    division is shortened to it, with a warning). Returns the number published. Messages that do
+    not decode, or whose type differs from the topic's first message, are skipped, counted and
+    logged (the bus's subscribers would reject them anyway)."""
     import math
 
-    if not isinstance(rate, (int, float)) or not math.isfinite(rate):
-        raise RecordingError(f"rate must be a finite number, got {rate!r}")
+    if not isinstance(rate, (int, float)) or not math.isfinite(rate) or 0 < rate < 1e-3:
+        raise RecordingError(f"rate must be 0 (as fast as possible) or a finite number >= 0.001, got {rate!r}")
     stop = stop or threading.Event()
     publishers: dict[str, object] = {}
     count = 0
@@ -253,18 +259,25 @@ def replay(
             if stop.is_set():
                 break
             try:
-                cls = message_type(peek_header(data).type_name)
+                cls = type(decode(data))  # the whole message, not just its header
             except MessageError as exc:
                 log.warning("skipping a malformed message on %s: %s", topic, exc)
+                continue
+            pub = publishers.get(topic)
+            if pub is not None and pub.msg_type is not cls:
+                log.warning("skipping a %s on %s, a topic of %s", cls.__name__, topic, pub.msg_type.__name__)
                 continue
             if first_t is None:
                 first_t = t
             if rate > 0:
                 due = start_wall + (t - first_t) / 1e9 / rate
                 delay = due - time.monotonic()
+                if delay > MAX_REPLAY_GAP_S:
+                    log.warning("a gap of %.3g s in the recording is shortened to %g s", delay, MAX_REPLAY_GAP_S)
+                    start_wall -= delay - MAX_REPLAY_GAP_S
+                    delay = MAX_REPLAY_GAP_S
                 if delay > 0 and stop.wait(delay):
                     break
-            pub = publishers.get(topic)
             if pub is None:
                 pub = publishers[topic] = bus.publisher(topic, cls)
             pub.publish_raw(data)
