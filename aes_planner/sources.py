@@ -80,11 +80,17 @@ def platform_from_meta(meta: dict, intrinsics: Intrinsics) -> Platform | None:
     """The :class:`Platform` written by :func:`platform_to_meta`, or ``None`` when ``meta`` has none.
 
     Malformed sections raise :class:`~aes_planner.config.ConfigError` naming the key."""
-    from aes_planner.config import from_dict
+    from aes_planner.config import ConfigError, from_dict, short_repr
 
     kind = meta.get("platform")
+    if kind is not None and kind not in ("rig", "drone"):
+        raise ConfigError("meta.platform", f"must be 'rig' or 'drone', got {short_repr(kind)}")
+    if kind is not None and meta.get(kind) is not None and not isinstance(meta.get(kind), dict):
+        raise ConfigError(f"meta.{kind}", f"expected a mapping, got {short_repr(meta[kind])}")
     if kind == "rig" and isinstance(meta.get("rig"), dict):
-        rig = from_dict(PanTiltConfig, {k: tuple(v) for k, v in meta["rig"].items()}, "meta.rig")
+        rig = from_dict(
+            PanTiltConfig, {k: tuple(v) if isinstance(v, list) else v for k, v in meta["rig"].items()}, "meta.rig"
+        )
         return Platform("rig", intrinsics, rig=rig)
     if kind == "drone" and isinstance(meta.get("drone"), dict):
         d = meta["drone"]
