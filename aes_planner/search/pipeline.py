@@ -107,6 +107,11 @@ def _check_inputs(inputs_cam2world) -> np.ndarray:  # -> [N, 4, 4] float64
         raise SearchError("inputs_cam2world is empty; the search needs at least one input view")
     if not np.all(np.isfinite(poses)):
         raise SearchError("inputs_cam2world contains NaN or inf; pass finite world-frame poses")
+    from aes_planner.geometry.rigid import check_rigid
+    from aes_planner.messages.fields import POSE_TOL
+
+    for i, pose in enumerate(poses):  # the same rigidity test as every pose in a message
+        check_rigid(pose, f"inputs_cam2world[{i}]", POSE_TOL, SearchError)
     return poses
 
 
@@ -220,6 +225,8 @@ def search_views(
     Returns at most ``cfg.top_k`` suggestions, best first.
     """
     cfg = cfg or SearchConfig.preset("balanced")
+    if not isinstance(platform, Platform):
+        raise SearchError(f"platform must be a Platform (a rig or a drone box), got {type(platform).__name__}")
     t_start = time.perf_counter()
     inputs = _check_inputs(inputs_cam2world)
     space = space_for(platform, cfg)
