@@ -144,9 +144,8 @@ def oracle_search(
     key = hashlib.sha256(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()[:20]
     cache = Path(cache_dir) if cache_dir is not None else default_cache_dir() / "oracle"
     npz_path, json_path = cache / f"{key}.npz", cache / f"{key}.json"
-    if use_cache and npz_path.is_file():
-        with np.load(npz_path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
+    data = _read_cache(npz_path) if use_cache and npz_path.is_file() else None
+    if data is not None:
         extras = _extras(space, data, cached=True)
         return float(data["best_score"]), data["best_cam2world"], extras
 
@@ -181,10 +180,35 @@ def oracle_search(
         "renders": np.int64(scorer.renders),
     }
     if use_cache:
-        cache.mkdir(parents=True, exist_ok=True)
-        np.savez(npz_path, **data)
-        json_path.write_text(json.dumps(settings, indent=1, default=str) + "\n")
+        try:  # atomically: a concurrent run never reads half a file
+            cache.mkdir(parents=True, exist_ok=True)
+            tmp = npz_path.with_suffix(f".{os.getpid()}.tmp.npz")
+            np.savez(tmp, **data)
+            tmp.replace(npz_path)
+            json_path.write_text(json.dumps(settings, indent=1, default=str) + "\n")
+        except OSError as exc:
+            log.warning("oracle: not cached (%s: %s)", cache, exc.strerror or exc)
     return best_s, best_pose, _extras(space, data, cached=False)
+
+
+_CACHE_KEYS = ("best_score", "best_cam2world", "best_params", "grid_params", "grid_scores", "random_scores", "renders")
+
+
+def _read_cache(path: Path) -> dict[str, np.ndarray] | None:
+    """A cached oracle result, or None (recompute) when the file is damaged, incomplete or not finite."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except Exception as exc:  # a damaged cache file is recomputed, never trusted
+        log.warning("oracle: ignoring the damaged cache file %s (%s)", path, type(exc).__name__)
+        return None
+    ok = all(k in data and data[k].dtype.kind in "fiu" for k in _CACHE_KEYS)
+    ok = ok and data["best_cam2world"].shape == (4, 4) and len(data["random_scores"]) > 0
+    ok = ok and all(np.isfinite(data[k]).all() for k in _CACHE_KEYS)
+    if not ok:
+        log.warning("oracle: ignoring the incomplete cache file %s", path)
+        return None
+    return data
 
 
 def _extras(space: SearchSpace, data: dict[str, np.ndarray], cached: bool) -> dict[str, Any]:

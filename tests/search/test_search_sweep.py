@@ -53,3 +53,28 @@ def test_search_refuses_what_is_not_a_platform(platform):
     inputs = rig_inputs(rig_platform())
     with pytest.raises(SearchError, match="platform"):
         search_views(AimScorer(np.array([1.0, 0.0, 0.0])), inputs, platform, SearchConfig.preset("fast", steps=0))
+
+
+DAMAGES = {
+    "truncated": lambda p: p.write_bytes(p.read_bytes()[:100]),
+    "nan": lambda p: np.savez(p, **{**dict(np.load(p)), "best_score": np.float64("nan")}),
+    "objects": lambda p: np.savez(p, **{**dict(np.load(p)), "best_cam2world": np.array([{}], dtype=object)}),
+}
+
+
+@pytest.mark.parametrize("how", sorted(DAMAGES))
+def test_oracle_recomputes_a_damaged_cache_file(tmp_path, how):
+    from aes_planner.search import oracle_search
+    from aes_planner.sim import SimSource
+    from aes_planner.sim.camera import SimCameraConfig
+    from aes_planner.teachers import get_teacher
+
+    source = SimSource("tabletop:0", supersample=1, camera=SimCameraConfig(width=16, height=12))
+    kw = dict(step_deg=45.0, refine_starts=1, min_step_deg=30.0, random_samples=2, cache_dir=tmp_path)
+    best, pose, _ = oracle_search(source, get_teacher(), **kw)
+    (npz,) = tmp_path.glob("*.npz")
+    DAMAGES[how](npz)
+    again, pose2, extras = oracle_search(source, get_teacher(), **kw)
+    assert not extras["cached"] and again == best and np.array_equal(pose, pose2)
+    assert oracle_search(source, get_teacher(), **kw)[2]["cached"]  # rewritten whole
+    assert sorted(p.suffix for p in tmp_path.iterdir()) == [".json", ".npz"]  # no temporary left
