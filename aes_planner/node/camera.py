@@ -101,7 +101,8 @@ class CameraNodeConfig:
 
     def __post_init__(self):
         require_numbers(self, ("rate_hz", "state_history_s"))
-        require(self.rate_hz <= 240, "rate_hz", f"must be <= 240, got {self.rate_hz}")
+        require(self.state_history_s <= 60, "state_history_s", f"must be <= 60 s (memory), got {self.state_history_s}")
+        require(0.01 <= self.rate_hz <= 240, "rate_hz", f"must be in [0.01, 240] Hz, got {self.rate_hz}")
 
 
 class CameraNode(Node):

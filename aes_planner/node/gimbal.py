@@ -56,11 +56,16 @@ class GimbalNodeConfig:
     def __post_init__(self):
         require_numbers(self, ("rate_hz", "diagnostics_period_s"))
         require(
+            self.diagnostics_period_s <= 3600,
+            "diagnostics_period_s",
+            f"must be <= 3600 s, got {self.diagnostics_period_s}",
+        )
+        require(
             not self.emulate or self.device.get("type") == "dynamixel_pan_tilt",
             "emulate",
             f"the emulator speaks to the dynamixel_pan_tilt driver; device.type is {self.device.get('type')!r}",
         )
-        require(self.rate_hz <= 1000, "rate_hz", f"must be <= 1000, got {self.rate_hz}")
+        require(0.01 <= self.rate_hz <= 1000, "rate_hz", f"must be in [0.01, 1000] Hz, got {self.rate_hz}")
         for name in ("pan_limits_deg", "tilt_limits_deg"):
             lim = getattr(self, name)
             require(lim is None or lim[0] < lim[1], name, f"min must be below max, got {lim}")

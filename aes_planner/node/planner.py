@@ -144,6 +144,13 @@ class PlannerConfig:
                 isinstance(v, int) and not isinstance(v, bool) and v >= 0, name, f"must be an integer >= 0, got {v!r}"
             )
         require(self.top_k >= 1, "top_k", f"must be >= 1, got {self.top_k}")
+        from aes_planner.messages.suggestion import MAX_CANDIDATES
+
+        # a suggestion message holds at most MAX_CANDIDATES (more failed every publish)
+        require(self.top_k <= MAX_CANDIDATES, "top_k", f"must be <= {MAX_CANDIDATES}, got {self.top_k}")
+        for name, most in (("explore_views", 64), ("max_moves", 10_000), ("max_frames", 1024)):
+            v = getattr(self, name)
+            require(v <= most, name, f"must be <= {most}, got {v}")
         require(self.max_frames >= 2, "max_frames", f"must be >= 2, got {self.max_frames}")
         require_numbers(
             self, ("margin", "optimism", "min_sigma", "min_move_deg", "min_move_m", "settle_s"), strict=False
@@ -160,6 +167,15 @@ class PlannerConfig:
                 "diagnostics_period_s",
             ),
         )
+        for name, most in (  # time-like knobs: an hour at most (1e6 s waited as good as forever)
+            ("settle_s", 60.0),
+            ("move_timeout_s", 3600.0),
+            ("fault_timeout_s", 3600.0),
+            ("min_suggest_period_s", 3600.0),
+            ("diagnostics_period_s", 3600.0),
+        ):
+            v = getattr(self, name)
+            require(v <= most, name, f"must be <= {most:g} s, got {v}")
         require(self.rig is None or self.drone is None, "drone", "give a rig or a drone, not both")
         require(self.mode in ("auto", "rig", "free"), "mode", f"must be auto, rig or free, got {self.mode!r}")
 

@@ -48,7 +48,7 @@ class SimCameraNodeConfig:
 
     def __post_init__(self):
         require_numbers(self, ("rate_hz",))
-        require(self.rate_hz <= 240, "rate_hz", f"must be <= 240, got {self.rate_hz}")
+        require(0.01 <= self.rate_hz <= 240, "rate_hz", f"must be in [0.01, 240] Hz, got {self.rate_hz}")
         from aes_planner.config import from_dict
 
         self._camera = from_dict(_camera_config_class(), self.camera, "camera")

@@ -110,3 +110,24 @@ def test_node_topics_survive_malformed_oversized_and_extreme_messages(node_type,
     if node_type == "gimbal":  # commands far outside the joints were clamped inside them
         states = [m for m in seen if isinstance(m, GimbalState)]
         assert all(abs(s.pan_rad) < 2 * np.pi and abs(s.tilt_rad) < np.pi for s in states)
+
+
+CONFIG_BOUNDS = [
+    ("planner", {"top_k": 65}, "top_k"),  # over a suggestion's candidate cap: every publish failed
+    ("planner", {"explore_views": 10**6}, "explore_views"),
+    ("planner", {"max_frames": 10**9}, "max_frames"),
+    ("planner", {"settle_s": 1e9}, "settle_s"),
+    ("planner", {"move_timeout_s": 1e9}, "move_timeout_s"),
+    ("planner", {"fault_timeout_s": 1e9}, "fault_timeout_s"),
+    ("planner", {"diagnostics_period_s": 1e9}, "diagnostics_period_s"),
+    ("sim_camera", {"rate_hz": 1e-9}, "rate_hz"),
+    ("sim_drone", {"rate_hz": 1e-9}, "rate_hz"),
+    ("gimbal", {"rate_hz": 1e-9, "device": {"type": "sim_pan_tilt"}}, "rate_hz"),
+    ("gimbal", {"diagnostics_period_s": 1e9, "device": {"type": "sim_pan_tilt"}}, "diagnostics_period_s"),
+    ("camera", {"state_history_s": 1e9}, "state_history_s"),
+]
+
+
+@pytest.mark.parametrize("node_type, config, key", CONFIG_BOUNDS, ids=range(len(CONFIG_BOUNDS)))
+def test_node_config_knobs_are_bounded(node_type, config, key, clean_error):
+    clean_error(make_node, node_type, config, "n", LaunchContext(scene="indoor:3"), "nodes[0]", match=key)
