@@ -313,6 +313,8 @@ def load_yaml_text(text: str, path: str = "<string>") -> Any:
         raise ConfigError("", f"{path}: not valid YAML: {_yaml_problem(exc)}") from None
     except RecursionError:
         raise ConfigError("", f"{path}: nested too deeply to read (more than {YAML_MAX_DEPTH} levels)") from None
+    except ConfigError:
+        raise
     except (ValueError, OverflowError) as exc:  # a scalar that does not construct: 5000 digits, month 13
         text = " ".join(str(exc).split())[:200]
         raise ConfigError("", f"{path}: not valid YAML: a value cannot be read ({text})") from None

@@ -32,7 +32,15 @@ from typing import Any
 from aes_planner.config import ConfigError, load_yaml, load_yaml_text, short_repr
 from aes_planner.node.base import NODE_TYPES, LaunchContext, Node, make_node
 
-__all__ = ["LaunchEntry", "LaunchSpec", "apply_overrides", "build_nodes", "find_launch_file", "load_launch"]
+__all__ = [
+    "LaunchEntry",
+    "LaunchSpec",
+    "apply_overrides",
+    "build_nodes",
+    "check_remap",
+    "find_launch_file",
+    "load_launch",
+]
 
 _ENTRY_KEYS = ("id", "type", "config", "remap", "respawn")
 _TOP_KEYS = ("scene", "nodes", "bus")
@@ -191,12 +199,17 @@ def build_nodes(spec: LaunchSpec, context: LaunchContext | None = None) -> list[
         if e.type == "external":
             continue
         node = make_node(e.type, e.config, e.id, context, key=f"nodes[{i}]")
-        own = {*node.inputs, *node.outputs}
-        for topic in e.remap:
-            if topic not in own:
-                raise ConfigError(
-                    f"nodes[{i}].remap",
-                    f"{topic!r} is not a topic of {e.type} node {e.id!r}; its topics: {sorted(own)}",
-                )
+        check_remap(e, type(node), f"nodes[{i}].remap")
         out.append((node, e.remap))
     return out
+
+
+def check_remap(entry: LaunchEntry, cls: type[Node], key: str) -> None:
+    """Every topic ``entry`` remaps is one its node type reads or writes (else the remap would be
+    silently ignored)."""
+    own = {*cls.inputs, *cls.outputs}
+    for topic in entry.remap:
+        if topic not in own:
+            raise ConfigError(
+                key, f"{topic!r} is not a topic of {entry.type} node {entry.id!r}; its topics: {sorted(own)}"
+            )

@@ -113,12 +113,22 @@ class Supervisor:
 
     def _check_configs(self) -> None:
         """Every node's config parses here, so a typo fails once, naming the key, not in a child."""
-        from aes_planner.config import from_dict
+        from aes_planner.config import ConfigError, from_dict
         from aes_planner.node.base import node_class
+        from aes_planner.node.launch_file import check_remap
+        from aes_planner.node.sim_camera import SimCameraNode
 
         for i, e in enumerate(self.spec.nodes):
             if e.type != "external":
-                from_dict(node_class(e.type).config_class, e.config, f"nodes[{i}].config")
+                cls = node_class(e.type)
+                from_dict(cls.config_class, e.config, f"nodes[{i}].config")
+                check_remap(e, cls, f"nodes[{i}].remap")
+                if issubclass(cls, SimCameraNode) and self.spec.scene is None:
+                    raise ConfigError(f"nodes[{i}]", f"a {e.type} node needs a scene: add 'scene: FAMILY:SEED'")
+        if self.spec.scene is not None:  # a bad scene fails here, not in every child
+            from aes_planner.sim import load_scene
+
+            load_scene(self.spec.scene)
 
     # -- children ----------------------------------------------------------------------------------
 

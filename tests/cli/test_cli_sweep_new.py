@@ -467,3 +467,25 @@ def test_a_node_with_a_very_long_period_still_stops_promptly():
     assert time.monotonic() - t0 < 1.0 and not runner._thread.is_alive()
     runner.close()
     bus.close()
+
+
+PROCESS_LAUNCHES = {
+    "remap.yaml": ("nodes: [{id: p, type: planner, remap: {no/such/topic: x/y}}]\n", "is not a topic of planner"),
+    "noscene.yaml": ("nodes: [{id: c, type: sim_camera}]\n", "needs a scene"),
+    "badscene.yaml": ("scene: nowhere:1\nnodes: [{id: c, type: sim_camera}]\n", "unknown scene family"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(PROCESS_LAUNCHES))
+def test_multi_process_launch_checks_what_the_children_would_die_of(work, cli_error, name):
+    text, match = PROCESS_LAUNCHES[name]
+    (work / name).write_text(text)
+    cli_error(["launch", work / name, "--processes", "--timeout", "5"], match, seconds=30)
+
+
+def test_alias_bomb_message_is_said_once(work, cli_error):
+    lines = ['a: &a ["x","x","x","x","x","x","x","x","x"]']
+    lines += [f"{c}: &{c} [{', '.join(['*' + p] * 9)}]" for p, c in zip("abcdefgh", "bcdefghi")]
+    (work / "bomb.yaml").write_text("\n".join(lines) + "\nnodes: [{id: p, type: planner}]\n")
+    line = cli_error(["launch", work / "bomb.yaml"], "expands to more than")
+    assert "cannot be read" not in line
