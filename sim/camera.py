@@ -99,6 +99,12 @@ class SimCameraConfig:
             ("pixel_noise_sigma", "pose_noise_translation_m", "pose_noise_rotation_deg", "latency_s"),
             strict=False,
         )
+        require(self.latency_s <= 10.0, "latency_s", f"must be <= 10 s, got {self.latency_s}")
+        require(
+            self.pose_noise_rotation_deg <= 180.0,
+            "pose_noise_rotation_deg",
+            f"must be <= 180 deg, got {self.pose_noise_rotation_deg}",
+        )
 
 
 class SimCamera:

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from aes_planner.config import ConfigError, require, require_numbers
+from aes_planner.config import ConfigError, require, require_numbers, short_repr
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.pantilt import PanTilt, PanTiltConfig
 from aes_planner.messages import GimbalState, PosedFrame
@@ -100,6 +100,11 @@ class CameraNodeConfig:
     frame_id: str = "camera"
 
     def __post_init__(self):
+        require(
+            isinstance(self.frame_id, str) and self.frame_id.isprintable() and 1 <= len(self.frame_id) <= 200,
+            "frame_id",
+            f"must be 1-200 printable characters (each frame's id is FRAME_ID/NUMBER), got {short_repr(self.frame_id)}",
+        )
         require_numbers(self, ("rate_hz", "state_history_s"))
         require(self.state_history_s <= 60, "state_history_s", f"must be <= 60 s (memory), got {self.state_history_s}")
         require(0.01 <= self.rate_hz <= 240, "rate_hz", f"must be in [0.01, 240] Hz, got {self.rate_hz}")

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from aes_planner.config import require, require_numbers
+from aes_planner.config import require, require_numbers, short_repr
 from aes_planner.messages import GimbalState, PosedFrame
 from aes_planner.node.base import LaunchContext, Node, NodeError, Outputs
 
@@ -47,6 +47,11 @@ class SimCameraNodeConfig:
     frame_id: str = "sim_camera"
 
     def __post_init__(self):
+        require(
+            isinstance(self.frame_id, str) and self.frame_id.isprintable() and 1 <= len(self.frame_id) <= 200,
+            "frame_id",
+            f"must be 1-200 printable characters (each frame's id is FRAME_ID/NUMBER), got {short_repr(self.frame_id)}",
+        )
         require_numbers(self, ("rate_hz",))
         require(0.01 <= self.rate_hz <= 240, "rate_hz", f"must be in [0.01, 240] Hz, got {self.rate_hz}")
         from aes_planner.config import from_dict

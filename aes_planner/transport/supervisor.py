@@ -92,6 +92,12 @@ class Supervisor:
         self.hub_config = ZenohConfig(
             listen=(endpoint,), connect=tuple(connect), allow_remote=allow_remote, prefix=self.prefix
         )
+        if endpoint.rpartition(":")[2] == "0":  # the children must know where to connect
+            from aes_planner.config import ConfigError
+
+            raise ConfigError(
+                "--listen", f"{endpoint}: a multi-process launch needs a fixed port (children connect to it)"
+            )
         # the children's side: a bad endpoint fails here, not in each child
         ZenohConfig(connect=(_child_endpoint(endpoint),), prefix=self.prefix)
         self._prebuilt = list(local_nodes)  # [(node, remap)] built by the caller

@@ -489,3 +489,7 @@ def test_alias_bomb_message_is_said_once(work, cli_error):
     (work / "bomb.yaml").write_text("\n".join(lines) + "\nnodes: [{id: p, type: planner}]\n")
     line = cli_error(["launch", work / "bomb.yaml"], "expands to more than")
     assert "cannot be read" not in line
+
+
+def test_multi_process_launch_needs_a_fixed_hub_port(cli_error):
+    cli_error(["launch", "sim_closed_loop", "--processes", "--listen", "tcp/127.0.0.1:0"], "fixed port", seconds=30)

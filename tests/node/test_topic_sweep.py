@@ -125,6 +125,9 @@ CONFIG_BOUNDS = [
     ("gimbal", {"rate_hz": 1e-9, "device": {"type": "sim_pan_tilt"}}, "rate_hz"),
     ("gimbal", {"diagnostics_period_s": 1e9, "device": {"type": "sim_pan_tilt"}}, "diagnostics_period_s"),
     ("camera", {"state_history_s": 1e9}, "state_history_s"),
+    ("sim_camera", {"frame_id": "x" * 5000}, "frame_id"),  # over a frame's id cap: the loop died
+    ("camera", {"frame_id": "a\x1b[2J"}, "frame_id"),
+    ("sim_camera", {"camera": {"latency_s": 1e9}}, "latency_s"),  # no frame would ever come
 ]
 
 
