@@ -639,29 +639,30 @@ def _lane_sum(buf, q):
 
 
 # Many channels (pixel-major): the values of the Gaussians behind a pixel enter d loss / d alpha
-# only through their dot product with the pixel's output gradient v:
-#   d loss / d alpha_i = (T_i (c_i . v) - (sum_{j behind} w_j c_j) . v / (1 - alpha_i)) / ... ,
+# only through their dot product with the pixel's output gradient v: the value part of
+#   d loss / d alpha_i  is  T_i (c_i . v) - ((sum over j behind i of w_j c_j) . v) / (1 - alpha_i),
 # so one scalar per pixel ("behind . v") replaces a buffer of every channel (gsplat keeps the
-# channels; equal up to rounding). The per-tile pixel state sits in one array of TILE*TILE
-# sections and the per-lane state in one array of LANE_STRIDE sections, at offsets known when
-# compiling, so the lane loops need no run-time alias checks between a dozen arrays.
+# channels; equal up to rounding). In both backward kernels the per-tile pixel state sits in one
+# array of TILE*TILE sections and the per-lane state in one array of LANE_STRIDE sections, at
+# offsets known when compiling, so the lane loops need no run-time alias checks between a dozen
+# arrays; rows are the forward's 8-lane windows when the box fits (16 lanes otherwise).
 S_TRANS, S_TFIN, S_VTF, S_BD = range(4)  # pixel sections: T, T_final, d/d T_final, behind . v
 S_CH = 3  # few channels: v of channel c at section S_CH + 2c, its sum behind at S_CH + 2c + 1
 LANE_STRIDE = 2 * TILE
-L_FAC, L_T, L_RA, L_VA, L_VS, L_VO, L_XS = range(7)  # lane sections (L_XS: pixel centres x)
-A_O, A_A, A_B, A_C, A_U, A_V = range(7, 13)  # lane accumulators of d/d(opacity, A, B, C, u, v)
-N_LANE_SECTIONS = 13
+L_FAC, L_T, L_RA, L_VA, L_VS, L_VO = range(6)  # lane sections
+A_O, A_A, A_B, A_C, A_U, A_V = range(6, 12)  # lane accumulators of d/d(opacity, A, B, C, u, v)
+N_LANE_SECTIONS = 12
 
 
 @njit(**_fast)
-def _bwd_values_pixel_major(v_pix, pix, lane, row, vals, g, z, g_val, zero, need_values):
+def _bwd_values_pixel_major(v_pix, pix, lane, row, lanes, vals, g, z, g_val, zero, need_values):
     """The value/depth part of a tile row's backward with channels innermost, hit pixels only:
-    q = (values, z) . v per pixel, then the lane's d/d alpha term and the pixel's behind . v;
+    ``lanes`` pixels from tile pixel ``row``: q = (values, z) . v per pixel, then the lane's d/d alpha term and the pixel's behind . v;
     value gradients into g_val only when ``need_values`` (the depth's always)."""
     cv = vals.shape[1]
     ls = np.uint64(LANE_STRIDE)
     o_bd = np.uint64(S_BD * TILE * TILE)
-    for j in range(TILE):
+    for j in range(lanes):
         i = np.uint64(j)
         fac = lane[L_FAC * ls + i]
         if fac == zero:
@@ -719,6 +720,7 @@ def _raster_tile_bwd_many(
     tx0 = (tile % tiles_x) * TILE
     ty0 = (tile // tiles_x) * TILE
     ys = _pixel_centres(ty0, TILE, consts)
+    xs = _pixel_centres(tx0, TILE, consts)
     npx = TILE * TILE
     o_trans, o_tfin, o_vtf = np.uint64(S_TRANS * npx), np.uint64(S_TFIN * npx), np.uint64(S_VTF * npx)
     o_fac = np.uint64(L_FAC * LANE_STRIDE)
@@ -727,7 +729,6 @@ def _raster_tile_bwd_many(
     o_va = np.uint64(L_VA * LANE_STRIDE)
     o_vs = np.uint64(L_VS * LANE_STRIDE)
     o_vo = np.uint64(L_VO * LANE_STRIDE)
-    o_xs = np.uint64(L_XS * LANE_STRIDE)
     o_ao = np.uint64(A_O * LANE_STRIDE)
     o_aa = np.uint64(A_A * LANE_STRIDE)
     o_ab = np.uint64(A_B * LANE_STRIDE)
@@ -738,9 +739,6 @@ def _raster_tile_bwd_many(
     v_pix = np.zeros((cv + 1) * npx, dt)  # [pixel, channel]
     lane = np.zeros(N_LANE_SECTIONS * LANE_STRIDE, dt)
     last_k = np.zeros(npx, np.int32)
-    for j in range(TILE):
-        lane[o_xs + np.uint64(j)] = tx0 + j
-        lane[o_xs + np.uint64(j)] += half
     for p in range(npx):
         pix[o_trans + np.uint64(p)] = one
         pix[o_tfin + np.uint64(p)] = one
@@ -767,6 +765,11 @@ def _raster_tile_bwd_many(
         ha, hc = half * ca, half * cc
         o, z = proj[b, g, P_O], proj[b, g, P_Z]
         k32 = np.int32(k)
+        jb0 = max(box[b, g, 0], tx0) - tx0
+        jb1 = min(box[b, g, 1], tx0 + TILE - 1) - tx0
+        narrow = jb1 - jb0 < HALF_TILE
+        lanes = HALF_TILE if narrow else TILE
+        w0 = np.uint64(min(jb0, TILE - HALF_TILE) if narrow else 0)
         lane[o_ao:] = zero
         g_val[:] = zero
         hit = False
@@ -774,12 +777,12 @@ def _raster_tile_bwd_many(
             dy = ys[py] - v
             bdy = cb * dy
             crow = hc * dy * dy
-            row = np.uint64(py * TILE)
+            row = np.uint64(py * TILE) + w0
             n_hit = zero
-            for j in range(TILE):
+            for j in range(lanes):
                 i = np.uint64(j)
                 p = row + i
-                dx = lane[o_xs + i] - u
+                dx = xs[w0 + i] - u
                 sigma = dx * (ha * dx + bdy) + crow
                 vis = exp_neg(min(max(sigma, zero), s_clamp))
                 ov = o * vis
@@ -800,10 +803,10 @@ def _raster_tile_bwd_many(
             if n_hit == zero:
                 continue
             hit = True
-            _bwd_values_pixel_major(v_pix, pix, lane, row, vals, g, z, g_val, zero, need_values)
-            for j in range(TILE):
+            _bwd_values_pixel_major(v_pix, pix, lane, row, lanes, vals, g, z, g_val, zero, need_values)
+            for j in range(lanes):
                 i = np.uint64(j)
-                dx = lane[o_xs + i] - u
+                dx = xs[w0 + i] - u
                 va = lane[o_va + i]
                 vs = lane[o_vs + i] * va
                 lane[o_ao + i] += lane[o_vo + i] * va
@@ -899,6 +902,7 @@ def _raster_tile_bwd(
     tx0 = (tile % tiles_x) * TILE
     ty0 = (tile // tiles_x) * TILE
     ys = _pixel_centres(ty0, TILE, consts)
+    xs = _pixel_centres(tx0, TILE, consts)
     npx = TILE * TILE
     o_trans = np.uint64(S_TRANS * npx)
     o_tfin = np.uint64(S_TFIN * npx)
@@ -909,7 +913,6 @@ def _raster_tile_bwd(
     o_va = np.uint64(L_VA * LANE_STRIDE)
     o_vs = np.uint64(L_VS * LANE_STRIDE)
     o_vo = np.uint64(L_VO * LANE_STRIDE)
-    o_xs = np.uint64(L_XS * LANE_STRIDE)
     o_ao = np.uint64(A_O * LANE_STRIDE)
     o_aa = np.uint64(A_A * LANE_STRIDE)
     o_ab = np.uint64(A_B * LANE_STRIDE)
@@ -920,9 +923,6 @@ def _raster_tile_bwd(
     lane = np.zeros(N_LANE_SECTIONS * LANE_STRIDE, dt)
     acc_val = np.empty((cv + 1) * TILE, dt)  # lane sums of d/d(values, depth), [channel, lane]
     last_k = np.zeros(npx, np.int32)
-    for j in range(TILE):
-        lane[o_xs + np.uint64(j)] = tx0 + j
-        lane[o_xs + np.uint64(j)] += half
     for p in range(npx):
         pix[o_trans + np.uint64(p)] = one
         pix[o_tfin + np.uint64(p)] = one
@@ -953,6 +953,11 @@ def _raster_tile_bwd(
         ha, hc = half * ca, half * cc
         o, z = proj[b, g, P_O], proj[b, g, P_Z]
         k32 = np.int32(k)
+        jb0 = max(box[b, g, 0], tx0) - tx0
+        jb1 = min(box[b, g, 1], tx0 + TILE - 1) - tx0
+        narrow = jb1 - jb0 < HALF_TILE
+        lanes = HALF_TILE if narrow else TILE
+        w0 = np.uint64(min(jb0, TILE - HALF_TILE) if narrow else 0)
         lane[o_ao:] = zero
         acc_val[:] = zero
         hit = False
@@ -960,12 +965,12 @@ def _raster_tile_bwd(
             dy = ys[py] - v
             bdy = cb * dy
             crow = hc * dy * dy
-            row = np.uint64(py * TILE)
+            row = np.uint64(py * TILE) + w0
             n_hit = zero
-            for j in range(TILE):
+            for j in range(lanes):
                 i = np.uint64(j)
                 p = row + i
-                dx = lane[o_xs + i] - u
+                dx = xs[w0 + i] - u
                 sigma = dx * (ha * dx + bdy) + crow
                 vis = exp_neg(min(max(sigma, zero), s_clamp))
                 ov = o * vis
@@ -993,16 +998,16 @@ def _raster_tile_bwd(
                 # every channel's lane sums, also when only the depth's are used (!need_values):
                 # the loop without them is small enough for LLVM to unroll fully instead of
                 # vectorising it, and ran 1.4x slower
-                for j in range(TILE):
+                for j in range(lanes):
                     i = np.uint64(j)
                     vp = pix[base + i]
                     fac = lane[o_fac + i]
                     acc_val[lane_base + i] += fac * vp
                     lane[o_va + i] += (val * lane[o_t + i] - pix[base + np.uint64(npx) + i] * lane[o_ra + i]) * vp
                     pix[base + np.uint64(npx) + i] += val * fac
-            for j in range(TILE):
+            for j in range(lanes):
                 i = np.uint64(j)
-                dx = lane[o_xs + i] - u
+                dx = xs[w0 + i] - u
                 va = lane[o_va + i]
                 vs = lane[o_vs + i] * va
                 lane[o_ao + i] += lane[o_vo + i] * va
