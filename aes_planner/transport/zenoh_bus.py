@@ -12,8 +12,12 @@ Key space (``P`` = the configured prefix, ``aes`` by default)::
 
 Latched topics: a subscription watches the liveliness tokens of latched publishers of its topic
 (with history, so ones that exist already count); each time one appears it asks
-``P/@latched/<topic>`` for the last sample. A sample is delivered once: the subscription keeps the
-last sequence seen per publisher id and drops repeats. A publisher that restarts has a new id.
+``P/@latched/<topic>`` for the last sample. That query can be answered before the new
+subscription's route reaches the publisher, and a sample put in between would be lost to it, so a
+latched publisher also watches the subscription tokens of its topic and puts its last sample again
+when one appears (the token follows the subscriber's declaration, so the route exists by then). A
+sample is delivered once: the subscription keeps the last sequence seen per publisher id and drops
+repeats. A publisher that restarts has a new id.
 
 Threads: Zenoh calls our callbacks on its own threads; they only append bytes to a bounded
 per-subscription inbox (keep-last: the oldest are dropped and counted) and wake the dispatcher
@@ -130,6 +134,12 @@ class ZenohBus(Bus):
                     self._key(pub.topic, "@latched"), lambda q, p=pub: self._post(self._answer_latched, p, q)
                 )
             )
+            handles.append(  # a new subscription: put the last sample again (module docstring)
+                self.session.liveliness().declare_subscriber(
+                    self._key(f"*/{pub.topic}", "@meta/sub"),
+                    lambda s, p=pub: self._post(self._repeat_latched, p) if s.kind == zenoh.SampleKind.PUT else None,
+                )
+            )
         token_key = self._key(
             f"{pub.msg_type.TYPE_NAME}/{int(pub.latched)}/{pub_id}/{pub.topic}",
             "@meta/pub",
@@ -213,6 +223,17 @@ class ZenohBus(Bus):
             pub._z_pub.put(data, attachment=att)  # type: ignore[attr-defined]
         except zenoh.ZError as exc:
             raise TransportError(f"{pub.topic}: publish failed: {exc}") from None
+
+    def _repeat_latched(self, pub: Publisher) -> None:
+        with self._lock:
+            last = self._latched.get(id(pub))
+            z_pub = getattr(pub, "_z_pub", None)
+        if last is None or z_pub is None:
+            return
+        try:
+            z_pub.put(last[0], attachment=last[1])  # same sequence: subscribers that had it drop it
+        except zenoh.ZError as exc:
+            log.debug("%s: repeating the latched sample failed: %s", pub.topic, exc)
 
     def _answer_latched(self, pub: Publisher, query) -> None:
         try:

@@ -166,3 +166,18 @@ def test_callback_subscription_and_topics_listing(zenoh_pair):
     assert infos["planner/diagnostics"].subscribers == 1
     pub.close()
     assert wait_for(lambda: "planner/suggestion" not in {i.topic for i in peer.topics(0.3)})
+
+
+def test_latched_value_published_while_a_subscriber_joins_is_not_lost(zenoh_pair):
+    # the catch-up query can be answered before the new subscription's route exists; a sample put
+    # in that gap must still reach it (the publisher repeats its last sample when a subscription appears)
+    hub, peer = zenoh_pair
+    for i in range(15):
+        pub = hub.publisher(f"race/t{i}", ViewSuggestion, latched=True)
+        pub.publish(ViewSuggestion(1.0, sequence=1))
+        sub = peer.subscribe(f"race/t{i}", ViewSuggestion, depth=4)
+        pub.publish(ViewSuggestion(2.0, sequence=2))  # at once, no wait for the route
+        assert wait_for(lambda s=sub: s.received >= 1 and s._queue and s._queue[-1].sequence == 2), i
+        time.sleep(0.05)
+        got = [m.sequence for m in sub.take()]
+        assert got[-1] == 2 and len(got) == len(set(got)), (i, got)  # the newest, each once
