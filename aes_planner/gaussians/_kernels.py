@@ -655,6 +655,84 @@ N_LANE_SECTIONS = 12
 
 
 @njit(**_fast)
+def _lane_sum_at(buf, start):
+    """Sum of the TILE lanes buf[start : start + TILE]."""
+    s = buf[start]
+    for j in range(1, TILE):
+        s += buf[start + np.uint64(j)]
+    return s
+
+
+@njit(inline="always", **_fast)
+def _bwd_row_alpha(pix, lane, last_k, xs, row, w0, lanes, u, ha, bdy, crow, o, k32, consts):
+    """One tile row of the backward, walked back over one Gaussian (inlined into both tile kernels):
+    undo its alpha in each pixel's transmittance and set the lanes' terms (its weight alpha T,
+    1 / (1 - alpha), T, d/d alpha from T_final, and the d/d sigma, d/d opacity factors when alpha
+    was not clamped). Returns how many pixels it hit."""
+    zero, one = consts[C_ZERO], consts[C_ONE]
+    a_max, a_min, s_clamp = consts[C_ALPHA_MAX], consts[C_ALPHA_MIN], consts[C_EXP_CLAMP]
+    one_m = consts[C_ONE_MINUS_ALPHA_MIN]
+    npx = TILE * TILE
+    o_trans, o_tfin, o_vtf = np.uint64(S_TRANS * npx), np.uint64(S_TFIN * npx), np.uint64(S_VTF * npx)
+    ls = np.uint64(LANE_STRIDE)
+    o_fac, o_t, o_ra, o_va, o_vs, o_vo = L_FAC * ls, L_T * ls, L_RA * ls, L_VA * ls, L_VS * ls, L_VO * ls
+    n_hit = zero
+    for j in range(lanes):
+        i = np.uint64(j)
+        p = row + i
+        dx = xs[w0 + i] - u
+        sigma = dx * (ha * dx + bdy) + crow
+        vis = exp_neg(min(max(sigma, zero), s_clamp))
+        ov = o * vis
+        alpha = min(ov, a_max)
+        m = (k32 < last_k[p]) & (sigma >= zero) & (alpha >= a_min)
+        ra = one / max(one_m, one - alpha)
+        tr = pix[o_trans + p]
+        t = tr * ra
+        pix[o_trans + p] = t if m else tr
+        lane[o_fac + i] = alpha * t if m else zero
+        lane[o_ra + i] = ra
+        lane[o_t + i] = t
+        lane[o_va + i] = -(pix[o_tfin + p] * ra * pix[o_vtf + p])
+        free = m & (ov <= a_max)  # alpha not clamped: it depends on opacity and sigma
+        lane[o_vs + i] = -alpha if free else zero
+        lane[o_vo + i] = vis if free else zero
+        n_hit += one if m else zero
+    return n_hit
+
+
+@njit(inline="always", **_fast)
+def _bwd_row_geometry(lane, xs, w0, lanes, u, dy, ca, cb, cc):
+    """Accumulate a row's d/d(opacity, conic A, B, C, u, v) lane-wise from the lanes' d/d alpha."""
+    ls = np.uint64(LANE_STRIDE)
+    o_va, o_vs, o_vo = L_VA * ls, L_VS * ls, L_VO * ls
+    o_ao, o_aa, o_ab, o_ac, o_au, o_av = A_O * ls, A_A * ls, A_B * ls, A_C * ls, A_U * ls, A_V * ls
+    for j in range(lanes):
+        i = np.uint64(j)
+        dx = xs[w0 + i] - u
+        va = lane[o_va + i]
+        vs = lane[o_vs + i] * va
+        lane[o_ao + i] += lane[o_vo + i] * va
+        lane[o_aa + i] += dx * dx * vs
+        lane[o_ab + i] += dx * dy * vs
+        lane[o_ac + i] += dy * dy * vs
+        lane[o_au + i] -= (ca * dx + cb * dy) * vs
+        lane[o_av + i] -= (cb * dx + cc * dy) * vs
+
+
+@njit(**_fast)
+def _bwd_add_geometry(g2d, b, g, lane, half):
+    """Reduce the lanes' geometry accumulators of Gaussian g once into g2d[b, g]."""
+    ls = np.uint64(LANE_STRIDE)
+    g2d[b, g, G_O] += _lane_sum_at(lane, A_O * ls)
+    g2d[b, g, G_A] += half * _lane_sum_at(lane, A_A * ls)
+    g2d[b, g, G_B] += _lane_sum_at(lane, A_B * ls)
+    g2d[b, g, G_C] += half * _lane_sum_at(lane, A_C * ls)
+    g2d[b, g, G_U] += _lane_sum_at(lane, A_U * ls)
+    g2d[b, g, G_V] += _lane_sum_at(lane, A_V * ls)
+
+
+@njit(**_fast)
 def _bwd_values_pixel_major(v_pix, pix, lane, row, lanes, vals, g, z, g_val, zero, need_values):
     """The value/depth part of a tile row's backward with channels innermost, hit pixels only:
     ``lanes`` pixels from tile pixel ``row``: q = (values, z) . v per pixel, then the lane's d/d alpha term and the pixel's behind . v;
@@ -715,26 +793,13 @@ def _raster_tile_bwd_many(
     cv = vals.shape[1]
     dt = consts.dtype
     zero, one, half = consts[C_ZERO], consts[C_ONE], consts[C_HALF]
-    a_max, a_min, s_clamp = consts[C_ALPHA_MAX], consts[C_ALPHA_MIN], consts[C_EXP_CLAMP]
-    one_m = consts[C_ONE_MINUS_ALPHA_MIN]
     tx0 = (tile % tiles_x) * TILE
     ty0 = (tile // tiles_x) * TILE
     ys = _pixel_centres(ty0, TILE, consts)
     xs = _pixel_centres(tx0, TILE, consts)
     npx = TILE * TILE
     o_trans, o_tfin, o_vtf = np.uint64(S_TRANS * npx), np.uint64(S_TFIN * npx), np.uint64(S_VTF * npx)
-    o_fac = np.uint64(L_FAC * LANE_STRIDE)
-    o_t = np.uint64(L_T * LANE_STRIDE)
-    o_ra = np.uint64(L_RA * LANE_STRIDE)
-    o_va = np.uint64(L_VA * LANE_STRIDE)
-    o_vs = np.uint64(L_VS * LANE_STRIDE)
-    o_vo = np.uint64(L_VO * LANE_STRIDE)
     o_ao = np.uint64(A_O * LANE_STRIDE)
-    o_aa = np.uint64(A_A * LANE_STRIDE)
-    o_ab = np.uint64(A_B * LANE_STRIDE)
-    o_ac = np.uint64(A_C * LANE_STRIDE)
-    o_au = np.uint64(A_U * LANE_STRIDE)
-    o_av = np.uint64(A_V * LANE_STRIDE)
     pix = np.zeros(4 * npx, dt)
     v_pix = np.zeros((cv + 1) * npx, dt)  # [pixel, channel]
     lane = np.zeros(N_LANE_SECTIONS * LANE_STRIDE, dt)
@@ -778,63 +843,18 @@ def _raster_tile_bwd_many(
             bdy = cb * dy
             crow = hc * dy * dy
             row = np.uint64(py * TILE) + w0
-            n_hit = zero
-            for j in range(lanes):
-                i = np.uint64(j)
-                p = row + i
-                dx = xs[w0 + i] - u
-                sigma = dx * (ha * dx + bdy) + crow
-                vis = exp_neg(min(max(sigma, zero), s_clamp))
-                ov = o * vis
-                alpha = min(ov, a_max)
-                m = (k32 < last_k[p]) & (sigma >= zero) & (alpha >= a_min)
-                ra = one / max(one_m, one - alpha)
-                tr = pix[o_trans + p]
-                t = tr * ra
-                pix[o_trans + p] = t if m else tr
-                lane[o_fac + i] = alpha * t if m else zero
-                lane[o_ra + i] = ra
-                lane[o_t + i] = t
-                lane[o_va + i] = -(pix[o_tfin + p] * ra * pix[o_vtf + p])
-                free = m & (ov <= a_max)  # alpha not clamped: it depends on opacity and sigma
-                lane[o_vs + i] = -alpha if free else zero
-                lane[o_vo + i] = vis if free else zero
-                n_hit += one if m else zero
+            n_hit = _bwd_row_alpha(pix, lane, last_k, xs, row, w0, lanes, u, ha, bdy, crow, o, k32, consts)
             if n_hit == zero:
                 continue
             hit = True
             _bwd_values_pixel_major(v_pix, pix, lane, row, lanes, vals, g, z, g_val, zero, need_values)
-            for j in range(lanes):
-                i = np.uint64(j)
-                dx = xs[w0 + i] - u
-                va = lane[o_va + i]
-                vs = lane[o_vs + i] * va
-                lane[o_ao + i] += lane[o_vo + i] * va
-                lane[o_aa + i] += dx * dx * vs
-                lane[o_ab + i] += dx * dy * vs
-                lane[o_ac + i] += dy * dy * vs
-                lane[o_au + i] -= (ca * dx + cb * dy) * vs
-                lane[o_av + i] -= (cb * dx + cc * dy) * vs
+            _bwd_row_geometry(lane, xs, w0, lanes, u, dy, ca, cb, cc)
         if hit:
-            g2d[b, g, G_O] += _lane_sum_at(lane, o_ao)
-            g2d[b, g, G_A] += half * _lane_sum_at(lane, o_aa)
-            g2d[b, g, G_B] += _lane_sum_at(lane, o_ab)
-            g2d[b, g, G_C] += half * _lane_sum_at(lane, o_ac)
-            g2d[b, g, G_U] += _lane_sum_at(lane, o_au)
-            g2d[b, g, G_V] += _lane_sum_at(lane, o_av)
+            _bwd_add_geometry(g2d, b, g, lane, half)
             g2d[b, g, G_Z] += g_val[cv]
             if need_values:
                 for c in range(cv):
                     gvals[g, c] += g_val[c]
-
-
-@njit(**_fast)
-def _lane_sum_at(buf, start):
-    """Sum of the TILE lanes buf[start : start + TILE]."""
-    s = buf[start]
-    for j in range(1, TILE):
-        s += buf[start + np.uint64(j)]
-    return s
 
 
 @njit(**_fast)
@@ -897,8 +917,6 @@ def _raster_tile_bwd(
     cv = vals.shape[1]
     dt = consts.dtype
     zero, one, half = consts[C_ZERO], consts[C_ONE], consts[C_HALF]
-    a_max, a_min, s_clamp = consts[C_ALPHA_MAX], consts[C_ALPHA_MIN], consts[C_EXP_CLAMP]
-    one_m = consts[C_ONE_MINUS_ALPHA_MIN]
     tx0 = (tile % tiles_x) * TILE
     ty0 = (tile // tiles_x) * TILE
     ys = _pixel_centres(ty0, TILE, consts)
@@ -911,14 +929,7 @@ def _raster_tile_bwd(
     o_t = np.uint64(L_T * LANE_STRIDE)
     o_ra = np.uint64(L_RA * LANE_STRIDE)
     o_va = np.uint64(L_VA * LANE_STRIDE)
-    o_vs = np.uint64(L_VS * LANE_STRIDE)
-    o_vo = np.uint64(L_VO * LANE_STRIDE)
     o_ao = np.uint64(A_O * LANE_STRIDE)
-    o_aa = np.uint64(A_A * LANE_STRIDE)
-    o_ab = np.uint64(A_B * LANE_STRIDE)
-    o_ac = np.uint64(A_C * LANE_STRIDE)
-    o_au = np.uint64(A_U * LANE_STRIDE)
-    o_av = np.uint64(A_V * LANE_STRIDE)
     pix = np.zeros((S_CH + 2 * (cv + 1)) * npx, dt)
     lane = np.zeros(N_LANE_SECTIONS * LANE_STRIDE, dt)
     acc_val = np.empty((cv + 1) * TILE, dt)  # lane sums of d/d(values, depth), [channel, lane]
@@ -966,28 +977,7 @@ def _raster_tile_bwd(
             bdy = cb * dy
             crow = hc * dy * dy
             row = np.uint64(py * TILE) + w0
-            n_hit = zero
-            for j in range(lanes):
-                i = np.uint64(j)
-                p = row + i
-                dx = xs[w0 + i] - u
-                sigma = dx * (ha * dx + bdy) + crow
-                vis = exp_neg(min(max(sigma, zero), s_clamp))
-                ov = o * vis
-                alpha = min(ov, a_max)
-                m = (k32 < last_k[p]) & (sigma >= zero) & (alpha >= a_min)
-                ra = one / max(one_m, one - alpha)
-                tr = pix[o_trans + p]
-                t = tr * ra
-                pix[o_trans + p] = t if m else tr
-                lane[o_fac + i] = alpha * t if m else zero
-                lane[o_ra + i] = ra
-                lane[o_t + i] = t
-                lane[o_va + i] = -(pix[o_tfin + p] * ra * pix[o_vtf + p])
-                free = m & (ov <= a_max)  # alpha not clamped: it depends on opacity and sigma
-                lane[o_vs + i] = -alpha if free else zero
-                lane[o_vo + i] = vis if free else zero
-                n_hit += one if m else zero
+            n_hit = _bwd_row_alpha(pix, lane, last_k, xs, row, w0, lanes, u, ha, bdy, crow, o, k32, consts)
             if n_hit == zero:
                 continue
             hit = True
@@ -1005,24 +995,9 @@ def _raster_tile_bwd(
                     acc_val[lane_base + i] += fac * vp
                     lane[o_va + i] += (val * lane[o_t + i] - pix[base + np.uint64(npx) + i] * lane[o_ra + i]) * vp
                     pix[base + np.uint64(npx) + i] += val * fac
-            for j in range(lanes):
-                i = np.uint64(j)
-                dx = xs[w0 + i] - u
-                va = lane[o_va + i]
-                vs = lane[o_vs + i] * va
-                lane[o_ao + i] += lane[o_vo + i] * va
-                lane[o_aa + i] += dx * dx * vs
-                lane[o_ab + i] += dx * dy * vs
-                lane[o_ac + i] += dy * dy * vs
-                lane[o_au + i] -= (ca * dx + cb * dy) * vs
-                lane[o_av + i] -= (cb * dx + cc * dy) * vs
+            _bwd_row_geometry(lane, xs, w0, lanes, u, dy, ca, cb, cc)
         if hit:
-            g2d[b, g, G_O] += _lane_sum_at(lane, o_ao)
-            g2d[b, g, G_A] += half * _lane_sum_at(lane, o_aa)
-            g2d[b, g, G_B] += _lane_sum_at(lane, o_ab)
-            g2d[b, g, G_C] += half * _lane_sum_at(lane, o_ac)
-            g2d[b, g, G_U] += _lane_sum_at(lane, o_au)
-            g2d[b, g, G_V] += _lane_sum_at(lane, o_av)
+            _bwd_add_geometry(g2d, b, g, lane, half)
             for c in range(cv + 1):
                 if c < cv and not need_values:
                     continue
