@@ -664,6 +664,28 @@ def _lane_sum_at(buf, start):
 
 
 @njit(inline="always", **_fast)
+def _row_window(box, b, g, tx0):
+    """The lanes of a tile row the backward walks for Gaussian g: 8 from min(box x0, 8) when its
+    columns in the tile fit in 8, else all 16. Returns (lanes, first lane)."""
+    jb0 = max(box[b, g, 0], tx0) - tx0
+    jb1 = min(box[b, g, 1], tx0 + TILE - 1) - tx0
+    narrow = jb1 - jb0 < HALF_TILE
+    return (HALF_TILE if narrow else TILE), np.uint64(min(jb0, TILE - HALF_TILE) if narrow else 0)
+
+
+@njit(inline="always", **_fast)
+def _bwd_start_pixel(pix, last_k, p, t_fin, v_tfin, last_p, k_end):
+    """A pixel's backward state from its forward: T = T_final, d/d T_final, the list end. Returns the tile's list end so far."""
+    npx = TILE * TILE
+    pp = np.uint64(p)
+    pix[np.uint64(S_TRANS * npx) + pp] = t_fin
+    pix[np.uint64(S_TFIN * npx) + pp] = t_fin
+    pix[np.uint64(S_VTF * npx) + pp] = v_tfin
+    last_k[p] = last_p
+    return max(k_end, last_p)
+
+
+@njit(inline="always", **_fast)
 def _bwd_row_alpha(pix, lane, last_k, xs, row, w0, lanes, u, ha, bdy, crow, o, k32, consts):
     """One tile row of the backward, walked back over one Gaussian (inlined into both tile kernels):
     undo its alpha in each pixel's transmittance and set the lanes' terms (its weight alpha T,
@@ -798,7 +820,7 @@ def _raster_tile_bwd_many(
     ys = _pixel_centres(ty0, TILE, consts)
     xs = _pixel_centres(tx0, TILE, consts)
     npx = TILE * TILE
-    o_trans, o_tfin, o_vtf = np.uint64(S_TRANS * npx), np.uint64(S_TFIN * npx), np.uint64(S_VTF * npx)
+    o_trans, o_tfin = np.uint64(S_TRANS * npx), np.uint64(S_TFIN * npx)
     o_ao = np.uint64(A_O * LANE_STRIDE)
     pix = np.zeros(4 * npx, dt)
     v_pix = np.zeros((cv + 1) * npx, dt)  # [pixel, channel]
@@ -815,26 +837,23 @@ def _raster_tile_bwd_many(
             for c in range(cv):
                 v_pix[p * (cv + 1) + c] = v_rgb[b, c, y, x] if c < 3 else v_feat[b, c - 3, y, x]
             v_pix[p * (cv + 1) + cv] = v_dep[b, y, x]
-            pp = np.uint64(p)
-            pix[o_trans + pp] = t_final[b, y, x]
-            pix[o_tfin + pp] = t_final[b, y, x]
-            pix[o_vtf + pp] = v_t[b, y, x]
-            last_k[p] = last[b, y, x]
-            k_end = max(k_end, last_k[p])
+            k_end = _bwd_start_pixel(pix, last_k, p, t_final[b, y, x], v_t[b, y, x], last[b, y, x], k_end)
     g_val = np.empty(cv + 1, dt)  # d/d(values, depth) of the current Gaussian
     start = offsets[b * n_tiles + tile]
     for k in range(k_end - 1, start - 1, -1):
         g = lists[k]
-        u, v = proj[b, g, P_U], proj[b, g, P_V]
-        ca, cb, cc = proj[b, g, P_A], proj[b, g, P_B], proj[b, g, P_C]
+        u, v, ca, cb, cc, o, z = (
+            proj[b, g, P_U],
+            proj[b, g, P_V],
+            proj[b, g, P_A],
+            proj[b, g, P_B],
+            proj[b, g, P_C],
+            proj[b, g, P_O],
+            proj[b, g, P_Z],
+        )
         ha, hc = half * ca, half * cc
-        o, z = proj[b, g, P_O], proj[b, g, P_Z]
         k32 = np.int32(k)
-        jb0 = max(box[b, g, 0], tx0) - tx0
-        jb1 = min(box[b, g, 1], tx0 + TILE - 1) - tx0
-        narrow = jb1 - jb0 < HALF_TILE
-        lanes = HALF_TILE if narrow else TILE
-        w0 = np.uint64(min(jb0, TILE - HALF_TILE) if narrow else 0)
+        lanes, w0 = _row_window(box, b, g, tx0)
         lane[o_ao:] = zero
         g_val[:] = zero
         hit = False
@@ -924,7 +943,6 @@ def _raster_tile_bwd(
     npx = TILE * TILE
     o_trans = np.uint64(S_TRANS * npx)
     o_tfin = np.uint64(S_TFIN * npx)
-    o_vtf = np.uint64(S_VTF * npx)
     o_fac = np.uint64(L_FAC * LANE_STRIDE)
     o_t = np.uint64(L_T * LANE_STRIDE)
     o_ra = np.uint64(L_RA * LANE_STRIDE)
@@ -950,25 +968,22 @@ def _raster_tile_bwd(
                 else:
                     vo = v_dep[b, y, x]
                 pix[(S_CH + 2 * c) * npx + p] = vo
-            pp = np.uint64(p)
-            pix[o_trans + pp] = t_final[b, y, x]
-            pix[o_tfin + pp] = t_final[b, y, x]
-            pix[o_vtf + pp] = v_t[b, y, x]
-            last_k[p] = last[b, y, x]
-            k_end = max(k_end, last_k[p])
+            k_end = _bwd_start_pixel(pix, last_k, p, t_final[b, y, x], v_t[b, y, x], last[b, y, x], k_end)
     start = offsets[b * n_tiles + tile]
     for k in range(k_end - 1, start - 1, -1):
         g = lists[k]
-        u, v = proj[b, g, P_U], proj[b, g, P_V]
-        ca, cb, cc = proj[b, g, P_A], proj[b, g, P_B], proj[b, g, P_C]
+        u, v, ca, cb, cc, o, z = (
+            proj[b, g, P_U],
+            proj[b, g, P_V],
+            proj[b, g, P_A],
+            proj[b, g, P_B],
+            proj[b, g, P_C],
+            proj[b, g, P_O],
+            proj[b, g, P_Z],
+        )
         ha, hc = half * ca, half * cc
-        o, z = proj[b, g, P_O], proj[b, g, P_Z]
         k32 = np.int32(k)
-        jb0 = max(box[b, g, 0], tx0) - tx0
-        jb1 = min(box[b, g, 1], tx0 + TILE - 1) - tx0
-        narrow = jb1 - jb0 < HALF_TILE
-        lanes = HALF_TILE if narrow else TILE
-        w0 = np.uint64(min(jb0, TILE - HALF_TILE) if narrow else 0)
+        lanes, w0 = _row_window(box, b, g, tx0)
         lane[o_ao:] = zero
         acc_val[:] = zero
         hit = False
