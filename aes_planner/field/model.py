@@ -284,7 +284,7 @@ def load_model(path: str | Path | None = None) -> FieldModel:
                 "or pass model=FILE (train one with `aes-planner train`)"
             )
         with resources.as_file(ref) as p:
-            ckpt = torch.load(p, map_location="cpu", weights_only=True)
+            ckpt = read_checkpoint(p)
     else:
         ckpt = read_checkpoint(path)
     try:

@@ -154,12 +154,7 @@ def _check_rigid(world2cam: np.ndarray) -> None:  # [B, 4, 4] float64
         raise GaussianError("world2cam must be rigid 4x4 matrices with bottom row [0, 0, 0, 1]")
     rot = world2cam[:, :3, :3]  # [B, 3, 3]
     err = np.abs(rot @ rot.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))  # [B]
-    r0, r1, r2 = rot[:, 0], rot[:, 1], rot[:, 2]  # rows [B, 3]
-    det = (
-        r0[:, 0] * (r1[:, 1] * r2[:, 2] - r1[:, 2] * r2[:, 1])
-        - r0[:, 1] * (r1[:, 0] * r2[:, 2] - r1[:, 2] * r2[:, 0])
-        + r0[:, 2] * (r1[:, 0] * r2[:, 1] - r1[:, 1] * r2[:, 0])
-    )  # [B]
+    det = np.linalg.det(rot)  # [B]
     bad = (err > RIGID_TOL) | (det <= 0)
     if bad.any():
         b = int(np.flatnonzero(bad)[0])

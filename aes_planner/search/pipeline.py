@@ -31,7 +31,9 @@ from torch import Tensor
 from aes_planner.errors import AesPlannerError
 from aes_planner.field.scorer import ScoreOutput, Scorer
 from aes_planner.geometry.poses import cam2world_to_view
+from aes_planner.geometry.rigid import check_rigid
 from aes_planner.geometry.trajectory import interpolate_poses
+from aes_planner.messages.fields import POSE_TOL
 from aes_planner.search.config import SearchConfig
 from aes_planner.search.space import SearchSpace, space_for
 from aes_planner.sources import Platform
@@ -107,9 +109,6 @@ def _check_inputs(inputs_cam2world) -> np.ndarray:  # -> [N, 4, 4] float64
         raise SearchError("inputs_cam2world is empty; the search needs at least one input view")
     if not np.all(np.isfinite(poses)):
         raise SearchError("inputs_cam2world contains NaN or inf; pass finite world-frame poses")
-    from aes_planner.geometry.rigid import check_rigid
-    from aes_planner.messages.fields import POSE_TOL
-
     for i, pose in enumerate(poses):  # the same rigidity test as every pose in a message
         check_rigid(pose, f"inputs_cam2world[{i}]", POSE_TOL, SearchError)
     return poses
