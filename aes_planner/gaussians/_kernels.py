@@ -543,11 +543,9 @@ def _raster_tile_fwd(
         narrow = jb1 - jb0 < HALF_TILE
         lanes = HALF_TILE if narrow else TILE
         w0 = np.uint64(min(jb0, TILE - HALF_TILE) if narrow else 0)
-        for py in range(max(box[b, g, 2], ty0) - ty0, min(box[b, g, 3], ty0 + TILE - 1) - ty0 + 1):
-            dy = ys[py] - v
-            bdy = cb * dy
-            crow = hc * dy * dy
-            row = np.uint64(py * TILE) + w0
+        py0, py1 = _tile_rows(box, b, g, ty0)
+        for py in range(py0, py1):
+            dy, bdy, crow, row = _row_terms(ys, py, v, cb, hc, w0)
             w_sum = zero  # a float reduction: an int64 one would halve the vector width
             for j in range(lanes):
                 i = np.uint64(j)
@@ -661,6 +659,51 @@ def _lane_sum_at(buf, start):
     for j in range(1, TILE):
         s += buf[start + np.uint64(j)]
     return s
+
+
+@njit(inline="always", **_fast)
+def _tile_origin(tile, tiles_x, consts):
+    """The tile's first pixel (tx0, ty0) and its pixel centres ys [TILE], xs [TILE]."""
+    tx0 = (tile % tiles_x) * TILE
+    ty0 = (tile // tiles_x) * TILE
+    return tx0, ty0, _pixel_centres(ty0, TILE, consts), _pixel_centres(tx0, TILE, consts)
+
+
+@njit(inline="always", **_fast)
+def _splat(proj, b, g):
+    """One projected Gaussian's centre, conic and opacity and depth: (u, v, a, b, c, o, z)."""
+    return (
+        proj[b, g, P_U],
+        proj[b, g, P_V],
+        proj[b, g, P_A],
+        proj[b, g, P_B],
+        proj[b, g, P_C],
+        proj[b, g, P_O],
+        proj[b, g, P_Z],
+    )
+
+
+@njit(inline="always", **_fast)
+def _tile_rows(box, b, g, ty0):
+    """The tile rows [first, stop) that Gaussian g's box covers."""
+    return max(box[b, g, 2], ty0) - ty0, min(box[b, g, 3], ty0 + TILE - 1) - ty0 + 1
+
+
+@njit(inline="always", **_fast)
+def _row_terms(ys, py, v, cb, hc, w0):
+    """A row's offset from the centre dy, its conic terms b dy and c dy^2 / 2, and the row's first
+    window pixel."""
+    dy = ys[py] - v
+    return dy, cb * dy, hc * dy * dy, np.uint64(py * TILE) + w0
+
+
+@njit(inline="always", **_fast)
+def _bwd_init_trans(pix, npx, one):
+    """Transmittances (running and final) start at one."""
+    o_trans, o_tfin = np.uint64(S_TRANS * npx), np.uint64(S_TFIN * npx)
+    for p in range(npx):
+        pix[o_trans + np.uint64(p)] = one
+        pix[o_tfin + np.uint64(p)] = one
 
 
 @njit(inline="always", **_fast)
@@ -785,176 +828,64 @@ def _bwd_values_pixel_major(v_pix, pix, lane, row, lanes, vals, g, z, g_val, zer
         pix[o_bd + row + i] = bd + q * fac
 
 
-@njit(**_fast)
-def _raster_tile_bwd_many(
-    b,
-    tile,
-    proj,
-    box,
-    vals,
-    offsets,
-    lists,
-    tiles_x,
-    width,
-    height,
-    consts,
-    t_final,
-    last,
-    v_rgb,
-    v_feat,
-    v_dep,
-    v_t,
-    g2d,
-    gvals,
-    need_values,
-):
-    """:func:`_raster_tile_bwd` for many channels (``cv + 1 >= BWD_PIXEL_MAJOR_MIN_CHANNELS``): per
-    row a lane loop (alpha, transmittance, the lanes' terms), the hit pixels' channel loops, and a
-    lane loop accumulating the geometry gradients."""
-    n_tiles = (offsets.shape[0] - 1) // proj.shape[0]
+@njit(inline="always", **_fast)
+def _bwd_values_channel_major(pix, lane, acc_val, row, lanes, vals, g, z):
+    """The value/depth part of a tile row's backward with channels outermost and lanes vectorised:
+    per channel, the lane sums of d/d value into acc_val [channel, lane], the lanes' d/d alpha
+    terms and the pixels' behind sums (a channel's v at S_CH + 2c, its behind sum right after)."""
+    npx = np.uint64(TILE * TILE)
+    o_fac, o_t = np.uint64(L_FAC * LANE_STRIDE), np.uint64(L_T * LANE_STRIDE)
+    o_ra, o_va = np.uint64(L_RA * LANE_STRIDE), np.uint64(L_VA * LANE_STRIDE)
     cv = vals.shape[1]
-    dt = consts.dtype
-    zero, one, half = consts[C_ZERO], consts[C_ONE], consts[C_HALF]
-    tx0 = (tile % tiles_x) * TILE
-    ty0 = (tile // tiles_x) * TILE
-    ys = _pixel_centres(ty0, TILE, consts)
-    xs = _pixel_centres(tx0, TILE, consts)
-    npx = TILE * TILE
-    o_trans, o_tfin = np.uint64(S_TRANS * npx), np.uint64(S_TFIN * npx)
-    o_ao = np.uint64(A_O * LANE_STRIDE)
-    pix = np.zeros(4 * npx, dt)
-    v_pix = np.zeros((cv + 1) * npx, dt)  # [pixel, channel]
-    lane = np.zeros(N_LANE_SECTIONS * LANE_STRIDE, dt)
-    last_k = np.zeros(npx, np.int32)
-    for p in range(npx):
-        pix[o_trans + np.uint64(p)] = one
-        pix[o_tfin + np.uint64(p)] = one
-    k_end = 0
-    for py in range(min(TILE, height - ty0)):
-        for px in range(min(TILE, width - tx0)):
-            p = py * TILE + px
-            y, x = ty0 + py, tx0 + px
-            for c in range(cv):
-                v_pix[p * (cv + 1) + c] = v_rgb[b, c, y, x] if c < 3 else v_feat[b, c - 3, y, x]
-            v_pix[p * (cv + 1) + cv] = v_dep[b, y, x]
-            k_end = _bwd_start_pixel(pix, last_k, p, t_final[b, y, x], v_t[b, y, x], last[b, y, x], k_end)
-    g_val = np.empty(cv + 1, dt)  # d/d(values, depth) of the current Gaussian
-    start = offsets[b * n_tiles + tile]
-    for k in range(k_end - 1, start - 1, -1):
-        g = lists[k]
-        u, v, ca, cb, cc, o, z = (
-            proj[b, g, P_U],
-            proj[b, g, P_V],
-            proj[b, g, P_A],
-            proj[b, g, P_B],
-            proj[b, g, P_C],
-            proj[b, g, P_O],
-            proj[b, g, P_Z],
-        )
-        ha, hc = half * ca, half * cc
-        k32 = np.int32(k)
-        lanes, w0 = _row_window(box, b, g, tx0)
-        lane[o_ao:] = zero
-        g_val[:] = zero
-        hit = False
-        for py in range(max(box[b, g, 2], ty0) - ty0, min(box[b, g, 3], ty0 + TILE - 1) - ty0 + 1):
-            dy = ys[py] - v
-            bdy = cb * dy
-            crow = hc * dy * dy
-            row = np.uint64(py * TILE) + w0
-            n_hit = _bwd_row_alpha(pix, lane, last_k, xs, row, w0, lanes, u, ha, bdy, crow, o, k32, consts)
-            if n_hit == zero:
-                continue
-            hit = True
-            _bwd_values_pixel_major(v_pix, pix, lane, row, lanes, vals, g, z, g_val, zero, need_values)
-            _bwd_row_geometry(lane, xs, w0, lanes, u, dy, ca, cb, cc)
-        if hit:
-            _bwd_add_geometry(g2d, b, g, lane, half)
-            g2d[b, g, G_Z] += g_val[cv]
-            if need_values:
-                for c in range(cv):
-                    gvals[g, c] += g_val[c]
+    for c in range(cv + 1):
+        val = vals[g, c] if c < cv else z
+        base = np.uint64(S_CH + 2 * c) * npx + row  # v; behind at base + npx
+        lane_base = np.uint64(c * TILE)
+        # every channel's lane sums, also when only the depth's are used (!need_values): the loop
+        # without them is small enough for LLVM to unroll fully instead of vectorising it, and ran
+        # 1.4x slower
+        for j in range(lanes):
+            i = np.uint64(j)
+            vp = pix[base + i]
+            fac = lane[o_fac + i]
+            acc_val[lane_base + i] += fac * vp
+            lane[o_va + i] += (val * lane[o_t + i] - pix[base + npx + i] * lane[o_ra + i]) * vp
+            pix[base + npx + i] += val * fac
 
 
-@njit(**_fast)
-def _raster_tile_bwd(
-    b,
-    tile,
-    proj,
-    box,
-    vals,
-    offsets,
-    lists,
-    tiles_x,
-    width,
-    height,
-    consts,
-    t_final,
-    last,
-    v_rgb,
-    v_feat,
-    v_dep,
-    v_t,
-    g2d,
-    gvals,
-    need_values,
-):
+@njit(inline="always", **_fast)
+def _bwd_tile(b, tile, splats, image, upstream, g2d, gvals, need_values, many):
     """Reverse traversal of one tile; adds into g2d [B, N, NGRAD] and gvals [N, Cv] (when
-    ``need_values``). Few channels here (channels outermost, lanes vectorised); many in
-    :func:`_raster_tile_bwd_many`.
+    ``need_values``). ``many`` is a compile-time constant (one wrapper kernel per layout, so LLVM
+    drops the other branch): with few channels the pixel state holds each channel's v and behind
+    sums channel-major and the row loops run over lanes; with many (``cv + 1 >=
+    BWD_PIXEL_MAJOR_MIN_CHANNELS``) v is pixel-major and only the hit pixels' channel loops run.
 
     Per-pixel gradient terms are accumulated lane-wise and reduced once per Gaussian, so the row
-    loops have no horizontal reductions. Pixel and lane state are packed as in
-    :func:`_raster_tile_bwd_many`; a channel's v and behind-sum sections are adjacent (v at
-    S_CH + 2c, behind at S_CH + 2c + 1), so their distance is known when compiling too.
+    loops have no horizontal reductions. Pixel and lane state are packed into two arrays at
+    compile-time offsets, so LLVM needs no run-time overlap checks between them.
     """
-    if vals.shape[1] + 1 >= BWD_PIXEL_MAJOR_MIN_CHANNELS:
-        _raster_tile_bwd_many(
-            b,
-            tile,
-            proj,
-            box,
-            vals,
-            offsets,
-            lists,
-            tiles_x,
-            width,
-            height,
-            consts,
-            t_final,
-            last,
-            v_rgb,
-            v_feat,
-            v_dep,
-            v_t,
-            g2d,
-            gvals,
-            need_values,
-        )
-        return
+    proj, box, vals, offsets, lists = splats
+    tiles_x, width, height, consts = image
+    t_final, last, v_rgb, v_feat, v_dep, v_t = upstream
     n_tiles = (offsets.shape[0] - 1) // proj.shape[0]
     cv = vals.shape[1]
     dt = consts.dtype
     zero, one, half = consts[C_ZERO], consts[C_ONE], consts[C_HALF]
-    tx0 = (tile % tiles_x) * TILE
-    ty0 = (tile // tiles_x) * TILE
-    ys = _pixel_centres(ty0, TILE, consts)
-    xs = _pixel_centres(tx0, TILE, consts)
+    tx0, ty0, ys, xs = _tile_origin(tile, tiles_x, consts)
     npx = TILE * TILE
-    o_trans = np.uint64(S_TRANS * npx)
-    o_tfin = np.uint64(S_TFIN * npx)
-    o_fac = np.uint64(L_FAC * LANE_STRIDE)
-    o_t = np.uint64(L_T * LANE_STRIDE)
-    o_ra = np.uint64(L_RA * LANE_STRIDE)
-    o_va = np.uint64(L_VA * LANE_STRIDE)
     o_ao = np.uint64(A_O * LANE_STRIDE)
-    pix = np.zeros((S_CH + 2 * (cv + 1)) * npx, dt)
+    if many:
+        pix = np.zeros(4 * npx, dt)
+        v_pix = np.zeros((cv + 1) * npx, dt)  # [pixel, channel]
+        acc = np.empty(cv + 1, dt)  # d/d(values, depth) of the current Gaussian
+    else:
+        pix = np.zeros((S_CH + 2 * (cv + 1)) * npx, dt)
+        v_pix = np.zeros(0, dt)  # v lives in pix
+        acc = np.empty((cv + 1) * TILE, dt)  # lane sums of d/d(values, depth), [channel, lane]
     lane = np.zeros(N_LANE_SECTIONS * LANE_STRIDE, dt)
-    acc_val = np.empty((cv + 1) * TILE, dt)  # lane sums of d/d(values, depth), [channel, lane]
     last_k = np.zeros(npx, np.int32)
-    for p in range(npx):
-        pix[o_trans + np.uint64(p)] = one
-        pix[o_tfin + np.uint64(p)] = one
+    _bwd_init_trans(pix, npx, one)
     k_end = 0
     for py in range(min(TILE, height - ty0)):
         for px in range(min(TILE, width - tx0)):
@@ -967,60 +898,55 @@ def _raster_tile_bwd(
                     vo = v_feat[b, c - 3, y, x]
                 else:
                     vo = v_dep[b, y, x]
-                pix[(S_CH + 2 * c) * npx + p] = vo
+                if many:
+                    v_pix[p * (cv + 1) + c] = vo
+                else:
+                    pix[(S_CH + 2 * c) * npx + p] = vo
             k_end = _bwd_start_pixel(pix, last_k, p, t_final[b, y, x], v_t[b, y, x], last[b, y, x], k_end)
     start = offsets[b * n_tiles + tile]
     for k in range(k_end - 1, start - 1, -1):
         g = lists[k]
-        u, v, ca, cb, cc, o, z = (
-            proj[b, g, P_U],
-            proj[b, g, P_V],
-            proj[b, g, P_A],
-            proj[b, g, P_B],
-            proj[b, g, P_C],
-            proj[b, g, P_O],
-            proj[b, g, P_Z],
-        )
+        u, v, ca, cb, cc, o, z = _splat(proj, b, g)
         ha, hc = half * ca, half * cc
         k32 = np.int32(k)
         lanes, w0 = _row_window(box, b, g, tx0)
         lane[o_ao:] = zero
-        acc_val[:] = zero
+        acc[:] = zero
         hit = False
-        for py in range(max(box[b, g, 2], ty0) - ty0, min(box[b, g, 3], ty0 + TILE - 1) - ty0 + 1):
-            dy = ys[py] - v
-            bdy = cb * dy
-            crow = hc * dy * dy
-            row = np.uint64(py * TILE) + w0
+        py0, py1 = _tile_rows(box, b, g, ty0)
+        for py in range(py0, py1):
+            dy, bdy, crow, row = _row_terms(ys, py, v, cb, hc, w0)
             n_hit = _bwd_row_alpha(pix, lane, last_k, xs, row, w0, lanes, u, ha, bdy, crow, o, k32, consts)
             if n_hit == zero:
                 continue
             hit = True
-            for c in range(cv + 1):
-                val = vals[g, c] if c < cv else z
-                base = np.uint64((S_CH + 2 * c) * npx) + row  # v; behind at base + npx
-                lane_base = np.uint64(c * TILE)
-                # every channel's lane sums, also when only the depth's are used (!need_values):
-                # the loop without them is small enough for LLVM to unroll fully instead of
-                # vectorising it, and ran 1.4x slower
-                for j in range(lanes):
-                    i = np.uint64(j)
-                    vp = pix[base + i]
-                    fac = lane[o_fac + i]
-                    acc_val[lane_base + i] += fac * vp
-                    lane[o_va + i] += (val * lane[o_t + i] - pix[base + np.uint64(npx) + i] * lane[o_ra + i]) * vp
-                    pix[base + np.uint64(npx) + i] += val * fac
+            if many:
+                _bwd_values_pixel_major(v_pix, pix, lane, row, lanes, vals, g, z, acc, zero, need_values)
+            else:
+                _bwd_values_channel_major(pix, lane, acc, row, lanes, vals, g, z)
             _bwd_row_geometry(lane, xs, w0, lanes, u, dy, ca, cb, cc)
-        if hit:
-            _bwd_add_geometry(g2d, b, g, lane, half)
-            for c in range(cv + 1):
-                if c < cv and not need_values:
-                    continue
-                sc = _lane_sum(acc_val, c)
-                if c < cv:
-                    gvals[g, c] += sc
-                else:
-                    g2d[b, g, G_Z] += sc
+        if not hit:
+            continue
+        _bwd_add_geometry(g2d, b, g, lane, half)
+        if many:
+            g2d[b, g, G_Z] += acc[cv]
+        else:
+            g2d[b, g, G_Z] += _lane_sum(acc, cv)
+        if need_values:
+            for c in range(cv):
+                gvals[g, c] += acc[c] if many else _lane_sum(acc, c)
+
+
+@njit(**_fast)
+def _raster_tile_bwd(b, tile, splats, image, upstream, g2d, gvals, need_values):
+    """:func:`_bwd_tile` for few channels (channels outermost, lanes vectorised)."""
+    _bwd_tile(b, tile, splats, image, upstream, g2d, gvals, need_values, False)
+
+
+@njit(**_fast)
+def _raster_tile_bwd_many(b, tile, splats, image, upstream, g2d, gvals, need_values):
+    """:func:`_bwd_tile` for many channels (pixel-major v, the hit pixels' channel loops)."""
+    _bwd_tile(b, tile, splats, image, upstream, g2d, gvals, need_values, True)
 
 
 @njit(parallel=True, **_opts)
@@ -1051,6 +977,10 @@ def raster_bwd(
     n_cam = proj.shape[0]
     n_tiles = (offsets.shape[0] - 1) // n_cam
     n_items = n_cam if by_camera else n_cam * n_tiles
+    many = vals.shape[1] + 1 >= BWD_PIXEL_MAJOR_MIN_CHANNELS
+    splats = (proj, box, vals, offsets, lists)
+    image = (tiles_x, width, height, consts)
+    upstream = (t_final, last, v_rgb, v_feat, v_dep, v_t)
     for item in prange(threads * -(-n_items // threads)):
         real = _interleaved(item, n_items, threads)
         if real < 0:
@@ -1063,28 +993,10 @@ def raster_bwd(
         stop = n_tiles if by_camera else first + 1
         buf = 0 if by_camera else tid
         for tile in range(first, stop):
-            _raster_tile_bwd(
-                cam,
-                tile,
-                proj,
-                box,
-                vals,
-                offsets,
-                lists,
-                tiles_x,
-                width,
-                height,
-                consts,
-                t_final,
-                last,
-                v_rgb,
-                v_feat,
-                v_dep,
-                v_t,
-                g2d[buf],
-                gvals[tid],
-                need_values,
-            )
+            if many:
+                _raster_tile_bwd_many(cam, tile, splats, image, upstream, g2d[buf], gvals[tid], need_values)
+            else:
+                _raster_tile_bwd(cam, tile, splats, image, upstream, g2d[buf], gvals[tid], need_values)
 
 
 # ---------------------------------------------------------------------------- 6. backward projection
