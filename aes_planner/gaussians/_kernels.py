@@ -26,17 +26,13 @@ Everything geometric is float64; image-space parameters and outputs are in the G
 
 from __future__ import annotations
 
+import ctypes
 import math
 import os
+import site
+import sys
 
 import numba
-
-# numba's OpenMP layer and torch's bundled OpenMP both spin-wait between parallel regions, so
-# alternating torch ops and numba kernels fight over the cores; numba's own workqueue pool does
-# not spin (figures: docs/benchmarks.md, "Threading layer"). Respect an explicit choice.
-if "NUMBA_THREADING_LAYER" not in os.environ:
-    numba.config.THREADING_LAYER = "workqueue"
-
 import numpy as np
 from numba import njit, prange, types
 from numba.extending import overload
@@ -56,6 +52,31 @@ from aes_planner.gaussians.numerics import (
     T_STOP,
     TILE,
 )
+
+
+def _choose_threading_layer() -> None:
+    """TBB first, then numba's workqueue; OpenMP last. On these VMs workqueue's sleeping workers
+    wake up to ~1.5 ms late (one thread did a single view's tiles alone), and OpenMP's spinning
+    threads fight torch's and any busy neighbour (a view's forward+backward 2.7-5.6x slower); TBB
+    is fast idle and does not spin against a neighbour (figures: docs/benchmarks.md, "Threading
+    layer"). pip puts oneTBB's libtbb.so.12 in the environment's lib/, off the loader's path:
+    loaded here by its path so that numba's TBB pool finds it. An explicit
+    NUMBA_THREADING_LAYER wins."""
+    if "NUMBA_THREADING_LAYER" in os.environ:
+        return
+    for base in dict.fromkeys((sys.prefix, site.getuserbase(), sys.base_prefix)):
+        path = os.path.join(base, "lib", "libtbb.so.12")
+        if os.path.exists(path):
+            try:
+                ctypes.CDLL(path, mode=ctypes.RTLD_GLOBAL)
+            except OSError:
+                continue
+            break
+    numba.config.THREADING_LAYER_PRIORITY = ["tbb", "workqueue", "omp"]
+    numba.config.THREADING_LAYER = "default"
+
+
+_choose_threading_layer()
 
 HALF_TILE = TILE // 2  # lanes of a narrow row window in the forward
 # Value channels + depth from which the channel loops go innermost (only contributing pixels
