@@ -35,6 +35,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--json", metavar="OUT", help="write the suggestions as JSON")
     p.add_argument("--out", metavar="DIR", help="write the report image (report.png) into DIR")
+    p.add_argument(
+        "--threads",
+        type=int,
+        metavar="N",
+        help="CPU threads for torch and the rasterizer (default: all cores; 1 is steadier beside busy processes)",
+    )
     p.set_defaults(func=run)
 
 
@@ -87,6 +93,12 @@ def run(args: argparse.Namespace) -> int:
 
     if args.top is not None and args.top < 1:
         raise SearchError(f"--top must be at least 1, got {args.top}")
+    if args.threads is not None:
+        if not 1 <= args.threads <= 256:
+            raise SearchError(f"--threads must be in [1, 256], got {args.threads}")
+        from aes_planner.threads import set_threads
+
+        set_threads(args.threads)
     from aes_planner.paths import output_file, output_folder
 
     if args.json:  # a bad destination fails before the search, not after it

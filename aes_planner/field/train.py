@@ -44,6 +44,7 @@ from aes_planner.geometry.poses import LocalFrame
 from aes_planner.reconstruct import SplatSet
 from aes_planner.sources import SceneSource
 from aes_planner.teachers import Teacher, get_teacher
+from aes_planner.threads import set_threads
 
 __all__ = ["EVAL_SEED_END", "TRAIN_SEED_START", "TrainConfig", "build_cache", "load_sample", "train"]
 
@@ -326,17 +327,6 @@ def _world() -> tuple[int, int]:
     if dist.is_initialized():
         return dist.get_rank(), dist.get_world_size()
     return 0, 1
-
-
-def set_threads(n: int) -> None:
-    """CPU threads for torch and the numba rasterizer in this process."""
-    torch.set_num_threads(n)
-    try:
-        import numba
-
-        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
-    except ImportError:  # the torch backend needs no numba
-        pass
 
 
 def _lr(config: TrainConfig, step: int) -> float:

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from collections import deque
 from collections.abc import Mapping
@@ -53,6 +54,7 @@ from aes_planner.messages import (
 from aes_planner.node.base import LaunchContext, Node, NodeError, Outputs, percentile
 from aes_planner.node.proposer import FieldProposer, Proposer
 from aes_planner.sources import DroneBox, Platform
+from aes_planner.threads import set_threads
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +105,10 @@ class PlannerConfig:
     * ``mode``: ``auto`` (the platform given or the scene's), ``rig`` or ``free`` (a drone; on a
       rig scene, a box around the rig's base).
     * ``seed``: for the search's sampling.
+    * ``threads``: CPU threads for the planner's torch and numba work (torch's count is
+      process-wide); 0 = torch's default, all cores. 1 keeps a suggestion steady beside busy
+      processes (``balanced``, 2 cores, one busy process beside: 0.86 s with 1 thread, 2.1 s with
+      2; idle 0.76 s against 0.62 s; docs/benchmarks.md, "Threading layer").
     """
 
     scorer: str = "field"
@@ -130,6 +136,7 @@ class PlannerConfig:
     drone: DroneBoxConfig | None = None
     mode: str = "auto"
     seed: int = 0
+    threads: int = 0
 
     def __post_init__(self):
         require(self.scorer in ("field", "rgb"), "scorer", f"must be 'field' or 'rgb', got {self.scorer!r}")
@@ -138,7 +145,7 @@ class PlannerConfig:
             "preset",
             f"must be fast, balanced or accurate, got {self.preset!r}",
         )
-        for name in ("explore_views", "max_moves", "top_k", "max_frames"):
+        for name in ("explore_views", "max_moves", "top_k", "max_frames", "threads"):
             v = getattr(self, name)
             require(
                 isinstance(v, int) and not isinstance(v, bool) and v >= 0, name, f"must be an integer >= 0, got {v!r}"
@@ -148,7 +155,7 @@ class PlannerConfig:
 
         # a suggestion message holds at most MAX_CANDIDATES (more failed every publish)
         require(self.top_k <= MAX_CANDIDATES, "top_k", f"must be <= {MAX_CANDIDATES}, got {self.top_k}")
-        for name, most in (("explore_views", 64), ("max_moves", 10_000), ("max_frames", 1024)):
+        for name, most in (("explore_views", 64), ("max_moves", 10_000), ("max_frames", 1024), ("threads", 256)):
             v = getattr(self, name)
             require(v <= most, name, f"must be <= {most}, got {v}")
         require(self.max_frames >= 2, "max_frames", f"must be >= 2, got {self.max_frames}")
@@ -268,6 +275,7 @@ class PlannerNode(Node):
             0,
         )
         self.latencies_s: deque[float] = deque(maxlen=256)
+        self._threads_set_in: int | None = None  # ident of the thread whose numba count was set
         self._intrinsics = None
         self._frame: PosedFrame | None = None  # newest accepted frame
         self._gimbal: GimbalState | None = None  # newest gimbal state
@@ -310,6 +318,9 @@ class PlannerNode(Node):
         out: Outputs = {"gimbal/command": [], "planner/suggestion": [], "planner/diagnostics": []}
         if self.proposer is None:
             self.start()
+        if self.config.threads and self._threads_set_in != threading.get_ident():
+            set_threads(self.config.threads)  # numba's count is per thread: set where the steps run
+            self._threads_set_in = threading.get_ident()
         if self.started_s is None:
             self.started_s = now
         self._take_inputs(inputs)

@@ -90,6 +90,8 @@ def out_cases(w):
         (["suggest", w / "nowhere", "--json", w / "a_file" / "x.json"], "not a folder"),
         (["suggest", w / "nowhere", "--out", w / "a_file"], "not a folder"),
         (["suggest", w / "nowhere", "--out", w / "a_file" / "o"], "cannot create"),
+        (["suggest", w / "nowhere", "--threads", "0"], "--threads"),
+        (["suggest", w / "nowhere", "--threads", "100000"], "--threads"),
         (["eval", "search", "--scene", "indoor:1", "--json", w], "is a folder"),
         (["eval", "search", "--scene", "indoor:1", "--out", w / "a_file"], "not a folder"),
         (["eval", "field", "--scene", "indoor:1", "--out", w / "a_file"], "not a folder"),

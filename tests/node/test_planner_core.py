@@ -187,3 +187,30 @@ def test_config_errors_name_the_key():
         PlannerConfig(scorer="gt")
     with pytest.raises(ConfigError, match="margin"):
         PlannerConfig(margin=float("nan"))
+    for bad in (-1, 257, 1.5, True):
+        with pytest.raises(ConfigError, match="threads"):
+            PlannerConfig(threads=bad)
+
+
+def test_threads_knob_applies_in_the_stepping_thread():
+    """``threads`` sets torch's count (process-wide) and numba's in the thread that steps."""
+    import threading
+
+    import numba
+    import torch
+
+    before = torch.get_num_threads()
+    seen = {}
+
+    def step_once():
+        node = make(threads=1)
+        node.step({}, 100.0)
+        seen["torch"], seen["numba"] = torch.get_num_threads(), numba.get_num_threads()
+
+    try:
+        t = threading.Thread(target=step_once)
+        t.start()
+        t.join()
+        assert seen == {"torch": 1, "numba": 1}
+    finally:
+        torch.set_num_threads(before)
