@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
     if args.threads is not None:
         if not 1 <= args.threads <= 256:
             raise SearchError(f"--threads must be in [1, 256], got {args.threads}")
-        from aes_planner.threads import set_threads
+        from aes_planner.runtime import set_threads
 
         set_threads(args.threads)
     from aes_planner.paths import output_file, output_folder

@@ -35,8 +35,8 @@ def run(args: argparse.Namespace) -> int:
 
     from aes_planner.config import ConfigError, load_yaml
     from aes_planner.field.train import build_cache, load_config, train
+    from aes_planner.runtime import set_threads
     from aes_planner.sim import SimSource
-    from aes_planner.threads import set_threads
 
     data = load_yaml(args.config) if args.config else {}
     for key, value in (("teacher", args.teacher), ("teacher_weights", args.weights), ("steps", args.steps)):

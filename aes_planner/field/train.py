@@ -42,9 +42,9 @@ from aes_planner.field.protocol import SOURCES, plan_views
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.poses import LocalFrame
 from aes_planner.reconstruct import SplatSet
+from aes_planner.runtime import set_threads
 from aes_planner.sources import SceneSource
 from aes_planner.teachers import Teacher, get_teacher
-from aes_planner.threads import set_threads
 
 __all__ = ["EVAL_SEED_END", "TRAIN_SEED_START", "TrainConfig", "build_cache", "load_sample", "train"]
 

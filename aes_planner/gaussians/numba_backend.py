@@ -59,7 +59,9 @@ def _load():
     if _kernels is None and _import_error is None:
         try:
             from aes_planner.gaussians import _kernels as k
+            from aes_planner.runtime import tune_malloc
 
+            tune_malloc()  # before the first kernel's buffers (aes_planner.runtime says why)
             _kernels = k
         except ImportError as exc:  # numba missing or broken
             _import_error = f"{type(exc).__name__}: {exc}"

@@ -53,8 +53,8 @@ from aes_planner.messages import (
 )
 from aes_planner.node.base import LaunchContext, Node, NodeError, Outputs, percentile
 from aes_planner.node.proposer import FieldProposer, Proposer
+from aes_planner.runtime import set_threads
 from aes_planner.sources import DroneBox, Platform
-from aes_planner.threads import set_threads
 
 log = logging.getLogger(__name__)
 

@@ -1,0 +1,73 @@
+"""Process-wide runtime settings for the compute: CPU threads (torch's intra-op pool and numba's
+rasterizer) and glibc malloc's thresholds.
+
+* **Threads.** On a 2-core machine with another busy process, torch's OpenMP threads spin
+  against it and a ``balanced`` suggestion takes about 2.5x longer with 2 threads than with 1;
+  idle, 2 threads are faster. The planner node and ``aes-planner suggest`` take the count as a
+  knob (``threads``, 0 = torch's default: all cores).
+* **malloc.** glibc serves large blocks with fresh ``mmap`` pages and raises that threshold as
+  blocks are freed, so the same array is sometimes fresh pages, sometimes recycled heap.
+  Fresh pages first touched by both threads of a parallel kernel (the rasterizer's per-thread
+  gradient buffers) fault under one lock, and freeing them flushes the other core's TLB: a
+  view's forward+backward flipped between 8 and 12-13 ms within one process. Fixed thresholds
+  keep such blocks on the heap.
+
+Figures: docs/benchmarks.md, "Threading layer".
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import os
+import sys
+
+import torch
+
+__all__ = ["set_threads", "tune_malloc"]
+
+log = logging.getLogger(__name__)
+
+# glibc's mallopt parameters (malloc.h); 32 MiB is the largest mmap threshold glibc accepts on
+# 64-bit systems
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+MMAP_THRESHOLD_BYTES = 32 << 20
+TRIM_THRESHOLD_BYTES = 64 << 20
+_tuned: bool | None = None
+
+
+def set_threads(n: int) -> None:
+    """Use ``n`` CPU threads: torch's for the whole process, numba's for the calling thread (numba
+    counts per thread, so call it from the thread that renders)."""
+    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+        raise ValueError(f"threads: must be an integer >= 1, got {n!r}")
+    torch.set_num_threads(n)
+    try:
+        import numba
+    except ImportError:  # the torch backend needs no numba
+        return
+    numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+
+
+def tune_malloc() -> bool:
+    """Fix glibc malloc's mmap threshold at 32 MiB and its trim threshold at 64 MiB, once per
+    process. Left alone when ``MALLOC_MMAP_THRESHOLD_`` or ``MALLOC_TRIM_THRESHOLD_`` is set
+    (the caller's choice) and off glibc Linux. Returns whether the thresholds are ours."""
+    global _tuned
+    if _tuned is not None:
+        return _tuned
+    _tuned = False
+    if not sys.platform.startswith("linux") or any(
+        name in os.environ for name in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
+    ):
+        return _tuned
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):  # not glibc
+        return _tuned
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    _tuned = bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) and bool(
+        mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES)
+    )
+    log.debug("malloc thresholds %s", "fixed" if _tuned else "left to glibc (mallopt refused)")
+    return _tuned
