@@ -103,3 +103,20 @@ def clean_error(deadline):
         return info.value
 
     return run
+
+
+@pytest.fixture
+def no_unpickling(monkeypatch):
+    """Any unpickling after this fixture (pickle's, torch.load's, weights-only or not) fails the test:
+    for loaders that must refuse a pickle-based file without reading it."""
+    import pickle
+
+    import torch._weights_only_unpickler as wou
+
+    def never(*args, **kwargs):
+        pytest.fail("something was unpickled")
+
+    for owner, name in ((pickle, "Unpickler"), (pickle, "load"), (pickle, "loads"), (wou, "Unpickler")):
+        monkeypatch.setattr(owner, name, never)
+    monkeypatch.setattr(torch, "load", never)
+    monkeypatch.setattr(torch.serialization, "load", never)
