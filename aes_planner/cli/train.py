@@ -1,6 +1,6 @@
 """``aes-planner train``: distil the aesthetic field from a teacher on procedurally generated scenes.
 
-Builds (or reuses) the sample cache, then trains; ``--resume`` continues from ``OUT/last.pt``.
+Builds (or reuses) the sample cache, then trains; ``--resume`` continues from ``OUT/last.npz``.
 Training scenes are the simulator's families at seeds >= 1000; evaluation uses seeds < 1000.
 """
 
@@ -18,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", metavar="FILE", help="YAML with TrainConfig fields (see aes_planner.field.train)")
     p.add_argument("--out", metavar="DIR", default="runs/field", help="checkpoints go here (default runs/field)")
     p.add_argument("--cache", metavar="DIR", default=".cache/field", help="sample cache (default .cache/field)")
-    p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/last.npz")
     p.add_argument("--teacher", metavar="NAME", help="teacher to distil (overrides the config)")
     p.add_argument("--weights", metavar="FILE", help="the teacher's weights (e.g. VEN)")
     p.add_argument("--steps", type=int, help="training steps (overrides the config)")
@@ -79,5 +79,5 @@ def run(args: argparse.Namespace) -> int:
         val_samples=val,
         progress=lambda it: tqdm(it, desc="train", unit="step"),
     )
-    print(f"wrote {Path(args.out) / 'model.pt'} (resumable: {Path(args.out) / 'last.pt'})")
+    print(f"wrote {Path(args.out) / 'model.npz'} (resumable: {Path(args.out) / 'last.npz'})")
     return 0

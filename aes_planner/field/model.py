@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import logging
 import math
-import pickle
 from dataclasses import asdict, dataclass, field, replace
 from importlib import resources
 from pathlib import Path
@@ -43,6 +42,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from aes_planner import tensorfile
 from aes_planner.config import from_dict, require, short_repr
 from aes_planner.errors import AesPlannerError
 from aes_planner.field.common import ScorerConfig, local_world2cam, render_intrinsics
@@ -65,6 +65,8 @@ __all__ = [
     "ModelError",
     "load_model",
     "opponent",
+    "read_checkpoint",
+    "write_checkpoint",
 ]
 
 log = logging.getLogger(__name__)
@@ -74,8 +76,10 @@ CHECKPOINT_FORMAT = 1
 MAX_ABS_WEIGHT = 1e4
 #: The shipped checkpoints, package data of ``aes_planner.field``: the field, and the same
 #: trained without view conditioning (the ablation of ``aes-planner eval field``).
-DEFAULT_CHECKPOINT = "default_field.pt"
-NOCOND_CHECKPOINT = "default_field_nocond.pt"
+DEFAULT_CHECKPOINT = "default_field.npz"
+NOCOND_CHECKPOINT = "default_field_nocond.npz"
+#: Largest total array size a checkpoint file may hold (the shipped one is ~230 KB).
+MAX_CHECKPOINT_BYTES = 2**30
 _GEOM = 8  # geometry cues per Gaussian
 _COND = 2  # view-conditioning channels per pixel (cosine to the source view, inverse depth)
 _EPS = 1e-6
@@ -191,7 +195,7 @@ class FieldModel(nn.Module):
 
     # ------------------------------------------------------------------ checkpoints
     def checkpoint(self, extra: dict | None = None) -> dict:
-        """A ``torch.save``-able dict of tensors and plain values (loads with ``weights_only=True``)."""
+        """A dict of tensors and plain values, for :func:`write_checkpoint` / :func:`read_checkpoint`."""
         from aes_planner import __version__
 
         return {
@@ -254,28 +258,32 @@ class FieldModel(nn.Module):
 
 
 def read_checkpoint(path: str | Path) -> dict:
-    """``torch.load(path, weights_only=True)`` with every failure (missing, truncated, not a
-    checkpoint, objects beyond plain weights) as a :class:`ModelError` naming the file."""
+    """The dict of a checkpoint file written by :func:`write_checkpoint` (an
+    :mod:`aes_planner.tensorfile` ``.npz``, never unpickled), every failure (missing, truncated,
+    an old torch-format file, not a checkpoint) a :class:`ModelError` naming the file."""
     p = Path(path)
     if not p.is_file():
         raise ModelError(f"field checkpoint {p} does not exist; train one with `aes-planner train --out DIR`")
     try:
-        ckpt = torch.load(p, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError:
-        raise ModelError(
-            f"{p} is not a weights-only field checkpoint (it is damaged or holds Python objects, which are never "
-            "unpickled); retrain with `aes-planner train`"
-        ) from None
-    except Exception as exc:  # the unpickler's own errors on damaged bytes (struct.error, EOFError, ...)
-        raise ModelError(f"{p} is not a readable field checkpoint ({type(exc).__name__}: {str(exc)[:120]})") from None
+        ckpt = tensorfile.load(p, max_bytes=MAX_CHECKPOINT_BYTES)
+    except tensorfile.LegacyTorchFileError as exc:
+        raise ModelError(f"{exc}; retrain with `aes-planner train`") from None
+    except tensorfile.TensorFileError as exc:
+        raise ModelError(f"not a readable field checkpoint: {exc}; retrain with `aes-planner train`") from None
     if not isinstance(ckpt, dict):
         raise ModelError(f"{p}: not an aes-planner field checkpoint; retrain with `aes-planner train`")
     return ckpt
 
 
+def write_checkpoint(path: str | Path, ckpt: dict) -> Path:
+    """Write a checkpoint dict (:meth:`FieldModel.checkpoint`, plus e.g. the optimizer's state)
+    atomically as an :mod:`aes_planner.tensorfile` ``.npz``."""
+    return tensorfile.save(path, ckpt)
+
+
 def load_model(path: str | Path | None = None) -> FieldModel:
     """A :class:`FieldModel` from ``path`` (default: the shipped checkpoint; a bare name such as
-    ``NOCOND_CHECKPOINT`` picks another packaged one), ``weights_only=True``."""
+    ``NOCOND_CHECKPOINT`` picks another packaged one), read by :func:`read_checkpoint` (no pickle)."""
     if path is None or path in (DEFAULT_CHECKPOINT, NOCOND_CHECKPOINT):
         ref = resources.files("aes_planner.field").joinpath(path or DEFAULT_CHECKPOINT)
         if not ref.is_file():

@@ -371,9 +371,14 @@ def train(
     progress: Callable[[Iterable], Iterable] = lambda it: it,
     on_step: Callable[[int, float], None] | None = None,
 ) -> FieldModel:
-    """Train on cached ``samples``; writes ``out_dir/last.pt`` (resumable, with the optimiser)
-    and ``out_dir/model.pt`` (the model alone) every ``checkpoint_every`` steps and at the end.
+    """Train on cached ``samples``; writes ``out_dir/last.npz`` (resumable, with the optimiser)
+    and ``out_dir/model.npz`` (the model alone) every ``checkpoint_every`` steps and at the end.
     Returns the trained model."""
+    if resume and not (out_dir / "last.npz").exists() and (out_dir / "last.pt").exists():
+        raise CacheError(
+            f"{out_dir / 'last.pt'} was written by an older aes-planner in torch's pickle-based format, which is never "
+            "loaded; retrain with `aes-planner train` into another --out (or delete it to start over)"
+        )
     rank, world = _world()
     set_threads(config.threads)
     torch.manual_seed(config.seed)
@@ -385,7 +390,7 @@ def train(
     model.map_scale.copy_(torch.from_numpy(np.sqrt((maps**2).mean((0, 2, 3))) + 1e-8).float())
     opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     out_dir.mkdir(parents=True, exist_ok=True)
-    last = out_dir / "last.pt"
+    last = out_dir / "last.npz"
     start = 0
     if resume and last.exists():
         start = _resume(model, opt, last, config.steps)
@@ -430,7 +435,7 @@ def train(
 
 
 def _resume(model: FieldModel, opt, last: Path, steps: int) -> int:
-    """Load ``last.pt`` into ``model`` and ``opt``; returns its step. A checkpoint that is not ours,
+    """Load ``last.npz`` into ``model`` and ``opt``; returns its step. A checkpoint that is not ours,
     damaged, of another architecture or already past ``steps`` is a :class:`CacheError`."""
     from aes_planner.field.model import ModelError, read_checkpoint
 
@@ -499,13 +504,10 @@ def _save(model: FieldModel, opt, config: TrainConfig, step: int, out_dir: Path,
         log.info("step %d: %s", step, metrics)
         with open(out_dir / "metrics.jsonl", "a") as f:
             f.write(json.dumps({"step": step, "seconds": round(seconds, 1), **metrics}) + "\n")
-    for name, payload in (
-        ("model.pt", model.checkpoint(extra)),
-        ("last.pt", {**model.checkpoint(extra), "optimizer": opt.state_dict()}),
-    ):
-        tmp = out_dir / (name + ".tmp")
-        torch.save(payload, tmp)
-        tmp.replace(out_dir / name)
+    from aes_planner.field.model import write_checkpoint
+
+    write_checkpoint(out_dir / "model.npz", model.checkpoint(extra))  # each written atomically
+    write_checkpoint(out_dir / "last.npz", {**model.checkpoint(extra), "optimizer": opt.state_dict()})
     log.info("step %d: checkpoint in %s", step, out_dir)
 
 

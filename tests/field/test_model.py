@@ -1,5 +1,5 @@
 """The aesthetic field: finite, differentiable scores in every corner case, incremental updates,
-checkpoints that load weights-only."""
+checkpoints that load without pickle."""
 
 import math
 
@@ -9,7 +9,14 @@ import torch
 import torch.nn.functional as F
 
 from aes_planner.field import AestheticField, ScorerConfig, ScorerError
-from aes_planner.field.model import FieldModel, FieldModelConfig, ModelError, load_model
+from aes_planner.field.model import (
+    FieldModel,
+    FieldModelConfig,
+    ModelError,
+    load_model,
+    read_checkpoint,
+    write_checkpoint,
+)
 from aes_planner.geometry.poses import view_to_cam2world
 from aes_planner.teachers import get_teacher
 
@@ -98,17 +105,34 @@ def test_add_frame_bumps_version_and_keeps_memory_bounded(model, teacher, rig_so
         fld.add_frame("not a frame")
 
 
-def test_checkpoint_round_trip_weights_only(model, tmp_path):
-    path = tmp_path / "m.pt"
-    torch.save(model.checkpoint({"note": "test"}), path)
+def test_checkpoint_round_trip_without_pickle(model, tmp_path):
+    path = write_checkpoint(tmp_path / "m.npz", model.checkpoint({"note": "test"}))
     loaded = load_model(path)
     for (k, a), b in zip(model.state_dict().items(), loaded.state_dict().values()):
-        assert torch.equal(a, b), k
-    torch.save({"format": 99}, tmp_path / "bad.pt")
+        assert torch.equal(a, b) and a.dtype == b.dtype, k
+    assert read_checkpoint(path)["note"] == "test"
+    write_checkpoint(tmp_path / "bad.npz", {"format": 99})
     with pytest.raises(ModelError, match="format"):
-        load_model(tmp_path / "bad.pt")
+        load_model(tmp_path / "bad.npz")
     with pytest.raises(ModelError, match="does not exist"):
-        load_model(tmp_path / "missing.pt")
+        load_model(tmp_path / "missing.npz")
+
+
+@pytest.mark.parametrize("zip_format", [True, False])
+def test_old_torch_checkpoint_is_refused_unread(model, tmp_path, request, zip_format):
+    old = tmp_path / "model.pt"
+    torch.save(model.checkpoint(), old, _use_new_zipfile_serialization=zip_format)
+    request.getfixturevalue("no_unpickling")
+    with pytest.raises(ModelError, match=r"older aes-planner in torch's pickle-based format.*aes-planner train"):
+        load_model(old)
+
+
+def test_packaged_checkpoints_load():
+    from aes_planner.field.model import DEFAULT_CHECKPOINT, NOCOND_CHECKPOINT
+
+    assert DEFAULT_CHECKPOINT.endswith(".npz") and NOCOND_CHECKPOINT.endswith(".npz")
+    on, off = load_model(), load_model(NOCOND_CHECKPOINT)
+    assert on.config.condition and not off.config.condition
 
 
 def test_teacher_mismatch_is_refused(model):

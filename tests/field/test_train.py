@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 import torch
 
-from aes_planner.field.model import DEFAULT_CHECKPOINT, FieldModel, load_model
+from aes_planner import tensorfile
+from aes_planner.field.model import DEFAULT_CHECKPOINT, FieldModel, load_model, read_checkpoint
 from aes_planner.field.train import (
     TRAIN_SEED_START,
     VAL_SEED_START,
@@ -76,8 +77,9 @@ def test_short_training_lowers_the_loss_and_resumes(cache, tmp_path):
 
     first = train(load_config({**TINY, "steps": 20}), train_files, tmp_path, val_samples=val_files)
     train(cfg, train_files, tmp_path, resume=True)
-    out = tmp_path / "model.pt"
-    ckpt = torch.load(out, weights_only=True)
+    out = tmp_path / "model.npz"
+    ckpt = read_checkpoint(out)
+    assert "optimizer" in read_checkpoint(tmp_path / "last.npz") and "optimizer" not in ckpt
     assert ckpt["step"] == 30 and ckpt["teacher"] == "composition" and "code_version" in ckpt
     assert ckpt["train_config"]["steps"] == 30
     fresh = FieldModel(first.config, 4, (16, 16), "composition")
@@ -91,14 +93,15 @@ def test_torchrun_replicas_stay_identical(cache, tmp_path):
     train_files, _ = cache
     script = tmp_path / "ddp.py"
     script.write_text(
-        "import os, sys, torch\n"
+        "import os, sys\n"
+        "from aes_planner import tensorfile\n"
         "from pathlib import Path\n"
         "from aes_planner.field import train as T\n"
         f"cfg = T.load_config({{**{TINY!r}, 'steps': 4, 'checkpoint_every': 100}})\n"
         f"files = [Path(p) for p in {[str(p) for p in train_files]!r}]\n"
         "out = Path(sys.argv[1])\n"
         "model = T.train(cfg, files, out / os.environ['RANK'])\n"
-        "torch.save(model.state_dict(), out / f\"rank{os.environ['RANK']}.pt\")\n"
+        "tensorfile.save(out / f\"rank{os.environ['RANK']}.npz\", dict(model.state_dict()))\n"
     )
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     with socket.socket() as sock:  # a free port: two suites running at once must not meet
@@ -107,8 +110,8 @@ def test_torchrun_replicas_stay_identical(cache, tmp_path):
     cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--master_addr", "127.0.0.1"]
     cmd += ["--master_port", str(port)]
     subprocess.run([*cmd, str(script), str(tmp_path)], check=True, env=env, timeout=600, capture_output=True)
-    a = torch.load(tmp_path / "rank0.pt", weights_only=True)
-    b = torch.load(tmp_path / "rank1.pt", weights_only=True)
+    a = tensorfile.load(tmp_path / "rank0.npz")
+    b = tensorfile.load(tmp_path / "rank1.npz")
     assert all(torch.equal(a[k], b[k]) for k in a)
     fresh = FieldModel(load_config(TINY).model, 4, (16, 16), "composition").state_dict()
     assert not torch.equal(a["embed.0.weight"], fresh["embed.0.weight"])  # they trained, and agree
