@@ -11,13 +11,14 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from aes_planner import tensorfile
 from aes_planner.errors import AesPlannerError
 
 __all__ = ["Gaussians", "GaussianError"]
 
 log = logging.getLogger(__name__)
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: an aes_planner.tensorfile .npz (1 was torch.save's pickle-based format)
 # Float fields follow the container's dtype; provenance fields are always int32.
 _FLOAT_FIELDS = ("means", "quats", "log_scales", "opacities", "colors", "features")
 _INT_FIELDS = ("source_frame", "source_pixel")
@@ -217,34 +218,41 @@ class Gaussians:
 
     # ------------------------------------------------------------------ files
     def save(self, path: str | Path) -> Path:
-        """Write the tensors (only tensors and a version number) with ``torch.save``."""
+        """Write the tensors and a version number as an :mod:`aes_planner.tensorfile` ``.npz``
+        (atomically; read back by :meth:`load`, never unpickled). Conventional suffix: ``.npz``."""
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
         data = {f: getattr(self, f).detach().cpu().contiguous() for f in _names()}
-        data["format_version"] = torch.tensor(FORMAT_VERSION)
-        torch.save(data, path)
+        tensorfile.save(path, {"format_version": FORMAT_VERSION, **data})
         log.debug("saved %d Gaussians to %s", len(self), path)
         return path
 
     @classmethod
     def load(cls, path: str | Path, device: str | torch.device = "cpu") -> Gaussians:
-        """Read a file written by :meth:`save` (``weights_only=True``: no code is unpickled)."""
+        """Read a file written by :meth:`save` (``np.load(allow_pickle=False)``: nothing is unpickled;
+        an old ``torch.save`` file is refused)."""
         path = Path(path)
+        if not path.exists():
+            raise GaussianError(f"{path}: no such Gaussians file")
         try:
-            data = torch.load(path, map_location=device, weights_only=True)
-        except FileNotFoundError:
-            raise GaussianError(f"{path}: no such Gaussians file") from None
-        except Exception as exc:
-            raise GaussianError(f"{path}: not a Gaussians file written by Gaussians.save ({exc})") from None
+            data = tensorfile.load(path)
+        except tensorfile.LegacyTorchFileError as exc:
+            raise GaussianError(f"{exc}; save the Gaussians again with Gaussians.save") from None
+        except tensorfile.TensorFileError as exc:
+            raise GaussianError(f"not a Gaussians file written by Gaussians.save: {exc}") from None
         if not isinstance(data, dict) or "format_version" not in data:
             raise GaussianError(f"{path}: not a Gaussians file written by Gaussians.save")
-        version = int(data.pop("format_version"))
-        if version != FORMAT_VERSION:
-            raise GaussianError(f"{path}: Gaussians format version {version}, this package reads {FORMAT_VERSION}")
+        version = data.pop("format_version")
+        if type(version) is not int or version != FORMAT_VERSION:
+            raise GaussianError(
+                f"{path}: Gaussians format version {str(version)[:20]}, this package reads {FORMAT_VERSION}"
+            )
         missing = [f for f in _names() if f not in data]
         if missing:
             raise GaussianError(f"{path}: Gaussians file lacks {missing}")
-        return cls(**{f: data[f] for f in _names()})
+        bad = [f for f in _names() if not isinstance(data[f], torch.Tensor)]
+        if bad:
+            raise GaussianError(f"{path}: Gaussians file entries {bad} are not tensors")
+        return cls(**{f: data[f].to(device) for f in _names()})
 
     def __repr__(self) -> str:
         return f"Gaussians(N={len(self)}, C={self.num_channels}, dtype={self.dtype}, device={self.device})"

@@ -1,10 +1,14 @@
 """The Gaussians container: validation, concatenation, indexing, dtype moves, files."""
 
+import numpy as np
 import pytest
 import torch
 
+from aes_planner import tensorfile
 from aes_planner.errors import AesPlannerError
 from aes_planner.gaussians import GaussianError, Gaussians, random_scene
+
+_FIELDS = ("means", "quats", "log_scales", "opacities", "colors", "features", "source_frame", "source_pixel")
 
 
 def make(n=5, c=2, dtype=torch.float32):
@@ -89,7 +93,7 @@ def test_to_changes_float_fields_only():
 def test_save_load_round_trip(tmp_path):
     g = make(6, c=3)
     g.source_frame[:] = torch.arange(6, dtype=torch.int32)
-    path = g.save(tmp_path / "scene.pt")
+    path = g.save(tmp_path / "scene.npz")
     back = Gaussians.load(path)
     for f in ("means", "quats", "log_scales", "opacities", "colors", "features", "source_frame", "source_pixel"):
         assert torch.equal(getattr(back, f), getattr(g, f)), f
@@ -97,13 +101,33 @@ def test_save_load_round_trip(tmp_path):
 
 def test_load_rejects_other_files(tmp_path):
     with pytest.raises(GaussianError, match="no such"):
-        Gaussians.load(tmp_path / "missing.pt")
-    torch.save({"weights": torch.zeros(3)}, tmp_path / "other.pt")
+        Gaussians.load(tmp_path / "missing.npz")
+    tensorfile.save(tmp_path / "other.npz", {"weights": torch.zeros(3)})
     with pytest.raises(GaussianError, match="not a Gaussians file"):
-        Gaussians.load(tmp_path / "other.pt")
-    (tmp_path / "junk.pt").write_bytes(b"not a pickle")
+        Gaussians.load(tmp_path / "other.npz")
+    (tmp_path / "junk.npz").write_bytes(b"not a pickle")
     with pytest.raises(GaussianError, match="not a Gaussians file"):
-        Gaussians.load(tmp_path / "junk.pt")
+        Gaussians.load(tmp_path / "junk.npz")
+    g = make(4)
+    tensorfile.save(tmp_path / "v1.npz", {**{f: getattr(g, f) for f in _FIELDS}, "format_version": 1})
+    with pytest.raises(GaussianError, match="version 1"):
+        Gaussians.load(tmp_path / "v1.npz")
+    tensorfile.save(
+        tmp_path / "arr.npz", {**{f: getattr(g, f) for f in _FIELDS}, "means": np.zeros((4, 3)), "format_version": 2}
+    )
+    with pytest.raises(GaussianError, match="not tensors"):
+        Gaussians.load(tmp_path / "arr.npz")
+
+
+@pytest.mark.parametrize("zip_format", [True, False])
+def test_load_refuses_old_torch_files_without_unpickling(tmp_path, request, zip_format):
+    g = make(3)
+    old = tmp_path / "scene.pt"
+    data = {**{f: getattr(g, f) for f in _FIELDS}, "format_version": torch.tensor(1)}
+    torch.save(data, old, _use_new_zipfile_serialization=zip_format)
+    request.getfixturevalue("no_unpickling")
+    with pytest.raises(GaussianError, match="older aes-planner in torch's pickle-based format.*Gaussians.save"):
+        Gaussians.load(old)
 
 
 def test_from_logits_and_empty():
