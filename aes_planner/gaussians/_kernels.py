@@ -524,6 +524,53 @@ def _add_pixel_major(acc, start, lanes, wbuf, vals, g, z, zero):
             acc[base + np.uint64(cv)] += w * z
 
 
+@njit(inline="always", **_fast)
+def _tile_origin(tile, tiles_x, consts):
+    """The tile's first pixel (tx0, ty0) and its pixel centres ys [TILE], xs [TILE]."""
+    tx0 = (tile % tiles_x) * TILE
+    ty0 = (tile // tiles_x) * TILE
+    return tx0, ty0, _pixel_centres(ty0, TILE, consts), _pixel_centres(tx0, TILE, consts)
+
+
+@njit(inline="always", **_fast)
+def _splat(proj, b, g):
+    """One projected Gaussian's centre, conic and opacity and depth: (u, v, a, b, c, o, z)."""
+    return (
+        proj[b, g, P_U],
+        proj[b, g, P_V],
+        proj[b, g, P_A],
+        proj[b, g, P_B],
+        proj[b, g, P_C],
+        proj[b, g, P_O],
+        proj[b, g, P_Z],
+    )
+
+
+@njit(inline="always", **_fast)
+def _tile_rows(box, b, g, ty0):
+    """The tile rows [first, stop) that Gaussian g's box covers."""
+    return max(box[b, g, 2], ty0) - ty0, min(box[b, g, 3], ty0 + TILE - 1) - ty0 + 1
+
+
+@njit(inline="always", **_fast)
+def _row_terms(ys, py, v, cb, hc, w0):
+    """A row's offset from the centre dy, its conic terms b dy and c dy^2 / 2, and the row's first
+    window pixel."""
+    dy = ys[py] - v
+    return dy, cb * dy, hc * dy * dy, np.uint64(py * TILE) + w0
+
+
+@njit(inline="always", **_fast)
+def _row_window(box, b, g, tx0):
+    """The lanes of a tile row walked for Gaussian g (forward and backward): HALF_TILE from
+    min(box x0, TILE - HALF_TILE) when its columns in the tile fit in them (most Gaussians), else
+    the whole row. Returns (lanes, first lane)."""
+    jb0 = max(box[b, g, 0], tx0) - tx0
+    jb1 = min(box[b, g, 1], tx0 + TILE - 1) - tx0
+    narrow = jb1 - jb0 < HALF_TILE
+    return (HALF_TILE if narrow else TILE), np.uint64(min(jb0, TILE - HALF_TILE) if narrow else 0)
+
+
 @njit(**_fast)
 def _raster_tile_fwd(
     b, tile, proj, box, vals, offsets, lists, tiles_x, width, height, consts, rgb, feat, dep, t_final, last
@@ -532,10 +579,7 @@ def _raster_tile_fwd(
     cv = vals.shape[1]
     zero, one, half = consts[C_ZERO], consts[C_ONE], consts[C_HALF]
     a_max, a_min, t_stop, s_clamp = consts[C_ALPHA_MAX], consts[C_ALPHA_MIN], consts[C_T_STOP], consts[C_EXP_CLAMP]
-    tx0 = (tile % tiles_x) * TILE
-    ty0 = (tile // tiles_x) * TILE
-    xs = _pixel_centres(tx0, TILE, consts)
-    ys = _pixel_centres(ty0, TILE, consts)
+    tx0, ty0, ys, xs = _tile_origin(tile, tiles_x, consts)
     trans = np.empty(TILE * TILE, consts.dtype)  # > 0 while compositing, -T once done
     # [channel, pixel] (lanes vectorised) for few channels; [pixel, channel] (channels vectorised,
     # only contributing pixels visited) for many
@@ -553,17 +597,10 @@ def _raster_tile_fwd(
         if (k - start) % DONE_CHECK_EVERY == DONE_CHECK_EVERY - 1 and _tile_active(trans, consts) == zero:
             break
         g = lists[k]
-        u, v = proj[b, g, P_U], proj[b, g, P_V]
-        ha, cb, hc = half * proj[b, g, P_A], proj[b, g, P_B], half * proj[b, g, P_C]
-        o, z = proj[b, g, P_O], proj[b, g, P_Z]
+        u, v, ca, cb, cc, o, z = _splat(proj, b, g)
+        ha, hc = half * ca, half * cc
         k_next = np.int32(k + 1)
-        # The row window: HALF_TILE lanes from w0 when the box's columns in the tile fit in them
-        # (most Gaussians), else the whole row.
-        jb0 = max(box[b, g, 0], tx0) - tx0
-        jb1 = min(box[b, g, 1], tx0 + TILE - 1) - tx0
-        narrow = jb1 - jb0 < HALF_TILE
-        lanes = HALF_TILE if narrow else TILE
-        w0 = np.uint64(min(jb0, TILE - HALF_TILE) if narrow else 0)
+        lanes, w0 = _row_window(box, b, g, tx0)
         py0, py1 = _tile_rows(box, b, g, ty0)
         for py in range(py0, py1):
             dy, bdy, crow, row = _row_terms(ys, py, v, cb, hc, w0)
@@ -648,15 +685,6 @@ def raster_fwd(proj, box, vals, offsets, lists, tiles_x, width, height, consts, 
 
 
 # ---------------------------------------------------------------------------- 5. backward raster
-@njit(**_fast)
-def _lane_sum(buf, q):
-    """Sum of the TILE lanes of quantity q in a [quantity, lane] buffer."""
-    s = buf[q * TILE]
-    for j in range(1, TILE):
-        s += buf[q * TILE + j]
-    return s
-
-
 # Many channels (pixel-major): the values of the Gaussians behind a pixel enter d loss / d alpha
 # only through their dot product with the pixel's output gradient v: the value part of
 #   d loss / d alpha_i  is  T_i (c_i . v) - ((sum over j behind i of w_j c_j) . v) / (1 - alpha_i),
@@ -683,58 +711,12 @@ def _lane_sum_at(buf, start):
 
 
 @njit(inline="always", **_fast)
-def _tile_origin(tile, tiles_x, consts):
-    """The tile's first pixel (tx0, ty0) and its pixel centres ys [TILE], xs [TILE]."""
-    tx0 = (tile % tiles_x) * TILE
-    ty0 = (tile // tiles_x) * TILE
-    return tx0, ty0, _pixel_centres(ty0, TILE, consts), _pixel_centres(tx0, TILE, consts)
-
-
-@njit(inline="always", **_fast)
-def _splat(proj, b, g):
-    """One projected Gaussian's centre, conic and opacity and depth: (u, v, a, b, c, o, z)."""
-    return (
-        proj[b, g, P_U],
-        proj[b, g, P_V],
-        proj[b, g, P_A],
-        proj[b, g, P_B],
-        proj[b, g, P_C],
-        proj[b, g, P_O],
-        proj[b, g, P_Z],
-    )
-
-
-@njit(inline="always", **_fast)
-def _tile_rows(box, b, g, ty0):
-    """The tile rows [first, stop) that Gaussian g's box covers."""
-    return max(box[b, g, 2], ty0) - ty0, min(box[b, g, 3], ty0 + TILE - 1) - ty0 + 1
-
-
-@njit(inline="always", **_fast)
-def _row_terms(ys, py, v, cb, hc, w0):
-    """A row's offset from the centre dy, its conic terms b dy and c dy^2 / 2, and the row's first
-    window pixel."""
-    dy = ys[py] - v
-    return dy, cb * dy, hc * dy * dy, np.uint64(py * TILE) + w0
-
-
-@njit(inline="always", **_fast)
 def _bwd_init_trans(pix, npx, one):
     """Transmittances (running and final) start at one."""
     o_trans, o_tfin = np.uint64(S_TRANS * npx), np.uint64(S_TFIN * npx)
     for p in range(npx):
         pix[o_trans + np.uint64(p)] = one
         pix[o_tfin + np.uint64(p)] = one
-
-
-@njit(inline="always", **_fast)
-def _row_window(box, b, g, tx0):
-    """The lanes of a tile row the backward walks for Gaussian g: 8 from min(box x0, 8) when its
-    columns in the tile fit in 8, else all 16. Returns (lanes, first lane)."""
-    jb0 = max(box[b, g, 0], tx0) - tx0
-    jb1 = min(box[b, g, 1], tx0 + TILE - 1) - tx0
-    narrow = jb1 - jb0 < HALF_TILE
-    return (HALF_TILE if narrow else TILE), np.uint64(min(jb0, TILE - HALF_TILE) if narrow else 0)
 
 
 @njit(inline="always", **_fast)
@@ -952,10 +934,10 @@ def _bwd_tile(b, tile, splats, image, upstream, g2d, gvals, need_values, many):
         if many:
             g2d[b, g, G_Z] += acc[cv]
         else:
-            g2d[b, g, G_Z] += _lane_sum(acc, cv)
+            g2d[b, g, G_Z] += _lane_sum_at(acc, np.uint64(cv * TILE))
         if need_values:
             for c in range(cv):
-                gvals[g, c] += acc[c] if many else _lane_sum(acc, c)
+                gvals[g, c] += acc[c] if many else _lane_sum_at(acc, np.uint64(c * TILE))
 
 
 @njit(**_fast)
