@@ -24,7 +24,7 @@ import sys
 
 import torch
 
-__all__ = ["set_threads", "tune_malloc"]
+__all__ = ["MAX_THREADS", "set_threads", "tune_malloc"]
 
 log = logging.getLogger(__name__)
 
@@ -34,13 +34,15 @@ _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
 MMAP_THRESHOLD_BYTES = 32 << 20
 TRIM_THRESHOLD_BYTES = 64 << 20
 _tuned: bool | None = None
+#: Most CPU threads any setting may ask for (numba segfaulted at 100000).
+MAX_THREADS = 256
 
 
 def set_threads(n: int) -> None:
     """Use ``n`` CPU threads: torch's for the whole process, numba's for the calling thread (numba
     counts per thread, so call it from the thread that renders)."""
-    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
-        raise ValueError(f"threads: must be an integer >= 1, got {n!r}")
+    if not isinstance(n, int) or isinstance(n, bool) or not 1 <= n <= MAX_THREADS:
+        raise ValueError(f"threads: must be an integer in [1, {MAX_THREADS}], got {n!r}")
     torch.set_num_threads(n)
     try:
         import numba

@@ -94,10 +94,10 @@ def run(args: argparse.Namespace) -> int:
     if args.top is not None and args.top < 1:
         raise SearchError(f"--top must be at least 1, got {args.top}")
     if args.threads is not None:
-        if not 1 <= args.threads <= 256:
-            raise SearchError(f"--threads must be in [1, 256], got {args.threads}")
-        from aes_planner.runtime import set_threads
+        from aes_planner.runtime import MAX_THREADS, set_threads
 
+        if not 1 <= args.threads <= MAX_THREADS:
+            raise SearchError(f"--threads must be in [1, {MAX_THREADS}], got {args.threads}")
         set_threads(args.threads)
     from aes_planner.paths import output_file, output_folder
 

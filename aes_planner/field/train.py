@@ -42,7 +42,7 @@ from aes_planner.field.protocol import SOURCES, plan_views
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.poses import LocalFrame
 from aes_planner.reconstruct import SplatSet
-from aes_planner.runtime import set_threads
+from aes_planner.runtime import MAX_THREADS, set_threads
 from aes_planner.sources import SceneSource
 from aes_planner.teachers import Teacher, get_teacher
 
@@ -132,7 +132,7 @@ class TrainConfig:
         require(self.warmup_steps >= 0, "warmup_steps", f"must be >= 0, got {self.warmup_steps}")
         require(self.weight_decay >= 0, "weight_decay", f"must be >= 0, got {self.weight_decay}")
         require(0 <= self.seed < 2**31, "seed", f"must be in [0, 2^31), got {self.seed}")
-        require(1 <= self.threads <= 256, "threads", f"must be in [1, 256], got {self.threads}")
+        require(1 <= self.threads <= MAX_THREADS, "threads", f"must be in [1, {MAX_THREADS}], got {self.threads}")
 
     def make_teacher(self) -> Teacher:
         """The teacher this config distils (with its weights file, if any)."""

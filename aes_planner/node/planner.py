@@ -53,7 +53,7 @@ from aes_planner.messages import (
 )
 from aes_planner.node.base import LaunchContext, Node, NodeError, Outputs, percentile
 from aes_planner.node.proposer import FieldProposer, Proposer
-from aes_planner.runtime import set_threads
+from aes_planner.runtime import MAX_THREADS, set_threads
 from aes_planner.sources import DroneBox, Platform
 
 log = logging.getLogger(__name__)
@@ -155,7 +155,12 @@ class PlannerConfig:
 
         # a suggestion message holds at most MAX_CANDIDATES (more failed every publish)
         require(self.top_k <= MAX_CANDIDATES, "top_k", f"must be <= {MAX_CANDIDATES}, got {self.top_k}")
-        for name, most in (("explore_views", 64), ("max_moves", 10_000), ("max_frames", 1024), ("threads", 256)):
+        for name, most in (
+            ("explore_views", 64),
+            ("max_moves", 10_000),
+            ("max_frames", 1024),
+            ("threads", MAX_THREADS),
+        ):
             v = getattr(self, name)
             require(v <= most, name, f"must be <= {most}, got {v}")
         require(self.max_frames >= 2, "max_frames", f"must be >= 2, got {self.max_frames}")
