@@ -7,6 +7,7 @@ Pipeline per call (B cameras, N Gaussians, Cv = 3 + C value channels, tiles of T
    of the ``alpha >= 1/255`` ellipse (empty box = culled).
 3. ``bin_cameras`` / ``fill_lists``: per camera, a stable radix sort of the visible Gaussians by
    depth, then per-tile lists in that order (counting pass, prefix sum, fill): no per-tile sorts.
+   Cameras go to threads; a single camera splits in two (sort beside count, then two bands of fill).
 4. ``raster_fwd``: parallel over (camera, tile), tiles interleaved across threads. Each Gaussian
    of the tile's depth-sorted list visits only the tile rows of its ``alpha >= 1/255`` box; a row
    is one masked 8- or 16-lane vector (sigma, exp, alpha, transmittance, stop rule), then the
@@ -92,6 +93,10 @@ NPROJ = 7
 # Image-space gradients per (camera, Gaussian): mean2d, conic, opacity, depth.
 G_U, G_V, G_A, G_B, G_C, G_O, G_Z = range(7)
 NGRAD = 7
+# project_bwd's per-thread pose-gradient rows: 12 used, 8 float64 (one cache line) of padding, so
+# that two threads never write the same line (12 unpadded rows made the threads' read-modify-writes
+# bounce a shared line: 839 -> 696 us for 10k Gaussians on 2 threads, docs/rasterizer.md round 6).
+G_CAM_STRIDE = 20
 
 _opts = dict(cache=True, error_model="numpy")
 
@@ -166,34 +171,26 @@ def _covariance(quats, log_scales, n, cov):
 
 
 # ---------------------------------------------------------------------------- 2. projection
+@njit(**_opts)
 def camera_table(world2cam, K, width, height):
-    """Per-camera constants [B, NCAM] (float64, numpy): rotation (9), translation (3), fx, fy,
-    cx, cy and the clamp limits of x/z and y/z (+x, -x, +y, -y), computed once per call."""
-    fx, fy, cx, cy = K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2]
-    slack_x = FRUSTUM_SLACK * 0.5 * width / fx
-    slack_y = FRUSTUM_SLACK * 0.5 * height / fy
-    return np.ascontiguousarray(
-        np.concatenate(
-            [
-                world2cam[:, :3, :3].reshape(-1, 9),
-                world2cam[:, :3, 3],
-                np.stack(
-                    [
-                        fx,
-                        fy,
-                        cx,
-                        cy,
-                        (width - cx) / fx + slack_x,
-                        cx / fx + slack_x,
-                        (height - cy) / fy + slack_y,
-                        cy / fy + slack_y,
-                    ],
-                    axis=1,
-                ),
-            ],
-            axis=1,
-        )
-    )
+    """Per-camera constants [B, NCAM] (float64): rotation (9), translation (3), fx, fy, cx, cy and
+    the clamp limits of x/z and y/z (+x, -x, +y, -y), computed once per call."""
+    n_cam = world2cam.shape[0]
+    cams = np.empty((n_cam, NCAM))
+    for b in range(n_cam):
+        for i in range(3):
+            for j in range(3):
+                cams[b, 3 * i + j] = world2cam[b, i, j]
+            cams[b, 9 + i] = world2cam[b, i, 3]
+        fx, fy, cx, cy = K[b, 0, 0], K[b, 1, 1], K[b, 0, 2], K[b, 1, 2]
+        slack_x = FRUSTUM_SLACK * 0.5 * width / fx
+        slack_y = FRUSTUM_SLACK * 0.5 * height / fy
+        cams[b, 12], cams[b, 13], cams[b, 14], cams[b, 15] = fx, fy, cx, cy
+        cams[b, 16] = (width - cx) / fx + slack_x
+        cams[b, 17] = cx / fx + slack_x
+        cams[b, 18] = (height - cy) / fy + slack_y
+        cams[b, 19] = cy / fy + slack_y
+    return cams
 
 
 NCAM = 20
@@ -317,6 +314,10 @@ def project_fwd(means, quats, log_scales, opacities, cams, width, height, cov, p
 
 # ---------------------------------------------------------------------------- 3. binning
 RADIX_BITS = 12
+# One camera's binning on several threads is two tasks: its sort beside its count, then its
+# tile lists in two bands of tile rows (a constant: numba cannot cache a kernel that asks for
+# the thread count).
+ONE_CAMERA_TASKS = 2
 
 
 @njit(**_opts)
@@ -387,12 +388,14 @@ def _count_camera(box, b, tiles_x, tile_counts):
 
 
 @njit(**_opts)
-def _fill_camera(box, b, tiles_x, order, n_visible, offsets, lists):
+def _fill_camera(box, b, tiles_x, order, n_visible, offsets, lists, ty_lo, ty_hi):
+    """Append camera b's visible Gaussians, in depth order, to the lists of its tiles in tile rows
+    [ty_lo, ty_hi) (all rows: one thread fills the camera; a band: threads share it)."""
     n_tiles = (offsets.shape[0] - 1) // box.shape[0]
     cursor = offsets[b * n_tiles : (b + 1) * n_tiles].copy()
     for i in range(n_visible[b]):
         g = order[b, i]
-        for ty in range(box[b, g, 2] // TILE, box[b, g, 3] // TILE + 1):
+        for ty in range(max(box[b, g, 2] // TILE, ty_lo), min(box[b, g, 3] // TILE + 1, ty_hi)):
             for tx in range(box[b, g, 0] // TILE, box[b, g, 1] // TILE + 1):
                 t = ty * tiles_x + tx
                 lists[cursor[t]] = g
@@ -401,15 +404,17 @@ def _fill_camera(box, b, tiles_x, order, n_visible, offsets, lists):
 
 @njit(**_opts)
 def bin_cameras(proj, box, tiles_x, parallel, order, n_visible, tile_counts):
-    """Per camera: depth sort of the visible Gaussians and tile counts. With few cameras the
-    calling thread does it (a parallel region costs a barrier, which a loaded machine makes
-    expensive); with many, the cameras are spread over the threads."""
-    if parallel:
-        _bin_cameras_parallel(proj, box, tiles_x, order, n_visible, tile_counts)
-    else:
+    """Per camera: depth sort of the visible Gaussians and tile counts. ``parallel``: cameras
+    spread over the threads, or with one camera its sort and its count on two threads at once;
+    else the calling thread does it all."""
+    if not parallel:
         for b in range(box.shape[0]):
             _sort_camera(proj, box, b, order, n_visible)
             _count_camera(box, b, tiles_x, tile_counts)
+    elif box.shape[0] == 1:
+        _bin_one_camera_parallel(proj, box, tiles_x, order, n_visible, tile_counts)
+    else:
+        _bin_cameras_parallel(proj, box, tiles_x, order, n_visible, tile_counts)
 
 
 @njit(parallel=True, **_opts)
@@ -419,20 +424,43 @@ def _bin_cameras_parallel(proj, box, tiles_x, order, n_visible, tile_counts):
         _count_camera(box, b, tiles_x, tile_counts)
 
 
+@njit(parallel=True, **_opts)
+def _bin_one_camera_parallel(proj, box, tiles_x, order, n_visible, tile_counts):
+    for task in prange(ONE_CAMERA_TASKS):  # the sort and the count: same boxes read, different arrays written
+        if task == 0:
+            _sort_camera(proj, box, 0, order, n_visible)
+        else:
+            _count_camera(box, 0, tiles_x, tile_counts)
+
+
 @njit(**_opts)
 def fill_lists(box, tiles_x, parallel, order, n_visible, offsets, lists):
-    """Fill the per-tile lists (global offsets [B * tiles + 1]) in depth order."""
-    if parallel:
-        _fill_lists_parallel(box, tiles_x, order, n_visible, offsets, lists)
+    """Fill the per-tile lists (global offsets [B * tiles + 1]) in depth order: ``parallel`` as in
+    :func:`bin_cameras` (one camera: two bands of tile rows at once, each walking the whole depth
+    order and writing only its own tiles)."""
+    n_cam = box.shape[0]
+    tiles_y = (offsets.shape[0] - 1) // n_cam // tiles_x
+    if not parallel:
+        for b in range(n_cam):
+            _fill_camera(box, b, tiles_x, order, n_visible, offsets, lists, 0, tiles_y)
+    elif n_cam == 1:
+        _fill_one_camera_parallel(box, tiles_x, tiles_y, order, n_visible, offsets, lists)
     else:
-        for b in range(box.shape[0]):
-            _fill_camera(box, b, tiles_x, order, n_visible, offsets, lists)
+        _fill_lists_parallel(box, tiles_x, tiles_y, order, n_visible, offsets, lists)
 
 
 @njit(parallel=True, **_opts)
-def _fill_lists_parallel(box, tiles_x, order, n_visible, offsets, lists):
+def _fill_lists_parallel(box, tiles_x, tiles_y, order, n_visible, offsets, lists):
     for b in prange(box.shape[0]):
-        _fill_camera(box, b, tiles_x, order, n_visible, offsets, lists)
+        _fill_camera(box, b, tiles_x, order, n_visible, offsets, lists, 0, tiles_y)
+
+
+@njit(parallel=True, **_opts)
+def _fill_one_camera_parallel(box, tiles_x, tiles_y, order, n_visible, offsets, lists):
+    bands = min(ONE_CAMERA_TASKS, tiles_y)
+    for band in prange(bands):
+        rows = (band * tiles_y // bands, (band + 1) * tiles_y // bands)
+        _fill_camera(box, 0, tiles_x, order, n_visible, offsets, lists, rows[0], rows[1])
 
 
 # ---------------------------------------------------------------------------- 4. forward raster
@@ -1007,8 +1035,8 @@ def raster_bwd(
 def project_bwd(
     means, quats, log_scales, cov, cams, box, g2d, g_means, g_quats, g_log_scales, g_opacities, g_cam, need_gaussians
 ):
-    """Chain rule from g2d [nbuf, B, N, NGRAD] to the Gaussians and to g_cam [threads, B, 12]
-    (rows 0..2 of world2cam, row-major). With ``need_gaussians`` False (only the poses need a
+    """Chain rule from g2d [nbuf, B, N, NGRAD] to the Gaussians and to g_cam [threads, B,
+    G_CAM_STRIDE] (its first 12: rows 0..2 of world2cam, row-major). With ``need_gaussians`` False (only the poses need a
     gradient: the search's refinement) the covariance chain is skipped and g_means, g_quats,
     g_log_scales, g_opacities are left as they are."""
     n_cam = cams.shape[0]

@@ -90,15 +90,15 @@ def _forward_arrays(means, quats, log_scales, opacities, values, channels, world
     proj = np.empty((n_cam, n, k.NPROJ), dtype)
     box = np.empty((n_cam, n, 4), np.int32)
     threads = k.numba.get_num_threads()
+    cams = k.camera_table(world2cam, K, width, height)  # [B, NCAM], the backward's too
     with _stage("project"):
         if n:
-            cams = k.camera_table(world2cam, K, width, height)
             k.project_fwd(means, quats, log_scales, opacities, cams, width, height, cov, proj, box)
     with _stage("bin"):
         order = np.empty((n_cam, n), np.int32)
         n_visible = np.zeros(n_cam, np.int64)
         counts = np.zeros((n_cam, n_tiles), np.int64)
-        parallel_bins = n_cam >= threads  # one camera per thread at least, else the caller bins
+        parallel_bins = threads > 1  # cameras over threads; one camera: its sort beside its count
         if n:
             k.bin_cameras(proj, box, tiles_x, parallel_bins, order, n_visible, counts)
         offsets = np.zeros(n_cam * n_tiles + 1, np.int64)
@@ -116,7 +116,7 @@ def _forward_arrays(means, quats, log_scales, opacities, values, channels, world
     tiles = (proj, box, values, offsets, lists, tiles_x, width, height, consts)
     with _stage("raster_fwd"):
         k.raster_fwd(*tiles, threads, rgb, feat, depth_sum, t_final, last)
-    state = (cov, box, tiles, last)
+    state = (cov, box, tiles, last, cams)
     return rgb, feat, depth_sum, t_final, state
 
 
@@ -154,7 +154,7 @@ class _Raster(torch.autograd.Function):
         if bg is not None:
             rgb += bg[:, :, None, None] * t_final[:, None]
         ctx.arrays, ctx.values, ctx.bg = arrays, values, bg
-        ctx.camera = (w2c, kk, width, height, world2cam.dtype)
+        ctx.camera = (w2c, world2cam.dtype)
         ctx.state = state
         ctx.maps = (t_final, alpha, depth_sum)
         return torch.from_numpy(rgb), torch.from_numpy(feat), torch.from_numpy(depth), torch.from_numpy(alpha)
@@ -164,8 +164,8 @@ class _Raster(torch.autograd.Function):
         k = _kernels
         means, quats, log_scales, opacities = ctx.arrays
         values, bg = ctx.values, ctx.bg
-        w2c, kk, width, height, cam_dtype = ctx.camera
-        cov, box, tiles, last = ctx.state
+        w2c, cam_dtype = ctx.camera
+        cov, box, tiles, last, cams = ctx.state
         t_final, alpha, depth_sum = ctx.maps
         dtype = means.dtype
         v_rgb, v_feat, v_depth, v_alpha = (_contiguous(v, dtype) for v in (v_rgb, v_feat, v_depth, v_alpha))
@@ -196,7 +196,7 @@ class _Raster(torch.autograd.Function):
         g_quats = np.empty_like(quats)
         g_log_scales = np.empty_like(log_scales)
         g_opac = np.empty_like(opacities)
-        g_cam = np.zeros((threads, n_cam, 12))
+        g_cam = np.zeros((threads, n_cam, k.G_CAM_STRIDE))
         with _stage("project_bwd"):
             if n:
                 k.project_bwd(
@@ -204,7 +204,7 @@ class _Raster(torch.autograd.Function):
                     quats,
                     log_scales,
                     cov,
-                    k.camera_table(w2c, kk, width, height),
+                    cams,
                     box,
                     g2d,
                     g_means,
@@ -215,7 +215,7 @@ class _Raster(torch.autograd.Function):
                     need_gaussians,
                 )
         g_w2c = np.zeros((n_cam, 4, 4))
-        g_w2c[:, :3, :] = g_cam.sum(0).reshape(n_cam, 3, 4)
+        g_w2c[:, :3, :] = g_cam[..., :12].sum(0).reshape(n_cam, 3, 4)
         g_values = gvals.sum(0) if threads > 1 else gvals[0]
         g_gauss = [
             torch.from_numpy(a) if need_gaussians and n else None for a in (g_means, g_quats, g_log_scales, g_opac)

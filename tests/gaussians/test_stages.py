@@ -121,7 +121,7 @@ def test_projection_backward_matches_twin(stages, need_gaussians):
     g2d[t(s.box[..., 0] > s.box[..., 1])] = 0  # the raster leaves culled Gaussians at zero
     threads = k.numba.get_num_threads()
     dt = s.values.dtype
-    outs = [np.zeros_like(a) for a in s.inputs] + [np.zeros((threads, s.n_cam, 12))]
+    outs = [np.zeros_like(a) for a in s.inputs] + [np.zeros((threads, s.n_cam, k.G_CAM_STRIDE))]
     # two gradient buffers, as the raster's per-thread ones: the kernel must sum them
     g2d_buffers = np.stack([g2d.numpy(), g2d.numpy()]).astype(dt)
     k.project_bwd(*s.inputs[:3], s.cov, s.cams, s.box, g2d_buffers, *outs, need_gaussians)
@@ -129,7 +129,8 @@ def test_projection_backward_matches_twin(stages, need_gaussians):
         *(t(a) for a in s.inputs), t(s.cams), s.width, s.height, 2 * t(g2d.numpy().astype(dt)).double()
     )
     names = ("means", "quats", "log_scales", "opacities", "world2cam rows 0-2")
-    outs[-1] = outs[-1].sum(0)
+    assert not outs[-1][..., 12:].any(), "project_bwd wrote into the padding of g_cam"
+    outs[-1] = outs[-1][..., :12].sum(0)
     rtol = 1e-9 if s.dtype == torch.float64 else 1e-4
     for name, ours, ref in zip(names, outs, expected, strict=True):
         if not need_gaussians and name != names[-1]:  # pose-only: the Gaussians' buffers are not touched
