@@ -12,8 +12,9 @@ Pipeline (section 3.1 of the paper, CPU parts in brackets):
    adds geometry cues (inverse distance, normal and ray direction in its source camera, its
    size) and an MLP predicts its embedding ``f [D]``. The Gaussian also keeps the teacher map
    of its view at its pixel ``t [C]`` (in units of each channel's RMS).
-4. **Rasterisation** of ``[t, f, d_src]`` at the target pose (``d_src``: the unit direction
-   from the Gaussian to the camera that observed it), with alpha and depth.
+4. **Rasterisation** of ``[t, f]`` and, in the colour slot, ``d_src`` at the target pose
+   (``d_src``: the unit direction from the Gaussian to the camera that observed it), with alpha
+   and depth.
 5. **View conditioning** (the paper's pose conditioning): per pixel, the cosine between the
    target ray and the rendered ``d_src`` (how far the target looks from where the content was
    seen) and the target's inverse depth join the rendered embedding. ``condition=False`` leaves
@@ -364,19 +365,21 @@ class FieldInputs:
 
 
 def embed_inputs(model: FieldModel, inputs: FieldInputs) -> Gaussians:
-    """The Gaussians of ``inputs`` carrying ``[embedding (D), direction to source camera (3)]``
+    """The Gaussians of ``inputs`` carrying ``features = [teacher map (C), embedding (D)]`` and,
+    in the colour slot, the unit direction to their source camera (3): the field renders no
+    colour, so the rasterizer accumulates C + D + 3 values per pixel, not 3 unused colours more
     (differentiable w.r.t. the model's parameters)."""
     sp = inputs.splats
     d = model.config.embed_dim
     if len(sp) == 0:
-        return _empty_gaussians(model.feature_channels + d + 3)
+        return _empty_gaussians(model.feature_channels + d)
     geom, to_src, pix = inputs.geometry()
     feats = model.encode_views(inputs.images, inputs.fmaps, inputs.grid())  # [V, E + C, hs, ws]
     per_g = feats[pix[:, 0], :, pix[:, 1], pix[:, 2]]  # [N, E + C]; the last C: the teacher map, in units
     emb = model.embed_gaussians(per_g, geom)
     g = sp.to_gaussians()
-    g.features = torch.cat([per_g[:, -model.feature_channels :], emb, to_src], 1)  # [N, C + D + 3]
-    g.colors = torch.zeros_like(g.colors)
+    g.features = torch.cat([per_g[:, -model.feature_channels :], emb], 1)  # [N, C + D]
+    g.colors = to_src  # [N, 3], rendered over a black background: the same sum as a feature
     return g
 
 
@@ -398,14 +401,14 @@ def render_maps(
     d = model.feature_channels + model.config.embed_dim
     if len(gaussians) == 0:
         zero = cam2world.sum().float() * 0.0  # keep the graph to the poses
-        rendered = torch.zeros(b, d + 3, k.height, k.width) + zero
+        emb = torch.zeros(b, d, k.height, k.width) + zero
+        src = torch.zeros(b, 3, k.height, k.width) + zero
         alpha = torch.zeros(b, k.height, k.width) + zero
         depth = torch.zeros(b, k.height, k.width)
     else:
         w2c = local_world2cam(cam2world, local)
         out = rasterize(gaussians, w2c, torch.from_numpy(k.K), k.width, k.height, validate=False)
-        rendered, alpha, depth = out.features, out.alpha, out.depth
-    emb, src = rendered[:, :d], rendered[:, d:]
+        emb, src, alpha, depth = out.features, out.rgb, out.alpha, out.depth  # src: see embed_inputs
     cond = None
     if model.config.condition:
         rays = torch.from_numpy(k.pixel_directions().astype(np.float32))  # [H, W, 3] camera frame
@@ -457,7 +460,7 @@ class AestheticField(Scorer):
         self.version = 0
         self._frames: list[PosedFrame] = []  # the frames behind the current map (bounded: see add_frame)
         self._inputs: FieldInputs | None = None
-        self._gaussians = _empty_gaussians(model.feature_channels + model.config.embed_dim + 3)
+        self._gaussians = _empty_gaussians(model.feature_channels + model.config.embed_dim)
 
     # ------------------------------------------------------------------ construction
     @classmethod
