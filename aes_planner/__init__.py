@@ -6,4 +6,8 @@ never the other way round. Conventions (frames, angles, units) are stated once i
 :mod:`aes_planner.geometry`.
 """
 
+from aes_planner.runtime import tune_openmp
+
 __version__ = "0.1.0"
+
+tune_openmp()  # before anything imports torch (aes_planner.runtime says why)
