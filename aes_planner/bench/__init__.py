@@ -22,8 +22,9 @@ import platform
 import statistics
 import subprocess
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from aes_planner.errors import AesPlannerError
 
@@ -94,7 +95,10 @@ def _git_commit() -> str | None:
     try:
         out = subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"],
-            capture_output=True, text=True, timeout=5, cwd=Path(__file__).resolve().parent,
+            capture_output=True,
+            text=True,
+            timeout=5,
+            cwd=Path(__file__).resolve().parent,
         )
         return out.stdout.strip() or None
     except (OSError, subprocess.SubprocessError):
@@ -119,9 +123,7 @@ def run_groups(groups: list[str] | None, quick: bool = False) -> Recorder:
     names = list(groups) if groups else list(GROUPS)
     unknown = [g for g in names if g not in GROUPS]
     if unknown:
-        raise AesPlannerError(
-            f"unknown benchmark group {unknown[0]!r}; available: {', '.join(GROUPS)}"
-        )
+        raise AesPlannerError(f"unknown benchmark group {unknown[0]!r}; available: {', '.join(GROUPS)}")
     rec = Recorder()
     rec.meta.update(
         machine=machine_info(),

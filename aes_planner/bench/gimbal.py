@@ -34,7 +34,9 @@ def run(rec: Recorder, quick: bool) -> None:
         # timed) and keep a loaded machine, where the emulator process waits for a CPU, from failing
         config = DynamixelPanTiltConfig(port=emulator.port, baud=BAUD, latency_timer_ms=100.0, retries=5)
         with DynamixelPanTilt(config) as gimbal:
-            rec.meta["backends"]["gimbal"] = f"dynamixel-sdk on emulator ({', '.join(gimbal.models.values())}) at {BAUD} baud"
+            rec.meta["backends"]["gimbal"] = (
+                f"dynamixel-sdk on emulator ({', '.join(gimbal.models.values())}) at {BAUD} baud"
+            )
             gimbal.move_to(0.0, 0.0)
             gimbal.wait_until_reached(10.0)
             rec.time("gimbal.sync_read.ms", gimbal.state, runs=runs, warmup=5)

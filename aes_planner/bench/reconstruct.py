@@ -163,7 +163,12 @@ def stereo_error(source: SimSource, n: int = 4) -> tuple[float, float, float, fl
             out.append(np.abs(depth[ok] - f.depth_m[ok]) / f.depth_m[ok])
         dense.append(float(((kept > 0) & (f.depth_m > 0)).mean()))
     r = np.concatenate(rel)
-    return float(np.median(r)), 100.0 * float((r < 0.05).mean()), 100.0 * float(np.mean(dense)), float(np.median(np.concatenate(raw_rel)))
+    return (
+        float(np.median(r)),
+        100.0 * float((r < 0.05).mean()),
+        100.0 * float(np.mean(dense)),
+        float(np.median(np.concatenate(raw_rel))),
+    )
 
 
 def _record_cases(rec: Recorder, key: str, results: list[tuple[float, float, int]]) -> None:
@@ -175,7 +180,9 @@ def _record_cases(rec: Recorder, key: str, results: list[tuple[float, float, int
 def run(rec: Recorder, quick: bool) -> None:
     from aes_planner.gaussians import resolve_backend
 
-    rec.meta["backends"]["reconstruct"] = f"rasterizer {resolve_backend()}; sim frames {WIDTH}x{HEIGHT}, {SUPERSAMPLE}x{SUPERSAMPLE} anti-aliased"
+    rec.meta["backends"]["reconstruct"] = (
+        f"rasterizer {resolve_backend()}; sim frames {WIDTH}x{HEIGHT}, {SUPERSAMPLE}x{SUPERSAMPLE} anti-aliased"
+    )
     scenes = SCENES[:1] if quick else SCENES
     sources = [SimSource(s) for s in scenes]
     base = ReconstructConfig()
@@ -187,7 +194,9 @@ def run(rec: Recorder, quick: bool) -> None:
 
     # PSNR against Gaussian count (depth, 4 dolly views): every splat of every frame (raw), merged
     # overlapping frames without pruning or budget (unpruned), budgets, and the default
-    raw = [case(src, "depth", 4, replace(base, dedupe=False, budget_ratio=0.0, min_contribution=0.0)) for src in sources]
+    raw = [
+        case(src, "depth", 4, replace(base, dedupe=False, budget_ratio=0.0, min_contribution=0.0)) for src in sources
+    ]
     ref = [case(src, "depth", 4, replace(base, budget_ratio=0.0, min_contribution=0.0)) for src in sources]
     for name, res in (("raw", raw), ("unpruned", ref)):
         rec.record(f"reconstruct.{name}.psnr_db", statistics.median(r[0] for r in res), "dB", runs=len(res))
@@ -197,16 +206,33 @@ def run(rec: Recorder, quick: bool) -> None:
         res = [case(src, "depth", 4, cfg) for src in sources]
         rec.record(f"reconstruct.{name}.psnr_db", statistics.median(r[0] for r in res), "dB", runs=len(res))
         rec.record(f"reconstruct.{name}.count", statistics.median(r[2] for r in res), "gaussians", runs=len(res))
-        rec.record(f"reconstruct.{name}.fraction", statistics.median(r[2] / u[2] for r, u in zip(res, ref)), "fraction", runs=len(res))
-        rec.record(f"reconstruct.{name}.fraction_of_raw", statistics.median(r[2] / u[2] for r, u in zip(res, raw)), "fraction", runs=len(res))
-        rec.record(f"reconstruct.{name}.psnr_loss_db", statistics.median(u[0] - r[0] for r, u in zip(res, ref)), "dB", runs=len(res))
+        rec.record(
+            f"reconstruct.{name}.fraction",
+            statistics.median(r[2] / u[2] for r, u in zip(res, ref)),
+            "fraction",
+            runs=len(res),
+        )
+        rec.record(
+            f"reconstruct.{name}.fraction_of_raw",
+            statistics.median(r[2] / u[2] for r, u in zip(res, raw)),
+            "fraction",
+            runs=len(res),
+        )
+        rec.record(
+            f"reconstruct.{name}.psnr_loss_db",
+            statistics.median(u[0] - r[0] for r, u in zip(res, ref)),
+            "dB",
+            runs=len(res),
+        )
     rec.meta["reconstruct_default_budget_ratio"] = base.budget_ratio
 
     errs = [stereo_error(src) for src in sources]
     rec.record("reconstruct.stereo.abs_rel", statistics.median(e[0] for e in errs), "fraction", runs=len(errs))
     rec.record("reconstruct.stereo.within_5pct", statistics.median(e[1] for e in errs), "%", runs=len(errs))
     rec.record("reconstruct.stereo.density", statistics.median(e[2] for e in errs), "%", runs=len(errs))
-    rec.record("reconstruct.stereo.abs_rel_unchecked", statistics.median(e[3] for e in errs), "fraction", runs=len(errs))
+    rec.record(
+        "reconstruct.stereo.abs_rel_unchecked", statistics.median(e[3] for e in errs), "fraction", runs=len(errs)
+    )
 
     # speed: 4 frames of 128 x 128 with depth; one frame streamed into a map at its budget
     sq = SimSource(scenes[0], 128, 128)

@@ -34,8 +34,8 @@ from __future__ import annotations
 import logging
 import re
 import statistics
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 import torch
@@ -62,8 +62,8 @@ def bench_teacher(rec: Recorder, teacher: Teacher, quick: bool, runs: int, warmu
             images = torch.rand(batch, 3, size, size, generator=gen)
             with torch.no_grad():
                 fmap = teacher.features(images)
-                f_ms = time_ms(lambda: teacher.features(images), runs=runs, warmup=warmup)
-                h_ms = time_ms(lambda: teacher.head(fmap), runs=max(runs, 5), warmup=1)
+                f_ms = time_ms(lambda x=images: teacher.features(x), runs=runs, warmup=warmup)
+                h_ms = time_ms(lambda f=fmap: teacher.head(f), runs=max(runs, 5), warmup=1)
             rec.record(f"{prefix}.features_{size}_b{batch}.ms", statistics.median(f_ms) / batch, "ms", runs)
             rec.record(f"{prefix}.head_{size}_b{batch}.ms", statistics.median(h_ms) / batch, "ms", max(runs, 5))
     grad_map = fmap.detach().requires_grad_(True)
@@ -73,7 +73,9 @@ def bench_teacher(rec: Recorder, teacher: Teacher, quick: bool, runs: int, warmu
         teacher.head(grad_map).sum().backward()
 
     g_ms = time_ms(head_grad, runs=max(runs, 3), warmup=1)
-    rec.record(f"{prefix}.head_grad_b{grad_map.shape[0]}.ms", statistics.median(g_ms) / grad_map.shape[0], "ms", max(runs, 3))
+    rec.record(
+        f"{prefix}.head_grad_b{grad_map.shape[0]}.ms", statistics.median(g_ms) / grad_map.shape[0], "ms", max(runs, 3)
+    )
 
 
 def sim_views(count: int, seed: int = 0, width: int = 128, height: int = 96) -> list[torch.Tensor] | None:
@@ -186,12 +188,19 @@ def label_view(scene, camera, frame) -> ViewLabel:
     ids = np.asarray(frame.extras["instance_id"])  # [H, W], 0 = sky, k = objects[k - 1]
     h, w = ids.shape
     k = camera.intrinsics
-    wide_ids = render(scene, frame.extras["true_cam2world"], Intrinsics(k.fx / 2, k.fy / 2, k.cx, k.cy, w, h)).instance_id
+    wide_ids = render(
+        scene, frame.extras["true_cam2world"], Intrinsics(k.fx / 2, k.fy / 2, k.cx, k.cy, w, h)
+    ).instance_id
     groups = [classify_object(o.name) for o in scene.spec.objects]
     names = sorted({g for g in groups if g is not None})
     index = np.array([-1] + [names.index(g) if g is not None else -1 for g in groups])  # instance id -> group
-    textured = np.array([False] + [g is None and o.material.pattern is not None and o.material.pattern.kind in ("checker", "stripes")
-                                   for g, o in zip(groups, scene.spec.objects)])
+    textured = np.array(
+        [False]
+        + [
+            g is None and o.material.pattern is not None and o.material.pattern.kind in ("checker", "stripes")
+            for g, o in zip(groups, scene.spec.objects)
+        ]
+    )
     n = len(names)
 
     def counts(a: np.ndarray) -> np.ndarray:  # [n] pixels per group
@@ -319,7 +328,9 @@ def bench_subjects(rec: Recorder, quick: bool) -> None:
         return
     teacher, evaluator = CompositionTeacher(), CompositionEvaluator()
     with torch.no_grad():
-        scores = torch.cat([teacher.score(torch.stack(views.images[i : i + 64])) for i in range(0, len(views.images), 64)])
+        scores = torch.cat(
+            [teacher.score(torch.stack(views.images[i : i + 64])) for i in range(0, len(views.images), 64)]
+        )
     judges = {"composition": scores.numpy(), "evaluator": evaluator.evaluate(views.images)}
     for judge, s in judges.items():
         m = subject_metrics(s, views)
@@ -329,8 +340,14 @@ def bench_subjects(rec: Recorder, quick: bool) -> None:
         log.info(
             "%s on %d sim views: subject preferred in %.1f %% of %d pairs (%.1f %% against texture), "
             "sweep argmax frames a subject in %.0f %% of scenes (chance %.0f %%), SRCC with subject quality %.3f",
-            judge, len(views.images), 100 * m["subject_pref_acc"], m["subject_pairs"], 100 * m["subject_pref_acc_texture"],
-            100 * m["sweep_argmax_subject_rate"], 100 * m["sweep_subject_share"], m["subject_srcc"],
+            judge,
+            len(views.images),
+            100 * m["subject_pref_acc"],
+            m["subject_pairs"],
+            100 * m["subject_pref_acc_texture"],
+            100 * m["sweep_argmax_subject_rate"],
+            100 * m["sweep_subject_share"],
+            m["subject_srcc"],
         )
     rec.meta.setdefault("teachers", {})["subject_views"] = len(views.images)
 
