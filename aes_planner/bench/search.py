@@ -11,7 +11,10 @@ balanced search on RGB scoring), on held-out scenes with 4 input frames of 128x9
 * ``search.<preset>.latency_cpu_ms``: the same in process CPU time (all threads; the machine is
   shared, so wall-clock figures are noisy: compare CPU time);
 * ``search.<preset>.build_ms``, ``.stage1_ms``, ``.stage2_ms``: where the latency goes (medians);
-* ``search.<preset>.scored``: poses scored per suggestion.
+* ``search.<preset>.scored``: poses scored per suggestion;
+* ``search.<preset>.raster_ms``: the rasterizer's part of the latency (the wall time of its
+  autograd Function's forward and backward bodies: kernels and their numpy glue; numba backend
+  only).
 
 ``search_pareto.png`` (latency against normalised score) is written into ``bench/`` under the
 working directory. When the field is not available in this build, the presets run on RGB scoring and
@@ -20,6 +23,7 @@ working directory. When the field is not available in this build, the presets ru
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import statistics
 import time
@@ -31,6 +35,7 @@ import torch
 
 from aes_planner.bench import Recorder
 from aes_planner.eval.search import HELD_OUT_SCENES
+from aes_planner.gaussians import resolve_backend
 from aes_planner.search import GroundTruthScorer, SearchConfig, SearchError, build_search_scorer
 from aes_planner.search import search_views as _search
 from aes_planner.teachers import get_teacher
@@ -52,8 +57,11 @@ def run(rec: Recorder, quick: bool) -> None:
     repeats = 1 if quick else 3
     field_ok = True
     points = {}
+    numba = resolve_backend("auto") == "numba"
+    if numba:
+        from aes_planner.gaussians import numba_backend
     for case, kind in CASES:
-        lat, cpu, build, st1, st2, norm, scored = [], [], [], [], [], [], []
+        lat, cpu, build, st1, st2, norm, scored, raster = [], [], [], [], [], [], [], []
         for spec in scenes:
             source = SimSource(spec, supersample=1)
             pt = PanTilt(source.platform.rig)
@@ -63,18 +71,20 @@ def run(rec: Recorder, quick: bool) -> None:
             cfg = SearchConfig.preset("balanced" if case == "rgb" else case)
             use = kind if field_ok else "rgb"
             for r in range(repeats + 1):  # the first run warms up (numba caches, allocations)
-                t0, c0 = time.perf_counter(), time.process_time()
-                try:
-                    scorer = build_search_scorer(use, frames, cfg, teacher)
-                except SearchError as exc:
-                    log.warning("search bench: %s; the presets run on RGB scoring", exc)
-                    field_ok, use = False, "rgb"
-                    scorer = build_search_scorer(use, frames, cfg, teacher)
-                t1 = time.perf_counter()
-                result = _search(scorer, inputs, source.platform, cfg)
-                t2, c2 = time.perf_counter(), time.process_time()
+                with numba_backend.profile_stages() if numba else contextlib.nullcontext({}) as stages:
+                    t0, c0 = time.perf_counter(), time.process_time()
+                    try:
+                        scorer = build_search_scorer(use, frames, cfg, teacher)
+                    except SearchError as exc:
+                        log.warning("search bench: %s; the presets run on RGB scoring", exc)
+                        field_ok, use = False, "rgb"
+                        scorer = build_search_scorer(use, frames, cfg, teacher)
+                    t1 = time.perf_counter()
+                    result = _search(scorer, inputs, source.platform, cfg)
+                    t2, c2 = time.perf_counter(), time.process_time()
                 if r == 0:
                     continue
+                raster.append(sum(stages[k][1] for k in ("fwd_body", "bwd_body") if k in stages) * 1e3)
                 lat.append((t2 - t0) * 1e3)
                 cpu.append((c2 - c0) * 1e3)
                 build.append((t1 - t0) * 1e3)
@@ -93,6 +103,8 @@ def run(rec: Recorder, quick: bool) -> None:
         rec.record(f"{key}.stage1_ms", statistics.median(st1), "ms", len(st1))
         rec.record(f"{key}.stage2_ms", statistics.median(st2), "ms", len(st2))
         rec.record(f"{key}.scored", statistics.median(scored), "poses", len(scored))
+        if numba:
+            rec.record(f"{key}.raster_ms", statistics.median(raster), "ms", len(raster))
         rec.record(f"{key}.normalized", float(np.mean(norm)), "ratio", len(norm))
         points[case] = (statistics.median(lat), float(np.mean(norm)))
     rec.meta.setdefault("backends", {})["search_scorer"] = "field" if field_ok else "rgb (field not available)"
@@ -122,10 +134,14 @@ def write_pareto(points: dict[str, tuple[float, float]], path: Path) -> Path:
     for i, (name, (lat, norm)) in enumerate(points.items()):
         colour = (0, 0, 200) if name == "rgb" else (200, 120, 0)
         cv2.circle(img, px(lat, norm), 5, colour, -1)
-        cv2.putText(img, name[0].upper(), (px(lat, norm)[0] - 4, px(lat, norm)[1] - 8), cv2.FONT_HERSHEY_PLAIN, 1.0, colour, 1)
+        cv2.putText(
+            img, name[0].upper(), (px(lat, norm)[0] - 4, px(lat, norm)[1] - 8), cv2.FONT_HERSHEY_PLAIN, 1.0, colour, 1
+        )
         cv2.putText(img, f"{name[0].upper()} {name}: {lat:.0f} ms, {norm:.2f}", (m + 6, m + 16 + 14 * i),
                     cv2.FONT_HERSHEY_PLAIN, 0.9, (0, 0, 0), 1, cv2.LINE_AA)  # fmt: skip
-    cv2.putText(img, "latency (ms, log) vs oracle-normalised score", (m, m - 12), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1)
+    cv2.putText(
+        img, "latency (ms, log) vs oracle-normalised score", (m, m - 12), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1
+    )
     path.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(path), img)
     return path
