@@ -154,7 +154,8 @@ def _sym(c):
 # ---------------------------------------------------------------------------- 1. covariance
 @njit(**_opts)
 def _covariance(quats, log_scales, n, cov):
-    """World covariance of Gaussian n into cov[n] (xx, xy, xz, yy, yz, zz), float64."""
+    """World covariance of Gaussian n into cov[n] (xx, xy, xz, yy, yz, zz), float64. Returns its
+    largest variance (largest scale squared)."""
     r, _, _, _, _, _ = _quat_rotation(
         np.float64(quats[n, 0]), np.float64(quats[n, 1]), np.float64(quats[n, 2]), np.float64(quats[n, 3])
     )
@@ -168,6 +169,8 @@ def _covariance(quats, log_scales, n, cov):
     cov[n, 3] = m[3] * m[3] + m[4] * m[4] + m[5] * m[5]
     cov[n, 4] = m[3] * m[6] + m[4] * m[7] + m[5] * m[8]
     cov[n, 5] = m[6] * m[6] + m[7] * m[7] + m[8] * m[8]
+    s_max = max(s0, s1, s2)
+    return s_max * s_max
 
 
 # ---------------------------------------------------------------------------- 2. projection
@@ -232,15 +235,11 @@ def project_fwd(means, quats, log_scales, opacities, cams, width, height, cov, p
     [B, N, 4] int32 (x0, x1, y0, y1; x0 > x1 = culled). One parallel region for all of it."""
     n_cam = cams.shape[0]
     for n in prange(means.shape[0]):
-        _covariance(quats, log_scales, n, cov)
+        s_max2 = _covariance(quats, log_scales, n, cov)  # its largest variance: for the early cull below
         m0, m1, m2 = np.float64(means[n, 0]), np.float64(means[n, 1]), np.float64(means[n, 2])
         sig = _sym((cov[n, 0], cov[n, 1], cov[n, 2], cov[n, 3], cov[n, 4], cov[n, 5]))
         o = np.float64(opacities[n])
         level = math.log(max(o, 1e-30)) + LOG_INV_ALPHA_MIN
-        # Largest variance of the Gaussian (its largest scale squared), for the early cull below.
-        s_max2 = math.exp(
-            2.0 * max(np.float64(log_scales[n, 0]), np.float64(log_scales[n, 1]), np.float64(log_scales[n, 2]))
-        )
         for b in range(n_cam):
             box[b, n, 0] = 1
             box[b, n, 1] = 0
