@@ -185,3 +185,18 @@ def test_decode_matches_its_plain_reference_in_values_and_gradients(model):
         assert float(g_fast[0].abs().sum()) > 0
     finally:
         model.float()
+
+
+def test_gaussians_carry_the_source_direction_in_the_colour_slot(model, teacher, rig_frames):
+    """Layout the renderer relies on: features = [teacher map (C), embedding (D)], colours = the
+    unit direction from each Gaussian to the camera that observed it (local frame)."""
+    frames, _ = rig_frames
+    fld = AestheticField.build(frames, CFG, model=model, teacher=teacher)
+    g, inputs = fld.gaussians, fld._inputs
+    assert g.features.shape[1] == model.feature_channels + model.config.embed_dim
+    direction = g.colors.detach().double()
+    assert torch.allclose(direction.norm(dim=1), torch.ones(len(g), dtype=torch.float64), atol=1e-5)
+    centre = torch.from_numpy(inputs.cam2world_local[inputs.splats.source_frame, :3, 3])  # [N, 3]
+    to_camera = centre - torch.from_numpy(inputs.splats.means.astype(np.float64))
+    cosine = (direction * to_camera).sum(1) / to_camera.norm(dim=1)
+    assert float(cosine.min()) > 0.999
