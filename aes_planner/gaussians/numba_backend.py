@@ -95,17 +95,10 @@ def _forward_arrays(means, quats, log_scales, opacities, values, channels, world
         if n:
             k.project_fwd(means, quats, log_scales, opacities, cams, width, height, cov, proj, box)
     with _stage("bin"):
-        order = np.empty((n_cam, n), np.int32)
-        n_visible = np.zeros(n_cam, np.int64)
-        counts = np.zeros((n_cam, n_tiles), np.int64)
-        parallel_bins = threads > 1  # cameras over threads; one camera: its sort beside its count
-        if n:
-            k.bin_cameras(proj, box, tiles_x, parallel_bins, order, n_visible, counts)
-        offsets = np.zeros(n_cam * n_tiles + 1, np.int64)
-        np.cumsum(counts.reshape(-1), out=offsets[1:])
-        lists = np.empty(int(offsets[-1]), np.int32)
-        if n:
-            k.fill_lists(box, tiles_x, parallel_bins, order, n_visible, offsets, lists)
+        if n:  # cameras over threads; one camera: its sort beside its count
+            offsets, lists = k.bin_and_fill(proj, box, tiles_x, n_tiles, threads > 1)
+        else:
+            offsets, lists = np.zeros(n_cam * n_tiles + 1, np.int64), np.empty(0, np.int32)
     rgb = np.empty((n_cam, 3, height, width), dtype)
     feat = np.empty((n_cam, channels, height, width), dtype)
     depth_sum = np.empty((n_cam, height, width), dtype)

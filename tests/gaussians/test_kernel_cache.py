@@ -15,7 +15,7 @@ import json, torch
 from aes_planner.gaussians import numba_backend
 numba_backend.warmup(torch.float32)
 k = numba_backend._kernels
-names = ["project_fwd", "bin_cameras", "fill_lists", "raster_fwd", "raster_bwd", "project_bwd"]
+names = ["camera_table", "project_fwd", "bin_and_fill", "raster_fwd", "raster_bwd", "project_bwd"]
 print(json.dumps({n: [getattr(k, n).stats.cache_hits.total(), getattr(k, n).stats.cache_misses.total()] for n in names}))
 """
 
