@@ -65,7 +65,12 @@ class Intrinsics:
         """Square pixels, centred principal point, horizontal field of view ``hfov_deg``."""
         if not (0.0 < hfov_deg < 180.0):
             raise IntrinsicsError(f"hfov_deg must be in (0, 180), got {hfov_deg}")
-        f = 0.5 * width / math.tan(math.radians(hfov_deg) / 2)
+        half_tan = math.tan(math.radians(hfov_deg) / 2)  # 0 for denormal angles: radians() underflows
+        f = 0.5 * width / half_tan if half_tan > 0.0 else math.inf
+        if not math.isfinite(f):
+            raise IntrinsicsError(
+                f"hfov_deg = {hfov_deg:g} is too narrow for a finite focal length at {width} px; use a wider field of view"
+            )
         return cls(f, f, width / 2.0, height / 2.0, int(width), int(height))
 
     @classmethod

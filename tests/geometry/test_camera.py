@@ -58,3 +58,20 @@ def test_normalized_round_trip_and_scaling():
 def test_invalid_intrinsics_name_the_field(kwargs, match):
     with pytest.raises(IntrinsicsError, match=match):
         Intrinsics(**kwargs)
+
+
+@pytest.mark.parametrize("hfov_deg", [5e-324, 1e-310, 2.2e-308])
+def test_a_field_of_view_too_narrow_for_a_finite_focal_length_is_a_config_error(hfov_deg):
+    # radians() of a denormal angle underflows to 0 (tan 0 = 0), or the focal length overflows
+    with pytest.raises(IntrinsicsError, match="hfov_deg"):
+        Intrinsics.from_fov(12, 9, hfov_deg)
+
+
+@given(st.floats(1e-300, 179.999))
+def test_from_fov_gives_finite_intrinsics_or_a_clear_error(hfov_deg):
+    try:
+        k = Intrinsics.from_fov(640, 480, hfov_deg)
+    except IntrinsicsError as exc:
+        assert "hfov_deg" in str(exc)
+    else:
+        assert math.isfinite(k.fx) and k.fx > 0
