@@ -93,10 +93,13 @@ NPROJ = 7
 # Image-space gradients per (camera, Gaussian): mean2d, conic, opacity, depth.
 G_U, G_V, G_A, G_B, G_C, G_O, G_Z = range(7)
 NGRAD = 7
-# project_bwd's per-thread pose-gradient rows: 12 used, 8 float64 (one cache line) of padding, so
-# that two threads never write the same line (12 unpadded rows made the threads' read-modify-writes
-# bounce a shared line: 839 -> 696 us for 10k Gaussians on 2 threads, docs/rasterizer.md round 6).
-G_CAM_STRIDE = 20
+# Pose gradient per camera: rows 0..2 of world2cam, row-major.
+NPOSE = 12
+# project_bwd's per-thread pose-gradient rows: NPOSE used, then 8 float64 (one cache line) of
+# padding, so that two threads never write the same line (unpadded rows made the threads'
+# read-modify-writes bounce a shared line: 839 -> 696 us for 10k Gaussians on 2 threads,
+# docs/rasterizer.md round 6).
+G_CAM_STRIDE = NPOSE + 8
 
 _opts = dict(cache=True, error_model="numpy")
 
@@ -1055,9 +1058,9 @@ def project_bwd(
     means, quats, log_scales, cov, cams, box, g2d, g_means, g_quats, g_log_scales, g_opacities, g_cam, need_gaussians
 ):
     """Chain rule from g2d [nbuf, B, N, NGRAD] to the Gaussians and to g_cam [threads, B,
-    G_CAM_STRIDE] (its first 12: rows 0..2 of world2cam, row-major). With ``need_gaussians`` False (only the poses need a
-    gradient: the search's refinement) the covariance chain is skipped and g_means, g_quats,
-    g_log_scales, g_opacities are left as they are."""
+    G_CAM_STRIDE] (its first NPOSE: rows 0..2 of world2cam, row-major). With ``need_gaussians``
+    False (only the poses need a gradient: the search's refinement) the covariance chain is
+    skipped and g_means, g_quats, g_log_scales, g_opacities are left as they are."""
     n_cam = cams.shape[0]
     nbuf = g2d.shape[0]
     for n in prange(means.shape[0]):

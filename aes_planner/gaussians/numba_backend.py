@@ -208,7 +208,7 @@ class _Raster(torch.autograd.Function):
                     need_gaussians,
                 )
         g_w2c = np.zeros((n_cam, 4, 4))
-        g_w2c[:, :3, :] = g_cam[..., :12].sum(0).reshape(n_cam, 3, 4)
+        g_w2c[:, :3, :] = g_cam[..., : k.NPOSE].sum(0).reshape(n_cam, 3, 4)
         g_values = gvals.sum(0) if threads > 1 else gvals[0]
         g_gauss = [
             torch.from_numpy(a) if need_gaussians and n else None for a in (g_means, g_quats, g_log_scales, g_opac)
