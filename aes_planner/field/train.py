@@ -76,6 +76,12 @@ class TrainConfig:
       teacher's maps, beside the feature-map MSE (the head's global terms must come out right).
     * ``rank_weight``: weight of the same MSE after removing each sample's mean score: what a
       search needs is the order of views within one scene, not the scene's level.
+    * ``listwise_weight``, ``listwise_temperature``: weight of a listwise term (cross-entropy
+      between the softmax of the teacher's and of the field's scores over each sample's targets,
+      at a temperature in units of that sample's score spread): it weights the top of each scene,
+      which is what a search picks from, over the order of its poor views.
+    * ``init_from``: a model checkpoint (``model.npz``) to start from, or ``default`` for the
+      shipped one (fine-tuning); None starts from scratch.
     * ``checkpoint_every``: steps between checkpoints; ``seed``: everything random.
     * ``scorer``: render width and Gaussian budget (what the field is used with).
     * ``model``: the architecture.
@@ -101,6 +107,9 @@ class TrainConfig:
     warmup_steps: int = 100
     score_weight: float = 4.0
     rank_weight: float = 0.0
+    listwise_weight: float = 0.0
+    listwise_temperature: float = 0.5
+    init_from: str | None = None
     checkpoint_every: int = 250
     seed: int = 0
     gt_supersample: int = 2
@@ -121,6 +130,12 @@ class TrainConfig:
         require(math.isfinite(self.lr) and self.lr > 0, "lr", f"must be > 0, got {self.lr}")
         require(self.score_weight >= 0, "score_weight", f"must be >= 0, got {self.score_weight}")
         require(self.rank_weight >= 0, "rank_weight", f"must be >= 0, got {self.rank_weight}")
+        require(self.listwise_weight >= 0, "listwise_weight", f"must be >= 0, got {self.listwise_weight}")
+        require(
+            math.isfinite(self.listwise_temperature) and self.listwise_temperature > 0,
+            "listwise_temperature",
+            f"must be > 0 (in units of a sample's score spread), got {self.listwise_temperature}",
+        )
         require(self.search_targets >= 0, "search_targets", f"must be >= 0, got {self.search_targets}")
         require(self.checkpoint_every >= 1, "checkpoint_every", "must be >= 1")
         require(1 <= self.gt_supersample <= 4, "gt_supersample", f"must be in [1, 4], got {self.gt_supersample}")
@@ -344,6 +359,8 @@ def sample_loss(
     score_weight: float,
     width_px: int,
     rank_weight: float = 0.0,
+    listwise_weight: float = 0.0,
+    listwise_temperature: float = 0.5,
 ) -> tuple[Tensor, dict[str, float]]:
     """The distillation loss of one cached sample at all its targets."""
     from aes_planner.field.common import render_intrinsics
@@ -359,7 +376,23 @@ def sample_loss(
     score_loss = err.pow(2).mean()
     rank_loss = (err - err.mean()).pow(2).mean()  # the order within the scene, without its level
     loss = map_loss + score_weight * score_loss + rank_weight * rank_loss
+    if listwise_weight > 0:
+        loss = loss + listwise_weight * listwise_loss(
+            score, torch.from_numpy(sample["target_scores"]), listwise_temperature
+        )
     return loss, {"map": float(map_loss.detach()), "score": float(score_loss.detach())}
+
+
+def listwise_loss(pred: Tensor, true: Tensor, temperature: float) -> Tensor:
+    """Cross-entropy between softmax(true / tau) and softmax(pred / tau) over one scene's targets
+    ([T] each), tau = temperature x the spread (std) of ``true``; minus its entropy, so that 0 is a
+    perfect order. Scenes whose targets all score alike (spread < 1e-6) contribute 0."""
+    spread = float(true.std()) if true.numel() > 1 else 0.0
+    if spread < 1e-6:
+        return pred.sum() * 0.0
+    tau = temperature * spread
+    p_true = torch.softmax(true.to(pred.dtype) / tau, 0)
+    return (p_true * (torch.log_softmax(true.to(pred.dtype) / tau, 0) - torch.log_softmax(pred / tau, 0))).sum()
 
 
 def train(
@@ -386,8 +419,11 @@ def train(
     model = FieldModel(config.model, teacher.feature_channels, teacher.feature_size, teacher.name)
     data = [load_sample(p) for p in samples]
     inputs = [arrays_to_inputs(d) for d in data]
-    maps = np.concatenate([d["target_maps"] for d in data])
-    model.map_scale.copy_(torch.from_numpy(np.sqrt((maps**2).mean((0, 2, 3))) + 1e-8).float())
+    if config.init_from is not None:
+        _init_from(model, config.init_from)
+    else:
+        maps = np.concatenate([d["target_maps"] for d in data])
+        model.map_scale.copy_(torch.from_numpy(np.sqrt((maps**2).mean((0, 2, 3))) + 1e-8).float())
     opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     out_dir.mkdir(parents=True, exist_ok=True)
     last = out_dir / "last.npz"
@@ -409,7 +445,15 @@ def train(
         for group in opt.param_groups:
             group["lr"] = _lr(config, step)
         loss, parts = sample_loss(
-            model, teacher, data[i], inputs[i], config.score_weight, config.scorer.render_width_px, config.rank_weight
+            model,
+            teacher,
+            data[i],
+            inputs[i],
+            config.score_weight,
+            config.scorer.render_width_px,
+            config.rank_weight,
+            config.listwise_weight,
+            config.listwise_temperature,
         )
         opt.zero_grad(set_to_none=False)
         loss.backward()
@@ -432,6 +476,18 @@ def train(
     if world > 1:
         dist.barrier()
     return model.eval()
+
+
+def _init_from(model: FieldModel, source: str) -> None:
+    """Start from the weights (and channel scales) of a model checkpoint, or of the shipped one."""
+    from aes_planner.field.model import ModelError, load_model
+
+    try:
+        loaded = load_model(None if source == "default" else source)
+        model.load_state_dict(loaded.state_dict())
+    except (ModelError, RuntimeError) as exc:
+        raise CacheError(f"init_from {source}: cannot start from it ({str(exc)[:160]}); train from scratch") from None
+    log.info("starting from %s", source)
 
 
 def _resume(model: FieldModel, opt, last: Path, steps: int) -> int:
@@ -469,7 +525,7 @@ def validate(model: FieldModel, teacher: Teacher, val: list[tuple[dict, FieldInp
     from aes_planner.field.metrics import plcc, srcc
 
     model.eval()
-    pred, true, per, per_search, mse = [], [], [], [], []
+    pred, true, per, per_search, top, mse = [], [], [], [], [], []
     with torch.no_grad():
         for d, inputs in val:
             from aes_planner.field.common import render_intrinsics
@@ -484,6 +540,9 @@ def validate(model: FieldModel, teacher: Teacher, val: list[tuple[dict, FieldInp
             n_search = int(d.get("search_targets", 0))
             if n_search >= 3:  # the order of views the search would pick among
                 per_search.append(plcc(p[-n_search:], t[-n_search:]))
+                ts = t[-n_search:]
+                if ts.max() > ts.mean():  # the teacher's score at the field's pick, 1 = the best target
+                    top.append(float((ts[int(np.argmax(p[-n_search:]))] - ts.mean()) / (ts.max() - ts.mean())))
             scale = model.map_scale[None, :, None, None]
             mse.append(float(((maps - torch.from_numpy(d["target_maps"])) / scale).pow(2).mean()))
     p, t = np.concatenate(pred), np.concatenate(true)
@@ -493,6 +552,7 @@ def validate(model: FieldModel, teacher: Teacher, val: list[tuple[dict, FieldInp
         "val_plcc_per_sample": float(np.mean(per)) if per else 0.0,
         "val_map_mse": float(np.mean(mse)),
         **({"val_plcc_search": float(np.mean(per_search))} if per_search else {}),
+        **({"val_top1_search": float(np.mean(top))} if top else {}),
     }
 
 

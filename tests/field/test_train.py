@@ -13,12 +13,15 @@ import pytest
 import torch
 
 from aes_planner import tensorfile
+from aes_planner.config import ConfigError
 from aes_planner.field.model import DEFAULT_CHECKPOINT, FieldModel, load_model, read_checkpoint
 from aes_planner.field.train import (
     TRAIN_SEED_START,
     VAL_SEED_START,
+    CacheError,
     arrays_to_inputs,
     build_cache,
+    listwise_loss,
     load_config,
     load_sample,
     sample_loss,
@@ -181,3 +184,43 @@ def test_cache_workers_render_the_same_samples(tmp_path):
         da, db = load_sample(a), load_sample(b)
         assert da.keys() == db.keys() and all(np.array_equal(da[k], db[k]) for k in da)
     assert not list((tmp_path / "two").glob("*.tmp.npz"))
+
+
+def test_listwise_loss_is_zero_for_the_teachers_order_and_weights_the_top():
+    true = torch.tensor([0.50, 0.52, 0.61, 0.40, 0.58], dtype=torch.float64)
+    assert float(listwise_loss(true.clone(), true, 0.5)) == pytest.approx(0.0, abs=1e-12)
+    reversed_ = listwise_loss(-true, true, 0.5)
+    top_swapped = listwise_loss(true[[0, 1, 4, 3, 2]], true, 0.5)  # the best two exchanged
+    bottom_swapped = listwise_loss(true[[3, 1, 2, 0, 4]], true, 0.5)  # the worst two exchanged
+    assert float(reversed_) > float(top_swapped) > float(bottom_swapped) > 0
+    pred = true.clone().requires_grad_()
+    (listwise_loss(pred * 0.5, true, 0.5)).backward()
+    assert torch.isfinite(pred.grad).all() and float(pred.grad.abs().sum()) > 0
+    flat = torch.full((4,), 0.5, dtype=torch.float64)
+    assert float(listwise_loss(torch.randn(4, dtype=torch.float64), flat, 0.5)) == 0.0  # no order to learn
+
+
+def test_listwise_and_init_from_knobs_are_checked():
+    with pytest.raises(ConfigError, match="listwise_temperature"):
+        load_config({**TINY, "listwise_temperature": 0.0})
+    with pytest.raises(ConfigError, match="listwise_weight"):
+        load_config({**TINY, "listwise_weight": -1.0})
+
+
+def test_init_from_starts_at_the_checkpoints_weights(cache, tmp_path):
+    train_files, val_files = cache
+    first = train(load_config({**TINY, "steps": 3}), train_files, tmp_path / "a")
+    tuned_cfg = {
+        **TINY,
+        "steps": 1,
+        "lr": 1e-12,
+        "init_from": str(tmp_path / "a" / "model.npz"),
+        "listwise_weight": 1.0,
+    }
+    tuned = train(load_config(tuned_cfg), train_files, tmp_path / "b", val_samples=val_files)
+    for (name, a), b in zip(first.state_dict().items(), tuned.state_dict().values(), strict=True):
+        assert torch.allclose(a, b, atol=1e-6), name  # one step at lr 1e-12 from the same weights
+    metrics = json.loads((tmp_path / "b" / "metrics.jsonl").read_text().splitlines()[-1])
+    assert -10.0 < metrics["val_top1_search"] <= 1.0
+    with pytest.raises(CacheError, match="init_from default"):  # the shipped model is another architecture
+        train(load_config({**TINY, "steps": 1, "init_from": "default"}), train_files, tmp_path / "c")
