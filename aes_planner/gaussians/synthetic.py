@@ -54,7 +54,7 @@ def random_scene(
     v = (torch.rand(n, generator=g, dtype=f64) * 1.2 - 0.1) * height
     z = depth_m[0] + torch.rand(n, generator=g, dtype=f64) * (depth_m[1] - depth_m[0])
     p_cam = torch.stack([(u - width / 2) / fx * z, (v - height / 2) / fy * z, z, torch.ones_like(z)], -1)
-    means = (cam2world[0] @ p_cam.T).T[:, :3]
+    means = (cam2world[0] @ p_cam.T).T[:, :3].contiguous()  # [N, 3] rows, as a caller's would be
     lo, hi = (math.log(s / 64.0 * 2 * math.tan(HFOV_RAD / 2)) for s in sigma_px_at_64)  # radians per px
     log_sigma = lo + torch.rand(n, 1, generator=g, dtype=f64) * (hi - lo)
     aniso = (torch.rand(n, 3, generator=g, dtype=f64) * 2 - 1) * math.log(2.0) / 2
