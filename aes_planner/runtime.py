@@ -4,7 +4,9 @@ rasterizer), how long torch's idle OpenMP threads spin, and glibc malloc's thres
 * **Threads.** On a 2-core machine with another busy process, torch's OpenMP threads spin
   against it and a ``balanced`` suggestion takes about 2.5x longer with 2 threads than with 1;
   idle, 2 threads are faster. The planner node and ``aes-planner suggest`` take the count as a
-  knob (``threads``, 0 = torch's default: all cores).
+  knob (``threads``, 0 = torch's default: all cores). With all cores, the node's
+  :class:`ThreadGovernor` (``adapt_threads``) notices when its suggestions stop getting the
+  cores they ask for and drops to one thread until the cores are free again.
 * **OpenMP spinning.** torch's threads (GNU OpenMP) spin ``GOMP_SPINCOUNT`` rounds after each
   parallel op before they sleep: 300,000 by default, long enough that they were still spinning
   on both cores while the rasterizer's threads ran next. :func:`tune_openmp` lowers it to
@@ -27,10 +29,19 @@ from __future__ import annotations
 
 import ctypes
 import logging
+import math
 import os
 import sys
 
-__all__ = ["GOMP_SPINCOUNT", "MAX_THREADS", "set_threads", "tune_malloc", "tune_openmp"]
+__all__ = [
+    "GOMP_SPINCOUNT",
+    "MAX_THREADS",
+    "ThreadGovernor",
+    "available_cores",
+    "set_threads",
+    "tune_malloc",
+    "tune_openmp",
+]
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +82,97 @@ def set_threads(n: int) -> None:
     except ImportError:  # the torch backend needs no numba
         return
     numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+
+
+def available_cores() -> int:
+    """CPU cores this process may run on (its affinity mask; the CPU count where there is none)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+class ThreadGovernor:
+    """Chooses the thread count of repeated compute-bound jobs (the planner's suggestions) from
+    how much CPU each one got: ``efficiency = CPU time / (wall time x threads)``.
+
+    Idle, a ``balanced`` suggestion on 2 threads runs at 0.88 (564 ms; 788 ms on one thread).
+    Beside one busy process it gets one core's worth, 0.50, and its threads wait for each other
+    at every parallel op: 2548 ms, against 799 ms on one thread (docs/benchmarks.md, "Threading
+    layer"). So after ``patience`` jobs in a row below ``low_efficiency`` (one would do for a
+    neighbour that stays, but a process's first job is slow on its own: 0.60-0.65 idle) the
+    governor drops to one thread. Every
+    ``probe_every`` jobs on one thread it tries all threads once again (a probe) and keeps them
+    if that job ran efficiently; each failed probe doubles the interval, up to
+    ``max_probe_every``, so a lasting neighbour costs one slow job in that many.
+
+    ``observe(wall_s, cpu_s)`` after each job returns the count for the next one."""
+
+    def __init__(
+        self,
+        max_threads: int,
+        low_efficiency: float = 0.65,
+        patience: int = 2,
+        probe_every: int = 8,
+        max_probe_every: int = 64,
+    ) -> None:
+        if not isinstance(max_threads, int) or isinstance(max_threads, bool) or not 1 <= max_threads <= MAX_THREADS:
+            raise ValueError(f"max_threads: must be an integer in [1, {MAX_THREADS}], got {max_threads!r}")
+        if not 0.0 < low_efficiency < 1.0:
+            raise ValueError(f"low_efficiency: must be in (0, 1), got {low_efficiency!r}")
+        if not isinstance(patience, int) or isinstance(patience, bool) or patience < 1:
+            raise ValueError(f"patience: must be an integer >= 1, got {patience!r}")
+        if not 1 <= probe_every <= max_probe_every:
+            raise ValueError(
+                f"probe_every: need 1 <= probe_every <= max_probe_every, got {probe_every}, {max_probe_every}"
+            )
+        self.max_threads = max_threads
+        self.low_efficiency = low_efficiency
+        self.patience = patience
+        self.low_run = 0  # jobs in a row below low_efficiency on all threads
+        self.base_probe_every = probe_every
+        self.max_probe_every = max_probe_every
+        self.threads = max_threads
+        self.probe_every = probe_every
+        self.since_drop = 0  # jobs on one thread since the last drop or failed probe
+        self.probing = False
+        self.changes = 0
+        self.last_efficiency = math.nan
+
+    def observe(self, wall_s: float, cpu_s: float) -> int:
+        """Record one job; returns the thread count for the next. Jobs too short to judge (wall
+        under 10 ms) and non-finite or negative times change nothing."""
+        if not (math.isfinite(wall_s) and math.isfinite(cpu_s)) or wall_s < 0.01 or cpu_s < 0:
+            return self.threads
+        eff = cpu_s / (wall_s * self.threads)
+        self.last_efficiency = eff
+        if self.threads > 1:
+            self.low_run = self.low_run + 1 if eff < self.low_efficiency else 0
+            if self.probing and self.low_run:  # a failed probe: back at once, and wait longer next time
+                self.probe_every = min(2 * self.probe_every, self.max_probe_every)
+                self._drop()
+            elif self.low_run >= self.patience:  # a new neighbour: probe soon
+                self.probe_every = self.base_probe_every
+                self._drop()
+            self.probing = False
+            return self.threads
+        if self.max_threads > 1:
+            self.since_drop += 1
+            if self.since_drop >= self.probe_every:
+                self.probing = True
+                self._set(self.max_threads)
+        return self.threads
+
+    def _drop(self) -> None:
+        self._set(1)
+        self.since_drop = 0
+        self.low_run = 0
+
+    def _set(self, n: int) -> None:
+        if n != self.threads:
+            log.info("threads %d -> %d (last job's CPU efficiency %.2f)", self.threads, n, self.last_efficiency)
+            self.threads = n
+            self.changes += 1
 
 
 def tune_malloc() -> bool:

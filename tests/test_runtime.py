@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from aes_planner.runtime import set_threads
+from aes_planner.runtime import ThreadGovernor, available_cores, set_threads
 
 SNIPPET = """
 import ctypes
@@ -59,3 +59,50 @@ def test_package_import_sets_the_spin_count_before_torch_loads():
 def test_spin_count_leaves_an_explicit_choice_alone(env):
     expected = env.get("GOMP_SPINCOUNT", "unset")
     assert _run(env, SPIN_SNIPPET) == [expected, "False"]
+
+
+def test_governor_keeps_all_threads_while_jobs_get_the_cores():
+    gov = ThreadGovernor(2)
+    for _ in range(50):
+        assert gov.observe(0.56, 0.98) == 2  # idle: efficiency 0.88
+    assert gov.changes == 0 and gov.last_efficiency == pytest.approx(0.98 / 1.12)
+
+
+def test_governor_drops_to_one_thread_beside_a_busy_neighbour_and_probes_back():
+    gov = ThreadGovernor(2, probe_every=4, max_probe_every=16)
+    assert gov.observe(2.5, 2.5) == 2  # one core's worth on two threads (0.50), once: could be a cold start
+    assert gov.observe(0.56, 0.98) == 2  # and it was
+    assert [gov.observe(2.5, 2.5) for _ in range(2)] == [2, 1]  # twice in a row: a neighbour
+    counts = [gov.observe(0.8, 0.8) for _ in range(4)]
+    assert counts == [1, 1, 1, 2]  # the 4th job on one thread is followed by a probe on two
+    assert gov.observe(2.4, 2.4) == 1  # the probe failed: back to one thread, next probe later
+    counts = [gov.observe(0.8, 0.8) for _ in range(8)]
+    assert counts == [1] * 7 + [2] and gov.probe_every == 8
+    for _ in range(5):  # failed probes back off up to max_probe_every
+        gov.observe(2.4, 2.4)
+        while gov.observe(0.8, 0.8) == 1:
+            pass
+    assert gov.probe_every == 16
+    assert gov.observe(0.56, 0.98) == 2  # the neighbour left: the probe ran efficiently, keep two
+    assert gov.observe(0.56, 0.98) == 2
+    assert [gov.observe(2.5, 2.5) for _ in range(2)] == [2, 1] and gov.probe_every == 4  # a new neighbour
+
+
+def test_governor_ignores_short_and_broken_measurements():
+    gov = ThreadGovernor(2)
+    for wall, cpu in ((0.005, 0.0), (float("nan"), 1.0), (1.0, float("inf")), (-1.0, 0.0), (1.0, -1.0)):
+        assert gov.observe(wall, cpu) == 2
+    assert gov.changes == 0
+    one = ThreadGovernor(1)
+    assert all(one.observe(1.0, 0.1) == 1 for _ in range(100)) and one.changes == 0
+
+
+@pytest.mark.parametrize("kw", [dict(max_threads=0), dict(max_threads=True), dict(low_efficiency=1.0),
+                                dict(low_efficiency=0.0), dict(probe_every=0), dict(probe_every=9, max_probe_every=8), dict(patience=0)])  # fmt: skip
+def test_governor_refuses_nonsense(kw):
+    with pytest.raises(ValueError, match=next(iter(kw))):
+        ThreadGovernor(**{"max_threads": 2, **kw})
+
+
+def test_available_cores_is_positive():
+    assert 1 <= available_cores() <= (os.cpu_count() or 1)

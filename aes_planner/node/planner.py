@@ -53,7 +53,7 @@ from aes_planner.messages import (
 )
 from aes_planner.node.base import LaunchContext, Node, NodeError, Outputs, percentile
 from aes_planner.node.proposer import FieldProposer, Proposer
-from aes_planner.runtime import MAX_THREADS, set_threads
+from aes_planner.runtime import MAX_THREADS, ThreadGovernor, set_threads
 from aes_planner.sources import DroneBox, Platform
 
 log = logging.getLogger(__name__)
@@ -109,6 +109,9 @@ class PlannerConfig:
       process-wide); 0 = torch's default, all cores. 1 keeps a suggestion steady beside busy
       processes (``balanced``, 2 cores, one busy process beside: 0.86 s with 1 thread, 2.1 s with
       2; idle 0.76 s against 0.62 s; docs/benchmarks.md, "Threading layer").
+    * ``adapt_threads``: with ``threads: 0``, let a :class:`~aes_planner.runtime.ThreadGovernor`
+      drop to one thread while the suggestions do not get the cores (a busy neighbour) and
+      return to all cores when they do; diagnostics report ``threads`` and ``cpu_efficiency``.
     """
 
     scorer: str = "field"
@@ -137,6 +140,7 @@ class PlannerConfig:
     mode: str = "auto"
     seed: int = 0
     threads: int = 0
+    adapt_threads: bool = True
 
     def __post_init__(self):
         require(self.scorer in ("field", "rgb"), "scorer", f"must be 'field' or 'rgb', got {self.scorer!r}")
@@ -281,6 +285,8 @@ class PlannerNode(Node):
         )
         self.latencies_s: deque[float] = deque(maxlen=256)
         self._threads_set_in: int | None = None  # ident of the thread whose numba count was set
+        self.governor: ThreadGovernor | None = None  # threads 0 + adapt_threads: made on the first step
+        self.cpu_clock = time.process_time  # CPU seconds of the whole process (tests replace it)
         self._intrinsics = None
         self._frame: PosedFrame | None = None  # newest accepted frame
         self._gimbal: GimbalState | None = None  # newest gimbal state
@@ -326,6 +332,8 @@ class PlannerNode(Node):
         if self.config.threads and self._threads_set_in != threading.get_ident():
             set_threads(self.config.threads)  # numba's count is per thread: set where the steps run
             self._threads_set_in = threading.get_ident()
+        elif not self.config.threads and self.config.adapt_threads and self.governor is None:
+            self.governor = ThreadGovernor(torch.get_num_threads())  # torch's default: all cores
         if self.started_s is None:
             self.started_s = now
         self._take_inputs(inputs)
@@ -494,14 +502,12 @@ class PlannerNode(Node):
         if self.moves >= c.max_moves:
             return None
         captured = np.stack([cap.cam2world for cap in self.captures])  # [M, 4, 4]
-        t0 = time.perf_counter()
         try:
             best = int(np.argmax([cap.score for cap in self.captures]))
-            proposal = self.proposer.propose(self.platform, captured, max(c.top_k, 4), keep_near=best)
+            proposal = self._propose(captured, max(c.top_k, 4), keep_near=best)
         except Exception:
             log.exception("%s: planning failed; settling on the best captured view", self.node_id)
             return None
-        self.latencies_s.append(time.perf_counter() - t0)
         cands = [cd for cd in proposal.candidates if self._safe_candidate(cd)]
         out["planner/suggestion"].append(self._suggestion(cands[: c.top_k], proposal.field_version, now))
         hopes = self._hopes(cands, proposal.captured_pred)
@@ -698,16 +704,26 @@ class PlannerNode(Node):
         if self.platform is not None and self._dirty and (due or self._suggest_requested):
             self._dirty = False
             self._last_suggest = now
-            t0 = time.perf_counter()
             try:
-                proposal = self.proposer.propose(self.platform, np.zeros((0, 4, 4)), self.config.top_k)
+                proposal = self._propose(np.zeros((0, 4, 4)), self.config.top_k)
             except Exception:
                 log.exception("%s: suggestion failed", self.node_id)
                 return
-            self.latencies_s.append(time.perf_counter() - t0)
             cands = [cd for cd in proposal.candidates if self._safe_candidate(cd)]
             out["planner/suggestion"].append(self._suggestion(cands[: self.config.top_k], proposal.field_version, now))
             self.state = "suggesting"
+
+    def _propose(self, captured: np.ndarray, k: int, **kw):
+        """The proposer's search, timed: its latency, and its CPU efficiency for the governor."""
+        t0, c0 = time.perf_counter(), self.cpu_clock()
+        proposal = self.proposer.propose(self.platform, captured, k, **kw)
+        wall_s, cpu_s = time.perf_counter() - t0, self.cpu_clock() - c0
+        self.latencies_s.append(wall_s)
+        if self.governor is not None:
+            before = self.governor.threads
+            if self.governor.observe(wall_s, cpu_s) != before:
+                set_threads(self.governor.threads)  # from the thread the steps (and searches) run in
+        return proposal
 
     # ---------------------------------------------------------------------------- messages
     def _suggestion(self, candidates: list[Candidate], version: int, now: float) -> ViewSuggestion:
@@ -728,7 +744,13 @@ class PlannerNode(Node):
             "field_version": float(self.proposer.version if self.proposer else 0),
             "latency_p50_s": percentile(lat, 50),
             "latency_p95_s": percentile(lat, 95),
+            "threads": float(
+                self.governor.threads if self.governor else self.config.threads or torch.get_num_threads()
+            ),
         }
+        if self.governor is not None and math.isfinite(self.governor.last_efficiency):
+            values["cpu_efficiency"] = self.governor.last_efficiency
+            values["thread_changes"] = float(self.governor.changes)
         scored = [cap for cap in self.captures if math.isfinite(cap.score)]
         if scored:
             values["initial_score"] = scored[0].score

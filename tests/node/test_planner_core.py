@@ -214,3 +214,53 @@ def test_threads_knob_applies_in_the_stepping_thread():
         assert seen == {"torch": 1, "numba": 1}
     finally:
         torch.set_num_threads(before)
+
+
+class SlowProposer(ScriptedProposer):
+    """Takes 20 ms of wall time per search (sleeping: no CPU of its own)."""
+
+    def propose(self, platform, captured, top_k, keep_near=None):
+        import time
+
+        time.sleep(0.02)
+        return super().propose(platform, captured, top_k, keep_near)
+
+
+def test_threads_adapt_to_the_cpu_the_searches_get(rig):
+    """With threads 0, searches that get little CPU drop the planner to one thread; a probe on all
+    threads that runs efficiently brings them back."""
+    import time
+
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        node = make(SlowProposer(), active=False, min_suggest_period_s=0.5)
+        for i in range(3):  # sleeping searches: ~0 CPU for their wall time, like a busy neighbour
+            node.step({"camera/frame": [frame_at(rig, 0.0, 0.0, 1.0 + i)]}, 1.0 + i)
+        assert torch.get_num_threads() == 1 and node.governor.changes == 1  # after two such searches
+        d = node.diagnostics(10.0).values
+        assert d["threads"] == 1.0 and d["cpu_efficiency"] < 0.65 and d["thread_changes"] == 1.0
+        node.cpu_clock = lambda: 2.0 * time.perf_counter()  # from now on every search gets two cores
+        for i in range(node.governor.probe_every + 1):
+            node.step({"camera/frame": [frame_at(rig, 0.0, 0.0, 10.0 + i)]}, 10.0 + i)
+        assert torch.get_num_threads() == 2 and node.governor.threads == 2
+        assert node.counters["suggestions"] == 3 + node.governor.probe_every + 1
+    finally:
+        torch.set_num_threads(before)
+
+
+def test_fixed_threads_or_adapt_off_leave_the_count_alone():
+    import torch
+
+    before = torch.get_num_threads()
+    try:
+        for node in (make(threads=1), make(adapt_threads=False)):
+            node.step({}, 1.0)
+            assert node.governor is None
+        node = make()
+        node.step({}, 1.0)
+        assert node.governor is not None and node.governor.max_threads == torch.get_num_threads()
+    finally:
+        torch.set_num_threads(before)
