@@ -6,7 +6,7 @@ rasterizer), how long torch's idle OpenMP threads spin, and glibc malloc's thres
   idle, 2 threads are faster. The planner node and ``aes-planner suggest`` take the count as a
   knob (``threads``, 0 = torch's default: all cores). With all cores, the node's
   :class:`ThreadGovernor` (``adapt_threads``) notices when its suggestions stop getting the
-  cores they ask for and drops to one thread until the cores are free again.
+  cores they ask for, tries one thread, and keeps whichever count runs them faster.
 * **OpenMP spinning.** torch's threads (GNU OpenMP) spin ``GOMP_SPINCOUNT`` rounds after each
   parallel op before they sleep: 300,000 by default, long enough that they were still spinning
   on both cores while the rasterizer's threads ran next. :func:`tune_openmp` lowers it to
@@ -31,7 +31,9 @@ import ctypes
 import logging
 import math
 import os
+import statistics
 import sys
+from collections import deque
 
 __all__ = [
     "GOMP_SPINCOUNT",
@@ -93,20 +95,28 @@ def available_cores() -> int:
 
 
 class ThreadGovernor:
-    """Chooses the thread count of repeated compute-bound jobs (the planner's suggestions) from
-    how much CPU each one got: ``efficiency = CPU time / (wall time x threads)``.
+    """Chooses the thread count of repeated compute-bound jobs (the planner's suggestions) by
+    trying one thread when the jobs do not get the cores they ask for, and keeping whichever
+    count ran faster.
 
-    Idle, a ``balanced`` suggestion on 2 threads runs at 0.88 (564 ms; 788 ms on one thread).
-    Beside one busy process it gets one core's worth, 0.50, and its threads wait for each other
-    at every parallel op: 2548 ms, against 799 ms on one thread (docs/benchmarks.md, "Threading
-    layer"). So after ``patience`` jobs in a row below ``low_efficiency`` (one would do for a
-    neighbour that stays, but a process's first job is slow on its own: 0.60-0.65 idle) the
-    governor drops to one thread. Every
-    ``probe_every`` jobs on one thread it tries all threads once again (a probe) and keeps them
-    if that job ran efficiently; each failed probe doubles the interval, up to
-    ``max_probe_every``, so a lasting neighbour costs one slow job in that many.
+    The trigger is each job's CPU efficiency, ``CPU time / (wall time x threads)``. Idle, a
+    ``balanced`` suggestion on 2 threads runs at 0.84-0.91 (a process's first one at 0.60-0.65);
+    beside one busy process at 0.50, when its threads wait for each other at every parallel op:
+    2.5 s against 0.8 s on one thread (docs/benchmarks.md, "Threading layer"). But a low
+    efficiency does not always mean one thread is faster (the closed loop's larger jobs beside a
+    busy process: 2.6 s on two threads, 2.9 s on one), so the count is settled by wall times:
 
-    ``observe(wall_s, cpu_s)`` after each job returns the count for the next one."""
+    * after ``patience`` jobs in a row below ``low_efficiency`` on all threads, a **trial** of
+      ``patience`` jobs on one thread; their median wall time against the median of the jobs just
+      before decides. A lost trial returns to all threads and waits ``backoff`` jobs before the
+      trigger may fire again;
+    * on one thread, every ``backoff`` jobs a **probe** of one job on all threads, kept if it beat
+      the median of the one-thread jobs before it;
+    * ``backoff`` starts at ``probe_every`` and doubles after each lost trial or probe, up to
+      ``max_probe_every``; a won one resets it.
+
+    Jobs are assumed to change size slowly (the field grows by a frame at a time). ``observe``
+    after each job returns the count for the next one."""
 
     def __init__(
         self,
@@ -129,12 +139,15 @@ class ThreadGovernor:
         self.max_threads = max_threads
         self.low_efficiency = low_efficiency
         self.patience = patience
-        self.low_run = 0  # jobs in a row below low_efficiency on all threads
-        self.base_probe_every = probe_every
+        self.probe_every = probe_every
         self.max_probe_every = max_probe_every
         self.threads = max_threads
-        self.probe_every = probe_every
-        self.since_drop = 0  # jobs on one thread since the last drop or failed probe
+        self.backoff = probe_every
+        self.walls = {1: deque(maxlen=patience), max_threads: deque(maxlen=patience)}  # recent wall s per count
+        self.low_run = 0  # jobs in a row below low_efficiency on all threads
+        self.jobs_here = 0  # jobs since the last switch
+        self.quiet = 0  # jobs on all threads before the trigger may fire again
+        self.trial = False
         self.probing = False
         self.changes = 0
         self.last_efficiency = math.nan
@@ -144,35 +157,52 @@ class ThreadGovernor:
         under 10 ms) and non-finite or negative times change nothing."""
         if not (math.isfinite(wall_s) and math.isfinite(cpu_s)) or wall_s < 0.01 or cpu_s < 0:
             return self.threads
-        eff = cpu_s / (wall_s * self.threads)
-        self.last_efficiency = eff
+        if self.max_threads == 1:
+            return 1
+        self.last_efficiency = cpu_s / (wall_s * self.threads)
+        self.walls[self.threads].append(wall_s)
+        self.jobs_here += 1
         if self.threads > 1:
-            self.low_run = self.low_run + 1 if eff < self.low_efficiency else 0
-            if self.probing and self.low_run:  # a failed probe: back at once, and wait longer next time
-                self.probe_every = min(2 * self.probe_every, self.max_probe_every)
-                self._drop()
-            elif self.low_run >= self.patience:  # a new neighbour: probe soon
-                self.probe_every = self.base_probe_every
-                self._drop()
-            self.probing = False
-            return self.threads
-        if self.max_threads > 1:
-            self.since_drop += 1
-            if self.since_drop >= self.probe_every:
-                self.probing = True
-                self._set(self.max_threads)
+            if self.probing:  # one job on all threads against the one-thread jobs before it
+                self.probing = False
+                self._settle(won=wall_s < _median(self.walls[1]), loser=1)
+            else:
+                self.low_run = self.low_run + 1 if self.last_efficiency < self.low_efficiency else 0
+                if self.low_run >= self.patience and not self.quiet:
+                    self.trial = True
+                    self._switch(1)
+                self.quiet = max(0, self.quiet - 1)
+        elif self.trial:
+            if self.jobs_here >= self.patience:  # one thread against the jobs that set off the trial
+                self.trial = False
+                won = _median(self.walls[1]) < _median(self.walls[self.max_threads])
+                self._settle(won=won, loser=self.max_threads)
+                if not won:
+                    self.quiet = self.backoff
+        elif self.jobs_here >= self.backoff:
+            self.probing = True
+            self._switch(self.max_threads)
         return self.threads
 
-    def _drop(self) -> None:
-        self._set(1)
-        self.since_drop = 0
-        self.low_run = 0
+    def _settle(self, won: bool, loser: int) -> None:
+        """After a trial or probe: keep the count it tried if it won, else go back to ``loser``."""
+        if won:
+            self.backoff = self.probe_every
+        else:
+            self.backoff = min(2 * self.backoff, self.max_probe_every)
+            self._switch(loser)
 
-    def _set(self, n: int) -> None:
-        if n != self.threads:
-            log.info("threads %d -> %d (last job's CPU efficiency %.2f)", self.threads, n, self.last_efficiency)
-            self.threads = n
-            self.changes += 1
+    def _switch(self, n: int) -> None:
+        log.info("threads %d -> %d (last job's CPU efficiency %.2f)", self.threads, n, self.last_efficiency)
+        self.threads = n
+        self.walls[n].clear()
+        self.jobs_here = 0
+        self.low_run = 0
+        self.changes += 1
+
+
+def _median(values) -> float:
+    return statistics.median(values) if values else math.inf
 
 
 def tune_malloc() -> bool:

@@ -110,8 +110,9 @@ class PlannerConfig:
       processes (``balanced``, 2 cores, one busy process beside: 0.86 s with 1 thread, 2.1 s with
       2; idle 0.76 s against 0.62 s; docs/benchmarks.md, "Threading layer").
     * ``adapt_threads``: with ``threads: 0``, let a :class:`~aes_planner.runtime.ThreadGovernor`
-      drop to one thread while the suggestions do not get the cores (a busy neighbour) and
-      return to all cores when they do; diagnostics report ``threads`` and ``cpu_efficiency``.
+      try one thread when the suggestions do not get the cores (a busy neighbour), keep whichever
+      count runs them faster, and probe all cores again now and then; diagnostics report
+      ``threads``, ``cpu_efficiency`` and ``thread_changes``.
     """
 
     scorer: str = "field"
