@@ -24,6 +24,9 @@ class SearchConfig:
     Stage 1 (coarse sampling):
 
     * ``samples_per_segment`` (S): poses per segment of the interpolated input trajectory.
+    * ``segment_budget``: the trajectory gets at most S x ``segment_budget`` samples; inputs with
+      more segments get fewer per segment (at least 1), so a search over the closed loop's 14
+      captures costs about what one over 4 frames (3 segments: unchanged) does. None = no cap.
     * ``neighbours`` (N): perturbed poses around each trajectory sample (direction jitter; in free
       mode also in-plane shifts).
     * ``jitter_fov``: direction jitter, as a fraction of the horizontal field of view (uniform in
@@ -56,6 +59,7 @@ class SearchConfig:
     """
 
     samples_per_segment: int = 16
+    segment_budget: int | None = 3
     neighbours: int = 8
     grid_points: int = 0
     top_k: int = 2
@@ -99,6 +103,14 @@ class SearchConfig:
             "seed",
             f"must be an integer, got {self.seed!r}",
         )
+        if self.segment_budget is not None:
+            require(
+                isinstance(self.segment_budget, int)
+                and not isinstance(self.segment_budget, bool)
+                and self.segment_budget >= 1,
+                "segment_budget",
+                f"must be an integer >= 1 or None, got {self.segment_budget!r}",
+            )
         for name in ("lr", "jitter_fov", "shift_frac", "dedup_fov", "dedup_frac", "fd_step"):
             v = getattr(self, name)
             require_finite(v, name)

@@ -165,6 +165,15 @@ def _gradient(scorer: Scorer, space: SearchSpace, params: Tensor, cfg: SearchCon
     return obj[:, 0], first, grad.to(params.dtype)
 
 
+def samples_per_segment(cfg: SearchConfig, n_inputs: int) -> int:
+    """S, or fewer when the inputs have more than ``cfg.segment_budget`` segments: the trajectory
+    then gets S x segment_budget samples in all (at least one per segment)."""
+    segments = max(n_inputs - 1, 1)
+    if cfg.segment_budget is None or segments <= cfg.segment_budget:
+        return cfg.samples_per_segment
+    return max(1, cfg.samples_per_segment * cfg.segment_budget // segments)
+
+
 def refine_params(scorer: Scorer, space: SearchSpace, start: Tensor, start_obj: Tensor, cfg: SearchConfig):
     """Stage 2: ``cfg.steps`` Adam steps (lr ``cfg.lr``) of gradient ascent on the objective from
     ``start [K, D]`` (objective ``start_obj [K]``), projected into the bounds after every step.
@@ -233,7 +242,7 @@ def search_views(
     avoid_params = space.from_poses(_check_inputs(avoid)) if avoid is not None and len(avoid) else None
 
     # ---- stage 1: trajectory samples + neighbours, scored in batches
-    trajectory = interpolate_poses(inputs, cfg.samples_per_segment)  # [T, 4, 4]
+    trajectory = interpolate_poses(inputs, samples_per_segment(cfg, len(inputs)))  # [T, 4, 4]
     anchors = space.from_poses(trajectory)  # [T, D]
     candidates = torch.cat(
         [anchors, space.neighbours(anchors, cfg.neighbours, rng), space.grid(cfg.grid_points)]

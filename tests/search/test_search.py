@@ -103,6 +103,32 @@ def test_presets_and_overrides():
         SearchConfig(pitch_limits_deg=(10.0, -10.0))
 
 
+def test_segment_budget_bounds_the_trajectory_samples():
+    from aes_planner.search.pipeline import samples_per_segment
+
+    bal = SearchConfig.preset("balanced")
+    assert bal.segment_budget == 3
+    assert [samples_per_segment(bal, n) for n in (1, 2, 4, 5, 14, 100)] == [16, 16, 16, 12, 3, 1]
+    assert samples_per_segment(SearchConfig.preset("balanced", segment_budget=None), 14) == 16
+    assert samples_per_segment(SearchConfig.preset("balanced", samples_per_segment=32), 4) == 32  # S x N ablations
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(ConfigError, match="segment_budget"):
+            SearchConfig(segment_budget=bad)
+    platform = rig_platform(pan_limits_deg=(-150.0, 150.0), tilt_limits_deg=(-60.0, 60.0))
+    target = np.array([1.0, 0.3, 0.1])
+    cfg = SearchConfig.preset("fast", steps=0)
+    few = search_views(AimScorer(target), rig_inputs(platform, 4), platform, cfg)
+    many = search_views(AimScorer(target), rig_inputs(platform, 14), platform, cfg)
+    uncapped = search_views(
+        AimScorer(target), rig_inputs(platform, 14), platform, SearchConfig.preset("fast", steps=0, segment_budget=None)
+    )
+    assert len(few.candidates_cam2world) == (3 * 4 + 1) * (1 + cfg.neighbours)
+    assert len(many.candidates_cam2world) == (13 * 1 + 1) * (1 + cfg.neighbours)  # 4 x 3 // 13 = 0 -> 1
+    assert len(uncapped.candidates_cam2world) == (13 * 4 + 1) * (1 + cfg.neighbours)
+    assert_inside(many, platform, cfg)
+    assert angle_to(many.best.cam2world, target) < 20.0
+
+
 # ------------------------------------------------------------------------------------ rig
 @pytest.mark.parametrize("differentiable", [True, False])
 def test_rig_finds_target_and_refinement_helps(differentiable):
