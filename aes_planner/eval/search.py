@@ -34,7 +34,9 @@ import cv2
 import numpy as np
 import torch
 
+from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.pantilt import PanTilt
+from aes_planner.geometry.poses import view_to_cam2world
 from aes_planner.search import GroundTruthScorer, SearchConfig, build_search_scorer, oracle_search, search_views
 from aes_planner.search.pipeline import SearchError, refine_params
 from aes_planner.search.space import SearchSpace, space_for
@@ -114,9 +116,15 @@ class SearchEvalConfig:
         )
 
 
+class SearchEvalError(AesPlannerError, ValueError):
+    """A search evaluation that cannot run as asked (e.g. rig mode on a drone scene)."""
+
+
 # ------------------------------------------------------------------------------------ set-up
 def _free_platform(source, box_half_m) -> Platform:
-    """A drone box around the rig's base (the scenes are rig scenes; free mode flies near the rig)."""
+    """A drone scene's own box; for a rig scene, a box around the rig's base (free mode flies near it)."""
+    if source.platform.kind == "drone":
+        return source.platform
     rig = source.platform.rig
     base = np.asarray(rig.base_xyz_m)
     half = np.asarray(box_half_m)
@@ -125,8 +133,24 @@ def _free_platform(source, box_half_m) -> Platform:
     return Platform("drone", source.platform.intrinsics, drone=DroneBox(tuple(lo), tuple(hi)))
 
 
+def _drone_inputs(platform: Platform, n: int) -> np.ndarray:  # -> [n, 4, 4]
+    """n views along the box's diagonal at mid height, yaw spread around the circle from +x,
+    pitched alternately 10 deg down and 5 deg up."""
+    lo, hi = np.asarray(platform.drone.bounds_min_m), np.asarray(platform.drone.bounds_max_m)
+    ts = np.linspace(0.25, 0.75, n) if n > 1 else np.array([0.5])
+    views = np.zeros((n, 5))
+    views[:, :3] = lo + ts[:, None] * (hi - lo) * np.array([1.0, 1.0, 0.0]) + np.array([0, 0, 0.5]) * (hi - lo)
+    yaw_rad = 2 * np.pi * np.arange(n) / n
+    views[:, 3] = np.arctan2(np.sin(yaw_rad), np.cos(yaw_rad))
+    views[:, 4] = np.where(np.arange(n) % 2 == 0, math.radians(-10.0), math.radians(5.0))
+    return view_to_cam2world(torch.as_tensor(views)).numpy()
+
+
 def _inputs(source, platform: Platform, n: int) -> np.ndarray:  # -> [n, 4, 4]
-    """Rig: the survey sweep. Free: the sweep's directions from positions along the box's diagonal."""
+    """Rig: the survey sweep. Free: the sweep's directions from positions along the box's diagonal;
+    a drone scene (no rig) turns around the circle instead, as the planner's exploration does."""
+    if source.platform.rig is None:
+        return _drone_inputs(platform, n)
     pt = PanTilt(source.platform.rig)
     j = pt.sweep(n)
     poses = pt.forward(j[:, 0], j[:, 1])
@@ -222,8 +246,11 @@ def run_search_eval(
     out = Path(out_dir) if out_dir else None
     if out:
         out.mkdir(parents=True, exist_ok=True)
-    for spec in cfg.scenes:
-        scene = load_scene(spec)
+    scenes = [(spec, load_scene(spec)) for spec in cfg.scenes]  # every scene checked before the long run
+    for spec, scene in scenes:
+        if "rig" in cfg.modes and scene.rig is None:
+            raise SearchEvalError(f"scene {spec} has no rig (a drone scene): evaluate it with --modes free")
+    for spec, scene in scenes:
         source = _source(scene, cfg)
         source.name = spec
         for mode in cfg.modes:

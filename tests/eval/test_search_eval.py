@@ -1,6 +1,10 @@
 """``eval search`` on one tiny scene with the ground-truth methods only (no scorer to build)."""
 
+from pathlib import Path
+
+import numpy as np
 import pytest
+import torch
 
 from aes_planner.cli import main
 from aes_planner.eval.search import SearchEvalConfig, run_search_eval
@@ -61,3 +65,52 @@ def test_held_out_scenes_are_none_of_the_fields():
     from aes_planner.bench.search import SCENES
 
     assert set(SCENES) <= set(HELD_OUT_SCENES)
+
+
+YARD_DRONE = str(Path(__file__).parents[1] / "node" / "scenes" / "yard_drone.yaml")
+
+
+def test_eval_search_on_a_drone_scene_flies_its_own_box(tmp_path):
+    """A drone scene (no rig) evaluates in free mode inside the scene's box, from inputs that turn
+    around the circle; every judged pose stays inside that box."""
+    from aes_planner.eval.search import _drone_inputs, _free_platform, _source
+    from aes_planner.geometry.poses import cam2world_to_view
+    from aes_planner.sim.scene import load_scene
+
+    cfg = tiny(tmp_path, scenes=[YARD_DRONE], modes=["free"], views=[4])
+    source = _source(load_scene(YARD_DRONE), cfg)
+    platform = _free_platform(source, cfg.free_box_m)
+    assert platform.kind == "drone" and platform.drone.bounds_min_m == (-1.5, -1.5, 0.8)
+    views = cam2world_to_view(torch.as_tensor(_drone_inputs(platform, 4))).numpy()  # [4, 5]
+    lo, hi = np.asarray(platform.drone.bounds_min_m), np.asarray(platform.drone.bounds_max_m)
+    assert np.all((views[:, :3] >= lo) & (views[:, :3] <= hi))
+    assert len({round(float(y), 3) for y in views[:, 3]}) == 4  # four different headings
+
+    doc = run_search_eval(cfg)
+    table = doc["views"]["4"]["free"]
+    assert table["oracle"]["normalized"] == pytest.approx(1.0)
+    assert table["rotation"]["teacher"] >= table["best_input"]["teacher"] - 1e-9
+
+
+def test_eval_search_rig_mode_on_a_drone_scene_is_refused_before_any_work(tmp_path):
+    from aes_planner.eval.search import SearchEvalError
+
+    with pytest.raises(SearchEvalError, match="--modes free"):
+        run_search_eval(tiny(tmp_path, scenes=["tabletop:102", YARD_DRONE], modes=["rig"]))
+
+
+@pytest.mark.parametrize(
+    "path", sorted((Path(__file__).parents[1] / "node" / "scenes").glob("*.yaml")), ids=lambda p: p.stem
+)
+def test_hand_written_scenes_load_and_show_their_objects(path, tmp_path):
+    """The hand-written check scenes (docs/benchmarks.md, session 7) stay loadable, and their
+    inputs see something besides sky."""
+    from aes_planner.eval.search import _free_platform, _inputs, _source
+    from aes_planner.sim.scene import load_scene
+
+    cfg = tiny(tmp_path)
+    source = _source(load_scene(str(path)), cfg)
+    platform = _free_platform(source, cfg.free_box_m)
+    frames = [source.capture(p) for p in _inputs(source, platform, 4)]
+    depth_m = np.stack([f.depth_m for f in frames])  # [4, h, w], 0 = sky
+    assert (depth_m > 0).mean() > 0.3
