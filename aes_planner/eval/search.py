@@ -133,13 +133,18 @@ def _free_platform(source, box_half_m) -> Platform:
     return Platform("drone", source.platform.intrinsics, drone=DroneBox(tuple(lo), tuple(hi)))
 
 
-def _drone_inputs(platform: Platform, n: int) -> np.ndarray:  # -> [n, 4, 4]
-    """n views along the box's diagonal at mid height, yaw spread around the circle from +x,
-    pitched alternately 10 deg down and 5 deg up."""
+def _diagonal_positions_m(platform: Platform, n: int) -> np.ndarray:  # -> [n, 3]
+    """n positions from 1/4 to 3/4 along the drone box's horizontal diagonal, at mid height."""
     lo, hi = np.asarray(platform.drone.bounds_min_m), np.asarray(platform.drone.bounds_max_m)
     ts = np.linspace(0.25, 0.75, n) if n > 1 else np.array([0.5])
+    return lo + ts[:, None] * (hi - lo) * np.array([1.0, 1.0, 0.0]) + np.array([0, 0, 0.5]) * (hi - lo)
+
+
+def _drone_inputs(platform: Platform, n: int) -> np.ndarray:  # -> [n, 4, 4]
+    """n views along the box's diagonal, yaw spread around the circle from +x, pitched
+    alternately 10 deg down and 5 deg up."""
     views = np.zeros((n, 5))
-    views[:, :3] = lo + ts[:, None] * (hi - lo) * np.array([1.0, 1.0, 0.0]) + np.array([0, 0, 0.5]) * (hi - lo)
+    views[:, :3] = _diagonal_positions_m(platform, n)
     yaw_rad = 2 * np.pi * np.arange(n) / n
     views[:, 3] = np.arctan2(np.sin(yaw_rad), np.cos(yaw_rad))
     views[:, 4] = np.where(np.arange(n) % 2 == 0, math.radians(-10.0), math.radians(5.0))
@@ -155,10 +160,8 @@ def _inputs(source, platform: Platform, n: int) -> np.ndarray:  # -> [n, 4, 4]
     j = pt.sweep(n)
     poses = pt.forward(j[:, 0], j[:, 1])
     if platform.kind == "drone":
-        lo, hi = np.asarray(platform.drone.bounds_min_m), np.asarray(platform.drone.bounds_max_m)
-        ts = np.linspace(0.25, 0.75, n) if n > 1 else np.array([0.5])
         poses = poses.copy()
-        poses[:, :3, 3] = lo + ts[:, None] * (hi - lo) * np.array([1.0, 1.0, 0.0]) + np.array([0, 0, 0.5]) * (hi - lo)
+        poses[:, :3, 3] = _diagonal_positions_m(platform, n)
     return poses
 
 
