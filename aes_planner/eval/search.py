@@ -71,10 +71,11 @@ FIELD_PRESETS = {"field_fast": "fast", "field_balanced": "balanced", "field_accu
 @dataclasses.dataclass
 class SearchEvalConfig:
     """What ``eval search`` runs. ``scenes``: FILE_OR_FAMILY:SEED specs; ``views``: input counts;
-    ``modes``: ``rig`` and/or ``free``; ``oracle_step_deg``: the rig oracle's grid step;
-    ``supersample``: of the ground-truth renders; ``ablations``: run Tables 3, 4 and S1 on the first
-    ``ablation_scenes`` scenes (rig, 4 views); ``free_box_m``: half-size of the drone box around
-    the rig base in free mode; ``width``/``height`` override the scenes' camera (tests)."""
+    ``modes``: ``rig`` and/or ``free`` (a drone scene runs in free mode only: rig mode alone on one
+    is an error); ``oracle_step_deg``: the rig oracle's grid step; ``supersample``: of the
+    ground-truth renders; ``ablations``: run Tables 3, 4 and S1 on the first ``ablation_scenes``
+    rig scenes (rig, 4 views); ``free_box_m``: half-size of the drone box around a rig scene's
+    base in free mode (a drone scene flies its own box); ``width``/``height`` override the scenes' camera (tests)."""
 
     scenes: list[str] = dataclasses.field(default_factory=lambda: HELD_OUT_SCENES[:4])
     views: list[int] = dataclasses.field(default_factory=lambda: [4])
@@ -131,6 +132,11 @@ def _free_platform(source, box_half_m) -> Platform:
     lo, hi = base - half, base + half
     lo[2] = max(lo[2], 0.3)
     return Platform("drone", source.platform.intrinsics, drone=DroneBox(tuple(lo), tuple(hi)))
+
+
+def _scene_modes(scene, modes: list[str]) -> list[str]:
+    """The modes of ``modes`` a scene supports: a drone scene (no rig) has free mode only."""
+    return [m for m in modes if m == "free" or scene.rig is not None]
 
 
 def _diagonal_positions_m(platform: Platform, n: int) -> np.ndarray:  # -> [n, 3]
@@ -251,12 +257,14 @@ def run_search_eval(
         out.mkdir(parents=True, exist_ok=True)
     scenes = [(spec, load_scene(spec)) for spec in cfg.scenes]  # every scene checked before the long run
     for spec, scene in scenes:
-        if "rig" in cfg.modes and scene.rig is None:
+        if not _scene_modes(scene, cfg.modes):
             raise SearchEvalError(f"scene {spec} has no rig (a drone scene): evaluate it with --modes free")
+        if len(_scene_modes(scene, cfg.modes)) < len(cfg.modes):
+            log.info("eval search: %s is a drone scene: free mode only", spec)
     for spec, scene in scenes:
         source = _source(scene, cfg)
         source.name = spec
-        for mode in cfg.modes:
+        for mode in _scene_modes(scene, cfg.modes):
             platform = source.platform if mode == "rig" else _free_platform(source, cfg.free_box_m)
             if progress:
                 progress(f"{spec} {mode}: oracle")
@@ -350,6 +358,8 @@ def _aggregate(rows: list[dict[str, Any]], cfg: SearchEvalConfig) -> dict[str, A
     for n in cfg.views:
         for mode in cfg.modes:
             sel = [r for r in rows if r["views"] == n and r["mode"] == mode]
+            if not sel:  # e.g. rig mode when every scene is a drone scene
+                continue
             table = {}
             for method in cfg.methods:
                 vals = [r["methods"][method] for r in sel if method in r["methods"]]
@@ -371,7 +381,7 @@ def _aggregate(rows: list[dict[str, Any]], cfg: SearchEvalConfig) -> dict[str, A
 # ------------------------------------------------------------------------------------ ablations
 def run_ablations(cfg: SearchEvalConfig, teacher, progress=None) -> dict[str, Any]:
     """Table 3 (gradient gain from random starts, field vs RGB) and Tables 4/S1 (K, steps, S x N),
-    on the first ``cfg.ablation_scenes`` scenes, rig mode, 4 input views."""
+    on the first ``cfg.ablation_scenes`` rig scenes, rig mode, 4 input views."""
     from aes_planner.sim.scene import load_scene
 
     gains: dict[str, list[float]] = {"field": [], "rgb": []}
@@ -380,8 +390,11 @@ def run_ablations(cfg: SearchEvalConfig, teacher, progress=None) -> dict[str, An
     sn_values = (4, 8, 16, 32)
     by_sn: dict[str, list[float]] = {f"{s}x{n}": [] for s in sn_values for n in sn_values}
     scorer_kind = "field"
-    for spec in cfg.scenes[: cfg.ablation_scenes]:
-        scene = load_scene(spec)
+    rig_scenes = [(spec, scene) for spec, scene in ((spec, load_scene(spec)) for spec in cfg.scenes) if scene.rig]
+    if not rig_scenes:
+        log.warning("ablations: none of the scenes has a rig (they run in rig mode); skipped")
+        return {}
+    for spec, scene in rig_scenes[: cfg.ablation_scenes]:
         source = _source(scene, cfg)
         platform = source.platform
         o_score, _, o_extra = scene_oracle(spec, source, teacher, platform, cfg)
@@ -447,7 +460,8 @@ def markdown(doc: dict[str, Any]) -> str:
             if mode == "latency_ms":
                 continue
             lat = modes.get("latency_ms", {}).get(mode, {})
-            lines += [f"## {n} input views, {mode} (Table 2 analogue)", "",
+            scenes = max((v.get("n", 0) for v in table.values()), default=0)
+            lines += [f"## {n} input views, {mode} (Table 2 analogue, {scenes} scene{'s' * (scenes != 1)})", "",
                       "| method | teacher | evaluator | normalized | latency ms |", "|---|---|---|---|---|"]  # fmt: skip
             for method, v in table.items():
                 ms = f"{lat[method]:.0f}" if method in lat else ""

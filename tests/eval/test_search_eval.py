@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from aes_planner.cli import main
-from aes_planner.eval.search import SearchEvalConfig, run_search_eval
+from aes_planner.eval.search import SearchEvalConfig, markdown, run_search_eval
 
 GT_METHODS = ["best_input", "inplane", "rotation", "random", "oracle"]
 
@@ -97,6 +97,23 @@ def test_eval_search_rig_mode_on_a_drone_scene_is_refused_before_any_work(tmp_pa
 
     with pytest.raises(SearchEvalError, match="--modes free"):
         run_search_eval(tiny(tmp_path, scenes=["tabletop:102", YARD_DRONE], modes=["rig"]))
+
+
+def test_eval_search_both_modes_over_rig_and_drone_scenes(tmp_path):
+    """With both modes (the CLI's default) a drone scene runs in free mode only: the rig table
+    holds the rig scene, the free table both, and the ablations (rig mode) skip the drone scene."""
+    doc = run_search_eval(tiny(tmp_path, scenes=[YARD_DRONE, "tabletop:102"], methods=["best_input", "oracle"]))
+    rows = {(r["scene"], r["mode"]) for r in doc["per_scene"]}
+    assert rows == {(YARD_DRONE, "free"), ("tabletop:102", "rig"), ("tabletop:102", "free")}
+    assert doc["views"]["2"]["rig"]["oracle"]["n"] == 1
+    assert doc["views"]["2"]["free"]["oracle"]["n"] == 2
+    md = markdown(doc)
+    assert "2 input views, rig (Table 2 analogue, 1 scene)" in md
+    assert "2 input views, free (Table 2 analogue, 2 scenes)" in md
+
+    only_drones = run_search_eval(tiny(tmp_path, scenes=[YARD_DRONE], methods=["oracle"], ablations=True))
+    assert set(only_drones["views"]["2"]) == {"free", "latency_ms"}
+    assert only_drones["ablations"] == {}  # rig-mode tables: no rig scene to run them on
 
 
 @pytest.mark.parametrize(
