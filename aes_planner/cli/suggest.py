@@ -88,7 +88,7 @@ def print_table(result, top: int) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from aes_planner.dataset import load_dataset
-    from aes_planner.search import SearchConfig, SearchError, build_search_scorer, search_views
+    from aes_planner.search import SearchConfig, SearchError, build_search_scorer, search_mode, search_views
     from aes_planner.search.report import render_with, write_report
 
     if args.top is not None and args.top < 1:
@@ -110,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
         raise SearchError(f"{args.dataset}: the folder has no frames")
     platform = _platform(data.meta, data.frames, args.mode, args.rig)
     overrides = {"top_k": args.top} if args.top else {}
-    cfg = SearchConfig.preset(args.preset, **overrides)
+    cfg = SearchConfig.preset(args.preset, mode=search_mode(platform.kind), **overrides)
     t0 = time.perf_counter()
     kind = args.scorer or "field"
     try:

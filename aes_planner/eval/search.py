@@ -37,7 +37,14 @@ import torch
 from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.pantilt import PanTilt
 from aes_planner.geometry.poses import view_to_cam2world
-from aes_planner.search import GroundTruthScorer, SearchConfig, build_search_scorer, oracle_search, search_views
+from aes_planner.search import (
+    GroundTruthScorer,
+    SearchConfig,
+    build_search_scorer,
+    oracle_search,
+    search_mode,
+    search_views,
+)
 from aes_planner.search.pipeline import SearchError, refine_params
 from aes_planner.search.space import SearchSpace, space_for
 from aes_planner.sources import DroneBox, Platform
@@ -214,7 +221,7 @@ def _method_pose(
     try:
         if method in FIELD_PRESETS or method == "rgb":
             preset = FIELD_PRESETS.get(method, "balanced")
-            scfg = SearchConfig.preset(preset, seed=cfg.seed)
+            scfg = SearchConfig.preset(preset, mode=search_mode(platform.kind), seed=cfg.seed)
             scorer = build_search_scorer("field" if method != "rgb" else "rgb", frames, scfg, teacher)
             result = search_views(scorer, inputs, platform, scfg)
             return result.best.cam2world
@@ -544,7 +551,7 @@ def _rig_map(out: Path, spec: str, source, platform, frames, teacher, o_extra, c
 
 def _top_view(out: Path, spec: str, platform, frames, inputs, teacher, cfg: SearchEvalConfig) -> None:
     """Fig. 5 analogue: stage-1 candidates seen from above (x right, y up), coloured by score."""
-    scfg = SearchConfig.preset("balanced", seed=cfg.seed)
+    scfg = SearchConfig.preset("balanced", mode="free", seed=cfg.seed)
     try:
         scorer = build_search_scorer("field", frames, scfg, teacher)
     except SearchError:

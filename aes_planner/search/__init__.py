@@ -4,7 +4,7 @@
 
     from aes_planner.search import SearchConfig, search_views
 
-    cfg = SearchConfig.preset("balanced", steps=30)          # fast | balanced | accurate
+    cfg = SearchConfig.preset("balanced", mode="rig", steps=30)  # fast | balanced | accurate; rig | free
     result = search_views(scorer, inputs_cam2world, platform, cfg)   # [N, 4, 4] world poses
     best = result.suggestions[0]   # cam2world, pan_rad/tilt_rad (rig), position_m, yaw/pitch, score...
 
@@ -15,13 +15,14 @@ scene source; :func:`oracle_search` searches the whole feasible space on them (c
 
 from __future__ import annotations
 
-from aes_planner.search.config import PRESETS, SearchConfig
+from aes_planner.search.config import FREE_MODE_PRESETS, PRESETS, SearchConfig, search_mode
 from aes_planner.search.ground_truth import GroundTruthScorer
 from aes_planner.search.oracle import oracle_search
 from aes_planner.search.pipeline import SearchError, SearchResult, Suggestion, search_views
 from aes_planner.search.scorers import SCORERS, build_search_scorer
 
 __all__ = [
+    "FREE_MODE_PRESETS",
     "PRESETS",
     "SCORERS",
     "GroundTruthScorer",
@@ -31,5 +32,6 @@ __all__ = [
     "build_search_scorer",
     "Suggestion",
     "oracle_search",
+    "search_mode",
     "search_views",
 ]

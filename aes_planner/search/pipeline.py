@@ -34,7 +34,7 @@ from aes_planner.geometry.poses import cam2world_to_view
 from aes_planner.geometry.rigid import check_rigid
 from aes_planner.geometry.trajectory import interpolate_poses
 from aes_planner.messages.fields import POSE_TOL
-from aes_planner.search.config import SearchConfig
+from aes_planner.search.config import SearchConfig, search_mode
 from aes_planner.search.space import SearchSpace, space_for
 from aes_planner.sources import Platform
 
@@ -232,9 +232,9 @@ def search_views(
     duplicate them (same distance test as between candidates), so an active loop gets new views.
     Returns at most ``cfg.top_k`` suggestions, best first.
     """
-    cfg = cfg or SearchConfig.preset("balanced")
     if not isinstance(platform, Platform):
         raise SearchError(f"platform must be a Platform (a rig or a drone box), got {type(platform).__name__}")
+    cfg = cfg or SearchConfig.preset("balanced", mode=search_mode(platform.kind))
     t_start = time.perf_counter()
     inputs = _check_inputs(inputs_cam2world)
     space = space_for(platform, cfg)

@@ -103,6 +103,30 @@ def test_presets_and_overrides():
         SearchConfig(pitch_limits_deg=(10.0, -10.0))
 
 
+def test_free_mode_presets():
+    """balanced samples stage 1 twice as densely and keeps 3 in free mode (FREE_MODE_PRESETS);
+    the rig's presets and free fast/accurate are unchanged, and overrides still win."""
+    from aes_planner.search import FREE_MODE_PRESETS, search_mode
+
+    rig, free = SearchConfig.preset("balanced"), SearchConfig.preset("balanced", mode="free")
+    assert (rig.samples_per_segment, rig.top_k) == (16, 2)
+    assert (free.samples_per_segment, free.top_k, free.neighbours, free.steps) == (32, 3, 8, 25)
+    assert free.preset_name == "balanced"
+    assert set(FREE_MODE_PRESETS) == {"balanced"}
+    for name in ("fast", "accurate"):
+        assert SearchConfig.preset(name, mode="free") == SearchConfig.preset(name)
+    assert SearchConfig.preset("balanced", mode="free", top_k=1).top_k == 1
+    with pytest.raises(ConfigError, match="mode"):
+        SearchConfig.preset("balanced", mode="drone")
+    assert (search_mode("rig"), search_mode("drone")) == ("rig", "free")
+    # without a config, search_views takes balanced of the platform's mode
+    platform = drone_platform()
+    inputs = view_to_cam2world(np.array([[-1.0, -1.0, 1.5, 0.0, 0.0], [1.0, 1.0, 1.5, -1.5, -0.2]]))
+    result = search_views(AimScorer([0.3, -1.0, -0.3]), inputs, platform)
+    assert len(result.candidates_cam2world) == (1 * 32 + 1) * (1 + 8)
+    assert len(result.suggestions) == 3
+
+
 def test_segment_budget_bounds_the_trajectory_samples():
     from aes_planner.search.pipeline import samples_per_segment
 
