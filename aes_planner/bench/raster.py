@@ -14,9 +14,12 @@ Keys per case (``raster.<case>.<figure>``), all per view:
   ``project``, ``bin``, ``raster_fwd``, ``raster_bwd``, ``project_bwd``; ``glue`` = the numpy
   code around them inside the autograd Function; ``outside`` = everything else of the call
   (input checks, torch autograd, the loss and its ``backward()`` call).
-* ``dense_extrapolated``: 1 when the dense time was measured on a subset (some cameras of a
-  batch; with ``--quick`` one camera and the top quarter of the rows, 1/32 for 50k Gaussians)
-  and scaled by the pixel count (the dense cost is linear in it).
+* ``dense_extrapolated``: 1 when the dense time was measured on a subset and scaled up: some
+  cameras of a batch (with ``--quick`` one camera), and with ``--quick`` the top 1/32 of the rows
+  when the image holds more than ``QUICK_DENSE_WHOLE_ENTRIES`` Gaussian-pixel entries (the 50k
+  case; scaling the crop scales the call's fixed costs too, so its dense time is overstated).
+  The dense reference runs in pixel chunks of ``DENSE_CHUNK_BYTES`` temporaries, the fastest
+  chunking measured: it is timed at its best.
 
 And ``raster.jit.compile_s`` (numba compile in an empty cache dir, full run only),
 ``raster.jit.cached_load_s`` (a new process: load the cached kernels and render once).
@@ -83,6 +86,9 @@ SEARCH_REAL = dict(
     dense_backward=False,
     validate=False,
 )
+
+DENSE_CHUNK_BYTES = 4 << 20  # one float32 [pixels, N] temporary of the dense reference, at most
+QUICK_DENSE_WHOLE_ENTRIES = 48_000_000  # --quick renders the whole image up to this N x pixels (0.1-0.6 s a call)
 
 CASES = {
     "10k_64x64_c3": Case(10_000, 64, 3, 1, 1, False),
@@ -181,17 +187,27 @@ def _bench_case(rec: Recorder, name: str, case: Case, quick: bool) -> None:
 
     # Dense reference (float32 per-pixel maths) on the same scene, in the same run. A crop to the
     # top rows is the same camera with a smaller height (pixel centres do not depend on it).
-    rows = height if not quick else height // (32 if case.n >= 50_000 else 4)
+    whole = not quick or case.n * size * height <= QUICK_DENSE_WHOLE_ENTRIES
+    rows = height if whole else height // 32
     dense_views = case.dense_cameras if not quick else 1
     extrapolated = rows < height or dense_views < views
-    scale = height / rows  # dense cost is linear in the pixel count
+    scale = height / rows  # a crop's time scaled by the pixel count (its fixed costs too: an overestimate)
+
+    # The reference timed at its best: pixel chunks of 4 MiB [pixels, N] temporaries were the
+    # fastest of 2-64 MiB in three cases. Temporaries over glibc's mmap threshold (32 MiB, fixed by
+    # aes_planner.runtime.tune_malloc) are mapped and faulted in afresh on every call: its default
+    # chunk of 4096 px made the same call up to 2.8x slower (docs/rasterizer.md, round 7).
+    chunk = max(64, DENSE_CHUNK_BYTES // (4 * max(case.n, 1)))
 
     def dense():
         with torch.no_grad():
-            rasterize_dense(g, world2cam[:dense_views], K[:dense_views], size, rows, compute_dtype=torch.float32)
+            rasterize_dense(
+                g, world2cam[:dense_views], K[:dense_views], size, rows, pixel_chunk=chunk, compute_dtype=torch.float32
+            )
 
-    # --quick renders a crop, cheap enough for a warm-up call and a median of 3 (one cold call
-    # moved 20-30 % between runs); the full 50k image takes ~35 s a call, so it is timed once
+    # --quick's dense calls (whole images up to 48M entries, else a crop) are cheap enough for a
+    # warm-up call and a median of 3 (one cold call moved 20-30 % between runs); the full 50k image
+    # takes ~11 s a call, so it is timed once
     dense_runs = 3 if (quick or case.n < 50_000) else 1
     dense_warmup = 1 if quick else 0
     dense_fwd = statistics.median(time_ms(dense, runs=dense_runs, warmup=dense_warmup)) / dense_views * scale
