@@ -25,7 +25,9 @@ from aes_planner.node.runner import NodeRunner
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SoakResult", "rss_mb", "run_soak"]
+__all__ = ["OVERSIZED_MB", "SoakResult", "rss_mb", "run_soak"]
+
+OVERSIZED_MB = 70  # MiB of zeros appended to a good frame: the oversized garbage on camera/frame
 
 
 def rss_mb() -> float:
@@ -148,7 +150,8 @@ def run_soak(
                 elif kind == 1:
                     data = good[: len(good) // 2]  # truncated
                 elif kind == 2:
-                    data = good + bytes(70 << 20) if topic == "camera/frame" else good  # oversized / wrong type
+                    big = topic == "camera/frame"
+                    data = good + bytes(OVERSIZED_MB << 20) if big else good  # oversized / wrong type
                 else:
                     b = bytearray(good)
                     b[len(b) // 3] ^= 0xFF  # a bit flip
