@@ -131,7 +131,7 @@ class SearchEvalError(AesPlannerError, ValueError):
 # ------------------------------------------------------------------------------------ set-up
 def _free_platform(source, box_half_m) -> Platform:
     """A drone scene's own box; for a rig scene, a box around the rig's base (free mode flies near it)."""
-    if source.platform.kind == "drone":
+    if source.platform.rig is None:  # a drone scene
         return source.platform
     rig = source.platform.rig
     base = np.asarray(rig.base_xyz_m)
@@ -262,16 +262,19 @@ def run_search_eval(
     out = Path(out_dir) if out_dir else None
     if out:
         out.mkdir(parents=True, exist_ok=True)
-    scenes = [(spec, load_scene(spec)) for spec in cfg.scenes]  # every scene checked before the long run
-    for spec, scene in scenes:
-        if not _scene_modes(scene, cfg.modes):
+    scenes = []  # every scene and its modes checked before the long run
+    for spec in cfg.scenes:
+        scene = load_scene(spec)
+        modes = _scene_modes(scene, cfg.modes)
+        if not modes:
             raise SearchEvalError(f"scene {spec} has no rig (a drone scene): evaluate it with --modes free")
-        if len(_scene_modes(scene, cfg.modes)) < len(cfg.modes):
+        if len(modes) < len(cfg.modes):
             log.info("eval search: %s is a drone scene: free mode only", spec)
-    for spec, scene in scenes:
+        scenes.append((spec, scene, modes))
+    for spec, scene, modes in scenes:
         source = _source(scene, cfg)
         source.name = spec
-        for mode in _scene_modes(scene, cfg.modes):
+        for mode in modes:
             platform = source.platform if mode == "rig" else _free_platform(source, cfg.free_box_m)
             if progress:
                 progress(f"{spec} {mode}: oracle")
@@ -397,7 +400,8 @@ def run_ablations(cfg: SearchEvalConfig, teacher, progress=None) -> dict[str, An
     sn_values = (4, 8, 16, 32)
     by_sn: dict[str, list[float]] = {f"{s}x{n}": [] for s in sn_values for n in sn_values}
     scorer_kind = "field"
-    rig_scenes = [(spec, scene) for spec, scene in ((spec, load_scene(spec)) for spec in cfg.scenes) if scene.rig]
+    loaded = ((spec, load_scene(spec)) for spec in cfg.scenes)
+    rig_scenes = [(spec, scene) for spec, scene in loaded if scene.rig is not None]
     if not rig_scenes:
         log.warning("ablations: none of the scenes has a rig (they run in rig mode); skipped")
         return {}
@@ -551,7 +555,7 @@ def _rig_map(out: Path, spec: str, source, platform, frames, teacher, o_extra, c
 
 def _top_view(out: Path, spec: str, platform, frames, inputs, teacher, cfg: SearchEvalConfig) -> None:
     """Fig. 5 analogue: stage-1 candidates seen from above (x right, y up), coloured by score."""
-    scfg = SearchConfig.preset("balanced", mode="free", seed=cfg.seed)
+    scfg = SearchConfig.preset("balanced", mode=search_mode(platform.kind), seed=cfg.seed)
     try:
         scorer = build_search_scorer("field", frames, scfg, teacher)
     except SearchError:
