@@ -33,6 +33,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=["field", "rgb"],
         help="what scores views (default: the field; RGB scoring, with a warning, when this build has no field)",
     )
+    p.add_argument(
+        "--truth-scene",
+        metavar="FILE_OR_FAMILY:SEED",
+        help="render the report's ground-truth row from this scene (default: the folder's scene when `sim render` "
+        "wrote it from FAMILY:SEED; a scene file named inside a folder is never opened)",
+    )
     p.add_argument("--json", metavar="OUT", help="write the suggestions as JSON")
     p.add_argument("--out", metavar="DIR", help="write the report image (report.png) into DIR")
     p.add_argument(
@@ -105,7 +111,11 @@ def run(args: argparse.Namespace) -> int:
         output_file(args.json, "--json")
     if args.out:
         output_folder(args.out, "--out")
+    elif args.truth_scene:
+        raise SearchError("--truth-scene renders the report's ground-truth row: give --out DIR for the report too")
     data = load_dataset(args.dataset, load_depth=True)
+    # the ground truth is set up before the search, so a bad --truth-scene fails first
+    gt = _ground_truth(data.meta, data.frames[0].intrinsics, args.truth_scene) if args.out and data.frames else None
     if not data.frames:
         raise SearchError(f"{args.dataset}: the folder has no frames")
     platform = _platform(data.meta, data.frames, args.mode, args.rig)
@@ -128,6 +138,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"{len(result.suggestions[:top])} suggestion(s), {result.mode} mode, preset {args.preset}, "
           f"scorer {args.scorer}, {latency_ms:.0f} ms")  # fmt: skip
     print_table(result, top)
+    if len(result.suggestions) < top and result.dropped_uncovered:
+        print(
+            f"note: {result.dropped_uncovered} refined candidate(s) left out: their coverage fell below "
+            f"{cfg.coverage_min:.2f} (views of space the inputs did not see are not suggested)"
+        )
+    if len(result.suggestions) < top and result.dropped_duplicates:
+        print(f"note: {result.dropped_duplicates} refined candidate(s) left out: they converged onto a better one")
     for w in result.warnings:
         print(f"warning: {w}")
     if args.json:
@@ -149,7 +166,6 @@ def run(args: argparse.Namespace) -> int:
             rgb = render_with(build_search_scorer("rgb", data.frames, cfg))
             if rgb is not None:
                 renderers["rgb"] = rgb
-        gt = _ground_truth(data.meta, data.frames[0].intrinsics)
         if gt is not None:
             renderers["truth"] = gt
         report = write_report(Path(args.out) / "report.png", [f.image for f in data.frames], result, renderers)
@@ -157,23 +173,33 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _ground_truth(meta: dict, intrinsics):
-    """Ground-truth renders for a folder that `sim render` wrote (its scene is named in the metadata)."""
-    if meta.get("source") != "aes-planner sim render" or not meta.get("scene"):
-        return None
-    import re
-
-    if not isinstance(meta["scene"], str) or not re.fullmatch(r"[a-z_]+:[0-9]{1,18}", meta["scene"]):
-        # a file named by a data file is not read (it could be anywhere): families only
-        log.info("no ground truth in the report: the folder's scene %.80r is not FAMILY:SEED", meta["scene"])
-        return None
+def _ground_truth(meta: dict, intrinsics, truth_scene: str | None = None):
+    """Ground-truth renders for the report: from ``truth_scene`` (the user's own argument), else
+    from the scene `sim render` named in the folder's metadata when that is FAMILY:SEED."""
     import numpy as np
 
+    from aes_planner.search import SearchError
     from aes_planner.sim import SimSource
 
+    scene = truth_scene
+    if scene is None:
+        if meta.get("source") != "aes-planner sim render" or not meta.get("scene"):
+            return None
+        import re
+
+        if not isinstance(meta["scene"], str) or not re.fullmatch(r"[a-z_]+:[0-9]{1,18}", meta["scene"]):
+            # a file named by a data file is not read (it could be anywhere): families only
+            log.info(
+                "no ground truth in the report: the folder's scene %.80r is not FAMILY:SEED (give it with --truth-scene)",
+                meta["scene"],
+            )
+            return None
+        scene = meta["scene"]
     try:
-        source = SimSource(meta["scene"], supersample=2)
+        source = SimSource(scene, supersample=2)
     except Exception as exc:
+        if truth_scene is not None:  # asked for: say so rather than quietly leave the row out
+            raise SearchError(f"--truth-scene {truth_scene!r}: {exc}") from exc
         log.warning("no ground truth in the report: %s", exc)
         return None
     return lambda poses: (source.render_rgb(poses, intrinsics) * 255).round().astype(np.uint8)

@@ -92,6 +92,8 @@ class SearchResult:
     candidates_coverage: np.ndarray | None = None  # [C]
     scored: int = 0  # poses scored in total
     warnings: list[str] = field(default_factory=list)
+    dropped_uncovered: int = 0  # refined candidates left out: their coverage fell below coverage_min
+    dropped_duplicates: int = 0  # ... and left out as near-duplicates of a better one after refinement
 
     @property
     def best(self) -> Suggestion:
@@ -273,20 +275,23 @@ def search_views(
     else:
         pick = torch.arange(len(final_params))
     order = pick[torch.argsort(obj2[pick], descending=True)]
-    suggestions, warnings = [], []
-    for i in order.tolist():
-        sug = _suggestion(space, final_params[i], final_poses[i], out2, i, float(obj2[i]))
-        sug.stage1_score = float(out1.score[keep[i % len(keep)]])
-        suggestions.append(sug)
-    covered = [s for s in suggestions if s.coverage >= cfg.coverage_min]
-    if not covered:
+    warnings = []
+    covered = order[out2.coverage[order].double() >= cfg.coverage_min]
+    dropped = len(order) - len(covered) if len(covered) else 0
+    if not len(covered):
         warnings.append(
-            f"no suggestion reaches coverage {cfg.coverage_min:.2f} (best {max(s.coverage for s in suggestions):.2f}): "
+            f"no suggestion reaches coverage {cfg.coverage_min:.2f} (best {float(out2.coverage[order].max()):.2f}): "
             "the scorer has not observed the space around the inputs; capture more views"
         )
         log.warning(warnings[-1])
-    else:
-        suggestions = covered
+        covered = order
+    # refinement can bring distinct stage-1 candidates to (nearly) the same pose: keep the best of each
+    distinct = covered[_select_distinct(space, final_params[covered], obj2[covered], len(covered), None)]
+    suggestions = []
+    for i in distinct.tolist():
+        sug = _suggestion(space, final_params[i], final_poses[i], out2, i, float(obj2[i]))
+        sug.stage1_score = float(out1.score[keep[i % len(keep)]])
+        suggestions.append(sug)
     t_end = time.perf_counter()
     timings = {
         "sample": (t_sampled - t_start) * 1e3,
@@ -305,6 +310,8 @@ def search_views(
         candidates_coverage=out1.coverage.detach().double().numpy(),
         scored=len(candidates) + steps_scored + len(final_params),
         warnings=warnings,
+        dropped_uncovered=dropped,
+        dropped_duplicates=len(covered) - len(distinct),
     )
 
 

@@ -118,3 +118,38 @@ def test_suggest_falls_back_to_rgb_only_when_not_asked(folder, tmp_path, capsys,
     assert json.loads(out_json.read_text())["scorer"] == "rgb"
     assert main(["suggest", str(folder), "--preset", "fast", "--scorer", "field"]) == 2
     assert "no field checkpoint" in capsys.readouterr().err
+
+
+def test_suggest_truth_scene_for_a_scene_file(tmp_path, capsys, monkeypatch):
+    """A folder rendered from a scene file gets its report's ground truth only from --truth-scene
+    (a path inside a data folder is never opened); a bad --truth-scene fails before the search."""
+    import aes_planner.search as search
+    import aes_planner.search.report as report
+
+    scene = "tests/node/scenes/harbour_rig.yaml"
+    folder = tmp_path / "harbour"
+    args = ["sim", "render", "--scene", scene, "--views", "3", "--out", str(folder), "--supersample", "1"]
+    assert main([*args, "--width", "32", "--height", "24"]) == 0
+    seen = []
+    real_report = report.write_report
+
+    def spy(path, images, result, renderers):
+        seen.append(sorted(renderers))
+        return real_report(path, images, result, renderers)
+
+    monkeypatch.setattr(report, "write_report", spy)
+    base = ["suggest", str(folder), "--preset", "fast", "--scorer", "rgb", "--out", str(tmp_path / "r")]
+    assert main(base) == 0
+    assert main([*base, "--truth-scene", scene]) == 0
+    assert seen == [["rgb"], ["rgb", "truth"]]
+    assert (tmp_path / "r" / "report.png").stat().st_size > 1000
+    capsys.readouterr()
+
+    def no_search(*a, **k):
+        raise AssertionError("the search ran before the bad argument was refused")
+
+    monkeypatch.setattr(search, "search_views", no_search)
+    assert main([*base, "--truth-scene", str(tmp_path / "missing.yaml")]) == 2
+    assert "--truth-scene" in capsys.readouterr().err
+    assert main(["suggest", str(folder), "--scorer", "rgb", "--truth-scene", scene]) == 2
+    assert "--out" in capsys.readouterr().err

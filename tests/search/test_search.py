@@ -124,7 +124,8 @@ def test_free_mode_presets():
     inputs = view_to_cam2world(np.array([[-1.0, -1.0, 1.5, 0.0, 0.0], [1.0, 1.0, 1.5, -1.5, -0.2]]))
     result = search_views(AimScorer([0.3, -1.0, -0.3]), inputs, platform)
     assert len(result.candidates_cam2world) == (1 * 32 + 1) * (1 + 8)
-    assert len(result.suggestions) == 3
+    # K = 3 refined (one aim: refinement may bring them together, and then one of each is kept)
+    assert len(result.suggestions) + result.dropped_duplicates + result.dropped_uncovered == 3
 
 
 def test_segment_budget_bounds_the_trajectory_samples():
@@ -240,6 +241,23 @@ def test_free_never_suggests_unobserved_views():
         assert s.cam2world[:3, 2] @ np.array([0.0, 1.0, 0.0]) <= 1e-9
 
 
+def test_uncovered_suggestions_are_dropped_and_counted():
+    # With no coverage penalty the top 3 by score straddle the unseen half (+y): the uncovered ones
+    # are left out of the suggestions, and the result says how many.
+    platform = rig_platform()
+    scorer = AimScorer([1.0, 0.05, 0.0], unseen_dir=[0.0, 1.0, 0.0])
+    cfg = SearchConfig.preset("fast", top_k=3, coverage_penalty=0.0, steps=0)
+    result = search_views(scorer, rig_inputs(platform), platform, cfg)
+    assert_inside(result, platform, cfg)
+    assert all(s.coverage >= cfg.coverage_min for s in result.suggestions)
+    assert result.dropped_uncovered >= 1
+    assert len(result.suggestions) + result.dropped_uncovered == cfg.top_k
+    assert not result.warnings
+    # when nothing is covered, nothing is dropped: the search says so instead
+    blind = search_views(AimScorer([1.0, 0.5, 0.0], unseen_dir=[0.0, 1.0, 0.0]), rig_inputs(platform), platform, cfg)
+    assert blind.dropped_uncovered == 0 and len(blind.suggestions) == cfg.top_k and blind.warnings
+
+
 def test_avoid_gives_a_new_view():
     platform = rig_platform()
     scorer = AimScorer([1.0, 0.2, 0.0])
@@ -261,6 +279,22 @@ def test_top_k_distinct():
         for j in range(i):
             d = angle_to(result.suggestions[i].cam2world, result.suggestions[j].cam2world[:3, 2])
             assert d >= math.degrees(cfg.dedup_fov * K.hfov_rad) - 1e-6
+
+
+def test_refined_suggestions_stay_distinct():
+    """Refinement pulls distinct stage-1 candidates toward one optimum: the suggestions keep the
+    best of those that end within the duplicate distance of each other, and count the rest."""
+    platform = rig_platform()
+    cfg = SearchConfig.preset("balanced", top_k=3, steps=25, lr=0.05)
+    result = search_views(AimScorer([1.0, 0.0, 0.0]), rig_inputs(platform), platform, cfg)
+    assert result.dropped_duplicates >= 1  # the three candidates all climb to +x
+    assert len(result.suggestions) + result.dropped_duplicates + result.dropped_uncovered == 3
+    objectives = [s.objective for s in result.suggestions]
+    assert objectives == sorted(objectives, reverse=True)
+    limit_deg = math.degrees(cfg.dedup_fov * K.hfov_rad)
+    for i, a in enumerate(result.suggestions):
+        for b in result.suggestions[:i]:
+            assert angle_to(a.cam2world, b.cam2world[:3, 2]) >= limit_deg - 1e-6
 
 
 # ------------------------------------------------------------------------------------ stability
