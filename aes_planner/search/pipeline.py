@@ -9,7 +9,8 @@
    top ``K`` by objective survive a distance-based duplicate check.
 2. **Refinement.** Each survivor is refined by Adam on its parameters (lr 0.01, 25 steps by
    default), projected into the joint limits / box after every step. The best iterate of each is
-   kept; they are returned ranked.
+   kept; they are returned ranked, after the same duplicate check (two survivors refined onto
+   nearly the same view are one suggestion).
 
 The objective is the scorer's score minus a coverage penalty, so views of space the scorer has
 not observed lose; suggestions below ``coverage_min`` are dropped unless nothing else remains.
