@@ -153,3 +153,25 @@ def test_suggest_truth_scene_for_a_scene_file(tmp_path, capsys, monkeypatch):
     assert "--truth-scene" in capsys.readouterr().err
     assert main(["suggest", str(folder), "--scorer", "rgb", "--truth-scene", scene]) == 2
     assert "--out" in capsys.readouterr().err
+
+
+def test_suggest_says_why_fewer_than_top(folder, capsys, monkeypatch):
+    """Fewer suggestions than --top: the command names what the search left out."""
+    import aes_planner.search as search
+
+    real = search.search_views
+
+    def fewer(*a, **k):
+        result = real(*a, **k)
+        result.suggestions = result.suggestions[:1]
+        result.dropped_uncovered, result.dropped_duplicates = 1, 1
+        return result
+
+    monkeypatch.setattr(search, "search_views", fewer)
+    assert main(["suggest", str(folder), "--preset", "fast", "--scorer", "rgb", "--top", "3"]) == 0
+    text = capsys.readouterr().out
+    assert "1 suggestion(s)" in text
+    assert "note: 1 refined candidate(s) left out: their coverage fell below" in text
+    assert "note: 1 refined candidate(s) left out: they converged onto a better one" in text
+    assert main(["suggest", str(folder), "--preset", "fast", "--scorer", "rgb", "--top", "1"]) == 0
+    assert "note:" not in capsys.readouterr().out  # as many as asked for: nothing to explain
