@@ -80,14 +80,17 @@ def _platform(meta: dict, frames, mode: str | None, rig_file: str | None):
 
 def print_table(result, top: int) -> None:
     rig = result.mode == "rig"
-    head = "pan_deg tilt_deg" if rig else "x_m     y_m     z_m     yaw_deg pitch_deg"
+    shown = result.suggestions[:top]
+    # positions far from the origin (a site's own coordinates) widen their columns rather than shift the row
+    w = max([7] + [len(f"{v:.2f}") for s in shown for v in (() if rig else s.position_m)])
+    head = "pan_deg tilt_deg" if rig else f"{'x_m':<{w}} {'y_m':<{w}} {'z_m':<{w}} yaw_deg pitch_deg"
     print(f" #  {head}  score   coverage  strongest terms")
-    for i, s in enumerate(result.suggestions[:top]):
+    for i, s in enumerate(shown):
         if rig:
             where = f"{math.degrees(s.pan_rad):7.1f} {math.degrees(s.tilt_rad):8.1f}"
         else:
             x, y, z = s.position_m
-            where = f"{x:7.2f} {y:7.2f} {z:7.2f} {math.degrees(s.yaw_rad):7.1f} {math.degrees(s.pitch_rad):9.1f}"
+            where = f"{x:{w}.2f} {y:{w}.2f} {z:{w}.2f} {math.degrees(s.yaw_rad):7.1f} {math.degrees(s.pitch_rad):9.1f}"
         terms = sorted(((k, v) for k, v in s.terms.items() if k != "score"), key=lambda kv: -kv[1])[:3]
         print(f"{i + 1:2d}  {where}  {s.score:6.3f}  {s.coverage:8.2f}  " + ", ".join(f"{k} {v:.2f}" for k, v in terms))
 

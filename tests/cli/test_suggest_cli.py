@@ -175,3 +175,24 @@ def test_suggest_says_why_fewer_than_top(folder, capsys, monkeypatch):
     assert "note: 1 refined candidate(s) left out: they converged onto a better one" in text
     assert main(["suggest", str(folder), "--preset", "fast", "--scorer", "rgb", "--top", "1"]) == 0
     assert "note:" not in capsys.readouterr().out  # as many as asked for: nothing to explain
+
+
+def test_table_columns_stay_aligned_far_from_the_origin(capsys):
+    from types import SimpleNamespace
+
+    from aes_planner.cli.suggest import print_table
+
+    def sug(pos, score):
+        return SimpleNamespace(
+            position_m=np.array(pos), yaw_rad=0.5, pitch_rad=-0.2, score=score, coverage=0.9, terms={}
+        )
+
+    result = SimpleNamespace(
+        mode="free", suggestions=[sug([100000.96, -3000.85, 2.57], 0.812), sug([1.0, 2.0, 3.0], 0.645)]
+    )
+    print_table(result, 2)
+    head, *rows = capsys.readouterr().out.splitlines()
+    assert "100000.96" in rows[0] and "-3000.85" in rows[0]
+    # the score column starts at the same place in every row, under its heading
+    starts = {row.index(score) for row, score in zip(rows, ("0.812", "0.645"), strict=True)}
+    assert len(starts) == 1 and head.index("score") <= starts.pop() < head.index("coverage")
