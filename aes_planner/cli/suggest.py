@@ -117,10 +117,10 @@ def run(args: argparse.Namespace) -> int:
     elif args.truth_scene:
         raise SearchError("--truth-scene renders the report's ground-truth row: give --out DIR for the report too")
     data = load_dataset(args.dataset, load_depth=True)
-    # the ground truth is set up before the search, so a bad --truth-scene fails first
-    gt = _ground_truth(data.meta, data.frames[0].intrinsics, args.truth_scene) if args.out and data.frames else None
     if not data.frames:
         raise SearchError(f"{args.dataset}: the folder has no frames")
+    # the ground truth is set up before the search, so a bad --truth-scene fails first
+    gt = _ground_truth(data.meta, data.frames[0].intrinsics, args.truth_scene) if args.out else None
     platform = _platform(data.meta, data.frames, args.mode, args.rig)
     overrides = {"top_k": args.top} if args.top else {}
     cfg = SearchConfig.preset(args.preset, mode=search_mode(platform.kind), **overrides)
@@ -141,13 +141,14 @@ def run(args: argparse.Namespace) -> int:
     print(f"{len(result.suggestions[:top])} suggestion(s), {result.mode} mode, preset {args.preset}, "
           f"scorer {args.scorer}, {latency_ms:.0f} ms")  # fmt: skip
     print_table(result, top)
-    if len(result.suggestions) < top and result.dropped_uncovered:
-        print(
-            f"note: {result.dropped_uncovered} refined candidate(s) left out: their coverage fell below "
-            f"{cfg.coverage_min:.2f} (views of space the inputs did not see are not suggested)"
-        )
-    if len(result.suggestions) < top and result.dropped_duplicates:
-        print(f"note: {result.dropped_duplicates} refined candidate(s) left out: they converged onto a better one")
+    if len(result.suggestions) < top:  # say what the search left out
+        if result.dropped_uncovered:
+            print(
+                f"note: {result.dropped_uncovered} refined candidate(s) left out: their coverage fell below "
+                f"{cfg.coverage_min:.2f} (views of space the inputs did not see are not suggested)"
+            )
+        if result.dropped_duplicates:
+            print(f"note: {result.dropped_duplicates} refined candidate(s) left out: they converged onto a better one")
     for w in result.warnings:
         print(f"warning: {w}")
     if args.json:

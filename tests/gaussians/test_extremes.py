@@ -111,7 +111,7 @@ def _ulp_spread(g, world2cam, K, width, height, background, ref_out, rel=2.5e-16
     spread = {k: 0.0 for k in OUTPUTS}
     for field in ("means", "log_scales"):
         for sign in (1.0, -1.0):
-            moved = {f: getattr(g, f) for f in ("means", "quats", "log_scales", "opacities", "colors", "features")}
+            moved = g.float_tensors()
             moved[field] = moved[field] * (1.0 + sign * rel)
             out, _ = outputs_and_grads("dense", Gaussians(**moved), world2cam, K, width, height, background)
             for k in OUTPUTS:
