@@ -7,7 +7,7 @@ balanced search on RGB scoring), on held-out scenes with 4 input frames of 128x9
   field) included;
 * ``search.<preset>.normalized``: mean oracle-normalised ground-truth score of the best
   suggestion, ``(s - mean random) / (oracle - mean random)`` (oracle: :func:`oracle_search`,
-  cached on disk);
+  cached on disk); ``.normalized_se``: its standard error over the scenes;
 * ``search.<preset>.latency_cpu_ms``: the same in process CPU time (all threads; the machine is
   shared, so wall-clock figures are noisy: compare CPU time);
 * ``search.<preset>.build_ms``, ``.stage1_ms``, ``.stage2_ms``: where the latency goes (medians);
@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from aes_planner.bench import Recorder
-from aes_planner.eval.search import HELD_OUT_SCENES
+from aes_planner.eval.search import HELD_OUT_SCENES, standard_error
 from aes_planner.gaussians import resolve_backend
 from aes_planner.search import GroundTruthScorer, SearchConfig, SearchError, build_search_scorer
 from aes_planner.search import search_views as _search
@@ -106,6 +106,8 @@ def run(rec: Recorder, quick: bool) -> None:
         if numba:
             rec.record(f"{key}.raster_ms", statistics.median(raster), "ms", len(raster))
         rec.record(f"{key}.normalized", float(np.mean(norm)), "ratio", len(norm))
+        if len(norm) >= 2:  # single scenes swing by up to 0.5: the mean's standard error over the scenes
+            rec.record(f"{key}.normalized_se", standard_error(norm), "ratio", len(norm))
         points[case] = (statistics.median(lat), float(np.mean(norm)))
     rec.meta.setdefault("backends", {})["search_scorer"] = "field" if field_ok else "rgb (field not available)"
     rec.meta["search_scenes"] = scenes

@@ -8,6 +8,11 @@ measured on the **ground-truth render** at that view:
 * ``evaluator``: the independent evaluator's score (the paper's SAMPNet column; never searched on),
 * ``normalized``: ``(teacher - mean random) / (oracle - mean random)`` — 1 optimal, 0 chance.
 
+Single scenes swing by up to 0.5 between neighbouring settings, so every mean comes with its
+spread: ``normalized_se`` (standard error over the scenes) and, for each method against
+``field_balanced`` on the same scenes, the paired difference with its standard error and how
+many scenes it did better, the same (within ``SAME_TOL``) or worse.
+
 Methods: ``field_fast``/``field_balanced``/``field_accurate`` (the two-stage search on the field
 at each preset), ``rgb`` (the same pipeline on RGB scoring, balanced), ``best_input``,
 ``inplane`` and ``rotation`` (exhaustive local sampling around each input, scored on ground
@@ -53,7 +58,15 @@ from aes_planner.teachers.evaluator import CompositionEvaluator
 
 log = logging.getLogger(__name__)
 
-__all__ = ["HELD_OUT_SCENES", "HELD_OUT_SEED_START", "METHODS", "SearchEvalConfig", "run_search_eval"]
+__all__ = [
+    "HELD_OUT_SCENES",
+    "HELD_OUT_SEED_START",
+    "METHODS",
+    "SearchEvalConfig",
+    "paired_difference",
+    "run_search_eval",
+    "standard_error",
+]
 
 #: First scene seed of the search's (and the closed loop's) held-out scenes: seeds 100, 101, ...
 #: with the families round-robin. The field never saw them: it trains on seeds >= 1000, validates
@@ -73,6 +86,10 @@ METHODS = [
     "oracle",
 ]
 FIELD_PRESETS = {"field_fast": "fast", "field_balanced": "balanced", "field_accurate": "accurate"}
+#: The method every other one is compared with, scene by scene (``vs_field_balanced``).
+REFERENCE_METHOD = "field_balanced"
+#: Paired differences of normalized score within this count as the same (1 % of oracle - random).
+SAME_TOL = 0.01
 
 
 @dataclasses.dataclass
@@ -363,6 +380,32 @@ def _normalise(t: float, oracle: float, mean_random: float) -> float:
     return float((t - mean_random) / span) if span > 1e-9 else 0.0
 
 
+def standard_error(values) -> float | None:
+    """Standard error of the mean of ``values`` (sample standard deviation / sqrt(n)); ``None``
+    for fewer than two values, where a spread cannot be estimated."""
+    v = np.asarray(list(values), dtype=np.float64)
+    return float(v.std(ddof=1) / math.sqrt(len(v))) if len(v) >= 2 else None
+
+
+def paired_difference(rows: list[dict[str, Any]], method: str, reference: str) -> dict[str, Any] | None:
+    """``method`` minus ``reference`` in normalized score over the rows (scenes) that ran both:
+    the mean difference, its standard error and the count of scenes better / the same (within
+    ``SAME_TOL``) / worse. ``None`` when no row has both."""
+    d = np.array(
+        [r["methods"][method]["normalized"] - r["methods"][reference]["normalized"]
+         for r in rows if method in r["methods"] and reference in r["methods"]]
+    )  # fmt: skip
+    if not len(d):
+        return None
+    return {
+        "diff": float(d.mean()),
+        "diff_se": standard_error(d),
+        "better": int((d > SAME_TOL).sum()),
+        "same": int((np.abs(d) <= SAME_TOL).sum()),
+        "worse": int((d < -SAME_TOL).sum()),
+    }
+
+
 def _aggregate(rows: list[dict[str, Any]], cfg: SearchEvalConfig) -> dict[str, Any]:
     views: dict[str, Any] = {}
     for n in cfg.views:
@@ -378,6 +421,11 @@ def _aggregate(rows: list[dict[str, Any]], cfg: SearchEvalConfig) -> dict[str, A
                         k: float(np.mean([v[k] for v in vals])) for k in ("teacher", "evaluator", "normalized")
                     }
                     table[method]["n"] = len(vals)
+                    table[method]["normalized_se"] = standard_error(v["normalized"] for v in vals)
+                    if method != REFERENCE_METHOD:
+                        paired = paired_difference(sel, method, REFERENCE_METHOD)
+                        if paired is not None:
+                            table[method][f"vs_{REFERENCE_METHOD}"] = paired
             lat = {}
             for method in cfg.methods:
                 ms = [r["latency_ms"][method] for r in sel if method in r["latency_ms"] and method in r["methods"]]
@@ -454,12 +502,15 @@ def run_ablations(cfg: SearchEvalConfig, teacher, progress=None) -> dict[str, An
     def mean(d):
         return {str(k): (float(np.mean(v)) if v else None) for k, v in d.items()}
 
+    def spread(d):
+        return {str(k): standard_error(v) for k, v in d.items()}
+
+    tables = {"gradient_gain": gains, "top_k": by_k, "steps": by_steps, "samples_x_neighbours": by_sn}
     return {
         "scorer": scorer_kind,
-        "gradient_gain": {k: (float(np.mean(v)) if v else None) for k, v in gains.items()},
-        "top_k": mean(by_k),
-        "steps": mean(by_steps),
-        "samples_x_neighbours": mean(by_sn),
+        "scenes": len(by_k[1]),  # the rig scenes the ablations ran on
+        **{name: mean(d) for name, d in tables.items()},
+        **{f"{name}_se": spread(d) for name, d in tables.items()},  # over scenes (Table 3: over starts)
     }
 
 
@@ -472,39 +523,61 @@ def markdown(doc: dict[str, Any]) -> str:
                 continue
             lat = modes.get("latency_ms", {}).get(mode, {})
             scenes = max((v.get("n", 0) for v in table.values()), default=0)
+            paired = REFERENCE_METHOD in table
+            vs = f" vs {REFERENCE_METHOD}: diff ± s.e. (better / same / worse) |" if paired else ""
             lines += [f"## {n} input views, {mode} (Table 2 analogue, {scenes} scene{'s' * (scenes != 1)})", "",
-                      "| method | teacher | evaluator | normalized | latency ms |", "|---|---|---|---|---|"]  # fmt: skip
+                      f"| method | teacher | evaluator | normalized ± s.e. |{vs} latency ms |",
+                      "|---|---|---|---|" + "---|" * paired + "---|"]  # fmt: skip
             for method, v in table.items():
                 ms = f"{lat[method]:.0f}" if method in lat else ""
-                lines.append(f"| {method} | {v['teacher']:.3f} | {v['evaluator']:.3f} | {v['normalized']:.3f} | {ms} |")
+                cells = [
+                    method,
+                    f"{v['teacher']:.3f}",
+                    f"{v['evaluator']:.3f}",
+                    _pm(v["normalized"], v.get("normalized_se")),
+                ]
+                if paired:
+                    d = v.get(f"vs_{REFERENCE_METHOD}")
+                    cells.append(
+                        "reference" if method == REFERENCE_METHOD else ""
+                        if d is None else f"{_pm(d['diff'], d['diff_se'], '+')} ({d['better']} / {d['same']} / {d['worse']})"
+                    )  # fmt: skip
+                lines.append("| " + " | ".join([*cells, ms]) + " |")
             lines.append("")
     ab = doc.get("ablations")
     if ab:
-        lines += ["## Table 3 analogue: gradient-ascent gain over 25 steps (ground-truth teacher score)", "",
-                  "| scorer | mean gain |", "|---|---|"]  # fmt: skip
+        se = {name: ab.get(f"{name}_se", {}) for name in ("gradient_gain", "top_k", "steps", "samples_x_neighbours")}
+        scenes = f", {ab['scenes']} scenes" if "scenes" in ab else ""
+        lines += ["## Table 3 analogue: gradient-ascent gain over 25 steps (ground-truth teacher score, ± s.e. over starts)",
+                  "", "| scorer | mean gain |", "|---|---|"]  # fmt: skip
         for k, v in ab["gradient_gain"].items():
-            lines.append(f"| {k} | {'' if v is None else f'{v:+.3f}'} |")
+            lines.append(f"| {k} | {_pm(v, se['gradient_gain'].get(k), '+')} |")
         lines += [
             "",
-            f"## Table 4 analogue ({ab['scorer']} scorer, normalized score)",
+            f"## Table 4 analogue ({ab['scorer']} scorer, normalized score ± s.e.{scenes})",
             "",
             "| K | normalized |",
             "|---|---|",
         ]
-        lines += [f"| {k} | {_fmt(v)} |" for k, v in ab["top_k"].items()]
+        lines += [f"| {k} | {_pm(v, se['top_k'].get(k))} |" for k, v in ab["top_k"].items()]
         lines += ["", "| steps | normalized |", "|---|---|"]
-        lines += [f"| {k} | {_fmt(v)} |" for k, v in ab["steps"].items()]
-        lines += ["", "## Table S1 analogue (S x N, normalized)", ""]
+        lines += [f"| {k} | {_pm(v, se['steps'].get(k))} |" for k, v in ab["steps"].items()]
+        lines += ["", f"## Table S1 analogue (S x N, normalized ± s.e.{scenes})", ""]
         ss = sorted({int(k.split("x")[0]) for k in ab["samples_x_neighbours"]})
+        grid, grid_se = ab["samples_x_neighbours"], se["samples_x_neighbours"]
         lines += ["| N \\ S | " + " | ".join(str(s) for s in ss) + " |", "|---" * (len(ss) + 1) + "|"]
         for n in ss:
-            lines.append(f"| {n} | " + " | ".join(_fmt(ab["samples_x_neighbours"][f"{s}x{n}"]) for s in ss) + " |")
+            lines.append(f"| {n} | " + " | ".join(_pm(grid[f"{s}x{n}"], grid_se.get(f"{s}x{n}")) for s in ss) + " |")
         lines.append("")
     return "\n".join(lines) + "\n"
 
 
-def _fmt(v) -> str:
-    return "" if v is None else f"{v:.3f}"
+def _pm(value: float | None, se: float | None = None, sign: str = "") -> str:
+    """``value ± se`` to 3 decimals (``sign="+"`` always signs the value); empty for no value."""
+    if value is None:
+        return ""
+    value = round(value, 3) + 0.0  # + 0.0: no "-0.000"
+    return f"{value:{sign}.3f}" + ("" if se is None else f" ± {se:.3f}")
 
 
 def _colour(values: np.ndarray) -> np.ndarray:  # [N] -> [N, 3] BGR uint8 (viridis)

@@ -19,4 +19,5 @@ def test_bench_search_keys(wiring_recorder, monkeypatch, tmp_path):
     for case, _ in CASES:
         assert f"search.{case}.latency_ms" in wiring_recorder.results
         assert -1.0 <= wiring_recorder.results[f"search.{case}.normalized"]["value"] <= 1.5
+        assert f"search.{case}.normalized_se" not in wiring_recorder.results  # quick: one scene, no spread
     assert (tmp_path / "bench" / "search_pareto.png").is_file()

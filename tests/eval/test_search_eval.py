@@ -32,9 +32,49 @@ def test_eval_search_tables_and_normalisation(tmp_path):
         assert table["rotation"]["teacher"] >= table["best_input"]["teacher"] - 1e-9
         for v in table.values():
             assert set(v) >= {"teacher", "evaluator", "normalized"}
+            assert v["normalized_se"] is None  # one scene: no spread to estimate
+            assert "vs_field_balanced" not in v  # the reference did not run
     assert doc["scenes"] == ["tabletop:102"]
     assert (tmp_path / "out" / "search_eval.md").read_text().startswith("# Search evaluation")
     assert (tmp_path / "out" / "top_view_tabletop_102.png").is_file() is False  # needs a learned scorer
+
+
+def _row(scene: str, **normalized: float) -> dict:
+    methods = {m: {"teacher": x, "evaluator": x, "normalized": x} for m, x in normalized.items()}
+    return {"scene": scene, "mode": "rig", "views": 4, "methods": methods, "latency_ms": {}}
+
+
+def test_spread_and_paired_differences_against_balanced():
+    """Every mean comes with its standard error over scenes, and every method with its paired
+    difference from field_balanced on the scenes both ran: mean, standard error, and the count
+    better / the same (within SAME_TOL) / worse."""
+    from aes_planner.eval.search import SAME_TOL, _aggregate, paired_difference, standard_error
+
+    assert standard_error([0.5]) is None
+    assert standard_error([0.2, 0.4, 0.9]) == pytest.approx(np.std([0.2, 0.4, 0.9], ddof=1) / np.sqrt(3))
+    rows = [
+        _row("a", field_balanced=0.8, field_fast=0.5, rgb=0.6),
+        _row("b", field_balanced=0.6, field_fast=0.6 + SAME_TOL / 2, rgb=0.7),
+        _row("c", field_balanced=0.4, field_fast=0.7),  # rgb did not run here: left out of its pairs
+    ]
+    fast = paired_difference(rows, "field_fast", "field_balanced")
+    assert fast["diff"] == pytest.approx(np.mean([-0.3, SAME_TOL / 2, 0.3]))
+    assert fast["diff_se"] == pytest.approx(standard_error([-0.3, SAME_TOL / 2, 0.3]))
+    assert (fast["better"], fast["same"], fast["worse"]) == (1, 1, 1)
+    rgb = paired_difference(rows, "rgb", "field_balanced")
+    assert rgb["diff"] == pytest.approx(-0.05) and (rgb["better"], rgb["same"], rgb["worse"]) == (1, 0, 1)
+    assert paired_difference(rows, "oracle", "field_balanced") is None
+
+    cfg = SearchEvalConfig(
+        scenes=["a", "b", "c"], views=[4], modes=["rig"], methods=["field_fast", "field_balanced", "rgb"]
+    )
+    table = _aggregate(rows, cfg)["views"]["4"]["rig"]
+    assert table["field_balanced"]["normalized_se"] == pytest.approx(standard_error([0.8, 0.6, 0.4]))
+    assert "vs_field_balanced" not in table["field_balanced"]
+    assert table["rgb"]["n"] == 2 and table["rgb"]["vs_field_balanced"] == rgb
+    md = markdown(_aggregate(rows, cfg))
+    assert "| field_balanced | 0.600 | 0.600 | 0.600 ± 0.115 | reference |" in md
+    assert "| rgb | 0.650 | 0.650 | 0.650 ± 0.050 | -0.050 ± 0.150 (1 / 0 / 1) |" in md
 
 
 def test_eval_search_config_errors(tmp_path):
