@@ -16,9 +16,9 @@ balanced search on RGB scoring), on held-out scenes with 4 input frames of 128x9
   autograd Function's forward and backward bodies: kernels and their numpy glue; numba backend
   only).
 
-``search_pareto.png`` (latency against normalised score) is written into ``bench/`` under the
-working directory. When the field is not available in this build, the presets run on RGB scoring and
-``_meta.backends.search_scorer`` says so.
+``search_pareto.png`` (latency against normalised score, with bars of +-1 standard error over the
+scenes) is written into ``bench/`` under the working directory. When the field is not available in
+this build, the presets run on RGB scoring and ``_meta.backends.search_scorer`` says so.
 """
 
 from __future__ import annotations
@@ -108,14 +108,17 @@ def run(rec: Recorder, quick: bool) -> None:
         rec.record(f"{key}.normalized", float(np.mean(norm)), "ratio", len(norm))
         if len(norm) >= 2:  # single scenes swing by up to 0.5: the mean's standard error over the scenes
             rec.record(f"{key}.normalized_se", standard_error(norm), "ratio", len(norm))
-        points[case] = (statistics.median(lat), float(np.mean(norm)))
+        points[case] = (statistics.median(lat), float(np.mean(norm)), standard_error(norm))
     rec.meta.setdefault("backends", {})["search_scorer"] = "field" if field_ok else "rgb (field not available)"
     rec.meta["search_scenes"] = scenes
     write_pareto(points, Path("bench") / "search_pareto.png")
 
 
-def write_pareto(points: dict[str, tuple[float, float]], path: Path) -> Path:
-    """Latency (log x) against normalised score (y); the presets joined, rgb apart."""
+def write_pareto(points: dict[str, tuple], path: Path) -> Path:
+    """Latency (log x) against normalised score (y); the presets joined, rgb apart. ``points``:
+    ``{name: (latency_ms, normalized)}`` or ``(latency_ms, normalized, standard_error | None)``,
+    the error drawn as a bar of +-1 standard error over the scenes."""
+    points = {name: (p[0], p[1], p[2] if len(p) > 2 else None) for name, p in points.items()}
     w, h, m = 520, 360, 50
     img = np.full((h, w, 3), 255, np.uint8)
     lats = [p[0] for p in points.values()]
@@ -130,16 +133,22 @@ def write_pareto(points: dict[str, tuple[float, float]], path: Path) -> Path:
     for goal, colour in ((0.8, (0, 160, 0)), (0.9, (0, 100, 0))):
         cv2.line(img, px(10**lo, goal), px(10**hi, goal), colour, 1)
     cv2.line(img, px(1000, -0.2), px(1000, 1.1), (0, 0, 200), 1)  # the 1 s goal
-    chain = [points[c] for c in ("fast", "balanced", "accurate") if c in points]
+    chain = [points[c][:2] for c in ("fast", "balanced", "accurate") if c in points]
     for a, b in zip(chain, chain[1:]):
         cv2.line(img, px(*a), px(*b), (200, 120, 0), 2)
-    for i, (name, (lat, norm)) in enumerate(points.items()):
+    for i, (name, (lat, norm, se)) in enumerate(points.items()):
         colour = (0, 0, 200) if name == "rgb" else (200, 120, 0)
+        if se is not None:  # +-1 standard error over the scenes, with caps
+            (x, y0), (_, y1) = px(lat, norm - se), px(lat, norm + se)
+            cv2.line(img, (x, y0), (x, y1), colour, 1)
+            for y in (y0, y1):
+                cv2.line(img, (x - 4, y), (x + 4, y), colour, 1)
         cv2.circle(img, px(lat, norm), 5, colour, -1)
         cv2.putText(
             img, name[0].upper(), (px(lat, norm)[0] - 4, px(lat, norm)[1] - 8), cv2.FONT_HERSHEY_PLAIN, 1.0, colour, 1
         )
-        cv2.putText(img, f"{name[0].upper()} {name}: {lat:.0f} ms, {norm:.2f}", (m + 6, m + 16 + 14 * i),
+        spread = "" if se is None else f" +- {se:.2f}"
+        cv2.putText(img, f"{name[0].upper()} {name}: {lat:.0f} ms, {norm:.2f}{spread}", (m + 6, m + 16 + 14 * i),
                     cv2.FONT_HERSHEY_PLAIN, 0.9, (0, 0, 0), 1, cv2.LINE_AA)  # fmt: skip
     cv2.putText(
         img, "latency (ms, log) vs oracle-normalised score", (m, m - 12), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1

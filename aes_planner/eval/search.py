@@ -543,7 +543,7 @@ def markdown(doc: dict[str, Any]) -> str:
                         if d is None else f"{_pm(d['diff'], d['diff_se'], '+')} ({d['better']} / {d['same']} / {d['worse']})"
                     )  # fmt: skip
                 lines.append("| " + " | ".join([*cells, ms]) + " |")
-            lines.append("")
+            lines += ["", *_per_scene_table(doc.get("per_scene", []), n, mode, list(table))]
     ab = doc.get("ablations")
     if ab:
         se = {name: ab.get(f"{name}_se", {}) for name in ("gradient_gain", "top_k", "steps", "samples_x_neighbours")}
@@ -570,6 +570,22 @@ def markdown(doc: dict[str, Any]) -> str:
             lines.append(f"| {n} | " + " | ".join(_pm(grid[f"{s}x{n}"], grid_se.get(f"{s}x{n}")) for s in ss) + " |")
         lines.append("")
     return "\n".join(lines) + "\n"
+
+
+def _per_scene_table(rows: list[dict[str, Any]], views: str, mode: str, methods: list[str]) -> list[str]:
+    """Markdown lines: each scene's normalized score per method (random and oracle are 0 and 1 by
+    definition: the oracle's teacher score is shown instead); none when there are no rows."""
+    rows = [r for r in rows if str(r["views"]) == views and r["mode"] == mode]
+    shown = [m for m in methods if m not in ("random", "oracle")]
+    if not rows or not shown:
+        return []
+    lines = [f"Per scene, normalized ({views} views, {mode}):", "",
+             "| scene | " + " | ".join(shown) + " | oracle teacher |", "|---" * (len(shown) + 2) + "|"]  # fmt: skip
+    for r in rows:
+        name = Path(r["scene"]).name if r["scene"].endswith((".yaml", ".yml")) else r["scene"]
+        cells = [_pm(r["methods"][m]["normalized"]) if m in r["methods"] else "" for m in shown]
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {r['oracle']:.3f} |")
+    return [*lines, ""]
 
 
 def _pm(value: float | None, se: float | None = None, sign: str = "") -> str:

@@ -10,6 +10,21 @@ def test_pareto_plot(tmp_path):
     assert path.stat().st_size > 1000
 
 
+def test_pareto_plot_draws_the_standard_error(tmp_path):
+    """A point with a standard error gets a bar of +-1 s.e. in its column; one without (a single
+    scene) is drawn as before."""
+    import cv2
+    import numpy as np
+
+    plain = cv2.imread(str(write_pareto({"balanced": (900.0, 0.5, None)}, tmp_path / "a.png")))
+    bar = cv2.imread(str(write_pareto({"balanced": (900.0, 0.5, 0.2)}, tmp_path / "b.png")))
+    assert np.array_equal(plain, cv2.imread(str(write_pareto({"balanced": (900.0, 0.5)}, tmp_path / "c.png"))))
+    changed = np.argwhere((plain != bar).any(axis=2))  # [P, 2] (row, column)
+    # beyond the label's text line: the bar, about 2 x 0.2 / 1.1 of the plot's 260 px of height
+    bar_px = changed[changed[:, 0] > 80]
+    assert len(bar_px) and np.ptp(bar_px[:, 1]) <= 10 and np.ptp(bar_px[:, 0]) >= 80
+
+
 @pytest.mark.slow
 def test_bench_search_keys(wiring_recorder, monkeypatch, tmp_path):
     from aes_planner.bench import search as bench_search

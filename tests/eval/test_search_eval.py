@@ -41,7 +41,7 @@ def test_eval_search_tables_and_normalisation(tmp_path):
 
 def _row(scene: str, **normalized: float) -> dict:
     methods = {m: {"teacher": x, "evaluator": x, "normalized": x} for m, x in normalized.items()}
-    return {"scene": scene, "mode": "rig", "views": 4, "methods": methods, "latency_ms": {}}
+    return {"scene": scene, "mode": "rig", "views": 4, "oracle": 0.8, "methods": methods, "latency_ms": {}}
 
 
 def test_spread_and_paired_differences_against_balanced():
@@ -75,6 +75,10 @@ def test_spread_and_paired_differences_against_balanced():
     md = markdown(_aggregate(rows, cfg))
     assert "| field_balanced | 0.600 | 0.600 | 0.600 ± 0.115 | reference |" in md
     assert "| rgb | 0.650 | 0.650 | 0.650 ± 0.050 | -0.050 ± 0.150 (1 / 0 / 1) |" in md
+    assert "Per scene" not in md  # no per-scene rows in this document
+    md = markdown({**_aggregate(rows, cfg), "per_scene": rows})
+    assert "| scene | field_fast | field_balanced | rgb | oracle teacher |" in md
+    assert "| c | 0.700 | 0.400 |  | 0.800 |" in md  # rgb did not run on scene c
 
 
 def test_eval_search_config_errors(tmp_path):
