@@ -68,7 +68,8 @@ def platform_to_meta(platform: Platform) -> dict:
     """The JSON-ready description a dataset folder's ``meta`` carries: ``{"platform": "rig",
     "rig": {PanTiltConfig fields}}`` or ``{"platform": "drone", "drone": {"bounds_min_m", "bounds_max_m"}}``."""
     if platform.kind == "rig":
-        return {"platform": "rig", "rig": {k: list(v) for k, v in dataclasses.asdict(platform.rig).items()}}
+        rig = dataclasses.asdict(platform.rig)
+        return {"platform": "rig", "rig": {k: list(v) if isinstance(v, tuple) else v for k, v in rig.items()}}
     box = platform.drone
     return {
         "platform": "drone",

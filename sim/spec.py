@@ -469,5 +469,9 @@ def spec_to_dict(spec: SceneSpec) -> dict:
     for section in ("rig", "drone"):
         if getattr(spec, section) is not None:
             out[section] = to_dict(getattr(spec, section))
+    if "rig" in out and out["rig"]["pan_tilt"].get("camera_roll_deg") == 0.0:
+        # a field added later is written only when set, so that older scenes' text (the key of
+        # their cached oracles) stays the same
+        del out["rig"]["pan_tilt"]["camera_roll_deg"]
     out["objects"] = [_tagged_dict(x) for x in spec.objects]
     return _drop_none(out)

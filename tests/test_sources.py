@@ -40,3 +40,22 @@ def test_check_poses_refuses_bad_batches():
     with pytest.raises(ScorerError, match=r"\[B, 4, 4\]"):
         check_poses(torch.eye(4), "t")
     assert check_poses(torch.eye(4)[None].float(), "t").dtype == torch.float64
+
+
+def test_rig_metadata_round_trips_every_field():
+    """``sim render`` writes the rig into cameras.json and ``suggest`` reads it back: every
+    PanTiltConfig field survives JSON, the scalar camera_roll_deg included."""
+    import json
+
+    from aes_planner.geometry import Intrinsics, PanTiltConfig
+    from aes_planner.search.oracle import _platform_dict
+    from aes_planner.sources import platform_from_meta, platform_to_meta
+
+    k = Intrinsics.from_fov(64, 48, 60.0)
+    rig = PanTiltConfig(base_xyz_m=(0.0, 0.0, 2.6), base_rpy_deg=(180.0, 0.0, 0.0), camera_roll_deg=180.0)
+    meta = json.loads(json.dumps(platform_to_meta(Platform("rig", k, rig=rig))))
+    assert meta["rig"]["camera_roll_deg"] == 180.0
+    assert platform_from_meta(meta, k).rig == rig
+    # the oracle cache key names the roll only when it is set (older rigs keep their keys)
+    assert _platform_dict(Platform("rig", k, rig=rig))["rig"]["camera_roll_deg"] == 180.0
+    assert "camera_roll_deg" not in _platform_dict(Platform("rig", k, rig=PanTiltConfig()))["rig"]

@@ -8,6 +8,7 @@ The chain, each transform a function of the configuration or a joint::
               @ Ry(-tilt)                   # tilt joint: positive tilt looks up
               @ T(lever_arm_m)              # camera optical centre in the tilt frame
               @ BODY_TO_OPTICAL             # x forward/y left/z up -> OpenCV optical axes
+              @ Rz(camera_roll_deg)         # the image's rotation about the optical axis
 
 The pan and tilt frames are REP-103 body frames (x forward, y left, z up). With an upright base
 (``base_rpy_deg = (0, 0, 0)``) and zero offsets the camera's 5-DoF view is
@@ -65,6 +66,9 @@ class PanTilt:
         self.base2world[:3, 3] = c.base_xyz_m
         self.tilt_offset = np.asarray(c.tilt_offset_m, dtype=np.float64)
         self.lever_arm = np.asarray(c.lever_arm_m, dtype=np.float64)
+        roll = math.radians(c.camera_roll_deg)
+        # tilt frame -> camera axes: OpenCV optical axes, turned about the optical (z) axis by the roll
+        self.body_to_camera = BODY_TO_OPTICAL @ _rpy_matrix([0.0, 0.0, roll])
         self.limits = JointLimits.from_config(c)
         self.pan_limits_rad = self.limits.pan_rad
         self.tilt_limits_rad = self.limits.tilt_rad
@@ -106,7 +110,7 @@ class PanTilt:
         lever = torch.as_tensor(self.lever_arm, **kw)
         # camera centre in the base frame: Rz(pan) (offset + Ry(-tilt) lever)
         centre_base = (r_pan @ (offset + (r_tilt @ lever.unsqueeze(-1)).squeeze(-1)).unsqueeze(-1)).squeeze(-1)
-        r_cam_base = r_joint @ torch.as_tensor(BODY_TO_OPTICAL, **kw)
+        r_cam_base = r_joint @ torch.as_tensor(self.body_to_camera, **kw)
         base_r = torch.as_tensor(self.base2world[:3, :3], **kw)
         base_t = torch.as_tensor(self.base2world[:3, 3], **kw)
         rotation = base_r @ r_cam_base

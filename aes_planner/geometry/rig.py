@@ -29,6 +29,11 @@ class PanTiltConfig:
     * ``tilt_offset_m``: tilt-axis origin in the pan frame (x forward, y left, z up).
     * ``lever_arm_m``: camera optical centre in the tilt frame.
     * ``pan_limits_deg``, ``tilt_limits_deg``: (min, max) joint limits, inclusive.
+    * ``camera_roll_deg``: the camera's rotation about its optical axis in the tilt frame
+      (positive: clockwise as seen from behind the camera, so the image's content turns
+      counter-clockwise). 0: the image's up is the tilt frame's up. 180 for a rig hung upside
+      down (``base_rpy_deg = (180, 0, 0)``) whose camera flips its image, as ceiling mounts do,
+      so the images come out upright; leave 0 if its images come out upside down.
     """
 
     base_xyz_m: tuple[float, float, float] = (0.0, 0.0, 1.2)
@@ -37,10 +42,17 @@ class PanTiltConfig:
     lever_arm_m: tuple[float, float, float] = (0.03, 0.0, 0.02)
     pan_limits_deg: tuple[float, float] = (-150.0, 150.0)
     tilt_limits_deg: tuple[float, float] = (-60.0, 60.0)
+    camera_roll_deg: float = 0.0
 
     def __post_init__(self):
         for name in ("base_xyz_m", "base_rpy_deg", "tilt_offset_m", "lever_arm_m", "pan_limits_deg", "tilt_limits_deg"):
             require_finite(list(getattr(self, name)), name)
+        require_finite(self.camera_roll_deg, "camera_roll_deg")
+        require(
+            -360.0 <= self.camera_roll_deg <= 360.0,
+            "camera_roll_deg",
+            f"must be in [-360, 360] deg (180 for an image flipped upside down), got {self.camera_roll_deg}",
+        )
         lo, hi = self.pan_limits_deg
         require(lo < hi, "pan_limits_deg", f"min must be below max, got ({lo}, {hi})")
         require(hi - lo <= 360.0, "pan_limits_deg", f"a range over 360 deg is not a position-mode joint: ({lo}, {hi})")

@@ -48,6 +48,8 @@ def _platform_dict(platform: Platform) -> dict[str, Any]:
     d: dict[str, Any] = {"kind": platform.kind, "intrinsics": dataclasses.asdict(platform.intrinsics)}
     if platform.rig is not None:
         d["rig"] = dataclasses.asdict(platform.rig)
+        if d["rig"]["camera_roll_deg"] == 0.0:  # the default, which rigs had before the field existed:
+            del d["rig"]["camera_roll_deg"]  # their cached oracles keep their keys
     if platform.drone is not None:
         d["drone"] = dataclasses.asdict(platform.drone)
     return d

@@ -86,6 +86,37 @@ def test_tilted_base_round_trip():
     np.testing.assert_allclose(view_to_cam2world(view)[:3, 2], c2w[:3, 2], atol=1e-12)
 
 
+def test_camera_roll_turns_the_image_about_the_optical_axis():
+    """The roll moves neither the camera nor its optical axis: it turns the image axes (180 deg
+    reverses both; +90 deg brings what was above the centre to its left), and the aim, which
+    fixes the joints, ignores it."""
+    base = dict(base_xyz_m=(0.5, 0.0, 1.0), lever_arm_m=(0.03, 0.01, 0.02))
+    upright = PanTilt(PanTiltConfig(**base))
+    flipped = PanTilt(PanTiltConfig(**base, camera_roll_deg=180.0))
+    quarter = PanTilt(PanTiltConfig(**base, camera_roll_deg=90.0))
+    for pan, tilt in [(0.0, 0.0), (0.7, -0.4), (-2.0, 0.9)]:
+        a, b, q = upright.forward(pan, tilt), flipped.forward(pan, tilt), quarter.forward(pan, tilt)
+        np.testing.assert_allclose(b[:3, 3], a[:3, 3], atol=1e-12)
+        np.testing.assert_allclose(b[:3, 2], a[:3, 2], atol=1e-12)
+        np.testing.assert_allclose(b[:3, :2], -a[:3, :2], atol=1e-12)
+        above = a[:3, 3] + 5.0 * a[:3, 2] - a[:3, 1]  # up from the centre of the upright image
+        x, y, _ = q[:3, :3].T @ (above - q[:3, 3])
+        assert x == pytest.approx(-1.0) and y == pytest.approx(0.0, abs=1e-9)
+        sol = flipped.inverse_direction(b[:3, 2], pan_hint_rad=pan)
+        assert sol.pan_rad == pytest.approx(pan) and sol.tilt_rad == pytest.approx(tilt)
+
+
+def test_a_ceiling_rig_whose_camera_flips_its_image_sees_upright():
+    """Hung upside down, a rig looks down at positive tilt and its raw image is upside down
+    (image down points up in the world); with camera_roll_deg 180 image down points down."""
+    hung = dict(base_xyz_m=(0.0, 0.0, 2.6), base_rpy_deg=(180.0, 0.0, 0.0), tilt_limits_deg=(-20.0, 80.0))
+    raw, flipped = PanTilt(PanTiltConfig(**hung)), PanTilt(PanTiltConfig(**hung, camera_roll_deg=180.0))
+    for pan, tilt in raw.joint_grid(5, 4):
+        assert raw.forward(pan, tilt)[2, 1] > 0.1  # world z of the image's down axis
+        assert flipped.forward(pan, tilt)[2, 1] < -0.1
+    assert flipped.forward(0.0, math.radians(45.0))[2, 2] == pytest.approx(-math.sqrt(0.5))
+
+
 @given(st.floats(allow_nan=True, allow_infinity=True), st.floats(allow_nan=True, allow_infinity=True))
 def test_clamp_never_returns_outside_limits(pan, tilt):
     if not (math.isfinite(pan) and math.isfinite(tilt)):
@@ -123,6 +154,10 @@ def test_config_errors_name_the_key():
         from_dict(PanTiltConfig, {"base_xyz_m": [0, 0]})
     with pytest.raises(ConfigError, match=r"base_xyz_m\[1\]: expected a number"):
         from_dict(PanTiltConfig, {"base_xyz_m": [0, "x", 1]})
+    with pytest.raises(ConfigError, match=r"rig.camera_roll_deg: must be in \[-360, 360\]"):
+        from_dict(PanTiltConfig, {"camera_roll_deg": 540.0}, "rig")
+    with pytest.raises(ConfigError, match="camera_roll_deg: expected finite"):
+        PanTiltConfig(camera_roll_deg=float("nan"))
 
 
 @pytest.mark.parametrize("n", [1, 2, 4, 7])

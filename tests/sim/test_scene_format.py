@@ -129,6 +129,20 @@ def test_spec_dict_round_trip_is_exact():
     assert spec_to_dict(again) == spec_to_dict(spec)
 
 
+def test_camera_roll_is_written_only_when_set():
+    """A rig's camera_roll_deg (added after the first scenes) is left out of the text at its
+    default, so older scenes' YAML (and the oracle cache keyed by it) does not change; set, it
+    round-trips."""
+    import dataclasses
+
+    spec = load_scene(SHOWCASE).spec
+    assert "camera_roll_deg" not in spec_to_dict(spec)["rig"]["pan_tilt"]
+    rolled = dataclasses.replace(spec.rig, pan_tilt=dataclasses.replace(spec.rig.pan_tilt, camera_roll_deg=180.0))
+    spec = dataclasses.replace(spec, rig=rolled)
+    assert spec_to_dict(spec)["rig"]["pan_tilt"]["camera_roll_deg"] == 180.0
+    assert from_dict(SceneSpec, spec_to_dict(spec)) == spec
+
+
 def test_yaml_round_trip_renders_the_same(tmp_path):
     scene = load_scene(SHOWCASE)
     path = save_scene(scene, tmp_path / "sub" / "copy.yaml")
