@@ -96,6 +96,8 @@ def print_table(result, top: int) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from aes_planner.dataset import load_dataset
     from aes_planner.search import SearchConfig, SearchError, build_search_scorer, search_mode, search_views
     from aes_planner.search.report import render_with, write_report
@@ -162,19 +164,51 @@ def run(args: argparse.Namespace) -> int:
         Path(args.json).write_text(json.dumps(doc, indent=1) + "\n")
         print(f"wrote {args.json}")
     if args.out:
-        renderers = {}
+        renderers, scores = {}, {}
+        poses = np.stack([s.cam2world for s in result.suggestions])  # [K, 4, 4] world
         own = render_with(scorer)
         if own is not None:
             renderers[args.scorer] = own
         if args.scorer != "rgb":
-            rgb = render_with(build_search_scorer("rgb", data.frames, cfg))
+            rgb_scorer = build_search_scorer("rgb", data.frames, cfg)
+            rgb = render_with(rgb_scorer)
             if rgb is not None:
                 renderers["rgb"] = rgb
+                scores["rgb"] = _scores(rgb_scorer, poses)
         if gt is not None:
-            renderers["truth"] = gt
-        report = write_report(Path(args.out) / "report.png", [f.image for f in data.frames], result, renderers)
+            truth_images = gt(poses)  # [K, H, W, 3] uint8, rendered once for the score and the report
+            renderers["truth"] = lambda _poses: truth_images
+            scores["truth"] = _teacher_scores(scorer, truth_images)
+            print(
+                "ground truth (the teacher on the simulator's render at each suggestion): "
+                + ", ".join(f"#{i + 1} {v:.3f}" for i, v in enumerate(scores["truth"][:top]))
+            )
+        report = write_report(
+            Path(args.out) / "report.png", [f.image for f in data.frames], result, renderers, scores=scores
+        )
         print(f"wrote {report}")
     return 0
+
+
+def _scores(scorer, poses) -> list[float]:
+    """A scorer's own scores of poses ``[K, 4, 4]`` (no gradients)."""
+    import torch
+
+    with torch.no_grad():
+        return scorer.score(torch.as_tensor(poses, dtype=torch.float64)).score.double().tolist()
+
+
+def _teacher_scores(scorer, images) -> list[float]:
+    """The search's teacher's scores of RGB ``images [K, H, W, 3]`` uint8."""
+    import numpy as np
+    import torch
+
+    from aes_planner.teachers import get_teacher
+
+    teacher = getattr(scorer, "teacher", None) or get_teacher()
+    x = torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2).float() / 255.0  # [K, 3, H, W]
+    with torch.no_grad():
+        return teacher.explain_map(teacher.features(x))["score"].double().tolist()
 
 
 def _ground_truth(meta: dict, intrinsics, truth_scene: str | None = None):

@@ -19,12 +19,13 @@ PAD = 4
 LABEL_H = 14
 
 
-def suggestion_label(i: int, s: Suggestion) -> str:
+def suggestion_label(i: int, s: Suggestion, score: float | None = None) -> str:
+    """``#i pan .. tilt .. s=..``: ``score`` (a row's own score of the view) or else the search's."""
     if s.pan_rad is not None:
         where = f"pan {math.degrees(s.pan_rad):.0f} tilt {math.degrees(s.tilt_rad):.0f}"
     else:
         where = f"yaw {math.degrees(s.yaw_rad):.0f} pitch {math.degrees(s.pitch_rad):.0f}"
-    return f"#{i + 1} {where} s={s.score:.2f}"
+    return f"#{i + 1} {where} s={s.score if score is None else score:.2f}"
 
 
 def render_with(scorer) -> Callable[[np.ndarray], np.ndarray] | None:
@@ -82,8 +83,12 @@ def write_report(
     result: SearchResult,
     renderers: dict[str, Callable[[np.ndarray], np.ndarray]],
     tile_width: int = 192,
+    scores: dict[str, Sequence[float]] | None = None,
 ) -> Path:
-    """Write the report PNG; ``renderers`` maps a row name to poses -> ``[B, H, W, 3]`` uint8."""
+    """Write the report PNG; ``renderers`` maps a row name to poses -> ``[B, H, W, 3]`` uint8;
+    ``scores`` a row name to that row's own score of each suggestion (e.g. the teacher's on the
+    ground truth), shown in its labels instead of the search's score."""
+    scores = scores or {}
     h0, w0 = input_images[0].shape[:2]
     size = (tile_width, max(8, int(round(tile_width * h0 / w0))))
     poses = np.stack([s.cam2world for s in result.suggestions])
@@ -95,7 +100,7 @@ def write_report(
             continue
         rows.append(
             [
-                _tile(img, size, f"{name} {suggestion_label(i, s)}")
+                _tile(img, size, f"{name} {suggestion_label(i, s, scores[name][i] if name in scores else None)}")
                 for i, (img, s) in enumerate(zip(images, result.suggestions))
             ]
         )

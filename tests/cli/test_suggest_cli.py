@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 import pytest
+import torch
 import yaml
 
 from aes_planner.cli import main
@@ -133,15 +134,36 @@ def test_suggest_truth_scene_for_a_scene_file(tmp_path, capsys, monkeypatch):
     seen = []
     real_report = report.write_report
 
-    def spy(path, images, result, renderers):
+    def spy(path, images, result, renderers, **kw):
         seen.append(sorted(renderers))
-        return real_report(path, images, result, renderers)
+        scores.append(kw.get("scores", {}))
+        return real_report(path, images, result, renderers, **kw)
+
+    scores = []
 
     monkeypatch.setattr(report, "write_report", spy)
     base = ["suggest", str(folder), "--preset", "fast", "--scorer", "rgb", "--out", str(tmp_path / "r")]
     assert main(base) == 0
-    assert main([*base, "--truth-scene", scene]) == 0
+    capsys.readouterr()
+    assert main([*base, "--truth-scene", scene, "--json", str(tmp_path / "t.json")]) == 0
     assert seen == [["rgb"], ["rgb", "truth"]]
+    # the truth row is labelled with the teacher's score of the ground truth at each suggestion,
+    # also printed; it agrees with an independent ground-truth scorer (up to the report's uint8)
+    printed = capsys.readouterr().out.split("ground truth (the teacher on the simulator's render at each suggestion): ")
+    assert len(printed) == 2 and "truth" not in scores[0]
+    truth = scores[1]["truth"]
+    assert printed[1].split("\n")[0] == ", ".join(f"#{i + 1} {v:.3f}" for i, v in enumerate(truth))
+    from aes_planner.search import GroundTruthScorer
+    from aes_planner.sim import SimSource
+    from aes_planner.teachers import get_teacher
+
+    poses = np.stack([s["cam2world"] for s in json.loads((tmp_path / "t.json").read_text())["suggestions"]])
+    source = SimSource(scene, supersample=2)
+    k = load_dataset(folder).frames[0].intrinsics
+    images = source.render_rgb(poses, k)  # [K, H, W, 3] in [0, 1]
+    expected = GroundTruthScorer(source, get_teacher(), k).score(torch.as_tensor(poses)).score.double().numpy()
+    assert images.shape[0] == len(truth)
+    np.testing.assert_allclose(truth, expected, atol=0.02)
     assert (tmp_path / "r" / "report.png").stat().st_size > 1000
     capsys.readouterr()
 
@@ -196,3 +218,13 @@ def test_table_columns_stay_aligned_far_from_the_origin(capsys):
     # the score column starts at the same place in every row, under its heading
     starts = {row.index(score) for row, score in zip(rows, ("0.812", "0.645"), strict=True)}
     assert len(starts) == 1 and head.index("score") <= starts.pop() < head.index("coverage")
+
+
+def test_report_labels_each_row_with_its_own_score():
+    """A row given its own scores (RGB, ground truth) shows them; the others show the search's."""
+    from aes_planner.search.pipeline import Suggestion
+    from aes_planner.search.report import suggestion_label
+
+    s = Suggestion(np.eye(4), np.zeros(3), 0.0, 0.0, score=0.61, coverage=0.7, terms={}, pan_rad=2.1, tilt_rad=0.14)
+    assert suggestion_label(0, s) == "#1 pan 120 tilt 8 s=0.61"
+    assert suggestion_label(1, s, 0.268) == "#2 pan 120 tilt 8 s=0.27"
