@@ -9,13 +9,12 @@ commanded poses is another. A :class:`Platform` says where the camera can go: a 
 
 from __future__ import annotations
 
-import dataclasses
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
 
-from aes_planner.config import require, require_finite
+from aes_planner.config import require, require_finite, to_dict
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.rig import PanTiltConfig
 from aes_planner.messages import PosedFrame
@@ -68,8 +67,7 @@ def platform_to_meta(platform: Platform) -> dict:
     """The JSON-ready description a dataset folder's ``meta`` carries: ``{"platform": "rig",
     "rig": {PanTiltConfig fields}}`` or ``{"platform": "drone", "drone": {"bounds_min_m", "bounds_max_m"}}``."""
     if platform.kind == "rig":
-        rig = dataclasses.asdict(platform.rig)
-        return {"platform": "rig", "rig": {k: list(v) if isinstance(v, tuple) else v for k, v in rig.items()}}
+        return {"platform": "rig", "rig": to_dict(platform.rig)}
     box = platform.drone
     return {
         "platform": "drone",

@@ -24,6 +24,7 @@ import numpy as np
 from aes_planner.config import ConfigError, from_dict, require, require_finite, to_dict
 from aes_planner.geometry import Intrinsics, PanTilt, PanTiltConfig, rot_x, rot_y, rot_z, view_to_cam2world
 from aes_planner.geometry.camera import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE
+from aes_planner.geometry.rig import rig_dict
 
 __all__ = [
     "AmbientLightSpec",
@@ -469,9 +470,7 @@ def spec_to_dict(spec: SceneSpec) -> dict:
     for section in ("rig", "drone"):
         if getattr(spec, section) is not None:
             out[section] = to_dict(getattr(spec, section))
-    if "rig" in out and out["rig"]["pan_tilt"].get("camera_roll_deg") == 0.0:
-        # a field added later is written only when set, so that older scenes' text (the key of
-        # their cached oracles) stays the same
-        del out["rig"]["pan_tilt"]["camera_roll_deg"]
+    if "rig" in out:  # a rig field added later is written only when set: older scenes' text stays
+        out["rig"]["pan_tilt"] = rig_dict(spec.rig.pan_tilt)
     out["objects"] = [_tagged_dict(x) for x in spec.objects]
     return _drop_none(out)

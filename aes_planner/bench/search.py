@@ -106,9 +106,10 @@ def run(rec: Recorder, quick: bool) -> None:
         if numba:
             rec.record(f"{key}.raster_ms", statistics.median(raster), "ms", len(raster))
         rec.record(f"{key}.normalized", float(np.mean(norm)), "ratio", len(norm))
-        if len(norm) >= 2:  # single scenes swing by up to 0.5: the mean's standard error over the scenes
-            rec.record(f"{key}.normalized_se", standard_error(norm), "ratio", len(norm))
-        points[case] = (statistics.median(lat), float(np.mean(norm)), standard_error(norm))
+        se = standard_error(norm)  # single scenes swing by up to 0.5: the mean's spread (None for one scene)
+        if se is not None:
+            rec.record(f"{key}.normalized_se", se, "ratio", len(norm))
+        points[case] = (statistics.median(lat), float(np.mean(norm)), se)
     rec.meta.setdefault("backends", {})["search_scorer"] = "field" if field_ok else "rgb (field not available)"
     rec.meta["search_scenes"] = scenes
     write_pareto(points, Path("bench") / "search_pareto.png")

@@ -208,7 +208,7 @@ def _teacher_scores(scorer, images) -> list[float]:
     teacher = getattr(scorer, "teacher", None) or get_teacher()
     x = torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2).float() / 255.0  # [K, 3, H, W]
     with torch.no_grad():
-        return teacher.explain_map(teacher.features(x))["score"].double().tolist()
+        return teacher.score(x).double().tolist()
 
 
 def _ground_truth(meta: dict, intrinsics, truth_scene: str | None = None):

@@ -9,10 +9,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from aes_planner.config import require, require_finite
+from aes_planner.config import require, require_finite, to_dict
 from aes_planner.errors import AesPlannerError
 
-__all__ = ["JointCommandError", "JointLimits", "PanTiltConfig"]
+__all__ = ["JointCommandError", "JointLimits", "PanTiltConfig", "rig_dict"]
 
 
 class JointCommandError(AesPlannerError, ValueError):
@@ -59,6 +59,17 @@ class PanTiltConfig:
         lo, hi = self.tilt_limits_deg
         require(lo < hi, "tilt_limits_deg", f"min must be below max, got ({lo}, {hi})")
         require(-90.0 <= lo and hi <= 90.0, "tilt_limits_deg", f"tilt must stay within [-90, 90] deg, got ({lo}, {hi})")
+
+
+#: Fields added after rigs were first saved, with the value every older rig had. :func:`rig_dict`
+#: leaves them out at that value, so older scene files and oracle cache keys stay the same.
+LATER_FIELD_DEFAULTS = {"camera_roll_deg": 0.0}
+
+
+def rig_dict(config: PanTiltConfig) -> dict:
+    """``config`` as plain lists and numbers (:func:`~aes_planner.config.to_dict`), without the
+    later fields that still hold their old value."""
+    return {k: v for k, v in to_dict(config).items() if LATER_FIELD_DEFAULTS.get(k, object()) != v}
 
 
 @dataclass(frozen=True)

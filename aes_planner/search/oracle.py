@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from aes_planner.geometry.rig import rig_dict
 from aes_planner.search.config import SearchConfig
 from aes_planner.search.ground_truth import GroundTruthScorer
 from aes_planner.search.space import SearchSpace, space_for
@@ -47,9 +48,7 @@ def default_cache_dir() -> Path:
 def _platform_dict(platform: Platform) -> dict[str, Any]:
     d: dict[str, Any] = {"kind": platform.kind, "intrinsics": dataclasses.asdict(platform.intrinsics)}
     if platform.rig is not None:
-        d["rig"] = dataclasses.asdict(platform.rig)
-        if d["rig"]["camera_roll_deg"] == 0.0:  # the default, which rigs had before the field existed:
-            del d["rig"]["camera_roll_deg"]  # their cached oracles keep their keys
+        d["rig"] = rig_dict(platform.rig)  # later fields at their old value left out: older keys hold
     if platform.drone is not None:
         d["drone"] = dataclasses.asdict(platform.drone)
     return d
