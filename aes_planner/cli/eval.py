@@ -28,7 +28,13 @@ def register_field(esub: argparse._SubParsersAction) -> None:
     f = esub.add_parser("field", help="novel-view aesthetic prediction: rgb, splat, field_nocond, field")
     f.add_argument("--scenes", type=int, default=4, help="held-out family scenes (default 4; ignored with --scene)")
     f.add_argument("--views", default="2,4,6", help="input view counts, comma separated (default 2,4,6)")
-    f.add_argument("--source", choices=["rig", "free"], default="rig", help="rig sweep (RGB) or free trajectory")
+    f.add_argument(
+        "--source",
+        choices=["rig", "free", "sweep", "survey"],
+        default="rig",
+        help="inputs: rig (a partial pan sweep, RGB), free (a sideways trajectory with depth), sweep (the rig's "
+        "survey sweep, as sim render and the planner take it) or survey (free flight in a box around the rig)",
+    )
     f.add_argument(
         "--scene", action="append", metavar="FILE_OR_FAMILY:SEED", help="evaluate on this scene (repeatable)"
     )

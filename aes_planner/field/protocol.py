@@ -9,6 +9,21 @@ Two kinds of input, as a camera gives them (the paper's protocol, 2-6 input view
   moves sideways ``0.6-1.4 m`` while slowly turning. Targets: the same path at other headings
   and heights.
 
+Two more kinds take their inputs the way the product does, so the field also learns from what it
+is later given:
+
+* ``sweep`` -- a rig's survey sweep (:meth:`PanTilt.sweep`: the whole pan range, tilt zig-zagging),
+  as ``aes-planner sim render`` writes it, the planner node explores and ``eval search`` feeds the
+  search; depth on half of the samples (the simulator writes it, a real rig has none).
+* ``survey`` -- free flight from a box around the rig's base (``SURVEY_BOX_HALF_M``, as ``eval
+  search`` flies a rig scene): the sweep's directions from positions along the box's diagonal, or
+  an arc inside the box looking across its centre (a drone scene's ``survey_poses``); with depth.
+
+For these two the targets are drawn the way the search's stage 1 draws its candidates: points
+along the slerp/lerp trajectory through the inputs, each jittered in direction by up to
+``CANDIDATE_JITTER_FOV`` of the field of view (free: also shifted in position) -- the candidates
+among which the search's argmax picks, where a field's small errors decide.
+
 Training also asks for **search targets** (``n_search``): poses drawn the way the viewpoint search
 queries the field -- anywhere in the rig's joint range (rig), or anywhere in a box around the
 trajectory with headings up to 70 degrees off it (free). A field trained on trajectory targets
@@ -28,12 +43,15 @@ import numpy as np
 
 from aes_planner.config import require
 from aes_planner.geometry.pantilt import PanTilt
-from aes_planner.geometry.poses import view_to_cam2world
+from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
+from aes_planner.geometry.trajectory import interpolate_poses
 from aes_planner.sources import Platform
 
 __all__ = ["SOURCES", "ViewPlan", "plan_views"]
 
-SOURCES = ("rig", "free")
+SOURCES = ("rig", "free", "sweep", "survey")
+SURVEY_BOX_HALF_M = (0.8, 0.8, 0.3)  # eval search's free box around a rig's base (SearchEvalConfig.free_box_m)
+CANDIDATE_JITTER_FOV = 0.35  # the search's direction jitter (SearchConfig.jitter_fov)
 
 
 @dataclass
@@ -123,6 +141,74 @@ def _free_plan(platform: Platform, n_views: int, n_targets: int, n_search: int, 
     return plan
 
 
+def _along(inputs: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:  # [V, 4, 4] -> [n, 4, 4]
+    """``n`` poses at sorted random points of the slerp/lerp trajectory through ``inputs``."""
+    if len(inputs) == 1:
+        return np.repeat(inputs, n, axis=0)
+    dense = interpolate_poses(inputs, 32)  # [(V - 1) * 32 + 1, 4, 4]
+    return dense[np.sort(rng.integers(0, len(dense), n))]
+
+
+def _sweep_plan(platform: Platform, n_views: int, n_targets: int, n_search: int, rng: np.random.Generator) -> ViewPlan:
+    pt = PanTilt(platform.rig)
+    (plo, phi), (tlo, thi) = pt.pan_limits_rad, pt.tilt_limits_rad
+    joints = pt.sweep(n_views)  # [V, 2]
+    inputs = pt.forward(joints[:, 0], joints[:, 1])
+    jitter = CANDIDATE_JITTER_FOV * platform.intrinsics.hfov_rad
+    pos = np.sort(rng.uniform(0, n_views - 1, n_targets))  # along the sweep, in joint space (a rig's slerp)
+    i = np.minimum(pos.astype(int), max(n_views - 2, 0))
+    f = (pos - i)[:, None]
+    anchors = joints[i] * (1 - f) + joints[np.minimum(i + 1, n_views - 1)] * f  # [T, 2]
+    pans = np.clip(anchors[:, 0] + rng.uniform(-jitter, jitter, n_targets), plo, phi)
+    tilts = np.clip(anchors[:, 1] + rng.uniform(-jitter, jitter, n_targets), tlo, thi)
+    plan = ViewPlan(inputs, pt.forward(pans, tilts), depth=bool(rng.random() < 0.5))
+    if n_search:
+        plan.search_targets = pt.forward(rng.uniform(plo, phi, n_search), rng.uniform(tlo, thi, n_search))
+    return plan
+
+
+def _survey_plan(platform: Platform, n_views: int, n_targets: int, n_search: int, rng: np.random.Generator) -> ViewPlan:
+    if platform.kind == "rig":
+        pt = PanTilt(platform.rig)
+        base = np.asarray(platform.rig.base_xyz_m, dtype=np.float64)
+        lo, hi = base - SURVEY_BOX_HALF_M, base + SURVEY_BOX_HALF_M
+        lo[2] = max(lo[2], 0.3)
+        sweep = pt.sweep(n_views)
+        yaw_pitch = cam2world_to_view(pt.forward(sweep[:, 0], sweep[:, 1]))[:, 3:]  # [V, 2]
+    else:
+        lo, hi = np.asarray(platform.drone.bounds_min_m), np.asarray(platform.drone.bounds_max_m)
+        yaw_pitch = np.stack([rng.uniform(-np.pi, np.pi, n_views), np.full(n_views, np.radians(-10))], 1)
+    t = np.linspace(0.25, 0.75, n_views) if n_views > 1 else np.array([0.5])
+    if rng.random() < 0.5:  # along the box's horizontal diagonal at mid height, the sweep's directions
+        xyz = lo + t[:, None] * (hi - lo) * [1.0, 1.0, 0.0] + [0.0, 0.0, 0.5] * (hi - lo)
+    else:  # an arc a quarter of the way in from the walls, looking back across the centre
+        ang = np.pi * (1.5 * t - 0.75)
+        centre, half = (lo + hi) / 2, (hi - lo) / 4
+        xyz = np.stack(
+            [centre[0] - half[0] * np.cos(ang), centre[1] - half[1] * np.sin(ang), np.full(n_views, centre[2])], 1
+        )
+        yaw_pitch = np.stack([ang, np.full(n_views, np.radians(-10))], 1)
+    inputs = view_to_cam2world(np.concatenate([xyz, yaw_pitch], 1))
+    jitter = CANDIDATE_JITTER_FOV * platform.intrinsics.hfov_rad
+    views = cam2world_to_view(_along(inputs, n_targets, rng))  # [T, 5]
+    views[:, :3] = np.clip(views[:, :3] + rng.uniform(-0.15, 0.15, (n_targets, 3)) * (hi - lo), lo, hi)
+    views[:, 3:] += rng.uniform(-jitter, jitter, (n_targets, 2))
+    views[:, 4] = np.clip(views[:, 4], -1.2, 1.2)
+    plan = ViewPlan(inputs, view_to_cam2world(views), depth=True)
+    if n_search:  # anywhere in the box, any heading
+        plan.search_targets = view_to_cam2world(
+            np.concatenate(
+                [
+                    rng.uniform(lo, hi, (n_search, 3)),
+                    rng.uniform(-np.pi, np.pi, (n_search, 1)),
+                    rng.uniform(np.radians(-45), np.radians(20), (n_search, 1)),
+                ],
+                1,
+            )
+        )
+    return plan
+
+
 def plan_views(
     platform: Platform, source: str, n_views: int, n_targets: int, rng: np.random.Generator, n_search: int = 0
 ) -> ViewPlan:
@@ -131,7 +217,12 @@ def plan_views(
     require(source in SOURCES, "source", f"must be one of {list(SOURCES)}, got {source!r}")
     require(n_views >= 1 and n_targets >= 1, "n_views", f"need >= 1 input and target, got {n_views}, {n_targets}")
     require(n_search >= 0, "n_search", f"must be >= 0, got {n_search}")
-    if source == "rig":
-        require(platform.kind == "rig", "source", "'rig' inputs need a scene with a pan-tilt rig; use --source free")
-        return _rig_plan(platform, n_views, n_targets, n_search, rng)
+    if source in ("rig", "sweep"):
+        require(
+            platform.kind == "rig", "source", f"{source!r} inputs need a scene with a pan-tilt rig; use --source free"
+        )
+        plan = _rig_plan if source == "rig" else _sweep_plan
+        return plan(platform, n_views, n_targets, n_search, rng)
+    if source == "survey":
+        return _survey_plan(platform, n_views, n_targets, n_search, rng)
     return _free_plan(platform, n_views, n_targets, n_search, rng)

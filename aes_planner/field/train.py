@@ -80,6 +80,8 @@ class TrainConfig:
       between the softmax of the teacher's and of the field's scores over each sample's targets,
       at a temperature in units of that sample's score spread): it weights the top of each scene,
       which is what a search picks from, over the order of its poor views.
+    * ``expectile``: asymmetry of the score and rank errors (0.5: plain squared errors; below
+      0.5 over-estimates cost more, so the field learns a cautious score where it is unsure).
     * ``init_from``: a model checkpoint (``model.npz``) to start from, or ``default`` for the
       shipped one (fine-tuning); None starts from scratch.
     * ``checkpoint_every``: steps between checkpoints; ``seed``: everything random.
@@ -94,7 +96,7 @@ class TrainConfig:
     teacher: str = "composition"
     teacher_weights: str | None = None
     families: list[str] = field(default_factory=lambda: list(FAMILIES))
-    sources: list[str] = field(default_factory=lambda: list(SOURCES))
+    sources: list[str] = field(default_factory=lambda: ["rig", "free"])
     samples: int = 320
     val_samples: int = 24
     min_views: int = 2
@@ -109,6 +111,7 @@ class TrainConfig:
     rank_weight: float = 0.0
     listwise_weight: float = 0.0
     listwise_temperature: float = 0.5
+    expectile: float = 0.5
     init_from: str | None = None
     checkpoint_every: int = 250
     seed: int = 0
@@ -135,6 +138,11 @@ class TrainConfig:
             math.isfinite(self.listwise_temperature) and self.listwise_temperature > 0,
             "listwise_temperature",
             f"must be > 0 (in units of a sample's score spread), got {self.listwise_temperature}",
+        )
+        require(
+            math.isfinite(self.expectile) and 0 < self.expectile < 1,
+            "expectile",
+            f"must be in (0, 1) (0.5 = the plain squared error), got {self.expectile}",
         )
         require(self.search_targets >= 0, "search_targets", f"must be >= 0, got {self.search_targets}")
         require(self.checkpoint_every >= 1, "checkpoint_every", "must be >= 1")
@@ -361,6 +369,7 @@ def sample_loss(
     rank_weight: float = 0.0,
     listwise_weight: float = 0.0,
     listwise_temperature: float = 0.5,
+    expectile: float = 0.5,
 ) -> tuple[Tensor, dict[str, float]]:
     """The distillation loss of one cached sample at all its targets."""
     from aes_planner.field.common import render_intrinsics
@@ -373,14 +382,23 @@ def sample_loss(
     map_loss = ((maps - target) / scale).pow(2).mean()
     score = teacher.head(maps)  # [T]
     err = score - torch.from_numpy(sample["target_scores"])  # [T]
-    score_loss = err.pow(2).mean()
-    rank_loss = (err - err.mean()).pow(2).mean()  # the order within the scene, without its level
+    score_loss = expectile_loss(err, expectile)
+    rank_loss = expectile_loss(err - err.mean(), expectile)  # the order within the scene, without its level
     loss = map_loss + score_weight * score_loss + rank_weight * rank_loss
     if listwise_weight > 0:
         loss = loss + listwise_weight * listwise_loss(
             score, torch.from_numpy(sample["target_scores"]), listwise_temperature
         )
     return loss, {"map": float(map_loss.detach()), "score": float(score_loss.detach())}
+
+
+def expectile_loss(err: Tensor, expectile: float) -> Tensor:  # [T] -> []
+    """Mean squared error with over-estimates (``err > 0``) weighted ``2 (1 - expectile)`` and
+    under-estimates ``2 expectile``: 0.5 is the plain MSE; below 0.5 the minimiser is a lower
+    expectile, so the prediction drops where the error is wide (what an argmax over many
+    candidates picks)."""
+    weight = torch.where(err > 0, 2.0 * (1.0 - expectile), 2.0 * expectile)
+    return (weight * err.pow(2)).mean()
 
 
 def listwise_loss(pred: Tensor, true: Tensor, temperature: float) -> Tensor:
@@ -454,6 +472,7 @@ def train(
             config.rank_weight,
             config.listwise_weight,
             config.listwise_temperature,
+            config.expectile,
         )
         opt.zero_grad(set_to_none=False)
         loss.backward()

@@ -21,9 +21,10 @@ def test_metrics_match_their_definitions():
     assert tv_ratio(x, x) == pytest.approx(1.0) and tv_ratio(np.ones(4), x) == 0.0
 
 
-def test_eval_field_json_shape_table_and_plot(tmp_path):
+@pytest.mark.parametrize("source", ["free", "sweep"])
+def test_eval_field_json_shape_table_and_plot(tmp_path, source):
     model = FieldModel(FieldModelConfig(embed_dim=2, hidden=8, encoder_channels=4), 4, (16, 16), "composition")
-    cfg = FieldEvalConfig(source="free", views=[2], targets=5, scorer=ScorerConfig(render_width_px=16))
+    cfg = FieldEvalConfig(source=source, views=[2], targets=5, scorer=ScorerConfig(render_width_px=16))
     scenes = default_scenes(1)
     summary, raw = evaluate_field(
         scenes,
@@ -34,7 +35,7 @@ def test_eval_field_json_shape_table_and_plot(tmp_path):
     )
     paths = write_report(summary, raw, tmp_path, tmp_path / "out.json")
     doc = json.loads((tmp_path / "out.json").read_text())
-    assert doc["source"] == "free" and doc["teacher"] == "composition" and doc["scenes"] == ["indoor:0"]
+    assert doc["source"] == source and doc["teacher"] == "composition" and doc["scenes"] == ["indoor:0"]
     for m in ("rgb", "splat", "field_nocond", "field"):
         r = doc["views"]["2"][m]
         assert {"plcc", "srcc", "tv_ratio", "coverage"} <= set(r) and -1 <= r["plcc"] <= 1

@@ -21,6 +21,7 @@ from aes_planner.field.train import (
     CacheError,
     arrays_to_inputs,
     build_cache,
+    expectile_loss,
     listwise_loss,
     load_config,
     load_sample,
@@ -171,6 +172,39 @@ def test_rig_search_targets_cover_the_joint_range_and_keep_the_plan():
     assert np.ptp(joints[:, 1]) > 0.8 * (thi - tlo) and np.ptp(joints[:, 0]) > 0.8 * (phi - plo)
 
 
+def test_sweep_and_survey_samples_take_their_inputs_as_the_product_does():
+    from aes_planner.field.protocol import SURVEY_BOX_HALF_M, plan_views
+    from aes_planner.geometry.pantilt import PanTilt
+
+    platform = _source("indoor:1000").platform
+    pt = PanTilt(platform.rig)
+    (plo, phi), (tlo, thi) = pt.pan_limits_rad, pt.tilt_limits_rad
+    depths = set()
+    for seed in range(6):
+        plan = plan_views(platform, "sweep", 4, 40, np.random.default_rng(seed), n_search=8)
+        joints = pt.sweep(4)
+        assert np.allclose(plan.inputs, pt.forward(joints[:, 0], joints[:, 1]))  # sim render's, the planner's
+        aims = np.array([[(s := pt.inverse_direction(p[:3, 2])).pan_rad, s.tilt_rad] for p in plan.targets])
+        assert (aims[:, 0] >= plo - 1e-6).all() and (aims[:, 0] <= phi + 1e-6).all()
+        assert (aims[:, 1] >= tlo - 1e-6).all() and (aims[:, 1] <= thi + 1e-6).all()
+        # the targets are stage-1 candidates: within the search's jitter of the sweep's path
+        path = np.concatenate([np.linspace(a, b, 200) for a, b in zip(joints[:-1], joints[1:])])  # [P, 2]
+        off = np.abs(aims[:, None] - path[None]).max(-1).min(-1)  # [T] per-axis offset from the path
+        assert off.max() <= 0.35 * platform.intrinsics.hfov_rad + 0.02
+        depths.add(plan.depth)
+    assert depths == {True, False}  # half the sweeps carry depth, as the simulator writes it
+    base = np.asarray(platform.rig.base_xyz_m)
+    lo, hi = base - SURVEY_BOX_HALF_M, base + SURVEY_BOX_HALF_M
+    for seed in range(6):
+        plan = plan_views(platform, "survey", 1 + seed, 20, np.random.default_rng(seed), n_search=20)
+        assert plan.depth
+        for poses in (plan.inputs, plan.targets, plan.search_targets):
+            xyz = poses[:, :3, 3]
+            assert np.isfinite(poses).all() and (xyz >= lo - 1e-9).all() and (xyz <= hi + 1e-9).all()
+    with pytest.raises(ConfigError, match="sources"):
+        load_config({**TINY, "sources": ["sweep", "orbit"]})
+
+
 def test_cache_workers_render_the_same_samples(tmp_path):
     import functools
 
@@ -198,6 +232,22 @@ def test_listwise_loss_is_zero_for_the_teachers_order_and_weights_the_top():
     assert torch.isfinite(pred.grad).all() and float(pred.grad.abs().sum()) > 0
     flat = torch.full((4,), 0.5, dtype=torch.float64)
     assert float(listwise_loss(torch.randn(4, dtype=torch.float64), flat, 0.5)) == 0.0  # no order to learn
+
+
+def test_expectile_loss_is_the_mse_at_one_half_and_leans_against_over_estimates():
+    err = torch.tensor([0.3, -0.3, 0.1, -0.2], dtype=torch.float64)
+    assert float(expectile_loss(err, 0.5)) == pytest.approx(float(err.pow(2).mean()), rel=1e-12)
+    over, under = torch.tensor([0.2], dtype=torch.float64), torch.tensor([-0.2], dtype=torch.float64)
+    assert float(expectile_loss(over, 0.25)) == pytest.approx(3 * float(expectile_loss(under, 0.25)))
+    # the constant that minimises it over a spread of targets sits below their mean at 0.25
+    targets = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64)
+    grid = torch.linspace(0, 1, 1001, dtype=torch.float64)
+    best = grid[int(torch.argmin(torch.stack([expectile_loss(c - targets, 0.25) for c in grid])))]
+    assert float(best) == pytest.approx(1 / 10, abs=1e-3)  # tau * 1 / (tau * 1 + (1 - tau) * 3)
+    with pytest.raises(ConfigError, match="expectile"):
+        load_config({**TINY, "expectile": 1.0})
+    with pytest.raises(ConfigError, match="expectile"):
+        load_config({**TINY, "expectile": float("nan")})
 
 
 def test_listwise_and_init_from_knobs_are_checked():
