@@ -181,8 +181,8 @@ def _survey_plan(platform: Platform, n_views: int, n_targets: int, n_search: int
     t = np.linspace(0.25, 0.75, n_views) if n_views > 1 else np.array([0.5])
     if rng.random() < 0.5:  # along the box's horizontal diagonal at mid height, the sweep's directions
         xyz = lo + t[:, None] * (hi - lo) * [1.0, 1.0, 0.0] + [0.0, 0.0, 0.5] * (hi - lo)
-    else:  # an arc a quarter of the way in from the walls, looking back across the centre
-        ang = np.pi * (1.5 * t - 0.75)
+    else:  # a drone scene's survey_poses: an arc a quarter of the way in, looking back across the centre
+        ang = np.linspace(-0.75 * np.pi, 0.75 * np.pi, n_views) if n_views > 1 else np.zeros(1)
         centre, half = (lo + hi) / 2, (hi - lo) / 4
         xyz = np.stack(
             [centre[0] - half[0] * np.cos(ang), centre[1] - half[1] * np.sin(ang), np.full(n_views, centre[2])], 1

@@ -175,6 +175,7 @@ def test_rig_search_targets_cover_the_joint_range_and_keep_the_plan():
 def test_sweep_and_survey_samples_take_their_inputs_as_the_product_does():
     from aes_planner.field.protocol import SURVEY_BOX_HALF_M, plan_views
     from aes_planner.geometry.pantilt import PanTilt
+    from aes_planner.sim.spec import DroneSpec
 
     platform = _source("indoor:1000").platform
     pt = PanTilt(platform.rig)
@@ -195,12 +196,16 @@ def test_sweep_and_survey_samples_take_their_inputs_as_the_product_does():
     assert depths == {True, False}  # half the sweeps carry depth, as the simulator writes it
     base = np.asarray(platform.rig.base_xyz_m)
     lo, hi = base - SURVEY_BOX_HALF_M, base + SURVEY_BOX_HALF_M
+    arcs = 0
     for seed in range(6):
         plan = plan_views(platform, "survey", 1 + seed, 20, np.random.default_rng(seed), n_search=20)
         assert plan.depth
+        arc = DroneSpec(bounds_min_m=tuple(np.maximum(lo, [-np.inf, -np.inf, 0.3])), bounds_max_m=tuple(hi))
+        arcs += bool(np.allclose(plan.inputs, arc.survey_poses(1 + seed)))  # else along the diagonal
         for poses in (plan.inputs, plan.targets, plan.search_targets):
             xyz = poses[:, :3, 3]
             assert np.isfinite(poses).all() and (xyz >= lo - 1e-9).all() and (xyz <= hi + 1e-9).all()
+    assert 0 < arcs < 6  # both patterns: a drone's survey arc and the diagonal
     with pytest.raises(ConfigError, match="sources"):
         load_config({**TINY, "sources": ["sweep", "orbit"]})
 
