@@ -16,10 +16,15 @@ import numpy as np
 
 from aes_planner.config import require, require_finite, to_dict
 from aes_planner.geometry.camera import Intrinsics
+from aes_planner.geometry.poses import view_to_cam2world
 from aes_planner.geometry.rig import PanTiltConfig
 from aes_planner.messages import PosedFrame
 
-__all__ = ["DroneBox", "Platform", "SceneSource", "platform_from_meta", "platform_to_meta"]
+__all__ = ["RIG_FREE_BOX_HALF_M", "DroneBox", "Platform", "SceneSource", "platform_from_meta", "platform_to_meta"]
+
+#: Half-size of the box free flight takes around a rig's base (``eval search``'s free mode on a rig
+#: scene, the field's ``survey`` training inputs).
+RIG_FREE_BOX_HALF_M = (0.8, 0.8, 0.3)
 
 
 @dataclass(frozen=True)
@@ -43,6 +48,40 @@ class DroneBox:
 
     def clamp(self, xyz_m) -> np.ndarray:  # [..., 3] -> [..., 3]
         return np.clip(np.asarray(xyz_m, dtype=np.float64), self.bounds_min_m, self.bounds_max_m)
+
+    @classmethod
+    def around(cls, centre_m, half_m, floor_m: float = 0.3) -> DroneBox:
+        """The box ``centre_m +- half_m`` (world metres), its floor raised to ``floor_m``."""
+        lo = np.asarray(centre_m, dtype=np.float64) - half_m
+        hi = np.asarray(centre_m, dtype=np.float64) + half_m
+        lo[2] = max(lo[2], floor_m)
+        return cls(tuple(lo), tuple(hi))
+
+    def diagonal_positions_m(self, n: int) -> np.ndarray:  # -> [n, 3]
+        """``n`` positions from 1/4 to 3/4 along the box's horizontal diagonal, at mid height."""
+        lo, hi = np.asarray(self.bounds_min_m), np.asarray(self.bounds_max_m)
+        ts = np.linspace(0.25, 0.75, n) if n > 1 else np.array([0.5])
+        return lo + ts[:, None] * (hi - lo) * np.array([1.0, 1.0, 0.0]) + np.array([0, 0, 0.5]) * (hi - lo)
+
+    def survey_poses(self, n: int, pitch_deg: float = -10.0) -> np.ndarray:  # -> [n, 4, 4]
+        """``n`` cam2world on an arc inside the box (a quarter of the way in from its walls, at mid
+        height), each looking across the box centre, slightly down."""
+        if n < 1:
+            raise ValueError(f"survey_poses needs n >= 1 views, got {n}")
+        lo, hi = np.asarray(self.bounds_min_m), np.asarray(self.bounds_max_m)
+        centre, half = (lo + hi) / 2, (hi - lo) / 4
+        angles = np.linspace(-0.75 * np.pi, 0.75 * np.pi, n) if n > 1 else np.zeros(1)
+        views = np.stack(
+            [
+                centre[0] - half[0] * np.cos(angles),
+                centre[1] - half[1] * np.sin(angles),
+                np.full(n, centre[2]),
+                angles,  # from the arc, looking back across the centre
+                np.full(n, np.radians(pitch_deg)),
+            ],
+            axis=-1,
+        )
+        return view_to_cam2world(views)
 
 
 @dataclass(frozen=True)

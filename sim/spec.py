@@ -22,9 +22,10 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 
 from aes_planner.config import ConfigError, from_dict, require, require_finite, to_dict
-from aes_planner.geometry import Intrinsics, PanTilt, PanTiltConfig, rot_x, rot_y, rot_z, view_to_cam2world
+from aes_planner.geometry import Intrinsics, PanTilt, PanTiltConfig, rot_x, rot_y, rot_z
 from aes_planner.geometry.camera import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE
 from aes_planner.geometry.rig import rig_dict
+from aes_planner.sources import DroneBox
 
 __all__ = [
     "AmbientLightSpec",
@@ -390,24 +391,9 @@ class DroneSpec:
         return np.clip(np.asarray(xyz_m, dtype=np.float64), self.bounds_min_m, self.bounds_max_m)
 
     def survey_poses(self, n: int, pitch_deg: float = -10.0) -> np.ndarray:
-        """``n`` cam2world ``[n, 4, 4]`` on an arc inside the box (a quarter of the way in from
-        its walls, at mid height), each looking across the box centre, slightly down."""
-        if n < 1:
-            raise ValueError(f"survey_poses needs n >= 1 views, got {n}")
-        lo, hi = np.asarray(self.bounds_min_m), np.asarray(self.bounds_max_m)
-        centre, half = (lo + hi) / 2, (hi - lo) / 4
-        angles = np.linspace(-0.75 * np.pi, 0.75 * np.pi, n) if n > 1 else np.zeros(1)
-        views = np.stack(
-            [
-                centre[0] - half[0] * np.cos(angles),
-                centre[1] - half[1] * np.sin(angles),
-                np.full(n, centre[2]),
-                angles,  # from the arc, looking back across the centre
-                np.full(n, np.radians(pitch_deg)),
-            ],
-            axis=-1,
-        )
-        return view_to_cam2world(views)
+        """``n`` cam2world ``[n, 4, 4]`` on an arc inside the box, looking across its centre
+        (:meth:`aes_planner.sources.DroneBox.survey_poses`)."""
+        return DroneBox(tuple(self.bounds_min_m), tuple(self.bounds_max_m)).survey_poses(n, pitch_deg)
 
 
 # ---------------------------------------------------------------------------------- scene

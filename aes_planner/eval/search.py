@@ -52,7 +52,7 @@ from aes_planner.search import (
 )
 from aes_planner.search.pipeline import SearchError, refine_params
 from aes_planner.search.space import SearchSpace, space_for
-from aes_planner.sources import DroneBox, Platform
+from aes_planner.sources import RIG_FREE_BOX_HALF_M, DroneBox, Platform
 from aes_planner.teachers import get_teacher
 from aes_planner.teachers.evaluator import CompositionEvaluator
 
@@ -114,7 +114,7 @@ class SearchEvalConfig:
     ablations: bool = True
     ablation_scenes: int = 2
     gradient_starts: int = 4
-    free_box_m: tuple[float, float, float] = (0.8, 0.8, 0.3)
+    free_box_m: tuple[float, float, float] = RIG_FREE_BOX_HALF_M
     local_grid: int = 5
     random_samples: int = 64
     width: int | None = None
@@ -150,12 +150,8 @@ def _free_platform(source, box_half_m) -> Platform:
     """A drone scene's own box; for a rig scene, a box around the rig's base (free mode flies near it)."""
     if source.platform.rig is None:  # a drone scene
         return source.platform
-    rig = source.platform.rig
-    base = np.asarray(rig.base_xyz_m)
-    half = np.asarray(box_half_m)
-    lo, hi = base - half, base + half
-    lo[2] = max(lo[2], 0.3)
-    return Platform("drone", source.platform.intrinsics, drone=DroneBox(tuple(lo), tuple(hi)))
+    box = DroneBox.around(source.platform.rig.base_xyz_m, np.asarray(box_half_m))
+    return Platform("drone", source.platform.intrinsics, drone=box)
 
 
 def _scene_modes(scene, modes: list[str]) -> list[str]:
@@ -163,18 +159,11 @@ def _scene_modes(scene, modes: list[str]) -> list[str]:
     return [m for m in modes if m == "free" or scene.rig is not None]
 
 
-def _diagonal_positions_m(platform: Platform, n: int) -> np.ndarray:  # -> [n, 3]
-    """n positions from 1/4 to 3/4 along the drone box's horizontal diagonal, at mid height."""
-    lo, hi = np.asarray(platform.drone.bounds_min_m), np.asarray(platform.drone.bounds_max_m)
-    ts = np.linspace(0.25, 0.75, n) if n > 1 else np.array([0.5])
-    return lo + ts[:, None] * (hi - lo) * np.array([1.0, 1.0, 0.0]) + np.array([0, 0, 0.5]) * (hi - lo)
-
-
 def _drone_inputs(platform: Platform, n: int) -> np.ndarray:  # -> [n, 4, 4]
     """n views along the box's diagonal, yaw spread around the circle from +x, pitched
     alternately 10 deg down and 5 deg up."""
     views = np.zeros((n, 5))
-    views[:, :3] = _diagonal_positions_m(platform, n)
+    views[:, :3] = platform.drone.diagonal_positions_m(n)
     yaw_rad = 2 * np.pi * np.arange(n) / n
     views[:, 3] = np.arctan2(np.sin(yaw_rad), np.cos(yaw_rad))
     views[:, 4] = np.where(np.arange(n) % 2 == 0, math.radians(-10.0), math.radians(5.0))
@@ -191,7 +180,7 @@ def _inputs(source, platform: Platform, n: int) -> np.ndarray:  # -> [n, 4, 4]
     poses = pt.forward(j[:, 0], j[:, 1])
     if platform.kind == "drone":
         poses = poses.copy()
-        poses[:, :3, 3] = _diagonal_positions_m(platform, n)
+        poses[:, :3, 3] = platform.drone.diagonal_positions_m(n)
     return poses
 
 

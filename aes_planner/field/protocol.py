@@ -15,7 +15,7 @@ is later given:
 * ``sweep`` -- a rig's survey sweep (:meth:`PanTilt.sweep`: the whole pan range, tilt zig-zagging),
   as ``aes-planner sim render`` writes it, the planner node explores and ``eval search`` feeds the
   search; depth on half of the samples (the simulator writes it, a real rig has none).
-* ``survey`` -- free flight from a box around the rig's base (``SURVEY_BOX_HALF_M``, as ``eval
+* ``survey`` -- free flight from a box around the rig's base (``RIG_FREE_BOX_HALF_M``, as ``eval
   search`` flies a rig scene): the sweep's directions from positions along the box's diagonal, or
   an arc inside the box looking across its centre (a drone scene's ``survey_poses``); with depth.
 
@@ -45,12 +45,11 @@ from aes_planner.config import require
 from aes_planner.geometry.pantilt import PanTilt
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
 from aes_planner.geometry.trajectory import interpolate_poses
-from aes_planner.sources import Platform
+from aes_planner.sources import RIG_FREE_BOX_HALF_M, DroneBox, Platform
 
 __all__ = ["SOURCES", "ViewPlan", "plan_views"]
 
 SOURCES = ("rig", "free", "sweep", "survey")
-SURVEY_BOX_HALF_M = (0.8, 0.8, 0.3)  # eval search's free box around a rig's base (SearchEvalConfig.free_box_m)
 CANDIDATE_JITTER_FOV = 0.35  # the search's direction jitter (SearchConfig.jitter_fov)
 
 
@@ -156,11 +155,9 @@ def _sweep_plan(platform: Platform, n_views: int, n_targets: int, n_search: int,
     inputs = pt.forward(joints[:, 0], joints[:, 1])
     jitter = CANDIDATE_JITTER_FOV * platform.intrinsics.hfov_rad
     pos = np.sort(rng.uniform(0, n_views - 1, n_targets))  # along the sweep, in joint space (a rig's slerp)
-    i = np.minimum(pos.astype(int), max(n_views - 2, 0))
-    f = (pos - i)[:, None]
-    anchors = joints[i] * (1 - f) + joints[np.minimum(i + 1, n_views - 1)] * f  # [T, 2]
-    pans = np.clip(anchors[:, 0] + rng.uniform(-jitter, jitter, n_targets), plo, phi)
-    tilts = np.clip(anchors[:, 1] + rng.uniform(-jitter, jitter, n_targets), tlo, thi)
+    pans, tilts = (np.interp(pos, np.arange(n_views), joints[:, k]) for k in (0, 1))  # [T] each
+    pans = np.clip(pans + rng.uniform(-jitter, jitter, n_targets), plo, phi)
+    tilts = np.clip(tilts + rng.uniform(-jitter, jitter, n_targets), tlo, thi)
     plan = ViewPlan(inputs, pt.forward(pans, tilts), depth=bool(rng.random() < 0.5))
     if n_search:
         plan.search_targets = pt.forward(rng.uniform(plo, phi, n_search), rng.uniform(tlo, thi, n_search))
@@ -169,26 +166,18 @@ def _sweep_plan(platform: Platform, n_views: int, n_targets: int, n_search: int,
 
 def _survey_plan(platform: Platform, n_views: int, n_targets: int, n_search: int, rng: np.random.Generator) -> ViewPlan:
     if platform.kind == "rig":
+        box = DroneBox.around(platform.rig.base_xyz_m, np.asarray(RIG_FREE_BOX_HALF_M))
         pt = PanTilt(platform.rig)
-        base = np.asarray(platform.rig.base_xyz_m, dtype=np.float64)
-        lo, hi = base - SURVEY_BOX_HALF_M, base + SURVEY_BOX_HALF_M
-        lo[2] = max(lo[2], 0.3)
         sweep = pt.sweep(n_views)
         yaw_pitch = cam2world_to_view(pt.forward(sweep[:, 0], sweep[:, 1]))[:, 3:]  # [V, 2]
     else:
-        lo, hi = np.asarray(platform.drone.bounds_min_m), np.asarray(platform.drone.bounds_max_m)
+        box = platform.drone
         yaw_pitch = np.stack([rng.uniform(-np.pi, np.pi, n_views), np.full(n_views, np.radians(-10))], 1)
-    t = np.linspace(0.25, 0.75, n_views) if n_views > 1 else np.array([0.5])
+    lo, hi = np.asarray(box.bounds_min_m), np.asarray(box.bounds_max_m)
     if rng.random() < 0.5:  # along the box's horizontal diagonal at mid height, the sweep's directions
-        xyz = lo + t[:, None] * (hi - lo) * [1.0, 1.0, 0.0] + [0.0, 0.0, 0.5] * (hi - lo)
-    else:  # a drone scene's survey_poses: an arc a quarter of the way in, looking back across the centre
-        ang = np.linspace(-0.75 * np.pi, 0.75 * np.pi, n_views) if n_views > 1 else np.zeros(1)
-        centre, half = (lo + hi) / 2, (hi - lo) / 4
-        xyz = np.stack(
-            [centre[0] - half[0] * np.cos(ang), centre[1] - half[1] * np.sin(ang), np.full(n_views, centre[2])], 1
-        )
-        yaw_pitch = np.stack([ang, np.full(n_views, np.radians(-10))], 1)
-    inputs = view_to_cam2world(np.concatenate([xyz, yaw_pitch], 1))
+        inputs = view_to_cam2world(np.concatenate([box.diagonal_positions_m(n_views), yaw_pitch], 1))
+    else:  # a drone scene's survey: an arc a quarter of the way in, looking back across the centre
+        inputs = box.survey_poses(n_views)
     jitter = CANDIDATE_JITTER_FOV * platform.intrinsics.hfov_rad
     views = cam2world_to_view(_along(inputs, n_targets, rng))  # [T, 5]
     views[:, :3] = np.clip(views[:, :3] + rng.uniform(-0.15, 0.15, (n_targets, 3)) * (hi - lo), lo, hi)

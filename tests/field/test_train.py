@@ -173,9 +173,10 @@ def test_rig_search_targets_cover_the_joint_range_and_keep_the_plan():
 
 
 def test_sweep_and_survey_samples_take_their_inputs_as_the_product_does():
-    from aes_planner.field.protocol import SURVEY_BOX_HALF_M, plan_views
+    from aes_planner.field.protocol import plan_views
     from aes_planner.geometry.pantilt import PanTilt
     from aes_planner.sim.spec import DroneSpec
+    from aes_planner.sources import RIG_FREE_BOX_HALF_M
 
     platform = _source("indoor:1000").platform
     pt = PanTilt(platform.rig)
@@ -195,7 +196,7 @@ def test_sweep_and_survey_samples_take_their_inputs_as_the_product_does():
         depths.add(plan.depth)
     assert depths == {True, False}  # half the sweeps carry depth, as the simulator writes it
     base = np.asarray(platform.rig.base_xyz_m)
-    lo, hi = base - SURVEY_BOX_HALF_M, base + SURVEY_BOX_HALF_M
+    lo, hi = base - RIG_FREE_BOX_HALF_M, base + RIG_FREE_BOX_HALF_M
     arcs = 0
     for seed in range(6):
         plan = plan_views(platform, "survey", 1 + seed, 20, np.random.default_rng(seed), n_search=20)
