@@ -48,7 +48,7 @@ from aes_planner.config import from_dict, require, short_repr
 from aes_planner.errors import AesPlannerError
 from aes_planner.field.common import ScorerConfig, local_world2cam, render_intrinsics
 from aes_planner.field.scorer import ScoreOutput, Scorer, ScorerError, check_poses
-from aes_planner.gaussians import Gaussians, rasterize
+from aes_planner.gaussians import Gaussians, autograd_on, rasterize
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.poses import LocalFrame
 from aes_planner.messages import PosedFrame
@@ -297,7 +297,8 @@ def load_model(path: str | Path | None = None) -> FieldModel:
     else:
         ckpt = read_checkpoint(path)
     try:
-        return FieldModel.from_checkpoint(ckpt)
+        with autograd_on():  # normal weights, also under a caller's inference_mode (the search differentiates)
+            return FieldModel.from_checkpoint(ckpt)
     except ModelError as exc:
         raise ModelError(f"{path}: {exc}") from None
 
@@ -467,7 +468,8 @@ class AestheticField(Scorer):
     def load_default(cls, teacher: Teacher | None = None, config: ScorerConfig | None = None) -> AestheticField:
         """An empty field with the shipped model (add frames with :meth:`add_frame`)."""
         model = load_model()
-        return cls(model, teacher or get_teacher(model.teacher_name), None, config)
+        with autograd_on():  # the teacher's tensors normal, also under a caller's inference_mode
+            return cls(model, teacher or get_teacher(model.teacher_name), None, config)
 
     @classmethod
     def build(
@@ -484,7 +486,10 @@ class AestheticField(Scorer):
         for i, f in enumerate(frames):
             if not isinstance(f, PosedFrame):
                 raise ScorerError(f"AestheticField.build: frames[{i}] is a {type(f).__name__}, not a PosedFrame")
-        fld = cls(model, teacher or get_teacher(model.teacher_name), frames[0].intrinsics if frames else None, config)
+        with autograd_on():  # the teacher's tensors normal, also under a caller's inference_mode
+            fld = cls(
+                model, teacher or get_teacher(model.teacher_name), frames[0].intrinsics if frames else None, config
+            )
         if frames:
             fld._rebuild(frames)
         return fld
@@ -511,19 +516,20 @@ class AestheticField(Scorer):
         # The field reads colour from the images, not from the splats: skip the colour passes
         # of reconstruction (sharpening, refitting; ~20 % of its time).
         cfg = replace(self.config.reconstruct_config(), sharpen_iterations=0, refit_iterations=0)
-        inputs = FieldInputs.from_frames(frames, self.teacher, cfg)
-        # keep only the frames that still own Gaussians (renumbering provenance)
-        used = np.unique(inputs.splats.source_frame)
-        used = used[used >= 0]
-        if len(used) < len(frames):
-            remap = np.full(len(frames), -1, np.int64)
-            remap[used] = np.arange(len(used))
-            inputs.splats.source_frame = remap[inputs.splats.source_frame].astype(np.int32)
-            inputs.images, inputs.fmaps = inputs.images[used], inputs.fmaps[used]
-            inputs.cam2world_local = inputs.cam2world_local[used]
-            frames = [frames[i] for i in used]
-        self._frames = frames
-        self._set_inputs(inputs)
+        with autograd_on():  # normal tensors under a caller's inference_mode: the search differentiates through them
+            inputs = FieldInputs.from_frames(frames, self.teacher, cfg)
+            # keep only the frames that still own Gaussians (renumbering provenance)
+            used = np.unique(inputs.splats.source_frame)
+            used = used[used >= 0]
+            if len(used) < len(frames):
+                remap = np.full(len(frames), -1, np.int64)
+                remap[used] = np.arange(len(used))
+                inputs.splats.source_frame = remap[inputs.splats.source_frame].astype(np.int32)
+                inputs.images, inputs.fmaps = inputs.images[used], inputs.fmaps[used]
+                inputs.cam2world_local = inputs.cam2world_local[used]
+                frames = [frames[i] for i in used]
+            self._frames = frames
+            self._set_inputs(inputs)
 
     def _set_inputs(self, inputs: FieldInputs) -> None:
         self._inputs = inputs

@@ -16,7 +16,7 @@ from torch import Tensor
 
 from aes_planner.field.common import ScorerConfig, local_world2cam, render_intrinsics
 from aes_planner.field.scorer import ScoreOutput, Scorer, ScorerError, check_poses
-from aes_planner.gaussians import Gaussians, rasterize
+from aes_planner.gaussians import Gaussians, autograd_on, rasterize
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.messages import PosedFrame
 from aes_planner.reconstruct import Reconstruction, reconstruct
@@ -57,8 +57,10 @@ class RGBScorer(Scorer):
         frames = list(frames)
         if not frames:
             raise ScorerError("RGBScorer.build: no frames; pass at least one PosedFrame")
-        rec = reconstruct(frames, cfg.reconstruct_config())
-        return cls(rec, teacher or get_teacher(), frames[0].intrinsics, cfg)
+        # normal tensors under a caller's inference_mode: the search differentiates through them
+        with autograd_on():
+            rec = reconstruct(frames, cfg.reconstruct_config())
+            return cls(rec, teacher or get_teacher(), frames[0].intrinsics, cfg)
 
     @property
     def gaussians(self) -> Gaussians | None:

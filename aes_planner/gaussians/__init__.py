@@ -11,7 +11,14 @@
 """
 
 from aes_planner.gaussians.container import GaussianError, Gaussians
-from aes_planner.gaussians.rasterize import BACKEND_ENV, BACKENDS, RasterOutput, rasterize, resolve_backend
+from aes_planner.gaussians.rasterize import (
+    BACKEND_ENV,
+    BACKENDS,
+    RasterOutput,
+    autograd_on,
+    rasterize,
+    resolve_backend,
+)
 from aes_planner.gaussians.synthetic import random_scene
 
 __all__ = [
@@ -20,6 +27,7 @@ __all__ = [
     "GaussianError",
     "Gaussians",
     "RasterOutput",
+    "autograd_on",
     "random_scene",
     "rasterize",
     "resolve_backend",

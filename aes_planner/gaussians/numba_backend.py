@@ -237,6 +237,8 @@ def render(means, quats, log_scales, opacities, colors, features, background, wo
 
 def warmup(dtype: torch.dtype = torch.float32) -> float:
     """Compile (or load from numba's cache) every kernel for ``dtype``; returns seconds taken."""
+    from aes_planner.gaussians.rasterize import autograd_on  # rasterize imports this module
+
     t0 = time.perf_counter()
     g = torch.Generator().manual_seed(0)
     n = 8
@@ -253,6 +255,7 @@ def warmup(dtype: torch.dtype = torch.float32) -> float:
         p.requires_grad_(True)
     w2c = torch.eye(4, dtype=torch.float64).repeat(2, 1, 1).requires_grad_(True)
     K = torch.tensor([[20.0, 0, 8], [0, 20.0, 8], [0, 0, 1]], dtype=torch.float64).repeat(2, 1, 1)
-    outputs = render(*params, w2c, K, 16, 16)
-    sum(o.sum() for o in outputs).backward()
+    with autograd_on():  # the backward kernels compile too, also under a caller's no_grad
+        outputs = render(*params, w2c, K, 16, 16)
+        sum(o.sum() for o in outputs).backward()
     return time.perf_counter() - t0

@@ -338,25 +338,24 @@ def contributions(
     The weight is exact and cheap: the gradient of the summed red channel with respect to a
     splat's red colour is the sum over pixels of its blending weight ``T alpha``.
     """
-    from aes_planner.gaussians import rasterize
+    from aes_planner.gaussians import autograd_on, rasterize
 
     best = np.zeros(len(sp))
     seen = np.zeros(len(sp), bool)
     if not len(sp):
         return best, seen
-    g = sp.to_gaussians()
-    colors = g.colors.clone().requires_grad_(True)
-    g.colors = colors
-    for cam2world, k in views:
-        if colors.grad is not None:
-            colors.grad = None
-        out = rasterize(
-            g, torch.from_numpy(np.linalg.inv(cam2world)), torch.from_numpy(k.K), k.width, k.height, validate=False
-        )
-        out.rgb[:, 0].sum().backward()
-        wgt = colors.grad[:, 0].double().numpy()
-        best = np.maximum(best, wgt)
-        seen |= wgt > 0
+    with autograd_on():  # the weights are a gradient, also under a caller's no_grad or inference_mode
+        g = sp.to_gaussians()
+        colors = g.colors.clone().requires_grad_(True)
+        g.colors = colors
+        for cam2world, k in views:
+            out = rasterize(
+                g, torch.from_numpy(np.linalg.inv(cam2world)), torch.from_numpy(k.K), k.width, k.height, validate=False
+            )
+            (grad,) = torch.autograd.grad(out.rgb[:, 0].sum(), colors)
+            wgt = grad[:, 0].double().numpy()
+            best = np.maximum(best, wgt)
+            seen |= wgt > 0
     return best, seen
 
 

@@ -31,6 +31,7 @@ from torch import Tensor
 
 from aes_planner.errors import AesPlannerError
 from aes_planner.field.scorer import ScoreOutput, Scorer
+from aes_planner.gaussians import autograd_on
 from aes_planner.geometry.poses import cam2world_to_view
 from aes_planner.geometry.rigid import check_rigid
 from aes_planner.geometry.trajectory import interpolate_poses
@@ -143,13 +144,13 @@ def _select_distinct(space: SearchSpace, params: Tensor, objective: Tensor, k: i
 def _gradient(scorer: Scorer, space: SearchSpace, params: Tensor, cfg: SearchConfig, differentiable: bool):
     """Objective ``[K]`` at ``params [K, D]`` and its gradient ``[K, D]`` (autograd or central FD)."""
     if differentiable:
-        p = params.detach().clone().requires_grad_(True)
-        out = scorer.score(space.to_poses(p))
-        obj = _objective(out, cfg)
-        if obj.requires_grad:
-            (grad,) = torch.autograd.grad(obj.sum(), p, allow_unused=True)
-            if grad is not None:
-                return obj.detach(), out.detach(), torch.nan_to_num(grad, nan=0.0, posinf=0.0, neginf=0.0)
+        with autograd_on():  # stage 2's gradient, also under a caller's no_grad or inference_mode
+            p = params.detach().clone().requires_grad_(True)
+            out = scorer.score(space.to_poses(p))
+            obj = _objective(out, cfg)
+            grad = torch.autograd.grad(obj.sum(), p, allow_unused=True)[0] if obj.requires_grad else None
+        if grad is not None:
+            return obj.detach(), out.detach(), torch.nan_to_num(grad, nan=0.0, posinf=0.0, neginf=0.0)
         return obj.detach(), out.detach(), torch.zeros_like(params)
     k, d = params.shape
     eye = torch.eye(d, dtype=params.dtype) * cfg.fd_step
