@@ -80,6 +80,10 @@ class Scorer(ABC):
 
     def score_batched(self, cam2world: Tensor, batch_size: int = 64) -> ScoreOutput:  # [B, 4, 4]
         """:meth:`score` in chunks of ``batch_size`` poses, without gradients, concatenated."""
+        who = f"{type(self).__name__}.score_batched"
+        if not isinstance(batch_size, int) or isinstance(batch_size, bool) or batch_size < 1:
+            raise ScorerError(f"{who}: batch_size must be an integer >= 1, got {batch_size!r}")
+        cam2world = check_poses(cam2world, who)  # a clear error for an empty or malformed batch
         outs = []
         with torch.no_grad():
             for start in range(0, cam2world.shape[0], batch_size):

@@ -74,6 +74,23 @@ def test_single_identical_and_no_views(model, teacher, rig_frames):
     assert len(empty) == 0 and (out.coverage == 0).all()
 
 
+def test_score_batched_equals_score_and_refuses_bad_batches(model, teacher, rig_frames):
+    frames, poses = rig_frames
+    fld = AestheticField.build(frames, CFG, model=model, teacher=teacher)
+    p = torch.as_tensor(poses)
+    whole, chunked = fld.score(p), fld.score_batched(p, batch_size=2)
+    assert torch.allclose(whole.score, chunked.score, atol=1e-6)
+    assert torch.allclose(whole.coverage, chunked.coverage, atol=1e-6)
+    assert whole.terms.keys() == chunked.terms.keys()
+    for bad in (0, -3, 1.5, True):
+        with pytest.raises(ScorerError, match="batch_size"):
+            fld.score_batched(p, batch_size=bad)
+    with pytest.raises(ScorerError, match="empty batch"):
+        fld.score_batched(p[:0])
+    with pytest.raises(ScorerError, match="torch.Tensor"):
+        fld.score_batched(poses)
+
+
 def test_gradient_matches_finite_differences(model, teacher, depth_frames):
     frames, poses = depth_frames
     fld = AestheticField.build(frames, CFG, model=model, teacher=teacher)
