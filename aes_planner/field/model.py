@@ -160,6 +160,7 @@ class FieldModel(nn.Module):
         nn.init.zeros_(self.out.bias)
         # per-channel scale of the teacher's maps (set from training data): the network works in units
         self.register_buffer("map_scale", torch.ones(c))
+        self.float()  # float32 whatever torch's default dtype (the field computes in float32)
 
     # ------------------------------------------------------------------ per input view
     def encode_views(self, images: Tensor, fmaps: Tensor, size: tuple[int, int]) -> Tensor:
@@ -402,10 +403,11 @@ def render_maps(
     d = model.feature_channels + model.config.embed_dim
     if len(gaussians) == 0:
         zero = cam2world.sum().float() * 0.0  # keep the graph to the poses
-        emb = torch.zeros(b, d, k.height, k.width) + zero
-        src = torch.zeros(b, 3, k.height, k.width) + zero
-        alpha = torch.zeros(b, k.height, k.width) + zero
-        depth = torch.zeros(b, k.height, k.width)
+        f32 = dict(dtype=torch.float32)
+        emb = torch.zeros(b, d, k.height, k.width, **f32) + zero
+        src = torch.zeros(b, 3, k.height, k.width, **f32) + zero
+        alpha = torch.zeros(b, k.height, k.width, **f32) + zero
+        depth = torch.zeros(b, k.height, k.width, **f32)
     else:
         w2c = local_world2cam(cam2world, local)
         out = rasterize(gaussians, w2c, torch.from_numpy(k.K), k.width, k.height, validate=False)

@@ -75,7 +75,7 @@ class RGBScorer(Scorer):
             # nothing observed: the background everywhere, alpha 0 (keep the graph to the poses)
             zero = poses.sum() * 0.0
             rgb = self._background[None, :, None, None].expand(poses.shape[0], 3, k.height, k.width) + zero.float()
-            return rgb, torch.zeros(poses.shape[0], k.height, k.width) + zero.float()
+            return rgb, torch.zeros(poses.shape[0], k.height, k.width, dtype=torch.float32) + zero.float()
         w2c = local_world2cam(poses, self.reconstruction.local_frame)
         out = rasterize(g, w2c, self._K, k.width, k.height, background=self._background, validate=False)
         return out.rgb.clamp(0.0, 1.0), out.alpha

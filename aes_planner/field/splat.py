@@ -47,7 +47,7 @@ class SplatScorer(Scorer):
         c = self.teacher.feature_channels
         if len(self.gaussians) == 0:
             zero = poses.sum().float() * 0.0
-            maps = torch.zeros(poses.shape[0], c, *self.teacher.feature_size) + zero
+            maps = torch.zeros(poses.shape[0], c, *self.teacher.feature_size, dtype=torch.float32) + zero
             coverage = torch.zeros(poses.shape[0], dtype=torch.float64)
         else:
             w2c = local_world2cam(poses, self.inputs.local_frame)

@@ -73,7 +73,7 @@ class StereoResult:
 def _gray(image: np.ndarray) -> Tensor:
     """uint8 RGB ``[H, W, 3]`` -> gray ``[1, 1, H, W]`` float32 in [0, 1]."""
     rgb = torch.from_numpy(image).float() / 255.0
-    g = rgb @ torch.tensor([0.299, 0.587, 0.114])
+    g = rgb @ torch.tensor([0.299, 0.587, 0.114], dtype=torch.float32)
     return g[None, None]
 
 
@@ -136,8 +136,8 @@ def plane_sweep_depth(
     rays = torch.stack([(uu - kr.cx) / kr.fx, (vv - kr.cy) / kr.fy, torch.ones_like(uu)], -1)  # [H, W, 3]
     c2w_ref = torch.from_numpy(ref.cam2world)
 
-    cost_sum = torch.zeros(cfg.num_planes, h, w)
-    count = torch.zeros(cfg.num_planes, h, w)
+    cost_sum = torch.zeros(cfg.num_planes, h, w, dtype=torch.float32)
+    count = torch.zeros(cfg.num_planes, h, w, dtype=torch.float32)
     for nb in neighbours:
         rel = torch.from_numpy(np.linalg.inv(nb.cam2world)) @ c2w_ref  # ref camera -> neighbour camera
         a = rays @ rel[:3, :3].T  # [H, W, 3]: the ray direction in the neighbour frame

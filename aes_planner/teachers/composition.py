@@ -248,8 +248,10 @@ class CompositionTeacher(Teacher):
         # (Few large convolutions: the thread pool's start-up, not arithmetic, dominates here.)
         sigmas = (self._CENTRE_SIGMA, *self._SURROUND_SIGMAS)
         blurs = [_gaussian_kernel(sg) for sg in sigmas]
-        diff = torch.tensor([-0.5, 0.0, 0.5])  # Sobel = [1, 2, 1] / 4 across times this along, /8 in all
-        smooth = torch.tensor([0.25, 0.5, 0.25])
+        diff = torch.tensor(
+            [-0.5, 0.0, 0.5], dtype=torch.float32
+        )  # Sobel = [1, 2, 1] / 4 across times this along, /8 in all
+        smooth = torch.tensor([0.25, 0.5, 0.25], dtype=torch.float32)
         centre = blurs[0]
         d_centre = torch.conv1d(F.pad(centre, (1, 1))[None, None], diff.flip(0)[None, None])[0, 0]
         s_centre = torch.conv1d(F.pad(centre, (1, 1))[None, None], smooth[None, None])[0, 0]
@@ -265,9 +267,13 @@ class CompositionTeacher(Teacher):
 
         self.register_buffer("_filters_x", bank(along_x)[:, None, None, :], persistent=False)  # [3F, 1, 1, K]
         self.register_buffer("_filters_y", bank(along_y)[:, None, :, None], persistent=False)  # [3F, 1, K, 1]
-        opponent = torch.tensor([[0.299, 0.587, 0.114], [0.5, -0.5, 0.0], [0.25, 0.25, -0.5]])
+        opponent = torch.tensor([[0.299, 0.587, 0.114], [0.5, -0.5, 0.0], [0.25, 0.25, -0.5]], dtype=torch.float32)
         self.register_buffer("_opponent", opponent, persistent=False)  # rows: L, red-green, yellow-blue
-        self.register_buffer("_colour_weights", torch.tensor([1.0, _CHROMA_WEIGHT, _CHROMA_WEIGHT]), persistent=False)
+        self.register_buffer(
+            "_colour_weights",
+            torch.tensor([1.0, _CHROMA_WEIGHT, _CHROMA_WEIGHT], dtype=torch.float32),
+            persistent=False,
+        )
 
         c = (torch.arange(n, dtype=torch.float64) + 0.5) / n
         y, x = torch.meshgrid(c, c, indexing="ij")
@@ -290,7 +296,9 @@ class CompositionTeacher(Teacher):
         self.register_buffer("_thirds", torch.maximum(points, 0.5 * ridge).float(), persistent=False)
         self.register_buffer("_ring", ring.float(), persistent=False)
         self.register_buffer("_rows", c.float(), persistent=False)
-        self.register_buffer("_box3", _smoothing_matrix(n, torch.full((3,), 1.0 / 3.0)), persistent=False)
+        self.register_buffer(
+            "_box3", _smoothing_matrix(n, torch.full((3,), 1.0 / 3.0, dtype=torch.float32)), persistent=False
+        )
         self.register_buffer("_row_blur", _smoothing_matrix(n, _gaussian_kernel(1.5)), persistent=False)
         # Annulus means as one [N, N] matrix (source cell -> target cell): the outer Gaussian minus
         # the inner one (both 1 at distance 0, so the cell itself drops out), clipped to the frame
@@ -298,7 +306,7 @@ class CompositionTeacher(Teacher):
         inner, outer = (torch.exp(-((c[:, None] - c[None]) ** 2) / (2 * sg**2)) for sg in _ANNULUS_SIGMAS)
         ring = (torch.kron(outer, outer) - torch.kron(inner, inner)).clamp_min(0.0)
         self.register_buffer("_annulus", (ring / ring.sum(0, keepdim=True)).float(), persistent=False)  # [N, N]
-        groups = torch.zeros(n, 3)  # column -> left / middle / right third of the width
+        groups = torch.zeros(n, 3, dtype=torch.float32)  # column -> left / middle / right third of the width
         for j, (a, b) in enumerate(zip((0, n // 3, n - n // 3), (n // 3, n - n // 3, n))):
             groups[a:b, j] = 1.0
         self.register_buffer("_thirds_of_width", groups, persistent=False)

@@ -279,8 +279,10 @@ class VENTeacher(Teacher):
 
     def __init__(self, weights: str | Path | Mapping[str, Any] | None = None, *, _random: bool = False):
         super().__init__()
-        self.register_buffer("_mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
-        self.register_buffer("_std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer(
+            "_mean", torch.tensor(IMAGENET_MEAN, dtype=torch.float32).view(1, 3, 1, 1), persistent=False
+        )
+        self.register_buffer("_std", torch.tensor(IMAGENET_STD, dtype=torch.float32).view(1, 3, 1, 1), persistent=False)
         if weights is None and not _random:
             raise WeightsError(WEIGHTS_ADVICE)
         if weights is None:
@@ -290,6 +292,7 @@ class VENTeacher(Teacher):
             with torch.device("meta"):  # shapes only: no time spent on an initialisation we overwrite
                 self.net = VENNet()
             self._load(state)
+        self.float()  # float32 whatever torch's default dtype
         self.freeze()
 
     @classmethod
