@@ -321,6 +321,13 @@ class FieldInputs:
 
     @classmethod
     def from_frames(cls, frames: list[PosedFrame], teacher: Teacher, config: ReconstructConfig) -> FieldInputs:
+        for i, f in enumerate(frames[1:], 1):
+            if (f.width, f.height) != (frames[0].width, frames[0].height):
+                raise ScorerError(
+                    f"frames[{i}] is {f.width}x{f.height} px but frames[0] is {frames[0].width}x{frames[0].height}: "
+                    "the field takes its input views at one size; resize the frames to one size (their intrinsics "
+                    "scale with them), or score with 'rgb'"
+                )
         rec = reconstruct(frames, config)
         images = torch.from_numpy(np.stack([f.image for f in frames])).permute(0, 3, 1, 2).float() / 255.0
         with torch.no_grad():

@@ -18,6 +18,7 @@ from aes_planner.field.model import (
     write_checkpoint,
 )
 from aes_planner.geometry.poses import view_to_cam2world
+from aes_planner.sim import SimCameraConfig, SimSource
 from aes_planner.teachers import get_teacher
 
 CFG = ScorerConfig(render_width_px=32, max_gaussians=3000)
@@ -89,6 +90,19 @@ def test_score_batched_equals_score_and_refuses_bad_batches(model, teacher, rig_
         fld.score_batched(p[:0])
     with pytest.raises(ScorerError, match="torch.Tensor"):
         fld.score_batched(poses)
+
+
+def test_frames_of_another_size_are_refused_and_the_field_kept(model, teacher, rig_frames):
+    frames, poses = rig_frames
+    small = SimSource("tabletop:5", camera=SimCameraConfig(width=32, height=24, supersample=1)).capture(poses[1])
+    with pytest.raises(ScorerError, match=r"frames\[1\] is 32x24 px but frames\[0\] is 64x48"):
+        AestheticField.build([frames[0], small], CFG, model=model, teacher=teacher)
+    fld = AestheticField.build(frames, CFG, model=model, teacher=teacher)
+    before, version = fld.score(torch.as_tensor(poses)).score, fld.version
+    with pytest.raises(ScorerError, match="one size"):
+        fld.add_frame(small)
+    assert fld.version == version and len(fld._frames) == len(frames)
+    assert torch.equal(fld.score(torch.as_tensor(poses)).score, before)
 
 
 def test_gradient_matches_finite_differences(model, teacher, depth_frames):
