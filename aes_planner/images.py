@@ -163,6 +163,8 @@ def read_image(path: str | Path):  # -> Tensor [3, H, W] float in [0, 1]
     import torch
 
     path = Path(path)
+    if path.is_dir():
+        raise ImageError(f"{path}: is a folder; give image files (e.g. {path / '*.png'})")
     if not path.is_file():
         raise ImageError(f"{path}: no such image file")
     raw = imread_bounded(path, cv2.IMREAD_UNCHANGED, str(path))

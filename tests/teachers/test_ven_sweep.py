@@ -127,7 +127,7 @@ def test_score_image_bomb_header_is_refused_before_decoding(tmp_path, cli_error)
     data = b"\x89PNG\r\n\x1a\n" + struct.pack(">I", 13) + chunk + struct.pack(">I", zlib.crc32(chunk))
     (tmp_path / "bomb.png").write_bytes(data + b"\0" * 100)
     cli_error(["score", tmp_path / "bomb.png"], "30000x30000")
-    cli_error(["score", tmp_path], "no such image file")
+    cli_error(["score", tmp_path], "is a folder; give image files")
     cli_error(["teachers", "convert-ven", tmp_path / "bomb.png", tmp_path / "out.pt"], "not a readable")
     assert not (tmp_path / "out.pt").exists()
 
