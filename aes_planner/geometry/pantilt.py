@@ -97,7 +97,16 @@ class PanTilt:
         return self._forward_torch(pan, tilt).numpy()
 
     def _forward_torch(self, pan: Tensor, tilt: Tensor) -> Tensor:
-        pan, tilt = torch.broadcast_tensors(pan, tilt)
+        try:
+            pan, tilt = torch.broadcast_tensors(pan, tilt)
+        except RuntimeError:
+            raise JointCommandError(
+                f"PanTilt.forward: pan_rad {tuple(pan.shape)} and tilt_rad {tuple(tilt.shape)} do not broadcast; "
+                "give one angle pair or arrays of one shape"
+            ) from None
+        for name, angle in (("pan_rad", pan), ("tilt_rad", tilt)):
+            if not bool(torch.isfinite(angle).all()):
+                raise JointCommandError(f"PanTilt.forward: {name} contains NaN or Inf; joint angles must be finite")
         kw = dict(dtype=pan.dtype, device=pan.device)
         cp, sp = torch.cos(pan), torch.sin(pan)
         ct, st = torch.cos(tilt), torch.sin(tilt)

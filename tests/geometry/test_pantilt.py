@@ -136,6 +136,18 @@ def test_forward_is_differentiable_and_batched():
     assert torch.autograd.gradcheck(lambda p, t: RIG.forward(p, t), (pan, tilt))
 
 
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+@pytest.mark.parametrize("kind", ["float", "numpy", "torch"])
+def test_forward_refuses_non_finite_and_mismatched_joints(bad, kind):
+    wrap = {"float": float, "numpy": np.asarray, "torch": torch.tensor}[kind]
+    with pytest.raises(JointCommandError, match="pan_rad contains NaN or Inf"):
+        RIG.forward(wrap(bad), wrap(0.1))
+    with pytest.raises(JointCommandError, match="tilt_rad contains NaN or Inf"):
+        RIG.forward(wrap(0.1), wrap(bad))
+    with pytest.raises(JointCommandError, match=r"pan_rad \(3,\) and tilt_rad \(2,\) do not broadcast"):
+        RIG.forward(np.zeros(3), np.zeros(2))
+
+
 def test_joint_grid_spreads_inside_the_limits():
     grid = RIG.joint_grid(4, 3)
     assert grid.shape == (12, 2)
