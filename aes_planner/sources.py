@@ -52,10 +52,12 @@ class DroneBox:
     @classmethod
     def around(cls, centre_m, half_m, floor_m: float = 0.3) -> DroneBox:
         """The box ``centre_m +- half_m`` (world metres), its floor raised to ``floor_m``."""
-        lo = np.asarray(centre_m, dtype=np.float64) - half_m
-        hi = np.asarray(centre_m, dtype=np.float64) + half_m
+        half = np.broadcast_to(np.asarray(half_m, dtype=np.float64), (3,))
+        require(bool(np.all(half > 0)), "half_m", f"must be > 0 in every axis, got {half.tolist()}")
+        lo = np.asarray(centre_m, dtype=np.float64) - half
+        hi = np.asarray(centre_m, dtype=np.float64) + half
         lo[2] = max(lo[2], floor_m)
-        return cls(tuple(lo), tuple(hi))
+        return cls(tuple(lo.tolist()), tuple(hi.tolist()))
 
     def diagonal_positions_m(self, n: int) -> np.ndarray:  # -> [n, 3]
         """``n`` positions from 1/4 to 3/4 along the box's horizontal diagonal, at mid height."""

@@ -59,3 +59,14 @@ def test_rig_metadata_round_trips_every_field():
     # the oracle cache key names the roll only when it is set (older rigs keep their keys)
     assert _platform_dict(Platform("rig", k, rig=rig))["rig"]["camera_roll_deg"] == 180.0
     assert "camera_roll_deg" not in _platform_dict(Platform("rig", k, rig=PanTiltConfig()))["rig"]
+
+
+def test_box_around_a_centre():
+    box = DroneBox.around((1.0, -2.0, 0.5), (0.8, 0.8, 0.3))
+    assert box.bounds_min_m == pytest.approx((0.2, -2.8, 0.3))  # the floor raised from 0.2 to 0.3
+    assert box.bounds_max_m == pytest.approx((1.8, -1.2, 0.8))
+    assert all(type(v) is float for v in box.bounds_min_m + box.bounds_max_m)
+    assert DroneBox.around((0.0, 0.0, 2.0), 1.0).bounds_min_m == pytest.approx((-1.0, -1.0, 1.0))
+    for bad in ((-1.0, 1.0, 1.0), (1.0, 0.0, 1.0), (float("nan"), 1.0, 1.0)):
+        with pytest.raises(ConfigError, match=r"half_m: must be > 0 in every axis"):
+            DroneBox.around((0.0, 0.0, 2.0), bad)
