@@ -35,7 +35,7 @@ DEFAULT_SCENE = "indoor:3"
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "demo",
-        help="the simulated closed loop on a scene: explore, suggest, move, verify, settle; scored against the oracle",
+        help="the simulated closed loop on a scene: explore, suggest, move, verify, polish, settle; scored against the oracle",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -227,6 +227,7 @@ def evaluate_run(planner, scene: str, mode: str, out: Path, loop_s: float) -> di
         "initial_normalized": round(normalized(initial, max(best_oracle, final), rand), 4),
         "moves": planner.moves,
         "explore_captures": sum(c.kind == "explore" for c in caps),
+        "polish_captures": sum(c.kind == "polish" for c in caps),
         "captures": len(caps),
         "loop_s": round(loop_s, 2),
         "time_s": None,
@@ -360,6 +361,7 @@ def _score_map_image(rig, joints: np.ndarray, scores: np.ndarray, caps, width: i
             "initial": (255, 255, 255),
             "explore": (200, 200, 200),
             "move": (255, 80, 80),
+            "polish": (255, 200, 0),
             "settle": (255, 0, 0),
         }.get(c.kind, (255, 255, 255))
         cv2.circle(img, p, 4 if c.kind != "settle" else 6, colour, -1 if c.kind != "settle" else 2, cv2.LINE_AA)
@@ -371,7 +373,7 @@ def print_summary(s: dict) -> None:
         f"{s['mode']} on {s['scene']}: initial {s['initial']:.3f} -> final {s['final']:.3f} "
         f"(oracle {s['oracle']:.3f}, random {s['random_mean']:.3f}); normalized {s['normalized']:.2f} "
         f"(initial view {s['initial_normalized']:.2f}) in {s['moves']} move{'' if s['moves'] == 1 else 's'} after {s['explore_captures']} "
-        f"exploration captures; {s['time_s']:.1f} s ({s['loop_s']:.1f} s in the loop)"
+        f"exploration captures and {s['polish_captures']} polishing; {s['time_s']:.1f} s ({s['loop_s']:.1f} s in the loop)"
     )
     if "final_pan_deg" in s:
         print(f"final view: pan {s['final_pan_deg']:+.1f} deg, tilt {s['final_tilt_deg']:+.1f} deg")

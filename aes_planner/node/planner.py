@@ -12,6 +12,10 @@ The active loop, readable top to bottom in :meth:`PlannerNode._advance`::
     move      command it (``gimbal/command``; a drone flies the top candidate of
               ``planner/suggestion``), wait for arrival (``gimbal/state``, or frames at the pose)
     verify    capture there, score the real capture with the teacher, feed it into the field -> plan
+    polish    climb around the best captured view with real captures: its four neighbours
+              ``polish_step_deg`` away (pan/tilt; a drone: yaw/pitch), then those of a better one,
+              up to ``polish_captures`` (composition peaks are a few degrees wide, narrower than
+              the field sees: docs/benchmarks.md, session 12)
     settle    go back to the best captured view, capture it once more -> done
 
 A capture is the first frame stamped at least ``settle_s`` after arrival. Every command is
@@ -93,6 +97,10 @@ class PlannerConfig:
       within about ``residual_length_deg`` of a candidate correct it most (and shrink its spread).
     * ``min_move_deg``: a candidate closer than this (view direction) to a captured view, with
       no more than ``min_move_m`` of translation, is not a new view.
+    * ``polish_captures``: captures spent, after the last move, on a hill climb around the best
+      captured view (neighbours ``polish_step_deg`` away in pan and tilt, or yaw and pitch for a
+      drone; the climb moves to a better neighbour and stops when none is better); 0 = settle
+      at once. ``polish_step_deg`` should exceed ``arrival_tolerance_deg``.
     * ``top_k``: candidates per published suggestion.
     * ``max_frames``: frames the field holds (memory bound); captures are kept before passive frames.
     * ``arrival_tolerance_deg`` / ``arrival_tolerance_m``: how close counts as arrived;
@@ -127,6 +135,8 @@ class PlannerConfig:
     residual_length_deg: float = 15.0
     min_move_deg: float = 3.0
     min_move_m: float = 0.1
+    polish_captures: int = 8
+    polish_step_deg: float = 2.5
     top_k: int = 3
     max_frames: int = 24
     arrival_tolerance_deg: float = 1.5
@@ -150,7 +160,7 @@ class PlannerConfig:
             "preset",
             f"must be fast, balanced or accurate, got {self.preset!r}",
         )
-        for name in ("explore_views", "max_moves", "top_k", "max_frames", "threads"):
+        for name in ("explore_views", "max_moves", "top_k", "max_frames", "threads", "polish_captures"):
             v = getattr(self, name)
             require(
                 isinstance(v, int) and not isinstance(v, bool) and v >= 0, name, f"must be an integer >= 0, got {v!r}"
@@ -162,6 +172,7 @@ class PlannerConfig:
         require(self.top_k <= MAX_CANDIDATES, "top_k", f"must be <= {MAX_CANDIDATES}, got {self.top_k}")
         for name, most in (
             ("explore_views", 64),
+            ("polish_captures", 64),
             ("max_moves", 10_000),
             ("max_frames", 1024),
             ("threads", MAX_THREADS),
@@ -172,7 +183,8 @@ class PlannerConfig:
         require_numbers(
             self, ("margin", "optimism", "min_sigma", "min_move_deg", "min_move_m", "settle_s"), strict=False
         )
-        require_numbers(self, ("residual_length_deg",))
+        require_numbers(self, ("residual_length_deg", "polish_step_deg"))
+        require(self.polish_step_deg <= 30.0, "polish_step_deg", f"must be <= 30, got {self.polish_step_deg}")
         require_numbers(
             self,
             (
@@ -201,7 +213,7 @@ class PlannerConfig:
 class Capture:
     """A view the active loop captured and scored with the teacher (the real image)."""
 
-    kind: str  # initial | explore | move | settle
+    kind: str  # initial | explore | move | polish | settle
     cam2world: np.ndarray  # [4, 4]
     score: float
     stamp_s: float
@@ -293,6 +305,8 @@ class PlannerNode(Node):
         self._gimbal: GimbalState | None = None  # newest gimbal state
         self._queue: list[_Target] = []
         self._target: _Target | None = None
+        self._polish_left = 0
+        self._polish_centre: Capture | None = None
         self._fault_since: float | None = None
         self._last_diag = -math.inf
         self._last_suggest = -math.inf
@@ -457,13 +471,15 @@ class PlannerNode(Node):
             nxt = self._plan(now, out)
             now += time.perf_counter() - t0  # the command leaves after the planning, not before
             if nxt is None:
-                self._begin_settle()
+                self._begin_polish()
             else:
                 self._queue = [nxt]
                 self.state = "moving"
         elif self.state == "moving" and not self._queue:
             self.state = "planning"
             return
+        elif self.state == "polishing" and not self._queue:
+            self._polish_step()
         if self._queue:
             self._target = self._queue.pop(0)
             self._send(self._target, now, out)
@@ -561,15 +577,60 @@ class PlannerNode(Node):
                 cd.cam2world[:3, 3] = box.clamp(cd.cam2world[:3, 3])
         return True
 
-    def _near_captured(self, cam2world: np.ndarray) -> bool:
+    def _near_captured(self, cam2world: np.ndarray, within_steps: float | None = None) -> bool:
+        """Whether a capture looks (almost) the same way from (almost) the same place: closer than
+        ``min_move_deg``, or than ``within_steps`` polish steps when given."""
         c = self.config
+        limit_deg = c.min_move_deg if within_steps is None else within_steps * c.polish_step_deg
         for cap in self.captures:
             if (
-                _angle_deg(cap.cam2world, cam2world) < c.min_move_deg
+                _angle_deg(cap.cam2world, cam2world) < limit_deg
                 and np.linalg.norm(cap.cam2world[:3, 3] - cam2world[:3, 3]) <= c.min_move_m
             ):
                 return True
         return False
+
+    def _begin_polish(self) -> None:
+        self._polish_left = self.config.polish_captures
+        self._polish_centre = None
+        self.state = "polishing"
+        self._polish_step()
+
+    def _polish_step(self) -> None:
+        """Queue the unvisited neighbours of the best capture when it is new (the climb moved), or
+        settle: the budget is spent, or no neighbour beat the centre."""
+        best = max(self.captures, key=lambda cap: cap.score) if self.captures else None
+        if best is None or best is self._polish_centre or self._polish_left <= 0:
+            self._begin_settle()
+            return
+        self._polish_centre = best
+        targets = [t for t in self._polish_neighbours(best) if not self._near_captured(t.cam2world, 0.5)]
+        self._queue = targets[: self._polish_left]
+        self._polish_left -= len(self._queue)
+        if not self._queue:
+            self._begin_settle()
+
+    def _polish_neighbours(self, cap: Capture) -> list[_Target]:
+        """The four views ``polish_step_deg`` from ``cap`` in pan and tilt (a drone: yaw and pitch,
+        position kept), inside the joint limits or the pitch range."""
+        step = math.radians(self.config.polish_step_deg)
+        offsets = ((step, 0.0), (-step, 0.0), (0.0, step), (0.0, -step))
+        out = []
+        if self.mode == "rig":
+            if cap.pan_rad is None or cap.tilt_rad is None:
+                return []
+            for dp, dt in offsets:
+                pan, tilt = self.kinematics.clamp(cap.pan_rad + dp, cap.tilt_rad + dt)
+                out.append(_Target("polish", self.kinematics.forward(pan, tilt), pan, tilt))
+            return out
+        from aes_planner.search import SearchConfig
+
+        lo, hi = (math.radians(v) for v in SearchConfig().pitch_limits_deg)
+        x, y, z, yaw, pitch = (float(v) for v in cam2world_to_view(cap.cam2world))
+        for dy, dp in offsets:
+            view = torch.tensor([x, y, z, yaw + dy, min(max(pitch + dp, lo), hi)], dtype=torch.float64)
+            out.append(_Target("polish", view_to_cam2world(view).numpy()))
+        return out
 
     def _begin_settle(self) -> None:
         if not self.captures:

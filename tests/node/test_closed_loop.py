@@ -28,6 +28,7 @@ def test_short_closed_loop_improves_the_view(tmp_path):
         "oracle",
         "normalized",
         "moves",
+        "polish_captures",
         "time_s",
         "scene",
         "mode",

@@ -190,6 +190,61 @@ def test_config_errors_name_the_key():
     for bad in (-1, 257, 1.5, True):
         with pytest.raises(ConfigError, match="threads"):
             PlannerConfig(threads=bad)
+    for bad in (-1, 65, 2.0):
+        with pytest.raises(ConfigError, match="polish_captures"):
+            PlannerConfig(polish_captures=bad)
+    for bad in (0.0, -1.0, float("nan"), 45.0):
+        with pytest.raises(ConfigError, match="polish_step_deg"):
+            PlannerConfig(polish_step_deg=bad)
+
+
+def _one_candidate(prop, pan, tilt):
+    prop.fixed = lambda: [Candidate(prop.rig.forward(pan, tilt), 10.0, 1.0, pan, tilt)]
+
+
+def test_polish_climbs_from_the_move_towards_the_peak():
+    prop = ScriptedProposer(peak=(0.6, 0.2))
+    _one_candidate(prop, 0.6 + math.radians(6.0), 0.2 - math.radians(3.0))  # near the peak, not on it
+    node = make(prop, explore_views=2, max_moves=1, polish_captures=8, polish_step_deg=2.5)
+    sim = SimRig(prop)
+    drive(node, sim)
+    assert node.state == "done" and node.moves == 1
+    kinds = [c.kind for c in node.captures]
+    polish = [c for c in node.captures if c.kind == "polish"]
+    assert 4 <= len(polish) <= 8 and kinds.index("polish") > kinds.index("move") and kinds[-1] == "settle"
+    move = next(c for c in node.captures if c.kind == "move")
+    final = node.captures[-1]
+    assert final.score > move.score  # the climb found a better view than the field's
+    assert math.hypot(final.pan_rad - 0.6, final.tilt_rad - 0.2) < math.hypot(move.pan_rad - 0.6, move.tilt_rad - 0.2)
+    # every polish view is a step from an earlier capture, and none is captured twice
+    step = math.radians(2.5)
+    for c in polish:
+        assert any(abs(math.hypot(c.pan_rad - o.pan_rad, c.tilt_rad - o.tilt_rad) - step) < 1e-6 for o in node.captures)
+    poses = [(round(c.pan_rad, 6), round(c.tilt_rad, 6)) for c in node.captures[:-1]]
+    assert len(poses) == len(set(poses))
+
+
+def test_polish_off_settles_after_the_last_move():
+    prop = ScriptedProposer(peak=(0.6, 0.2))
+    _one_candidate(prop, 0.65, 0.15)
+    node = make(prop, explore_views=2, max_moves=1, polish_captures=0)
+    drive(node, SimRig(prop))
+    assert node.state == "done" and "polish" not in [c.kind for c in node.captures]
+
+
+def test_polish_at_a_joint_limit_stays_inside_and_ends():
+    prop = ScriptedProposer(peak=(2.0, 0.6))  # beyond pan 90 deg and tilt 30 deg: the corner is best
+    corner = (math.radians(90.0), math.radians(30.0))
+    _one_candidate(prop, *corner)
+    node = make(prop, explore_views=2, max_moves=1, polish_captures=8, polish_step_deg=2.5)
+    sim = SimRig(prop)
+    drive(node, sim)
+    assert node.state == "done"
+    polish = [c for c in node.captures if c.kind == "polish"]
+    assert len(polish) == 2  # the two neighbours inside the limits; no better one, so the climb ends
+    lo, hi = math.radians(-90), math.radians(90)
+    assert all(lo <= c.pan_rad <= hi and math.radians(-30) <= c.tilt_rad <= math.radians(30) for c in sim.commands)
+    assert node.captures[-1].pan_rad == pytest.approx(corner[0])
 
 
 def test_threads_knob_applies_in_the_stepping_thread():
