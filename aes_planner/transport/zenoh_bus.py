@@ -85,6 +85,13 @@ class _Inbox:
         self.seen: dict[str, int] = {}  # publisher id -> last sequence delivered
 
 
+def _zenoh_timeout(err) -> bool:
+    """Whether a reply error is zenoh's own timeout: when a query matched a server that did not
+    answer in time, zenoh ends it with the error ``"Timeout"`` encoded ``zenoh/string`` (our
+    servers' errors are other texts, as bytes)."""
+    return str(err.encoding) == "zenoh/string" and err.payload.to_bytes() == b"Timeout"
+
+
 class ZenohBus(Bus):
     """One Zenoh session; one per process is plenty (nodes of a process may share it)."""
 
@@ -350,7 +357,10 @@ class ZenohBus(Bus):
             )
             for reply in replies:
                 if reply.ok is None:
-                    raise RemoteError(f"{topic}: {reply.err.payload.to_bytes().decode('utf-8', 'replace')[:500]}")
+                    text = reply.err.payload.to_bytes().decode("utf-8", "replace")
+                    if _zenoh_timeout(reply.err):  # a server matched but did not answer in time
+                        break
+                    raise RemoteError(f"{topic}: {text[:500]}")
                 try:
                     return decode(reply.ok.payload.to_bytes(), reply_type)
                 except MessageError as exc:

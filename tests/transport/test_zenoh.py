@@ -119,6 +119,11 @@ def test_request_reply_over_queryables(zenoh_pair):
     assert peer.request("planner/request", PlannerRequest(sequence=4), ViewSuggestion).sequence == 4
     with pytest.raises(RequestTimeout):
         peer.request("nobody/home", PlannerRequest(), ViewSuggestion, timeout_s=0.2)
+    # a server that is there but does not answer in time (nobody takes its requests): zenoh ends
+    # the query with its own "Timeout" error, which is a timeout, not the server's error
+    with pytest.raises(RequestTimeout, match="no reply within 0.3 s"):
+        peer.request("gimbal/query", PlannerRequest(), GimbalState, timeout_s=0.3)
+    polled.take()  # the unanswered request, dropped
     with pytest.raises(RemoteError, match="rejected"):
         peer.session  # noqa: B018 (the raw session is the way to send garbage)
         _raw_request(peer, "planner/request", b"garbage")
