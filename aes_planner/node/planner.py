@@ -577,11 +577,11 @@ class PlannerNode(Node):
                 cd.cam2world[:3, 3] = box.clamp(cd.cam2world[:3, 3])
         return True
 
-    def _near_captured(self, cam2world: np.ndarray, within_steps: float | None = None) -> bool:
+    def _near_captured(self, cam2world: np.ndarray, limit_deg: float | None = None) -> bool:
         """Whether a capture looks (almost) the same way from (almost) the same place: closer than
-        ``min_move_deg``, or than ``within_steps`` polish steps when given."""
+        ``limit_deg`` (default ``min_move_deg``) with at most ``min_move_m`` between them."""
         c = self.config
-        limit_deg = c.min_move_deg if within_steps is None else within_steps * c.polish_step_deg
+        limit_deg = c.min_move_deg if limit_deg is None else limit_deg
         for cap in self.captures:
             if (
                 _angle_deg(cap.cam2world, cam2world) < limit_deg
@@ -604,7 +604,8 @@ class PlannerNode(Node):
             self._begin_settle()
             return
         self._polish_centre = best
-        targets = [t for t in self._polish_neighbours(best) if not self._near_captured(t.cam2world, 0.5)]
+        half_step_deg = 0.5 * self.config.polish_step_deg
+        targets = [t for t in self._polish_neighbours(best) if not self._near_captured(t.cam2world, half_step_deg)]
         self._queue = targets[: self._polish_left]
         self._polish_left -= len(self._queue)
         if not self._queue:

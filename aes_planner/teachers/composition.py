@@ -248,9 +248,8 @@ class CompositionTeacher(Teacher):
         # (Few large convolutions: the thread pool's start-up, not arithmetic, dominates here.)
         sigmas = (self._CENTRE_SIGMA, *self._SURROUND_SIGMAS)
         blurs = [_gaussian_kernel(sg) for sg in sigmas]
-        diff = torch.tensor(
-            [-0.5, 0.0, 0.5], dtype=torch.float32
-        )  # Sobel = [1, 2, 1] / 4 across times this along, /8 in all
+        # Sobel = [1, 2, 1] / 4 across times this along, /8 in all
+        diff = torch.tensor([-0.5, 0.0, 0.5], dtype=torch.float32)
         smooth = torch.tensor([0.25, 0.5, 0.25], dtype=torch.float32)
         centre = blurs[0]
         d_centre = torch.conv1d(F.pad(centre, (1, 1))[None, None], diff.flip(0)[None, None])[0, 0]

@@ -358,10 +358,9 @@ class ZenohBus(Bus):
             )
             for reply in replies:
                 if reply.ok is None:
-                    text = reply.err.payload.to_bytes().decode("utf-8", "replace")
                     if _zenoh_timeout(reply.err):  # a server matched but did not answer in time
                         break
-                    raise RemoteError(f"{topic}: {text[:500]}")
+                    raise RemoteError(f"{topic}: {reply.err.payload.to_bytes().decode('utf-8', 'replace')[:500]}")
                 try:
                     return decode(reply.ok.payload.to_bytes(), reply_type)
                 except MessageError as exc:
