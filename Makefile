@@ -13,6 +13,8 @@ $(STAMP): pyproject.toml
 	# The CPU build of torch first: an unpinned torch would pull a multi-GB CUDA build.
 	$(BIN)/python -m pip install --quiet torch==2.13.0
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	# numba compiles the rasterizer once per install (~40 s); here, not in the demo's loop.
+	$(BIN)/aes-planner warmup
 	touch $(STAMP)
 
 install: $(STAMP)

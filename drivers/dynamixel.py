@@ -162,6 +162,7 @@ class DynamixelPanTilt(Gimbal):
         self._models: dict[str, ServoModel] = {}
         self._firmware: dict[str, int] = {}
         self._faults: dict[str, tuple[str, ...]] = {}
+        self.torque_losses = 0  # times a move found a servo's torque off behind the driver's back
 
     # ------------------------------------------------------------------------------ Device
     @property
@@ -216,6 +217,8 @@ class DynamixelPanTilt(Gimbal):
                 raise GimbalHardwareError(
                     f"refusing to move: {self._fault_text()}; {self._reboot_hint()}", self._faults
                 )
+            if self._in_control and not self._torque_still_on():
+                self._in_control = False
             if not self._in_control:
                 self._take_control()
             self._sync_write("goal_position", goals)
@@ -301,6 +304,20 @@ class DynamixelPanTilt(Gimbal):
                 alerts.append(joint)
         if alerts:
             self._on_alert(alerts)
+
+    def _torque_still_on(self) -> bool:
+        """Whether both servos still hold the torque the driver turned on. A servo that rebooted
+        behind the driver's back (a supply dip, another program's REBOOT) comes back with torque
+        off: it would take every goal and never move. Read before each move (one byte a servo)."""
+        off = [joint for joint in JOINTS if not self._read_item(joint, "torque_enable")]
+        if off:
+            self.torque_losses += 1
+            log.warning(
+                "%s servo: torque is off though the driver had turned it on (did it reboot? check the supply); "
+                "taking control again",
+                " and ".join(off),
+            )
+        return not off
 
     def _take_control(self) -> None:
         """Position mode and limits in EEPROM (written only when they differ), profile, torque on.

@@ -25,6 +25,7 @@ COMMANDS = [
     "aes_planner.cli.suggest",
     "aes_planner.cli.eval",
     "aes_planner.cli.bench",
+    "aes_planner.cli.warmup",
     "aes_planner.cli.score",
     "aes_planner.cli.teachers",
     "aes_planner.cli.gimbal",

@@ -18,7 +18,7 @@ from aes_planner.gaussians.numerics import DEPTH_ALPHA_MIN, TILE
 
 log = logging.getLogger(__name__)
 
-__all__ = ["available", "profile_stages", "render", "warmup"]
+__all__ = ["available", "profile_stages", "render", "warmup", "warm_kernels"]
 
 _kernels = None
 _import_error: str | None = None
@@ -233,6 +233,29 @@ def render(means, quats, log_scales, opacities, colors, features, background, wo
     if _load() is None:
         raise RuntimeError(f"numba backend unavailable: {_import_error}")
     return _Raster.apply(means, quats, log_scales, opacities, colors, features, background, world2cam, K, width, height)
+
+
+#: A warm-up slower than this compiled the kernels (loading them from numba's cache takes ~0.5 s).
+COMPILED_AFTER_S = 5.0
+
+
+def warm_kernels() -> float | None:
+    """Compile or load the float32 kernels of the backend ``rasterize`` would run, before the
+    first render needs them: on a fresh install numba compiles them once (~40 s on two cores)
+    and caches them on disk. Returns the seconds taken, ``None`` when the torch backend runs
+    (nothing to compile). Logs a warning when it compiled."""
+    from aes_planner.gaussians.rasterize import resolve_backend  # rasterize imports this module
+
+    if resolve_backend() != "numba":
+        return None
+    took_s = warmup(torch.float32)
+    if took_s > COMPILED_AFTER_S:
+        log.warning(
+            "compiled the rasterizer's kernels in %.0f s (the first run after an install does; "
+            "`aes-planner warmup`, run by `make install`, does it ahead)",
+            took_s,
+        )
+    return took_s
 
 
 def warmup(dtype: torch.dtype = torch.float32) -> float:

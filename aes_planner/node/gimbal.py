@@ -164,9 +164,14 @@ class GimbalNode(Node):
         if now - self._last_diag_s >= self.config.diagnostics_period_s:
             self._last_diag_s = now
             out["gimbal/diagnostics"].append(
-                Diagnostics(now, self.node_id, self.status, dict(self.counters), {}, self._seq)
+                Diagnostics(now, self.node_id, self.status, self._counters(), {}, self._seq)
             )
         return out
+
+    def _counters(self) -> dict[str, int]:
+        """The node's counters, plus the driver's count of servos found with torque off behind its back."""
+        losses = getattr(self.device, "torque_losses", None)
+        return {**self.counters, **({} if losses is None else {"torque_losses": int(losses)})}
 
     def clamp(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
         """Finite joints clamped to the node's limits; :class:`JointCommandError` otherwise."""

@@ -301,6 +301,7 @@ class PlannerNode(Node):
         self.governor: ThreadGovernor | None = None  # threads 0 + adapt_threads: made on the first step
         self.cpu_clock = time.process_time  # CPU seconds of the whole process (tests replace it)
         self._intrinsics = None
+        self._kernels_warm = False  # the rasterizer's kernels compiled or loaded (start())
         self._frame: PosedFrame | None = None  # newest accepted frame
         self._gimbal: GimbalState | None = None  # newest gimbal state
         self._queue: list[_Target] = []
@@ -338,6 +339,11 @@ class PlannerNode(Node):
             c = self.config
             self.proposer = FieldProposer(c.scorer, c.preset, self.teacher, c.max_frames, c.seed)
         _ = self.teacher
+        if isinstance(self.proposer, FieldProposer) and not self._kernels_warm:  # now, not in the first plan
+            from aes_planner.gaussians.numba_backend import warm_kernels
+
+            warm_kernels()
+            self._kernels_warm = True
 
     # ----------------------------------------------------------------------------------- step
     def step(self, inputs: Mapping[str, list], now: float) -> Outputs:

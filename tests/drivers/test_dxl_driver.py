@@ -2,6 +2,7 @@
 
 import dataclasses
 import math
+import time
 
 import pytest
 
@@ -100,6 +101,25 @@ def test_wait_times_out_with_an_error(emulator, make_gimbal):
             g.wait_until_reached(0.1)
         with pytest.raises(ValueError):
             g.wait_until_reached(math.nan)
+
+
+def test_a_servo_that_rebooted_behind_the_driver_is_taken_again(emulator, gimbal):
+    """A supply dip (or another program's REBOOT) leaves a servo with torque off: it takes goals
+    and never moves. The next move notices and turns torque on again (it waited forever before)."""
+    gimbal.move_to(math.radians(20), math.radians(-10))
+    gimbal.wait_until_reached(3.0)
+    gimbal.move_to(math.radians(25), math.radians(-10))  # torque still on: nothing to retake
+    gimbal.wait_until_reached(3.0)
+    assert gimbal.torque_losses == 0
+    with emulator.lock:
+        emulator.servos[2].reboot()  # tilt: RAM defaults, torque off, holding where it stands
+    time.sleep(0.1)  # past the servo's boot time
+    gimbal.move_to(math.radians(-15), math.radians(5))
+    st = gimbal.wait_until_reached(3.0)
+    assert st.pan_deg == pytest.approx(-15, abs=0.1) and st.tilt_deg == pytest.approx(5, abs=0.1)
+    assert gimbal.torque_losses == 1
+    with emulator.lock:
+        assert all(s.torque_on for s in emulator.servos.values())
 
 
 def test_disconnect_turns_torque_off_and_is_idempotent(emulator, make_gimbal):

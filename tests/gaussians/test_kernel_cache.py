@@ -28,3 +28,22 @@ def test_second_process_loads_every_kernel_from_cache():
     stats = json.loads(out.stdout.strip().splitlines()[-1])
     for name, (hits, misses) in stats.items():
         assert hits >= 1 and misses == 0, f"{name}: {hits} cache hits, {misses} misses (not cacheable?)"
+
+
+@pytest.mark.skipif(not numba_backend.available(), reason="numba is not installed")
+def test_warmup_command_readies_the_kernels(capsys, monkeypatch):
+    from aes_planner.cli import main
+
+    monkeypatch.delenv("AES_PLANNER_RASTER_BACKEND", raising=False)
+    assert main(["warmup"]) == 0
+    assert "rasterizer kernels ready" in capsys.readouterr().out
+    assert numba_backend.warm_kernels() < numba_backend.COMPILED_AFTER_S  # in this process: loaded already
+
+
+def test_warmup_has_nothing_to_do_on_the_torch_backend(capsys, monkeypatch):
+    from aes_planner.cli import main
+
+    monkeypatch.setenv("AES_PLANNER_RASTER_BACKEND", "torch")
+    assert numba_backend.warm_kernels() is None
+    assert main(["warmup"]) == 0
+    assert "nothing to compile" in capsys.readouterr().out

@@ -325,3 +325,16 @@ def test_fixed_threads_or_adapt_off_leave_the_count_alone():
         assert node.governor is not None and node.governor.max_threads == torch.get_num_threads()
     finally:
         torch.set_num_threads(before)
+
+
+def test_start_readies_the_rasterizer_once_for_the_field_and_not_for_a_stand_in(monkeypatch):
+    from aes_planner.gaussians import numba_backend
+
+    calls = []
+    monkeypatch.setattr(numba_backend, "warm_kernels", lambda: calls.append(1) or 0.0)
+    node = PlannerNode(PlannerConfig(rig=RIG), teacher=FakeTeacher())  # the field's proposer
+    node.start()
+    node.start()
+    assert len(calls) == 1  # compiled (or loaded) at start, not in the first plan
+    make().start()  # a scripted proposer renders nothing
+    assert len(calls) == 1
