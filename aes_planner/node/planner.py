@@ -105,7 +105,11 @@ class PlannerConfig:
     * ``max_frames``: frames the field holds (memory bound); captures are kept before passive frames.
     * ``arrival_tolerance_deg`` / ``arrival_tolerance_m``: how close counts as arrived;
       ``settle_s``: wait after arrival before a frame counts as the capture;
-      ``move_timeout_s``: give up on a target after this long.
+      ``move_timeout_s``: give up on a target after this long; a camera that sends no frame
+      for this long after an arrival ends the loop (``failed``, the captures so far kept).
+    * ``max_stamp_ahead_s``: a frame or gimbal state stamped further ahead of this node's clock
+      is rejected and counted: kept as the newest, it would hide every later one (a publisher
+      whose clock is wrong; synchronise the machines' clocks, e.g. with chrony).
     * ``fault_timeout_s``: how long a hardware fault may last before the loop ends.
     * ``min_suggest_period_s``: passive mode, the shortest time between suggestions.
     * ``diagnostics_period_s``: how often ``planner/diagnostics`` is published.
@@ -143,6 +147,7 @@ class PlannerConfig:
     arrival_tolerance_m: float = 0.05
     settle_s: float = 0.05
     move_timeout_s: float = 20.0
+    max_stamp_ahead_s: float = 5.0
     fault_timeout_s: float = 10.0
     min_suggest_period_s: float = 0.5
     diagnostics_period_s: float = 1.0
@@ -191,6 +196,7 @@ class PlannerConfig:
                 "arrival_tolerance_deg",
                 "arrival_tolerance_m",
                 "move_timeout_s",
+                "max_stamp_ahead_s",
                 "fault_timeout_s",
                 "min_suggest_period_s",
                 "diagnostics_period_s",
@@ -199,6 +205,7 @@ class PlannerConfig:
         for name, most in (  # time-like knobs: an hour at most (1e6 s waited as good as forever)
             ("settle_s", 60.0),
             ("move_timeout_s", 3600.0),
+            ("max_stamp_ahead_s", 3600.0),
             ("fault_timeout_s", 3600.0),
             ("min_suggest_period_s", 3600.0),
             ("diagnostics_period_s", 3600.0),
@@ -285,6 +292,7 @@ class PlannerNode(Node):
                 "frames_rejected",
                 "frames_used",
                 "states_in",
+                "states_rejected",
                 "requests_in",
                 "commands_sent",
                 "commands_refused",
@@ -292,6 +300,7 @@ class PlannerNode(Node):
                 "captures",
                 "moves",
                 "move_timeouts",
+                "capture_timeouts",
                 "faults",
             ),
             0,
@@ -302,6 +311,7 @@ class PlannerNode(Node):
         self.cpu_clock = time.process_time  # CPU seconds of the whole process (tests replace it)
         self._intrinsics = None
         self._kernels_warm = False  # the rasterizer's kernels compiled or loaded (start())
+        self._ahead_seen = 0  # messages rejected for stamps ahead of the clock
         self._frame: PosedFrame | None = None  # newest accepted frame
         self._gimbal: GimbalState | None = None  # newest gimbal state
         self._queue: list[_Target] = []
@@ -357,7 +367,7 @@ class PlannerNode(Node):
             self.governor = ThreadGovernor(torch.get_num_threads())  # torch's default: all cores
         if self.started_s is None:
             self.started_s = now
-        self._take_inputs(inputs)
+        self._take_inputs(inputs, now)
         if self.config.active:
             if not self.finished:
                 self._advance(now, out)
@@ -371,21 +381,42 @@ class PlannerNode(Node):
             out["planner/diagnostics"].append(self.diagnostics(now))
         return out
 
-    def _take_inputs(self, inputs: Mapping[str, list]) -> None:
+    def _take_inputs(self, inputs: Mapping[str, list], now: float) -> None:
         frames = list(inputs.get("camera/frame", ()))
         self.counters["frames_in"] += len(frames)
         if len(frames) > 1:  # dropped to the latest: only the newest of a batch is looked at
             self.counters["frames_dropped"] += len(frames) - 1
         if frames:
-            self._accept_frame(frames[-1])
+            if self._ahead(frames[-1], now):
+                self.counters["frames_rejected"] += 1
+            else:
+                self._accept_frame(frames[-1])
         states = list(inputs.get("gimbal/state", ()))
         self.counters["states_in"] += len(states)
         for s in states:
-            if isinstance(s, GimbalState) and (self._gimbal is None or s.stamp_s >= self._gimbal.stamp_s):
+            if not isinstance(s, GimbalState) or self._ahead(s, now):
+                self.counters["states_rejected"] += 1
+            elif self._gimbal is None or s.stamp_s >= self._gimbal.stamp_s:
                 self._gimbal = s
         for req in inputs.get("planner/request", ()):
             self.counters["requests_in"] += 1
             self._on_request(req)
+
+    def _ahead(self, msg, now: float) -> bool:
+        """Stamped more than ``max_stamp_ahead_s`` after ``now`` (said in the log, sparingly)."""
+        ahead_s = getattr(msg, "stamp_s", now) - now
+        if not ahead_s > self.config.max_stamp_ahead_s:
+            return False
+        self._ahead_seen += 1
+        if self._ahead_seen in (1, 10, 100) or self._ahead_seen % 1000 == 0:
+            log.warning(
+                "%s: %s stamped %.3g s ahead of this node's clock: rejected (%d so far); synchronise the clocks",
+                self.node_id,
+                type(msg).__name__,
+                ahead_s,
+                self._ahead_seen,
+            )
+        return True
 
     def _accept_frame(self, frame) -> None:
         if not isinstance(frame, PosedFrame):
@@ -459,6 +490,8 @@ class PlannerNode(Node):
                 return
             frame = self._frame
             if frame is None or frame.stamp_s < self._target.arrived_s + self.config.settle_s:
+                if now - self._target.arrived_s > self.config.settle_s + self.config.move_timeout_s:
+                    self._capture_timeout(now)
                 return
             self._record_capture(self._target, frame)
             finished_target = self._target
@@ -489,6 +522,19 @@ class PlannerNode(Node):
         if self._queue:
             self._target = self._queue.pop(0)
             self._send(self._target, now, out)
+
+    def _capture_timeout(self, now: float) -> None:
+        """No frame since the arrival: the camera is silent, and nothing can be captured."""
+        self.counters["capture_timeouts"] += 1
+        log.error(
+            "%s: no usable camera frame %.1f s after arriving for the %s capture (is the camera running? %d "
+            "frames rejected so far, see the warnings); the loop ends",
+            self.node_id,
+            now - self._target.arrived_s,
+            self._target.kind,
+            self.counters["frames_rejected"],
+        )
+        self._finish(now, "failed")
 
     def _here(self, kind: str) -> _Target:
         f = self._frame

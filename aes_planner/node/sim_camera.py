@@ -16,8 +16,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from aes_planner.config import require, require_numbers, short_repr
+from aes_planner.config import ConfigError, require, require_numbers, short_repr
 from aes_planner.messages import GimbalState, PosedFrame
+from aes_planner.messages.posed_frame import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE_PX
 from aes_planner.node.base import LaunchContext, Node, NodeError, Outputs
 
 log = logging.getLogger(__name__)
@@ -78,10 +79,24 @@ class SimCameraNode(Node):
 
         self.scene = scene if scene is not None else self.context.load_scene()
         self.camera = SimCamera(self.scene, self.config._camera)
+        self._check_frame_size()
         self.frames_published = 0
         self._last_frame_s = -np.inf
         self._joints: tuple[float, float] | None = None
         self._check_platform()
+
+    def _check_frame_size(self) -> None:
+        """A camera larger than a ``camera/frame`` message may carry fails here, naming the key,
+        not on every step (the scene's camera and ``camera.width``/``height`` allow more, for
+        ``sim render``)."""
+        k = self.camera.intrinsics
+        if max(k.width, k.height) > MAX_IMAGE_SIDE_PX or k.width * k.height > MAX_IMAGE_PIXELS:
+            raise ConfigError(
+                f"{self.node_id}.camera.width",
+                f"a {k.width}x{k.height} camera is larger than a camera/frame message carries (at most "
+                f"{MAX_IMAGE_SIDE_PX} px a side and {MAX_IMAGE_PIXELS} pixels); set camera.width / camera.height "
+                "smaller (the scene's camera is the default)",
+            )
 
     def _check_platform(self) -> None:
         if self.scene.rig is None:

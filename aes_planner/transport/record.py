@@ -205,6 +205,11 @@ def read_recording(path: str | Path, topics: Iterable[str] | None = None) -> Ite
     f, reader = _open_reader(path)
     try:
         try:
+            reader.get_summary()
+        except Exception:  # no footer: cut short (a killed recorder); read what was written
+            yield from _read_cut_short(f, path, wanted)
+            return
+        try:
             for _schema, channel, message in reader.iter_messages(topics=list(wanted) if wanted else None):
                 if channel.message_encoding != OUR_ENCODING:
                     continue
@@ -215,6 +220,38 @@ def read_recording(path: str | Path, topics: Iterable[str] | None = None) -> Ite
             raise RecordingError(f"{path}: unreadable MCAP data ({type(exc).__name__}: {exc})") from None
     finally:
         f.close()
+
+
+def _read_cut_short(f, path, wanted: set[str] | None) -> Iterator[tuple[str, bytes, int]]:
+    """Our messages of a recording without its summary, in file order, up to where it breaks off."""
+    from mcap.records import Channel, Message
+    from mcap.stream_reader import StreamReader
+
+    f.seek(0)
+    channels: dict[int, Channel] = {}
+    n = 0
+    try:
+        for record in StreamReader(f, skip_magic=False).records:
+            if isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Message):
+                ch = channels.get(record.channel_id)
+                if ch is None or ch.message_encoding != OUR_ENCODING or (wanted and ch.topic not in wanted):
+                    continue
+                n += 1
+                yield ch.topic.lstrip("/"), record.data, record.log_time
+    except Exception as exc:  # where the file breaks off (the mcap reader's own errors)
+        if n == 0:
+            raise RecordingError(
+                f"{path}: unreadable MCAP data, cut short before any message ({type(exc).__name__})"
+            ) from None
+        log.warning(
+            "%s: the recording breaks off after %d messages (cut short: was the recorder killed?); read up to there",
+            path,
+            n,
+        )
+    else:
+        log.warning("%s: the recording has no summary (cut short?); read all %d messages in file order", path, n)
 
 
 def recording_summary(path: str | Path) -> dict[str, dict]:

@@ -27,6 +27,15 @@ def test_drone_external_by_default_and_sim_on_request():
     assert nodes[1][0].mode == "free"
 
 
+@pytest.mark.parametrize("launch_file, sets", [("sim_closed_loop", []), ("drone", ["drone.type=sim"])])
+def test_a_camera_larger_than_a_frame_message_is_refused_when_built(launch_file, sets):
+    """It failed on every step instead (a traceback per frame, and a loop that captured nothing)."""
+    node = "camera" if launch_file == "sim_closed_loop" else "drone"
+    big = [f"{node}.camera.width=9000", f"{node}.camera.height=16", f"{node}.camera.supersample=1"]
+    with pytest.raises(ConfigError, match=f"{node}.camera.width: a 9000x16 camera is larger than a camera/frame"):
+        build_nodes(load_launch(launch_file, [*sets, *big]))
+
+
 def test_unknown_keys_are_errors_naming_them():
     base = {"nodes": [{"id": "planner", "type": "planner", "config": {}}]}
     with pytest.raises(ConfigError, match="nodes\\[0\\].config.max_movez"):

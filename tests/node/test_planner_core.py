@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+from aes_planner.config import ConfigError
 from aes_planner.messages import Candidate, PlannerRequest
 from aes_planner.node.planner import PlannerConfig, PlannerNode
 
@@ -105,6 +106,62 @@ def test_hardware_fault_stops_commands_then_ends_failed_after_the_timeout():
     now = drive(node, sim, steps=60, t0=now)
     assert len(sim.commands) == sent  # nothing commanded while the gimbal is faulted
     assert node.state == "failed" and node.counters["faults"] == 1
+
+
+def test_a_state_stamped_in_the_future_cannot_hide_a_later_fault():
+    """One gimbal state from a clock far ahead was kept as the newest for good: every later state,
+    a hardware fault's included, was older and ignored, and the loop went on as if arrived."""
+    from .nodekit import state
+
+    prop = ScriptedProposer()
+    node = make(prop, explore_views=6, fault_timeout_s=1.0)
+    sim = SimRig(prop)
+    now = drive(node, sim, steps=5)
+    node.step({"gimbal/state": [state(0.0, 0.0, stamp=now + 1e9)]}, now)
+    node.step({"gimbal/state": ["not a state"]}, now)
+    assert node.counters["states_rejected"] == 2
+    sent = len(sim.commands)
+    sim.faults = ("pan: overload",)
+    drive(node, sim, steps=60, t0=now)
+    assert len(sim.commands) == sent
+    assert node.state == "failed" and node.counters["faults"] == 1
+
+
+def test_a_frame_stamped_in_the_future_is_rejected_and_real_frames_still_count():
+    prop = ScriptedProposer()
+    node = make(prop, explore_views=3, max_moves=2)
+    sim = SimRig(prop)
+    now = drive(node, sim, steps=3)
+    rejected = node.counters["frames_rejected"]
+    ahead = frame_at(sim.kin, 0.0, 0.0, now + node.config.max_stamp_ahead_s + 1.0, 0.9, 999)
+    node.step({"camera/frame": [ahead]}, now)
+    assert node.counters["frames_rejected"] == rejected + 1
+    drive(node, sim, t0=now)
+    assert node.state == "done"
+    assert all(c.stamp_s <= now + 600 for c in node.captures)  # never the future frame
+    assert len({c.stamp_s for c in node.captures}) == len(node.captures)
+
+
+def test_a_camera_that_falls_silent_ends_the_loop_after_the_move_timeout():
+    prop = ScriptedProposer()
+    node = make(prop, explore_views=4, move_timeout_s=2.0)
+    sim = SimRig(prop)
+    now = drive(node, sim, steps=4)
+    captured = len(node.captures)
+    assert captured >= 1 and not node.finished
+    for _ in range(100):  # the gimbal still answers; the camera sends nothing
+        out = node.step({"gimbal/state": sim.inputs(now)["gimbal/state"]}, now)
+        sim.apply(out)
+        now += 0.05
+        if node.finished:
+            break
+    assert node.state == "failed" and node.counters["capture_timeouts"] == 1
+    assert len(node.captures) in (captured, captured + 1)  # what it had is kept (the held frame may count)
+
+
+def test_max_stamp_ahead_is_checked():
+    with pytest.raises(ConfigError, match="max_stamp_ahead_s"):
+        PlannerConfig(rig=RIG, max_stamp_ahead_s=-1.0)
 
 
 def test_fault_that_clears_resumes_the_loop():

@@ -2,9 +2,11 @@
 
 import json
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from aes_planner.geometry.camera import Intrinsics
 from aes_planner.messages import GimbalCommand, PosedFrame, ViewSuggestion, encode
 from aes_planner.messages.samples import sample_messages
 from aes_planner.transport import InProcessBus
@@ -103,8 +105,8 @@ def test_bad_recordings_and_paths_are_clear_errors(tmp_path):
     good = tmp_path / "good.mcap"
     record_samples(good)
     cut = tmp_path / "cut.mcap"
-    cut.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
-    with pytest.raises(RecordingError):
+    cut.write_bytes(good.read_bytes()[:64])  # cut before its first message
+    with pytest.raises(RecordingError, match="cut short before any message"):
         list(read_recording(cut))
     with pytest.raises(RecordingError, match="exists"):
         Recorder(good)
@@ -112,6 +114,29 @@ def test_bad_recordings_and_paths_are_clear_errors(tmp_path):
         Recorder(tmp_path / "no" / "such" / "dir.mcap")
     with pytest.raises(RecordingError, match="rate"):
         replay(good, InProcessBus(), rate=float("nan"))
+
+
+def test_a_recording_cut_short_is_read_up_to_where_it_breaks_off(tmp_path, caplog):
+    """A recorder killed with SIGKILL leaves no summary; the file was unreadable as a whole."""
+    good = tmp_path / "good.mcap"
+    bus = InProcessBus()
+    k = Intrinsics(100.0, 100.0, 64.0, 48.0, 128, 96)
+    rng = np.random.default_rng(0)
+    with Recorder(good) as rec:  # incompressible images: several chunks
+        rec.attach(bus)
+        for i in range(200):
+            image = rng.integers(0, 256, (96, 128, 3), dtype=np.uint8)
+            bus.publish("t/frame", PosedFrame(image, k, np.eye(4), float(i), sequence=i))
+    bus.close()
+    full = list(read_recording(good))
+    assert len(full) == 200
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(good.read_bytes()[: good.stat().st_size * 7 // 10])
+    with caplog.at_level("WARNING", logger="aes_planner.transport.record"):
+        got = list(read_recording(cut))
+    assert 0 < len(got) < len(full) and got == full[: len(got)]
+    assert "breaks off after" in caplog.text
+    assert replay(cut, InProcessBus(), rate=0) == len(got)
 
 
 def test_suggestion_only_recording_has_best_transform(tmp_path):
