@@ -16,7 +16,7 @@ from pathlib import Path
 
 from aes_planner.errors import AesPlannerError
 
-__all__ = ["OutputPathError", "PathOutsideError", "output_file", "output_folder", "resolve_inside"]
+__all__ = ["OutputPathError", "PathOutsideError", "output_file", "output_folder", "output_in", "resolve_inside"]
 
 
 class PathOutsideError(AesPlannerError, ValueError):
@@ -43,6 +43,22 @@ def output_folder(path: str | Path, flag: str = "--out") -> Path:
     if not os.access(folder, os.W_OK | os.X_OK):
         raise OutputPathError(f"{flag} {folder}: no permission to write there; choose another folder")
     return folder
+
+
+def output_in(folder: str | Path, name: str | Path) -> Path:
+    """``folder / name``, a file a command names and writes inside its output folder; raises
+    :class:`OutputPathError` when it, or a folder between, is a symlink: a link left in the
+    output folder would send the write (an overwrite) wherever it points."""
+    base = Path(folder)
+    path = base / name
+    part = path
+    while part != base and part != part.parent:
+        if part.is_symlink():
+            raise OutputPathError(
+                f"{part}: is a symlink; the output folder must not redirect its writes elsewhere (remove it)"
+            )
+        part = part.parent
+    return path
 
 
 def output_file(path: str | Path, flag: str = "--json") -> Path:

@@ -27,6 +27,11 @@ __all__ = ["RIG_FREE_BOX_HALF_M", "DroneBox", "Platform", "SceneSource", "platfo
 RIG_FREE_BOX_HALF_M = (0.8, 0.8, 0.3)
 
 
+#: A drone box's largest side and farthest coordinate, metres (a search samples inside it).
+MAX_BOX_SIDE_M = 1e6
+MAX_COORDINATE_M = 1e9
+
+
 @dataclass(frozen=True)
 class DroneBox:
     """The axis-aligned box a drone may fly in, world metres."""
@@ -40,6 +45,13 @@ class DroneBox:
             all(lo < hi for lo, hi in zip(self.bounds_min_m, self.bounds_max_m)),
             "bounds_max_m",
             f"every component must exceed bounds_min_m, got {list(self.bounds_min_m)} / {list(self.bounds_max_m)}",
+        )
+        for name in ("bounds_min_m", "bounds_max_m"):
+            far = max(abs(v) for v in getattr(self, name))
+            require(far <= MAX_COORDINATE_M, name, f"a coordinate of {far:.3g} m is beyond {MAX_COORDINATE_M:.0e} m")
+        side = max(hi - lo for lo, hi in zip(self.bounds_min_m, self.bounds_max_m))
+        require(
+            side <= MAX_BOX_SIDE_M, "bounds_max_m", f"a box {side:.3g} m across is larger than {MAX_BOX_SIDE_M:.0e} m"
         )
 
     def contains(self, xyz_m) -> np.ndarray:  # [..., 3] -> [...] bool
@@ -141,7 +153,11 @@ def platform_from_meta(meta: dict, intrinsics: Intrinsics) -> Platform | None:
             "meta.drone",
             f"bounds must be 3 numbers each, got {lo!r} / {hi!r}",
         )
-        return Platform("drone", intrinsics, drone=DroneBox(tuple(lo), tuple(hi)))
+        try:
+            box = DroneBox(tuple(lo), tuple(hi))
+        except ConfigError as exc:
+            raise ConfigError(f"meta.drone.{exc.key}", exc.message) from None
+        return Platform("drone", intrinsics, drone=box)
     return None
 
 

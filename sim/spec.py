@@ -378,6 +378,7 @@ class DroneSpec:
             "bounds_max_m",
             f"every component must exceed bounds_min_m, got min {list(self.bounds_min_m)} max {list(self.bounds_max_m)}",
         )
+        DroneBox(tuple(self.bounds_min_m), tuple(self.bounds_max_m))  # its size limits, with these keys
 
     def intrinsics(self) -> Intrinsics:
         return self.camera.intrinsics()

@@ -4,10 +4,11 @@ saved as a dataset folder (``aes-planner sim render`` and ``aes-planner demo``).
 from __future__ import annotations
 
 import logging
+import math
 from pathlib import Path
 
 from aes_planner.dataset import DatasetError, save_dataset
-from aes_planner.dataset.folder import check_output_folder
+from aes_planner.dataset.folder import FOV_RANGE_DEG, check_intrinsics, check_output_folder
 from aes_planner.images import write_contact_sheet
 from aes_planner.sim.camera import SimCamera, SimCameraConfig
 from aes_planner.sim.scene import load_scene
@@ -41,6 +42,16 @@ def render_survey(
     check_output_folder(out)
     scene = load_scene(scene_spec, allow_outside=allow_outside)
     cam = SimCamera(scene, SimCameraConfig(width=width, height=height, supersample=supersample))
+    k = cam.intrinsics
+    try:  # a folder its own loader would refuse is not written (checked before the renders)
+        check_intrinsics(k, "camera")
+    except DatasetError:
+        lo, hi = FOV_RANGE_DEG
+        raise DatasetError(
+            f"camera: {k.width}x{k.height} px with {math.degrees(k.hfov_rad):.3g} x {math.degrees(k.vfov_rad):.3g} deg "
+            f"fields of view; a dataset holds {lo} to {hi} deg both ways: change the scene camera's hfov_deg "
+            "or --width / --height"
+        ) from None
     frames, frame_meta = [], []
     if scene.rig is not None:
         for i, (pan, tilt) in enumerate(cam.kinematics.sweep(views)):

@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from aes_planner.paths import output_in
+
 DEFAULT_SCENE = "indoor:3"
 
 
@@ -60,6 +62,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+#: What a run writes into its folder.
+RUN_FILES = ("summary.json", "suggestions.json", "captures.json", "report.png", "recording.mcap")
+
+
 def run(args: argparse.Namespace) -> int:
     from aes_planner.cli.processes import check_timeout
     from aes_planner.config import ConfigError
@@ -70,7 +76,8 @@ def run(args: argparse.Namespace) -> int:
     if args.out:  # a bad run folder fails now, before the loop runs
         from aes_planner.paths import output_folder
 
-        output_folder(args.out, "--out")
+        for name in RUN_FILES:
+            output_in(output_folder(args.out, "--out"), name)
     out = Path(args.out) if args.out else Path("runs") / f"demo-{dt.datetime.now().strftime('%Y%m%d-%H%M%S')}"
     result = run_demo(args.scene, args.mode, out, args.moves, args.set, args.timeout, progress=print, transport=args)
     print_summary(result)
@@ -157,7 +164,7 @@ def run_demo(
     else:
         launch = Launch(nodes)
     out.mkdir(parents=True, exist_ok=True)
-    recording = out / "recording.mcap"
+    recording = output_in(out, "recording.mcap")
     viewers = argparse.Namespace(foxglove=transport.foxglove, record=transport.record or str(recording))
     stop = threading.Event()
     guard = stop_on_signals(on_signal=lambda _s: stop.set()) if _main_thread() else contextlib.nullcontext()
@@ -177,7 +184,7 @@ def run_demo(
     say(f"demo: loop {planner.state} after {loop_s:.1f} s; scoring against the oracle ...")
     summary = evaluate_run(planner, scene, mode, out, loop_s)
     summary["time_s"] = round(time.time() - t0, 2)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    output_in(out, "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
 
 
@@ -243,8 +250,8 @@ def evaluate_run(planner, scene: str, mode: str, out: Path, loop_s: float) -> di
     if caps[final_i].pan_rad is not None:
         summary["final_pan_deg"] = round(math.degrees(caps[final_i].pan_rad), 3)
         summary["final_tilt_deg"] = round(math.degrees(caps[final_i].tilt_rad), 3)
-    (out / "suggestions.json").write_text(json.dumps([to_jsonable(s) for s in planner.suggestions], indent=1))
-    (out / "captures.json").write_text(
+    output_in(out, "suggestions.json").write_text(json.dumps([to_jsonable(s) for s in planner.suggestions], indent=1))
+    output_in(out, "captures.json").write_text(
         json.dumps(
             [
                 {
@@ -263,7 +270,16 @@ def evaluate_run(planner, scene: str, mode: str, out: Path, loop_s: float) -> di
     )
     try:
         write_report(
-            out / "report.png", planner, caps, truth, source, teacher, platform, oracle_c2w, best_oracle, extras
+            output_in(out, "report.png"),
+            planner,
+            caps,
+            truth,
+            source,
+            teacher,
+            platform,
+            oracle_c2w,
+            best_oracle,
+            extras,
         )
     except Exception as exc:  # the figures must not lose the measurement
         print(f"warning: report image failed: {exc}", file=sys.stderr)

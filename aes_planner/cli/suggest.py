@@ -63,13 +63,20 @@ def _platform(meta: dict, frames, mode: str | None, rig_file: str | None):
     mode = mode or ("free" if (stored is not None and stored.kind == "drone") else "rig")
     if mode == "rig":
         if rig_file:
-            return Platform("rig", k, rig=from_dict(PanTiltConfig, load_yaml(rig_file), "rig"))
+            doc = load_yaml(rig_file)
+            if not doc:
+                raise SearchError(f"--rig {rig_file}: the file sets nothing; give the rig's PanTiltConfig fields")
+            return Platform("rig", k, rig=from_dict(PanTiltConfig, doc, "rig"))
         if stored is not None and stored.kind == "rig":
+            if not meta.get("rig"):
+                raise SearchError("meta.rig: empty; give the rig's PanTiltConfig fields or pass --rig FILE")
             return stored
         raise SearchError(
             "rig mode needs the rig's kinematics and joint limits: this folder's cameras.json meta has no 'rig' "
             "section; pass --rig FILE (YAML with PanTiltConfig fields) or use --mode free"
         )
+    if rig_file:
+        log.warning("--rig %s is not used in free mode (a drone flies the folder's box)", rig_file)
     if stored is not None and stored.kind == "drone":
         return stored
     pos = np.stack([f.cam2world[:3, 3] for f in frames])
@@ -110,12 +117,12 @@ def run(args: argparse.Namespace) -> int:
         if not 1 <= args.threads <= MAX_THREADS:
             raise SearchError(f"--threads must be in [1, {MAX_THREADS}], got {args.threads}")
         set_threads(args.threads)
-    from aes_planner.paths import output_file, output_folder
+    from aes_planner.paths import output_file, output_folder, output_in
 
     if args.json:  # a bad destination fails before the search, not after it
         output_file(args.json, "--json")
     if args.out:
-        output_folder(args.out, "--out")
+        output_in(output_folder(args.out, "--out"), "report.png")
     elif args.truth_scene:
         raise SearchError("--truth-scene renders the report's ground-truth row: give --out DIR for the report too")
     data = load_dataset(args.dataset, load_depth=True)
@@ -184,7 +191,7 @@ def run(args: argparse.Namespace) -> int:
                 + ", ".join(f"#{i + 1} {v:.3f}" for i, v in enumerate(scores["truth"][:top]))
             )
         report = write_report(
-            Path(args.out) / "report.png", [f.image for f in data.frames], result, renderers, scores=scores
+            output_in(args.out, "report.png"), [f.image for f in data.frames], result, renderers, scores=scores
         )
         print(f"wrote {report}")
     return 0

@@ -43,7 +43,7 @@ from aes_planner.geometry.camera import Intrinsics, IntrinsicsError
 from aes_planner.geometry.poses import PoseError, validate_cam2world
 from aes_planner.images import ImageError, check_image_size, imread_bounded
 from aes_planner.messages import MessageError, PosedFrame
-from aes_planner.paths import PathOutsideError, resolve_inside
+from aes_planner.paths import OutputPathError, PathOutsideError, output_in, resolve_inside
 
 log = logging.getLogger(__name__)
 
@@ -131,6 +131,14 @@ def _load_npy(path: Path, key: str) -> np.ndarray:
         raise DatasetError(f"{key}: {path} is not a plain numeric .npy array ({str(exc)[:120]})") from None
 
 
+def _writable(root: Path, name: str) -> Path:
+    """``root / name`` to write, refused when a symlink (left in the folder) would redirect it."""
+    try:
+        return output_in(root, name)
+    except OutputPathError as exc:
+        raise DatasetError(str(exc)) from None
+
+
 def _write_rgb(path: Path, image: np.ndarray) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
@@ -182,6 +190,8 @@ def check_output_folder(out_dir: str | Path) -> Path:
     """``out_dir`` as a Path if a dataset can be written there: not an existing file, and none of
     the names a dataset writes (``cameras.json``, ``images/``, ``depth/``) a symlink that would send
     the writes elsewhere."""
+    if not str(out_dir).strip():
+        raise DatasetError("the output folder is an empty path; give a folder name (e.g. --out renders/scene1)")
     root = Path(out_dir)
     if root.exists() and not root.is_dir():
         raise DatasetError(f"{root}: exists and is not a folder; choose a new or existing folder for the output")
@@ -196,6 +206,10 @@ def _save(root: Path, frames, meta, frame_meta) -> Path:
     frames = list(frames)
     if frame_meta is not None and len(frame_meta) != len(frames):
         raise DatasetError(f"frame_meta has {len(frame_meta)} entries for {len(frames)} frames")
+    for i, f in enumerate(frames):  # every name checked before the first write
+        _writable(root, f"images/{i:05d}.png")
+        if f.depth_m is not None:
+            _writable(root, f"depth/{i:05d}.npy")
     for i, f in enumerate(frames):
         name = f"{i:05d}"
         k = f.intrinsics
@@ -211,11 +225,11 @@ def _save(root: Path, frames, meta, frame_meta) -> Path:
             "stamp_s": f.stamp_s,
             "frame_id": f.frame_id or name,
         }
-        _write_rgb(root / entry["image"], f.image)
+        _write_rgb(_writable(root, entry["image"]), f.image)
         if f.depth_m is not None:
             entry["depth"] = f"depth/{name}.npy"
             (root / "depth").mkdir(exist_ok=True)
-            np.save(root / entry["depth"], f.depth_m.astype(np.float32), allow_pickle=False)
+            np.save(_writable(root, entry["depth"]), f.depth_m.astype(np.float32), allow_pickle=False)
         if frame_meta is not None and frame_meta[i]:
             entry["meta"] = _jsonable(frame_meta[i], f"frames[{i}].meta")
         entries.append(entry)
@@ -239,6 +253,16 @@ def finite_number(entry: dict, name: str, key: str, default: Any = _MISSING) -> 
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
         raise DatasetError(f"{key}.{name}: expected a finite number, got {v!r}")
     return float(v)
+
+
+def pixel_count(entry: dict, name: str, key: str, default: int | None) -> int | None:
+    """``entry[name]`` as a whole number of pixels; missing -> ``default``."""
+    v = entry.get(name)
+    if v is None:
+        return default
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v != int(v) or v < 1:
+        raise DatasetError(f"{key}.{name}: expected a whole number of pixels, got {v!r}")
+    return int(v)
 
 
 #: Largest JSON file read (``cameras.json`` of 100k frames is about 50 MB).
@@ -353,7 +377,7 @@ def load_dataset(path: str | Path, load_depth: bool = True, allow_outside: bool 
         if "image" not in e or not isinstance(e["image"], str):
             raise DatasetError(f"{key}.image: missing (a path relative to {root})")
         image = read_rgb(_inside(root, e["image"], f"{key}.image", allow_outside), f"{key}.image")
-        width, height = e.get("width", image.shape[1]), e.get("height", image.shape[0])
+        width, height = (pixel_count(e, name, key, size) for name, size in zip(("width", "height"), image.shape[1::-1]))
         if (width, height) != (image.shape[1], image.shape[0]):
             raise DatasetError(
                 f"{key}: width/height say {width}x{height} but {e['image']} is {image.shape[1]}x{image.shape[0]}"

@@ -37,6 +37,7 @@ from aes_planner.dataset.folder import (
     check_intrinsics,
     finite_number,
     frame_from_parts,
+    pixel_count,
     read_depth,
     read_json,
     read_rgb,
@@ -119,7 +120,7 @@ def import_nerfstudio(
                     dist,
                     merged[dist],
                 )
-        if (merged.get("w") not in (None, w)) or (merged.get("h") not in (None, h)):
+        if pixel_count(merged, "w", key, w) != w or pixel_count(merged, "h", key, h) != h:
             raise DatasetError(f"{key}: w/h say {merged.get('w')}x{merged.get('h')} but {fr['file_path']} is {w}x{h}")
         fx = finite_number(merged, "fl_x", key, None)
         fy = finite_number(merged, "fl_y", key, None)

@@ -35,6 +35,7 @@ from aes_planner.field.protocol import SOURCES, plan_views
 from aes_planner.field.rgb import RGBScorer
 from aes_planner.field.splat import SplatScorer
 from aes_planner.field.train import EVAL_SEED_START, FAMILIES
+from aes_planner.paths import output_in
 from aes_planner.reconstruct import Reconstruction
 from aes_planner.sources import SceneSource
 from aes_planner.teachers import Teacher
@@ -196,14 +197,14 @@ def write_report(summary: dict, raw: list[dict], out_dir: Path, json_path: Path 
             lines.append(
                 f"| {views} | {m} | {r['plcc']:.3f} | {r['srcc']:.3f} | {r['tv_ratio']:.2f} | {r['coverage']:.2f} |"
             )
-    paths = [out_dir / f"field_eval_{src}.md"]
+    paths = [output_in(out_dir, f"field_eval_{src}.md")]
     paths[0].write_text("\n".join(lines) + "\n")
     if raw:
         for views in raw[0]:
-            p = out_dir / f"field_eval_{src}_{views}v.png"
+            p = output_in(out_dir, f"field_eval_{src}_{views}v.png")
             _plot(raw[0], views, f"{summary['scenes'][0]}, {src}, {views} input views", p)
             paths.append(p)
-    jp = json_path or out_dir / f"field_eval_{src}.json"
+    jp = json_path or output_in(out_dir, f"field_eval_{src}.json")
     jp.parent.mkdir(parents=True, exist_ok=True)
     jp.write_text(json.dumps(summary, indent=1))
     paths.append(jp)

@@ -42,6 +42,7 @@ import torch
 from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.pantilt import PanTilt
 from aes_planner.geometry.poses import view_to_cam2world
+from aes_planner.paths import output_in
 from aes_planner.search import (
     GroundTruthScorer,
     SearchConfig,
@@ -325,8 +326,8 @@ def run_search_eval(
     doc["per_scene"] = per_scene
     doc["figures"] = figures
     if out:
-        (out / "search_eval.json").write_text(json.dumps(doc, indent=1) + "\n")
-        (out / "search_eval.md").write_text(markdown(doc))
+        output_in(out, "search_eval.json").write_text(json.dumps(doc, indent=1) + "\n")
+        output_in(out, "search_eval.md").write_text(markdown(doc))
     return doc
 
 
@@ -628,7 +629,7 @@ def _rig_map(out: Path, spec: str, source, platform, frames, teacher, o_extra, c
         canvas[20:] = img
         cv2.putText(canvas, f"{name} (pan x tilt)", (2, 14), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1, cv2.LINE_AA)
         panels.append(np.pad(canvas, ((4, 4), (4, 4), (0, 0)), constant_values=255))
-    cv2.imwrite(str(out / f"rig_map_{spec.replace(':', '_').replace('/', '_')}.png"), np.hstack(panels))
+    cv2.imwrite(str(output_in(out, f"rig_map_{spec.replace(':', '_').replace('/', '_')}.png")), np.hstack(panels))
 
 
 def _top_view(out: Path, spec: str, platform, frames, inputs, teacher, cfg: SearchEvalConfig) -> None:
@@ -658,4 +659,4 @@ def _top_view(out: Path, spec: str, platform, frames, inputs, teacher, cfg: Sear
     for s in result.suggestions:
         cv2.drawMarker(img, px(s.position_m), (0, 0, 255), cv2.MARKER_CROSS, 14, 2)
     cv2.putText(img, f"{spec}: candidates by score (top view)", (4, 16), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1)
-    cv2.imwrite(str(out / f"top_view_{spec.replace(':', '_').replace('/', '_')}.png"), img)
+    cv2.imwrite(str(output_in(out, f"top_view_{spec.replace(':', '_').replace('/', '_')}.png")), img)

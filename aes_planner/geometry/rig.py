@@ -19,6 +19,11 @@ class JointCommandError(AesPlannerError, ValueError):
     """A joint command that must not reach a motor (NaN, Inf)."""
 
 
+#: Farthest a rig's base may sit from the origin, and longest its arms (tilt offset, lever arm), metres.
+MAX_BASE_M = 1e9
+MAX_ARM_M = 100.0
+
+
 @dataclass
 class PanTiltConfig:
     """Geometry and limits of a pan-tilt rig (degrees and metres: this is the YAML edge).
@@ -48,6 +53,9 @@ class PanTiltConfig:
         for name in ("base_xyz_m", "base_rpy_deg", "tilt_offset_m", "lever_arm_m", "pan_limits_deg", "tilt_limits_deg"):
             require_finite(list(getattr(self, name)), name)
         require_finite(self.camera_roll_deg, "camera_roll_deg")
+        for name, most in (("base_xyz_m", MAX_BASE_M), ("tilt_offset_m", MAX_ARM_M), ("lever_arm_m", MAX_ARM_M)):
+            far = max(abs(v) for v in getattr(self, name))
+            require(far <= most, name, f"a coordinate of {far:.3g} m is beyond {most:g} m")
         require(
             -360.0 <= self.camera_roll_deg <= 360.0,
             "camera_roll_deg",

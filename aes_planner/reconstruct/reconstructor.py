@@ -439,6 +439,11 @@ def reconstruct(frames: list[PosedFrame], config: ReconstructConfig | None = Non
                 "frames too small to match); give several RGB frames from different positions, or depth, or "
                 "mode 'sphere'"
             )
+        elif all(m == "stereo" for m in modes if m):
+            why = (
+                "stereo matched no pixel between the frames (featureless views, e.g. sky or a blank wall); give "
+                "views that see textured parts of the scene from different positions, or depth"
+            )
         else:
             why = "no pixel had usable depth (non-positive or absurdly far); check the depth maps and their units"
         raise ReconstructError(f"reconstruct made no Gaussians from {len(frames)} frame(s): {why}")

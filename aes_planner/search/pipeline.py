@@ -281,9 +281,15 @@ def search_views(
     covered = order[out2.coverage[order].double() >= cfg.coverage_min]
     dropped = len(order) - len(covered) if len(covered) else 0
     if not len(covered):
+        best_cov = float(out2.coverage[order].max())
+        hint = (  # nothing at all in view: the platform is likely not where the inputs were taken
+            "; none of the platform's views sees what the inputs saw: check the rig's base_xyz_m or the drone box"
+            if best_cov < 0.05
+            else ""
+        )
         warnings.append(
-            f"no suggestion reaches coverage {cfg.coverage_min:.2f} (best {float(out2.coverage[order].max()):.2f}): "
-            "the scorer has not observed the space around the inputs; capture more views"
+            f"no suggestion reaches coverage {cfg.coverage_min:.2f} (best {best_cov:.2f}): "
+            f"the scorer has not observed the space around the inputs; capture more views{hint}"
         )
         log.warning(warnings[-1])
         covered = order

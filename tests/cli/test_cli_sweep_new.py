@@ -414,6 +414,17 @@ META_CASES = {
     "rig_not_a_mapping": (lambda m: m.update(rig="x"), "meta.rig"),
     "platform_unknown": (lambda m: m.update(platform="submarine"), "meta.platform"),
     "rig_number_not_list": (lambda m: m["rig"].update(base_xyz_m=5), "meta.rig.base_xyz_m"),
+    "rig_empty": (lambda m: m.update(rig={}), "meta.rig: empty"),
+    "rig_base_far": (lambda m: m["rig"].update(base_xyz_m=[1e30, 0, 0]), "meta.rig.base_xyz_m: a coordinate of 1e+30"),
+    "rig_lever_long": (lambda m: m["rig"].update(lever_arm_m=[1e6, 0, 0]), "meta.rig.lever_arm_m"),
+    "drone_box_huge": (
+        lambda m: m.update(platform="drone", drone={"bounds_min_m": [-1e300] * 3, "bounds_max_m": [1e300] * 3}),
+        "meta.drone.bounds_min_m: a coordinate of 1e+300",
+    ),
+    "drone_box_wide": (
+        lambda m: m.update(platform="drone", drone={"bounds_min_m": [0, 0, 0], "bounds_max_m": [1e7, 1, 1]}),
+        "meta.drone.bounds_max_m: a box 1e+07 m across",
+    ),
 }
 
 
@@ -429,6 +440,49 @@ def test_suggest_dataset_meta_bad_platform(tmp_path, dataset, cli_error, how):
     fn(doc["meta"])
     (folder / "cameras.json").write_text(json.dumps(doc))
     cli_error(["suggest", folder, "--scorer", "rgb", "--preset", "fast"], match)
+
+
+@pytest.mark.parametrize("command", ["suggest", "demo"])
+def test_a_symlinked_report_in_the_output_folder_is_refused_before_any_work(tmp_path, dataset, cli_error, command):
+    out, victim = tmp_path / "out", tmp_path / "victim.png"
+    out.mkdir()
+    (out / "report.png").symlink_to(victim)
+    argv = ["suggest", dataset, "--preset", "fast"] if command == "suggest" else ["demo", "--scene", "bogus:1"]
+    cli_error([*argv, "--out", out], "report.png: is a symlink")
+    assert not victim.exists()
+
+
+def test_sim_render_refuses_a_camera_its_own_loader_would_refuse(tmp_path, cli_error):
+    argv = ["sim", "render", "--scene", "indoor:3", "--views", "1", "--supersample", "1"]
+    cli_error([*argv, "--width", "2000", "--height", "1", "--out", tmp_path / "wide"], "0.0389 deg fields of view")
+    assert not (tmp_path / "wide" / "cameras.json").exists()
+    cli_error([*argv, "--out", ""], "empty path")
+
+
+def test_suggest_rig_file_that_sets_nothing(tmp_path, dataset, cli_error):
+    (tmp_path / "rig.yaml").write_text("# nothing\n")
+    cli_error(["suggest", dataset, "--rig", tmp_path / "rig.yaml", "--preset", "fast"], "sets nothing")
+
+
+def test_a_width_that_is_not_a_number_is_named(tmp_path, dataset, cli_error):
+    import json
+    import shutil
+
+    folder = tmp_path / "ds"
+    shutil.copytree(dataset, folder)
+    doc = json.loads((folder / "cameras.json").read_text())
+    doc["frames"][0]["width"] = str(doc["frames"][0]["width"])
+    (folder / "cameras.json").write_text(json.dumps(doc))
+    cli_error(["dataset", "info", folder], "frames[0].width: expected a whole number of pixels, got '16'")
+
+
+def test_a_closed_pipe_ends_the_command_quietly(dataset):
+    import subprocess
+    import sys
+
+    cmd = f"{sys.executable} -m aes_planner dataset info {dataset} | head -c 1"
+    out = subprocess.run(["bash", "-o", "pipefail", "-c", cmd], capture_output=True, text=True, timeout=120)
+    assert "error" not in out.stderr and "Traceback" not in out.stderr, out.stderr
 
 
 def test_suggest_report_never_reads_a_scene_file_named_by_the_folder(tmp_path, dataset):

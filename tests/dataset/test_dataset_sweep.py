@@ -104,7 +104,7 @@ CAMERAS_CASES = [
     (_f("cam2world", [[0] * 4] * 4), "frames[0].cam2world", ""),
     (_f("cam2world", [["a"] * 4] * 4), "frames[0].cam2world", "4x4"),
     (_f("cam2world", {"a": 1}), "frames[0].cam2world", "4x4"),
-    (_f("width", "16"), "frames[0]", "width/height"),
+    (_f("width", "16"), "frames[0].width", "whole number of pixels, got '16'"),  # said "16x12 but ... is 16x12"
     (lambda d: d["frames"].__setitem__(0, []), "frames[0]", "expected an object"),
     (lambda d: d.__setitem__("frames", {}), "frames", "must be a list"),
     (lambda d: d.__setitem__("meta", []), "meta", "must be an object"),
@@ -150,6 +150,12 @@ def test_writing_never_goes_outside_the_output_folder(tmp_path, clean_error):
     (out / "images").symlink_to(elsewhere)
     clean_error(save_dataset, out, frames(), match="symlink")
     assert list(elsewhere.iterdir()) == []
+    for k, name in enumerate(("images/00001.png", "depth/00000.npy")):  # a file's link, inside the folders
+        folder, victim = tmp_path / f"out{k}", tmp_path / f"victim{k}"
+        (folder / name).parent.mkdir(parents=True)
+        (folder / name).symlink_to(victim)
+        clean_error(save_dataset, folder, frames(), match=f"{name}: is a symlink")
+        assert not victim.exists() and not (folder / "images" / "00000.png").exists()  # nothing written
     clean_error(save_dataset, tmp_path / "m", frames(), meta={"x": float("nan")}, match="finite")
     clean_error(save_dataset, tmp_path / "m", frames(), meta={"x": object()}, match="cannot be stored")
 

@@ -44,3 +44,19 @@ def test_bad_batches(frames, clean_error):
     clean_error(reconstruct, [], match="at least one")
     clean_error(reconstruct, [frames[0], "frame"], match="not a PosedFrame")
     assert len(reconstruct(frames).gaussians.means) > 0  # and the good batch still works
+
+
+def test_featureless_stereo_frames_are_told_apart_from_bad_depth():
+    """Blank RGB frames with parallax: stereo matches nothing; the error said to check depth maps
+    the frames never had."""
+    from aes_planner.geometry.camera import Intrinsics
+    from aes_planner.geometry.poses import view_to_cam2world
+    from aes_planner.messages import PosedFrame
+
+    k = Intrinsics(30.0, 30.0, 16, 12, 32, 24)
+    blank = np.full((24, 32, 3), 128, np.uint8)
+    frames = [
+        PosedFrame(blank, k, view_to_cam2world(np.array([0.0, 0.3 * i, 1.5, 0.0, 0.0])), float(i)) for i in range(4)
+    ]
+    with pytest.raises(ReconstructError, match="stereo matched no pixel between the frames"):
+        reconstruct(frames, ReconstructConfig(mode="stereo"))
