@@ -62,4 +62,10 @@ def build_scorer(kind: str, frames: list, teacher=None, **knobs: Any) -> Scorer:
         return RGBScorer.build(frames, teacher=teacher, config=config)
     from aes_planner.field.model import AestheticField
 
+    frames = list(frames)
+    if not frames:  # a field of nothing scores every view the same: refused as RGB scoring refuses it
+        raise ScorerError(
+            "build_scorer('field'): no frames; pass at least one PosedFrame (AestheticField.load_default() "
+            "gives an empty field to grow with add_frame)"
+        )
     return AestheticField.build(frames, config=config, model=model, teacher=teacher)

@@ -78,8 +78,8 @@ class Gaussians:
                 )
         n = self.means.shape[0] if self.means.dim() >= 1 else -1
         dtype, device = self.means.dtype, self.means.device
-        if not dtype.is_floating_point:
-            raise GaussianError(f"Gaussians.means must be floating point, got {dtype}; use .float()")
+        if dtype not in (torch.float32, torch.float64):  # the rasterizers compute in these two
+            raise GaussianError(f"Gaussians.means must be float32 or float64, got {dtype}; use .float()")
         if self.features is None:
             self.features = torch.zeros(n, 0, dtype=dtype, device=device)
         if self.source_frame is None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import threading
 import time
 from collections import defaultdict
 
@@ -52,6 +53,20 @@ def _stage(name: str):
         entry[0] += time.process_time() - c0
         entry[1] += time.perf_counter() - w0
         entry[2] += 1
+
+
+_serial_lock = threading.Lock()
+
+
+def _serialised():
+    """numba's ``workqueue`` layer (where oneTBB is missing: off x86-64 Linux) aborts the process
+    when two threads run parallel kernels at once; there, and until the first parallel call says
+    which layer runs, renders take turns. TBB and OpenMP run them side by side."""
+    try:
+        layer = _kernels.numba.threading_layer()
+    except ValueError:  # no parallel kernel has run yet
+        layer = None
+    return _serial_lock if layer in (None, "workqueue") else contextlib.nullcontext()
 
 
 def _load():
@@ -124,12 +139,12 @@ class _Raster(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, *args):
-        with _stage("fwd_body"):
+        with _stage("fwd_body"), _serialised():
             return _Raster._forward(ctx, *args)
 
     @staticmethod
     def backward(ctx, *grads):
-        with _stage("bwd_body"):
+        with _stage("bwd_body"), _serialised():
             return _Raster._backward(ctx, *grads)
 
     @staticmethod

@@ -96,6 +96,8 @@ def _f64(t: Tensor) -> np.ndarray:
 
 def _batched(t: Tensor | Sequence, name: str, shape: tuple[int, int], device) -> tuple[Tensor, np.ndarray]:
     """(t as [B, *shape] on ``device``, its float64 numpy copy)."""
+    if isinstance(t, np.ndarray) and not t.flags.c_contiguous:  # torch refuses negative strides (poses[::-1])
+        t = np.ascontiguousarray(t)
     t = torch.as_tensor(t, device=device)
     if t.dim() == 2:
         t = t.unsqueeze(0)

@@ -52,13 +52,20 @@ class PoseError(AesPlannerError, ValueError):
     """A pose matrix is malformed (shape, non-finite, not a rotation)."""
 
 
+def c_order(a) -> np.ndarray:
+    """``a`` as a float64 array in C order (copied only when not already): torch refuses numpy
+    views with negative strides, such as ``poses[::-1]``."""
+    arr = np.asarray(a, dtype=np.float64)
+    return arr if arr.flags.c_contiguous else np.ascontiguousarray(arr)
+
+
 def _torchify(fn: Callable[..., Tensor]) -> Callable[..., Array]:
     """Let a torch implementation accept numpy arrays: float64 in, numpy out."""
 
     def wrapper(*args, **kwargs):
         if any(isinstance(a, Tensor) for a in args):
             return fn(*args, **kwargs)
-        targs = [torch.as_tensor(np.asarray(a, dtype=np.float64)) if a is not None else None for a in args]
+        targs = [torch.as_tensor(c_order(a)) if a is not None else None for a in args]
         out = fn(*targs, **kwargs)
         if isinstance(out, tuple):
             return tuple(o.numpy() for o in out)

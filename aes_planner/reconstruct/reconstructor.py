@@ -171,7 +171,13 @@ def frame_depth(
         depth = fill_inverse_depth(depth)
         if confidence is not None:
             confidence = np.where(unknown & (depth > 0), FILL_CONFIDENCE, confidence)
-    return depth, confidence
+    # beyond any sensor: no measurement, and not filled (a map of only such depths stays an error)
+    return np.where(depth > MAX_DEPTH_M, 0.0, depth), confidence
+
+
+#: Depth beyond this is no measurement (a broken file or wrong units; 3e38 overflowed the splats'
+#: float32 means): such pixels make no splats.
+MAX_DEPTH_M = 1e6
 
 
 def integrate(

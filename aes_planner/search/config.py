@@ -100,9 +100,9 @@ class SearchConfig:
             f"must be an integer >= 0, got {self.steps!r}",
         )
         require(
-            isinstance(self.seed, int) and not isinstance(self.seed, bool),
+            isinstance(self.seed, int) and not isinstance(self.seed, bool) and self.seed >= 0,
             "seed",
-            f"must be an integer, got {self.seed!r}",
+            f"must be an integer >= 0, got {self.seed!r}",
         )
         if self.segment_budget is not None:
             require(
@@ -121,6 +121,10 @@ class SearchConfig:
             require_finite(v, name)
             require(v >= 0, name, f"must be >= 0, got {v}")
         require(self.coverage_min <= 1.0, "coverage_min", f"must be in [0, 1], got {self.coverage_min}")
+        # larger values overflow the scorers' float32 objective (every uncovered view ties at -inf)
+        require(self.coverage_penalty <= 1e6, "coverage_penalty", f"must be in [0, 1e6], got {self.coverage_penalty}")
+        for name in ("jitter_fov", "shift_frac"):  # fractions of the view: a few at most
+            require(getattr(self, name) <= 10.0, name, f"must be in (0, 10], got {getattr(self, name)}")
         require(
             8 <= self.render_width_px <= 4096, "render_width_px", f"must be in [8, 4096] px, got {self.render_width_px}"
         )
@@ -136,7 +140,12 @@ class SearchConfig:
                 "max_gaussians",
                 f"must be a positive integer or None, got {self.max_gaussians!r}",
             )
-        p = tuple(self.pitch_limits_deg)
+        try:
+            p = tuple(self.pitch_limits_deg)
+        except TypeError:
+            raise ConfigError(
+                "pitch_limits_deg", f"must be (min, max) in degrees, got {self.pitch_limits_deg!r}"
+            ) from None
         require(len(p) == 2, "pitch_limits_deg", f"must be (min, max), got {self.pitch_limits_deg!r}")
         require_finite(list(p), "pitch_limits_deg")
         require(-90.0 <= p[0] < p[1] <= 90.0, "pitch_limits_deg", f"must satisfy -90 <= min < max <= 90, got {p}")

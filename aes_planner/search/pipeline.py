@@ -32,7 +32,7 @@ from torch import Tensor
 from aes_planner.errors import AesPlannerError
 from aes_planner.field.scorer import ScoreOutput, Scorer
 from aes_planner.gaussians import autograd_on
-from aes_planner.geometry.poses import cam2world_to_view
+from aes_planner.geometry.poses import c_order, cam2world_to_view
 from aes_planner.geometry.rigid import check_rigid
 from aes_planner.geometry.trajectory import interpolate_poses
 from aes_planner.messages.fields import POSE_TOL
@@ -102,19 +102,27 @@ class SearchResult:
         return self.suggestions[0]
 
 
-def _check_inputs(inputs_cam2world) -> np.ndarray:  # -> [N, 4, 4] float64
+def _check_inputs(inputs_cam2world, name: str = "inputs_cam2world", allow_empty: bool = False) -> np.ndarray:
+    """Poses as float64 ``[N, 4, 4]``, each finite and rigid; a :class:`SearchError` naming ``name``."""
     poses = inputs_cam2world.detach().cpu().numpy() if isinstance(inputs_cam2world, Tensor) else inputs_cam2world
-    poses = np.asarray(poses, dtype=np.float64)
+    try:  # a copy in C order: reversed views (poses[::-1]) included
+        poses = c_order(poses)
+    except (TypeError, ValueError):
+        raise SearchError(
+            f"{name} must be poses [N, 4, 4] (an array of numbers), got {type(inputs_cam2world).__name__}"
+        ) from None
     if poses.ndim == 2 and poses.shape == (4, 4):
         poses = poses[None]
+    if allow_empty and poses.size == 0:
+        return poses.reshape(0, 4, 4)
     if poses.ndim != 3 or poses.shape[1:] != (4, 4):
-        raise SearchError(f"inputs_cam2world must be [N, 4, 4], got shape {poses.shape}")
+        raise SearchError(f"{name} must be [N, 4, 4], got shape {poses.shape}")
     if len(poses) == 0:
-        raise SearchError("inputs_cam2world is empty; the search needs at least one input view")
+        raise SearchError(f"{name} is empty; the search needs at least one input view")
     if not np.all(np.isfinite(poses)):
-        raise SearchError("inputs_cam2world contains NaN or inf; pass finite world-frame poses")
+        raise SearchError(f"{name} contains NaN or inf; pass finite world-frame poses")
     for i, pose in enumerate(poses):  # the same rigidity test as every pose in a message
-        check_rigid(pose, f"inputs_cam2world[{i}]", POSE_TOL, SearchError)
+        check_rigid(pose, f"{name}[{i}]", POSE_TOL, SearchError)
     return poses
 
 
@@ -166,7 +174,7 @@ def _gradient(scorer: Scorer, space: SearchSpace, params: Tensor, cfg: SearchCon
         out.coverage.reshape(k, -1)[:, 0],
         {n: v.reshape(k, -1)[:, 0] for n, v in out.terms.items()},
     )
-    return obj[:, 0], first, grad.to(params.dtype)
+    return obj[:, 0], first, torch.nan_to_num(grad, nan=0.0, posinf=0.0, neginf=0.0).to(params.dtype)
 
 
 def samples_per_segment(cfg: SearchConfig, n_inputs: int) -> int:
@@ -238,12 +246,17 @@ def search_views(
     """
     if not isinstance(platform, Platform):
         raise SearchError(f"platform must be a Platform (a rig or a drone box), got {type(platform).__name__}")
+    if cfg is not None and not isinstance(cfg, SearchConfig):
+        raise SearchError(
+            f"cfg must be a SearchConfig (e.g. SearchConfig.preset('balanced')), got {type(cfg).__name__}"
+        )
     cfg = cfg or SearchConfig.preset("balanced", mode=search_mode(platform.kind))
     t_start = time.perf_counter()
     inputs = _check_inputs(inputs_cam2world)
     space = space_for(platform, cfg)
     rng = np.random.default_rng(cfg.seed)
-    avoid_params = space.from_poses(_check_inputs(avoid)) if avoid is not None and len(avoid) else None
+    avoid_poses = None if avoid is None else _check_inputs(avoid, "avoid", allow_empty=True)
+    avoid_params = space.from_poses(avoid_poses) if avoid_poses is not None and len(avoid_poses) else None
 
     # ---- stage 1: trajectory samples + neighbours, scored in batches
     trajectory = interpolate_poses(inputs, samples_per_segment(cfg, len(inputs)))  # [T, 4, 4]

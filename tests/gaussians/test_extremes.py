@@ -161,3 +161,15 @@ def test_empty_scene_is_background(backend):
     assert out["features"].shape == (2, 3, 6, 8) and (out["features"] == 0).all()
     assert (out["alpha"] == 0).all() and (out["depth"] == 0).all()
     assert grads["means"].shape == (0, 3) and (grads["world2cam"] == 0).all()
+
+
+@pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16])
+def test_half_precision_gaussians_are_refused_with_the_fix(dtype):
+    """float16 reached the numba kernels (NotImplementedError) or gave non-finite depth (torch)."""
+    from aes_planner.gaussians import GaussianError, random_scene
+
+    g, _, _ = random_scene(10, seed=0)
+    with pytest.raises(GaussianError, match="float32 or float64"):
+        Gaussians(
+            g.means.to(dtype), g.quats.to(dtype), g.log_scales.to(dtype), g.opacities.to(dtype), g.colors.to(dtype)
+        )

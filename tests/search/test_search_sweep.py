@@ -78,3 +78,62 @@ def test_oracle_recomputes_a_damaged_cache_file(tmp_path, how):
     assert not extras["cached"] and again == best and np.array_equal(pose, pose2)
     assert oracle_search(source, get_teacher(), **kw)[2]["cached"]  # rewritten whole
     assert sorted(p.suffix for p in tmp_path.iterdir()) == [".json", ".npz"]  # no temporary left
+
+
+def test_reversed_and_strided_pose_views_are_poses_like_any_other():
+    """numpy views with negative strides (poses[::-1]) raised torch's ValueError everywhere."""
+    from aes_planner.geometry import cam2world_to_view, world2cam
+
+    platform = rig_platform()
+    inputs = rig_inputs(platform)
+    cfg = SearchConfig.preset("fast", steps=0)
+    scorer = AimScorer(np.array([1.0, 0.0, 0.0]))
+    got = search_views(scorer, inputs[::-1], platform, cfg).best
+    want = search_views(scorer, np.ascontiguousarray(inputs[::-1]), platform, cfg).best
+    np.testing.assert_allclose(got.cam2world, want.cam2world)
+    np.testing.assert_allclose(cam2world_to_view(inputs[::-1]), cam2world_to_view(inputs.copy()[::-1].copy()))
+    np.testing.assert_allclose(world2cam(inputs[::-1])[0], world2cam(inputs[-1]))
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(cfg={"steps": 1}), "cfg must be a SearchConfig"),
+        (dict(inputs_cam2world="abc"), "inputs_cam2world must be poses"),
+        (dict(inputs_cam2world=[np.eye(4), np.eye(3)]), "inputs_cam2world must be poses"),
+        (dict(avoid=5), "avoid must be"),
+        (dict(avoid=np.eye(3)[None]), "avoid must be"),
+    ],
+)
+def test_search_arguments_are_named(kwargs, match, clean_error):
+    platform = rig_platform()
+    args = dict(inputs_cam2world=rig_inputs(platform), cfg=SearchConfig.preset("fast", steps=0))
+    args.update(kwargs)
+    scorer = AimScorer(np.array([1.0, 0.0, 0.0]))
+    clean_error(search_views, scorer, args["inputs_cam2world"], platform, args["cfg"], args.get("avoid"), match=match)
+
+
+@pytest.mark.parametrize(
+    "override",
+    [
+        {"seed": -1},
+        {"pitch_limits_deg": None},
+        {"pitch_limits_deg": 5},
+        {"jitter_fov": 1e308},
+        {"shift_frac": 1e308},
+        {"coverage_penalty": 1e39},
+    ],
+)
+def test_search_settings_that_would_overflow_or_crash_later_are_refused(override):
+    from aes_planner.config import ConfigError
+
+    with pytest.raises(ConfigError, match=next(iter(override))):
+        SearchConfig.preset("fast", **override)
+
+
+def test_a_field_of_no_frames_is_refused_like_rgb_scoring():
+    from aes_planner.search import build_search_scorer
+
+    for kind in ("field", "rgb"):
+        with pytest.raises(SearchError, match="no frames"):
+            build_search_scorer(kind, [], SearchConfig.preset("fast"))
