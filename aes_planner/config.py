@@ -13,6 +13,7 @@ duplicate keys refused, and ``1e30`` read as a number as YAML 1.2 does.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import re
 import reprlib
@@ -67,6 +68,18 @@ def _join(prefix: str, key: str | int) -> str:
     if isinstance(key, int):
         return f"{prefix}[{key}]"
     return f"{prefix}.{key}" if prefix else str(key)
+
+
+def distinct(values, key: str) -> list:
+    """``values`` without repeats, in order; a repeat is logged (evaluated twice, it would count
+    twice in every mean and fake a standard error)."""
+    out = list(dict.fromkeys(values))
+    if len(out) < len(values):
+        repeated = sorted({str(v) for v in values if list(values).count(v) > 1})
+        logging.getLogger("aes_planner.config").warning(
+            "%s: %s given more than once; each counts once", key, ", ".join(repeated)
+        )
+    return out
 
 
 def require(condition: bool, key: str, message: str) -> None:

@@ -869,7 +869,15 @@ class EmulatorProcess:
         self.port = ""
 
     def __enter__(self) -> EmulatorProcess:
-        self.proc = subprocess.Popen(self.argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        # its own session: a terminal's Ctrl-C reaches the driver, which turns torque off through
+        # the emulator before it goes; it stops by itself when this process goes away
+        self.proc = subprocess.Popen(
+            [*self.argv, "--exit-with-parent"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+        )
         ready, _, _ = select.select([self.proc.stdout], [], [], self.start_timeout_s)
         self.port = self.proc.stdout.readline().strip() if ready else ""
         if not self.port.startswith("/"):

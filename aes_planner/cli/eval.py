@@ -122,7 +122,7 @@ def run_field(args: argparse.Namespace) -> int:
         raise AesPlannerError(f"--views must be comma-separated integers like 2,4,6, got {args.views!r}") from None
     scorer = ScorerConfig(**({"render_width_px": args.render_width} if args.render_width is not None else {}))
     config = FieldEvalConfig(source=args.source, views=views, targets=args.targets, scorer=scorer)
-    from aes_planner.config import ConfigError
+    from aes_planner.config import ConfigError, distinct
     from aes_planner.paths import output_file, output_folder
 
     if not args.scene and not 1 <= args.scenes <= 2000:
@@ -134,7 +134,7 @@ def run_field(args: argparse.Namespace) -> int:
         output_file(args.json, "--json")
     models = {"field": load_model(args.model), "field_nocond": load_model(args.nocond_model or NOCOND_CHECKPOINT)}
     teacher = get_teacher(models["field"].teacher_name)
-    scenes = args.scene or default_scenes(args.scenes)
+    scenes = distinct(args.scene, "--scene") if args.scene else default_scenes(args.scenes)
     summary, raw = evaluate_field(
         scenes,
         lambda name: SimSource(name, supersample=2),

@@ -9,8 +9,11 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import signal
 import sys
+import threading
+import time
 from typing import Any
 
 from aes_planner.config import from_dict, load_yaml
@@ -41,6 +44,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--drop-rate", type=float, default=0.0, help="fraction of replies to drop (fault injection)")
     e.add_argument("--corrupt-rate", type=float, default=0.0, help="fraction of replies with a broken CRC")
     e.add_argument("--seed", type=int, default=0, help="seed of the fault injection")
+    e.add_argument(
+        "--exit-with-parent",
+        action="store_true",
+        help="stop when the process that started this one goes away (how the gimbal node runs it)",
+    )
     e.set_defaults(func=run_emulate)
 
     s = gsub.add_parser(
@@ -142,6 +150,15 @@ def run_emulate(args: argparse.Namespace) -> int:
         raise AesPlannerError(f"cannot emulate: {exc.args[0] if exc.args else exc}") from None
 
     signal.signal(signal.SIGTERM, lambda signum, frame: emu.request_stop())
+    if args.exit_with_parent:  # a node killed outright must not leave its emulator (and pty) behind
+        parent_pid = os.getppid()
+
+        def watch() -> None:
+            while os.getppid() == parent_pid:
+                time.sleep(0.2)
+            emu.request_stop()
+
+        threading.Thread(target=watch, daemon=True, name="parent-watch").start()
     try:
         print(emu.pty_path, flush=True)
         servos = ", ".join(f"id {i} {s.model.name}" for i, s in sorted(emu.servos.items()))

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from aes_planner.config import require
+from aes_planner.config import distinct, require
 from aes_planner.field.common import ScorerConfig
 from aes_planner.field.metrics import plcc, srcc, tv_ratio
 from aes_planner.field.model import AestheticField, FieldInputs, FieldModel
@@ -59,6 +59,7 @@ class FieldEvalConfig:
     scorer: ScorerConfig = field(default_factory=ScorerConfig)
 
     def __post_init__(self):
+        self.views = distinct(self.views, "views")
         require(self.source in SOURCES, "source", f"must be one of {list(SOURCES)}, got {self.source!r}")
         require(
             len(self.views) >= 1 and all(isinstance(v, int) and 1 <= v <= 16 for v in self.views),

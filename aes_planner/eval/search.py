@@ -124,8 +124,10 @@ class SearchEvalConfig:
     seed: int = 0
 
     def __post_init__(self):
-        from aes_planner.config import require
+        from aes_planner.config import distinct, require
 
+        for name in ("scenes", "views", "modes", "methods"):
+            setattr(self, name, distinct(getattr(self, name), name))
         require(len(self.scenes) >= 1, "scenes", "give at least one scene (FAMILY:SEED or a YAML file)")
         require(
             bool(self.views) and all(isinstance(v, int) and 1 <= v <= 16 for v in self.views),

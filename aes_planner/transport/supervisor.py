@@ -7,7 +7,9 @@ node of a launch file (``python -m aes_planner.transport.supervisor --child ...`
 * forwards each child's output line by line with a ``[node_id]`` prefix;
 * reports a child that dies, and restarts it (after a short back-off, at most ``max_respawns``
   times) when its launch entry says ``respawn: true``; the others keep running and pick the new
-  process up through Zenoh;
+  process up through Zenoh. A child that dies and will not be restarted ends the launch (a
+  failure: the graph cannot do its job without it, and the others would run, torque on, until
+  the timeout);
 * ends when a node finishes (the planner settled: its process exits 0 by itself), on Ctrl-C /
   SIGTERM, or at ``timeout_s``: children get SIGTERM in reverse launch order (so devices are
   left safe), then SIGKILL after ``grace_s``. A child that hangs never hangs the launch.
@@ -103,6 +105,7 @@ class Supervisor:
         self._prebuilt = list(local_nodes)  # [(node, remap)] built by the caller
         self.in_process = set(in_process) | {n.node_id for n, _ in self._prebuilt}
         self.max_respawns = max_respawns
+        self.lost: str | None = None  # the first child that died for good (it ends the launch)
         self.respawn_delay_s = respawn_delay_s
         self.grace_s = grace_s
         self.out = out or sys.stdout
@@ -246,6 +249,7 @@ class Supervisor:
                 if child.respawn:
                     self._say(f"{child.node_id}: not respawning after {child.restarts} restarts")
                 child.respawn = False
+                self.lost = self.lost or child.node_id
         return done
 
     def run(self, timeout_s: float | None = None, until=None, poll_s: float = 0.1) -> bool:
@@ -255,6 +259,9 @@ class Supervisor:
         while not self._stop.is_set():
             if self.poll() or self._local_done():
                 return True
+            if self.lost is not None:
+                self._say(f"ending the launch: {self.lost} is gone and does not respawn")
+                return False
             if until is not None and until():
                 return True
             if deadline is not None and time.monotonic() > deadline:

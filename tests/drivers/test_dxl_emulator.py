@@ -1,6 +1,9 @@
 """The emulator through the real dynamixel-sdk, packet by packet: instructions, error statuses,
 control tables, byte stuffing on the wire, baud rate, motion dynamics."""
 
+import os
+import subprocess
+import sys
 import time
 
 import dynamixel_sdk as sdk
@@ -251,3 +254,35 @@ def test_the_emulator_parser_sees_every_instruction(emulator, bus):
     ph.read1ByteTxRx(port, 1, A["led"])
     assert emulator.packets_seen == before + 2
     assert PacketParser().feed(build_packet(1, Inst.PING))[0].crc_ok
+
+
+def _gone(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return any(line.startswith("State:") and "Z" in line.split()[1] for line in f)  # a zombie has exited
+    except FileNotFoundError:
+        return True
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="reads /proc")
+def test_the_emulator_process_ends_with_the_process_that_started_it():
+    """A gimbal node killed outright (SIGKILL) left `gimbal emulate` running, holding its pty."""
+    snippet = (
+        "import time\n"
+        "from aes_planner.drivers.emulator import EmulatorProcess\n"
+        "e = EmulatorProcess().__enter__()\n"
+        "print(e.proc.pid, flush=True)\n"
+        "time.sleep(120)\n"
+    )
+    starter = subprocess.Popen([sys.executable, "-c", snippet], stdout=subprocess.PIPE, text=True)
+    try:
+        emulator_pid = int(starter.stdout.readline())
+        assert not _gone(emulator_pid)
+        starter.kill()
+        starter.wait(10)
+        deadline = time.monotonic() + 10
+        while not _gone(emulator_pid) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert _gone(emulator_pid)
+    finally:
+        starter.kill()

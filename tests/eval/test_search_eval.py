@@ -175,3 +175,14 @@ def test_hand_written_scenes_load_and_show_their_objects(path, tmp_path):
     frames = [source.capture(p) for p in _inputs(source, platform, 4)]
     depth_m = np.stack([f.depth_m for f in frames])  # [4, h, w], 0 = sky
     assert (depth_m > 0).mean() > 0.3
+
+
+def test_repeated_scenes_views_and_modes_count_once(caplog):
+    """indoor:100 twice gave n = 2 and a standard error of 0 from one scene."""
+    from aes_planner.eval.field import FieldEvalConfig
+
+    with caplog.at_level("WARNING"):
+        cfg = SearchEvalConfig(scenes=["indoor:100", "indoor:100"], views=[2, 2], modes=["rig", "rig"])
+    assert (cfg.scenes, cfg.views, cfg.modes) == (["indoor:100"], [2], ["rig"])
+    assert "indoor:100 given more than once" in caplog.text
+    assert FieldEvalConfig(views=[4, 2, 4]).views == [4, 2]

@@ -57,6 +57,31 @@ def test_processes_run_the_closed_loop_and_respawn_a_killed_node(endpoint):
         assert c.proc is None and c.exit_codes[-1] in (143, -15, -9), (c.node_id, c.exit_codes)
 
 
+def test_a_node_that_dies_for_good_ends_the_launch(endpoint):
+    """Without respawn, the others ran on (the gimbal with torque on) until the timeout."""
+    from aes_planner.transport.supervisor import Supervisor
+
+    out = io.StringIO()
+    sup = Supervisor("sim_closed_loop", FAST[:-1], endpoint=endpoint, in_process=["planner"], out=out)
+    killed = []
+
+    def kill_camera_once():
+        camera = next(c for c in sup.children if c.node_id == "camera")
+        if not killed and sup.node("planner").result().get("captures", 0) >= 1 and camera.proc is not None:
+            camera.proc.send_signal(signal.SIGKILL)
+            killed.append(time.monotonic())
+        return False
+
+    with sup:
+        finished = sup.run(timeout_s=240, until=kill_camera_once)
+    log = out.getvalue()
+    assert killed, log[-3000:]
+    assert not finished and time.monotonic() - killed[0] < 30, log[-3000:]
+    assert "ending the launch: camera is gone and does not respawn" in log
+    gimbal = next(c for c in sup.children if c.node_id == "gimbal")
+    assert gimbal.proc is None and gimbal.exit_codes[-1] in (143, -15), gimbal.exit_codes  # stopped cleanly
+
+
 def test_a_bad_launch_is_a_clear_error(endpoint):
     from aes_planner.config import ConfigError
     from aes_planner.transport.supervisor import Supervisor
