@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 
 import numpy as np
 import torch
@@ -150,3 +151,16 @@ def run_python_without(blocked: tuple[str, ...], code: str) -> subprocess.Comple
     (``sys.modules[name] = None``): what imports without an optional dependency (stdout, stderr as text)."""
     prelude = "import sys; " + "; ".join(f"sys.modules[{name!r}] = None" for name in blocked) + "\n"
     return subprocess.run([sys.executable, "-c", prelude + code], capture_output=True, text=True)
+
+
+def wait_for(pred, timeout_s: float = 20.0, poll_s: float = 0.01) -> bool:
+    """Poll `pred` until it holds or `timeout_s` passes; generous, as CI hosts are shared and loaded.
+
+    Tests wait on a condition rather than for a fixed time, so a slow host makes them slower, not red.
+    """
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(poll_s)
+    return bool(pred())

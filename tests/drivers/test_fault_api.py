@@ -16,6 +16,7 @@ from aes_planner.devices import (
     make_device,
 )
 from aes_planner.drivers.sim_gimbal import SimClock, SimPanTilt, SimPanTiltConfig
+from tests.helpers import wait_for
 
 
 @pytest.fixture
@@ -119,7 +120,7 @@ def test_emulated_faults_from_another_thread_while_moving(emulated):
             g.inject_comm_faults(lost=2, corrupt=2, delayed=1, delay_s=0.02)
             stop.wait(0.2)
             g.vanish_port()
-            stop.wait(0.1)
+            wait_for(lambda: "GimbalPortLostError" in errors, timeout_s=30.0)  # however slow the host
             g.restore_port()
             stop.wait(0.2)
         finally:

@@ -12,6 +12,7 @@ from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState, PosedF
 from aes_planner.messages.samples import sample_messages
 from aes_planner.node import LaunchContext, make_node
 from aes_planner.node.runner import Launch
+from tests.helpers import wait_for
 
 SMALL_CAMERA = {"width": 16, "height": 12, "supersample": 1}
 NODES = {
@@ -93,7 +94,15 @@ def test_node_topics_survive_malformed_oversized_and_extreme_messages(node_type,
                 for msg in extreme(msg_type):
                     raw.publish(msg)
                 sent[topic] = len(bad)
-            time.sleep(1.0)
+            # Wait on what must happen (bad messages counted, the node stepping and publishing), not a fixed time.
+            wait_for(
+                lambda: (
+                    runner.steps > steps_before
+                    and bool(seen)  # and it has published since
+                    and all(runner.subs[topic].rejected >= n - 1 for topic, n in sent.items())
+                ),
+                timeout_s=30.0,
+            )
             assert runner.error is None and runner.step_errors == 0
             assert runner.steps > steps_before  # still stepping
             for topic, n in sent.items():

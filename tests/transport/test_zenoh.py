@@ -9,15 +9,7 @@ from aes_planner.config import ConfigError
 from aes_planner.messages import GimbalCommand, GimbalState, PlannerRequest, PosedFrame, ViewSuggestion, encode
 from aes_planner.messages.samples import sample_messages
 from aes_planner.transport import RemoteError, RequestTimeout, ZenohConfig, wait_any
-
-
-def wait_for(pred, timeout_s=20.0):  # generous: the CI machine is shared and often loaded
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.01)
-    return False
+from tests.helpers import wait_for
 
 
 def matched(pub_bus, sub_bus, *topics, timeout_s=20.0):
