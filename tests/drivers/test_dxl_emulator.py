@@ -12,6 +12,7 @@ import pytest
 from aes_planner.drivers.dynamixel_models import model_by_name, to_signed, to_unsigned
 from aes_planner.drivers.emulator import ServoEmulator
 from aes_planner.drivers.protocol import ErrNum, Inst, PacketParser, build_packet
+from tests.helpers import wait_for
 
 XM = model_by_name("xm430-w350")
 A = {name: item.addr for name, item in XM.table.items()}
@@ -280,9 +281,6 @@ def test_the_emulator_process_ends_with_the_process_that_started_it():
         assert not _gone(emulator_pid)
         starter.kill()
         starter.wait(10)
-        deadline = time.monotonic() + 10
-        while not _gone(emulator_pid) and time.monotonic() < deadline:
-            time.sleep(0.1)
-        assert _gone(emulator_pid)
+        assert wait_for(lambda: _gone(emulator_pid), timeout_s=10.0, poll_s=0.1)
     finally:
         starter.kill()

@@ -3,13 +3,13 @@
 import math
 import random
 import threading
-import time
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from aes_planner.geometry.pantilt import JointCommandError
+from tests.helpers import wait_for
 
 ANGLES = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True),
@@ -93,11 +93,7 @@ def test_concurrent_reads_and_moves(emulator, make_gimbal):
             t.start()
         # Run until every thread has made progress (or errored), not for a fixed time: on a
         # loaded host the lock can favour the readers for a while, which is not a failure.
-        deadline = time.monotonic() + 60.0
-        while time.monotonic() < deadline and not errors:
-            if counts["state"] > 20 and counts["move"] > 20:
-                break
-            time.sleep(0.05)
+        wait_for(lambda: errors or (counts["state"] > 20 and counts["move"] > 20), timeout_s=60.0, poll_s=0.05)
         stop.set()
         for t in threads:
             t.join(5.0)

@@ -11,6 +11,7 @@ from aes_planner.messages import PosedFrame, ViewSuggestion
 from aes_planner.messages.samples import sample_messages
 from aes_planner.transport import ZenohConfig
 from aes_planner.transport.record import recording_summary
+from tests.helpers import wait_for
 
 
 @pytest.fixture
@@ -62,9 +63,7 @@ def test_echo_topics_record_replay(hub, capsys, tmp_path):
     assert (
         main(["replay", str(rec), "--rate", "0", "--wait", "1", "--connect", ep, "--topics", "planner/suggestion"]) == 0
     )
-    end = time.monotonic() + 5
-    while got.received < 1 and time.monotonic() < end:
-        time.sleep(0.05)
+    wait_for(lambda: got.received >= 1, timeout_s=5.0, poll_s=0.05)
     assert got.received >= 1 and got.rejected == 0
 
 

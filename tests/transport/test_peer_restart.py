@@ -11,6 +11,7 @@ import pytest
 
 from aes_planner.messages import GimbalState, PlannerRequest
 from aes_planner.transport import RequestTimeout, ZenohConfig
+from tests.helpers import wait_for
 
 PEER = Path(__file__).with_name("peer_process.py")
 
@@ -28,12 +29,7 @@ def kill(proc):
 
 
 def statuses_within(sub, tag, timeout_s=20.0):
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if any(m.status == tag for m in sub.take()):
-            return True
-        time.sleep(0.05)
-    return False
+    return wait_for(lambda: any(m.status == tag for m in sub.take()), timeout_s=timeout_s, poll_s=0.05)
 
 
 def query(bus, tag_expected, timeout_s=20.0):

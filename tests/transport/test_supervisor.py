@@ -9,6 +9,8 @@ import time
 
 import pytest
 
+from tests.helpers import wait_for
+
 FAST = [
     "planner.scorer=rgb",
     "planner.preset=fast",
@@ -172,9 +174,7 @@ def test_children_of_a_killed_supervisor_stop_by_themselves(endpoint, tmp_path):
         except OSError:
             return False
 
-    end = time.monotonic() + 60
-    while any(alive(p) for p in pids) and time.monotonic() < end:
-        time.sleep(0.2)
+    wait_for(lambda: not any(alive(p) for p in pids), timeout_s=60.0, poll_s=0.2)
     left = [p for p in pids if alive(p)]
     for p in left:
         os.kill(p, signal.SIGKILL)
