@@ -48,7 +48,8 @@ def output_folder(path: str | Path, flag: str = "--out") -> Path:
 def output_in(folder: str | Path, name: str | Path) -> Path:
     """``folder / name``, a file a command names and writes inside its output folder; raises
     :class:`OutputPathError` when it, or a folder between, is a symlink: a link left in the
-    output folder would send the write (an overwrite) wherever it points."""
+    output folder would send the write (an overwrite) wherever it points, or when a folder (or
+    anything else but a file) is already there."""
     base = Path(folder)
     path = base / name
     part = path
@@ -58,6 +59,10 @@ def output_in(folder: str | Path, name: str | Path) -> Path:
                 f"{part}: is a symlink; the output folder must not redirect its writes elsewhere (remove it)"
             )
         part = part.parent
+    if path.exists() and not path.is_file():  # a folder there: cv2.imwrite would fail silently
+        raise OutputPathError(
+            f"{path}: exists and is not a file (a folder?); remove it or choose another output folder"
+        )
     return path
 
 

@@ -48,7 +48,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _empty_value(argv: list[str]) -> str | None:
+    """The option (or argument) given an empty string, if any: no option of this CLI takes one."""
+    for i, token in enumerate(argv):
+        if token.startswith("--") and token.endswith("=") and "=" not in token[:-1]:
+            return token[:-1]
+        if not token.strip():
+            return argv[i - 1] if i and argv[i - 1].startswith("-") else f"argument {i + 1}"
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
+    empty = _empty_value([str(a) for a in (sys.argv[1:] if argv is None else argv)])
+    if empty is not None:  # `--teacher ''` would otherwise mean "the default" to `args.x or DEFAULT`
+        print(f"error: {empty}: an empty value; give one, or leave the option out for its default", file=sys.stderr)
+        return 2
     parser = build_parser()
     args = parser.parse_args(argv)
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
