@@ -41,13 +41,12 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 
-def _drop_stale_cache() -> None:
+def drop_stale_cache(here: Path = Path(__file__).parent, extra: tuple[Path, ...] = ()) -> None:
     """numba keys a cached kernel on the file that defines it, not on the files it calls into: a
     change to ``common.py`` (or to the constants in ``numerics.py``) would leave the stages'
     cached machine code in use. So the cache of this package is keyed here on all of its sources:
     when their hash changes, the package's cached kernels are removed and compile afresh."""
-    here = Path(__file__).parent
-    sources = sorted(here.glob("*.py")) + [here.parent / "numerics.py"]
+    sources = sorted(here.glob("*.py")) + list(extra)
     digest = hashlib.sha256(b"".join(p.read_bytes() for p in sources)).hexdigest()
     cache = here / "__pycache__"
     stamp = cache / "kernel_sources.sha256"
@@ -62,7 +61,7 @@ def _drop_stale_cache() -> None:
         log.debug("kernel cache stamp not written: %s", exc)
 
 
-_drop_stale_cache()
+drop_stale_cache(extra=(Path(__file__).parent.parent / "numerics.py",))
 
 from aes_planner.gaussians.kernels.binning import bin_and_fill, bin_cameras, fill_lists  # noqa: E402
 from aes_planner.gaussians.kernels.common import (  # noqa: E402
