@@ -101,10 +101,10 @@ def stop_on_signals():
 
 
 def supervisor_from_args(args: argparse.Namespace, in_process=(), out=None):
-    """A :class:`~aes_planner.transport.supervisor.Supervisor` for ``args.file`` / ``args.set``."""
+    """A :class:`~aes_planner.graph.supervisor.Supervisor` for ``args.file`` / ``args.set``."""
     from aes_planner.config import ConfigError
+    from aes_planner.graph.supervisor import Supervisor
     from aes_planner.transport.config import ZenohConfig
-    from aes_planner.transport.supervisor import Supervisor
 
     try:
         ZenohConfig(

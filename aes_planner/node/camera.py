@@ -25,8 +25,8 @@ import numpy as np
 from aes_planner.config import ConfigError, require, require_numbers, short_repr
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.pantilt import PanTilt, PanTiltConfig
+from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs
 from aes_planner.messages import GimbalState, PosedFrame
-from aes_planner.node.base import LaunchContext, Node, NodeError, Outputs
 
 log = logging.getLogger(__name__)
 

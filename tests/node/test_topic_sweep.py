@@ -8,10 +8,10 @@ import time
 import numpy as np
 import pytest
 
+from aes_planner.graph import LaunchContext, make_node
+from aes_planner.graph.runner import Launch
 from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState, PosedFrame, ViewSuggestion
 from aes_planner.messages.samples import sample_messages
-from aes_planner.node import LaunchContext, make_node
-from aes_planner.node.runner import Launch
 from tests.helpers import wait_for
 
 SMALL_CAMERA = {"width": 16, "height": 12, "supersample": 1}
