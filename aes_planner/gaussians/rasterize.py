@@ -94,7 +94,8 @@ def resolve_backend(backend: str = "auto", device: torch.device | str = "cpu") -
 
 
 # The checks below run in numpy on float64 copies of the few pose numbers: torch's small ops cost
-# ~5-10 us each, which made the checks ~0.14 ms of every call (docs/rasterizer.md, round 4).
+# ~5-10 us each, which made the checks ~0.14 ms of every call (docs/journal/rasterizer.md, "Alias
+# checks, the 8-lane backward").
 def _f64(t: Tensor) -> np.ndarray:
     return t.detach().to(torch.float64).cpu().numpy()
 

@@ -48,8 +48,8 @@ _choose_threading_layer()
 HALF_TILE = TILE // 2  # lanes of a narrow row window in the forward
 # Value channels + depth from which the channel loops go innermost (only contributing pixels
 # visited) instead of lanes innermost. The forward's lanes-innermost loops stayed faster up to 36
-# channels once rows became 8-lane windows (docs/rasterizer.md, round 4); the backward's need it
-# from 8 (2.2x at 36 channels).
+# channels once rows became 8-lane windows; the backward's need it from 8 (2.2x at 36 channels;
+# docs/journal/rasterizer.md, "Alias checks, the 8-lane backward").
 FWD_PIXEL_MAJOR_MIN_CHANNELS = 64
 BWD_PIXEL_MAJOR_MIN_CHANNELS = 8
 DONE_CHECK_EVERY = 32  # Gaussians between checks whether every pixel of a tile is saturated
@@ -64,7 +64,7 @@ NPOSE = 12
 # project_bwd's per-thread pose-gradient rows: NPOSE used, then 8 float64 (one cache line) of
 # padding, so that two threads never write the same line (unpadded rows made the threads'
 # read-modify-writes bounce a shared line: 839 -> 696 us for 10k Gaussians on 2 threads,
-# docs/rasterizer.md round 6).
+# docs/journal/rasterizer.md, "False sharing")
 G_CAM_STRIDE = NPOSE + 8
 
 _opts = dict(cache=True, error_model="numpy")
