@@ -271,6 +271,7 @@ def run_foxglove(args: argparse.Namespace) -> int:
     live = FoxgloveLive(port=args.port)
     with contextlib.closing(live), stop_on_signals() as stop, contextlib.closing(open_cli_bus(args)) as bus:
         live.attach(bus)
+        live.advertise_bus_topics(bus)  # the topics published now, before their next message
         print(f"Foxglove: open ws://127.0.0.1:{live.port} in the Foxglove app (Ctrl-C to stop)", file=sys.stderr)
         stop.wait(args.duration)
     return 0

@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     # the drivers' safe shutdown: the first SIGINT/SIGTERM stops the loop, a second one raises,
     # and either way every node's stop() (a gimbal's torque-off) runs inside this block
     with stop_on_signals(on_signal=on_signal):
-        sinks = attach_viewers(launch.bus, args)  # --foxglove / --record
+        sinks = attach_viewers(launch.bus, args, spec)  # --foxglove / --record
         try:
             launch.start()
             finished = launch.run(timeout_s=args.timeout, until=lambda: stop.is_set() or _all_finished(launch))
