@@ -16,7 +16,7 @@ import threading
 
 from aes_planner.errors import AesPlannerError
 
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7390"  # aes_planner.transport.config.DEFAULT_ENDPOINT (why 7390: there)
 
 
 def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None = None) -> None:
