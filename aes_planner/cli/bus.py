@@ -20,8 +20,8 @@ import math
 import sys
 import time
 
-from aes_planner.cli.processes import stop_on_signals
 from aes_planner.errors import AesPlannerError
+from aes_planner.graph.signals import stop_on_signals
 
 DEFAULT_ENDPOINT = (
     "tcp/127.0.0.1:7447"  # aes_planner.transport.config.DEFAULT_ENDPOINT (not imported: --help stays fast)
