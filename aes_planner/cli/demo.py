@@ -123,7 +123,7 @@ def run_demo(
     nodes = build_nodes(spec)
     planner = next(n for n, _ in nodes if n.node_id == "planner")
     say(f"demo: {mode} mode on {scene}: {', '.join(f'{n.node_id} ({type(n).__name__})' for n, _ in nodes)}")
-    from aes_planner.gaussians.numba_backend import warm_kernels
+    from aes_planner.gaussians.warmup import warm_kernels
 
     warm_kernels()  # a fresh install compiles them here (and says so), not in the loop's first plan
     t0 = time.time()

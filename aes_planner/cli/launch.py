@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     nodes = build_nodes(spec)
     print(f"launch {spec.path}: " + ", ".join(f"{n.node_id} ({type(n).__name__})" for n, _ in nodes), flush=True)
     launch = Launch(nodes)
-    finished, stop = run_graph(launch, timeout_s=args.timeout, open_sinks=lambda bus: attach_viewers(bus, args))
+    finished, stop = run_graph(launch, timeout_s=args.timeout, open_sinks=lambda bus: attach_viewers(bus, args, spec))
     if stop.exit_code is not None:
         print(f"[launch] stopped by {stop.name}: every node stopped, servos left with torque off", flush=True)
         return stop.exit_code

@@ -14,7 +14,7 @@ import sys
 
 from aes_planner.errors import AesPlannerError
 
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7390"  # aes_planner.transport.config.DEFAULT_ENDPOINT (why 7390: there)
 
 
 def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None = None) -> None:
@@ -51,9 +51,22 @@ def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None =
     g.add_argument("--record", default=None, metavar="FILE.mcap", help="record every topic to an MCAP file")
 
 
-def attach_viewers(bus, args: argparse.Namespace) -> list:
+def declared_outputs(spec) -> list[tuple[str, type, bool]]:
+    """``(topic, message type, latched)`` of every output a launch's nodes declare, remapped."""
+    from aes_planner.graph.base import node_class
+
+    out = []
+    for e in spec.nodes:
+        if e.type != "external":
+            for name, o in node_class(e.type).output_specs().items():
+                out.append((e.remap.get(name, name), o.msg_type, o.latched))
+    return out
+
+
+def attach_viewers(bus, args: argparse.Namespace, spec=None) -> list:
     """The Foxglove server and/or recorder that ``--foxglove`` / ``--record`` ask for, attached to
-    ``bus``; close them (in reverse) when the run ends."""
+    ``bus``; close them (in reverse) when the run ends. The server advertises the outputs of
+    ``spec``'s nodes (a launch spec) from the start."""
     from aes_planner.transport.record import FoxgloveLive, Recorder
 
     sinks = []
@@ -64,7 +77,8 @@ def attach_viewers(bus, args: argparse.Namespace) -> list:
         if port is not None:
             if not 0 <= port <= 65535:
                 raise AesPlannerError(f"--foxglove port must be in 0..65535, got {port}")
-            live = FoxgloveLive(port=port).attach(bus)
+            declared = declared_outputs(spec) if spec is not None else ()
+            live = FoxgloveLive(port=port, declared=declared).attach(bus)
             print(f"Foxglove: open ws://127.0.0.1:{live.port} in the Foxglove app", file=sys.stderr, flush=True)
             sinks.append(live)
     except BaseException:
@@ -113,7 +127,7 @@ def run_processes(args: argparse.Namespace) -> int:
         flush=True,
     )
     finished, stop = run_graph(
-        sup, timeout_s=getattr(args, "timeout", None), open_sinks=lambda bus: attach_viewers(bus, args)
+        sup, timeout_s=getattr(args, "timeout", None), open_sinks=lambda bus: attach_viewers(bus, args, sup.spec)
     )
     if stop.exit_code is not None:
         print(f"[launch] stopped by {stop.name}: every node stopped", flush=True)

@@ -185,9 +185,7 @@ class Supervisor:
         try:
             self.bus = ZenohBus(self.hub_config)
         except AesPlannerError as exc:
-            raise AesPlannerError(
-                f"cannot listen on {self.endpoint} ({exc}); is another launch running? choose another with --listen"
-            ) from None
+            raise AesPlannerError(f"the graph's hub ({self.endpoint}): {exc}") from None  # says what holds the port
         for child in self.children:
             self._spawn(child)
         if self.in_process:

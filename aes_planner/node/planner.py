@@ -350,7 +350,7 @@ class PlannerNode(Node):
             self.proposer = FieldProposer(c.scorer, c.preset, self.teacher, c.max_frames, c.seed)
         _ = self.teacher
         if isinstance(self.proposer, FieldProposer) and not self._kernels_warm:  # now, not in the first plan
-            from aes_planner.gaussians.numba_backend import warm_kernels
+            from aes_planner.gaussians.warmup import warm_kernels
 
             warm_kernels()
             self._kernels_warm = True

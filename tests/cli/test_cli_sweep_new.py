@@ -1,4 +1,4 @@
-"""Bad-input sweep of the new boundaries (issue 13): launch files and ``--set``, ``suggest``,
+"""Bad-input sweep of the new boundaries: launch files and ``--set``, ``suggest``,
 ``eval search|field``, ``train`` (configs, caches, checkpoints), ``demo``, ``replay``, and the field
 checkpoint loader. Every bad input ends in one ``error:`` line with exit 2 (or an
 ``AesPlannerError`` from the API), fast, before any long work, and writes nothing outside its

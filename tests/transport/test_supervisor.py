@@ -109,7 +109,9 @@ def test_a_busy_hub_port_is_a_clear_error(endpoint, capsys):
     with ZenohBus(ZenohConfig(listen=(endpoint,), connect=())):
         assert main(["launch", "sim_closed_loop", "--processes", "--listen", endpoint, "--timeout", "5"]) == 2
     err = capsys.readouterr().err
-    assert "another launch running" in err and len(err.strip().splitlines()) == 1
+    assert (
+        "another program holds the port" in err and "aes-planner launch" in err and len(err.strip().splitlines()) == 1
+    )
 
 
 def test_the_launch_files_bus_block_sets_the_hub(tmp_path, endpoint):
