@@ -18,12 +18,10 @@ The last line printed is the path of ``summary.json``.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import datetime as dt
 import json
 import math
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -102,10 +100,11 @@ def run_demo(
 
     ``transport``: the ``--processes/--listen/--foxglove/--record`` flags (see
     :mod:`aes_planner.cli.processes`); every topic is recorded to ``out/recording.mcap``."""
-    from aes_planner.cli.processes import attach_viewers, close_viewers
+    from aes_planner.cli.processes import attach_viewers
     from aes_planner.config import ConfigError
-    from aes_planner.devices import stop_on_signals
     from aes_planner.graph import Launch, build_nodes, load_launch
+    from aes_planner.graph.runner import run_graph
+    from aes_planner.graph.signals import SignalShutdown
     from aes_planner.sim import load_scene
 
     say = progress or (lambda *_: None)
@@ -166,17 +165,12 @@ def run_demo(
     out.mkdir(parents=True, exist_ok=True)
     recording = output_in(out, "recording.mcap")
     viewers = argparse.Namespace(foxglove=transport.foxglove, record=transport.record or str(recording))
-    stop = threading.Event()
-    guard = stop_on_signals(on_signal=lambda _s: stop.set()) if _main_thread() else contextlib.nullcontext()
-    with guard:  # SIGTERM / Ctrl-C: the nodes stop, the servos are left with torque off
-        sinks = []
-        try:
-            launch.start()
-            sinks = attach_viewers(launch.bus, viewers)
-            ok = launch.run(timeout_s=timeout_s, until=lambda: report_progress() or stop.is_set())
-        finally:
-            launch.stop()
-            close_viewers(sinks)
+    # SIGTERM / Ctrl-C: the nodes stop, the servos are left with torque off, then exit 128 + signal
+    ok, stop = run_graph(
+        launch, timeout_s=timeout_s, until=report_progress, open_sinks=lambda bus: attach_viewers(bus, viewers)
+    )
+    if stop.signum is not None:
+        raise SignalShutdown(stop.signum)
     report_progress()
     loop_s = time.time() - t0
     if not ok and not planner.finished:
@@ -186,10 +180,6 @@ def run_demo(
     summary["time_s"] = round(time.time() - t0, 2)
     output_in(out, "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
-
-
-def _main_thread() -> bool:
-    return threading.current_thread() is threading.main_thread()
 
 
 def _view(c2w: np.ndarray) -> np.ndarray:
