@@ -85,10 +85,10 @@ def idl_class(name: str) -> type:
     return cls
 
 
-def make(name: str, **values):
+def make(type_name: str, /, **values):
     """An instance of the stock IDL struct with every field given (nested values as dicts)."""
-    cls = idl_class(name)
-    _, fields = typestore().fielddefs[name]
+    cls = idl_class(type_name)
+    _, fields = typestore().fielddefs[type_name]
     kw = {}
     for fname, (kind, rest) in fields:
         v = values[fname]
