@@ -56,14 +56,14 @@ print(json.dumps(lat[-n:]), flush=True)
 
 
 def _percentile(xs: list[float], q: float) -> float:
-    from aes_planner.node.base import percentile
+    from aes_planner.graph.base import percentile
 
     return percentile(xs, q)
 
 
 def _measure(domain: int, key: str, make_msg, bus_topic: str, n: int, rate_hz: float):
     """Latencies (ms) of ``n`` messages published at ``rate_hz`` through a bridge to a subscriber process."""
-    from aes_planner.node.runner import NodeRunner
+    from aes_planner.graph.runner import NodeRunner
     from aes_planner.ros2.bridge import OUTBOUND, Ros2BridgeConfig, Ros2BridgeNode
     from aes_planner.ros2.dds import DdsConfig
     from aes_planner.transport import InProcessBus
@@ -106,7 +106,7 @@ def _measure(domain: int, key: str, make_msg, bus_topic: str, n: int, rate_hz: f
 
 def _frame_cpu(domain: int, make_frame, seconds: float) -> float:
     """Percent of one core the bridge uses with frames at 30 Hz (process CPU with minus without)."""
-    from aes_planner.node.runner import NodeRunner
+    from aes_planner.graph.runner import NodeRunner
     from aes_planner.ros2.bridge import Ros2BridgeConfig, Ros2BridgeNode
     from aes_planner.ros2.dds import DdsConfig
     from aes_planner.transport import InProcessBus

@@ -50,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def build_bridge(args: argparse.Namespace):
     """The bridge node from the flags (and ``--config``)."""
     from aes_planner.config import from_dict, load_yaml
-    from aes_planner.node.base import LaunchContext
+    from aes_planner.graph.base import LaunchContext
     from aes_planner.ros2.bridge import Ros2BridgeConfig, Ros2BridgeNode
 
     data = dict(load_yaml(args.config) or {}) if args.config else {}
@@ -69,7 +69,7 @@ def build_bridge(args: argparse.Namespace):
 
 
 def run_bridge(args: argparse.Namespace) -> int:
-    from aes_planner.node.runner import NodeRunner
+    from aes_planner.graph.runner import NodeRunner
 
     _check_seconds(args.duration, "--duration")
     node = build_bridge(args)

@@ -45,8 +45,8 @@ import numpy as np
 
 from aes_planner.config import ConfigError, require
 from aes_planner.geometry.rig import PanTiltConfig
+from aes_planner.graph.base import LaunchContext, Node, Outputs
 from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState, PosedFrame, ViewSuggestion
-from aes_planner.node.base import LaunchContext, Node, Outputs
 from aes_planner.ros2.dds import QOS_PROFILES, DdsConfig
 
 log = logging.getLogger(__name__)

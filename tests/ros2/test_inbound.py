@@ -15,8 +15,8 @@ pytest.importorskip("rosbags", reason="the ros2 extra (rosbags) is not installed
 
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.pantilt import PanTilt
+from aes_planner.graph.runner import Launch
 from aes_planner.node.planner import PlannerConfig, PlannerNode
-from aes_planner.node.runner import Launch
 from aes_planner.ros2.bridge import Ros2BridgeConfig, Ros2BridgeNode
 from aes_planner.ros2.dds import DdsConfig
 from aes_planner.sim import load_scene
@@ -211,7 +211,7 @@ def test_bad_input_over_dds_is_rejected_and_counted(peer):
 
 
 def test_ros2_rig_launch_file_builds_an_inbound_bridge_and_a_planner():
-    from aes_planner.node.launch_file import build_nodes, load_launch
+    from aes_planner.graph.launch_file import build_nodes, load_launch
 
     nodes = [n for n, _ in build_nodes(load_launch("launch/ros2_rig.yaml"))]
     bridge, planner = nodes
