@@ -69,9 +69,16 @@ def build_bridge(args: argparse.Namespace):
 
 
 def run_bridge(args: argparse.Namespace) -> int:
+    from aes_planner.errors import AesPlannerError
     from aes_planner.graph.runner import NodeRunner
 
     _check_seconds(args.duration, "--duration")
+    try:
+        import cyclonedds  # noqa: F401
+    except ImportError:
+        raise AesPlannerError(
+            "ros2 bridge needs the ros2 extra (cyclonedds): pip install 'aes-planner[ros2]'"
+        ) from None
     node = build_bridge(args)
     with stop_on_signals() as stop, contextlib.closing(open_cli_bus(args)) as bus:
         runner = NodeRunner(node, bus)

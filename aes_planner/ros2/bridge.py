@@ -132,8 +132,11 @@ class Ros2BridgeConfig:
         for k, prof in self.qos.items():
             require(k in known, f"qos.{k}", f"unknown key; known: {', '.join(known)}")
             require(prof in QOS_PROFILES, f"qos.{k}", f"must be one of {', '.join(QOS_PROFILES)}, got {prof!r}")
-        for name in ("world_frame", "camera_frame", *(f"rig_frames[{i}]" for i in range(4))):
-            value = self.rig_frames[int(name[-2])] if name.startswith("rig_frames") else getattr(self, name)
+        self.rig_frames = tuple(self.rig_frames)
+        require(len(self.rig_frames) == 4, "rig_frames", "must name 4 frames: base, pan, tilt, camera link")
+        frames = {"world_frame": self.world_frame, "camera_frame": self.camera_frame}
+        frames.update({f"rig_frames[{i}]": f for i, f in enumerate(self.rig_frames)})
+        for name, value in frames.items():
             require(
                 isinstance(value, str) and 0 < len(value) <= 128 and value.isprintable() and " " not in value,
                 name,

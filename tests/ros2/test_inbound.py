@@ -218,3 +218,70 @@ def test_ros2_rig_launch_file_builds_an_inbound_bridge_and_a_planner():
     assert isinstance(bridge, Ros2BridgeNode) and bridge.config.inbound and bridge.links is not None
     assert "camera/frame" in bridge.outputs and "gimbal/command" in bridge.inputs
     assert bridge.config.rig == planner.config.rig
+
+
+def test_compressed_and_mono_images_and_forward_position_commands(peer):
+    import cv2
+
+    from aes_planner.messages import GimbalCommand
+
+    rig = load_scene("tabletop:1").rig.pan_tilt
+    cfg = Ros2BridgeConfig(
+        dds=DdsConfig(domain_id=domain_for_tests()),
+        inbound=True,
+        rig=rig,
+        outbound=(),
+        image_transport="compressed",
+        command_interface="forward_position",
+    )
+    node = Ros2BridgeNode(cfg)
+    node.start()
+    try:
+        info = peer.writer("/camera/camera_info", "sensor_msgs/msg/CameraInfo", "sensor_data")
+        img = peer.writer("/camera/image_raw/compressed", "sensor_msgs/msg/CompressedImage", "sensor_data")
+        js = peer.writer("/joint_states", "sensor_msgs/msg/JointState", "reliable")
+        cmds = peer.reader("/forward_position_controller/commands", "std_msgs/msg/Float64MultiArray")
+        rgb = np.zeros((K.height, K.width, 3), np.uint8)
+        rgb[:, : K.width // 2] = (200, 50, 10)
+        ok, png = cv2.imencode(".png", rgb[..., ::-1])
+        out: dict = {}
+
+        def got_frame():
+            info.write(_camera_info())
+            js.write(_joint_state(time.time(), pos=(0.1, 0.05)))
+            img.write(
+                make(
+                    "sensor_msgs/msg/CompressedImage",
+                    header=_header(time.time()),
+                    format="png",
+                    data=list(png.tobytes()),
+                )
+            )
+            for k, v in node.step({}, time.time()).items():
+                out.setdefault(k, []).extend(v)
+            return bool(out.get("camera/frame"))
+
+        assert wait_for(got_frame, 20.0, 0.05), node.counters
+        assert np.array_equal(out["camera/frame"][-1].image, rgb)  # png is lossless; colours stay RGB
+        # a move beyond the limits goes out clamped, in the controller's joint order
+        far = GimbalCommand("move", 100.0, -100.0)
+        raw: list = []
+
+        def got_command():
+            node.step({"gimbal/command": [far]}, time.time())
+            raw.extend(Peer.take_raw(cmds))
+            return bool(raw)
+
+        assert wait_for(got_command, 20.0, 0.05), node.counters
+        pan, tilt = typestore().deserialize_cdr(raw[0], "std_msgs/msg/Float64MultiArray").data
+        kin = PanTilt(rig)
+        assert (pan, tilt) == pytest.approx(kin.clamp(100.0, -100.0))
+    finally:
+        node.stop()
+    # mono8: grey replicated into RGB
+    from aes_planner.ros2 import idl
+    from aes_planner.ros2.convert import decode_image
+
+    grey = np.arange(12, dtype=np.uint8).reshape(3, 4)
+    out_img = decode_image(idl.Image(idl.Header(), 3, 4, "mono8", 0, 4, grey.tobytes()))
+    assert out_img.shape == (3, 4, 3) and np.array_equal(out_img[..., 1], grey)

@@ -191,3 +191,53 @@ def test_joint_states_and_diagnostics(bridge, peer):
     planner = [s for a in arrays for s in a.status if s.name == "aes_planner: planner"]
     assert planner and planner[0].message == "exploring" and planner[0].level == 0
     assert {kv.key: kv.value for kv in planner[0].values}["frames_in"] == "10"
+
+
+_LISTENER = r"""
+import sys, time
+sys.path.insert(0, sys.argv[2])
+from tests.ros2.stock import Peer, typestore
+p = Peer(int(sys.argv[1]))
+r = p.reader("/planner/suggestion", "geometry_msgs/msg/PoseStamped", "latched")
+end = time.time() + 30
+while time.time() < end:
+    raw = Peer.take_raw(r)
+    if raw:
+        m = typestore().deserialize_cdr(raw[-1], "geometry_msgs/msg/PoseStamped")
+        q = m.pose.orientation
+        print(m.header.frame_id, m.header.stamp.sec, m.header.stamp.nanosec, q.x, q.y, q.z, q.w, flush=True)
+        break
+    time.sleep(0.02)
+"""
+
+
+def test_a_subscriber_process_on_a_loopback_unicast_config_gets_the_latched_suggestion(bridge, tmp_path):
+    """Over RTPS on loopback between processes (not Cyclone's in-process delivery), with the
+    subscriber's CYCLONEDDS_URI a loopback-only unicast configuration, as a ROS 2 user would set it."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    cfg = tmp_path / "cyclone.xml"
+    cfg.write_text(
+        '<CycloneDDS><Domain><General><Interfaces><NetworkInterface address="127.0.0.1"/></Interfaces>'
+        "<AllowMulticast>false</AllowMulticast></General><Discovery><ParticipantIndex>auto</ParticipantIndex>"
+        '<Peers><Peer address="127.0.0.1"/></Peers></Discovery></Domain></CycloneDDS>'
+    )
+    msg = sample_messages()["ViewSuggestion"]
+    bridge.step({"planner/suggestion": [msg]}, now=1.0)  # published before the subscriber exists
+    root = str(Path(__file__).resolve().parents[2])
+    env = {**os.environ, "CYCLONEDDS_URI": cfg.as_uri()}
+    out = subprocess.run(
+        [sys.executable, "-c", _LISTENER, str(domain_for_tests()), root],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+    )
+    fields = out.stdout.split()
+    assert fields, out.stderr[-2000:]
+    assert fields[0] == "map" and int(fields[1]) + int(fields[2]) * 1e-9 == pytest.approx(msg.stamp_s)
+    q = np.array([float(v) for v in fields[3:7]])
+    assert np.linalg.norm(q) == pytest.approx(1.0)
