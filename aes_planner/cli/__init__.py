@@ -31,6 +31,8 @@ COMMANDS = [
     "aes_planner.cli.teachers",
     "aes_planner.cli.gimbal",
     "aes_planner.cli.bus",
+    "aes_planner.cli.ros2",
+    "aes_planner.cli.export",
     "aes_planner.cli.train",
 ]
 

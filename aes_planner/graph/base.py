@@ -155,6 +155,7 @@ NODE_TYPES: dict[str, str] = {
     "sim_drone": "aes_planner.node.sim_drone:SimDroneNode",
     "sim": "aes_planner.node.sim_drone:SimDroneNode",  # drone.yaml: --set drone.type=sim
     "camera": "aes_planner.node.camera:CameraNode",
+    "ros2_bridge": "aes_planner.ros2.bridge:Ros2BridgeNode",
 }
 
 
