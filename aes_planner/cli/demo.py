@@ -105,7 +105,7 @@ def run_demo(
     from aes_planner.cli.processes import attach_viewers, close_viewers
     from aes_planner.config import ConfigError
     from aes_planner.devices import stop_on_signals
-    from aes_planner.node import Launch, build_nodes, load_launch
+    from aes_planner.graph import Launch, build_nodes, load_launch
     from aes_planner.sim import load_scene
 
     say = progress or (lambda *_: None)
@@ -124,7 +124,7 @@ def run_demo(
     nodes = build_nodes(spec)
     planner = next(n for n, _ in nodes if n.node_id == "planner")
     say(f"demo: {mode} mode on {scene}: {', '.join(f'{n.node_id} ({type(n).__name__})' for n, _ in nodes)}")
-    from aes_planner.gaussians.numba_backend import warm_kernels
+    from aes_planner.gaussians.warmup import warm_kernels
 
     warm_kernels()  # a fresh install compiles them here (and says so), not in the loop's first plan
     t0 = time.time()
@@ -149,7 +149,7 @@ def run_demo(
 
     transport = transport or argparse.Namespace(processes=False, foxglove=None, record=None)
     if transport.processes:  # the other nodes in their own processes over Zenoh, supervised
-        from aes_planner.transport.supervisor import Supervisor
+        from aes_planner.graph.supervisor import Supervisor
 
         local = [(n, r) for n, r in nodes if n.node_id == "planner"]
         launch = Supervisor(
@@ -210,7 +210,7 @@ def evaluate_run(planner, scene: str, mode: str, out: Path, loop_s: float) -> di
     platform = type(platform)(platform.kind, source.platform.intrinsics, platform.rig, platform.drone)
     caps = [c for c in planner.captures if math.isfinite(c.score)]
     if not caps:
-        from aes_planner.node import NodeError
+        from aes_planner.graph import NodeError
 
         raise NodeError(
             f"the planner captured nothing (state {planner.state}) within the run; see the log above, or give it "

@@ -16,7 +16,7 @@ import threading
 
 from aes_planner.errors import AesPlannerError
 
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7390"  # aes_planner.transport.config.DEFAULT_ENDPOINT (why 7390: there)
 
 
 def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None = None) -> None:
@@ -115,10 +115,10 @@ def stop_on_signals():
 
 
 def supervisor_from_args(args: argparse.Namespace, in_process=(), out=None):
-    """A :class:`~aes_planner.transport.supervisor.Supervisor` for ``args.file`` / ``args.set``."""
+    """A :class:`~aes_planner.graph.supervisor.Supervisor` for ``args.file`` / ``args.set``."""
     from aes_planner.config import ConfigError
+    from aes_planner.graph.supervisor import Supervisor
     from aes_planner.transport.config import ZenohConfig
-    from aes_planner.transport.supervisor import Supervisor
 
     try:
         ZenohConfig(
