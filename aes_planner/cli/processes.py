@@ -55,7 +55,7 @@ def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None =
 
 def declared_outputs(spec) -> list[tuple[str, type, bool]]:
     """``(topic, message type, latched)`` of every output a launch's nodes declare, remapped."""
-    from aes_planner.node.base import node_class
+    from aes_planner.graph.base import node_class
 
     out = []
     for e in spec.nodes:

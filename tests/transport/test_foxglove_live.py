@@ -223,7 +223,7 @@ def test_the_sdk_subprotocol_is_required():
 
 def test_the_graph_advertises_what_its_nodes_declare():
     from aes_planner.cli.processes import declared_outputs
-    from aes_planner.node import load_launch
+    from aes_planner.graph import load_launch
 
     declared = {t: (cls, latched) for t, cls, latched in declared_outputs(load_launch("sim_closed_loop"))}
     assert declared["planner/suggestion"] == (ViewSuggestion, True)
