@@ -172,7 +172,7 @@ def run_demo(
         sinks = []
         try:
             launch.start()
-            sinks = attach_viewers(launch.bus, viewers)
+            sinks = attach_viewers(launch.bus, viewers, spec)
             ok = launch.run(timeout_s=timeout_s, until=lambda: report_progress() or stop.is_set())
         finally:
             launch.stop()
