@@ -12,7 +12,7 @@ import pytest
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
-from aes_planner.messages import Diagnostics, PosedFrame, ViewSuggestion, decode, encode
+from aes_planner.messages import Diagnostics, GimbalState, PosedFrame, ViewSuggestion, decode, encode
 from aes_planner.messages.samples import sample_messages
 from aes_planner.transport import InProcessBus
 from aes_planner.transport.record import FoxgloveLive
@@ -242,3 +242,26 @@ def test_the_bytes_on_our_channel_are_the_bus_bytes(live):
         assert client.got["/planner/suggestion"][0][1] == encode(msg)
     finally:
         client.close()
+
+
+def test_the_foxglove_command_advertises_what_the_bus_publishes():
+    """``aes-planner foxglove`` beside a running graph: topics with a publisher are advertised at
+    once, with their latching, before their next message."""
+    bus = InProcessBus()
+    pub = bus.publisher("planner/suggestion", ViewSuggestion, latched=True)
+    bus.publisher("gimbal/state", GimbalState)
+    server = FoxgloveLive(port=0).attach(bus)
+    try:
+        assert server.advertise_bus_topics(bus) == 2
+        client = Client(server.port)
+        try:
+            assert wait_for(lambda: {"/planner/suggestion", "/gimbal/state/json"} <= set(client.subscribed.values()), 5)
+            assert client.channels["/planner/suggestion"]["schemaName"] == "aes_planner.ViewSuggestion"
+            assert wait_for(lambda: server.subscriptions >= 6, 5)
+            pub.publish(_suggestion(0, 1.0))
+            assert wait_for(lambda: "/planner/suggestion" in client.got, 5)
+        finally:
+            client.close()
+    finally:
+        server.close()
+        bus.close()

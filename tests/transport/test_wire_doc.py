@@ -254,7 +254,8 @@ def test_the_decoder_refuses_what_the_doc_forbids(recording):
 
 
 def test_docs_wire_md_names_every_type_and_code():
-    """The prose holds what the descriptions hold: each type, its schema version and enum codes."""
+    """The prose holds what the descriptions hold: each type, its schema version, every field and
+    enum code (a field added to a table but not to the doc fails here)."""
     from pathlib import Path
 
     from aes_planner.messages import MESSAGE_TYPES, describe
@@ -269,8 +270,20 @@ def test_docs_wire_md_names_every_type_and_code():
             if t.get("type") == "struct":
                 yield from enums(t["fields"])
 
+    def names(fields):
+        for f in fields:
+            yield f["name"]
+            t = f.get("value") or f.get("items") or f
+            if t.get("type") == "struct":
+                yield from names(t["fields"])
+            for variant in t.get("variants", {}).values():
+                yield from names(variant["fields"])
+
     for name, cls in MESSAGE_TYPES.items():
         assert f"### {name} (schema version {cls.SCHEMA_VERSION}," in doc, name
+        for field in names(describe(cls)["fields"]):
+            leaf = field.split(".")[-1]
+            assert f"`{field}`" in doc or f"`.{leaf}`" in doc, (name, field)
         for values in enums(describe(cls)["fields"]):
             for code, value in enumerate(values):
                 assert f"`{code}` = `{value}`" in doc, (name, value)
