@@ -170,6 +170,16 @@ def test_a_client_that_joins_late_gets_the_latched_suggestion_first(live):
         assert wait_for(lambda: len(client.got.get("/planner/suggestion", [])) == 2, 5)
         assert [decode(d).sequence for _t, d in client.got["/planner/suggestion"]] == [1, 2]
         assert "/camera/frame/image" not in client.got and "/camera/frame" not in client.got
+        # a third client joining gets the latched one; only it does (sent to that client alone)
+        other = Client(server.port, {"/planner/suggestion"})
+        try:
+            assert wait_for(lambda: len(other.got.get("/planner/suggestion", [])) == 1, 5)
+            assert decode(other.got["/planner/suggestion"][0][1]).sequence == 2
+            pub.publish(_suggestion(3, 103.0))
+            assert wait_for(lambda: len(client.got["/planner/suggestion"]) == 3, 5)
+            assert [decode(d).sequence for _t, d in client.got["/planner/suggestion"]] == [1, 2, 3]
+        finally:
+            other.close()
     finally:
         client.close()
 
