@@ -167,7 +167,7 @@ def run_demo(
     viewers = argparse.Namespace(foxglove=transport.foxglove, record=transport.record or str(recording))
     # SIGTERM / Ctrl-C: the nodes stop, the servos are left with torque off, then exit 128 + signal
     ok, stop = run_graph(
-        launch, timeout_s=timeout_s, until=report_progress, open_sinks=lambda bus: attach_viewers(bus, viewers)
+        launch, timeout_s=timeout_s, until=report_progress, open_sinks=lambda bus: attach_viewers(bus, viewers, spec)
     )
     if stop.signum is not None:
         raise SignalShutdown(stop.signum)
