@@ -237,3 +237,116 @@ def collect(source: ViewSource, board: BoardSpec, joints: np.ndarray, keep_image
         source.camera.K,
     )
     return Collected(obs, rejected, images)
+
+
+class SimStream:
+    """A continuous sweep in the simulator, for the latency: joint states every ``state_period_s``
+    (what the gimbal node publishes), frames every ``frame_period_s`` stamped on arrival by a sim
+    camera whose ``latency_s`` makes them show the pose that long before. The sim camera holds each
+    pose it is given, so the motion is fed to it every millisecond (a servo moves continuously)."""
+
+    def __init__(
+        self,
+        scene,
+        latency_s: float,
+        supersample: int = 1,
+        frame_period_s: float = 1 / 15,
+        state_period_s: float = 0.01,
+        seed: int = 0,
+    ):
+        from aes_planner.sim import SimCamera, SimCameraConfig
+
+        self.sim = SimCamera(scene, SimCameraConfig(supersample=supersample, latency_s=latency_s, seed=seed))
+        k = self.sim.intrinsics
+        K = np.array([[k.fx, 0, k.cx - 0.5], [0, k.fy, k.cy - 0.5], [0, 0, 1.0]])
+        self.camera = CameraModel(K, np.zeros(5), k.width, k.height)
+        self.frame_period_s = frame_period_s
+        self.state_period_s = state_period_s
+
+    def __call__(self, trajectory, duration_s: float):
+        lead = 0.6  # states before the first frame, so every frame's exposure has a pose
+        step = max(0.001, (duration_s + lead) / 4000)  # within the sim camera's pose history
+        every = max(1, round(self.state_period_s / step))
+        states = []
+        for i, t in enumerate(np.arange(0.0, duration_s + lead, step)):
+            pan, tilt = trajectory(t - lead)
+            self.sim.move_joints(pan, tilt, float(t))
+            if i % every == 0:
+                states.append((float(t), pan, tilt))
+        frames = []
+        for t in np.arange(lead, duration_s + lead, self.frame_period_s):
+            frame = self.sim.capture(float(t))
+            frames.append((float(t), cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY)))
+        return frames, states
+
+
+class HardwareViewSource(ViewSource):
+    """A real gimbal (any :class:`~aes_planner.devices.Gimbal`, connected) and a camera
+    (``cv2.VideoCapture`` or anything with ``read() -> (ok, bgr)``): move, wait until the servos
+    report arrival, let the bracket settle ``settle_s``, drop ``flush_frames`` buffered frames,
+    then take one and the joints the gimbal reports."""
+
+    def __init__(self, gimbal, capture, camera: CameraModel, settle_s: float = 0.5, flush_frames: int = 4):
+        self.gimbal = gimbal
+        self.capture_device = capture
+        self.camera = camera
+        self.settle_s = settle_s
+        self.flush_frames = flush_frames
+
+    def _read(self) -> np.ndarray:
+        ok, bgr = self.capture_device.read()
+        if not ok or bgr is None:
+            raise RigCalibrationError(
+                "the camera returned no frame; check the device index and that nothing else holds it"
+            )
+        if bgr.shape[:2] != (self.camera.height, self.camera.width):
+            raise RigCalibrationError(
+                f"the camera delivers {bgr.shape[1]}x{bgr.shape[0]} frames but its calibration is for "
+                f"{self.camera.width}x{self.camera.height}; calibrate the camera at this resolution"
+            )
+        return bgr if bgr.ndim == 2 else cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+
+    def capture(self, pan_rad: float, tilt_rad: float) -> tuple[np.ndarray, float, float]:
+        import time
+
+        self.gimbal.move_to(pan_rad, tilt_rad)
+        self.gimbal.wait_until_reached()
+        time.sleep(self.settle_s)
+        for _ in range(self.flush_frames):
+            self._read()
+        gray = self._read()
+        state = self.gimbal.state()
+        return gray, state.pan_rad, state.tilt_rad
+
+    def stream(self, trajectory, duration_s: float, state_period_s: float = 0.02):
+        """A continuous sweep for :func:`~aes_planner.calibrate.pipeline.estimate_latency`: goals
+        along ``trajectory`` and joint states every ``state_period_s`` from a thread, frames read
+        as fast as the camera gives them, all stamped with ``time.time()`` on arrival."""
+        import threading
+        import time
+
+        pan0, tilt0 = trajectory(0.0)
+        self.gimbal.move_to(pan0, tilt0)
+        self.gimbal.wait_until_reached()
+        states, stop = [], threading.Event()
+        start = time.time()
+
+        def drive():
+            while not stop.is_set():
+                now = time.time()
+                self.gimbal.move_to(*trajectory(now - start))
+                s = self.gimbal.state()
+                states.append((s.stamp_s, s.pan_rad, s.tilt_rad))
+                stop.wait(max(0.0, state_period_s - (time.time() - now)))
+
+        thread = threading.Thread(target=drive, name="calibrate-sweep", daemon=True)
+        thread.start()
+        frames = []
+        try:
+            while time.time() - start < duration_s:
+                gray = self._read()
+                frames.append((time.time(), gray))
+        finally:
+            stop.set()
+            thread.join(timeout=5.0)
+        return frames, states

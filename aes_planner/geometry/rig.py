@@ -45,6 +45,9 @@ class PanTiltConfig:
       before ``camera_roll_deg``: positive roll turns the image as ``camera_roll_deg`` does, positive
       pitch points the lens down (REP-103), positive yaw points it left. ``aes-planner calibrate rig``
       estimates it; (0, 0, 0) is the drawing's ideal mount.
+    * ``camera_latency_s``: how long after the joint states a camera frame shows them (its
+      exposure precedes its stamp by this); the camera node poses each frame at the joints of
+      ``stamp - camera_latency_s``. ``aes-planner calibrate rig --latency`` estimates it.
     """
 
     base_xyz_m: tuple[float, float, float] = (0.0, 0.0, 1.2)
@@ -55,6 +58,7 @@ class PanTiltConfig:
     tilt_limits_deg: tuple[float, float] = (-60.0, 60.0)
     camera_roll_deg: float = 0.0
     camera_mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    camera_latency_s: float = 0.0
 
     def __post_init__(self):
         for name in (
@@ -76,6 +80,12 @@ class PanTiltConfig:
             "camera_roll_deg",
             f"must be in [-360, 360] deg (180 for an image flipped upside down), got {self.camera_roll_deg}",
         )
+        require_finite(self.camera_latency_s, "camera_latency_s")
+        require(
+            -1.0 <= self.camera_latency_s <= 10.0,
+            "camera_latency_s",
+            f"must be in [-1, 10] s (a camera's delay behind the joint states), got {self.camera_latency_s}",
+        )
         worst = max(abs(v) for v in self.camera_mount_rpy_deg)
         require(
             worst <= 45.0,
@@ -92,7 +102,7 @@ class PanTiltConfig:
 
 #: Fields added after rigs were first saved, with the value every older rig had. :func:`rig_dict`
 #: leaves them out at that value, so older scene files and oracle cache keys stay the same.
-LATER_FIELD_DEFAULTS = {"camera_roll_deg": 0.0, "camera_mount_rpy_deg": [0.0, 0.0, 0.0]}
+LATER_FIELD_DEFAULTS = {"camera_roll_deg": 0.0, "camera_mount_rpy_deg": [0.0, 0.0, 0.0], "camera_latency_s": 0.0}
 
 
 def rig_dict(config: PanTiltConfig) -> dict:
