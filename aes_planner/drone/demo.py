@@ -51,7 +51,7 @@ def drone_summary(nodes) -> dict:
                 "final_position_m": [round(float(v), 4) for v in pos],
                 "final_heading_enu_deg": round(math.degrees(fr.heading_ned_to_enu(link.heading)), 3),
                 "final_camera_cam2world": c2w.tolist(),
-                "counters": {**link.counters, **link.gate.counters},
+                "counters": dict(link.counters),
                 "setpoint_latency_s": [round(v, 4) for v in link.goal_latencies_s[-32:]],
             }
         if d.emulator is not None:

@@ -185,7 +185,8 @@ class MavlinkLink:
                     self._conn.mav.srcSystem = src  # a companion shares its vehicle's system id
                 log.info("vehicle: system %d component %d (autopilot %s)", src, self.compid, msg.autopilot)
         if src != self.sysid:
-            self.counters["foreign_messages"] += 1
+            if self.sysid is not None:  # another vehicle (or a GCS): never followed
+                self.counters["foreign_messages"] += 1
             return
         if kind == "HEARTBEAT":
             self.counters["heartbeats_in"] += 1

@@ -224,12 +224,12 @@ class MavlinkDroneNode(Node):
         return since is not None and now - since > self.config.link_loss_abort_s
 
     def start(self) -> None:
-        from aes_planner.drone.link import MavlinkLink
+        from aes_planner.drone.process import EmulatorProcess, LinkProxy
 
         c = self.config
         if c.emulate and self.emulator is None:
-            self.emulator = self._make_emulator().start()
-        self.link = MavlinkLink(c, self.lo_ned, self.hi_ned)
+            self.emulator = EmulatorProcess(self._emulator_config()).start()
+        self.link = LinkProxy(c, self.lo_ned, self.hi_ned)  # in its own process: no GIL stalls
         try:
             self.link.start()
         except Exception as exc:
@@ -242,8 +242,8 @@ class MavlinkDroneNode(Node):
         if self.emulator is not None:
             self.emulator.stop()
 
-    def _make_emulator(self):
-        from aes_planner.drone.emulator import EmulatorConfig, VehicleEmulator
+    def _emulator_config(self):
+        from aes_planner.drone.emulator import EmulatorConfig
         from aes_planner.node.sim_drone import _survey_start
 
         c = self.config
@@ -259,7 +259,7 @@ class MavlinkDroneNode(Node):
             "fence_max_ned_m": tuple(self.hi_ned.tolist()),
             "gimbal_axes": c.gimbal_config.axes,
         }
-        return VehicleEmulator(from_dict(EmulatorConfig, {**defaults, **c.emulator}, "emulator"))
+        return from_dict(EmulatorConfig, {**defaults, **c.emulator}, "emulator")
 
     # ------------------------------------------------------------------------------ step
     def step(self, inputs: Mapping[str, list], now: float) -> Outputs:
@@ -269,8 +269,7 @@ class MavlinkDroneNode(Node):
             return out
         for d in inputs.get("planner/diagnostics", ()):
             self.planner_state = d.state
-            with link.lock:
-                link.planner_stopped = d.state in ("done", "failed")
+            link.set_planner_stopped(d.state in ("done", "failed"))
         for s in inputs.get("planner/suggestion", ()):
             if s.candidates:
                 link.set_view_goal(s.candidates[0].view, now)
