@@ -185,7 +185,7 @@ class MavlinkLink:
                     self._conn.mav.srcSystem = src  # a companion shares its vehicle's system id
                 log.info("vehicle: system %d component %d (autopilot %s)", src, self.compid, msg.autopilot)
         if src != self.sysid:
-            if self.sysid is not None:  # another vehicle (or a GCS): never followed
+            if self.sysid is not None or self.config.vehicle_system_id not in (0, src):  # never followed
                 self.counters["foreign_messages"] += 1
             return
         if kind == "HEARTBEAT":
