@@ -11,6 +11,7 @@ type               usual topic                 what
 ``GimbalState``    ``gimbal/state``            present and goal pan/tilt, moving, faults
 ``Diagnostics``    ``<node>/diagnostics``      named counters and values, a state word
 ``PlannerRequest`` ``planner/request``         ask for a suggestion now, reset, stop
+``DroneState``     ``drone/state``             a vehicle's pose, camera pose, mode, link (ENU)
 =================  ==========================  ================================================
 
 Encoding: :func:`encode` / :func:`decode` (specified in ``docs/wire.md``; each type's fields are
@@ -38,6 +39,7 @@ from aes_planner.messages.codec import (
     peek_header,
 )
 from aes_planner.messages.diagnostics import Diagnostics, PlannerRequest
+from aes_planner.messages.drone import DroneState
 from aes_planner.messages.gimbal import GimbalCommand, GimbalState
 from aes_planner.messages.posed_frame import PosedFrame
 from aes_planner.messages.suggestion import Candidate, ViewSuggestion
@@ -46,6 +48,7 @@ __all__ = [
     "MESSAGE_TYPES",
     "Candidate",
     "Diagnostics",
+    "DroneState",
     "GimbalCommand",
     "GimbalState",
     "Header",
