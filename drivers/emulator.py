@@ -919,6 +919,10 @@ class EmulatorProcess:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(timeout_s)
+        if proc.stdout is not None:  # its last line says whether the servos were left with torque off
+            for line in proc.stdout.read().splitlines():
+                if line.startswith("servo emulator stopped:"):
+                    (log.warning if "torque ON" in line else log.info)("%s", line)
         for stream in (proc.stdout, proc.stderr):
             if stream is not None:
                 stream.close()

@@ -1,4 +1,4 @@
-"""Bad-input sweep (issue 13): VEN weight files and the ``score`` command.
+"""Bad-input sweep: VEN weight files and the ``score`` command.
 
 A weights file that is not VEN's (random bytes, truncated, finite but huge values) is a
 WeightsError; a network that overflows is a TeacherError, never a NaN score with exit 0.
