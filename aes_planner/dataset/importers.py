@@ -32,7 +32,6 @@ import numpy as np
 
 from aes_planner.config import short_repr
 from aes_planner.dataset.folder import (
-    FOV_RANGE_DEG,
     DatasetError,
     PosedDataset,
     _inside,
@@ -46,6 +45,7 @@ from aes_planner.dataset.folder import (
     read_rgb,
 )
 from aes_planner.geometry.camera import Intrinsics, IntrinsicsError
+from aes_planner.geometry.plausible import FOV_RANGE_DEG
 from aes_planner.geometry.poses import PoseError, rigid_inverse, validate_cam2world
 
 log = logging.getLogger(__name__)
