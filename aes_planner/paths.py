@@ -68,8 +68,11 @@ def output_in(folder: str | Path, name: str | Path) -> Path:
 
 def output_file(path: str | Path, flag: str = "--json") -> Path:
     """``path`` as a file the command can write (its folder created now; an existing file is
-    replaced). Raises :class:`OutputPathError` naming ``flag`` for a folder or an unwritable place."""
+    replaced). Raises :class:`OutputPathError` naming ``flag`` for a folder, a symlink (dangling or not)
+    or an unwritable place."""
     file = Path(path)
+    if file.is_symlink():  # dangling or not: the write would go wherever it points
+        raise OutputPathError(f"{flag} {file}: is a symlink; give the file itself (a link is never written through)")
     if file.is_dir():
         raise OutputPathError(f"{flag} {file}: is a folder; give a file name, e.g. {file / 'out.json'}")
     if file.exists() and not file.is_file():
