@@ -221,3 +221,78 @@ def test_profile_velocity_is_bounded_by_what_the_servo_can_be_set_to(clean_error
 
     clean_error(DynamixelPanTiltConfig, port="/dev/x", profile_velocity_deg_s=deg_s, match="profile_velocity_deg_s")
     assert DynamixelPanTiltConfig(port="/dev/x", profile_velocity_deg_s=1400.0).profile_velocity_deg_s == 1400.0
+
+
+# ------------------------------------------------- 6. full-resolution photos: downscaled at the boundary
+def _photos(src: Path, dst: Path, width: int, height: int, count: int | None = None) -> Path:
+    """The views of the dataset ``src`` as JPEG photos of ``width x height`` (intrinsics scaled, no depth)."""
+    import json
+
+    import cv2
+
+    (dst / "images").mkdir(parents=True)
+    doc = json.loads((src / "cameras.json").read_text())
+    doc["frames"] = doc["frames"][:count]
+    for f in doc["frames"]:
+        img = cv2.resize(cv2.imread(str(src / f["image"])), (width, height), interpolation=cv2.INTER_CUBIC)
+        f["image"] = f["image"].replace(".png", ".jpg")
+        cv2.imwrite(str(dst / f["image"]), img, [cv2.IMWRITE_JPEG_QUALITY, 85])
+        s = width / f["width"]
+        f.update(width=width, height=height, fx=f["fx"] * s, fy=f["fy"] * s, cx=f["cx"] * s, cy=f["cy"] * s)
+        f.pop("depth", None)
+    (dst / "cameras.json").write_text(json.dumps(doc))
+    return dst
+
+
+def test_downscale_frame_keeps_the_camera():
+    from aes_planner.geometry.camera import Intrinsics
+    from aes_planner.images import downscale_frame
+    from aes_planner.messages import PosedFrame
+
+    k = Intrinsics(3000.0, 3000.0, 2000.0, 1500.0, 4000, 3000)
+    depth = np.full((3000, 4000), 2.0, np.float32)
+    depth[:, :2000] = 0.0  # unknown on the left: never averaged into the known half
+    frame = PosedFrame(np.zeros((3000, 4000, 3), np.uint8), k, np.eye(4), 1.0, depth, "f", pan_rad=0.1, tilt_rad=0.2)
+    small = downscale_frame(frame, 320)
+    assert small.image.shape == (240, 320, 3) and small.depth_m.shape == (240, 320)
+    assert small.intrinsics.hfov_rad == pytest.approx(k.hfov_rad) and small.intrinsics.cx == pytest.approx(160.0)
+    assert set(np.unique(small.depth_m)) == {0.0, 2.0} and (small.pan_rad, small.frame_id) == (0.1, "f")
+    tiny = downscale_frame(small, 320)
+    assert tiny is small
+
+
+def test_suggest_on_full_resolution_photos_is_downscaled_and_bounded(folders, tmp_path):
+    """Three 12 MP photos (and one of 24 MP, over a frame's size cap): read one at a time and
+    downscaled; the whole command stays under 1.5 GB of peak RSS (measured ~0.5 GB for eight)."""
+    import subprocess
+    import sys
+
+    photos = _photos(folders["rig"], tmp_path / "photos", 4000, 3000)
+    big = _photos(folders["rig"], tmp_path / "big", 6000, 4000, count=2)
+    code = (
+        "import resource, sys\n"
+        "from aes_planner.cli import main\n"
+        "rc = main(['suggest', sys.argv[1], '--preset', 'fast'])\n"
+        "print('maxrss_kb', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n"
+        "sys.exit(rc)\n"
+    )
+    for folder, size in ((photos, "4000x3000"), (big, "6000x4000")):
+        out = subprocess.run([sys.executable, "-c", code, str(folder)], capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr[-2000:]
+        assert f"of {size} px downscaled as read" in out.stdout and "suggestion(s)" in out.stdout
+        rss_mb = int(out.stdout.split("maxrss_kb")[1].split()[0]) / 1024
+        assert rss_mb < 1500, f"peak RSS {rss_mb:.0f} MB"
+
+
+def test_the_planner_keeps_frames_at_the_working_size():
+    from aes_planner.geometry.camera import Intrinsics
+    from aes_planner.images import MAX_WORKING_SIDE_PX
+    from aes_planner.messages import PosedFrame
+    from aes_planner.node.planner import PlannerConfig, PlannerNode
+    from tests.node.nodekit import RIG, FakeTeacher, ScriptedProposer
+
+    node = PlannerNode(PlannerConfig(rig=RIG, active=False), proposer=ScriptedProposer(), teacher=FakeTeacher())
+    k = Intrinsics(1000.0, 1000.0, 640.0, 480.0, 1280, 960)
+    frame = PosedFrame(np.zeros((960, 1280, 3), np.uint8), k, ScriptedProposer().rig.forward(0.0, 0.0), 1.0)
+    node.step({"camera/frame": [frame]}, 1.0)
+    assert node.counters["frames_rejected"] == 0 and node._frame.width == MAX_WORKING_SIDE_PX
