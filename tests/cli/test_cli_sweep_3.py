@@ -4,6 +4,7 @@ Each case here crashed the interpreter, allocated gigabytes, hung, printed a tra
 silently accepted before it was fixed.
 """
 
+import io
 from pathlib import Path
 
 import numpy as np
@@ -296,3 +297,64 @@ def test_the_planner_keeps_frames_at_the_working_size():
     frame = PosedFrame(np.zeros((960, 1280, 3), np.uint8), k, ScriptedProposer().rig.forward(0.0, 0.0), 1.0)
     node.step({"camera/frame": [frame]}, 1.0)
     assert node.counters["frames_rejected"] == 0 and node._frame.width == MAX_WORKING_SIDE_PX
+
+
+def _npz_bomb(path: Path, shape: tuple, how: str) -> Path:
+    """A cache entry whose ``images`` member declares ``shape`` float64 but holds almost nothing:
+    ``how="truncated"`` a header alone, ``"deflated"`` 16 MB of zeros compressed to a few kB."""
+    import zipfile
+
+    from tests.cli.test_cli_sweep_new import good_sample
+
+    np.savez(path, **good_sample())
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": shape})
+    body = header.getvalue() + (b"\0" * (16 << 20) if how == "deflated" else b"")
+    members = {}
+    with zipfile.ZipFile(path) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    members["images.npy"] = body
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+        for n, data in members.items():
+            z.writestr(n, data)
+    return path
+
+
+@pytest.mark.parametrize(
+    "shape, how", [((10**6, 10**6), "truncated"), ((2**31, 64), "deflated"), ((3, 3, 12, 16), "deflated")]
+)
+def test_a_cache_entry_that_declares_a_huge_array_is_refused_before_allocating(tmp_path, clean_error, shape, how):
+    import tracemalloc
+
+    from aes_planner.field.train import load_sample
+
+    path = _npz_bomb(tmp_path / "s.npz", shape, how)
+    tracemalloc.start()
+    try:
+        clean_error(load_sample, path, match="s.npz")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 64 << 20, f"{peak / 2**20:.0f} MiB allocated before refusing"
+
+
+def test_train_refuses_targets_whose_maps_exceed_a_cache_entry(tmp_path, clean_error):
+    from aes_planner.field.train import TrainConfig, build_cache
+    from aes_planner.teachers.ven import VENTeacher
+
+    cfg = TrainConfig(targets=10_000, search_targets=10_000)
+    clean_error(build_cache, cfg, tmp_path / "c", None, VENTeacher.random(), match="targets")
+    assert not (tmp_path / "c").exists()
+
+
+def test_a_training_step_renders_a_bounded_subset_of_targets():
+    from aes_planner.field.train import TARGETS_PER_STEP, _some_targets
+
+    rng = np.random.default_rng(0)
+    t = 10_000
+    sample = {"targets": np.zeros((t, 4, 4)), "target_maps": np.arange(t)[:, None], "target_scores": np.arange(t)}
+    some = _some_targets(sample, rng)
+    assert len(some["targets"]) == TARGETS_PER_STEP and np.all(np.diff(some["target_scores"]) > 0)
+    assert np.array_equal(some["target_maps"][:, 0], some["target_scores"])  # the same targets in each array
+    small = {k: v[:24] for k, v in sample.items()}
+    assert _some_targets(small, rng) is small  # the usual sizes: every target, as before
