@@ -23,7 +23,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from aes_planner.config import require, require_numbers
+from aes_planner.config import require, require_numbers, short_repr
 from aes_planner.devices import (
     DeviceError,
     Gimbal,
@@ -33,12 +33,27 @@ from aes_planner.devices import (
     make_device,
 )
 from aes_planner.geometry.rig import JointCommandError
+from aes_planner.graph.base import LaunchContext, Node, Outputs
 from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState
-from aes_planner.node.base import LaunchContext, Node, Outputs
 
 log = logging.getLogger(__name__)
 
 __all__ = ["GimbalNode", "GimbalNodeConfig"]
+
+
+#: ``aes-planner gimbal emulate`` options a launch may pass (the servos and baud come from the device).
+EMULATOR_OPTIONS = ("--link", "--drop-rate", "--corrupt-rate", "--seed")
+
+
+def _check_emulator_args(args: list[str]) -> None:
+    """``emulator_args`` are OPTION VALUE pairs among :data:`EMULATOR_OPTIONS` (the emulator
+    checks the values and says what is wrong with them)."""
+    for i in range(0, len(args), 2):
+        require(
+            args[i] in EMULATOR_OPTIONS and i + 1 < len(args) and not args[i + 1].startswith("--"),
+            f"emulator_args[{i}]",
+            f"expected OPTION VALUE pairs with OPTION one of {', '.join(EMULATOR_OPTIONS)}, got {short_repr(args[i : i + 2])}",
+        )
 
 
 @dataclass
@@ -73,6 +88,7 @@ class GimbalNodeConfig:
             "emulate",
             f"the emulator speaks to the dynamixel_pan_tilt driver; device.type is {self.device.get('type')!r}",
         )
+        _check_emulator_args(self.emulator_args)
         require(0.01 <= self.rate_hz <= 1000, "rate_hz", f"must be in [0.01, 1000] Hz, got {self.rate_hz}")
         for name in ("pan_limits_deg", "tilt_limits_deg"):
             lim = getattr(self, name)
