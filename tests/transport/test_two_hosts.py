@@ -159,7 +159,7 @@ def test_two_hosts_meet_through_their_hubs_and_a_cut_link_loses_nothing(two_host
 
 def test_the_launchers_hub_is_a_router(endpoint):
     """What makes the launches of two machines meet (the tests above and below run it for real)."""
-    from aes_planner.transport.supervisor import Supervisor
+    from aes_planner.graph.supervisor import Supervisor
 
     assert Supervisor("sim_closed_loop", endpoint=endpoint).hub_config.mode == "router"
 
