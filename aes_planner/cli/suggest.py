@@ -45,7 +45,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--threads",
         type=int,
         metavar="N",
-        help="CPU threads for torch and the rasterizer (default: all cores; 1 is steadier beside busy processes)",
+        help="CPU threads for torch and the rasterizer (default: the cores idle when it starts, so one beside "
+        "a busy process on two cores; the count used is printed)",
     )
     p.set_defaults(func=run)
 
