@@ -98,6 +98,8 @@ class Node(ABC):
 
     #: The dataclass a launch entry's ``config`` loads into.
     config_class: ClassVar[type]
+    #: True for a node that cannot be built without the launch's simulated scene (``scene:``).
+    needs_scene: ClassVar[bool] = False
     #: default input topic -> Input(message type, keep-last depth) (a plain 2-tuple works too)
     inputs: ClassVar[dict[str, tuple]] = {}
     #: default output topic -> Output(message type, latched, reliable) (a plain 2-tuple: reliable)

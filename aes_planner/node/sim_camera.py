@@ -59,6 +59,7 @@ class SimCameraNode(FrameNode):
     """See the module docstring."""
 
     config_class = SimCameraNodeConfig
+    needs_scene = True
     inputs = {"gimbal/state": Input(GimbalState, 8)}
 
     def __init__(
