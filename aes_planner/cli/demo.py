@@ -170,6 +170,7 @@ def run_demo(
         launch, timeout_s=timeout_s, until=report_progress, open_sinks=lambda bus: attach_viewers(bus, viewers)
     )
     if stop.signum is not None:
+        say(f"demo: stopped by {stop.name}: every node stopped, servos left with torque off; not scored")
         raise SignalShutdown(stop.signum)
     report_progress()
     loop_s = time.time() - t0
