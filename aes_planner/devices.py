@@ -32,7 +32,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
-from aes_planner.config import ConfigError, from_dict
+from aes_planner.config import ConfigError, from_dict, tag_of
 from aes_planner.errors import AesPlannerError
 
 __all__ = [
@@ -377,12 +377,8 @@ def device_class(type_name: str, key: str = "type") -> type[Device]:
 def make_device(spec: Mapping[str, Any], key: str = "", kind: type[Device] = Device) -> Device:
     """Build an unconnected device from a launch-file mapping ``{type: word, <config keys>}``;
     ``kind``: the interface the caller needs (a :class:`Gimbal`, a :class:`Camera`)."""
-    if not isinstance(spec, Mapping):
-        raise ConfigError(key, f"expected a mapping with a 'type' key, got {spec!r}")
     type_key = f"{key}.type" if key else "type"
-    if "type" not in spec:
-        raise ConfigError(type_key, f"missing; known types: {', '.join(sorted(DEVICE_TYPES))}")
-    cls = device_class(spec["type"], type_key)
+    cls = device_class(tag_of(spec, key, DEVICE_TYPES), type_key)
     if not issubclass(cls, kind):
         raise ConfigError(type_key, f"device type {spec['type']!r} is a {cls.__name__}, not a {kind.__name__}")
     fields = {k: v for k, v in spec.items() if k != "type"}

@@ -36,8 +36,13 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Calibration:
-    intrinsics: Intrinsics
+    intrinsics: Intrinsics  # the package's convention: pixel centres at +0.5 (the file's cx, cy + 0.5)
     distortion: np.ndarray  # [k] OpenCV coefficients (k1, k2, p1, p2[, k3...])
+
+    @property
+    def K_opencv(self) -> np.ndarray:
+        """The camera matrix as the file and OpenCV have it (pixel centres at integers)."""
+        return self.intrinsics.K - np.array([[0, 0, 0.5], [0, 0, 0.5], [0, 0, 0]])
 
 
 def _matrix(node: Any, key: str, rows: int | None = None, cols: int | None = None) -> np.ndarray:
@@ -83,9 +88,9 @@ def load_calibration(path: str | Path) -> Calibration:
             "calibration.distortion_coefficients",
             f"{path}: OpenCV takes 4, 5, 8, 12 or 14 coefficients (k1 k2 p1 p2 [k3 ...]), got {dist.size}",
         )
-    k = Intrinsics(
-        float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), data["image_width"], data["image_height"]
-    )
+    # OpenCV and ROS put pixel centres at integers, the package at +0.5 (aes_planner.geometry)
+    cx, cy = float(K[0, 2]) + 0.5, float(K[1, 2]) + 0.5
+    k = Intrinsics(float(K[0, 0]), float(K[1, 1]), cx, cy, data["image_width"], data["image_height"])
     return Calibration(k, dist)
 
 
@@ -173,6 +178,6 @@ class OpenCVCamera(Camera):
         if self.calibration.distortion.size and np.any(self.calibration.distortion):
             import cv2
 
-            bgr = cv2.undistort(bgr, k.K, self.calibration.distortion)
+            bgr = cv2.undistort(bgr, self.calibration.K_opencv, self.calibration.distortion)
         rgb = np.ascontiguousarray(bgr[..., ::-1]).astype(np.uint8, copy=False)
         return CameraImage(rgb, float(stamp_s))

@@ -30,7 +30,10 @@ COMMANDS = [
     "aes_planner.cli.score",
     "aes_planner.cli.teachers",
     "aes_planner.cli.gimbal",
+    "aes_planner.cli.calibrate",
     "aes_planner.cli.bus",
+    "aes_planner.cli.ros2",
+    "aes_planner.cli.export",
     "aes_planner.cli.train",
 ]
 

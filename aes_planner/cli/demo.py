@@ -48,6 +48,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="pan-tilt rig or a free-flying drone (default: what the scene has, a rig or a drone box)",
     )
+    p.add_argument(
+        "--drone",
+        choices=("sim", "mavlink"),
+        default="sim",
+        help="free mode: a simulated drone, or a MAVLink vehicle (launch/drone_mavlink.yaml; the package's emulator "
+        "unless --set drone.emulate=false --set drone.connection=...)",
+    )
     p.add_argument("--out", default=None, metavar="DIR", help="run folder (default runs/demo-<time>)")
     p.add_argument("--moves", type=int, default=6, help="suggestion-driven moves at most (default 6)")
     p.add_argument(
@@ -77,7 +84,9 @@ def run(args: argparse.Namespace) -> int:
         for name in RUN_FILES:
             output_in(output_folder(args.out, "--out"), name)
     out = Path(args.out) if args.out else Path("runs") / f"demo-{dt.datetime.now().strftime('%Y%m%d-%H%M%S')}"
-    result = run_demo(args.scene, args.mode, out, args.moves, args.set, args.timeout, progress=print, transport=args)
+    result = run_demo(
+        args.scene, args.mode, out, args.moves, args.set, args.timeout, progress=print, transport=args, drone=args.drone
+    )
     print_summary(result)
     print(out.resolve() / "summary.json")
     return 0 if result["state"] == "done" else 1
@@ -93,6 +102,7 @@ def run_demo(
     progress=None,
     planner_overrides: dict | None = None,
     transport: argparse.Namespace | None = None,
+    drone: str = "sim",
 ) -> dict:
     """Run the closed loop and write the run folder; returns the summary dict (plus ``state``).
 
@@ -113,7 +123,12 @@ def run_demo(
     if mode == "rig" and not has_rig:
         raise ConfigError("--mode", f"scene {scene!r} has a drone box, not a pan-tilt rig: use --mode free")
     sets = [f"scene={scene}", f"planner.max_moves={moves}"]
-    if mode == "rig":
+    if drone == "mavlink":  # a MAVLink vehicle (aes_planner.drone.demo)
+        from aes_planner.drone import demo as mavlink_demo
+
+        mode, launch_file = "free", mavlink_demo.LAUNCH_FILE
+        sets += ["planner.mode=free"]
+    elif mode == "rig":
         launch_file = "sim_closed_loop.yaml"
     else:
         launch_file = "drone.yaml"
@@ -166,8 +181,12 @@ def run_demo(
     recording = output_in(out, "recording.mcap")
     viewers = argparse.Namespace(foxglove=transport.foxglove, record=transport.record or str(recording))
     # SIGTERM / Ctrl-C: the nodes stop, the servos are left with torque off, then exit 128 + signal
+    ended = (lambda: mavlink_demo.aborted(nodes)) if drone == "mavlink" else (lambda: False)
     ok, stop = run_graph(
-        launch, timeout_s=timeout_s, until=report_progress, open_sinks=lambda bus: attach_viewers(bus, viewers)
+        launch,
+        timeout_s=timeout_s,
+        until=lambda: report_progress() or ended(),
+        open_sinks=lambda bus: attach_viewers(bus, viewers, spec),
     )
     if stop.signum is not None:
         say(f"demo: stopped by {stop.name}: every node stopped, servos left with torque off; not scored")
@@ -179,6 +198,8 @@ def run_demo(
     say(f"demo: loop {planner.state} after {loop_s:.1f} s; scoring against the oracle ...")
     summary = evaluate_run(planner, scene, mode, out, loop_s)
     summary["time_s"] = round(time.time() - t0, 2)
+    if drone == "mavlink":
+        summary["drone"] = mavlink_demo.drone_summary(nodes)
     output_in(out, "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
 

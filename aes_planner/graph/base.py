@@ -157,6 +157,9 @@ NODE_TYPES: dict[str, str] = {
     "sim_drone": "aes_planner.node.sim_drone:SimDroneNode",
     "sim": "aes_planner.node.sim_drone:SimDroneNode",  # drone.yaml: --set drone.type=sim
     "camera": "aes_planner.node.camera:CameraNode",
+    "ros2_bridge": "aes_planner.ros2.bridge:Ros2BridgeNode",
+    "mavlink_drone": "aes_planner.drone.node:MavlinkDroneNode",
+    "sim_drone_camera": "aes_planner.drone.camera:DroneSimCameraNode",
 }
 
 

@@ -3,10 +3,11 @@
 The device (:class:`aes_planner.drivers.camera.OpenCVCamera`) reads each image, checks it
 against the calibration (an OpenCV ``FileStorage`` or ROS ``camera_info`` YAML) and undistorts
 it; this node stamps it with the host clock when it is read, and poses it by the rig's kinematics
-at the gimbal's joint angles **at that stamp**: ``gimbal/state`` messages are kept for
-``state_history_s`` and interpolated linearly between the two around the stamp (held at the
-ends). A frame older than the history, or taken before any gimbal state, is not published
-(counted). Publishing is the camera nodes' one path, :class:`~aes_planner.node.frames.FrameNode`.
+at the gimbal's joint angles **at that stamp** less the rig's ``camera_latency_s`` (when it was
+exposed): ``gimbal/state`` messages are kept for ``state_history_s`` and interpolated linearly
+between the two around the stamp (held at the ends). A frame older than the history, or taken
+before any gimbal state, is not published (counted). Publishing is the camera nodes' one path,
+:class:`~aes_planner.node.frames.FrameNode`.
 """
 
 from __future__ import annotations
@@ -101,7 +102,7 @@ class CameraNode(FrameNode):
         self.history.add(inputs.get("gimbal/state", ()), now)
 
     def pose(self, image: CameraImage):
-        joints = self.history.joints_at(image.stamp_s)
+        joints = self.history.joints_at(image.stamp_s - self.kinematics.config.camera_latency_s)  # when exposed
         if joints is None:
             return None
         return self.kinematics.forward(*joints), joints

@@ -9,11 +9,13 @@ at the node's rate, pose the image at its stamp, number it, publish it best-effo
   kinematics at the gimbal's joints interpolated at the image's stamp (:class:`JointHistory`);
 * :class:`~aes_planner.node.sim_camera.SimCameraNode`: the simulator's camera on a rig, which
   knows (and reports, with its pose noise) where it was;
-* :class:`~aes_planner.node.sim_drone.SimDroneNode`: the same camera on a simulated drone.
+* :class:`~aes_planner.node.sim_drone.SimDroneNode`: the same camera on a simulated drone;
+* :class:`~aes_planner.drone.camera.DroneSimCameraNode`: the same camera where a (simulated)
+  flight stack reports the vehicle's camera pose.
 
 Counters (in ``counters``): ``frames`` published, ``read_failures`` (the camera gave nothing),
 ``unposed`` (no pose at the image's stamp), ``size_mismatch`` (an image that does not match the
-calibration). Frames are named ``FRAME_ID/NNNNNN`` and numbered in ``sequence``.
+calibration), ``withheld`` (due while the camera's pose was stale, :meth:`FrameNode.fresh`). Frames are named ``FRAME_ID/NNNNNN`` and numbered in ``sequence``.
 """
 
 from __future__ import annotations
@@ -99,7 +101,7 @@ class FrameNode(Node):
     camera: Camera
 
     def _init_frames(self) -> None:
-        self.counters = {"frames": 0, "read_failures": 0, "unposed": 0, "size_mismatch": 0}
+        self.counters = {"frames": 0, "read_failures": 0, "unposed": 0, "size_mismatch": 0, "withheld": 0}
         self._last_frame_s = -np.inf
 
     @property
@@ -109,13 +111,23 @@ class FrameNode(Node):
     def observe(self, inputs: Mapping[str, list], now: float) -> None:
         """Take in where the camera is (called every step, before a frame is due)."""
 
+    def fresh(self, now: float) -> bool:
+        """Whether where the camera is is known well enough to publish now (default: always); a
+        frame due while not fresh is withheld and counted in ``withheld``."""
+        return True
+
     def pose(self, image: CameraImage) -> tuple[np.ndarray, tuple[float, float] | None] | None:
         """``(cam2world [4, 4], (pan, tilt) or None)`` of ``image``; None when it cannot be posed."""
         raise NotImplementedError
 
     def step(self, inputs: Mapping[str, list], now: float) -> Outputs:
         self.observe(inputs, now)
-        if now - self._last_frame_s < self.period_s * 0.999 or not self.camera.ready:
+        if now - self._last_frame_s < self.period_s * 0.999:
+            return {"camera/frame": []}
+        if not self.fresh(now):
+            self.counters["withheld"] += 1
+            return {"camera/frame": []}
+        if not self.camera.ready:
             return {"camera/frame": []}
         self._last_frame_s = now
         try:

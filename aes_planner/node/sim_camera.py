@@ -5,7 +5,8 @@ pose comes from ``gimbal/state`` through the rig's kinematics (the present joint
 from each state's stamp on); :class:`~aes_planner.node.sim_drone.SimDroneNode` is the same camera
 on a simulated drone. Frames carry the joint angles they were taken at, a sequence number, and
 the sim camera's pixel noise, pose noise and latency (:class:`~aes_planner.sim.SimCameraConfig`).
-Frames are stamped with the node's clock (``now``).
+Frames are stamped with the node's clock (``now``) and posed at ``now`` less the rig's
+``camera_latency_s`` (its calibrated delay; the sim camera's ``latency_s`` is the simulated one).
 """
 
 from __future__ import annotations
@@ -105,5 +106,8 @@ class SimCameraNode(FrameNode):
         self.history.add(states, now)
 
     def pose(self, image: CameraImage):
-        """The pose the sim camera reports (with its pose noise), and the joints at the stamp."""
-        return image.cam2world, self.history.joints_at(image.stamp_s)
+        """The pose the sim camera reports (with its pose noise; at the exposure when the rig has a
+        calibrated ``camera_latency_s``), and the joints at the stamp."""
+        latency_s = self.scene.rig.pan_tilt.camera_latency_s
+        cam2world = self.camera.pose_at(image.stamp_s - latency_s) if latency_s else image.cam2world
+        return cam2world, self.history.joints_at(image.stamp_s)
