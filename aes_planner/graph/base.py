@@ -39,8 +39,10 @@ __all__ = [
     "NodeError",
     "Output",
     "Outputs",
+    "input_specs",
     "make_node",
     "node_class",
+    "output_specs",
     "percentile",
 ]
 
@@ -126,16 +128,6 @@ class Node(ABC):
         launch ends when every node that can finish has."""
         return cls.finished is not Node.finished
 
-    @classmethod
-    def input_specs(cls) -> dict[str, Input]:
-        """:attr:`inputs` as :class:`Input` declarations."""
-        return {name: Input(*spec) for name, spec in cls.inputs.items()}
-
-    @classmethod
-    def output_specs(cls) -> dict[str, Output]:
-        """:attr:`outputs` as :class:`Output` declarations (reliable unless declared otherwise)."""
-        return {name: Output(*spec) for name, spec in cls.outputs.items()}
-
     def start(self) -> None:
         """Open devices and resources (called once, in the process that runs the node)."""
         return None
@@ -189,3 +181,15 @@ def percentile(values, q: float) -> float:
     lo = int(math.floor(pos))
     hi = min(lo + 1, len(xs) - 1)
     return xs[lo] + (xs[hi] - xs[lo]) * (pos - lo)
+
+
+def input_specs(node: Node | type[Node]) -> dict[str, Input]:
+    """A node's (or node type's) :attr:`Node.inputs` as :class:`Input` declarations; an instance
+    may narrow its class's (a bridge that serves some topics only)."""
+    return {name: Input(*spec) for name, spec in node.inputs.items()}
+
+
+def output_specs(node: Node | type[Node]) -> dict[str, Output]:
+    """A node's (or node type's) :attr:`Node.outputs` as :class:`Output` declarations (reliable
+    unless declared otherwise)."""
+    return {name: Output(*spec) for name, spec in node.outputs.items()}

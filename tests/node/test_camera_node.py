@@ -146,9 +146,10 @@ def test_a_mismatched_image_is_counted_and_the_node_keeps_going():
 
 def test_camera_frames_are_declared_best_effort_and_everything_else_reliable():
     from aes_planner.graph import NODE_TYPES, node_class
+    from aes_planner.graph.base import output_specs
 
     for word in sorted(set(NODE_TYPES)):
-        for topic, out in node_class(word).output_specs().items():
+        for topic, out in output_specs(node_class(word)).items():
             assert out.reliable == (topic != "camera/frame"), (word, topic)
     bus = InProcessBus()
     runner = NodeRunner(CameraNode(CameraNodeConfig(rig=RIG), camera=ToyCamera()), bus)
