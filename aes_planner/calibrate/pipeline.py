@@ -23,7 +23,7 @@ from aes_planner.calibrate.rig import (
     RigCalibrationError,
     fit_board_pose,
     rezero_tilt,
-    solve_pnp,
+    seen_joints,
     solve_rig,
 )
 from aes_planner.config import to_dict
@@ -138,8 +138,8 @@ def estimate_latency(
 
     ``stream(trajectory, duration_s)`` sweeps the pan along ``trajectory(t) -> (pan, tilt)`` and
     returns ``(frames, joint_states)``: ``[(stamp_s, gray)]`` as the camera stamps them and
-    ``[(stamp_s, pan, tilt)]`` as the gimbal reports them. Each frame's camera orientation (PnP,
-    through the calibrated rig and board pose) gives the pan it shows; the delay is the shift of
+    ``[(stamp_s, pan, tilt)]`` as the gimbal reports them. Each frame gives the pan it shows (the
+    joints at which the calibrated rig re-projects the board, at its calibrated pose, where it was seen); the delay is the shift of
     the joint-state curve that matches those best (a constant pan bias allowed), to a millisecond.
     """
     p0, t0 = centre
@@ -148,27 +148,18 @@ def estimate_latency(
         return p0 + amplitude_rad * math.sin(2 * math.pi * frequency_hz * t), t0
 
     frames, states = stream(trajectory, duration_s)
-    kin = PanTilt(config)
     seen_t, seen_pan = [], []
-    from aes_planner.calibrate.rig import RigObservations
-
     for stamp, gray in frames:
         found = detect(gray, board)
         if found is None:
             continue
-        obs = RigObservations(
-            np.zeros(1),
-            np.zeros(1),
-            np.zeros(len(found.object_points), np.int64),
-            found.object_points,
-            camera.undistort(found.image_points),
-            camera.K,
-        )
-        b2c = solve_pnp(obs)[0]
-        c2w = board2world @ np.linalg.inv(b2c)
-        sol = kin.inverse_direction(c2w[:3, 2], pan_hint_rad=p0)
+        uv = camera.undistort(found.image_points)
+        start = (seen_pan[-1], t0) if seen_pan else (p0, t0)
+        pan, _, rms = seen_joints(config, board2world, camera.K, found.object_points, uv, start)
+        if rms > 3.0:  # a view the rig cannot explain (a misdetection, motion blur): left out
+            continue
         seen_t.append(stamp)
-        seen_pan.append(sol.pan_rad)
+        seen_pan.append(pan)
     if len(seen_t) < 8:
         raise RigCalibrationError(
             f"the board was found in only {len(seen_t)} frames of the sweep; the latency needs 8 or more: slow the "
