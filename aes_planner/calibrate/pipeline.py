@@ -182,9 +182,9 @@ def estimate_latency(
         a, b, c = costs[i - 1 : i + 2]
         den = a - 2 * b + c
         if den > 0:
-            tau += 0.001 * 0.5 * (a - c) / den
+            tau += float(0.001 * 0.5 * (a - c) / den)
     return {
-        "camera_latency_s": tau,
+        "camera_latency_s": float(tau),
         "frames_used": len(ft),
         "frames": len(frames),
         "residual_rms_deg": math.degrees(math.sqrt(cost(tau))),

@@ -341,7 +341,7 @@ def run_rig(args) -> int:
             b2w = np.asarray(report["board2world"])
             centre, amplitude = latency_sweep_centre(session.source.camera, config, board, b2w)
             lat = estimate_latency(session.stream(), session.source.camera, config, board, b2w, centre, amplitude)
-            config = replace(config, camera_latency_s=round(lat["camera_latency_s"], 4))
+            config = replace(config, camera_latency_s=round(float(lat["camera_latency_s"]), 4))
             report["latency"] = {**lat, "runtime_s": time.monotonic() - t1}
     Path(args.out).write_text(
         rig_yaml(

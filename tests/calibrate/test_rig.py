@@ -156,3 +156,14 @@ def test_cli_rig_on_a_sim_scene(tmp_path):
     report = json.loads((tmp_path / "rig.json").read_text())
     assert set(report["parameters"]) >= {"lever_arm_m[0]", "camera_mount_rpy_deg[2]"}
     assert all("std" in p for p in report["parameters"].values())
+
+
+def test_verify_tells_a_calibrated_rig_from_its_drawing(tmp_path):
+    from aes_planner.calibrate.pipeline import verify_rig
+
+    truth = perturbed_rig(NOMINAL, np.random.default_rng(8))
+    scene = load_scene(_scene_file(tmp_path, truth))
+    source = SimViewSource(scene, supersample=1, min_width=320)
+    good = verify_rig(source, truth, BOARD, n_views=8)
+    bad = verify_rig(source, NOMINAL, BOARD, n_views=8)
+    assert good["held_out_rms_px"] < 0.5 < bad["held_out_rms_px"], (good["held_out_rms_px"], bad["held_out_rms_px"])
