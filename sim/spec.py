@@ -21,7 +21,7 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 
-from aes_planner.config import ConfigError, from_dict, require, require_finite, to_dict
+from aes_planner.config import from_dict, require, require_finite, tag_of, to_dict
 from aes_planner.geometry import Intrinsics, PanTilt, PanTiltConfig, rot_x, rot_y, rot_z
 from aes_planner.geometry.camera import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE
 from aes_planner.geometry.rig import rig_dict
@@ -404,11 +404,7 @@ def _parse_tagged(item: Any, key: str, table: Mapping[str, type]) -> Any:
     """A typed spec from a mapping with a ``type`` key (or a spec instance, kept as it is)."""
     if isinstance(item, tuple(table.values())):
         return item
-    if not isinstance(item, Mapping):
-        raise ConfigError(key, f"expected a mapping with a 'type' key (one of {list(table)}), got {item!r}")
-    kind = item.get("type")
-    if kind not in table:
-        raise ConfigError(f"{key}.type", f"must be one of {list(table)}, got {kind!r}")
+    kind = tag_of(item, key, table)
     return from_dict(table[kind], {k: v for k, v in item.items() if k != "type"}, key)
 
 

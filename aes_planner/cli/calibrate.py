@@ -269,8 +269,8 @@ class _Session:
 
         from aes_planner.calibrate.capture import CameraModel, HardwareViewSource
         from aes_planner.devices import make_device
+        from aes_planner.graph.launch_file import load_launch
         from aes_planner.node.camera import load_calibration
-        from aes_planner.node.launch_file import load_launch
 
         a = self.args
         spec = load_launch(a.launch, a.set)
