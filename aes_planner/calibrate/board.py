@@ -295,7 +295,9 @@ def _detect_charuco(gray: np.ndarray, spec: BoardSpec) -> Detection | None:
     if ids is None or len(ids) < 6:
         return None
     ids = ids.reshape(-1)
-    obj = np.asarray(board.getChessboardCorners(), dtype=np.float64)[ids]
+    # OpenCV's ChArUco frame starts at the board's outer corner: shift it to the first inner corner,
+    # the chessboard's origin here, so both kinds share one board frame
+    obj = np.asarray(board.getChessboardCorners(), dtype=np.float64)[ids] - [spec.square_m, spec.square_m, 0.0]
     img = corners.reshape(-1, 2).astype(np.float64)
     d = np.linalg.norm(img[:, None] - img[None], axis=-1)
     od = np.linalg.norm(obj[:, None] - obj[None], axis=-1)

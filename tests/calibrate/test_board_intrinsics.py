@@ -138,3 +138,20 @@ def test_cli_camera_on_images_writes_yaml_and_report(tmp_path):
         capture_output=True, text=True,
     )  # fmt: skip
     assert wrong.returncode == 2 and "board not found" in wrong.stderr and "--board matches" in wrong.stderr
+
+
+def test_charuco_board_detected_with_its_ids_and_calibrates():
+    spec = parse_board("charuco:7x5:0.04:0.03:DICT_5X5_100")
+    rng = np.random.default_rng(1)
+    views = []
+    for i in range(8):
+        rvec = rng.uniform(-0.4, 0.4, 3) * [1, 1, 0.3]
+        tvec = [rng.uniform(-0.16, -0.06), rng.uniform(-0.12, -0.04), rng.uniform(0.5, 0.65)]
+        img = board_image(spec, K, rvec, tvec, px=60)
+        d = detect(img, spec)
+        assert d is not None and len(d.object_points) >= 20
+        proj, _ = cv2.projectPoints(d.object_points, np.array(rvec), np.array(tvec, float), K, None)
+        assert np.abs(proj.reshape(-1, 2) - d.image_points).max() < 0.5  # each id where its corner is
+        views.append(View(f"c{i}", img, d))
+    result = calibrate_views(views, spec)
+    assert result.K[0, 0] == pytest.approx(600.0, rel=0.01) and result.rms_px < 0.3
