@@ -22,6 +22,7 @@ from aes_planner.calibrate.rig import (
     UNOBSERVABLE,
     RigCalibrationError,
     fit_board_pose,
+    reprojection_rms,
     rezero_tilt,
     seen_joints,
     solve_rig,
@@ -206,13 +207,7 @@ def verify_rig(source: ViewSource, config: PanTiltConfig, board: BoardSpec, n_vi
         raise RigCalibrationError(f"the board was found in only {obs.n_views} verification views; need 4 or more")
     fit_idx, test_idx = np.arange(0, obs.n_views, 2), np.arange(1, obs.n_views, 2)
     b2w, fit_rms, _ = fit_board_pose(obs.subset(fit_idx), config)
-    held = obs.subset(test_idx)
-    from aes_planner.calibrate.rig import _per_view_rms, _Problem, _rms
-
-    problem = _Problem(held, config, b2w[:3, :3])
-    x = problem.x_from(config, b2w)
-    held_rms = _rms(problem.residuals(x).detach())
-    held_views = _per_view_rms(problem, x, held.n_views)
+    held_rms, held_views = reprojection_rms(obs.subset(test_idx), config, b2w)
     _, all_rms, per_view = fit_board_pose(obs, config)
     return {
         "views": int(obs.n_views),

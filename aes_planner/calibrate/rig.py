@@ -50,6 +50,7 @@ __all__ = [
     "RigSolution",
     "UNOBSERVABLE",
     "fit_board_pose",
+    "reprojection_rms",
     "rezero_tilt",
     "solve_rig",
 ]
@@ -338,6 +339,14 @@ def fit_board_pose(obs: RigObservations, config: PanTiltConfig) -> tuple[np.ndar
     out = np.eye(4)
     out[:3, :3], out[:3, 3] = r_b.detach().numpy(), t_b.detach().numpy()
     return out, _rms(problem.residuals(x).detach()), _per_view_rms(problem, x, obs.n_views)
+
+
+def reprojection_rms(obs: RigObservations, config: PanTiltConfig, board2world: np.ndarray) -> tuple[float, np.ndarray]:
+    """RMS reprojection error (px) of ``obs`` with the rig and the board's pose both held fixed,
+    overall and per view ``[V]``."""
+    problem = _Problem(obs, config, board2world[:3, :3])
+    x = problem.x_from(config, board2world)
+    return _rms(problem.residuals(x).detach()), _per_view_rms(problem, x, obs.n_views)
 
 
 def solve_rig(obs: RigObservations, nominal: PanTiltConfig, outlier_factor: float = 5.0) -> RigSolution:
