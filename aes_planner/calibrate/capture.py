@@ -170,7 +170,7 @@ def plan_views(
     board: BoardSpec,
     board2world: np.ndarray,
     n_views: int,
-    margin: float = 0.08,
+    margin: float = 0.05,
     seed: int = 0,
 ) -> np.ndarray:
     """``[n, 2]`` joint poses where the nominal rig sees the whole board ``margin`` (fraction of the
@@ -179,14 +179,11 @@ def plan_views(
     kin = PanTilt(nominal)
     hfov, vfov = _fov_rad(camera)
     obj = board.object_points()
-    # the outline of the printed squares (one square beyond the inner corners), to keep in view
+    # the outline of the board with its white margin (the detector needs that quiet zone), to keep in view
     cx, cy = board.corners_grid
     s = board.square_m
-    outline = (
-        np.array([[-s, -s, 0], [cx * s, -s, 0], [-s, cy * s, 0], [cx * s, cy * s, 0]])
-        if board.kind == "chessboard"
-        else obj
-    )
+    lo, hi_x, hi_y = -2 * s, (cx + 1) * s, (cy + 1) * s
+    outline = np.array([[lo, lo, 0], [hi_x, lo, 0], [lo, hi_y, 0], [hi_x, hi_y, 0]])
     corners_w = outline @ board2world[:3, :3].T + board2world[:3, 3]
     centre_w = obj.mean(0) @ board2world[:3, :3].T + board2world[:3, 3]
     aim = kin.inverse_look_at(centre_w)

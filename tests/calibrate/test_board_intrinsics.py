@@ -155,3 +155,19 @@ def test_charuco_board_detected_with_its_ids_and_calibrates():
         views.append(View(f"c{i}", img, d))
     result = calibrate_views(views, spec)
     assert result.K[0, 0] == pytest.approx(600.0, rel=0.01) and result.rms_px < 0.3
+
+
+def test_cli_board_states_size_and_scale(tmp_path):
+    out = subprocess.run(
+        [sys.executable, "-m", "aes_planner", "calibrate", "board", "--board", "chessboard:9x6:0.06",
+         "--out", str(tmp_path / "b.png")],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert "720.0 x 540.0 mm" in out.stdout and "print at 100 %" in out.stdout and "dpi" in out.stdout
+    assert detect(cv2.imread(str(tmp_path / "b.png"), 0), parse_board("chessboard:9x6:0.06")) is not None
+    bad = subprocess.run(
+        [sys.executable, "-m", "aes_planner", "calibrate", "board", "--board", "chess:9x6", "--out", str(tmp_path / "c.png")],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert bad.returncode == 2 and "chessboard:COLSxROWS:SQUARE_M" in bad.stderr
