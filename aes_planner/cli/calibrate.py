@@ -117,6 +117,11 @@ def _source_args(p: argparse.ArgumentParser, board_help: str) -> None:
     p.add_argument("--pixel-noise", type=float, default=0.0, help="sim: image noise sigma, 8-bit levels")
     p.add_argument("--joint-noise-deg", type=float, default=0.0, help="sim: noise of the reported joint angles")
     p.add_argument("--sim-latency", type=float, default=0.0, metavar="S", help="sim: the camera's simulated latency")
+    p.add_argument(
+        "--allow-outside-paths",
+        action="store_true",
+        help="sim: let the scene file's image paths leave its folder (absolute, '..', symlinks); only for files you trust",
+    )
     p.add_argument("--settle-s", type=float, default=0.5, help="hardware: wait after arrival before a capture")
     p.add_argument("--seed", type=int, default=0, help="sim noise seed")
 
@@ -249,7 +254,7 @@ class _Session:
         if a.scene:
             from aes_planner.sim import load_scene
 
-            self.scene = load_scene(a.scene)
+            self.scene = load_scene(a.scene, allow_outside=a.allow_outside_paths)
             if self.scene.rig is None:
                 raise CalibrateUsageError(f"--scene {a.scene}: the scene has a drone; calibration needs a rig scene")
             w, h = sim_camera_size(self.scene)
