@@ -369,6 +369,11 @@ def solve_rig(obs: RigObservations, nominal: PanTiltConfig, outlier_factor: floa
         keep = keep[~bad]
         check_spread(obs.subset(keep))
     r = problem.residuals(x).detach()
+    if not (bool(torch.isfinite(x).all()) and bool(torch.isfinite(r).all())):
+        raise RigCalibrationError(
+            "the least squares diverged (non-finite parameters); check that --rig is the rig's drawing (lengths in "
+            "metres, angles in degrees) and that the board spec matches the board"
+        )
     dof = max(r.numel() - x.numel(), 1)
     sigma2 = float(r @ r) / dof
     try:
