@@ -79,3 +79,54 @@ def test_rig_calibrated_through_the_dynamixel_driver_on_the_emulator(tmp_path, f
     after = compare_kinematics(config, truth)
     assert after["position_rms_mm"] < 4.0 and after["angle_rms_deg"] < 0.2, after
     assert report["views_used"] >= 10
+
+
+def test_launch_file_wiring_opens_the_gimbal_and_the_camera(tmp_path, fast_switching):
+    """``--launch``: the gimbal node's device and the camera node's device and calibration, from a
+    launch file (emulated servos; a video file stands in for the USB camera)."""
+    import argparse
+
+    from aes_planner.calibrate.intrinsics import camera_info_yaml
+    from aes_planner.cli.calibrate import _Session
+
+    video = tmp_path / "cam.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (320, 240))
+    if not writer.isOpened():
+        pytest.skip("this OpenCV build writes no MJPG video (needed as the stand-in camera)")
+    for _ in range(12):
+        writer.write(np.full((240, 320, 3), 120, np.uint8))
+    writer.release()
+    K = np.array([[277.0, 0, 159.5], [0, 277.0, 119.5], [0, 0, 1]])
+    (tmp_path / "cam.yaml").write_text(camera_info_yaml(K, np.zeros(5), 320, 240))
+    launch = {
+        "nodes": [
+            {
+                "id": "gimbal",
+                "type": "gimbal",
+                "config": {
+                    "device": {
+                        "type": "emulated_pan_tilt",
+                        "profile_velocity_deg_s": 0.0,
+                        "profile_acceleration_deg_s2": 0.0,
+                        "latency_timer_ms": 100.0,
+                    }
+                },
+            },
+            {
+                "id": "camera",
+                "type": "camera",
+                "config": {"device": str(video), "calibration": str(tmp_path / "cam.yaml"), "rig": {}},
+            },
+        ]
+    }
+    (tmp_path / "rig_launch.yaml").write_text(yaml.safe_dump(launch))
+    args = argparse.Namespace(
+        scene=None, launch=str(tmp_path / "rig_launch.yaml"), set=[], camera_info=None, settle_s=0.0, seed=0
+    )
+    with _Session(args) as session:
+        session.source.flush_frames = 1
+        gray, pan, tilt = session.source.capture(0.1, -0.05)
+        assert gray.shape == (240, 320)
+        assert (pan, tilt) == pytest.approx((0.1, -0.05), abs=0.002)  # within a tick of the goal
+        assert np.allclose(session.source.camera.K, K)
+    assert not session.gimbal.connected
