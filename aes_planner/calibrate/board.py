@@ -249,7 +249,10 @@ def detect(gray: np.ndarray, spec: BoardSpec) -> Detection | None:
     cols, rows = spec.corners_grid
     found, corners = cv2.findChessboardCorners(gray, (cols, rows), flags=_CLASSIC_FLAGS)
     if not found:
-        found, corners = cv2.findChessboardCornersSB(gray, (cols, rows), flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
+        # default flags: with NORMALIZE_IMAGE it missed boards whose white margin is darker than the sky behind
+        found, corners = cv2.findChessboardCornersSB(gray, (cols, rows), flags=0)
+        if not found:
+            found, corners = cv2.findChessboardCornersSB(gray, (cols, rows), flags=cv2.CALIB_CB_EXHAUSTIVE)
         if not found:
             return None
     grid = corners.reshape(rows, cols, 2).astype(np.float64)
