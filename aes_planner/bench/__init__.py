@@ -40,6 +40,7 @@ GROUPS: dict[str, str] = {
     "search": "aes_planner.bench.search",
     "node": "aes_planner.bench.node",
     "field": "aes_planner.bench.field",
+    "ros2": "aes_planner.bench.ros2",
 }
 
 __all__ = ["GROUPS", "Recorder", "run_groups", "time_ms", "machine_info"]

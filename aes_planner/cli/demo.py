@@ -18,12 +18,10 @@ The last line printed is the path of ``summary.json``.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import datetime as dt
 import json
 import math
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -112,10 +110,11 @@ def run_demo(
 
     ``transport``: the ``--processes/--listen/--foxglove/--record`` flags (see
     :mod:`aes_planner.cli.processes`); every topic is recorded to ``out/recording.mcap``."""
-    from aes_planner.cli.processes import attach_viewers, close_viewers
+    from aes_planner.cli.processes import attach_viewers
     from aes_planner.config import ConfigError
-    from aes_planner.devices import stop_on_signals
-    from aes_planner.node import Launch, build_nodes, load_launch
+    from aes_planner.graph import Launch, build_nodes, load_launch
+    from aes_planner.graph.runner import run_graph
+    from aes_planner.graph.signals import SignalShutdown
     from aes_planner.sim import load_scene
 
     say = progress or (lambda *_: None)
@@ -139,7 +138,7 @@ def run_demo(
     nodes = build_nodes(spec)
     planner = next(n for n, _ in nodes if n.node_id == "planner")
     say(f"demo: {mode} mode on {scene}: {', '.join(f'{n.node_id} ({type(n).__name__})' for n, _ in nodes)}")
-    from aes_planner.gaussians.numba_backend import warm_kernels
+    from aes_planner.gaussians.warmup import warm_kernels
 
     warm_kernels()  # a fresh install compiles them here (and says so), not in the loop's first plan
     t0 = time.time()
@@ -164,7 +163,7 @@ def run_demo(
 
     transport = transport or argparse.Namespace(processes=False, foxglove=None, record=None)
     if transport.processes:  # the other nodes in their own processes over Zenoh, supervised
-        from aes_planner.transport.supervisor import Supervisor
+        from aes_planner.graph.supervisor import Supervisor
 
         local = [(n, r) for n, r in nodes if n.node_id == "planner"]
         launch = Supervisor(
@@ -181,18 +180,16 @@ def run_demo(
     out.mkdir(parents=True, exist_ok=True)
     recording = output_in(out, "recording.mcap")
     viewers = argparse.Namespace(foxglove=transport.foxglove, record=transport.record or str(recording))
-    stop = threading.Event()
-    guard = stop_on_signals(on_signal=lambda _s: stop.set()) if _main_thread() else contextlib.nullcontext()
-    with guard:  # SIGTERM / Ctrl-C: the nodes stop, the servos are left with torque off
-        sinks = []
-        try:
-            launch.start()
-            sinks = attach_viewers(launch.bus, viewers)
-            ended = (lambda: mavlink_demo.aborted(nodes)) if drone == "mavlink" else (lambda: False)
-            ok = launch.run(timeout_s=timeout_s, until=lambda: report_progress() or stop.is_set() or ended())
-        finally:
-            launch.stop()
-            close_viewers(sinks)
+    # SIGTERM / Ctrl-C: the nodes stop, the servos are left with torque off, then exit 128 + signal
+    ended = (lambda: mavlink_demo.aborted(nodes)) if drone == "mavlink" else (lambda: False)
+    ok, stop = run_graph(
+        launch,
+        timeout_s=timeout_s,
+        until=lambda: report_progress() or ended(),
+        open_sinks=lambda bus: attach_viewers(bus, viewers, spec),
+    )
+    if stop.signum is not None:
+        raise SignalShutdown(stop.signum)
     report_progress()
     loop_s = time.time() - t0
     if not ok and not planner.finished:
@@ -204,10 +201,6 @@ def run_demo(
         summary["drone"] = mavlink_demo.drone_summary(nodes)
     output_in(out, "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
-
-
-def _main_thread() -> bool:
-    return threading.current_thread() is threading.main_thread()
 
 
 def _view(c2w: np.ndarray) -> np.ndarray:
@@ -228,7 +221,7 @@ def evaluate_run(planner, scene: str, mode: str, out: Path, loop_s: float) -> di
     platform = type(platform)(platform.kind, source.platform.intrinsics, platform.rig, platform.drone)
     caps = [c for c in planner.captures if math.isfinite(c.score)]
     if not caps:
-        from aes_planner.node import NodeError
+        from aes_planner.graph import NodeError
 
         raise NodeError(
             f"the planner captured nothing (state {planner.state}) within the run; see the log above, or give it "

@@ -2,21 +2,19 @@
 over Zenoh, supervised), ``--listen``, ``--foxglove [PORT]`` (live view) and ``--record FILE``.
 
 Not a command of its own: :mod:`aes_planner.cli.launch` and :mod:`aes_planner.cli.demo` call
-:func:`add_transport_flags`, :func:`run_processes` and :func:`attach_viewers`.
+:func:`add_transport_flags`, :func:`run_processes` and :func:`attach_viewers` (closed by
+:func:`aes_planner.graph.runner.close_sinks`).
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import logging
-import signal
 import sys
-import threading
 
 from aes_planner.errors import AesPlannerError
 
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7390"  # aes_planner.transport.config.DEFAULT_ENDPOINT (why 7390: there)
 
 
 def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None = None) -> None:
@@ -53,9 +51,22 @@ def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None =
     g.add_argument("--record", default=None, metavar="FILE.mcap", help="record every topic to an MCAP file")
 
 
-def attach_viewers(bus, args: argparse.Namespace) -> list:
+def declared_outputs(spec) -> list[tuple[str, type, bool]]:
+    """``(topic, message type, latched)`` of every output a launch's nodes declare, remapped."""
+    from aes_planner.graph.base import node_class
+
+    out = []
+    for e in spec.nodes:
+        if e.type != "external":
+            for name, o in node_class(e.type).output_specs().items():
+                out.append((e.remap.get(name, name), o.msg_type, o.latched))
+    return out
+
+
+def attach_viewers(bus, args: argparse.Namespace, spec=None) -> list:
     """The Foxglove server and/or recorder that ``--foxglove`` / ``--record`` ask for, attached to
-    ``bus``; close them (in reverse) when the run ends."""
+    ``bus``; close them (in reverse) when the run ends. The server advertises the outputs of
+    ``spec``'s nodes (a launch spec) from the start."""
     from aes_planner.transport.record import FoxgloveLive, Recorder
 
     sinks = []
@@ -66,45 +77,23 @@ def attach_viewers(bus, args: argparse.Namespace) -> list:
         if port is not None:
             if not 0 <= port <= 65535:
                 raise AesPlannerError(f"--foxglove port must be in 0..65535, got {port}")
-            live = FoxgloveLive(port=port).attach(bus)
+            declared = declared_outputs(spec) if spec is not None else ()
+            live = FoxgloveLive(port=port, declared=declared).attach(bus)
             print(f"Foxglove: open ws://127.0.0.1:{live.port} in the Foxglove app", file=sys.stderr, flush=True)
             sinks.append(live)
     except BaseException:
-        close_viewers(sinks)
+        from aes_planner.graph.runner import close_sinks
+
+        close_sinks(sinks)
         raise
     return sinks
 
 
-def close_viewers(sinks: list) -> None:
-    for s in reversed(sinks):
-        try:
-            s.close()
-        except Exception:
-            logging.getLogger(__name__).exception("closing %s failed", type(s).__name__)
-
-
-@contextlib.contextmanager
-def stop_on_signals():
-    """An event set on SIGINT/SIGTERM (restored afterwards)."""
-    stop = threading.Event()
-    if threading.current_thread() is not threading.main_thread():
-        yield stop
-        return
-    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    for s in old:
-        signal.signal(s, lambda signum, frame: stop.set())
-    try:
-        yield stop
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
-
-
 def supervisor_from_args(args: argparse.Namespace, in_process=(), out=None):
-    """A :class:`~aes_planner.transport.supervisor.Supervisor` for ``args.file`` / ``args.set``."""
+    """A :class:`~aes_planner.graph.supervisor.Supervisor` for ``args.file`` / ``args.set``."""
     from aes_planner.config import ConfigError
+    from aes_planner.graph.supervisor import Supervisor
     from aes_planner.transport.config import ZenohConfig
-    from aes_planner.transport.supervisor import Supervisor
 
     try:
         ZenohConfig(
@@ -126,30 +115,27 @@ def supervisor_from_args(args: argparse.Namespace, in_process=(), out=None):
 
 
 def run_processes(args: argparse.Namespace) -> int:
-    """``aes-planner launch FILE --processes``: supervise until the planner finishes, Ctrl-C or
-    ``--timeout``; 0 when a node finished, 1 otherwise."""
+    """``aes-planner launch FILE --processes``: supervise until the planner finishes (0), a node
+    is lost or ``--timeout`` (1), or SIGINT / SIGTERM (128 + the first signal, after every child
+    stopped)."""
+    from aes_planner.graph.runner import run_graph
+
     sup = supervisor_from_args(args)
-    timeout = getattr(args, "timeout", None)
     print(
         f"launch {sup.spec.path} (one process per node, hub {sup.endpoint}): "
         + ", ".join(c.node_id for c in sup.children),
         flush=True,
     )
-    with stop_on_signals() as stop:
-        sup.start()
-        sinks = []
-        try:
-            sinks = attach_viewers(sup.bus, args)
-            finished = sup.run(timeout_s=timeout, until=stop.is_set)
-            if stop.is_set():
-                print("[launch] interrupted: stopping the nodes", flush=True)
-                finished = False
-        finally:
-            close_viewers(sinks)
-            sup.shutdown()
+    finished, stop = run_graph(
+        sup, timeout_s=getattr(args, "timeout", None), open_sinks=lambda bus: attach_viewers(bus, args, sup.spec)
+    )
+    if stop.exit_code is not None:
+        print(f"[launch] stopped by {stop.name}: every node stopped", flush=True)
     died = [c.node_id for c in sup.children if any(code not in (0, 143, -15) for code in c.exit_codes)]
     if died:
         print(f"[launch] nodes that died during the run: {', '.join(died)}", flush=True)
+    if stop.exit_code is not None:
+        return stop.exit_code
     return 0 if finished else 1
 
 

@@ -10,8 +10,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from aes_planner.config import require_numbers
+from aes_planner.graph.base import LaunchContext, Outputs
 from aes_planner.messages import DroneState, PosedFrame
-from aes_planner.node.base import LaunchContext, Outputs
 from aes_planner.node.sim_camera import SimCameraNode, SimCameraNodeConfig
 
 __all__ = ["DroneSimCameraNode", "DroneSimCameraNodeConfig"]

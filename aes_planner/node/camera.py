@@ -4,9 +4,10 @@ Each frame is undistorted with the calibration (an OpenCV ``FileStorage`` YAML w
 ``camera_matrix`` / ``distortion_coefficients`` / ``image_width`` / ``image_height``, or a ROS
 ``camera_info`` YAML with ``camera_matrix: {rows, cols, data}`` and ``distortion_coefficients``),
 stamped with the host clock when it is read, and posed by the rig's kinematics at the gimbal's
-joint angles **at that stamp**: ``gimbal/state`` messages are kept for ``state_history_s`` and
-interpolated linearly between the two around the stamp (held at the ends). A frame older than the
-history, or taken before any gimbal state, is not published (counted).
+joint angles **at that stamp** less the rig's ``camera_latency_s`` (when it was exposed):
+``gimbal/state`` messages are kept for ``state_history_s`` and interpolated linearly between the
+two around the stamp (held at the ends). A frame older than the history, or taken before any
+gimbal state, is not published (counted).
 """
 
 from __future__ import annotations
@@ -25,8 +26,8 @@ import numpy as np
 from aes_planner.config import ConfigError, require, require_numbers, short_repr
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.pantilt import PanTilt, PanTiltConfig
+from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs
 from aes_planner.messages import GimbalState, PosedFrame
-from aes_planner.node.base import LaunchContext, Node, NodeError, Outputs
 
 log = logging.getLogger(__name__)
 
@@ -35,8 +36,13 @@ __all__ = ["CameraNode", "CameraNodeConfig", "Calibration", "load_calibration"]
 
 @dataclass(frozen=True)
 class Calibration:
-    intrinsics: Intrinsics
+    intrinsics: Intrinsics  # the package's convention: pixel centres at +0.5 (the file's cx, cy + 0.5)
     distortion: np.ndarray  # [k] OpenCV coefficients (k1, k2, p1, p2[, k3...])
+
+    @property
+    def K_opencv(self) -> np.ndarray:
+        """The camera matrix as the file and OpenCV have it (pixel centres at integers)."""
+        return self.intrinsics.K - np.array([[0, 0, 0.5], [0, 0, 0.5], [0, 0, 0]])
 
 
 def _matrix(node: Any, key: str, rows: int | None = None, cols: int | None = None) -> np.ndarray:
@@ -77,10 +83,38 @@ def load_calibration(path: str | Path) -> Calibration:
     dist = _matrix(dist_node, "calibration.distortion_coefficients").reshape(-1) if dist_node else np.zeros(0)
     if not np.all(np.isfinite(dist)):
         raise ConfigError("calibration.distortion_coefficients", f"{path}: must be finite")
-    k = Intrinsics(
-        float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), data["image_width"], data["image_height"]
-    )
+    if dist.size and dist.size not in (4, 5, 8, 12, 14):  # what cv2.undistort takes
+        raise ConfigError(
+            "calibration.distortion_coefficients",
+            f"{path}: OpenCV takes 4, 5, 8, 12 or 14 coefficients (k1 k2 p1 p2 [k3 ...]), got {dist.size}",
+        )
+    # OpenCV and ROS put pixel centres at integers, the package at +0.5 (aes_planner.geometry)
+    cx, cy = float(K[0, 2]) + 0.5, float(K[1, 2]) + 0.5
+    k = Intrinsics(float(K[0, 0]), float(K[1, 1]), cx, cy, data["image_width"], data["image_height"])
     return Calibration(k, dist)
+
+
+#: Largest camera index accepted (``/dev/video0`` ... ``/dev/video1023``).
+MAX_CAMERA_INDEX = 1023
+
+
+def _check_capture_source(device: Any) -> None:
+    """Refuse a capture source before OpenCV sees it: ``cv2.VideoCapture(-1)`` dies of a segmentation
+    fault (the process, not an exception), and an index past 2**31 is a ``TypeError``."""
+    if isinstance(device, bool) or not isinstance(device, (int, str)):
+        raise ConfigError("device", f"expected a camera index or a path/URL, got {short_repr(device)}")
+    if isinstance(device, int):
+        require(
+            0 <= device <= MAX_CAMERA_INDEX,
+            "device",
+            f"a camera index is 0-{MAX_CAMERA_INDEX} (/dev/videoN), got {device}",
+        )
+    else:
+        require(
+            1 <= len(device) <= 4096 and device.isprintable(),
+            "device",
+            f"a camera path or URL is 1-4096 printable characters, got {short_repr(device)}",
+        )
 
 
 @dataclass
@@ -100,6 +134,7 @@ class CameraNodeConfig:
     frame_id: str = "camera"
 
     def __post_init__(self):
+        _check_capture_source(self.device)
         require(
             isinstance(self.frame_id, str) and self.frame_id.isprintable() and 1 <= len(self.frame_id) <= 200,
             "frame_id",
@@ -208,12 +243,12 @@ class CameraNode(Node):
             self.counters["size_mismatch"] += 1
             log.warning("%s: frame %s does not match the calibration %dx%d", self.node_id, bgr.shape, k.width, k.height)
             return None
-        joints = self.joints_at(stamp)
+        joints = self.joints_at(stamp - self.kinematics.config.camera_latency_s)  # when the frame was exposed
         if joints is None:
             self.counters["unposed"] += 1
             return None
         if self.calibration.distortion.size and np.any(self.calibration.distortion):
-            bgr = cv2.undistort(bgr, k.K, self.calibration.distortion)
+            bgr = cv2.undistort(bgr, self.calibration.K_opencv, self.calibration.distortion)
         rgb = np.ascontiguousarray(bgr[..., ::-1])
         pan, tilt = joints
         frame = PosedFrame(

@@ -45,6 +45,7 @@ import torch
 from aes_planner.config import require, require_numbers
 from aes_planner.geometry.pantilt import PanTilt, PanTiltConfig
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
+from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs, percentile
 from aes_planner.messages import (
     Candidate,
     Diagnostics,
@@ -55,7 +56,6 @@ from aes_planner.messages import (
     PosedFrame,
     ViewSuggestion,
 )
-from aes_planner.node.base import LaunchContext, Node, NodeError, Outputs, percentile
 from aes_planner.node.proposer import FieldProposer, Proposer
 from aes_planner.runtime import MAX_THREADS, ThreadGovernor, set_threads
 from aes_planner.sources import DroneBox, Platform
@@ -350,7 +350,7 @@ class PlannerNode(Node):
             self.proposer = FieldProposer(c.scorer, c.preset, self.teacher, c.max_frames, c.seed)
         _ = self.teacher
         if isinstance(self.proposer, FieldProposer) and not self._kernels_warm:  # now, not in the first plan
-            from aes_planner.gaussians.numba_backend import warm_kernels
+            from aes_planner.gaussians.warmup import warm_kernels
 
             warm_kernels()
             self._kernels_warm = True
@@ -722,7 +722,7 @@ class PlannerNode(Node):
         else:
             cand = Candidate(target.cam2world, target.predicted if target.predicted is not None else 0.0)
             out["planner/suggestion"].append(
-                self._suggestion([cand], self.proposer.version if self.proposer else 0, now)
+                self._suggestion([cand], self.proposer.version if self.proposer else 0, now, "waypoint")
             )
 
     def _check_arrival(self, now: float, out: Outputs) -> None:
@@ -841,8 +841,8 @@ class PlannerNode(Node):
         return proposal
 
     # ---------------------------------------------------------------------------- messages
-    def _suggestion(self, candidates: list[Candidate], version: int, now: float) -> ViewSuggestion:
-        msg = ViewSuggestion(now, list(candidates), int(version), self._next("sugg"), "world", self.mode)
+    def _suggestion(self, candidates: list[Candidate], version: int, now: float, kind="search") -> ViewSuggestion:
+        msg = ViewSuggestion(now, list(candidates), int(version), self._next("sugg"), "world", self.mode, kind)
         self.suggestions.append(msg)
         del self.suggestions[:-64]
         self.counters["suggestions"] += 1

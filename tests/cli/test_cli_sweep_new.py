@@ -1,4 +1,4 @@
-"""Bad-input sweep of the new boundaries (issue 13): launch files and ``--set``, ``suggest``,
+"""Bad-input sweep of the new boundaries: launch files and ``--set``, ``suggest``,
 ``eval search|field``, ``train`` (configs, caches, checkpoints), ``demo``, ``replay``, and the field
 checkpoint loader. Every bad input ends in one ``error:`` line with exit 2 (or an
 ``AesPlannerError`` from the API), fast, before any long work, and writes nothing outside its
@@ -74,7 +74,7 @@ def test_launch_and_demo_timeout_must_be_finite_and_positive(work, cli_error, va
 
 @given(st.text(max_size=40))
 def test_set_values_never_crash_the_launch_parser(text):
-    from aes_planner.node.launch_file import apply_overrides, parse_launch
+    from aes_planner.graph.launch_file import apply_overrides, parse_launch
 
     data = {"nodes": [{"id": "planner", "type": "planner"}]}
     try:
@@ -185,11 +185,12 @@ def corrupt(ckpt, how):
 
 
 def write(path, ckpt, how=None):
-    """Write a checkpoint as the trainer does; ``how="objects"``: then swap a weight for a pickled
-    object array (``np.savez`` pickles those on write), which the loader must refuse unread."""
-    from aes_planner.field.model import write_checkpoint
+    """Write a checkpoint in the trainer's format (``tensorfile.save``: the trainer's own writer
+    refuses NaN, a damaged file may still hold them); ``how="objects"``: then swap a weight for a
+    pickled object array (``np.savez`` pickles those on write), which the loader must refuse unread."""
+    from aes_planner import tensorfile
 
-    write_checkpoint(path, ckpt)
+    tensorfile.save(path, ckpt)
     if how == "objects":
         with np.load(path) as npz:
             arrays = {k: npz[k] for k in npz.files}
@@ -544,9 +545,9 @@ def test_replay_topics_are_checked(recording, cli_error):
 
 # ------------------------------------------------------------------------------ node runner
 def test_a_node_with_a_very_long_period_still_stops_promptly():
+    from aes_planner.graph.base import Node
+    from aes_planner.graph.runner import NodeRunner
     from aes_planner.messages import Diagnostics
-    from aes_planner.node.base import Node
-    from aes_planner.node.runner import NodeRunner
     from aes_planner.transport import InProcessBus
 
     class Slow(Node):

@@ -1,4 +1,4 @@
-"""Bad-input sweep of the node topics (issue 13): every input topic of the gimbal, sim camera and
+"""Bad-input sweep of the node topics: every input topic of the gimbal, sim camera and
 sim drone nodes gets noise, a truncated message, a message of another type, an oversized one and
 extreme-but-valid values. The node keeps stepping, counts each rejection, never fails a step, and
 publishes only finite values. (The planner's topics are soaked in test_soak.py.)"""
@@ -8,10 +8,10 @@ import time
 import numpy as np
 import pytest
 
+from aes_planner.graph import LaunchContext, make_node
+from aes_planner.graph.runner import Launch
 from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState, PosedFrame, ViewSuggestion
 from aes_planner.messages.samples import sample_messages
-from aes_planner.node import LaunchContext, make_node
-from aes_planner.node.runner import Launch
 from tests.helpers import wait_for
 
 SMALL_CAMERA = {"width": 16, "height": 12, "supersample": 1}
@@ -75,7 +75,7 @@ def test_node_topics_survive_malformed_oversized_and_extreme_messages(node_type,
     runner = launch.runners[0]
     bus = launch.bus
     seen = []
-    for topic, (msg_type, _latched) in node.outputs.items():
+    for topic, (msg_type, *_qos) in node.output_specs().items():
         bus.subscribe(topic, msg_type, depth=64, callback=seen.append)
     samples = sample_messages()
     with deadline(60):
@@ -84,7 +84,7 @@ def test_node_topics_survive_malformed_oversized_and_extreme_messages(node_type,
             time.sleep(0.3)
             steps_before = runner.steps
             sent = {}
-            for topic, (msg_type, _depth) in node.inputs.items():
+            for topic, (msg_type, _depth) in node.input_specs().items():
                 good = samples[msg_type.__name__].encode()
                 other = (samples["Diagnostics"] if msg_type is not Diagnostics else samples["GimbalState"]).encode()
                 raw = bus.publisher(topic, msg_type)

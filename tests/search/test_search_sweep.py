@@ -1,4 +1,4 @@
-"""Bad-input sweep of the search API (issue 13): inputs and platforms that are not what the
+"""Bad-input sweep of the search API: inputs and platforms that are not what the
 search needs are a SearchError naming them, never an AttributeError or a silent result."""
 
 import numpy as np
@@ -92,7 +92,9 @@ def test_reversed_and_strided_pose_views_are_poses_like_any_other():
     want = search_views(scorer, np.ascontiguousarray(inputs[::-1]), platform, cfg).best
     np.testing.assert_allclose(got.cam2world, want.cam2world)
     np.testing.assert_allclose(cam2world_to_view(inputs[::-1]), cam2world_to_view(inputs.copy()[::-1].copy()))
-    np.testing.assert_allclose(world2cam(inputs[::-1])[0], world2cam(inputs[-1]))
+    np.testing.assert_allclose(
+        world2cam(inputs[::-1])[0], world2cam(inputs[-1]), atol=1e-12
+    )  # a batch may round differently
 
 
 @pytest.mark.parametrize(

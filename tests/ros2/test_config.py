@@ -1,0 +1,94 @@
+"""Bridge and DDS configuration: ROS 2's environment variables, the localhost default, clear errors."""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("cyclonedds", reason="the ros2 extra (cyclonedds) is not installed")
+
+from aes_planner.cli import main
+from aes_planner.config import ConfigError, from_dict
+from aes_planner.ros2 import idl
+from aes_planner.ros2.bridge import Ros2BridgeConfig
+from aes_planner.ros2.dds import DdsConfig, DdsError, cyclone_config, resolve_domain_id, resolve_range
+
+
+def test_domain_id_comes_from_the_config_else_ros_domain_id_else_zero():
+    assert resolve_domain_id(DdsConfig(domain_id=7), {"ROS_DOMAIN_ID": "3"}) == 7
+    assert resolve_domain_id(DdsConfig(), {"ROS_DOMAIN_ID": "3"}) == 3
+    assert resolve_domain_id(DdsConfig(), {}) == 0
+    for bad in ("233", "x", "-1"):
+        with pytest.raises(DdsError, match="ROS_DOMAIN_ID"):
+            resolve_domain_id(DdsConfig(), {"ROS_DOMAIN_ID": bad})
+
+
+def test_discovery_defaults_to_localhost_and_honours_the_ros_variables():
+    assert resolve_range(DdsConfig(), {}) == ("localhost", ())
+    assert resolve_range(DdsConfig(), {"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET", "ROS_STATIC_PEERS": "a;b"}) == (
+        "subnet",
+        ("a", "b"),
+    )
+    assert resolve_range(DdsConfig(discovery_range="off"), {"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET"})[0] == "off"
+    with pytest.raises(DdsError, match="ROS_AUTOMATIC_DISCOVERY_RANGE"):
+        resolve_range(DdsConfig(), {"ROS_AUTOMATIC_DISCOVERY_RANGE": "everywhere"})
+
+
+def test_localhost_config_is_rmw_cyclonedds_fragment_on_loopback_then_the_users_uri():
+    xml = cyclone_config("localhost", (), False, None)
+    for part in (
+        '<NetworkInterface address="127.0.0.1"/>',
+        "<AllowMulticast>false</AllowMulticast>",
+        "<ParticipantIndex>auto</ParticipantIndex>",
+        "<MaxAutoParticipantIndex>32</MaxAutoParticipantIndex>",
+        '<Peer address="127.0.0.1"/>',
+    ):
+        assert part in xml
+    with_uri = cyclone_config("localhost", (), False, "file:///etc/cyclone.xml")
+    assert with_uri.endswith(",file:///etc/cyclone.xml") and "NetworkInterface" not in with_uri
+    assert cyclone_config("system_default", (), True, None) == ""
+
+
+def test_reaching_beyond_the_machine_needs_the_explicit_option():
+    for rng, peers in (("subnet", ()), ("system_default", ()), ("localhost", ("10.0.0.5",))):
+        with pytest.raises(DdsError, match="allow-remote"):
+            cyclone_config(rng, peers, False, None)
+    assert '<Peer address="10.0.0.5"/>' in cyclone_config("subnet", ("10.0.0.5",), True, None)
+
+
+def test_bad_bridge_config_names_the_key():
+    for data, key in (
+        ({"outbound": ["suggestion", "everything"]}, "outbound[1]"),
+        ({"qos": {"image": "fast"}}, "qos.image"),
+        ({"topics": {"suggestion": "/bad topic"}}, "topics.suggestion"),
+        ({"topics": {"nope": "/x"}}, "topics.nope"),
+        ({"joint_names": ["pan", "pan"]}, "joint_names"),
+        ({"world_frame": ""}, "world_frame"),
+        ({"dds": {"domain_id": 300}}, "dds.domain_id"),
+        ({"inbound_typo": True}, "inbound_typo"),
+    ):
+        with pytest.raises(ConfigError) as exc:
+            from_dict(Ros2BridgeConfig, data)
+        assert exc.value.key == key, (data, exc.value)
+
+
+def test_cli_errors_are_one_line(tmp_path, capsys):
+    bad = tmp_path / "bridge.yaml"
+    bad.write_text("qos: {image: fast}\n")
+    assert main(["ros2", "bridge", "--config", str(bad), "--duration", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "qos.image" in err[0]
+    assert main(["ros2", "bridge", "--scene", "nowhere:1", "--duration", "1"]) == 2
+    assert "nowhere" in capsys.readouterr().err
+
+
+def test_the_shipped_msg_files_match_the_wire_structs():
+    """aes_planner_msgs: field names and order of the .msg files are the IDL structs' (the DDS test
+    peers parse the .msg files, so a difference would also fail the round trips)."""
+    from tests.ros2.stock import typestore
+
+    for name, cls in (
+        ("aes_planner_msgs/msg/ViewSuggestion", idl.ViewSuggestion),
+        ("aes_planner_msgs/msg/ViewCandidate", idl.ViewCandidate),
+    ):
+        fields = [f for f, _ in typestore().fielddefs[name][1]]
+        assert fields == list(cls.__dataclass_fields__), name
