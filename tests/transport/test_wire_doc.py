@@ -215,7 +215,15 @@ def test_every_message_of_a_recording_decodes_from_its_description_alone(recordi
             if s.encoding == "aes-planner"
         }
     types = {d["type"] for _t, d in decoded}
-    assert types == {"PosedFrame", "ViewSuggestion", "GimbalCommand", "GimbalState", "Diagnostics", "PlannerRequest"}
+    assert types == {
+        "PosedFrame",
+        "ViewSuggestion",
+        "GimbalCommand",
+        "GimbalState",
+        "Diagnostics",
+        "PlannerRequest",
+        "DroneState",
+    }
     for (topic, d), (_t, msg, version) in zip(decoded, sent):
         assert d["version"] == version, topic
         assert_matches(d, msg, schemas[f"aes_planner.{d['type']}"]["fields"])
