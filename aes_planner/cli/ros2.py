@@ -14,7 +14,7 @@ import contextlib
 import sys
 
 from aes_planner.cli.bus import _bus_flags, _check_seconds, open_cli_bus
-from aes_planner.cli.processes import stop_on_signals
+from aes_planner.graph.signals import stop_on_signals
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -7,12 +7,10 @@ from typing import ClassVar
 
 import numpy as np
 
-from aes_planner.messages.codec import Array, Enum, Message, MessageError, Scalar, Str, register_message
+from aes_planner.messages.codec import Array, Message, MessageError, Scalar, Str, register_message
 from aes_planner.messages.fields import check_finite, check_pose, check_sequence, check_text
 
-__all__ = ["DroneState", "LINK_STATES"]
-
-LINK_STATES = ("ok", "lost")
+__all__ = ["DroneState"]
 
 
 def _vector(value, name: str, n: int) -> np.ndarray:
@@ -49,11 +47,11 @@ class DroneState(Message):
         Array("attitude_wxyz", "f8", (4,)),
         Scalar("gimbal_pitch_rad", "f64"),
         Scalar("gimbal_yaw_rad", "f64"),
-        Str("mode", 64),
+        Str("mode", 256),
         Scalar("armed", "bool"),
-        Scalar("system_id", "u8"),
-        Enum("link", LINK_STATES),
-        Str("status", 256),
+        Scalar("system_id", "u32"),
+        Str("link", 16),
+        Str("status", 1024),
     )
 
     stamp_s: float
@@ -84,7 +82,7 @@ class DroneState(Message):
         self.system_id = check_sequence(self.system_id, "DroneState.system_id")
         if self.system_id > 255:
             raise MessageError(f"DroneState.system_id must be 0-255, got {self.system_id}")
-        if self.link not in LINK_STATES:
+        if self.link not in ("ok", "lost"):
             raise MessageError(f"DroneState.link must be 'ok' or 'lost', got {self.link!r}")
         self.mode = check_text(self.mode, "DroneState.mode", 64)
         self.status = check_text(self.status, "DroneState.status", 256)
