@@ -34,9 +34,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--domain-id", type=int, default=None, help="DDS domain (default: ROS_DOMAIN_ID, else 0)")
     b.add_argument(
         "--discovery-range",
-        choices=("localhost", "subnet", "off", "system_default"),
+        choices=("loopback", "localhost", "subnet", "off", "system_default"),
         default=None,
-        help="as ROS_AUTOMATIC_DISCOVERY_RANGE (default: that variable, else localhost)",
+        help="as ROS_AUTOMATIC_DISCOVERY_RANGE (default: that variable, else loopback: this machine over the "
+        "loopback interface only; localhost: as rmw_cyclonedds does, to meet ROS 2 nodes run with LOCALHOST)",
     )
     b.add_argument("--allow-remote-dds", action="store_true", help="allow a discovery range beyond this machine")
     b.add_argument("--scene", default=None, metavar="SPEC", help="take the rig's kinematics (tf) from a sim scene")

@@ -22,8 +22,10 @@ def test_domain_id_comes_from_the_config_else_ros_domain_id_else_zero():
             resolve_domain_id(DdsConfig(), {"ROS_DOMAIN_ID": bad})
 
 
-def test_discovery_defaults_to_localhost_and_honours_the_ros_variables():
-    assert resolve_range(DdsConfig(), {}) == ("localhost", ())
+def test_discovery_defaults_to_loopback_and_honours_the_ros_variables():
+    assert resolve_range(DdsConfig(), {}) == ("loopback", ())
+    assert resolve_range(DdsConfig(), {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})[0] == "localhost"
+    assert resolve_range(DdsConfig(), {"ROS_LOCALHOST_ONLY": "1"})[0] == "localhost"
     assert resolve_range(DdsConfig(), {"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET", "ROS_STATIC_PEERS": "a;b"}) == (
         "subnet",
         ("a", "b"),
@@ -33,8 +35,8 @@ def test_discovery_defaults_to_localhost_and_honours_the_ros_variables():
         resolve_range(DdsConfig(), {"ROS_AUTOMATIC_DISCOVERY_RANGE": "everywhere"})
 
 
-def test_localhost_config_is_rmw_cyclonedds_fragment_on_loopback_then_the_users_uri():
-    xml = cyclone_config("localhost", (), False, None)
+def test_loopback_config_is_rmw_cyclonedds_fragment_on_the_loopback_interface_then_the_users_uri():
+    xml = cyclone_config("loopback", (), False, None)
     for part in (
         '<NetworkInterface address="127.0.0.1"/>',
         "<AllowMulticast>false</AllowMulticast>",
@@ -43,8 +45,14 @@ def test_localhost_config_is_rmw_cyclonedds_fragment_on_loopback_then_the_users_
         '<Peer address="127.0.0.1"/>',
     ):
         assert part in xml
-    with_uri = cyclone_config("localhost", (), False, "file:///etc/cyclone.xml")
+    with_uri = cyclone_config("loopback", (), False, "file:///etc/cyclone.xml")
     assert with_uri.endswith(",file:///etc/cyclone.xml") and "NetworkInterface" not in with_uri
+    # localhost: exactly what rmw_cyclonedds_cpp generates for ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+    assert cyclone_config("localhost", (), False, None) == (
+        "<CycloneDDS><Domain><General><AllowMulticast>false</AllowMulticast></General><Discovery>"
+        "<ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>32</MaxAutoParticipantIndex>"
+        '<Peers><Peer address="localhost"/></Peers></Discovery></Domain></CycloneDDS>'
+    )
     assert cyclone_config("system_default", (), True, None) == ""
 
 

@@ -241,3 +241,30 @@ def test_a_subscriber_process_on_a_loopback_unicast_config_gets_the_latched_sugg
     assert fields[0] == "map" and int(fields[1]) + int(fields[2]) * 1e-9 == pytest.approx(msg.stamp_s)
     q = np.array([float(v) for v in fields[3:7]])
     assert np.linalg.norm(q) == pytest.approx(1.0)
+
+
+def test_localhost_range_meets_a_ros2_node_run_with_localhost_discovery(tmp_path):
+    """discovery_range localhost is rmw_cyclonedds's own LOCALHOST configuration: a subscriber
+    process configured as a ROS 2 node with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (default
+    interface, unicast to localhost) receives from it."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from aes_planner.ros2.dds import cyclone_config
+
+    domain = domain_for_tests() + 1  # a domain this process has not configured yet
+    node = Ros2BridgeNode(Ros2BridgeConfig(dds=DdsConfig(domain_id=domain, discovery_range="localhost")))
+    node.start()
+    try:
+        msg = sample_messages()["ViewSuggestion"]
+        node.step({"planner/suggestion": [msg]}, now=1.0)
+        env = {**os.environ, "CYCLONEDDS_URI": cyclone_config("localhost", (), False, None)}
+        root = str(Path(__file__).resolve().parents[2])
+        out = subprocess.run(
+            [sys.executable, "-c", _LISTENER, str(domain), root], capture_output=True, text=True, timeout=60, env=env
+        )
+    finally:
+        node.stop()
+    assert out.stdout.split()[:1] == ["map"], out.stderr[-2000:]
