@@ -50,10 +50,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def build_bridge(args: argparse.Namespace):
     """The bridge node from the flags (and ``--config``)."""
-    from aes_planner.config import from_dict, load_yaml
+    from aes_planner.config import ConfigError, from_dict, load_yaml
     from aes_planner.graph.base import LaunchContext
     from aes_planner.ros2.bridge import Ros2BridgeConfig, Ros2BridgeNode
+    from aes_planner.ros2.dds import MAX_DOMAIN_ID
 
+    if args.domain_id is not None and not 0 <= args.domain_id <= MAX_DOMAIN_ID:
+        raise ConfigError("--domain-id", f"must be in 0..{MAX_DOMAIN_ID} (as ROS_DOMAIN_ID), got {args.domain_id}")
     data = dict(load_yaml(args.config) or {}) if args.config else {}
     dds = dict(data.get("dds") or {})
     if args.domain_id is not None:

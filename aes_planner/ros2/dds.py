@@ -138,7 +138,7 @@ def cyclone_config(rng: str, peers: tuple[str, ...], allow_remote: bool, uri: st
     if (rng in ("subnet", "system_default") or remote) and not allow_remote:
         raise DdsError(
             f"discovery range {rng!r}{' with peers ' + ', '.join(remote) if remote else ''} reaches beyond this "
-            "machine; pass --allow-remote (or allow_remote: true) if you mean it"
+            "machine; pass --allow-remote-dds (or dds.allow_remote: true in the bridge's config) if you mean it"
         )
     if rng == "system_default":
         frag = ""

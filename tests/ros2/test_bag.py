@@ -117,3 +117,10 @@ def test_a_demo_run_folder_gives_the_rig_for_tf_static(recording, tmp_path, caps
         ("gimbal_tilt", "camera_link"),
         ("camera_link", "camera_optical"),
     ]
+
+
+def test_a_file_that_is_not_a_recording_leaves_no_folder(tmp_path, capsys):
+    bad = tmp_path / "notes.mcap"
+    bad.write_text("not an mcap file")
+    assert main(["export", "rosbag2", str(bad), str(tmp_path / "bag")]) == 2
+    assert "MCAP" in capsys.readouterr().err and not (tmp_path / "bag").exists()

@@ -58,7 +58,7 @@ def test_loopback_config_is_rmw_cyclonedds_fragment_on_the_loopback_interface_th
 
 def test_reaching_beyond_the_machine_needs_the_explicit_option():
     for rng, peers in (("subnet", ()), ("system_default", ()), ("localhost", ("10.0.0.5",))):
-        with pytest.raises(DdsError, match="allow-remote"):
+        with pytest.raises(DdsError, match="allow-remote-dds"):
             cyclone_config(rng, peers, False, None)
     assert '<Peer address="10.0.0.5"/>' in cyclone_config("subnet", ("10.0.0.5",), True, None)
 
