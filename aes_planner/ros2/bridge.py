@@ -29,7 +29,9 @@ the rig's kinematics at the joint angles interpolated to the image's stamp from
 ``/joint_states``; joint states become ``gimbal/state``; ``gimbal/command`` goes out as a
 ``trajectory_msgs/JointTrajectory`` (joint_trajectory_controller) or a
 ``std_msgs/Float64MultiArray`` (forward_position_controller), clamped to the rig's limits.
-Anything unusable is counted in ``ros2/diagnostics`` (``rejected.<key>``) and dropped.
+Anything unusable is counted in ``ros2/diagnostics`` (``rejected.<key>``) and dropped. The
+diagnostics also count what was sent (``sent.<key>``) and, as values, the DDS subscribers matched
+on each outbound topic (``subscribers.<key>``).
 """
 
 from __future__ import annotations
@@ -318,4 +320,10 @@ class Ros2BridgeNode(Node):
         counters = dict(sorted(self.counters.items())[:120])
         rejected = sum(v for k, v in self.counters.items() if k.startswith("rejected."))
         state = "rejecting input" if rejected and self._inbound and self._inbound.recent_rejections() else "bridging"
-        return Diagnostics(now, self.node_id, state, counters, {"search_latency_s": self.mapper.search_latency_s})
+        values = {"search_latency_s": self.mapper.search_latency_s}
+        for key, w in self._writers.items():  # who listens: the first question when a topic seems silent
+            try:
+                values[f"subscribers.{key}"] = float(len(w.get_matched_subscriptions()))
+            except Exception:  # a writer deleted under us (stopping): no figure
+                continue
+        return Diagnostics(now, self.node_id, state, counters, values)

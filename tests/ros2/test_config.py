@@ -100,3 +100,16 @@ def test_the_shipped_msg_files_match_the_wire_structs():
     ):
         fields = [f for f, _ in typestore().fielddefs[name][1]]
         assert fields == list(cls.__dataclass_fields__), name
+
+
+def test_humble_jazzy_and_kilted_define_every_bridged_type_alike():
+    """The round trips run against Jazzy's definitions; Humble's and Kilted's are the same for every
+    type the bridge speaks, so the same bytes serve all three."""
+    from rosbags.typesys import Stores, get_typestore
+
+    stores = {s: get_typestore(s) for s in (Stores.ROS2_HUMBLE, Stores.ROS2_JAZZY, Stores.ROS2_KILTED)}
+    for name in idl.ROS_TYPES:
+        if name.startswith("aes_planner_msgs/"):
+            continue
+        defs = {s: ts.fielddefs[name][1] for s, ts in stores.items()}
+        assert len({repr(d) for d in defs.values()}) == 1, name

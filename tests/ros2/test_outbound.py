@@ -191,6 +191,8 @@ def test_joint_states_and_diagnostics(bridge, peer):
     planner = [s for a in arrays for s in a.status if s.name == "aes_planner: planner"]
     assert planner and planner[0].message == "exploring" and planner[0].level == 0
     assert {kv.key: kv.value for kv in planner[0].values}["frames_in"] == "10"
+    diag_values = bridge.diagnostics(60.0).values
+    assert diag_values["subscribers.joint_states"] == 1.0 and diag_values["subscribers.image"] == 0.0
 
 
 _LISTENER = r"""
