@@ -30,6 +30,7 @@ COMMANDS = [
     "aes_planner.cli.score",
     "aes_planner.cli.teachers",
     "aes_planner.cli.gimbal",
+    "aes_planner.cli.calibrate",
     "aes_planner.cli.bus",
     "aes_planner.cli.ros2",
     "aes_planner.cli.export",
@@ -63,8 +64,8 @@ def main(argv: list[str] | None = None) -> int:
     except AesPlannerError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        return 130
+    except KeyboardInterrupt as exc:  # Ctrl-C, or a signal stop that ended a command (SignalShutdown)
+        return getattr(exc, "exit_code", 130)
     except BrokenPipeError:  # the reader went away (`... | head`): stop quietly, as a shell tool does
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit's flush
         return 141

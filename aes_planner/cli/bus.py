@@ -20,8 +20,9 @@ import math
 import sys
 import time
 
-from aes_planner.cli.processes import DEFAULT_ENDPOINT, stop_on_signals
+from aes_planner.cli.processes import DEFAULT_ENDPOINT
 from aes_planner.errors import AesPlannerError
+from aes_planner.graph.signals import stop_on_signals
 
 
 def _bus_flags(p: argparse.ArgumentParser) -> None:

@@ -18,12 +18,10 @@ The last line printed is the path of ``summary.json``.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import datetime as dt
 import json
 import math
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -49,6 +47,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=("rig", "free"),
         default=None,
         help="pan-tilt rig or a free-flying drone (default: what the scene has, a rig or a drone box)",
+    )
+    p.add_argument(
+        "--drone",
+        choices=("sim", "mavlink"),
+        default="sim",
+        help="free mode: a simulated drone, or a MAVLink vehicle (launch/drone_mavlink.yaml; the package's emulator "
+        "unless --set drone.emulate=false --set drone.connection=...)",
     )
     p.add_argument("--out", default=None, metavar="DIR", help="run folder (default runs/demo-<time>)")
     p.add_argument("--moves", type=int, default=6, help="suggestion-driven moves at most (default 6)")
@@ -79,7 +84,9 @@ def run(args: argparse.Namespace) -> int:
         for name in RUN_FILES:
             output_in(output_folder(args.out, "--out"), name)
     out = Path(args.out) if args.out else Path("runs") / f"demo-{dt.datetime.now().strftime('%Y%m%d-%H%M%S')}"
-    result = run_demo(args.scene, args.mode, out, args.moves, args.set, args.timeout, progress=print, transport=args)
+    result = run_demo(
+        args.scene, args.mode, out, args.moves, args.set, args.timeout, progress=print, transport=args, drone=args.drone
+    )
     print_summary(result)
     print(out.resolve() / "summary.json")
     return 0 if result["state"] == "done" else 1
@@ -95,6 +102,7 @@ def run_demo(
     progress=None,
     planner_overrides: dict | None = None,
     transport: argparse.Namespace | None = None,
+    drone: str = "sim",
 ) -> dict:
     """Run the closed loop and write the run folder; returns the summary dict (plus ``state``).
 
@@ -102,10 +110,11 @@ def run_demo(
 
     ``transport``: the ``--processes/--listen/--foxglove/--record`` flags (see
     :mod:`aes_planner.cli.processes`); every topic is recorded to ``out/recording.mcap``."""
-    from aes_planner.cli.processes import attach_viewers, close_viewers
+    from aes_planner.cli.processes import attach_viewers
     from aes_planner.config import ConfigError
-    from aes_planner.devices import stop_on_signals
     from aes_planner.graph import Launch, build_nodes, load_launch
+    from aes_planner.graph.runner import run_graph
+    from aes_planner.graph.signals import SignalShutdown
     from aes_planner.sim import load_scene
 
     say = progress or (lambda *_: None)
@@ -114,7 +123,12 @@ def run_demo(
     if mode == "rig" and not has_rig:
         raise ConfigError("--mode", f"scene {scene!r} has a drone box, not a pan-tilt rig: use --mode free")
     sets = [f"scene={scene}", f"planner.max_moves={moves}"]
-    if mode == "rig":
+    if drone == "mavlink":  # a MAVLink vehicle (aes_planner.drone.demo)
+        from aes_planner.drone import demo as mavlink_demo
+
+        mode, launch_file = "free", mavlink_demo.LAUNCH_FILE
+        sets += ["planner.mode=free"]
+    elif mode == "rig":
         launch_file = "sim_closed_loop.yaml"
     else:
         launch_file = "drone.yaml"
@@ -166,17 +180,16 @@ def run_demo(
     out.mkdir(parents=True, exist_ok=True)
     recording = output_in(out, "recording.mcap")
     viewers = argparse.Namespace(foxglove=transport.foxglove, record=transport.record or str(recording))
-    stop = threading.Event()
-    guard = stop_on_signals(on_signal=lambda _s: stop.set()) if _main_thread() else contextlib.nullcontext()
-    with guard:  # SIGTERM / Ctrl-C: the nodes stop, the servos are left with torque off
-        sinks = []
-        try:
-            launch.start()
-            sinks = attach_viewers(launch.bus, viewers)
-            ok = launch.run(timeout_s=timeout_s, until=lambda: report_progress() or stop.is_set())
-        finally:
-            launch.stop()
-            close_viewers(sinks)
+    # SIGTERM / Ctrl-C: the nodes stop, the servos are left with torque off, then exit 128 + signal
+    ended = (lambda: mavlink_demo.aborted(nodes)) if drone == "mavlink" else (lambda: False)
+    ok, stop = run_graph(
+        launch,
+        timeout_s=timeout_s,
+        until=lambda: report_progress() or ended(),
+        open_sinks=lambda bus: attach_viewers(bus, viewers, spec),
+    )
+    if stop.signum is not None:
+        raise SignalShutdown(stop.signum)
     report_progress()
     loop_s = time.time() - t0
     if not ok and not planner.finished:
@@ -184,12 +197,10 @@ def run_demo(
     say(f"demo: loop {planner.state} after {loop_s:.1f} s; scoring against the oracle ...")
     summary = evaluate_run(planner, scene, mode, out, loop_s)
     summary["time_s"] = round(time.time() - t0, 2)
+    if drone == "mavlink":
+        summary["drone"] = mavlink_demo.drone_summary(nodes)
     output_in(out, "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
-
-
-def _main_thread() -> bool:
-    return threading.current_thread() is threading.main_thread()
 
 
 def _view(c2w: np.ndarray) -> np.ndarray:

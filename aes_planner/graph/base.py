@@ -1,8 +1,10 @@
 """The node contract: a pure ``step(inputs, now) -> outputs`` core, and a registry of node types.
 
-A node declares the topics it reads (:attr:`Node.inputs`: default topic -> message type and
-keep-last depth) and writes (:attr:`Node.outputs`: default topic -> message type and whether the
-topic is latched). Its :meth:`Node.step` takes the messages that arrived since the last step, per
+A node declares the topics it reads (:attr:`Node.inputs`: default topic -> :class:`Input`, the
+message type and keep-last depth) and writes (:attr:`Node.outputs`: default topic ->
+:class:`Output`, the message type, whether the topic is latched, and whether it is reliable or
+best-effort: a camera's frames may drop to the latest rather than block the camera). The QoS is
+declared here, beside the topic, and the runner applies it as declared. Its :meth:`Node.step` takes the messages that arrived since the last step, per
 input topic (oldest first), and the present time, and returns the messages to publish, per
 output topic. It never touches a bus: tests call ``step`` directly, and
 :class:`aes_planner.graph.runner.NodeRunner` (the thin loop) moves messages between a bus and
@@ -24,16 +26,18 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 from aes_planner.config import ConfigError, from_dict
 from aes_planner.errors import AesPlannerError
 
 __all__ = [
     "NODE_TYPES",
+    "Input",
     "LaunchContext",
     "Node",
     "NodeError",
+    "Output",
     "Outputs",
     "make_node",
     "node_class",
@@ -41,6 +45,23 @@ __all__ = [
 ]
 
 Outputs = dict[str, list]
+
+
+class Input(NamedTuple):
+    """An input topic's declaration: its message type and the keep-last depth of its queue."""
+
+    msg_type: type
+    depth: int = 1
+
+
+class Output(NamedTuple):
+    """An output topic's declaration (its QoS): ``latched``: a late subscriber still gets the last
+    message; ``reliable``: block rather than drop under load (False: best-effort, may drop to the
+    latest, for a stream like camera frames)."""
+
+    msg_type: type
+    latched: bool = False
+    reliable: bool = True
 
 
 class NodeError(AesPlannerError):
@@ -77,10 +98,10 @@ class Node(ABC):
 
     #: The dataclass a launch entry's ``config`` loads into.
     config_class: ClassVar[type]
-    #: default input topic -> (message type, keep-last depth)
-    inputs: ClassVar[dict[str, tuple[type, int]]] = {}
-    #: default output topic -> (message type, latched)
-    outputs: ClassVar[dict[str, tuple[type, bool]]] = {}
+    #: default input topic -> Input(message type, keep-last depth) (a plain 2-tuple works too)
+    inputs: ClassVar[dict[str, tuple]] = {}
+    #: default output topic -> Output(message type, latched, reliable) (a plain 2-tuple: reliable)
+    outputs: ClassVar[dict[str, tuple]] = {}
 
     def __init__(self, config: Any, node_id: str = "", context: LaunchContext | None = None):
         self.config = config
@@ -96,6 +117,22 @@ class Node(ABC):
     def finished(self) -> bool:
         """True once the node has done its job (the planner settled); the launch may end."""
         return False
+
+    @classmethod
+    def can_finish(cls) -> bool:
+        """Whether this node type can ever be :attr:`finished` (it overrides the property): a
+        launch ends when every node that can finish has."""
+        return cls.finished is not Node.finished
+
+    @classmethod
+    def input_specs(cls) -> dict[str, Input]:
+        """:attr:`inputs` as :class:`Input` declarations."""
+        return {name: Input(*spec) for name, spec in cls.inputs.items()}
+
+    @classmethod
+    def output_specs(cls) -> dict[str, Output]:
+        """:attr:`outputs` as :class:`Output` declarations (reliable unless declared otherwise)."""
+        return {name: Output(*spec) for name, spec in cls.outputs.items()}
 
     def start(self) -> None:
         """Open devices and resources (called once, in the process that runs the node)."""
@@ -119,6 +156,8 @@ NODE_TYPES: dict[str, str] = {
     "sim": "aes_planner.node.sim_drone:SimDroneNode",  # drone.yaml: --set drone.type=sim
     "camera": "aes_planner.node.camera:CameraNode",
     "ros2_bridge": "aes_planner.ros2.bridge:Ros2BridgeNode",
+    "mavlink_drone": "aes_planner.drone.node:MavlinkDroneNode",
+    "sim_drone_camera": "aes_planner.drone.camera:DroneSimCameraNode",
 }
 
 

@@ -4,9 +4,10 @@ Each frame is undistorted with the calibration (an OpenCV ``FileStorage`` YAML w
 ``camera_matrix`` / ``distortion_coefficients`` / ``image_width`` / ``image_height``, or a ROS
 ``camera_info`` YAML with ``camera_matrix: {rows, cols, data}`` and ``distortion_coefficients``),
 stamped with the host clock when it is read, and posed by the rig's kinematics at the gimbal's
-joint angles **at that stamp**: ``gimbal/state`` messages are kept for ``state_history_s`` and
-interpolated linearly between the two around the stamp (held at the ends). A frame older than the
-history, or taken before any gimbal state, is not published (counted).
+joint angles **at that stamp** less the rig's ``camera_latency_s`` (when it was exposed):
+``gimbal/state`` messages are kept for ``state_history_s`` and interpolated linearly between the
+two around the stamp (held at the ends). A frame older than the history, or taken before any
+gimbal state, is not published (counted).
 """
 
 from __future__ import annotations
@@ -35,8 +36,13 @@ __all__ = ["CameraNode", "CameraNodeConfig", "Calibration", "load_calibration"]
 
 @dataclass(frozen=True)
 class Calibration:
-    intrinsics: Intrinsics
+    intrinsics: Intrinsics  # the package's convention: pixel centres at +0.5 (the file's cx, cy + 0.5)
     distortion: np.ndarray  # [k] OpenCV coefficients (k1, k2, p1, p2[, k3...])
+
+    @property
+    def K_opencv(self) -> np.ndarray:
+        """The camera matrix as the file and OpenCV have it (pixel centres at integers)."""
+        return self.intrinsics.K - np.array([[0, 0, 0.5], [0, 0, 0.5], [0, 0, 0]])
 
 
 def _matrix(node: Any, key: str, rows: int | None = None, cols: int | None = None) -> np.ndarray:
@@ -82,9 +88,9 @@ def load_calibration(path: str | Path) -> Calibration:
             "calibration.distortion_coefficients",
             f"{path}: OpenCV takes 4, 5, 8, 12 or 14 coefficients (k1 k2 p1 p2 [k3 ...]), got {dist.size}",
         )
-    k = Intrinsics(
-        float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), data["image_width"], data["image_height"]
-    )
+    # OpenCV and ROS put pixel centres at integers, the package at +0.5 (aes_planner.geometry)
+    cx, cy = float(K[0, 2]) + 0.5, float(K[1, 2]) + 0.5
+    k = Intrinsics(float(K[0, 0]), float(K[1, 1]), cx, cy, data["image_width"], data["image_height"])
     return Calibration(k, dist)
 
 
@@ -237,12 +243,12 @@ class CameraNode(Node):
             self.counters["size_mismatch"] += 1
             log.warning("%s: frame %s does not match the calibration %dx%d", self.node_id, bgr.shape, k.width, k.height)
             return None
-        joints = self.joints_at(stamp)
+        joints = self.joints_at(stamp - self.kinematics.config.camera_latency_s)  # when the frame was exposed
         if joints is None:
             self.counters["unposed"] += 1
             return None
         if self.calibration.distortion.size and np.any(self.calibration.distortion):
-            bgr = cv2.undistort(bgr, k.K, self.calibration.distortion)
+            bgr = cv2.undistort(bgr, self.calibration.K_opencv, self.calibration.distortion)
         rgb = np.ascontiguousarray(bgr[..., ::-1])
         pan, tilt = joints
         frame = PosedFrame(

@@ -722,7 +722,7 @@ class PlannerNode(Node):
         else:
             cand = Candidate(target.cam2world, target.predicted if target.predicted is not None else 0.0)
             out["planner/suggestion"].append(
-                self._suggestion([cand], self.proposer.version if self.proposer else 0, now)
+                self._suggestion([cand], self.proposer.version if self.proposer else 0, now, "waypoint")
             )
 
     def _check_arrival(self, now: float, out: Outputs) -> None:
@@ -841,8 +841,8 @@ class PlannerNode(Node):
         return proposal
 
     # ---------------------------------------------------------------------------- messages
-    def _suggestion(self, candidates: list[Candidate], version: int, now: float) -> ViewSuggestion:
-        msg = ViewSuggestion(now, list(candidates), int(version), self._next("sugg"), "world", self.mode)
+    def _suggestion(self, candidates: list[Candidate], version: int, now: float, kind="search") -> ViewSuggestion:
+        msg = ViewSuggestion(now, list(candidates), int(version), self._next("sugg"), "world", self.mode, kind)
         self.suggestions.append(msg)
         del self.suggestions[:-64]
         self.counters["suggestions"] += 1

@@ -5,7 +5,8 @@ pose comes from ``gimbal/state`` through the rig's kinematics (the present joint
 from each state's stamp on); :class:`~aes_planner.node.sim_drone.SimDroneNode` is the same camera
 on a simulated drone. Frames carry the joint angles they were taken at, a sequence number, and
 the sim camera's pixel noise, pose noise and latency (:class:`~aes_planner.sim.SimCameraConfig`).
-Frames are stamped with the node's clock (``now``).
+Frames are stamped with the node's clock (``now``) and posed at ``now`` less the rig's
+``camera_latency_s`` (its calibrated delay; the sim camera's ``latency_s`` is the simulated one).
 """
 
 from __future__ import annotations
@@ -119,10 +120,11 @@ class SimCameraNode(Node):
             return []
         self._last_frame_s = now
         frame = self.camera.capture(now)
+        latency_s = self.scene.rig.pan_tilt.camera_latency_s  # the rig's calibrated delay: pose at the exposure
         msg = PosedFrame(
             image=frame.image,
             intrinsics=frame.intrinsics,
-            cam2world=frame.cam2world,
+            cam2world=self.camera.pose_at(now - latency_s) if latency_s else frame.cam2world,
             stamp_s=now,
             depth_m=frame.depth_m if self.config.depth else None,
             frame_id=f"{self.config.frame_id}/{self.frames_published:06d}",

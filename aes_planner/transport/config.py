@@ -1,4 +1,6 @@
-"""``BusConfig`` / ``ZenohConfig``: the ``bus:`` block of a launch file and the CLI's bus flags."""
+"""``BusConfig`` / ``ZenohConfig``: the ``bus:`` block of a launch file and the CLI's bus flags.
+
+Settings only: :func:`aes_planner.transport.open_bus` builds a bus from them."""
 
 from __future__ import annotations
 
@@ -9,7 +11,7 @@ from typing import Literal
 
 from aes_planner.config import ConfigError, require
 
-__all__ = ["BusConfig", "ZenohConfig", "open_bus", "DEFAULT_ENDPOINT", "DEFAULT_PORT", "EPHEMERAL_ENDPOINT"]
+__all__ = ["BusConfig", "ZenohConfig", "DEFAULT_ENDPOINT", "DEFAULT_PORT", "EPHEMERAL_ENDPOINT"]
 
 # The graph's hub port. Not Zenoh's 7447: zenohd, ROS 2's rmw_zenohd router and the zenoh-bridge-*
 # tools all listen there by default, so a ROS 2 rmw_zenoh system and a launch on the same machine
@@ -98,15 +100,3 @@ class BusConfig:
     def __post_init__(self):
         if self.backend not in ("inprocess", "zenoh"):
             raise ConfigError("backend", f"must be 'inprocess' or 'zenoh', got {self.backend!r}")
-
-
-def open_bus(config: BusConfig | None = None):
-    """A new bus for ``config`` (default: in-process)."""
-    config = config or BusConfig()
-    if config.backend == "zenoh":
-        from aes_planner.transport.zenoh_bus import ZenohBus
-
-        return ZenohBus(config.zenoh)
-    from aes_planner.transport.inprocess import InProcessBus
-
-    return InProcessBus()

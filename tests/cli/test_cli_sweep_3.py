@@ -43,3 +43,94 @@ def test_calibration_distortion_count_is_what_opencv_takes(tmp_path, clean_error
         f"distortion_coefficients: {coefficients}\n",
     )
     clean_error(load_calibration, cal, match="distortion_coefficients")
+
+
+# ------------------------------------- 8. one validation path for every YAML file: wrong shapes named
+SHAPES = {
+    "type_list": ("nodes: [{id: p, type: [planner]}]\n", "nodes[0].type"),
+    "type_mapping": ("nodes: [{id: p, type: {a: 1}}]\n", "nodes[0].type"),
+    "type_missing": ("nodes: [{id: p}]\n", "nodes[0].type"),
+    "id_list": ("nodes: [{id: [p], type: planner}]\n", "nodes[0].id"),
+    "config_list": ("nodes: [{id: p, type: planner, config: [1]}]\n", "nodes[0].config"),
+    "config_int_key": ("nodes: [{id: p, type: planner, config: {1: 2}}]\n", "nodes[0].config"),
+    "remap_int": ("nodes: [{id: p, type: planner, remap: {a/b: 3}}]\n", "nodes[0].remap"),
+    "respawn_str": ("nodes: [{id: p, type: planner, respawn: yes please}]\n", "nodes[0].respawn"),
+    "nodes_mapping": ("nodes: {p: 1}\n", "nodes"),
+    "nodes_ints": ("nodes: [1, 2]\n", "nodes[0]"),
+    "nodes_string": ("nodes: abc\n", "nodes"),
+    "only_external": ("nodes: [{id: fc, type: external}]\n", "external"),
+    "huge_int": ("nodes: [{id: p, type: planner, config: {max_moves: 100000000000000000000000}}]\n", "64 bits"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SHAPES))
+@pytest.mark.parametrize("with_set", [False, True], ids=["plain", "set"])
+def test_launch_file_of_the_wrong_shape_names_the_key(tmp_path, cli_error, name, with_set):
+    text, key = SHAPES[name]
+    launch = write(tmp_path, "l.yaml", text)
+    extra = ["--set", "p.settle_s=0.5"] if with_set and name != "only_external" else []
+    line = cli_error(["launch", launch, *extra, "--timeout", "3"], key, seconds=30)
+    assert "unhashable" not in line and "has no attribute" not in line
+
+
+def test_only_external_nodes_refused_by_a_multi_process_launch_too(tmp_path, cli_error):
+    launch = write(tmp_path, "l.yaml", "nodes: [{id: fc, type: external}, {id: fc2, type: external}]\n")
+    cli_error(["launch", launch, "--processes", "--timeout", "3"], "would start nothing", seconds=30)
+
+
+@pytest.mark.parametrize(
+    "args, match",
+    [
+        ('["--help"]', "emulator_args[0]"),
+        ('["--models", "xl430-w250"]', "emulator_args[0]"),
+        ('["--seed"]', "emulator_args[0]"),
+        ('["--seed", "1e3"]', "invalid int value"),
+        ('["--drop-rate", "2"]', "drop_rate"),
+        ('["--link", "/nonexistent/folder/pty"]', "does not exist"),
+    ],
+)
+def test_emulator_arguments_end_in_the_emulators_own_error(tmp_path, cli_error, args, match):
+    launch = write(
+        tmp_path,
+        "g.yaml",
+        "nodes:\n  - id: gimbal\n    type: gimbal\n"
+        f"    config: {{emulate: true, emulator_args: {args}, device: {{type: dynamixel_pan_tilt, port: x}}}}\n",
+    )
+    cli_error(["launch", launch, "--timeout", "3"], match, seconds=20)  # not a 30 s wait
+
+
+SCENE_EDITS = {
+    "type_list": ("- type: box", "- type: [box]", "objects[1].type"),
+    "type_mapping": ("- type: box", "- type: {box: 1}", "objects[1].type"),
+    "light_type_list": ("- type: ambient", "- type: [ambient]", "lights[0].type"),
+    "seed_huge_int": ("seed: 7}", "seed: 100000000000000000000000}", "64 bits"),
+    "seed_float": ("seed: 7}", "seed: 1e23}", "seed"),
+    "octaves_huge": ("octaves: 3,", "octaves: 100000000000000000000000,", "64 bits"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SCENE_EDITS))
+def test_scene_file_of_the_wrong_shape_names_the_key(tmp_path, cli_error, name):
+    old, new, key = SCENE_EDITS[name]
+    showcase = (Path(__file__).parents[2] / "sim" / "scenes" / "showcase.yaml").read_text()
+    assert old in showcase
+    scene = write(tmp_path, "s.yaml", showcase.replace(old, new, 1))
+    argv = ["sim", "render", "--scene", scene, "--views", "1", "--out", tmp_path / "out", "--allow-outside-paths"]
+    cli_error([*argv, "--width", "32", "--height", "24"], key, seconds=60)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_post_init_that_breaks_on_a_value_is_a_config_error(clean_error):
+    # The shared mechanism: whatever a dataclass's own check trips over is named, not a traceback.
+    from dataclasses import dataclass
+
+    from aes_planner.config import from_dict
+
+    @dataclass
+    class Odd:
+        n: int = 1
+
+        def __post_init__(self):
+            float(2**self.n)  # OverflowError for a big n
+
+    clean_error(from_dict, Odd, {"n": 5000}, "block", match="block: invalid value (OverflowError")

@@ -185,11 +185,12 @@ def corrupt(ckpt, how):
 
 
 def write(path, ckpt, how=None):
-    """Write a checkpoint as the trainer does; ``how="objects"``: then swap a weight for a pickled
-    object array (``np.savez`` pickles those on write), which the loader must refuse unread."""
-    from aes_planner.field.model import write_checkpoint
+    """Write a checkpoint in the trainer's format (``tensorfile.save``: the trainer's own writer
+    refuses NaN, a damaged file may still hold them); ``how="objects"``: then swap a weight for a
+    pickled object array (``np.savez`` pickles those on write), which the loader must refuse unread."""
+    from aes_planner import tensorfile
 
-    write_checkpoint(path, ckpt)
+    tensorfile.save(path, ckpt)
     if how == "objects":
         with np.load(path) as npz:
             arrays = {k: npz[k] for k in npz.files}

@@ -51,7 +51,8 @@ def test_calibration_formats(tmp_path, text):
     p = tmp_path / "cam.yaml"
     p.write_text(text)
     cal = load_calibration(p)
-    assert (cal.intrinsics.width, cal.intrinsics.height, cal.intrinsics.fx, cal.intrinsics.cx) == (32, 24, 30.0, 16.0)
+    # the file's cx = 16 (OpenCV: pixel centres at integers) is 16.5 in the package's convention (+0.5)
+    assert (cal.intrinsics.width, cal.intrinsics.height, cal.intrinsics.fx, cal.intrinsics.cx) == (32, 24, 30.0, 16.5)
 
 
 def test_bad_calibration_names_the_key(tmp_path):

@@ -75,7 +75,7 @@ def test_node_topics_survive_malformed_oversized_and_extreme_messages(node_type,
     runner = launch.runners[0]
     bus = launch.bus
     seen = []
-    for topic, (msg_type, _latched) in node.outputs.items():
+    for topic, (msg_type, *_qos) in node.output_specs().items():
         bus.subscribe(topic, msg_type, depth=64, callback=seen.append)
     samples = sample_messages()
     with deadline(60):
@@ -84,7 +84,7 @@ def test_node_topics_survive_malformed_oversized_and_extreme_messages(node_type,
             time.sleep(0.3)
             steps_before = runner.steps
             sent = {}
-            for topic, (msg_type, _depth) in node.inputs.items():
+            for topic, (msg_type, _depth) in node.input_specs().items():
                 good = samples[msg_type.__name__].encode()
                 other = (samples["Diagnostics"] if msg_type is not Diagnostics else samples["GimbalState"]).encode()
                 raw = bus.publisher(topic, msg_type)

@@ -42,6 +42,7 @@ def test_echo_topics_record_replay(hub, capsys, tmp_path):
     body = json.loads(capsys.readouterr().out.splitlines()[0])
     assert body["type"] == "ViewSuggestion" and body["topic"] == "planner/suggestion"
     assert body["candidates"][0]["score"] == 0.8
+    assert body["kind"] == "search" and len(body["candidates"][0]["view"]) == 5  # what the suggestion is
 
     assert main(["echo", "camera/frame", "--once", "--connect", ep, "--timeout", "10"]) == 0
     out = capsys.readouterr().out
