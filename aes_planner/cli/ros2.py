@@ -14,7 +14,7 @@ import contextlib
 import sys
 
 from aes_planner.cli.bus import _bus_flags, _check_seconds, open_cli_bus
-from aes_planner.cli.processes import stop_on_signals
+from aes_planner.graph.signals import stop_on_signals
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -104,4 +104,4 @@ def run_bridge(args: argparse.Namespace) -> int:
             runner.close()
     sent = {k[5:]: v for k, v in node.counters.items() if k.startswith("sent.")}
     print("sent: " + (", ".join(f"{k} {v}" for k, v in sorted(sent.items())) or "nothing"))
-    return 0
+    return stop.exit_code or 0  # 128 + signal after Ctrl-C or SIGTERM, as launch returns

@@ -270,3 +270,23 @@ def test_localhost_range_meets_a_ros2_node_run_with_localhost_discovery(tmp_path
     finally:
         node.stop()
     assert out.stdout.split()[:1] == ["map"], out.stderr[-2000:]
+
+
+def test_a_drones_waypoint_is_told_apart_and_kept_off_the_suggestion_topics(bridge, peer):
+    msgs = sample_messages()
+    search = msgs["ViewSuggestion"]
+    waypoint = type(search)(9.0, search.candidates[:1], 4, 3, "world", "free", kind="waypoint")
+    bridge.step({"planner/suggestion": [search]}, now=1.0)
+    bridge.step({"planner/suggestion": [waypoint]}, now=2.0)
+    ps = _collect(
+        peer,
+        peer.reader("/planner/suggestion", "geometry_msgs/msg/PoseStamped", "latched"),
+        "geometry_msgs/msg/PoseStamped",
+    )
+    assert _stamp(ps[-1].header.stamp) == pytest.approx(search.stamp_s)  # still the search result
+    vs = _collect(
+        peer,
+        peer.reader("/planner/view_suggestion", "aes_planner_msgs/msg/ViewSuggestion", "latched"),
+        "aes_planner_msgs/msg/ViewSuggestion",
+    )
+    assert (vs[-1].kind, vs[-1].mode, vs[-1].sequence) == (1, 1, 3)
