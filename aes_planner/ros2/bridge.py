@@ -102,7 +102,7 @@ class Ros2BridgeConfig:
     * ``command_interface``: ``joint_trajectory`` or ``forward_position``; ``move_speed_rad_s``
       sets a trajectory point's ``time_from_start``; ``goal_tolerance_rad``: when a move is done.
     * ``rig``: the pan-tilt kinematics (else the launch's scene's); ``state_history_s``: joint
-      states kept to pose images; ``poll_hz``: how often DDS readers are polled.
+      states kept to pose images; ``poll_hz``: how often DDS readers are polled (inbound).
     """
 
     dds: DdsConfig = field(default_factory=DdsConfig)
@@ -234,17 +234,16 @@ class Ros2BridgeNode(Node):
         self.counters: dict[str, int] = {}
         self.dds = None
         self._writers: dict = {}
-        self._readers: dict = {}
         from aes_planner.ros2.outbound import OutboundMapper
 
         self.mapper = OutboundMapper(c, self.links)
         self._last_diag_s = -math.inf
         self._inbound = None
-        self._seq = 0
 
     @property
     def period_s(self) -> float:
-        return 1.0 / self.config.poll_hz
+        # outbound work is woken by the bus; only DDS readers (inbound) need polling
+        return 1.0 / self.config.poll_hz if self.config.inbound else 0.2
 
     def count(self, key: str, n: int = 1) -> None:
         self.counters[key] = self.counters.get(key, 0) + n
