@@ -290,3 +290,18 @@ def test_a_drones_waypoint_is_told_apart_and_kept_off_the_suggestion_topics(brid
         "aes_planner_msgs/msg/ViewSuggestion",
     )
     assert (vs[-1].kind, vs[-1].mode, vs[-1].sequence) == (1, 1, 3)
+
+
+def test_images_are_best_effort_and_volatile(bridge, peer):
+    """A reliable reader does not match the image writer (sensor-data QoS is best effort), and a
+    best-effort reader that joins after a frame does not get it (volatile)."""
+    frame = sample_messages()["PosedFrame"]
+    bridge.step({"camera/frame": [frame]}, now=1.0)
+    late = peer.reader("/camera/image/compressed", "sensor_msgs/msg/CompressedImage", "sensor_data")
+    reliable = peer.reader("/camera/image/compressed", "sensor_msgs/msg/CompressedImage", "reliable")
+    assert not wait_for(lambda: Peer.take_raw(late), 0.5)
+    got = _collect(
+        peer, late, "sensor_msgs/msg/CompressedImage", push=lambda: bridge.step({"camera/frame": [frame]}, 2.0)
+    )
+    assert got and not Peer.take_raw(reliable)
+    assert not reliable.get_matched_publications()
