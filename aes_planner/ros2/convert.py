@@ -145,7 +145,7 @@ def view_suggestion(msg: ViewSuggestion, frame_id: str, search_latency_s: float 
         )
     return idl.ViewSuggestion(
         header=idl.Header(stamp(msg.stamp_s), frame_id),
-        sequence=msg.sequence,
+        sequence_number=msg.sequence,
         field_version=msg.field_version,
         mode=0 if msg.mode == "rig" else 1,
         kind=1 if msg.kind == "waypoint" else 0,

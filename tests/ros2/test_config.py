@@ -113,3 +113,27 @@ def test_humble_jazzy_and_kilted_define_every_bridged_type_alike():
             continue
         defs = {s: ts.fielddefs[name][1] for s, ts in stores.items()}
         assert len({repr(d) for d in defs.values()}) == 1, name
+
+
+IDL_KEYWORDS = set(
+    """abstract any alias attribute bitfield bitmask bitset boolean case char component connector const
+    consumes context custom default double exception emits enum eventtype factory false finder fixed
+    float getraises getter home import in inout interface local long manages map mirrorport module
+    multiple native object octet oneway out primarykey private port porttype provides public publishes
+    raises readonly setraises setter sequence short string struct supports switch true truncatable
+    typedef typeid typename typeprefix unsigned union uses valuebase valuetype void wchar wstring int8
+    uint8 int16 int32 int64 uint16 uint32 uint64""".split()
+)
+
+
+def test_aes_planner_msgs_field_names_are_no_idl_cpp_or_python_keywords():
+    """rosidl turns .msg files into IDL (keywords compare case-insensitively there, OMG IDL 4.2
+    7.2.4) and C++ and Python classes."""
+    import keyword
+
+    from tests.ros2.stock import typestore
+
+    cpp = {"class", "delete", "new", "operator", "template", "this", "namespace", "register", "default"}
+    for name in ("aes_planner_msgs/msg/ViewSuggestion", "aes_planner_msgs/msg/ViewCandidate"):
+        for field, _ in typestore().fielddefs[name][1]:
+            assert field.lower() not in IDL_KEYWORDS and field not in cpp and not keyword.iskeyword(field), field

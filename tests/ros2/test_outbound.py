@@ -87,7 +87,7 @@ def test_suggestion_topics_carry_the_best_pose_the_ranked_list_and_everything_el
     assert np.allclose([ps.pose.position.x, ps.pose.position.y, ps.pose.position.z], best[:3, 3])
     assert len(pa.poses) == 2 and pa.header.frame_id == "map"
     assert np.allclose(_rotation(pa.poses[1].orientation), msg.candidates[1].cam2world[:3, :3], atol=1e-9)
-    assert (vs.sequence, vs.field_version, vs.mode, vs.kind) == (2, 4, 0, 0)
+    assert (vs.sequence_number, vs.field_version, vs.mode, vs.kind) == (2, 4, 0, 0)
     c0, c1 = vs.candidates
     assert (c0.rank, c1.rank) == (0, 1)
     assert c0.score == pytest.approx(0.8) and c0.coverage == pytest.approx(0.95)
@@ -289,7 +289,7 @@ def test_a_drones_waypoint_is_told_apart_and_kept_off_the_suggestion_topics(brid
         peer.reader("/planner/view_suggestion", "aes_planner_msgs/msg/ViewSuggestion", "latched"),
         "aes_planner_msgs/msg/ViewSuggestion",
     )
-    assert (vs[-1].kind, vs[-1].mode, vs[-1].sequence) == (1, 1, 3)
+    assert (vs[-1].kind, vs[-1].mode, vs[-1].sequence_number) == (1, 1, 3)
 
 
 def test_images_are_best_effort_and_volatile(bridge, peer):
