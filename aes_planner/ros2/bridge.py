@@ -203,6 +203,7 @@ class Ros2BridgeNode(Node):
         "gimbal/state": (GimbalState, 32),
         "planner/diagnostics": (Diagnostics, 8),
         "gimbal/diagnostics": (Diagnostics, 8),
+        "drone/diagnostics": (Diagnostics, 8),
         "gimbal/command": (GimbalCommand, 8),
     }
     outputs = {
