@@ -47,7 +47,7 @@ import numpy as np
 
 from aes_planner.config import ConfigError, require
 from aes_planner.geometry.rig import PanTiltConfig
-from aes_planner.graph.base import LaunchContext, Node, Outputs
+from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs
 from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState, PosedFrame, ViewSuggestion
 from aes_planner.ros2.dds import QOS_PROFILES, DdsConfig
 
@@ -216,6 +216,12 @@ class Ros2BridgeNode(Node):
         self, config: Ros2BridgeConfig | None = None, node_id: str = "ros2", context: LaunchContext | None = None
     ):
         super().__init__(config or Ros2BridgeConfig(), node_id, context)
+        try:
+            import cyclonedds  # noqa: F401
+        except ImportError:
+            raise NodeError(
+                f"{node_id}: the ros2_bridge node needs the ros2 extra: pip install 'aes-planner[ros2]'"
+            ) from None
         c = self.config
         rig = c.rig
         if rig is None and self.context.scene is not None and self.context.load_scene().rig is not None:
