@@ -34,9 +34,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--domain-id", type=int, default=None, help="DDS domain (default: ROS_DOMAIN_ID, else 0)")
     b.add_argument(
         "--discovery-range",
-        choices=("localhost", "subnet", "off", "system_default"),
+        choices=("loopback", "localhost", "subnet", "off", "system_default"),
         default=None,
-        help="as ROS_AUTOMATIC_DISCOVERY_RANGE (default: that variable, else localhost)",
+        help="as ROS_AUTOMATIC_DISCOVERY_RANGE (default: that variable, else loopback: this machine over the "
+        "loopback interface only; localhost: as rmw_cyclonedds does, to meet ROS 2 nodes run with LOCALHOST)",
     )
     b.add_argument("--allow-remote-dds", action="store_true", help="allow a discovery range beyond this machine")
     b.add_argument("--scene", default=None, metavar="SPEC", help="take the rig's kinematics (tf) from a sim scene")
@@ -49,10 +50,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def build_bridge(args: argparse.Namespace):
     """The bridge node from the flags (and ``--config``)."""
-    from aes_planner.config import from_dict, load_yaml
+    from aes_planner.config import ConfigError, from_dict, load_yaml
     from aes_planner.graph.base import LaunchContext
     from aes_planner.ros2.bridge import Ros2BridgeConfig, Ros2BridgeNode
+    from aes_planner.ros2.dds import MAX_DOMAIN_ID
 
+    if args.domain_id is not None and not 0 <= args.domain_id <= MAX_DOMAIN_ID:
+        raise ConfigError("--domain-id", f"must be in 0..{MAX_DOMAIN_ID} (as ROS_DOMAIN_ID), got {args.domain_id}")
     data = dict(load_yaml(args.config) or {}) if args.config else {}
     dds = dict(data.get("dds") or {})
     if args.domain_id is not None:
@@ -100,4 +104,4 @@ def run_bridge(args: argparse.Namespace) -> int:
             runner.close()
     sent = {k[5:]: v for k, v in node.counters.items() if k.startswith("sent.")}
     print("sent: " + (", ".join(f"{k} {v}" for k, v in sorted(sent.items())) or "nothing"))
-    return 0
+    return stop.exit_code or 0  # 128 + signal after Ctrl-C or SIGTERM, as launch returns

@@ -287,7 +287,7 @@ class ViewCandidate(IdlStruct, typename="aes_planner_msgs::msg::dds_::ViewCandid
 @dataclass
 class ViewSuggestion(IdlStruct, typename="aes_planner_msgs::msg::dds_::ViewSuggestion_"):
     header: Header = field(default_factory=Header)
-    sequence: t.uint64 = 0
+    sequence_number: t.uint64 = 0
     field_version: t.uint64 = 0
     mode: t.uint8 = 0  # MODE_RIG=0 MODE_FREE=1
     kind: t.uint8 = 0  # KIND_SEARCH_RESULT=0 KIND_WAYPOINT=1
