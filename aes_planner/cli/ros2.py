@@ -1,6 +1,6 @@
 """``aes-planner ros2 bridge``: the package's bus on a ROS 2 DDS domain, as a process of its own.
 
-Joins the Zenoh bus as ``echo`` does (``tcp/127.0.0.1:7447`` unless ``--connect``) and runs the
+Joins the Zenoh bus as ``echo`` does (``tcp/127.0.0.1:7390`` unless ``--connect``) and runs the
 ``ros2_bridge`` node (:mod:`aes_planner.ros2.bridge`) on it until Ctrl-C. ``ROS_DOMAIN_ID``,
 ``ROS_AUTOMATIC_DISCOVERY_RANGE``, ``ROS_STATIC_PEERS`` and ``CYCLONEDDS_URI`` are honoured as
 rmw_cyclonedds does; discovery stays on this machine unless ``--discovery-range`` (with

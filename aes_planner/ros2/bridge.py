@@ -48,7 +48,7 @@ import numpy as np
 
 from aes_planner.config import ConfigError, require
 from aes_planner.geometry.rig import PanTiltConfig
-from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs
+from aes_planner.graph.base import LaunchContext, Node, NodeError, Output, Outputs
 from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState, PosedFrame, ViewSuggestion
 from aes_planner.ros2.dds import QOS_PROFILES, DdsConfig
 
@@ -222,7 +222,7 @@ class Ros2BridgeNode(Node):
         "gimbal/command": (GimbalCommand, 8),
     }
     outputs = {
-        "camera/frame": (PosedFrame, False),
+        "camera/frame": Output(PosedFrame, latched=False, reliable=False),  # frames: best-effort, as a camera's
         "gimbal/state": (GimbalState, False),
         "ros2/diagnostics": (Diagnostics, False),
     }
