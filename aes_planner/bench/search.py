@@ -204,5 +204,6 @@ def write_pareto(points: dict[str, tuple], path: Path) -> Path:
         img, "latency (ms, log) vs oracle-normalised score", (m, m - 12), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1
     )
     path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), img)
-    return path
+    from aes_planner.images import write_image
+
+    return write_image(path, img, "the trade-off plot")

@@ -107,12 +107,13 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from aes_planner.dataset import load_dataset
+    from aes_planner.messages.suggestion import MAX_CANDIDATES
     from aes_planner.runtime import suggestion_threads
     from aes_planner.search import SearchConfig, SearchError, build_search_scorer, search_mode, search_views
     from aes_planner.search.report import render_with, write_report
 
-    if args.top is not None and args.top < 1:
-        raise SearchError(f"--top must be at least 1, got {args.top}")
+    if args.top is not None and not 1 <= args.top <= MAX_CANDIDATES:
+        raise SearchError(f"--top must be in [1, {MAX_CANDIDATES}], got {args.top}")
     if args.threads is not None:
         from aes_planner.runtime import MAX_THREADS, set_threads
 

@@ -44,6 +44,7 @@ import torch
 
 from aes_planner.config import require, require_numbers
 from aes_planner.geometry.pantilt import PanTilt, PanTiltConfig
+from aes_planner.geometry.plausible import distance_problem
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
 from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs, percentile
 from aes_planner.messages import (
@@ -439,6 +440,9 @@ class PlannerNode(Node):
             return
         if self._frame is not None and frame.stamp_s < self._frame.stamp_s:
             self.counters["frames_rejected"] += 1  # out of order: older than what we have
+            return
+        if self._frame is not None and distance_problem(frame.cam2world, self._frame.cam2world):
+            self.counters["frames_rejected"] += 1  # not the scene the field models (plausibility bounds)
             return
         self._frame = frame
         if self.platform is None:
