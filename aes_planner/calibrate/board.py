@@ -249,7 +249,10 @@ def detect(gray: np.ndarray, spec: BoardSpec) -> Detection | None:
     cols, rows = spec.corners_grid
     found, corners = cv2.findChessboardCorners(gray, (cols, rows), flags=_CLASSIC_FLAGS)
     if not found:
-        found, corners = cv2.findChessboardCornersSB(gray, (cols, rows), flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
+        # default flags: with NORMALIZE_IMAGE it missed boards whose white margin is darker than the sky behind
+        found, corners = cv2.findChessboardCornersSB(gray, (cols, rows), flags=0)
+        if not found:
+            found, corners = cv2.findChessboardCornersSB(gray, (cols, rows), flags=cv2.CALIB_CB_EXHAUSTIVE)
         if not found:
             return None
     grid = corners.reshape(rows, cols, 2).astype(np.float64)
@@ -295,7 +298,9 @@ def _detect_charuco(gray: np.ndarray, spec: BoardSpec) -> Detection | None:
     if ids is None or len(ids) < 6:
         return None
     ids = ids.reshape(-1)
-    obj = np.asarray(board.getChessboardCorners(), dtype=np.float64)[ids]
+    # OpenCV's ChArUco frame starts at the board's outer corner: shift it to the first inner corner,
+    # the chessboard's origin here, so both kinds share one board frame
+    obj = np.asarray(board.getChessboardCorners(), dtype=np.float64)[ids] - [spec.square_m, spec.square_m, 0.0]
     img = corners.reshape(-1, 2).astype(np.float64)
     d = np.linalg.norm(img[:, None] - img[None], axis=-1)
     od = np.linalg.norm(obj[:, None] - obj[None], axis=-1)

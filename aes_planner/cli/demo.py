@@ -189,6 +189,7 @@ def run_demo(
         open_sinks=lambda bus: attach_viewers(bus, viewers, spec),
     )
     if stop.signum is not None:
+        say(f"demo: stopped by {stop.name}: every node stopped, servos left with torque off; not scored")
         raise SignalShutdown(stop.signum)
     report_progress()
     loop_s = time.time() - t0

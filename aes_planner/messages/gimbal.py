@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from aes_planner.messages.codec import Enum, Fixed, List, Message, MessageError, Optional, Scalar, Str, register_message
-from aes_planner.messages.fields import check_finite, check_optional_finite, check_sequence, check_text
+from aes_planner.messages.fields import check_finite, check_joint, check_optional_finite, check_sequence, check_text
 
 __all__ = ["GimbalCommand", "GimbalState", "COMMAND_KINDS"]
 
@@ -54,7 +54,7 @@ class GimbalCommand(Message):
     def __post_init__(self):
         if self.kind not in COMMAND_KINDS:
             raise MessageError(f"GimbalCommand.kind must be one of {COMMAND_KINDS}, got {self.kind!r}")
-        self.pan_rad = check_finite(self.pan_rad, "GimbalCommand.pan_rad")
+        self.pan_rad = check_finite(self.pan_rad, "GimbalCommand.pan_rad")  # a goal: clamped to the limits
         self.tilt_rad = check_finite(self.tilt_rad, "GimbalCommand.tilt_rad")
         self.speed_rad_s = check_optional_finite(self.speed_rad_s, "GimbalCommand.speed_rad_s")
         if self.speed_rad_s is not None and self.speed_rad_s <= 0:
@@ -106,8 +106,9 @@ class GimbalState(Message):
     status: str = "ok"
 
     def __post_init__(self):
-        for name in ("pan_rad", "tilt_rad", "goal_pan_rad", "goal_tilt_rad", "stamp_s"):
-            setattr(self, name, check_finite(getattr(self, name), f"GimbalState.{name}"))
+        for name in ("pan_rad", "tilt_rad", "goal_pan_rad", "goal_tilt_rad"):
+            setattr(self, name, check_joint(getattr(self, name), f"GimbalState.{name}"))
+        self.stamp_s = check_finite(self.stamp_s, "GimbalState.stamp_s")
         if not isinstance(self.moving, bool):
             raise MessageError(f"GimbalState.moving must be a bool, got {self.moving!r}")
         temps = tuple(self.temperature_c) if isinstance(self.temperature_c, (tuple, list)) else None
