@@ -11,7 +11,7 @@ import pytest
 
 from aes_planner.calibrate.board import BoardError, detect, parse_board, pattern, write_board
 from aes_planner.calibrate.intrinsics import CalibrationFailed, View, calibrate_views, camera_info_yaml
-from aes_planner.node.camera import load_calibration
+from aes_planner.drivers.camera import load_calibration
 from tests.calibrate.synth import board_image
 
 K = np.array([[600.0, 0, 322.0], [0, 600.0, 236.0], [0, 0, 1]])
