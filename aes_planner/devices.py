@@ -1,5 +1,8 @@
-"""Hardware-free device interfaces: the :class:`Device` ABC, the :class:`Gimbal` interface and a
-registry that maps the ``type:`` word of a launch file to an implementation.
+"""Hardware-free device interfaces: the :class:`Device` ABC, the :class:`Gimbal` and
+:class:`Camera` interfaces and a registry that maps the ``type:`` word of a launch file to an
+implementation. A camera is a device like a motor: the camera nodes read images through
+:meth:`Camera.read` whether the camera is an OpenCV capture (``opencv_camera``) or the simulator's
+(:class:`aes_planner.sim.SimCamera`, built by the sim nodes from the launch's scene).
 
 Real and simulated implementations are registered side by side::
 
@@ -34,6 +37,9 @@ from aes_planner.errors import AesPlannerError
 
 __all__ = [
     "Device",
+    "Camera",
+    "CameraError",
+    "CameraImage",
     "Gimbal",
     "GimbalState",
     "GimbalFaults",
@@ -56,6 +62,10 @@ log = logging.getLogger(__name__)
 
 class DeviceError(AesPlannerError):
     """A device could not do what was asked; the message says what to check."""
+
+
+class CameraError(DeviceError):
+    """A camera gave an image it should not (a size that does not match its calibration...)."""
 
 
 class GimbalCommError(DeviceError):
@@ -197,6 +207,42 @@ class Gimbal(Device):
         """Clear a latched hardware error (after its cause is removed). No-op by default."""
 
 
+@dataclass(frozen=True)
+class CameraImage:
+    """One image read from a :class:`Camera`.
+
+    * ``image``: ``[H, W, 3]`` uint8, RGB, the camera's :attr:`Camera.intrinsics` (undistorted).
+    * ``stamp_s``: when it was taken, on the clock the reader gave (:meth:`Camera.read`).
+    * ``depth_m``: ``[H, W]`` float32 z-depth in metres where the camera measures it, else None.
+    * ``cam2world``: ``[4, 4]`` the pose the camera itself reports (a simulation knows it); None
+      when the platform poses it (a rig's kinematics at the gimbal's joints at ``stamp_s``).
+    """
+
+    image: Any
+    stamp_s: float
+    depth_m: Any = None
+    cam2world: Any = None
+
+
+class Camera(Device):
+    """A camera: :meth:`read` the next image. ``intrinsics`` (an
+    :class:`~aes_planner.geometry.camera.Intrinsics`) is set by the implementation once known
+    (from the calibration, or the simulated camera's field of view)."""
+
+    intrinsics: Any = None
+
+    @property
+    def ready(self) -> bool:
+        """True when :meth:`read` can give an image now (connected; a simulated camera: placed)."""
+        return self.connected
+
+    @abstractmethod
+    def read(self, stamp_s: float) -> CameraImage | None:
+        """The next image, stamped ``stamp_s``; None when there is none to give now (a failed
+        read, a simulated camera not yet placed). Raises :class:`CameraError` for an image that
+        does not match the camera's calibration."""
+
+
 def joint_command(pan_rad: Any, tilt_rad: Any) -> tuple[float, float]:
     """Two joint angles as floats, or :class:`~aes_planner.geometry.rig.JointCommandError`.
 
@@ -299,6 +345,7 @@ DEVICE_TYPES: dict[str, str | type[Device]] = {
     "dynamixel_pan_tilt": "aes_planner.drivers.dynamixel:DynamixelPanTilt",
     "emulated_pan_tilt": "aes_planner.drivers.emulated:EmulatedPanTilt",
     "sim_pan_tilt": "aes_planner.drivers.sim_gimbal:SimPanTilt",
+    "opencv_camera": "aes_planner.drivers.camera:OpenCVCamera",
 }
 
 
@@ -327,10 +374,13 @@ def device_class(type_name: str, key: str = "type") -> type[Device]:
     return getattr(module, attr)
 
 
-def make_device(spec: Mapping[str, Any], key: str = "") -> Device:
-    """Build an unconnected device from a launch-file mapping ``{type: word, <config keys>}``."""
+def make_device(spec: Mapping[str, Any], key: str = "", kind: type[Device] = Device) -> Device:
+    """Build an unconnected device from a launch-file mapping ``{type: word, <config keys>}``;
+    ``kind``: the interface the caller needs (a :class:`Gimbal`, a :class:`Camera`)."""
     type_key = f"{key}.type" if key else "type"
     cls = device_class(tag_of(spec, key, DEVICE_TYPES), type_key)
+    if not issubclass(cls, kind):
+        raise ConfigError(type_key, f"device type {spec['type']!r} is a {cls.__name__}, not a {kind.__name__}")
     fields = {k: v for k, v in spec.items() if k != "type"}
     if cls.config_class is None:
         if fields:

@@ -9,7 +9,7 @@ within :data:`DUPLICATE_PX` on average), or its size differs from the first imag
 
 The camera_info YAML is camera_calibration_parsers' format (what ROS ``camera_calibration`` and
 ``camera_info_manager`` write and read), in OpenCV's pixel convention (centres at integers):
-``aes_planner.node.camera.load_calibration`` reads it back.
+``aes_planner.drivers.camera.load_calibration`` reads it back.
 """
 
 from __future__ import annotations

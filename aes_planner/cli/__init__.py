@@ -30,6 +30,7 @@ COMMANDS = [
     "aes_planner.cli.score",
     "aes_planner.cli.teachers",
     "aes_planner.cli.gimbal",
+    "aes_planner.cli.drone",
     "aes_planner.cli.calibrate",
     "aes_planner.cli.bus",
     "aes_planner.cli.ros2",

@@ -53,12 +53,12 @@ def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None =
 
 def declared_outputs(spec) -> list[tuple[str, type, bool]]:
     """``(topic, message type, latched)`` of every output a launch's nodes declare, remapped."""
-    from aes_planner.graph.base import node_class
+    from aes_planner.graph.base import node_class, output_specs
 
     out = []
     for e in spec.nodes:
         if e.type != "external":
-            for name, o in node_class(e.type).output_specs().items():
+            for name, o in output_specs(node_class(e.type)).items():
                 out.append((e.remap.get(name, name), o.msg_type, o.latched))
     return out
 

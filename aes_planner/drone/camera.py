@@ -10,8 +10,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from aes_planner.config import require_numbers
-from aes_planner.graph.base import LaunchContext, Outputs
-from aes_planner.messages import DroneState, PosedFrame
+from aes_planner.devices import CameraImage
+from aes_planner.graph.base import Input, LaunchContext
+from aes_planner.messages import DroneState
 from aes_planner.node.sim_camera import SimCameraNode, SimCameraNodeConfig
 
 __all__ = ["DroneSimCameraNode", "DroneSimCameraNodeConfig"]
@@ -30,28 +31,28 @@ class DroneSimCameraNodeConfig(SimCameraNodeConfig):
 
 class DroneSimCameraNode(SimCameraNode):
     config_class = DroneSimCameraNodeConfig
-    inputs = {"drone/state": (DroneState, 32)}
-    outputs = {"camera/frame": (PosedFrame, False)}
+    inputs = {"drone/state": Input(DroneState, 32)}
 
     def __init__(self, config=None, node_id: str = "camera", context: LaunchContext | None = None, scene=None):
         super().__init__(config or DroneSimCameraNodeConfig(), node_id, context, scene)
         self._newest: DroneState | None = None
-        self.frames_withheld = 0
 
     def _check_platform(self) -> None:
         pass  # a drone scene, or a rig scene flown around its base
 
-    def step(self, inputs: Mapping[str, list], now: float) -> Outputs:
+    @property
+    def frames_withheld(self) -> int:
+        return self.counters["withheld"]
+
+    def observe(self, inputs: Mapping[str, list], now: float) -> None:
         for s in inputs.get("drone/state", ()):
             if self._newest is None or s.stamp_s >= self._newest.stamp_s:
                 self._newest = s
             self.camera.move_to(s.cam2world, min(s.stamp_s, now))
-        s = self._newest
-        if s is None or s.link != "ok" or now - s.stamp_s > self.config.max_pose_age_s:
-            if now - self._last_frame_s >= self.period_s:
-                self.frames_withheld += 1
-            return {"camera/frame": []}
-        return {"camera/frame": self._maybe_capture(now)}
 
-    def _joint_fields(self) -> dict:
-        return {}
+    def fresh(self, now: float) -> bool:
+        s = self._newest
+        return s is not None and s.link == "ok" and now - s.stamp_s <= self.config.max_pose_age_s
+
+    def pose(self, image: CameraImage):
+        return image.cam2world, None

@@ -39,8 +39,10 @@ __all__ = [
     "NodeError",
     "Output",
     "Outputs",
+    "input_specs",
     "make_node",
     "node_class",
+    "output_specs",
     "percentile",
 ]
 
@@ -98,6 +100,8 @@ class Node(ABC):
 
     #: The dataclass a launch entry's ``config`` loads into.
     config_class: ClassVar[type]
+    #: True for a node that cannot be built without the launch's simulated scene (``scene:``).
+    needs_scene: ClassVar[bool] = False
     #: default input topic -> Input(message type, keep-last depth) (a plain 2-tuple works too)
     inputs: ClassVar[dict[str, tuple]] = {}
     #: default output topic -> Output(message type, latched, reliable) (a plain 2-tuple: reliable)
@@ -123,16 +127,6 @@ class Node(ABC):
         """Whether this node type can ever be :attr:`finished` (it overrides the property): a
         launch ends when every node that can finish has."""
         return cls.finished is not Node.finished
-
-    @classmethod
-    def input_specs(cls) -> dict[str, Input]:
-        """:attr:`inputs` as :class:`Input` declarations."""
-        return {name: Input(*spec) for name, spec in cls.inputs.items()}
-
-    @classmethod
-    def output_specs(cls) -> dict[str, Output]:
-        """:attr:`outputs` as :class:`Output` declarations (reliable unless declared otherwise)."""
-        return {name: Output(*spec) for name, spec in cls.outputs.items()}
 
     def start(self) -> None:
         """Open devices and resources (called once, in the process that runs the node)."""
@@ -187,3 +181,15 @@ def percentile(values, q: float) -> float:
     lo = int(math.floor(pos))
     hi = min(lo + 1, len(xs) - 1)
     return xs[lo] + (xs[hi] - xs[lo]) * (pos - lo)
+
+
+def input_specs(node: Node | type[Node]) -> dict[str, Input]:
+    """A node's (or node type's) :attr:`Node.inputs` as :class:`Input` declarations; an instance
+    may narrow its class's (a bridge that serves some topics only)."""
+    return {name: Input(*spec) for name, spec in node.inputs.items()}
+
+
+def output_specs(node: Node | type[Node]) -> dict[str, Output]:
+    """A node's (or node type's) :attr:`Node.outputs` as :class:`Output` declarations (reliable
+    unless declared otherwise)."""
+    return {name: Output(*spec) for name, spec in node.outputs.items()}

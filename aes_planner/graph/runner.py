@@ -20,7 +20,7 @@ import threading
 import time
 from collections.abc import Mapping
 
-from aes_planner.graph.base import Node
+from aes_planner.graph.base import Node, input_specs, output_specs
 from aes_planner.graph.signals import SignalStop, stop_on_signals
 from aes_planner.messages import Diagnostics
 
@@ -49,9 +49,9 @@ class NodeRunner:
 
     def open(self) -> None:
         """Declare the node's subscriptions and publishers on the bus."""
-        for name, spec in self.node.input_specs().items():
+        for name, spec in input_specs(self.node).items():
             self.subs[name] = self.bus.subscribe(self.topic(name), spec.msg_type, depth=spec.depth)
-        for name, spec in self.node.output_specs().items():
+        for name, spec in output_specs(self.node).items():
             self.pubs[name] = self.bus.publisher(
                 self.topic(name), spec.msg_type, latched=spec.latched, reliable=spec.reliable
             )

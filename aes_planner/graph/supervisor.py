@@ -91,8 +91,8 @@ class Supervisor:
         allow_remote = allow_remote or bool(file_bus is not None and file_bus.allow_remote)
         self.prefix = file_bus.prefix if file_bus is not None else "aes"
         self.endpoint = endpoint
-        self.hub_config = ZenohConfig(
-            listen=(endpoint,), connect=tuple(connect), allow_remote=allow_remote, prefix=self.prefix
+        self.hub_config = ZenohConfig(  # a router: it carries the graph to the hubs of other machines
+            listen=(endpoint,), connect=tuple(connect), allow_remote=allow_remote, prefix=self.prefix, mode="router"
         )
         if endpoint.rpartition(":")[2] == "0":  # the children must know where to connect
             from aes_planner.config import ConfigError
@@ -123,21 +123,18 @@ class Supervisor:
     def _check_configs(self) -> None:
         """Every node's config parses here, so a typo fails once, naming the key, not in a child."""
         from aes_planner.config import ConfigError, from_dict
-        from aes_planner.graph.base import node_class
+        from aes_planner.graph.base import LaunchContext, node_class
         from aes_planner.graph.launch_file import check_remap
-        from aes_planner.node.sim_camera import SimCameraNode
 
         for i, e in enumerate(self.spec.nodes):
             if e.type != "external":
                 cls = node_class(e.type)
                 from_dict(cls.config_class, e.config, f"nodes[{i}].config")
                 check_remap(e, cls, f"nodes[{i}].remap")
-                if issubclass(cls, SimCameraNode) and self.spec.scene is None:
+                if cls.needs_scene and self.spec.scene is None:
                     raise ConfigError(f"nodes[{i}]", f"a {e.type} node needs a scene: add 'scene: FAMILY:SEED'")
         if self.spec.scene is not None:  # a bad scene fails here, not in every child
-            from aes_planner.sim import load_scene
-
-            load_scene(self.spec.scene)
+            LaunchContext(scene=self.spec.scene).load_scene()
 
     # -- children ----------------------------------------------------------------------------------
 
@@ -306,7 +303,7 @@ class Supervisor:
             self.bus.close()
             self.bus = None
 
-    stop = shutdown  # the same shape as aes_planner.node.Launch
+    stop = shutdown  # the same shape as aes_planner.graph.runner.Launch
 
     def __enter__(self) -> Supervisor:
         return self.start()

@@ -7,7 +7,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from aes_planner.messages.codec import Message, MessageError, Reader, Writer, register_message
+from aes_planner.messages.codec import Array, Message, MessageError, Scalar, Str, register_message
 from aes_planner.messages.fields import check_finite, check_pose, check_sequence, check_text
 
 __all__ = ["DroneState"]
@@ -38,6 +38,21 @@ class DroneState(Message):
     TYPE_NAME: ClassVar[str] = "DroneState"
     SCHEMA_VERSION: ClassVar[int] = 1
     MAX_BYTES: ClassVar[int] = 4096
+    FIELDS = (
+        Scalar("stamp_s", "f64"),
+        Scalar("sequence", "u64"),
+        Array("cam2world", "f8", (4, 4)),
+        Array("position_m", "f8", (3,)),
+        Array("velocity_m_s", "f8", (3,)),
+        Array("attitude_wxyz", "f8", (4,)),
+        Scalar("gimbal_pitch_rad", "f64"),
+        Scalar("gimbal_yaw_rad", "f64"),
+        Str("mode", 256),
+        Scalar("armed", "bool"),
+        Scalar("system_id", "u32"),
+        Str("link", 16),
+        Str("status", 1024),
+    )
 
     stamp_s: float
     cam2world: np.ndarray
@@ -72,33 +87,3 @@ class DroneState(Message):
         self.mode = check_text(self.mode, "DroneState.mode", 64)
         self.status = check_text(self.status, "DroneState.status", 256)
         self.sequence = check_sequence(self.sequence, "DroneState.sequence")
-
-    def _write(self, w: Writer) -> None:
-        w.f64(self.stamp_s)
-        w.u64(self.sequence)
-        w.array(self.cam2world, "f8")
-        w.array(self.position_m, "f8")
-        w.array(self.velocity_m_s, "f8")
-        w.array(self.attitude_wxyz, "f8")
-        w.f64(self.gimbal_pitch_rad)
-        w.f64(self.gimbal_yaw_rad)
-        w.str(self.mode)
-        w.bool(self.armed)
-        w.u32(self.system_id)
-        w.str(self.link)
-        w.str(self.status)
-
-    @classmethod
-    def _read(cls, r: Reader, version: int) -> DroneState:
-        stamp_s, sequence = r.f64("stamp_s"), r.u64("sequence")
-        c2w = r.array("cam2world", "f8", 2, (4, 4))
-        pos = r.array("position_m", "f8", 1, (3,))
-        vel = r.array("velocity_m_s", "f8", 1, (3,))
-        att = r.array("attitude_wxyz", "f8", 1, (4,))
-        pitch, yaw = r.f64("gimbal_pitch_rad"), r.f64("gimbal_yaw_rad")
-        mode = r.str("mode", 256)
-        armed = r.bool("armed")
-        sysid = r.u32("system_id")
-        link = r.str("link", 16)
-        status = r.str("status", 1024)
-        return cls(stamp_s, c2w, pos, vel, att, pitch, yaw, mode, armed, sysid, link, status, sequence)

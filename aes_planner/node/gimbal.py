@@ -114,7 +114,7 @@ class GimbalNode(Node):
         spec = dict(config.device)
         if config.emulate:
             spec["port"] = "<emulator>"  # replaced by the emulator's pty on start()
-        self.device: Gimbal = device if device is not None else make_device(spec, "device")
+        self.device: Gimbal = device if device is not None else make_device(spec, "device", kind=Gimbal)
         self.emulator = None
         self.limits_rad = self._limits(context)
         self.status = "idle"

@@ -59,7 +59,7 @@ from aes_planner.messages import (
     ViewSuggestion,
 )
 from aes_planner.node.proposer import FieldProposer, Proposer
-from aes_planner.runtime import MAX_THREADS, ThreadGovernor, set_threads
+from aes_planner.runtime import MAX_THREADS, ThreadGovernor, set_threads, suggestion_threads
 from aes_planner.sources import DroneBox, Platform
 
 log = logging.getLogger(__name__)
@@ -836,14 +836,10 @@ class PlannerNode(Node):
 
     def _propose(self, captured: np.ndarray, k: int, **kw):
         """The proposer's search, timed: its latency, and its CPU efficiency for the governor."""
-        t0, c0 = time.perf_counter(), self.cpu_clock()
-        proposal = self.proposer.propose(self.platform, captured, k, **kw)
-        wall_s, cpu_s = time.perf_counter() - t0, self.cpu_clock() - c0
-        self.latencies_s.append(wall_s)
-        if self.governor is not None:
-            before = self.governor.threads
-            if self.governor.observe(wall_s, cpu_s) != before:
-                set_threads(self.governor.threads)  # from the thread the steps (and searches) run in
+        # the governor's count, learnt from here (threads: N pinned it; adapt_threads: false leaves it)
+        with suggestion_threads(self.governor, self.cpu_clock, adapt=self.config.adapt_threads) as job:
+            proposal = self.proposer.propose(self.platform, captured, k, **kw)
+        self.latencies_s.append(job.wall_s)
         return proposal
 
     # ---------------------------------------------------------------------------- messages

@@ -36,7 +36,7 @@ def test_camera_device_is_checked_before_opencv_sees_it(tmp_path, cli_error, dev
     "coefficients", ["[0.1, 0.0, 0.0]", "[0.1, 0, 0, 0, 0, 0]", "[" + ", ".join(["0.01"] * 15) + "]"]
 )
 def test_calibration_distortion_count_is_what_opencv_takes(tmp_path, clean_error, coefficients):
-    from aes_planner.node.camera import load_calibration
+    from aes_planner.drivers.camera import load_calibration
 
     cal = write(
         tmp_path,

@@ -134,3 +134,35 @@ def test_two_sigterms_with_the_emulator_in_a_child_process(tmp_path):
     assert proc.returncode == 143, (proc.returncode, err[-3000:])
     assert "terminate called" not in err and "Traceback" not in err, err[-3000:]
     assert "servo emulator stopped: torque off on id 1, id 2" in err, err[-3000:]
+
+
+def test_two_sigterms_to_the_demo(tmp_path):
+    """``demo`` (the shipped sim launch: the driver on the emulator in a child process) stops,
+    unscored, with the servos left with torque off and 143."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "aes_planner", "-v", "demo", "--scene", "tabletop:1", "--moves", "1"]
+        + ["--out", str(tmp_path / "run"), "--set", "planner.preset=fast"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(proc.stderr), daemon=True)
+    reader.start()
+    try:
+        wait_for(lambda: any("torque on:" in ln for ln in lines) or proc.poll() is not None, timeout_s=120.0)
+        assert proc.poll() is None, "".join(lines)
+        os.kill(proc.pid, signal.SIGTERM)
+        time.sleep(0.1)
+        os.kill(proc.pid, signal.SIGTERM)
+        out, _ = proc.communicate(timeout=60)
+        reader.join(10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    err = "".join(lines)
+    assert proc.returncode == 143, (proc.returncode, out, err[-3000:])
+    assert "demo: stopped by SIGTERM" in out and not (tmp_path / "run" / "summary.json").exists()
+    assert "servo emulator stopped: torque off on id 1, id 2" in err, err[-3000:]
+    assert "terminate called" not in err and "Traceback" not in err, err[-3000:]
