@@ -186,8 +186,10 @@ def _live_views(args, spec):
 
     from aes_planner.calibrate.board import detect
     from aes_planner.calibrate.intrinsics import DUPLICATE_PX, View, _coverage
+    from aes_planner.drivers.camera import check_capture_source
 
     device = int(args.device) if str(args.device).isdigit() else args.device
+    check_capture_source(device)  # before OpenCV: VideoCapture(-1) kills the process
     cap = cv2.VideoCapture(device)
     if not cap.isOpened():
         raise CalibrateUsageError(f"cannot open camera {args.device!r}; check the index or path")
@@ -286,6 +288,9 @@ class _Session:
             raise CalibrateUsageError(
                 f"--launch {a.launch}: needs a gimbal node with a device and a camera node (as pan_tilt_rig.yaml)"
             )
+        from aes_planner.drivers.camera import check_capture_source
+
+        check_capture_source(camera_entry.config.get("device", 0))  # before OpenCV: VideoCapture(-1) kills the process
         device_spec = dict(gimbal_entry.config["device"])
         self.tilt_direction = int(device_spec.get("tilt_direction", 1))
         self.tilt_zero_offset_ticks = int(device_spec.get("tilt_zero_offset_ticks", 0))

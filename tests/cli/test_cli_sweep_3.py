@@ -358,3 +358,15 @@ def test_a_training_step_renders_a_bounded_subset_of_targets():
     assert np.array_equal(some["target_maps"][:, 0], some["target_scores"])  # the same targets in each array
     small = {k: v[:24] for k, v in sample.items()}
     assert _some_targets(small, rng) is small  # the usual sizes: every target, as before
+
+
+def test_calibrate_rig_checks_the_launch_files_camera_device_before_opencv(tmp_path, cli_error):
+    launch = write(
+        tmp_path,
+        "l.yaml",
+        "nodes:\n  - {id: gimbal, type: gimbal, config: {device: {type: emulated_pan_tilt}}}\n"
+        f"  - {{id: camera, type: camera, config: {{device: 0, calibration: c.yaml, rig: {RIG}}}}}\n",
+    )
+    rig = write(tmp_path, "rig.yaml", "base_xyz_m: [0, 0, 1.3]\n")
+    argv = ["calibrate", "rig", "--board", "chessboard:9x6:0.025", "--rig", rig, "--launch", launch]
+    cli_error([*argv, "--set", "camera.device=-1", "--out", tmp_path / "o.yaml"], "device", seconds=30)
