@@ -35,6 +35,7 @@ __all__ = [
     "to_dict",
     "load_yaml",
     "load_yaml_text",
+    "read_yaml_text",
     "require",
     "require_finite",
     "require_numbers",
@@ -377,6 +378,12 @@ def _yaml_problem(exc: yaml.YAMLError) -> str:
 
 def load_yaml(path: str | Path) -> Any:
     """Read a YAML file safely (see the module docstring); errors name the file and line."""
+    return load_yaml_text(read_yaml_text(path), str(path))
+
+
+def read_yaml_text(path: str | Path) -> str:
+    """The text of a YAML file, read within :data:`YAML_MAX_BYTES` as UTF-8 (errors name the file),
+    for a caller that must look at it before parsing it with :func:`load_yaml_text`."""
     path = Path(path)
     try:
         with path.open("rb") as f:
@@ -393,4 +400,4 @@ def load_yaml(path: str | Path) -> Any:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ConfigError("", f"{path}: not UTF-8 text (byte {exc.start}); is it a YAML file?") from None
-    return load_yaml_text(text, str(path))
+    return text

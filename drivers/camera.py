@@ -59,19 +59,17 @@ def _matrix(node: Any, key: str, rows: int | None = None, cols: int | None = Non
 
 
 def load_calibration(path: str | Path) -> Calibration:
-    """Intrinsics and distortion from an OpenCV or ROS camera-info YAML (``yaml.safe_load``)."""
-    from aes_planner.config import load_yaml
+    """Intrinsics and distortion from an OpenCV or ROS camera-info YAML (read as every YAML file is:
+    :func:`aes_planner.config.load_yaml_text`, with its limits)."""
+    from aes_planner.config import load_yaml_text, read_yaml_text
 
-    text = Path(path).read_text(encoding="utf-8") if Path(path).exists() else None
-    if text is None:
+    if not Path(path).exists():
         raise ConfigError("calibration", f"{path}: file not found; give the camera's calibration YAML")
+    text = read_yaml_text(path)
     if text.startswith("%YAML"):  # OpenCV FileStorage: a directive line and !!opencv-matrix tags
-        import yaml
-
-        body = "\n".join(ln for ln in text.splitlines() if not ln.startswith("%YAML")).replace("!!opencv-matrix", "")
-        data = yaml.safe_load(body.lstrip("-\n"))
-    else:
-        data = load_yaml(path)
+        text = "\n".join(ln for ln in text.splitlines() if not ln.startswith("%YAML")).replace("!!opencv-matrix", "")
+        text = text.lstrip("-\n")
+    data = load_yaml_text(text, str(path))
     if not isinstance(data, Mapping) or "camera_matrix" not in data:
         raise ConfigError("calibration", f"{path}: expected camera_matrix (and image_width, image_height)")
     for k in ("image_width", "image_height"):

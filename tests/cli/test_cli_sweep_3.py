@@ -370,3 +370,27 @@ def test_calibrate_rig_checks_the_launch_files_camera_device_before_opencv(tmp_p
     rig = write(tmp_path, "rig.yaml", "base_xyz_m: [0, 0, 1.3]\n")
     argv = ["calibrate", "rig", "--board", "chessboard:9x6:0.025", "--rig", rig, "--launch", launch]
     cli_error([*argv, "--set", "camera.device=-1", "--out", tmp_path / "o.yaml"], "device", seconds=30)
+
+
+LAUGHS = "a: &a [x, x, x, x, x, x, x, x, x, x]\n" + "".join(
+    f"{c}: &{c} [{', '.join(['*' + p] * 10)}]\n" for p, c in zip("abcdefgh", "bcdefghi")
+)
+
+
+@pytest.mark.parametrize(
+    "content, match",
+    [
+        (b"%YAML:1.0\n---\n" + LAUGHS.encode(), "expands to more than"),
+        (LAUGHS.encode(), "expands to more than"),
+        (b"%YAML:1.0\n---\ncamera_matrix: [1, 2\n", "not valid YAML"),
+        (b"\xff\xfe\x00 not text", "not UTF-8"),
+        (b"%YAML:1.0\n---\nimage_width: 1\nimage_width: 2\n", "duplicate key"),
+    ],
+)
+def test_a_calibration_file_is_read_like_every_yaml_file(tmp_path, clean_error, content, match):
+    from aes_planner.drivers.camera import load_calibration
+
+    (tmp_path / "cal.yaml").write_bytes(content)
+    clean_error(load_calibration, tmp_path / "cal.yaml", match=match)
+    (tmp_path / "folder.yaml").mkdir()
+    clean_error(load_calibration, tmp_path / "folder.yaml", match="folder")
