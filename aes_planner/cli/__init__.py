@@ -39,8 +39,16 @@ COMMANDS = [
 ]
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument error is one line (``error: ...``, exit 2) like every other error; sub-command
+    parsers are of this class too (argparse makes them of their parent's class)."""
+
+    def error(self, message: str):
+        self.exit(2, terminal_safe(f"error: {self.prog}: {message} (see {self.prog} --help)") + "\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="aes-planner",
         description="Camera viewpoint suggestion with a 3D aesthetic field.",
     )

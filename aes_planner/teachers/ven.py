@@ -174,6 +174,8 @@ def _read_checkpoint(path: Path) -> Any:
     the classes a checkpoint pickles besides tensors, and errors that say what to do."""
     if path.is_dir():
         raise WeightsError(f"{path} is a folder, not a readable PyTorch checkpoint; give the weights file itself")
+    if path.exists() and not path.is_file():
+        raise WeightsError(f"{path} is not a regular file (a device or a pipe?); give the weights file itself")
     if not path.is_file():
         raise WeightsError(f"VEN weights file {path} does not exist. " + WEIGHTS_ADVICE)
     try:  # torch.load allocates what the file declares before it reads: check the declarations first

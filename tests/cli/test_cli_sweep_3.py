@@ -394,3 +394,34 @@ def test_a_calibration_file_is_read_like_every_yaml_file(tmp_path, clean_error, 
     clean_error(load_calibration, tmp_path / "cal.yaml", match=match)
     (tmp_path / "folder.yaml").mkdir()
     clean_error(load_calibration, tmp_path / "folder.yaml", match="folder")
+
+
+@pytest.mark.parametrize(
+    "argv, match",
+    [
+        (["suggest", "x", "--preset", "nonsense"], "invalid choice"),
+        (["gimbal", "nonsense"], "invalid choice"),
+        (["nonsense"], "invalid choice"),
+        (["sim", "render", "--views", "many", "--scene", "indoor:1", "--out", "o"], "invalid int value"),
+        (["score"], "required"),
+    ],
+)
+def test_argument_errors_are_one_line_too(capsys, argv, match):
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and err.startswith("error: ") and match in err, err
+
+
+def test_a_device_given_as_ven_weights_is_refused_unread(clean_error, torch_load_never_runs_here):
+    from aes_planner.teachers.ven import load_ven_state_dict
+
+    clean_error(load_ven_state_dict, "/dev/zero", match="not a regular file")
+
+
+@pytest.fixture
+def torch_load_never_runs_here(monkeypatch):
+    import torch
+
+    monkeypatch.setattr(torch, "load", lambda *a, **k: pytest.fail("torch.load ran on /dev/zero"))
