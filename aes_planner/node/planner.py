@@ -57,8 +57,8 @@ from aes_planner.messages import (
 )
 from aes_planner.node.base import LaunchContext, Node, NodeError, Outputs, percentile
 from aes_planner.node.proposer import FieldProposer, Proposer
+from aes_planner.platform import DroneBox, DronePlatform, Platform, RigPlatform
 from aes_planner.runtime import MAX_THREADS, ThreadGovernor, set_threads
-from aes_planner.sources import DroneBox, Platform
 
 log = logging.getLogger(__name__)
 
@@ -447,9 +447,9 @@ class PlannerNode(Node):
     def _make_platform(self, intrinsics) -> Platform:
         c = self.config
         if c.rig is not None:
-            return Platform("rig", intrinsics, rig=c.rig)
+            return RigPlatform(intrinsics, c.rig)
         if c.drone is not None:
-            return Platform("drone", intrinsics, drone=c.drone.box())
+            return DronePlatform(intrinsics, c.drone.box())
         raise NodeError(
             f"{self.node_id}: no platform: give the planner a 'rig' (pan_tilt kinematics and limits) or a 'drone' box, "
             "or a 'scene' in the launch file"

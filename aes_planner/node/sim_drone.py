@@ -24,7 +24,7 @@ from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
 from aes_planner.messages import PosedFrame, ViewSuggestion
 from aes_planner.node.base import LaunchContext, NodeError, Outputs
 from aes_planner.node.sim_camera import SimCameraNode, SimCameraNodeConfig
-from aes_planner.sources import DroneBox
+from aes_planner.platform import DroneBox
 
 __all__ = ["SimDrone", "SimDroneConfig", "SimDroneNode", "SimDroneNodeConfig"]
 
