@@ -43,9 +43,11 @@ __all__ = [
     "DronePlatform",
     "Platform",
     "RigPlatform",
+    "free_box_around",
     "parse_kind",
     "platform_from_meta",
     "platform_to_meta",
+    "view_angle_deg",
 ]
 
 #: The platform kinds, and the older words read as one of them (``free`` flew a drone).
@@ -149,9 +151,15 @@ class DroneBox:
         return view_to_cam2world(views)
 
 
-def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:  # [4, 4], [4, 4] -> optical axes' angle, degrees
+def view_angle_deg(a: np.ndarray, b: np.ndarray) -> float:  # [4, 4], [4, 4] -> degrees
+    """Angle between two cam2world poses' optical axes, degrees."""
     za, zb = a[:3, 2], b[:3, 2]
     return math.degrees(math.atan2(np.linalg.norm(np.cross(za, zb)), float(np.dot(za, zb))))
+
+
+def free_box_around(rig: PanTiltConfig, half_m=RIG_FREE_BOX_HALF_M) -> DroneBox:
+    """The box free flight takes around a rig's base: ``half_m`` each way, the floor at 0.3 m."""
+    return DroneBox.around(rig.base_xyz_m, np.asarray(half_m))
 
 
 @dataclass(frozen=True)
@@ -233,7 +241,7 @@ class RigPlatform(Platform):
         return at_goal and (ours or any_goal)
 
     def free_box(self, half_m=RIG_FREE_BOX_HALF_M) -> DroneBox:
-        return DroneBox.around(self.rig.base_xyz_m, np.asarray(half_m))
+        return free_box_around(self.rig, half_m)
 
     def to_meta(self) -> dict:
         return {"platform": "rig", "rig": to_dict(self.rig)}
@@ -277,7 +285,7 @@ class DronePlatform(Platform):
     def arrived(self, cam2world: np.ndarray, target: np.ndarray, tol_deg: float, tol_m: float) -> bool:
         """Whether a camera at ``cam2world [4, 4]`` looks within ``tol_deg`` of the way ``target
         [4, 4]`` does, from within ``tol_m`` of its place."""
-        close = _angle_deg(cam2world, target) < tol_deg
+        close = view_angle_deg(cam2world, target) < tol_deg
         return close and bool(np.linalg.norm(cam2world[:3, 3] - target[:3, 3]) < tol_m)
 
     def free_box(self, half_m=RIG_FREE_BOX_HALF_M) -> DroneBox:
