@@ -5,8 +5,8 @@
 * free: a grid of positions in the flight box x yaw x pitch (inside ``pitch_limits_deg``), then the
   same pattern search in 5-DoF (positions step a fraction of the box).
 
-It also scores ``random_samples`` uniformly random feasible poses: their mean is the "chance"
-level of the oracle-normalised score ``(s - mean random) / (oracle - mean random)``.
+It also scores ``random_samples`` uniformly random feasible poses (the platform's sampler,
+:meth:`~aes_planner.platform.Platform.random_poses`): their mean is the "chance" level of the oracle-normalised score ``(s - mean random) / (oracle - mean random)``.
 
 Results are cached as ``.npz`` (arrays) + ``.json`` (settings) under ``cache_dir`` (default
 ``$AES_PLANNER_CACHE/oracle`` or ``~/.cache/aes-planner/oracle``), keyed by a hash of the scene key,
@@ -113,7 +113,8 @@ def oracle_search(
     ``random_scores [R]``, ``mean_random``, ``renders`` and ``cached``.
     """
     platform = platform or source.platform
-    space = platform.search_space(SearchConfig(pitch_limits_deg=pitch_limits_deg))
+    space_cfg = SearchConfig(pitch_limits_deg=pitch_limits_deg)
+    space = platform.search_space(space_cfg)
     settings = {
         "version": ORACLE_VERSION,
         "scene": scene_key or source.name,
@@ -141,9 +142,8 @@ def oracle_search(
     grid, step, steps = space.exhaustive_grid(step_deg, free_step_deg, free_positions)
     log.info("oracle: scoring %d grid poses of %s", len(grid), settings["scene"])
     grid_scores = scorer.score_batched(space.to_poses(grid)).score.double()
-    rng = np.random.default_rng(seed)
-    rand = space.random(random_samples, rng)
-    random_scores = scorer.score_batched(space.to_poses(rand)).score.double()
+    rand = platform.random_poses(random_samples, np.random.default_rng(seed), space_cfg)  # [R, 4, 4]
+    random_scores = scorer.score_batched(torch.as_tensor(rand)).score.double()
 
     best_p, best_s = grid[int(torch.argmax(grid_scores))], float(grid_scores.max())
     for i in torch.argsort(grid_scores, descending=True)[:refine_starts].tolist():
