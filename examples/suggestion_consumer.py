@@ -1,8 +1,8 @@
 """A separate program that follows the planner's suggestions over Zenoh, as a flight stack or a UI
 would. Run the planner (`aes-planner launch launch/sim_closed_loop.yaml --processes`), then:
 
-    python examples/suggestion_consumer.py                       # joins tcp/127.0.0.1:7447
-    python examples/suggestion_consumer.py --connect tcp/192.168.1.5:7447 --count 3
+    python examples/suggestion_consumer.py                       # joins tcp/127.0.0.1:7390
+    python examples/suggestion_consumer.py --connect tcp/192.168.1.5:7390 --count 3
 
 It needs only the aes-planner package (for the message types and the bus), not torch.
 """
@@ -17,7 +17,7 @@ from aes_planner.transport.zenoh_bus import ZenohBus
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--connect", default="tcp/127.0.0.1:7447", help="a Zenoh endpoint of the planner's network")
+    parser.add_argument("--connect", default="tcp/127.0.0.1:7390", help="a Zenoh endpoint of the planner's network")
     parser.add_argument("--count", type=int, default=0, help="stop after this many suggestions (0 = never)")
     args = parser.parse_args()
 

@@ -36,7 +36,7 @@ def wiring_recorder(monkeypatch):
     return rec
 
 
-# ---------------------------------------------------------------- the bad-input sweep (issue 13)
+# ---------------------------------------------------------------- the bad-input sweep
 def _one_clean_line(text: str) -> str:
     lines = [ln for ln in text.splitlines() if ln.strip()]
     assert "Traceback" not in text, text

@@ -1,4 +1,4 @@
-"""Bad-input sweep (issue 13): YAML files through aes_planner.config.load_yaml and from_dict.
+"""Bad-input sweep: YAML files through aes_planner.config.load_yaml and from_dict.
 
 Every case ends in a ConfigError whose one-line message names the problem, in bounded time and
 memory, or in the documented value.

@@ -1,4 +1,4 @@
-"""Bad-input sweep (issue 13): image headers read before decoding (aes_planner.images) and paths
+"""Bad-input sweep: image headers read before decoding (aes_planner.images) and paths
 kept inside their folder (aes_planner.paths)."""
 
 import struct

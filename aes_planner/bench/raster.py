@@ -196,7 +196,8 @@ def _bench_case(rec: Recorder, name: str, case: Case, quick: bool) -> None:
     # The reference timed at its best: pixel chunks of 4 MiB [pixels, N] temporaries were the
     # fastest of 2-64 MiB in three cases. Temporaries over glibc's mmap threshold (32 MiB, fixed by
     # aes_planner.runtime.tune_malloc) are mapped and faulted in afresh on every call: its default
-    # chunk of 4096 px made the same call up to 2.8x slower (docs/rasterizer.md, round 7).
+    # chunk of 4096 px made the same call up to 2.8x slower (docs/journal/rasterizer.md, "Why 10k
+    # 32x32 C=32 stays under 100x").
     chunk = max(64, DENSE_CHUNK_BYTES // (4 * max(case.n, 1)))
 
     def dense():

@@ -7,7 +7,7 @@
 * ``aes-planner replay FILE.mcap [--rate R] [--loop]``: publish a recording again.
 * ``aes-planner foxglove [--port P]``: serve the bus live to the Foxglove app (loopback).
 
-Each joins the network of ``aes-planner launch --processes`` at ``tcp/127.0.0.1:7447`` unless
+Each joins the network of ``aes-planner launch --processes`` at ``tcp/127.0.0.1:7390`` unless
 ``--connect`` says otherwise.
 """
 
@@ -20,12 +20,8 @@ import math
 import sys
 import time
 
-from aes_planner.cli.processes import stop_on_signals
+from aes_planner.cli.processes import DEFAULT_ENDPOINT, stop_on_signals
 from aes_planner.errors import AesPlannerError
-
-DEFAULT_ENDPOINT = (
-    "tcp/127.0.0.1:7447"  # aes_planner.transport.config.DEFAULT_ENDPOINT (not imported: --help stays fast)
-)
 
 
 def _bus_flags(p: argparse.ArgumentParser) -> None:
@@ -271,6 +267,7 @@ def run_foxglove(args: argparse.Namespace) -> int:
     live = FoxgloveLive(port=args.port)
     with contextlib.closing(live), stop_on_signals() as stop, contextlib.closing(open_cli_bus(args)) as bus:
         live.attach(bus)
+        live.advertise_bus_topics(bus)  # the topics published now, before their next message
         print(f"Foxglove: open ws://127.0.0.1:{live.port} in the Foxglove app (Ctrl-C to stop)", file=sys.stderr)
         stop.wait(args.duration)
     return 0

@@ -114,7 +114,7 @@ def run_demo(
     from aes_planner.config import ConfigError
     from aes_planner.devices import stop_on_signals
     from aes_planner.geometry.poses import cam2world_to_view
-    from aes_planner.node import Launch, build_nodes, load_launch
+    from aes_planner.graph import Launch, build_nodes, load_launch
     from aes_planner.platform import parse_kind
     from aes_planner.sim import load_scene
     from aes_planner.sim.source import platform_of
@@ -131,7 +131,7 @@ def run_demo(
     nodes = build_nodes(spec)
     planner = next(n for n, _ in nodes if n.node_id == "planner")
     say(f"demo: {kind} on {scene}: {', '.join(f'{n.node_id} ({type(n).__name__})' for n, _ in nodes)}")
-    from aes_planner.gaussians.numba_backend import warm_kernels
+    from aes_planner.gaussians.warmup import warm_kernels
 
     warm_kernels()  # a fresh install compiles them here (and says so), not in the loop's first plan
     t0 = time.time()
@@ -157,7 +157,7 @@ def run_demo(
 
     transport = transport or argparse.Namespace(processes=False, foxglove=None, record=None)
     if transport.processes:  # the other nodes in their own processes over Zenoh, supervised
-        from aes_planner.transport.supervisor import Supervisor
+        from aes_planner.graph.supervisor import Supervisor
 
         local = [(n, r) for n, r in nodes if n.node_id == "planner"]
         launch = Supervisor(

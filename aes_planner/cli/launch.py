@@ -36,10 +36,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from aes_planner.cli.processes import attach_viewers, check_timeout, close_viewers, run_processes
     from aes_planner.devices import stop_on_signals
-    from aes_planner.node import Launch, build_nodes, load_launch
+    from aes_planner.graph import Launch, build_nodes, load_launch
 
     check_timeout(args.timeout)
-    if args.processes:  # one process per node over Zenoh (aes_planner.transport.supervisor)
+    if args.processes:  # one process per node over Zenoh (aes_planner.graph.supervisor)
         return run_processes(args)
     spec = load_launch(args.file, args.set)
     nodes = build_nodes(spec)
@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     # the drivers' safe shutdown: the first SIGINT/SIGTERM stops the loop, a second one raises,
     # and either way every node's stop() (a gimbal's torque-off) runs inside this block
     with stop_on_signals(on_signal=on_signal):
-        sinks = attach_viewers(launch.bus, args)  # --foxglove / --record
+        sinks = attach_viewers(launch.bus, args, spec)  # --foxglove / --record
         try:
             launch.start()
             finished = launch.run(timeout_s=args.timeout, until=lambda: stop.is_set() or _all_finished(launch))
@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _all_finished(launch) -> bool:
-    from aes_planner.node.base import Node
+    from aes_planner.graph.base import Node
 
     finishing = [r.node for r in launch.runners if type(r.node).finished is not Node.finished]
     return bool(finishing) and all(n.finished for n in finishing)

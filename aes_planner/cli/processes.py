@@ -16,7 +16,7 @@ import threading
 
 from aes_planner.errors import AesPlannerError
 
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7390"  # aes_planner.transport.config.DEFAULT_ENDPOINT (why 7390: there)
 
 
 def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None = None) -> None:
@@ -53,9 +53,22 @@ def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None =
     g.add_argument("--record", default=None, metavar="FILE.mcap", help="record every topic to an MCAP file")
 
 
-def attach_viewers(bus, args: argparse.Namespace) -> list:
+def declared_outputs(spec) -> list[tuple[str, type, bool]]:
+    """``(topic, message type, latched)`` of every output a launch's nodes declare, remapped."""
+    from aes_planner.graph.base import node_class
+
+    out = []
+    for e in spec.nodes:
+        if e.type != "external":
+            for name, (msg_type, latched) in node_class(e.type).outputs.items():
+                out.append((e.remap.get(name, name), msg_type, latched))
+    return out
+
+
+def attach_viewers(bus, args: argparse.Namespace, spec=None) -> list:
     """The Foxglove server and/or recorder that ``--foxglove`` / ``--record`` ask for, attached to
-    ``bus``; close them (in reverse) when the run ends."""
+    ``bus``; close them (in reverse) when the run ends. The server advertises the outputs of
+    ``spec``'s nodes (a launch spec) from the start."""
     from aes_planner.transport.record import FoxgloveLive, Recorder
 
     sinks = []
@@ -66,7 +79,8 @@ def attach_viewers(bus, args: argparse.Namespace) -> list:
         if port is not None:
             if not 0 <= port <= 65535:
                 raise AesPlannerError(f"--foxglove port must be in 0..65535, got {port}")
-            live = FoxgloveLive(port=port).attach(bus)
+            declared = declared_outputs(spec) if spec is not None else ()
+            live = FoxgloveLive(port=port, declared=declared).attach(bus)
             print(f"Foxglove: open ws://127.0.0.1:{live.port} in the Foxglove app", file=sys.stderr, flush=True)
             sinks.append(live)
     except BaseException:
@@ -101,10 +115,10 @@ def stop_on_signals():
 
 
 def supervisor_from_args(args: argparse.Namespace, in_process=(), out=None):
-    """A :class:`~aes_planner.transport.supervisor.Supervisor` for ``args.file`` / ``args.set``."""
+    """A :class:`~aes_planner.graph.supervisor.Supervisor` for ``args.file`` / ``args.set``."""
     from aes_planner.config import ConfigError
+    from aes_planner.graph.supervisor import Supervisor
     from aes_planner.transport.config import ZenohConfig
-    from aes_planner.transport.supervisor import Supervisor
 
     try:
         ZenohConfig(
@@ -139,7 +153,7 @@ def run_processes(args: argparse.Namespace) -> int:
         sup.start()
         sinks = []
         try:
-            sinks = attach_viewers(sup.bus, args)
+            sinks = attach_viewers(sup.bus, args, sup.spec)
             finished = sup.run(timeout_s=timeout, until=stop.is_set)
             if stop.is_set():
                 print("[launch] interrupted: stopping the nodes", flush=True)

@@ -21,6 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from aes_planner.gaussians import numba_backend
     from aes_planner.gaussians.rasterize import resolve_backend
+    from aes_planner.gaussians.warmup import COMPILED_AFTER_S
 
     backend = resolve_backend()
     if backend != "numba":
@@ -28,6 +29,6 @@ def run(args: argparse.Namespace) -> int:
         return 0
     print("compiling the rasterizer's kernels (or loading them from numba's cache) ...", flush=True)
     took_s = numba_backend.warmup()
-    how = "compiled" if took_s > numba_backend.COMPILED_AFTER_S else "loaded from numba's cache"
+    how = "compiled" if took_s > COMPILED_AFTER_S else "loaded from numba's cache"
     print(f"rasterizer kernels ready: {how} in {took_s:.1f} s")
     return 0

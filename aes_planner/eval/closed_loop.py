@@ -63,7 +63,7 @@ def evaluate_run(planner, scene: str, kind: str, out: Path, loop_s: float) -> di
     platform = dataclasses.replace(platform, intrinsics=source.platform.intrinsics)  # the renders' camera
     caps = [c for c in planner.captures if math.isfinite(c.score)]
     if not caps:
-        from aes_planner.node import NodeError
+        from aes_planner.graph import NodeError
 
         raise NodeError(
             f"the planner captured nothing (state {planner.state}) within the run; see the log above, or give it "

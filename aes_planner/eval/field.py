@@ -114,7 +114,7 @@ def evaluate_field(
     config: FieldEvalConfig,
     progress: Callable[[Iterable], Iterable] = lambda it: it,
 ) -> tuple[dict, list[dict]]:
-    """The summary JSON (shape of issue 9) and the raw per-scene results (for plots)."""
+    """The summary JSON (the shape `eval field` has always written) and the raw per-scene results (for plots)."""
     raw = []
     for i, name in enumerate(progress(scenes)):
         raw.append(evaluate_scene(make_source(name), teacher, models, config, i))

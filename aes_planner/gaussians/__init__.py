@@ -11,11 +11,11 @@
 """
 
 from aes_planner.gaussians.container import GaussianError, Gaussians
+from aes_planner.gaussians.grad_mode import autograd_on
 from aes_planner.gaussians.rasterize import (
     BACKEND_ENV,
     BACKENDS,
     RasterOutput,
-    autograd_on,
     rasterize,
     resolve_backend,
 )

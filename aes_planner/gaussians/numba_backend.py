@@ -1,4 +1,4 @@
-"""The compiled CPU backend: numba kernels of :mod:`aes_planner.gaussians._kernels` behind one
+"""The compiled CPU backend: numba kernels of :mod:`aes_planner.gaussians.kernels` behind one
 ``torch.autograd.Function``. numba is imported on first use (and the cached kernels loaded);
 :func:`available` says whether that works, without raising.
 """
@@ -15,11 +15,12 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from aes_planner.gaussians.grad_mode import autograd_on
 from aes_planner.gaussians.numerics import DEPTH_ALPHA_MIN, TILE
 
 log = logging.getLogger(__name__)
 
-__all__ = ["available", "profile_stages", "render", "warmup", "warm_kernels"]
+__all__ = ["available", "profile_stages", "render", "warmup"]
 
 _kernels = None
 _import_error: str | None = None
@@ -73,7 +74,7 @@ def _load():
     global _kernels, _import_error
     if _kernels is None and _import_error is None:
         try:
-            from aes_planner.gaussians import _kernels as k
+            from aes_planner.gaussians import kernels as k
             from aes_planner.runtime import tune_malloc
 
             tune_malloc()  # before the first kernel's buffers (aes_planner.runtime says why)
@@ -250,33 +251,8 @@ def render(means, quats, log_scales, opacities, colors, features, background, wo
     return _Raster.apply(means, quats, log_scales, opacities, colors, features, background, world2cam, K, width, height)
 
 
-#: A warm-up slower than this compiled the kernels (loading them from numba's cache takes ~0.5 s).
-COMPILED_AFTER_S = 5.0
-
-
-def warm_kernels() -> float | None:
-    """Compile or load the float32 kernels of the backend ``rasterize`` would run, before the
-    first render needs them: on a fresh install numba compiles them once (~40 s on two cores)
-    and caches them on disk. Returns the seconds taken, ``None`` when the torch backend runs
-    (nothing to compile). Logs a warning when it compiled."""
-    from aes_planner.gaussians.rasterize import resolve_backend  # rasterize imports this module
-
-    if resolve_backend() != "numba":
-        return None
-    took_s = warmup(torch.float32)
-    if took_s > COMPILED_AFTER_S:
-        log.warning(
-            "compiled the rasterizer's kernels in %.0f s (the first run after an install does; "
-            "`aes-planner warmup`, run by `make install`, does it ahead)",
-            took_s,
-        )
-    return took_s
-
-
 def warmup(dtype: torch.dtype = torch.float32) -> float:
     """Compile (or load from numba's cache) every kernel for ``dtype``; returns seconds taken."""
-    from aes_planner.gaussians.rasterize import autograd_on  # rasterize imports this module
-
     t0 = time.perf_counter()
     g = torch.Generator().manual_seed(0)
     n = 8

@@ -16,10 +16,9 @@ The environment variable ``AES_PLANNER_RASTER_BACKEND`` (``auto``/``numba``/``to
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,7 +28,13 @@ from torch import Tensor
 from aes_planner.gaussians.container import GaussianError, Gaussians
 from aes_planner.gaussians.numerics import DEPTH_ALPHA_MIN
 
-__all__ = ["BACKENDS", "BACKEND_ENV", "RasterOutput", "autograd_on", "rasterize", "resolve_backend"]
+__all__ = [
+    "BACKENDS",
+    "BACKEND_ENV",
+    "RasterOutput",
+    "rasterize",
+    "resolve_backend",
+]
 
 log = logging.getLogger(__name__)
 
@@ -89,7 +94,8 @@ def resolve_backend(backend: str = "auto", device: torch.device | str = "cpu") -
 
 
 # The checks below run in numpy on float64 copies of the few pose numbers: torch's small ops cost
-# ~5-10 us each, which made the checks ~0.14 ms of every call (docs/rasterizer.md, round 4).
+# ~5-10 us each, which made the checks ~0.14 ms of every call (docs/journal/rasterizer.md, "Alias
+# checks, the 8-lane backward").
 def _f64(t: Tensor) -> np.ndarray:
     return t.detach().to(torch.float64).cpu().numpy()
 
@@ -168,16 +174,6 @@ def _check_rigid(world2cam: np.ndarray) -> None:  # [B, 4, 4] float64
             f"world2cam[{b}] must be rigid: its rotation block {what} (max |R R^T - I| = {float(err[b]):.2e}, "
             f"det = {float(det[b]):.3g}); build poses with aes_planner.geometry (e.g. rigid_inverse(cam2world))"
         )
-
-
-@contextlib.contextmanager
-def autograd_on() -> Iterator[None]:
-    """Autograd on for the block, also inside a caller's ``torch.no_grad()`` or
-    ``torch.inference_mode()``: for the package's own gradients (the reconstruction's blending
-    weights, the search's pose refinement), which are part of its results, not of the caller's
-    training. Tensors made in the block are normal tensors."""
-    with torch.inference_mode(False), torch.enable_grad():
-        yield
 
 
 def rasterize(

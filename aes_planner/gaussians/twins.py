@@ -1,6 +1,6 @@
 """Plain torch twins of the numba backend's stages, one per kernel, for the per-stage tests.
 
-Each twin takes the inputs of its kernel in :mod:`aes_planner.gaussians._kernels` (as tensors,
+Each twin takes the inputs of its kernel in :mod:`aes_planner.gaussians.kernels` (as tensors,
 same order, same layouts) and returns what the kernel writes into its output arrays, computed the
 obvious way: dense per tile, loops over cameras and tiles, autograd for the backward passes.
 ``tests/gaussians/test_stages.py`` compares every kernel with its twin (values and gradients), so

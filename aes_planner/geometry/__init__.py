@@ -47,6 +47,10 @@ float64 and returned as numpy) or torch tensors (differentiable, dtype and devic
 cross the package boundary in float64 and the field lives in a :class:`LocalFrame` recentred on
 the first frame (a pure translation, so z stays up and yaw/pitch keep their meaning).
 
+**Drone (MAVLink).** The world of a drone is ENU (x east, y north, z up) at the vehicle's local
+origin (plus a configured offset); the vehicle's local NED and body FRD frames are converted to it
+once, in :mod:`aes_planner.drone.frames`, which states the formulas.
+
 **Pan-tilt rig.** See :mod:`aes_planner.geometry.pantilt`: pan turns about the base's +z, tilt
 about the pan frame's horizontal axis with positive tilt looking up, the camera sits on a
 lever arm from the tilt axis; with an upright base, ``pan = yaw`` and ``tilt = pitch``.

@@ -38,8 +38,8 @@ import math
 import numpy as np
 import torch
 
+from aes_planner.graph.base import Outputs
 from aes_planner.messages import Candidate, PosedFrame
-from aes_planner.node.base import Outputs
 from aes_planner.node.captures import Capture, Target, hopes, near_captured
 
 log = logging.getLogger(__name__)

@@ -25,8 +25,8 @@ import numpy as np
 from aes_planner.config import ConfigError, require, require_numbers, short_repr
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.pantilt import PanTilt, PanTiltConfig
+from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs
 from aes_planner.messages import GimbalState, PosedFrame
-from aes_planner.node.base import LaunchContext, Node, NodeError, Outputs
 
 log = logging.getLogger(__name__)
 
@@ -77,10 +77,38 @@ def load_calibration(path: str | Path) -> Calibration:
     dist = _matrix(dist_node, "calibration.distortion_coefficients").reshape(-1) if dist_node else np.zeros(0)
     if not np.all(np.isfinite(dist)):
         raise ConfigError("calibration.distortion_coefficients", f"{path}: must be finite")
+    if dist.size and dist.size not in (4, 5, 8, 12, 14):  # what cv2.undistort takes
+        raise ConfigError(
+            "calibration.distortion_coefficients",
+            f"{path}: OpenCV takes 4, 5, 8, 12 or 14 coefficients (k1 k2 p1 p2 [k3 ...]), got {dist.size}",
+        )
     k = Intrinsics(
         float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), data["image_width"], data["image_height"]
     )
     return Calibration(k, dist)
+
+
+#: Largest camera index accepted (``/dev/video0`` ... ``/dev/video1023``).
+MAX_CAMERA_INDEX = 1023
+
+
+def _check_capture_source(device: Any) -> None:
+    """Refuse a capture source before OpenCV sees it: ``cv2.VideoCapture(-1)`` dies of a segmentation
+    fault (the process, not an exception), and an index past 2**31 is a ``TypeError``."""
+    if isinstance(device, bool) or not isinstance(device, (int, str)):
+        raise ConfigError("device", f"expected a camera index or a path/URL, got {short_repr(device)}")
+    if isinstance(device, int):
+        require(
+            0 <= device <= MAX_CAMERA_INDEX,
+            "device",
+            f"a camera index is 0-{MAX_CAMERA_INDEX} (/dev/videoN), got {device}",
+        )
+    else:
+        require(
+            1 <= len(device) <= 4096 and device.isprintable(),
+            "device",
+            f"a camera path or URL is 1-4096 printable characters, got {short_repr(device)}",
+        )
 
 
 @dataclass
@@ -100,6 +128,7 @@ class CameraNodeConfig:
     frame_id: str = "camera"
 
     def __post_init__(self):
+        _check_capture_source(self.device)
         require(
             isinstance(self.frame_id, str) and self.frame_id.isprintable() and 1 <= len(self.frame_id) <= 200,
             "frame_id",

@@ -25,8 +25,8 @@ from typing import Any
 from aes_planner.config import require, require_numbers
 from aes_planner.devices import DeviceError, Gimbal, GimbalCommError, GimbalHardwareError, make_device
 from aes_planner.geometry.rig import JointCommandError, JointLimits
+from aes_planner.graph.base import LaunchContext, Node, Outputs
 from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState
-from aes_planner.node.base import LaunchContext, Node, Outputs
 
 log = logging.getLogger(__name__)
 

@@ -22,8 +22,8 @@ import torch
 
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
 from aes_planner.geometry.rig import PanTiltConfig
+from aes_planner.graph.base import Outputs
 from aes_planner.messages import Candidate, GimbalCommand, GimbalState, MessageError, PosedFrame
-from aes_planner.node.base import Outputs
 from aes_planner.node.captures import Capture, Target
 from aes_planner.platform import DroneBox, DronePlatform, Platform, RigPlatform
 

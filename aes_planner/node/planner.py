@@ -27,6 +27,7 @@ from collections.abc import Mapping
 import numpy as np
 import torch
 
+from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs, percentile
 from aes_planner.messages import (
     Candidate,
     Diagnostics,
@@ -37,7 +38,6 @@ from aes_planner.messages import (
     ViewSuggestion,
 )
 from aes_planner.node.active_loop import ActiveLoop, LoopState
-from aes_planner.node.base import LaunchContext, Node, NodeError, Outputs, percentile
 from aes_planner.node.captures import Capture, Target
 from aes_planner.node.motion import DroneMotion, Motion, RigMotion
 from aes_planner.node.planner_config import PlannerConfig
@@ -152,7 +152,7 @@ class PlannerNode(ActiveLoop, Node):
             self.proposer = FieldProposer(c.scorer, c.preset, self.teacher, c.max_frames, c.seed)
         _ = self.teacher
         if isinstance(self.proposer, FieldProposer) and not self._kernels_warm:  # now, not in the first plan
-            from aes_planner.gaussians.numba_backend import warm_kernels
+            from aes_planner.gaussians.warmup import warm_kernels
 
             warm_kernels()
             self._kernels_warm = True

@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from aes_planner.config import ConfigError, require, require_numbers, short_repr
+from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs
 from aes_planner.messages import GimbalState, PosedFrame
 from aes_planner.messages.posed_frame import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE_PX
-from aes_planner.node.base import LaunchContext, Node, NodeError, Outputs
 
 log = logging.getLogger(__name__)
 

@@ -21,8 +21,8 @@ import torch
 
 from aes_planner.config import require, require_numbers
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
+from aes_planner.graph.base import LaunchContext, NodeError, Outputs
 from aes_planner.messages import PosedFrame, ViewSuggestion
-from aes_planner.node.base import LaunchContext, NodeError, Outputs
 from aes_planner.node.sim_camera import SimCameraNode, SimCameraNodeConfig
 from aes_planner.platform import DroneBox
 

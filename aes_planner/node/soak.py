@@ -19,9 +19,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from aes_planner.graph.runner import NodeRunner
 from aes_planner.messages import Diagnostics, PlannerRequest, PosedFrame, ViewSuggestion
 from aes_planner.node.planner import PlannerConfig, PlannerNode
-from aes_planner.node.runner import NodeRunner
 
 log = logging.getLogger(__name__)
 
@@ -88,7 +88,7 @@ def run_soak(
     views: int = 12,
     min_suggest_period_s: float = 0.2,
 ) -> SoakResult:
-    from aes_planner.node.base import percentile
+    from aes_planner.graph.base import percentile
     from aes_planner.transport import InProcessBus
 
     frames = _frames(scene, views, width)
@@ -214,6 +214,6 @@ def _gs():
 
 
 def _context(scene: str):
-    from aes_planner.node.base import LaunchContext
+    from aes_planner.graph.base import LaunchContext
 
     return LaunchContext(scene=scene)

@@ -44,6 +44,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from aes_planner.teachers.base import Teacher, TeacherError, WeightsError, check_feature_map, check_images
+from aes_planner.teachers.torchfile import DeclaredSizeError, check_declared_sizes
 
 log = logging.getLogger(__name__)
 
@@ -157,6 +158,7 @@ _BAD_FILE = (
     NotImplementedError,
     MemoryError,
     RecursionError,
+    AssertionError,  # torch's own checks of a damaged file (``saved_id must be a tuple``)
 )
 #: Largest magnitude a VEN weight may have. Trained VGG-16 / VEN weights stay below about 10; a
 #: file with 1e30 in it is not VEN's weights, and would make every score overflow to NaN.
@@ -174,6 +176,17 @@ def _read_checkpoint(path: Path) -> Any:
         raise WeightsError(f"{path} is a folder, not a readable PyTorch checkpoint; give the weights file itself")
     if not path.is_file():
         raise WeightsError(f"VEN weights file {path} does not exist. " + WEIGHTS_ADVICE)
+    try:  # torch.load allocates what the file declares before it reads: check the declarations first
+        check_declared_sizes(path)
+    except DeclaredSizeError as exc:
+        raise WeightsError(
+            f"{path} is not a readable PyTorch checkpoint ({exc}); re-download it. " + WEIGHTS_ADVICE
+        ) from None
+    except _BAD_FILE as exc:
+        raise WeightsError(
+            f"{path} is not a readable PyTorch checkpoint (truncated or corrupt: {str(exc)[:160]}); re-download it. "
+            + WEIGHTS_ADVICE
+        ) from None
     names: list[str] = []
     while True:
         try:
@@ -198,7 +211,7 @@ def _read_checkpoint(path: Path) -> Any:
             names.append(found.group(1))
         except _BAD_FILE as exc:
             raise WeightsError(
-                f"{path} is not a readable PyTorch checkpoint (truncated or corrupt: {exc}); re-download it. "
+                f"{path} is not a readable PyTorch checkpoint (truncated or corrupt: {str(exc)[:160]}); re-download it. "
                 + WEIGHTS_ADVICE
             ) from None
     if names:

@@ -9,16 +9,25 @@ from typing import Literal
 
 from aes_planner.config import ConfigError, require
 
-__all__ = ["BusConfig", "ZenohConfig", "open_bus", "DEFAULT_ENDPOINT", "EPHEMERAL_ENDPOINT"]
+__all__ = ["BusConfig", "ZenohConfig", "open_bus", "DEFAULT_ENDPOINT", "DEFAULT_PORT", "EPHEMERAL_ENDPOINT"]
 
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+# The graph's hub port. Not Zenoh's 7447: zenohd, ROS 2's rmw_zenohd router and the zenoh-bridge-*
+# tools all listen there by default, so a ROS 2 rmw_zenoh system and a launch on the same machine
+# would each fail when started second. 7390 is also below 7400, the RTPS port base: every port a
+# DDS participant of any domain binds is 7400 + 250 x domain + offset (7447 itself is a Fast DDS
+# participant's unicast port in domain 0), so the ROS 2 bridge's DDS never takes it either; it is
+# not 7446 (Zenoh's multicast scouting), and below the kernel's ephemeral range (32768-60999), so
+# no outgoing connection's local port takes it.
+DEFAULT_PORT = 7390
+DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
+ZENOH_ROUTER_PORT = 7447  # zenohd's and rmw_zenohd's default: named when a clash looks likely
 EPHEMERAL_ENDPOINT = "tcp/127.0.0.1:0"
 _ENDPOINT = re.compile(r"^(tcp|udp|quic|tls)/(\[[0-9A-Fa-f:]+\]|[A-Za-z0-9.\-]+):(\d{1,5})$")
 
 
 def _endpoint_host(endpoint: str, key: str) -> str:
     m = _ENDPOINT.match(endpoint) if isinstance(endpoint, str) else None
-    require(m is not None, key, f"endpoint must look like 'tcp/127.0.0.1:7447', got {endpoint!r}")
+    require(m is not None, key, f"endpoint must look like 'tcp/127.0.0.1:7390', got {endpoint!r}")
     require(int(m.group(3)) <= 65535, key, f"port out of range in {endpoint!r}")
     return m.group(2).strip("[]")
 

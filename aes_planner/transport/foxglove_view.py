@@ -3,8 +3,11 @@
 For a message on topic ``T`` (shown as ``/T``), :func:`foxglove_view` returns:
 
 * ``PosedFrame``: ``/T/image`` (``foxglove.CompressedImage``, PNG), ``/tf``
-  (``foxglove.FrameTransform`` world -> the camera), ``/T/scene`` (``foxglove.SceneUpdate``:
-  the camera's frustum in white).
+  (``foxglove.FrameTransform`` world -> the camera's optical frame), ``/T/scene``
+  (``foxglove.SceneUpdate``: the camera's frustum in white). The camera's frame id is stable, one
+  per topic (:func:`camera_frame_id`: ``camera/frame`` -> ``camera_optical``), moving in the
+  world as a tf frame does; the message's own ``frame_id`` (``sim_camera/000012``) names the image,
+  not a frame of the tree.
 * ``ViewSuggestion``: ``/T/scene`` (``foxglove.SceneUpdate``: a frustum per candidate coloured
   by score, red = worst to green = best, with its rank and score as text), ``/tf`` (world ->
   ``suggestion``, the best candidate), ``/T/scores`` (JSON: best score, coverage, each term,
@@ -13,6 +16,11 @@ For a message on topic ``T`` (shown as ``/T``), :func:`foxglove_view` returns:
 
 Our own channel ``/T`` carries the message's bytes unchanged (message encoding
 ``aes-planner``), so a replay feeds a node exactly what it saw.
+
+Time: every Foxglove message carries the message's own stamp (``stamp_s``: the capture time of a
+frame, the planning time of a suggestion), never the time it was received; see
+:func:`stamp_ns`. :func:`view_channels` lists the channels a type's view writes, so a live
+server can advertise them before the first message.
 """
 
 from __future__ import annotations
@@ -30,7 +38,16 @@ from aes_planner.messages import (
     to_jsonable,
 )
 
-__all__ = ["VizMessage", "foxglove_view", "OUR_ENCODING", "our_schema", "FrustumStyle"]
+__all__ = [
+    "VizMessage",
+    "foxglove_view",
+    "view_channels",
+    "camera_frame_id",
+    "stamp_ns",
+    "OUR_ENCODING",
+    "our_schema",
+    "FrustumStyle",
+]
 
 OUR_ENCODING = "aes-planner"
 _SCHEMA_DOC = (
@@ -87,10 +104,33 @@ def _json(topic: str, name: str, obj) -> VizMessage:
     return VizMessage(topic, name, "jsonschema", _JSON_SCHEMA, "json", json.dumps(obj).encode())
 
 
-def _stamp(log_time_ns: int):
+def stamp_ns(msg: Message, fallback_ns: int) -> int:
+    """The message's own stamp (``stamp_s``) in integer nanoseconds; ``fallback_ns`` (the receive
+    time) for a message without one or with a stamp before 1970, which no timestamp can hold."""
+    stamp_s = getattr(msg, "stamp_s", None)
+    if stamp_s is None or not math.isfinite(stamp_s) or stamp_s < 0 or stamp_s >= 2**63 / 1e9:
+        return int(fallback_ns)
+    return round(stamp_s * 1e9)
+
+
+def camera_frame_id(topic: str) -> str:
+    """The stable tf frame of the camera publishing on ``topic``: its tokens without a last
+    ``frame``, joined by ``_``, with REP-103's ``_optical`` suffix (OpenCV axes):
+    ``camera/frame`` -> ``camera_optical``, ``left/camera/frame`` -> ``left_camera_optical``."""
+    tokens = topic.strip("/").split("/")
+    if len(tokens) > 1 and tokens[-1] == "frame":
+        tokens = tokens[:-1]
+    return "_".join(tokens) + "_optical"
+
+
+#: The tf frame of the best suggestion (world -> suggestion).
+SUGGESTION_FRAME = "suggestion"
+
+
+def _stamp(t_ns: int):
     from foxglove.messages import Timestamp
 
-    return Timestamp(log_time_ns // 1_000_000_000, log_time_ns % 1_000_000_000)
+    return Timestamp(t_ns // 1_000_000_000, t_ns % 1_000_000_000)
 
 
 def _quat_xyzw(rotation: np.ndarray):
@@ -179,6 +219,28 @@ def score_color(score: float, lo: float, hi: float) -> tuple[float, float, float
     return (1.0 - t, t, 0.15, 1.0)
 
 
+def view_channels(topic: str, msg_type: type[Message]) -> list[tuple[str, tuple[str, str, bytes], str]]:
+    """``[(channel topic, (schema name, schema encoding, schema data), message encoding)]`` that
+    :func:`foxglove_view` writes for messages of ``msg_type`` on ``topic`` (our own channel not
+    included): what a live server advertises before the first message arrives."""
+    from foxglove.messages import CompressedImage, FrameTransform, SceneUpdate
+
+    base = "/" + topic.strip("/")
+    if issubclass(msg_type, PosedFrame):
+        return [
+            (f"{base}/image", _proto_schema(CompressedImage), "protobuf"),
+            ("/tf", _proto_schema(FrameTransform), "protobuf"),
+            (f"{base}/scene", _proto_schema(SceneUpdate), "protobuf"),
+        ]
+    if issubclass(msg_type, ViewSuggestion):
+        return [
+            (f"{base}/scene", _proto_schema(SceneUpdate), "protobuf"),
+            ("/tf", _proto_schema(FrameTransform), "protobuf"),
+            (f"{base}/scores", ("aes_planner.SuggestionScores", "jsonschema", _JSON_SCHEMA), "json"),
+        ]
+    return [(f"{base}/json", (f"aes_planner.{msg_type.TYPE_NAME}Json", "jsonschema", _JSON_SCHEMA), "json")]
+
+
 class _ViewState:
     """Remembers the last camera's field of view so suggestion frustums match it."""
 
@@ -187,9 +249,11 @@ class _ViewState:
 
 
 def foxglove_view(
-    topic: str, msg: Message, log_time_ns: int, style: FrustumStyle | None = None, state: _ViewState | None = None
+    topic: str, msg: Message, recv_time_ns: int, style: FrustumStyle | None = None, state: _ViewState | None = None
 ) -> list[VizMessage]:
-    """The Foxglove-typed messages showing ``msg`` (published on ``topic``); see the module doc."""
+    """The Foxglove-typed messages showing ``msg`` (published on ``topic``), stamped with the
+    message's own stamp (``recv_time_ns`` only when it has none, see :func:`stamp_ns`); see the
+    module doc."""
     import cv2
     from foxglove.messages import CompressedImage, SceneUpdate
 
@@ -197,9 +261,10 @@ def foxglove_view(
     state = state or _ViewState()
     base = "/" + topic
     out: list[VizMessage] = []
+    log_time_ns = stamp_ns(msg, recv_time_ns)
     if isinstance(msg, PosedFrame):
         ok, png = cv2.imencode(".png", np.ascontiguousarray(msg.image[..., ::-1]))
-        camera = msg.frame_id or "camera"
+        camera = camera_frame_id(topic)
         if ok:
             out.append(
                 _proto(
@@ -238,7 +303,7 @@ def foxglove_view(
         summary: dict = {"stamp_s": msg.stamp_s, "field_version": msg.field_version, "count": len(scores)}
         best = msg.best
         if best is not None:
-            out.append(_proto("/tf", _transform("world", "suggestion", best.cam2world, log_time_ns)))
+            out.append(_proto("/tf", _transform("world", SUGGESTION_FRAME, best.cam2world, log_time_ns)))
             x, y, z, yaw, pitch = best.view.tolist()
             summary["best"] = {
                 "score": best.score,

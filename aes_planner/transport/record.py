@@ -24,9 +24,16 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from aes_planner.errors import AesPlannerError
-from aes_planner.messages import MessageError, decode, peek_header
-from aes_planner.transport.bus import Bus, RawSample, Subscription
-from aes_planner.transport.foxglove_view import OUR_ENCODING, _ViewState, foxglove_view, our_schema
+from aes_planner.messages import MESSAGE_TYPES, MessageError, decode, peek_header
+from aes_planner.transport.bus import Bus, RawSample, Subscription, validate_topic
+from aes_planner.transport.foxglove_view import (
+    OUR_ENCODING,
+    _ViewState,
+    foxglove_view,
+    our_schema,
+    stamp_ns,
+    view_channels,
+)
 
 __all__ = ["Recorder", "FoxgloveLive", "RecordingError", "read_recording", "replay", "recording_summary"]
 
@@ -66,7 +73,10 @@ class _Sink:
         self.write_raw(topic, msg.encode(), log_time_ns)
 
     def write_raw(self, topic: str, data: bytes, log_time_ns: int | None = None) -> None:
-        """Write our bytes (checked to decode; rejected and counted otherwise) and their view."""
+        """Write our bytes (checked to decode; rejected and counted otherwise) and their view.
+
+        ``log_time_ns`` is when the message was received (now when None); the message's own stamp
+        goes with it as its publish time (:func:`~aes_planner.transport.foxglove_view.stamp_ns`)."""
         t = time.time_ns() if log_time_ns is None else int(log_time_ns)
         try:
             msg = decode(data)
@@ -75,10 +85,11 @@ class _Sink:
             log.warning("not recording a malformed message on %s: %s", topic, exc)
             return
         cls = type(msg)
+        stamp = stamp_ns(msg, t)
         with self._lock:
             if self.closed:
                 return
-            self._write("/" + topic, our_schema(cls.TYPE_NAME, cls.SCHEMA_VERSION), OUR_ENCODING, data, t)
+            self._write("/" + topic, our_schema(cls.TYPE_NAME, cls.SCHEMA_VERSION), OUR_ENCODING, data, t, stamp, topic)
             if self.viz:
                 try:
                     views = foxglove_view(topic, msg, t, state=self._state)
@@ -86,12 +97,15 @@ class _Sink:
                     log.exception("could not build the Foxglove view of %s", topic)
                     views = []
                 for v in views:
-                    self._write(
-                        v.topic, (v.schema_name, v.schema_encoding, v.schema_data), v.message_encoding, v.data, t
-                    )
+                    schema = (v.schema_name, v.schema_encoding, v.schema_data)
+                    self._write(v.topic, schema, v.message_encoding, v.data, t, stamp, topic)
             self.written += 1
 
-    def _write(self, topic: str, schema: tuple[str, str, bytes], encoding: str, data: bytes, t: int) -> None:
+    def _write(
+        self, topic: str, schema: tuple[str, str, bytes], encoding: str, data: bytes, t: int, stamp: int, source: str
+    ) -> None:
+        """One message on channel ``topic``: received at ``t``, stamped ``stamp`` (ns), shown
+        for bus topic ``source``."""
         raise NotImplementedError
 
     def close(self) -> None:
@@ -133,7 +147,9 @@ class Recorder(_Sink):
         self._channels: dict[tuple, int] = {}
         self._sequence = 0
 
-    def _write(self, topic, schema, encoding, data, t) -> None:
+    def _write(self, topic, schema, encoding, data, t, stamp, source) -> None:
+        # log_time = when it was recorded (replay paces on it, across every clock the nodes use);
+        # publish_time = the message's own stamp (capture or planning time), as the MCAP spec has it
         sid = self._schemas.get(schema)
         if sid is None:
             sid = self._schemas[schema] = self._writer.register_schema(schema[0], schema[1], schema[2])
@@ -142,7 +158,7 @@ class Recorder(_Sink):
         if cid is None:
             cid = self._channels[key] = self._writer.register_channel(topic, encoding, sid)
         self._sequence += 1
-        self._writer.add_message(cid, log_time=t, data=data, publish_time=t, sequence=self._sequence)
+        self._writer.add_message(cid, log_time=t, data=data, publish_time=stamp, sequence=self._sequence)
 
     def _close(self) -> None:
         self._writer.finish()
@@ -152,33 +168,128 @@ class Recorder(_Sink):
 class FoxgloveLive(_Sink):
     """The same channels served live over the Foxglove WebSocket protocol (foxglove-sdk).
 
-    ``host`` defaults to loopback; anything else must be asked for explicitly."""
+    ``host`` defaults to loopback; anything else must be asked for explicitly. Clients must ask
+    for the WebSocket subprotocol ``foxglove.sdk.v1`` (the Foxglove app does; the older
+    ``foxglove.websocket.v1`` is refused with HTTP 400).
 
-    def __init__(self, port: int = 8765, host: str = "127.0.0.1", *, viz: bool = True, name: str = "aes-planner"):
+    Nothing is lost to a client that joins early or late:
+
+    * :meth:`advertise` (the topics a graph's nodes declare, ``declared`` at construction) creates
+      a topic's channels before its first message, so a client connected before the graph starts
+      subscribes in time for the first message, and never to a channel the server does not know;
+    * a latched topic's last message (on each of its channels) goes to a client when it
+      subscribes, as the bus gives it to a late subscriber.
+
+    Every message carries the message's own stamp as its log time, not the time it arrived.
+    """
+
+    def __init__(
+        self,
+        port: int = 8765,
+        host: str = "127.0.0.1",
+        *,
+        viz: bool = True,
+        name: str = "aes-planner",
+        declared: Iterable[tuple[str, type, bool]] = (),
+    ):
         super().__init__(viz)
         import foxglove
 
         self._foxglove = foxglove
         self.context = foxglove.Context()
+        self._channels: dict[str, object] = {}
+        self._by_id: dict[int, str] = {}  # channel id -> channel topic
+        self._latched_topics: set[str] = set()
+        self._latched_lock = threading.Lock()
+        self._latched_last: dict[str, dict[str, tuple[bytes, int]]] = {}  # channel -> bus topic -> last
+        self._subscribed: set[tuple[int, int]] = set()  # (client id, channel id)
         try:
-            self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context)
+            self.server = foxglove.start_server(
+                name=name, host=host, port=port, context=self.context, server_listener=_Listener(self)
+            )
         except Exception as exc:  # the SDK raises its own error types for a busy port
             raise RecordingError(f"cannot serve Foxglove on {host}:{port}: {exc}") from None
         self.port = self.server.port
-        self._channels: dict[tuple, object] = {}
+        for topic, msg_type, latched in declared:
+            self.advertise(topic, msg_type, latched)
 
-    def _write(self, topic, schema, encoding, data, t) -> None:
-        key = (topic, schema[0], encoding)
-        ch = self._channels.get(key)
+    def advertise(self, topic: str, msg_type: type, latched: bool = False) -> None:
+        """Create ``topic``'s channels (ours and its view's) now, before its first message;
+        ``latched``: a client subscribing later gets the last message."""
+        topic = validate_topic(topic)
+        with self._lock:
+            if latched:
+                self._latched_topics.add(topic)
+            self._channel("/" + topic, our_schema(msg_type.TYPE_NAME, msg_type.SCHEMA_VERSION), OUR_ENCODING)
+            if self.viz:
+                for ch_topic, schema, encoding in view_channels(topic, msg_type):
+                    self._channel(ch_topic, schema, encoding)
+
+    def advertise_bus_topics(self, bus: Bus) -> int:
+        """:meth:`advertise` every topic ``bus`` knows a publisher of (its type and latching);
+        returns how many (topics of unknown types are left to their first message)."""
+        n = 0
+        for info in bus.topics():
+            cls = MESSAGE_TYPES.get(info.type_name)
+            if cls is not None and info.publishers:
+                self.advertise(info.topic, cls, info.latched)
+                n += 1
+        return n
+
+    def _channel(self, topic: str, schema: tuple[str, str, bytes], encoding: str):
+        # a topic's channel is created once, by its first advertisement or message (one schema)
+        ch = self._channels.get(topic)
         if ch is None:
             fs = self._foxglove.Schema(name=schema[0], encoding=schema[1], data=schema[2])
-            ch = self._channels[key] = self._foxglove.Channel(
-                topic, schema=fs, message_encoding=encoding, context=self.context
-            )
-        ch.log(data, log_time=t)
+            ch = self._foxglove.Channel(topic, schema=fs, message_encoding=encoding, context=self.context)
+            self._channels[topic] = ch
+            self._by_id[ch.id()] = topic
+        return ch
+
+    def _write(self, topic, schema, encoding, data, t, stamp, source) -> None:
+        ch = self._channel(topic, schema, encoding)
+        if ch.schema_name() != schema[0]:
+            log.debug("not showing a %s on %s, a channel of %s", schema[0], topic, ch.schema_name())
+            return
+        if source in self._latched_topics:
+            with self._latched_lock:
+                self._latched_last.setdefault(topic, {})[source] = (data, stamp)
+        ch.log(data, log_time=stamp)
+
+    @property
+    def subscriptions(self) -> int:
+        """How many (client, channel) subscriptions the server has now."""
+        return len(self._subscribed)
+
+    def _on_subscribe(self, client_id: int, channel_id: int) -> None:
+        """Give a client that just subscribed the last message of each latched topic shown on the
+        channel (only to that client)."""
+        self._subscribed.add((client_id, channel_id))
+        topic = self._by_id.get(channel_id)
+        with self._latched_lock:
+            last = list(self._latched_last.get(topic, {}).values())
+        ch = self._channels.get(topic)
+        for data, stamp in last:
+            ch.log(data, log_time=stamp, sink_id=client_id)
 
     def _close(self) -> None:
         self.server.stop()
+
+
+class _Listener:
+    """The foxglove-sdk server listener: called in the server's thread on each subscription."""
+
+    def __init__(self, live: FoxgloveLive) -> None:
+        self._live = live
+
+    def on_subscribe(self, client, channel) -> None:
+        try:
+            self._live._on_subscribe(client.id, channel.id)
+        except Exception:  # never let the server's thread see an exception
+            log.exception("sending the latched messages of %s failed", channel.topic)
+
+    def on_unsubscribe(self, client, channel) -> None:
+        self._live._subscribed.discard((client.id, channel.id))
 
 
 def _open_reader(path: str | Path):

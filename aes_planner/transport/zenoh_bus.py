@@ -53,7 +53,7 @@ from aes_planner.transport.bus import (
     TransportError,
     validate_topic,
 )
-from aes_planner.transport.config import ZenohConfig
+from aes_planner.transport.config import DEFAULT_PORT, ZENOH_ROUTER_PORT, ZenohConfig
 
 __all__ = ["ZenohBus", "zenoh_config"]
 
@@ -74,6 +74,60 @@ def zenoh_config(cfg: ZenohConfig) -> zenoh.Config:
     # starts late or restarts is picked up within a second.
     conf.insert_json5("connect/retry", '{"period_init_ms": 200, "period_max_ms": 1000, "period_increase_factor": 2}')
     return conf
+
+
+def _split_endpoint(endpoint: str) -> tuple[str, str, int]:
+    proto, _, rest = endpoint.partition("/")
+    host, _, port = rest.rpartition(":")
+    return proto, host.strip("[]"), int(port)
+
+
+def _port_taken(endpoint: str) -> bool:
+    """Whether another program already holds ``endpoint``'s TCP port (bind fails with EADDRINUSE)."""
+    import errno
+    import socket
+
+    proto, host, port = _split_endpoint(endpoint)
+    if proto != "tcp" or port == 0:
+        return False
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as Zenoh's listener: TIME_WAIT is no clash
+        try:
+            s.bind((host, port))
+        except OSError as exc:
+            return exc.errno == errno.EADDRINUSE
+    return False
+
+
+def _taken_hint(endpoints: list[str]) -> str:
+    ports = {_split_endpoint(ep)[2] for ep in endpoints}
+    who = "another program holds the port (another `aes-planner launch --processes`?"
+    if ZENOH_ROUTER_PORT in ports:
+        who += (
+            f" {ZENOH_ROUTER_PORT} is also the port of a Zenoh router: zenohd, ROS 2's rmw_zenohd "
+            "(`ros2 run rmw_zenoh_cpp rmw_zenohd`) or a zenoh-bridge"
+        )
+    return (
+        f"{who}); stop it, or choose another port with --listen tcp/HOST:PORT "
+        f"(the default is {DEFAULT_PORT}); `ss -ltnp` shows which process holds it"
+    )
+
+
+def _warn_router_port(cfg: ZenohConfig) -> None:
+    for ep in cfg.listen:
+        if _split_endpoint(ep)[2] == ZENOH_ROUTER_PORT:
+            log.warning(
+                "listening on %s: port %d is the default of zenohd and ROS 2's rmw_zenohd router, which will "
+                "fail to start on this machine while this runs; the graph's default port is %d",
+                ep,
+                ZENOH_ROUTER_PORT,
+                DEFAULT_PORT,
+            )
+
+
+def _first_line(exc: BaseException) -> str:
+    return str(exc).splitlines()[0][:300] if str(exc) else type(exc).__name__
 
 
 class _Inbox:
@@ -103,10 +157,13 @@ class ZenohBus(Bus):
         try:
             self.session = zenoh.open(zenoh_config(self.config))
         except zenoh.ZError as exc:
+            taken = [ep for ep in self.config.listen if _port_taken(ep)]
+            if taken:
+                raise TransportError(f"cannot listen on {', '.join(taken)}: {_taken_hint(taken)}") from None
             raise TransportError(
-                f"could not open a Zenoh session ({exc}); check the listen/connect endpoints "
-                "(is the port already in use?)"
+                f"could not open a Zenoh session ({_first_line(exc)}); check the listen/connect endpoints"
             ) from None
+        _warn_router_port(self.config)
         self.id = f"{os.getpid()}-{uuid.uuid4().hex[:8]}"
         self._lock = threading.RLock()
         self._work = threading.Condition()

@@ -1,4 +1,4 @@
-"""Bad-input sweep (issue 13): the commands this package's hardening owns (sim, dataset, score,
+"""Bad-input sweep: the commands this package's hardening owns (sim, dataset, score,
 teachers) and the CLI's last-resort guard. Every bad input exits 2 with one ``error:`` line, no
 traceback, no hang, and nothing written outside the output folder.
 """

@@ -1,4 +1,4 @@
-"""Bad-input sweep of the new boundaries (issue 13): launch files and ``--set``, ``suggest``,
+"""Bad-input sweep of the new boundaries: launch files and ``--set``, ``suggest``,
 ``eval search|field``, ``train`` (configs, caches, checkpoints), ``demo``, ``replay``, and the field
 checkpoint loader. Every bad input ends in one ``error:`` line with exit 2 (or an
 ``AesPlannerError`` from the API), fast, before any long work, and writes nothing outside its
@@ -74,7 +74,7 @@ def test_launch_and_demo_timeout_must_be_finite_and_positive(work, cli_error, va
 
 @given(st.text(max_size=40))
 def test_set_values_never_crash_the_launch_parser(text):
-    from aes_planner.node.launch_file import apply_overrides, parse_launch
+    from aes_planner.graph.launch_file import apply_overrides, parse_launch
 
     data = {"nodes": [{"id": "planner", "type": "planner"}]}
     try:
@@ -544,9 +544,9 @@ def test_replay_topics_are_checked(recording, cli_error):
 
 # ------------------------------------------------------------------------------ node runner
 def test_a_node_with_a_very_long_period_still_stops_promptly():
+    from aes_planner.graph.base import Node
+    from aes_planner.graph.runner import NodeRunner
     from aes_planner.messages import Diagnostics
-    from aes_planner.node.base import Node
-    from aes_planner.node.runner import NodeRunner
     from aes_planner.transport import InProcessBus
 
     class Slow(Node):

@@ -1,4 +1,4 @@
-"""Bad-input sweep (issue 13): dataset folders (cameras.json), nerfstudio and RealEstate10K imports,
+"""Bad-input sweep: dataset folders (cameras.json), nerfstudio and RealEstate10K imports,
 and writing datasets. Every case is a DatasetError with one line naming the field, or the documented
 result; no path in a file reaches outside its folder unless allowed; nothing is written outside --out.
 """

@@ -1,4 +1,4 @@
-"""Bad input at the gimbal boundaries (issue 13): the CLI, the driver config, the emulator options,
+"""Bad input at the gimbal boundaries: the CLI, the driver config, the emulator options,
 the Protocol 2.0 parser and the servo bus. Every case ends in a clear error or a documented,
 finite result: never a traceback, a hang or NaN."""
 

@@ -164,8 +164,8 @@ def test_eval_search_both_modes_over_rig_and_drone_scenes(tmp_path):
     "path", sorted((Path(__file__).parents[1] / "node" / "scenes").glob("*.yaml")), ids=lambda p: p.stem
 )
 def test_hand_written_scenes_load_and_show_their_objects(path, tmp_path):
-    """The hand-written check scenes (docs/benchmarks.md, session 7) stay loadable, and their
-    inputs see something besides sky."""
+    """The hand-written check scenes (docs/journal/benchmarks.md, "The closed loop's plans") stay
+    loadable, and their inputs see something besides sky."""
     from aes_planner.eval.search import _free_platform, _inputs, _source
     from aes_planner.sim.scene import load_scene
 

@@ -1,4 +1,4 @@
-"""``eval field`` writes the JSON shape of issue 9, a table and plots; ``bench field`` records its keys."""
+"""``eval field`` writes the JSON shape the paper's experiments use, a table and plots; ``bench field`` records its keys."""
 
 import importlib
 import json

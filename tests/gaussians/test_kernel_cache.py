@@ -8,7 +8,7 @@ import sys
 import pytest
 import torch
 
-from aes_planner.gaussians import numba_backend
+from aes_planner.gaussians import numba_backend, warmup
 
 SNIPPET = """
 import json, torch
@@ -37,13 +37,13 @@ def test_warmup_command_readies_the_kernels(capsys, monkeypatch):
     monkeypatch.delenv("AES_PLANNER_RASTER_BACKEND", raising=False)
     assert main(["warmup"]) == 0
     assert "rasterizer kernels ready" in capsys.readouterr().out
-    assert numba_backend.warm_kernels() < numba_backend.COMPILED_AFTER_S  # in this process: loaded already
+    assert warmup.warm_kernels() < warmup.COMPILED_AFTER_S  # in this process: loaded already
 
 
 def test_warmup_has_nothing_to_do_on_the_torch_backend(capsys, monkeypatch):
     from aes_planner.cli import main
 
     monkeypatch.setenv("AES_PLANNER_RASTER_BACKEND", "torch")
-    assert numba_backend.warm_kernels() is None
+    assert warmup.warm_kernels() is None
     assert main(["warmup"]) == 0
     assert "nothing to compile" in capsys.readouterr().out

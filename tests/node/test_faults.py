@@ -8,7 +8,7 @@ import time
 import pytest
 
 from aes_planner.drivers.dynamixel_models import CENTER_TICKS, TICKS_PER_REV
-from aes_planner.node import Launch, LaunchContext
+from aes_planner.graph import Launch, LaunchContext
 from aes_planner.node.gimbal import GimbalNode, GimbalNodeConfig
 from aes_planner.node.planner import PlannerConfig, PlannerNode
 from aes_planner.node.sim_camera import SimCameraNode, SimCameraNodeConfig

@@ -3,8 +3,8 @@
 import pytest
 
 from aes_planner.config import ConfigError
-from aes_planner.node import build_nodes, load_launch
-from aes_planner.node.launch_file import apply_overrides, parse_launch
+from aes_planner.graph import build_nodes, load_launch
+from aes_planner.graph.launch_file import apply_overrides, parse_launch
 
 
 @pytest.mark.parametrize("name", ["sim_closed_loop", "pan_tilt_rig", "drone"])

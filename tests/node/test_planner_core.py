@@ -385,10 +385,10 @@ def test_fixed_threads_or_adapt_off_leave_the_count_alone():
 
 
 def test_start_readies_the_rasterizer_once_for_the_field_and_not_for_a_stand_in(monkeypatch):
-    from aes_planner.gaussians import numba_backend
+    from aes_planner.gaussians import warmup
 
     calls = []
-    monkeypatch.setattr(numba_backend, "warm_kernels", lambda: calls.append(1) or 0.0)
+    monkeypatch.setattr(warmup, "warm_kernels", lambda: calls.append(1) or 0.0)
     node = PlannerNode(PlannerConfig(rig=RIG), teacher=FakeTeacher())  # the field's proposer
     node.start()
     node.start()

@@ -45,8 +45,8 @@ def test_nonfinite_target_refused():
 
 
 def test_sim_drone_node_flies_the_top_candidate():
+    from aes_planner.graph.base import LaunchContext
     from aes_planner.messages import Candidate, ViewSuggestion
-    from aes_planner.node.base import LaunchContext
     from aes_planner.node.sim_drone import SimDroneNode, SimDroneNodeConfig
 
     node = SimDroneNode(

@@ -1,4 +1,4 @@
-"""Bad-input sweep of the node topics (issue 13): every input topic of the gimbal, sim camera and
+"""Bad-input sweep of the node topics: every input topic of the gimbal, sim camera and
 sim drone nodes gets noise, a truncated message, a message of another type, an oversized one and
 extreme-but-valid values. The node keeps stepping, counts each rejection, never fails a step, and
 publishes only finite values. (The planner's topics are soaked in test_soak.py.)"""
@@ -8,10 +8,10 @@ import time
 import numpy as np
 import pytest
 
+from aes_planner.graph import LaunchContext, make_node
+from aes_planner.graph.runner import Launch
 from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState, PosedFrame, ViewSuggestion
 from aes_planner.messages.samples import sample_messages
-from aes_planner.node import LaunchContext, make_node
-from aes_planner.node.runner import Launch
 from tests.helpers import wait_for
 
 SMALL_CAMERA = {"width": 16, "height": 12, "supersample": 1}

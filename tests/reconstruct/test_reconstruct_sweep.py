@@ -1,4 +1,4 @@
-"""Bad-input sweep (issue 13): reconstruct() never returns an empty reconstruction silently."""
+"""Bad-input sweep: reconstruct() never returns an empty reconstruction silently."""
 
 import copy
 

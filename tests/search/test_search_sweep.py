@@ -1,4 +1,4 @@
-"""Bad-input sweep of the search API (issue 13): inputs and platforms that are not what the
+"""Bad-input sweep of the search API: inputs and platforms that are not what the
 search needs are a SearchError naming them, never an AttributeError or a silent result."""
 
 import numpy as np

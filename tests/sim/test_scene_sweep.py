@@ -1,4 +1,4 @@
-"""Bad-input sweep (issue 13): scene YAML files and FAMILY:SEED specs through load_scene.
+"""Bad-input sweep: scene YAML files and FAMILY:SEED specs through load_scene.
 
 Each case ends in a ConfigError / SceneError (an AesPlannerError) with one line naming the key,
 quickly, or loads as documented; nothing reads files outside the scene's folder unless asked.

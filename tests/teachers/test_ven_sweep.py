@@ -1,4 +1,4 @@
-"""Bad-input sweep (issue 13): VEN weight files and the ``score`` command.
+"""Bad-input sweep: VEN weight files and the ``score`` command.
 
 A weights file that is not VEN's (random bytes, truncated, finite but huge values) is a
 WeightsError; a network that overflows is a TeacherError, never a NaN score with exit 0.
@@ -138,3 +138,89 @@ def test_convert_ven_to_a_bad_destination(tmp_path, cli_error):
     cli_error(["teachers", "convert-ven", tmp_path / "ven.pt", tmp_path], "is a folder")
     cli_error(["teachers", "convert-ven", tmp_path / "ven.pt", tmp_path / "afile" / "w.pt"], "cannot write")
     assert (tmp_path / "afile").read_text() == "x"
+
+
+# ----------------------------------------------- issue 33: declared sizes are checked before torch.load
+def _legacy_bytes(obj) -> bytes:
+    buf = io.BytesIO()
+    torch.save(obj, buf, _use_new_zipfile_serialization=False)
+    return buf.getvalue()
+
+
+def _with_numel(data: bytes, old: bytes, numel: int) -> bytes:
+    """``data`` with the storage size ``old`` (``K<n>`` after ``'cpu'`` and its memo) set to ``numel``."""
+    import struct
+
+    i = data.index(b"cpu") + len(b"cpu")
+    j = data.index(old, i)
+    return data[:j] + b"J" + struct.pack("<i", numel) + data[j + len(old) :]
+
+
+def _zip_with_pickle(data: bytes, edit) -> bytes:
+    import zipfile
+
+    out = io.BytesIO()
+    with zipfile.ZipFile(io.BytesIO(data)) as zin, zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as zout:
+        for info in zin.infolist():
+            body = zin.read(info)
+            zout.writestr(info.filename, edit(body) if info.filename.endswith("data.pkl") else body)
+    return out.getvalue()
+
+
+@pytest.fixture
+def torch_load_never_runs(monkeypatch):
+    def never(*args, **kwargs):
+        pytest.fail("torch.load ran on a file whose declared sizes should have been refused first")
+
+    monkeypatch.setattr(torch, "load", never)
+
+
+def test_a_200_byte_legacy_file_declaring_gigabytes_is_refused_before_allocating(
+    tmp_path, clean_error, torch_load_never_runs
+):
+    data = _with_numel(_legacy_bytes({"w": torch.zeros(2)}), b"K\x02", 800_000_000)
+    assert len(data) < 400
+    (tmp_path / "w.pt").write_bytes(data)
+    clean_error(load_ven_state_dict, tmp_path / "w.pt", match="declare 3200000000 bytes")
+
+
+def test_a_zip_checkpoint_declaring_more_than_its_record_is_refused_before_allocating(
+    tmp_path, clean_error, torch_load_never_runs
+):
+    buf = io.BytesIO()
+    torch.save({"w": torch.zeros(2)}, buf)
+    data = _zip_with_pickle(buf.getvalue(), lambda pkl: _with_numel(pkl, b"K\x02", 300_000_000))
+    (tmp_path / "w.pt").write_bytes(data)
+    clean_error(load_ven_state_dict, tmp_path / "w.pt", match="its record holds 8")
+
+
+def test_a_persistent_id_that_is_not_a_storage_is_a_weights_error(tmp_path, clean_error):
+    # torch's own check of this is an AssertionError, which escaped as a bug.
+    data = _legacy_bytes({"w": torch.zeros(2)})
+    start = data.index(b"(X\x07\x00\x00\x00storage")
+    end = data.index(b"Q", start)
+    (tmp_path / "w.pt").write_bytes(data[:start] + b"K\x07" + data[end:])
+    clean_error(load_ven_state_dict, tmp_path / "w.pt", match="not a storage")
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_mutated_legacy_checkpoints_are_weights_errors(tmp_path, seed):
+    # The fuzzed files of the sweep: flipped bytes in the legacy (2018) format VEN is released in.
+    rng = random.Random(seed)
+    b = bytearray(_legacy_bytes({"features.0.weight": torch.randn(4, 3), "stamp": torch.arange(5)}))
+    for _ in range(rng.randint(1, 8)):
+        b[rng.randrange(len(b))] = rng.randrange(256)
+    (tmp_path / "w.pt").write_bytes(bytes(b))
+    try:
+        load_ven_state_dict(tmp_path / "w.pt")
+    except AesPlannerError as exc:
+        assert isinstance(exc, WeightsError) and "\n" not in str(exc)
+
+
+def test_a_tar_archive_is_refused(tmp_path, clean_error, torch_load_never_runs):
+    import tarfile
+
+    with tarfile.open(tmp_path / "w.tar", "w") as tar:
+        (tmp_path / "storages").write_bytes(b"\x00" * 64)
+        tar.add(tmp_path / "storages", arcname="storages")
+    clean_error(load_ven_state_dict, tmp_path / "w.tar", match="tar archive")

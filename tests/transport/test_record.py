@@ -147,3 +147,27 @@ def test_suggestion_only_recording_has_best_transform(tmp_path):
     with open(path, "rb") as f:
         tfs = list(make_reader(f).iter_messages(topics=["/tf"]))
     assert len(tfs) == 1
+
+
+def test_a_recording_keeps_receive_time_as_log_time_and_the_stamp_as_publish_time(tmp_path):
+    """Replay paces on log time (when the message was recorded); the message's own stamp (capture or
+    planning time, sample stamps 2.5 s and 3.0 s) is each channel's publish time and is inside the
+    Foxglove messages."""
+    import time
+
+    path = tmp_path / "run.mcap"
+    before = time.time_ns()
+    samples = record_samples(path)
+    with open(path, "rb") as f:
+        got = {(c.topic, m.sequence): m for _s, c, m in make_reader(f).iter_messages()}
+    by_topic: dict[str, list] = {}
+    for (topic, _seq), m in sorted(got.items(), key=lambda kv: kv[0][1]):
+        by_topic.setdefault(topic, []).append(m)
+    for topic, stamp_s in (("/t/posedframe", 2.5), ("/t/posedframe/image", 2.5), ("/t/viewsuggestion", 3.0)):
+        m = by_topic[topic][0]
+        assert m.publish_time == int(stamp_s * 1e9), topic
+        assert m.log_time >= before, topic
+    assert samples["ViewSuggestion"].stamp_s == 3.0
+    # the image's frame and the transform's child are one stable camera frame, not the image's name
+    assert b"t_posedframe_optical" in by_topic["/t/posedframe/image"][0].data  # from topic t/posedframe
+    assert b"cam0" not in by_topic["/t/posedframe/image"][0].data

@@ -21,7 +21,7 @@ FAST = [
 
 
 def test_processes_run_the_closed_loop_and_respawn_a_killed_node(endpoint):
-    from aes_planner.transport.supervisor import Supervisor
+    from aes_planner.graph.supervisor import Supervisor
 
     out = io.StringIO()
     sup = Supervisor(
@@ -61,7 +61,7 @@ def test_processes_run_the_closed_loop_and_respawn_a_killed_node(endpoint):
 
 def test_a_node_that_dies_for_good_ends_the_launch(endpoint):
     """Without respawn, the others ran on (the gimbal with torque on) until the timeout."""
-    from aes_planner.transport.supervisor import Supervisor
+    from aes_planner.graph.supervisor import Supervisor
 
     out = io.StringIO()
     sup = Supervisor("sim_closed_loop", FAST[:-1], endpoint=endpoint, in_process=["planner"], out=out)
@@ -86,7 +86,7 @@ def test_a_node_that_dies_for_good_ends_the_launch(endpoint):
 
 def test_a_bad_launch_is_a_clear_error(endpoint):
     from aes_planner.config import ConfigError
-    from aes_planner.transport.supervisor import Supervisor
+    from aes_planner.graph.supervisor import Supervisor
 
     with pytest.raises(ConfigError, match="max_movez"):
         Supervisor("sim_closed_loop", ["planner.max_movez=2"], endpoint=endpoint)
@@ -109,15 +109,17 @@ def test_a_busy_hub_port_is_a_clear_error(endpoint, capsys):
     with ZenohBus(ZenohConfig(listen=(endpoint,), connect=())):
         assert main(["launch", "sim_closed_loop", "--processes", "--listen", endpoint, "--timeout", "5"]) == 2
     err = capsys.readouterr().err
-    assert "another launch running" in err and len(err.strip().splitlines()) == 1
+    assert (
+        "another program holds the port" in err and "aes-planner launch" in err and len(err.strip().splitlines()) == 1
+    )
 
 
 def test_the_launch_files_bus_block_sets_the_hub(tmp_path, endpoint):
     import yaml
 
     from aes_planner.config import ConfigError
-    from aes_planner.node.launch_file import find_launch_file
-    from aes_planner.transport.supervisor import Supervisor
+    from aes_planner.graph.launch_file import find_launch_file
+    from aes_planner.graph.supervisor import Supervisor
 
     data = yaml.safe_load(find_launch_file("sim_closed_loop").read_text())
     data["bus"] = {"listen": [endpoint], "connect": ["tcp/127.0.0.1:7999"], "prefix": "lab2"}
@@ -151,7 +153,7 @@ def test_children_of_a_killed_supervisor_stop_by_themselves(endpoint, tmp_path):
     script = tmp_path / "sup.py"
     script.write_text(
         "import sys, time\n"
-        "from aes_planner.transport.supervisor import Supervisor\n"
+        "from aes_planner.graph.supervisor import Supervisor\n"
         f"sup = Supervisor('sim_closed_loop', ['planner.scorer=rgb'], endpoint={endpoint!r}, out=sys.stderr).start()\n"
         "print(' '.join(str(c.proc.pid) for c in sup.children), flush=True)\n"
         "time.sleep(120)\n"

@@ -24,7 +24,7 @@ def matched(pub_bus, sub_bus, *topics, timeout_s=20.0):
 
 def test_defaults_are_loopback_and_no_multicast():
     cfg = ZenohConfig()
-    assert cfg.connect == ("tcp/127.0.0.1:7447",) and cfg.listen == ("tcp/127.0.0.1:0",) and not cfg.multicast_scouting
+    assert cfg.connect == ("tcp/127.0.0.1:7390",) and cfg.listen == ("tcp/127.0.0.1:0",) and not cfg.multicast_scouting
     with pytest.raises(ConfigError, match="allow_remote"):
         ZenohConfig(listen=("tcp/0.0.0.0:7447",))
     with pytest.raises(ConfigError, match="allow_remote"):

@@ -5,7 +5,7 @@ keep-last depth) and writes (:attr:`Node.outputs`: default topic -> message type
 topic is latched). Its :meth:`Node.step` takes the messages that arrived since the last step, per
 input topic (oldest first), and the present time, and returns the messages to publish, per
 output topic. It never touches a bus: tests call ``step`` directly, and
-:class:`aes_planner.node.runner.NodeRunner` (the thin loop) moves messages between a bus and
+:class:`aes_planner.graph.runner.NodeRunner` (the thin loop) moves messages between a bus and
 ``step``. Topic remaps are the runner's business; inside a node topics keep their default names.
 
 Devices and other resources are opened in :meth:`Node.start` and released in :meth:`Node.stop`

@@ -17,8 +17,8 @@ import threading
 import time
 from collections.abc import Mapping
 
+from aes_planner.graph.base import Node
 from aes_planner.messages import Diagnostics
-from aes_planner.node.base import Node
 
 log = logging.getLogger(__name__)
 

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from aes_planner.config import ConfigError, load_yaml, load_yaml_text, short_repr
-from aes_planner.node.base import NODE_TYPES, LaunchContext, Node, make_node
+from aes_planner.graph.base import NODE_TYPES, LaunchContext, Node, make_node
 
 __all__ = [
     "LaunchEntry",

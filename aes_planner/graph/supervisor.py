@@ -2,7 +2,7 @@
 
 :class:`Supervisor` opens the hub of the graph (a Zenoh peer listening on ``endpoint``, loopback
 by default; the children connect to it and then find each other), starts one child process per
-node of a launch file (``python -m aes_planner.transport.supervisor --child ...``), and:
+node of a launch file (``python -m aes_planner.graph.supervisor --child ...``), and:
 
 * forwards each child's output line by line with a ``[node_id]`` prefix;
 * reports a child that dies, and restarts it (after a short back-off, at most ``max_respawns``
@@ -75,7 +75,7 @@ class Supervisor:
         out=None,
         log_level: int = logging.WARNING,
     ) -> None:
-        from aes_planner.node import load_launch
+        from aes_planner.graph import load_launch
 
         self.launch_file = launch_file
         self.overrides = list(overrides)
@@ -123,8 +123,8 @@ class Supervisor:
     def _check_configs(self) -> None:
         """Every node's config parses here, so a typo fails once, naming the key, not in a child."""
         from aes_planner.config import ConfigError, from_dict
-        from aes_planner.node.base import node_class
-        from aes_planner.node.launch_file import check_remap
+        from aes_planner.graph.base import node_class
+        from aes_planner.graph.launch_file import check_remap
         from aes_planner.node.sim_camera import SimCameraNode
 
         for i, e in enumerate(self.spec.nodes):
@@ -142,7 +142,7 @@ class Supervisor:
     # -- children ----------------------------------------------------------------------------------
 
     def _command(self, child: ChildSpec) -> list[str]:
-        cmd = [sys.executable, "-m", "aes_planner.transport.supervisor", "--child", child.node_id]
+        cmd = [sys.executable, "-m", "aes_planner.graph.supervisor", "--child", child.node_id]
         cmd += ["--launch", self.launch_file, "--connect", _child_endpoint(self.endpoint), "--prefix", self.prefix]
         cmd += ["--log-level", str(self.log_level)]
         for s in self.overrides:
@@ -185,13 +185,11 @@ class Supervisor:
         try:
             self.bus = ZenohBus(self.hub_config)
         except AesPlannerError as exc:
-            raise AesPlannerError(
-                f"cannot listen on {self.endpoint} ({exc}); is another launch running? choose another with --listen"
-            ) from None
+            raise AesPlannerError(f"the graph's hub ({self.endpoint}): {exc}") from None  # says what holds the port
         for child in self.children:
             self._spawn(child)
         if self.in_process:
-            from aes_planner.node import Launch, build_nodes
+            from aes_planner.graph import Launch, build_nodes
 
             nodes = list(self._prebuilt)
             missing = self.in_process - {n.node_id for n, _ in nodes}
@@ -209,7 +207,7 @@ class Supervisor:
     def _local_done(self) -> bool:
         if self.local is None:
             return False
-        from aes_planner.node.base import Node
+        from aes_planner.graph.base import Node
 
         if any(r.error is not None for r in self.local.runners):
             self._say("an in-process node's loop died")
@@ -352,7 +350,7 @@ def _watch_for_orphaning(parent_pid: int, grace_s: float = ORPHAN_GRACE_S) -> No
 
 def main_child(argv: Sequence[str] | None = None) -> int:
     """Run one node of a launch file on a Zenoh bus until it finishes or is signalled."""
-    p = argparse.ArgumentParser(prog="aes_planner.transport.supervisor")
+    p = argparse.ArgumentParser(prog="aes_planner.graph.supervisor")
     p.add_argument("--child", required=True, metavar="NODE_ID")
     p.add_argument("--launch", required=True)
     p.add_argument("--connect", required=True)
@@ -380,8 +378,8 @@ def main_child(argv: Sequence[str] | None = None) -> int:
         signal.signal(s, on_signal)
     _watch_for_orphaning(parent)
     try:
-        from aes_planner.node import Launch, build_nodes, load_launch
-        from aes_planner.node.base import Node
+        from aes_planner.graph import Launch, build_nodes, load_launch
+        from aes_planner.graph.base import Node
         from aes_planner.transport.zenoh_bus import ZenohBus
 
         spec = load_launch(args.launch, args.set)
