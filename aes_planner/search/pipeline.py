@@ -87,7 +87,7 @@ class SearchResult:
     """Suggestions best first, the stage-1 candidates (for plots) and where the time went."""
 
     suggestions: list[Suggestion]
-    mode: str
+    mode: str  # the platform kind searched: rig or drone
     timings_ms: dict[str, float] = field(default_factory=dict)
     candidates_cam2world: np.ndarray | None = None  # [C, 4, 4] stage-1 candidates
     candidates_score: np.ndarray | None = None  # [C]
