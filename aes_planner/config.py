@@ -39,6 +39,7 @@ __all__ = [
     "require_finite",
     "require_numbers",
     "short_repr",
+    "tag_of",
 ]
 
 _REPR = reprlib.Repr()
@@ -110,6 +111,26 @@ def require_numbers(obj: Any, names: tuple[str, ...], *, minimum: float = 0.0, s
         )
 
 
+def tag_of(item: Any, key: str, known: typing.Iterable[str], tag: str = "type") -> str:
+    """The type word of a tagged mapping ``{type: WORD, ...}`` (a launch file's node, a scene's
+    object or light, a device), checked: ``item`` is a mapping and ``WORD`` a string among
+    ``known``; otherwise a :class:`ConfigError` naming ``key.type`` and the words it may be."""
+    known = sorted(known)
+    if not isinstance(item, Mapping):
+        raise ConfigError(
+            key, f"expected a mapping with a {tag!r} key (one of {', '.join(known)}), got {short_repr(item)}"
+        )
+    word = item.get(tag)
+    if not isinstance(word, str) or word not in known:
+        what = "missing" if tag not in item else f"got {short_repr(word)}"
+        raise ConfigError(_join(key, tag), f"must be one of {', '.join(known)}; {what}")
+    return word
+
+
+#: Integers in config files fit in 64 bits (numpy, torch and the wire format hold them there).
+INT_MIN, INT_MAX = -(2**63), 2**63 - 1
+
+
 def _describe(tp: Any) -> str:
     return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
 
@@ -171,6 +192,8 @@ def _convert(tp: Any, value: Any, key: str) -> Any:
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(key, f"expected an integer, got {short_repr(value)}")
+        if not INT_MIN <= value <= INT_MAX:
+            raise ConfigError(key, f"expected an integer that fits in 64 bits, got {short_repr(value)}")
         return value
     if tp is bool:
         if not isinstance(value, bool):
@@ -218,6 +241,11 @@ def from_dict(cls: type[T], data: Any, key: str = "") -> T:
         if key and not exc.key.startswith(key):
             raise ConfigError(_join(key, exc.key) if exc.key else key, exc.message) from None
         raise
+    except (TypeError, ValueError, ArithmeticError) as exc:
+        # A check in __post_init__ that a value it did not expect broke (an overflow, a type):
+        # still the input's fault, so name the block it came from rather than print a traceback.
+        text = " ".join(str(exc).split())[:200]
+        raise ConfigError(key or cls.__name__, f"invalid value ({type(exc).__name__}: {text})") from None
 
 
 def to_dict(obj: Any) -> Any:

@@ -1,5 +1,8 @@
-"""Hardware-free device interfaces: the :class:`Device` ABC, the :class:`Gimbal` interface and a
-registry that maps the ``type:`` word of a launch file to an implementation.
+"""Hardware-free device interfaces: the :class:`Device` ABC, the :class:`Gimbal` and
+:class:`Camera` interfaces and a registry that maps the ``type:`` word of a launch file to an
+implementation. A camera is a device like a motor: the camera nodes read images through
+:meth:`Camera.read` whether the camera is an OpenCV capture (``opencv_camera``) or the simulator's
+(:class:`aes_planner.sim.SimCamera`, built by the sim nodes from the launch's scene).
 
 Real and simulated implementations are registered side by side::
 
@@ -20,23 +23,23 @@ left), ``tilt`` about the pan link's axis (positive looks up).
 
 from __future__ import annotations
 
-import contextlib
 import importlib
 import logging
 import math
-import signal
-import threading
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
-from aes_planner.config import ConfigError, from_dict
+from aes_planner.config import ConfigError, from_dict, tag_of
 from aes_planner.errors import AesPlannerError
 
 __all__ = [
     "Device",
+    "Camera",
+    "CameraError",
+    "CameraImage",
     "Gimbal",
     "GimbalState",
     "GimbalFaults",
@@ -52,8 +55,6 @@ __all__ = [
     "make_device",
     "joint_command",
     "wait_for_arrival",
-    "SignalShutdown",
-    "stop_on_signals",
 ]
 
 log = logging.getLogger(__name__)
@@ -61,6 +62,10 @@ log = logging.getLogger(__name__)
 
 class DeviceError(AesPlannerError):
     """A device could not do what was asked; the message says what to check."""
+
+
+class CameraError(DeviceError):
+    """A camera gave an image it should not (a size that does not match its calibration...)."""
 
 
 class GimbalCommError(DeviceError):
@@ -202,6 +207,42 @@ class Gimbal(Device):
         """Clear a latched hardware error (after its cause is removed). No-op by default."""
 
 
+@dataclass(frozen=True)
+class CameraImage:
+    """One image read from a :class:`Camera`.
+
+    * ``image``: ``[H, W, 3]`` uint8, RGB, the camera's :attr:`Camera.intrinsics` (undistorted).
+    * ``stamp_s``: when it was taken, on the clock the reader gave (:meth:`Camera.read`).
+    * ``depth_m``: ``[H, W]`` float32 z-depth in metres where the camera measures it, else None.
+    * ``cam2world``: ``[4, 4]`` the pose the camera itself reports (a simulation knows it); None
+      when the platform poses it (a rig's kinematics at the gimbal's joints at ``stamp_s``).
+    """
+
+    image: Any
+    stamp_s: float
+    depth_m: Any = None
+    cam2world: Any = None
+
+
+class Camera(Device):
+    """A camera: :meth:`read` the next image. ``intrinsics`` (an
+    :class:`~aes_planner.geometry.camera.Intrinsics`) is set by the implementation once known
+    (from the calibration, or the simulated camera's field of view)."""
+
+    intrinsics: Any = None
+
+    @property
+    def ready(self) -> bool:
+        """True when :meth:`read` can give an image now (connected; a simulated camera: placed)."""
+        return self.connected
+
+    @abstractmethod
+    def read(self, stamp_s: float) -> CameraImage | None:
+        """The next image, stamped ``stamp_s``; None when there is none to give now (a failed
+        read, a simulated camera not yet placed). Raises :class:`CameraError` for an image that
+        does not match the camera's calibration."""
+
+
 def joint_command(pan_rad: Any, tilt_rad: Any) -> tuple[float, float]:
     """Two joint angles as floats, or :class:`~aes_planner.geometry.rig.JointCommandError`.
 
@@ -304,6 +345,7 @@ DEVICE_TYPES: dict[str, str | type[Device]] = {
     "dynamixel_pan_tilt": "aes_planner.drivers.dynamixel:DynamixelPanTilt",
     "emulated_pan_tilt": "aes_planner.drivers.emulated:EmulatedPanTilt",
     "sim_pan_tilt": "aes_planner.drivers.sim_gimbal:SimPanTilt",
+    "opencv_camera": "aes_planner.drivers.camera:OpenCVCamera",
 }
 
 
@@ -332,90 +374,16 @@ def device_class(type_name: str, key: str = "type") -> type[Device]:
     return getattr(module, attr)
 
 
-def make_device(spec: Mapping[str, Any], key: str = "") -> Device:
-    """Build an unconnected device from a launch-file mapping ``{type: word, <config keys>}``."""
-    if not isinstance(spec, Mapping):
-        raise ConfigError(key, f"expected a mapping with a 'type' key, got {spec!r}")
+def make_device(spec: Mapping[str, Any], key: str = "", kind: type[Device] = Device) -> Device:
+    """Build an unconnected device from a launch-file mapping ``{type: word, <config keys>}``;
+    ``kind``: the interface the caller needs (a :class:`Gimbal`, a :class:`Camera`)."""
     type_key = f"{key}.type" if key else "type"
-    if "type" not in spec:
-        raise ConfigError(type_key, f"missing; known types: {', '.join(sorted(DEVICE_TYPES))}")
-    cls = device_class(spec["type"], type_key)
+    cls = device_class(tag_of(spec, key, DEVICE_TYPES), type_key)
+    if not issubclass(cls, kind):
+        raise ConfigError(type_key, f"device type {spec['type']!r} is a {cls.__name__}, not a {kind.__name__}")
     fields = {k: v for k, v in spec.items() if k != "type"}
     if cls.config_class is None:
         if fields:
             raise ConfigError(key, f"device type {spec['type']!r} takes no settings, got {sorted(fields)}")
         return cls()
     return cls(from_dict(cls.config_class, fields, key))
-
-
-# ------------------------------------------------------------------------------ signals
-class SignalShutdown(KeyboardInterrupt):
-    """Raised in the main thread by :func:`stop_on_signals` when SIGINT or SIGTERM arrives.
-
-    A :class:`KeyboardInterrupt` subclass, so every ``with device:`` block, ``finally`` and
-    Ctrl-C handler on the way out runs as for Ctrl-C (``except Exception`` does not swallow it).
-    ``signum`` is the signal; ``exit_code`` the shell convention ``128 + signum`` (130 for SIGINT,
-    143 for SIGTERM).
-    """
-
-    def __init__(self, signum: int):
-        self.signum = int(signum)
-        self.exit_code = 128 + self.signum
-        super().__init__(f"stopped by {signal.Signals(self.signum).name}")
-
-
-@contextlib.contextmanager
-def stop_on_signals(
-    signals: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM),
-    on_signal: Callable[[int], None] | None = None,
-) -> Iterator[None]:
-    """Turn SIGINT and SIGTERM into the same clean shutdown while the block runs.
-
-    Wrap any code that drives servos (a CLI command, a node process's main loop) **around** the
-    ``with gimbal:`` block, so that the gimbal's ``disconnect()`` (stop: torque off on both
-    servos) runs inside this block::
-
-        with stop_on_signals():
-            with make_device(spec) as gimbal:
-                gimbal.move_to(pan_rad, tilt_rad)
-                gimbal.wait_until_reached()
-        # SIGTERM or Ctrl-C: SignalShutdown propagated out of both blocks, torque is off
-
-    * Without ``on_signal``, the first signal raises :class:`SignalShutdown` in the main thread
-      wherever it is (a sleep, a serial exchange); the ``with`` blocks unwind and clean up; the
-      caller exits non-zero with ``exc.exit_code``.
-    * With ``on_signal`` (for a loop that polls a stop flag, e.g. ``stop_event.set``), the first
-      signal calls ``on_signal(signum)`` and nothing is raised; a second one raises
-      :class:`SignalShutdown` (the loop did not stop in time).
-    * Once :class:`SignalShutdown` has been raised, further signals are logged and ignored until
-      the block exits, so that an impatient second Ctrl-C or a supervisor's repeated SIGTERM
-      cannot interrupt the torque-off on the way out. The clean-up is bounded by the driver's
-      timeouts; SIGKILL remains the last resort (and leaves torque as it was).
-
-    The previous handlers are restored on exit. Must be entered in the main thread (Python runs
-    signal handlers only there); elsewhere it raises :class:`RuntimeError`.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        raise RuntimeError("stop_on_signals() must be entered in the main thread (signal handlers run only there)")
-    state = {"raised": False, "seen": 0}
-
-    def handler(signum, frame):
-        state["seen"] += 1
-        name = signal.Signals(signum).name
-        if state["raised"]:
-            log.warning("%s ignored: shutting down (torque off) already", name)
-            return
-        if on_signal is not None and state["seen"] == 1:
-            log.info("%s: stopping", name)
-            on_signal(signum)
-            return
-        state["raised"] = True
-        log.info("%s: shutting down", name)
-        raise SignalShutdown(signum)
-
-    previous = {sig: signal.signal(sig, handler) for sig in signals}
-    try:
-        yield
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)

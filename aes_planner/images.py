@@ -27,6 +27,7 @@ __all__ = [
     "ImageError",
     "check_image_size",
     "image_size",
+    "write_image",
     "imread_bounded",
     "read_image",
     "write_contact_sheet",
@@ -199,10 +200,17 @@ def write_contact_sheet(frames: Sequence[PosedFrame], path: str | Path) -> Path:
         d8 = np.where(valid, 255 - np.clip(d / scale * 255, 0, 255), 0).astype(np.uint8)
         cols.append(np.vstack([rgb, cv2.applyColorMap(d8, cv2.COLORMAP_VIRIDIS)]))
     sheet = np.hstack([np.pad(c, ((2, 2), (2, 2), (0, 0)), constant_values=255) for c in cols])
+    return write_image(path, sheet, "the contact sheet")
+
+
+def write_image(path: str | Path, bgr: np.ndarray, what: str = "the image") -> Path:
+    """``cv2.imwrite`` that raises :class:`ImageError` when nothing was written (``imwrite`` only
+    returns False: a folder in the way, no permission, an unknown extension)."""
+    path = Path(path)
     try:
-        ok = cv2.imwrite(str(path), sheet)
+        ok = cv2.imwrite(str(path), bgr)
     except cv2.error:
         ok = False
-    if not ok:
-        raise ImageError(f"{path}: could not write the contact sheet; check the folder exists and is writable")
+    if not ok or not path.is_file():
+        raise ImageError(f"{path}: could not write {what}; check that it is a file name in a writable folder")
     return path

@@ -62,6 +62,9 @@ RIG_FREE_BOX_HALF_M = (0.8, 0.8, 0.3)
 
 #: A drone box's largest side and farthest coordinate, metres (a search samples inside it).
 MAX_BOX_SIDE_M = 1e6
+#: A drone box's smallest side, metres: a drone holds its position to about this; a thinner box
+#: (a side of 0 or 1e-300 m) is a mistake, and would leave the search nowhere to go.
+MIN_BOX_SIDE_M = 0.1
 MAX_COORDINATE_M = 1e9
 
 
@@ -98,6 +101,13 @@ class DroneBox:
         for name in ("bounds_min_m", "bounds_max_m"):
             far = max(abs(v) for v in getattr(self, name))
             require(far <= MAX_COORDINATE_M, name, f"a coordinate of {far:.3g} m is beyond {MAX_COORDINATE_M:.0e} m")
+        thin = min(hi - lo for lo, hi in zip(self.bounds_min_m, self.bounds_max_m))
+        require(
+            thin >= MIN_BOX_SIDE_M,
+            "bounds_max_m",
+            f"a box {thin:.3g} m thin is smaller than a drone holds its position ({MIN_BOX_SIDE_M} m); "
+            "give every side at least that",
+        )
         side = max(hi - lo for lo, hi in zip(self.bounds_min_m, self.bounds_max_m))
         require(
             side <= MAX_BOX_SIDE_M, "bounds_max_m", f"a box {side:.3g} m across is larger than {MAX_BOX_SIDE_M:.0e} m"

@@ -15,13 +15,28 @@ is retried with exponential backoff on timeouts and corrupt replies (a short sta
 as corrupt; the SDK would index past its end). A status with the hardware-alert bit reads
 Hardware Error Status, reports the fault in :class:`GimbalState`, turns torque off on both
 servos and refuses motion until :meth:`DynamixelPanTilt.reboot`. Communication lost after every
-retry is fatal too (torque off, best effort). A port that disappears raises
-:class:`GimbalPortLostError`; the next call reopens it once it is back.
+retry is fatal too (torque off, best effort).
+
+Reconnection: a port that disappears (USB cable pulled, adapter reset, emulator restarted)
+raises :class:`GimbalPortLostError`. Every later call reopens it once its path exists again (a
+missing path costs one ``stat``); a port that opens but whose servos do not answer (still powering
+up) is polled again at most once per back-off wait (``reconnect_backoff_s``, doubled after each
+failed try, capped at :data:`MAX_RECONNECT_BACKOFF_S`; ``state()`` calls in between raise at once,
+while a command, a move or a reboot, always tries). A
+reopened bus is identified again (ping, models, latched faults). If the driver had control when
+the port went, it takes control again as on a first move (position mode and the position limits
+checked in EEPROM, profile velocity/acceleration written, torque on) and re-sends the last goal,
+which was clamped to the limits when it was commanded: servos that lost power come back holding
+where they were told to be, never somewhere else. A servo that reports a hardware error on
+reconnection keeps torque off and refuses motion until :meth:`DynamixelPanTilt.reboot`.
+``port_losses``, ``reconnects`` and ``port_lost`` report it (the gimbal node puts them in its
+diagnostics).
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import termios
 import threading
 import time
@@ -50,6 +65,7 @@ from aes_planner.drivers.dynamixel_config import (  # noqa: F401  (re-exported: 
     MAX_MOVE_TIMEOUT_S,
     MAX_POLL_INTERVAL_S,
     MAX_REBOOT_TIMEOUT_S,
+    MAX_RECONNECT_BACKOFF_S,
     DynamixelPanTiltConfig,
     EmulatedPanTiltConfig,
     arrival_settings,
@@ -163,6 +179,12 @@ class DynamixelPanTilt(Gimbal):
         self._firmware: dict[str, int] = {}
         self._faults: dict[str, tuple[str, ...]] = {}
         self.torque_losses = 0  # times a move found a servo's torque off behind the driver's back
+        self.port_losses = 0  # times the serial port disappeared
+        self.reconnects = 0  # times it was reopened and the servos identified again
+        self._last_goals: dict[str, int] | None = None  # ticks last sent: re-sent after a reconnection
+        self._resume_control = False  # the driver had control when the port went
+        self._reopen_wait_s = 0.0
+        self._next_reopen_s = 0.0  # time.monotonic() of the next reopening try
 
     # ------------------------------------------------------------------------------ Device
     @property
@@ -173,6 +195,11 @@ class DynamixelPanTilt(Gimbal):
     def models(self) -> dict[str, str]:
         """Joint -> model name, as the servos reported on connect."""
         return {j: m.name for j, m in self._models.items()}
+
+    @property
+    def port_lost(self) -> bool:
+        """True from the loss of the serial port until it is reopened."""
+        return self._lost
 
     @property
     def faults(self) -> dict[str, tuple[str, ...]]:
@@ -198,7 +225,8 @@ class DynamixelPanTilt(Gimbal):
             if self._port is not None and not self._lost:
                 self._torque_off_all()
             self._release_port()
-            self._connected = self._lost = self._in_control = False
+            self._connected = self._lost = self._in_control = self._resume_control = False
+            self._last_goals = None
 
     # ------------------------------------------------------------------------------ Gimbal
     def move_to(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
@@ -222,11 +250,12 @@ class DynamixelPanTilt(Gimbal):
             if not self._in_control:
                 self._take_control()
             self._sync_write("goal_position", goals)
+            self._last_goals = goals
         return pan_rad, tilt_rad
 
     def state(self) -> GimbalState:
         with self._lock:
-            self._ensure_port()
+            self._ensure_port(polling=True)
             rows, alerts = self._sync_read_state()
             if alerts:
                 self._on_alert(alerts)
@@ -261,6 +290,7 @@ class DynamixelPanTilt(Gimbal):
         (overload: free the joint; overheating: let it cool; voltage: check the supply).
         """
         with self._lock:
+            self._resume_control = False  # a reboot leaves torque off, as documented
             self._ensure_port()
             self._in_control = False  # a rebooted servo comes back with torque off
             joints = [j for j in JOINTS if j in self._faults] or list(JOINTS)
@@ -397,18 +427,48 @@ class DynamixelPanTilt(Gimbal):
 
     def _port_lost(self, exc: BaseException) -> GimbalPortLostError:
         self._release_port()
+        if not self._lost:
+            self.port_losses += 1
+            self._reopen_wait_s = 0.0
+            self._next_reopen_s = 0.0  # the first try is on the next call
+        # lost again while taking control back: still to be resumed
+        self._resume_control = self._resume_control or self._in_control
         self._lost, self._in_control = True, False
         log.error("serial port %s lost: %s", self.config.port, exc)
         return GimbalPortLostError(
             f"serial port {self.config.port} disappeared ({exc}); check the USB cable and the adapter's power; "
-            "the driver reopens it on the next call once it is back"
+            "the driver reopens it on a later call once it is back"
         )
 
-    def _ensure_port(self) -> None:
+    def _ensure_port(self, polling: bool = False) -> None:
+        """Reopen a lost port and resume control (module docstring). A poll (``state()``) tries at
+        most once per back-off wait; a command (a move, a reboot) always tries at once."""
         if not self._connected:
             raise DeviceError("the gimbal is not connected; call connect() first or use it in a `with` block")
-        if not self._lost:
+        if not (self._lost or self._resume_control):
             return
+        if self._lost and not os.path.exists(self.config.port):  # cheap: no back-off needed
+            raise GimbalPortLostError(f"serial port {self.config.port} is still missing; reconnect the adapter")
+        now = time.monotonic()
+        if polling and now < self._next_reopen_s:
+            raise GimbalPortLostError(
+                f"serial port {self.config.port} is back but the servos did not answer the last try; "
+                f"next try in {self._next_reopen_s - now:.2f} s"
+            )
+        try:
+            if self._lost:
+                self._reopen()
+            if self._resume_control:
+                self._resume()
+        except DeviceError:
+            self._reopen_wait_s = min(
+                MAX_RECONNECT_BACKOFF_S, max(self.config.reconnect_backoff_s, 2.0 * self._reopen_wait_s)
+            )
+            self._next_reopen_s = time.monotonic() + self._reopen_wait_s
+            raise
+
+    def _reopen(self) -> None:
+        """Open the port again and identify the servos; raises while the port or they are not back."""
         try:
             self._port = _open_port(self.config.port, self.config.baud, self.config.latency_timer_ms)
         except GimbalCommError as exc:
@@ -421,7 +481,22 @@ class DynamixelPanTilt(Gimbal):
             self._release_port()
             raise
         self._lost = False
+        self.reconnects += 1
         log.warning("serial port %s is back; reconnected (%s)", self.config.port, self._describe_servos())
+
+    def _resume(self) -> None:
+        """After a reconnection, take control again as the driver had it: EEPROM mode and limits,
+        profile, torque on (all off again if any step fails), then the last goal, which was clamped
+        to the limits when it was commanded. Not while a servo reports a hardware error."""
+        if self._faults:
+            log.error("after reconnecting: %s; torque stays off; %s", self._fault_text(), self._reboot_hint())
+            self._resume_control = False
+            return
+        self._take_control()
+        if self._last_goals is not None:
+            self._sync_write("goal_position", self._last_goals)
+        self._resume_control = False
+        log.warning("torque on again, holding the last goal (%s ticks)", self._last_goals)
 
     def _release_port(self) -> None:
         _close_port(self._port)

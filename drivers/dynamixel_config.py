@@ -24,6 +24,7 @@ __all__ = [
     "MAX_POLL_INTERVAL_S",
     "MAX_MOVE_TIMEOUT_S",
     "MAX_REBOOT_TIMEOUT_S",
+    "MAX_RECONNECT_BACKOFF_S",
     "MAX_ARRIVAL_TOLERANCE_DEG",
     "arrival_settings",
     "joint_limits",
@@ -36,6 +37,7 @@ MAX_BACKOFF_S = 1.0  # also the cap of each doubled wait between retries
 MAX_POLL_INTERVAL_S = 1.0
 MAX_MOVE_TIMEOUT_S = MAX_WAIT_S
 MAX_REBOOT_TIMEOUT_S = 60.0
+MAX_RECONNECT_BACKOFF_S = 2.0  # also the cap of each doubled wait between tries to reopen a lost port
 MAX_ARRIVAL_TOLERANCE_DEG = 45.0
 
 
@@ -72,7 +74,8 @@ class DynamixelPanTiltConfig:
       positive (pan left, tilt up), else -1.
     * ``*_limits_deg``: joint limits, written to Min/Max Position Limit and enforced in software.
     * ``profile_velocity_deg_s``/``profile_acceleration_deg_s2``: motion profile (0 = no limit);
-      refused beyond what the servos' 32-bit registers hold (about 45000 deg/s, 700000 deg/s^2).
+      refused beyond what the servos can be set to (about 1400 deg/s, the Velocity Limit register's
+      range, and 700000 deg/s^2, the Profile Acceleration register's).
     * ``retries``/``backoff_s``: retries of a failed exchange (0..20), the first wait (doubling
       after, each wait at most :data:`MAX_BACKOFF_S`).
     * ``latency_timer_ms``: the USB adapter's latency timer; the SDK waits ``2 x`` this plus
@@ -80,6 +83,8 @@ class DynamixelPanTiltConfig:
     * ``move_timeout_s``: default of :meth:`DynamixelPanTilt.wait_until_reached`;
       ``arrival_tolerance_deg``: how close counts as arrived; ``poll_interval_s``: its poll rate.
     * ``reboot_timeout_s``: how long a rebooted servo may take to answer again.
+    * ``reconnect_backoff_s``: after a lost port, the wait between tries to reopen it (doubling
+      after each failed try, each wait at most :data:`MAX_RECONNECT_BACKOFF_S`).
 
     Every time-like setting has an upper bound (``MAX_*`` in this module), so that no value that
     passes validation can make a command hang.
@@ -104,6 +109,7 @@ class DynamixelPanTiltConfig:
     arrival_tolerance_deg: float = 1.0
     poll_interval_s: float = 0.01
     reboot_timeout_s: float = 2.0
+    reconnect_backoff_s: float = 0.05
 
     def __post_init__(self):
         self._check_port()
@@ -126,7 +132,11 @@ class DynamixelPanTiltConfig:
                 f"the limits map to ticks {lo}..{hi}, outside the servo's 0..4095 in position mode; "
                 f"narrow the limits or change {joint}_zero_offset_ticks",
             )
-        require_numbers(self, ("profile_velocity_deg_s", "profile_acceleration_deg_s2", "backoff_s"), strict=False)
+        require_numbers(
+            self,
+            ("profile_velocity_deg_s", "profile_acceleration_deg_s2", "backoff_s", "reconnect_backoff_s"),
+            strict=False,
+        )
         require(0 <= self.retries <= 20, "retries", f"must be 0..20, got {self.retries}")
         require_numbers(
             self, ("latency_timer_ms", "move_timeout_s", "arrival_tolerance_deg", "poll_interval_s", "reboot_timeout_s")
@@ -137,6 +147,7 @@ class DynamixelPanTiltConfig:
             ("poll_interval_s", MAX_POLL_INTERVAL_S, "s"),
             ("move_timeout_s", MAX_MOVE_TIMEOUT_S, "s"),
             ("reboot_timeout_s", MAX_REBOOT_TIMEOUT_S, "s"),
+            ("reconnect_backoff_s", MAX_RECONNECT_BACKOFF_S, "s"),
             ("arrival_tolerance_deg", MAX_ARRIVAL_TOLERANCE_DEG, "deg"),
         ):
             require(

@@ -44,6 +44,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from aes_planner.devices import DeviceError
 from aes_planner.drivers.dynamixel_models import (
     BAUD_RATES,
     CENTER_TICKS,
@@ -881,15 +882,30 @@ class EmulatorProcess:
         ready, _, _ = select.select([self.proc.stdout], [], [], self.start_timeout_s)
         self.port = self.proc.stdout.readline().strip() if ready else ""
         if not self.port.startswith("/"):
+            # it exited (its own error on stderr), printed something else (--help), or hung
+            said = " ".join((self.port or self._last_error_line()).split())[:200]
             self.stop()
-            raise RuntimeError(
-                f"the emulator process did not print a pty path within {self.start_timeout_s:g} s "
-                f"(got {self.port!r}); run {' '.join(self.argv[2:])} to see why"
+            how = f"printed {said!r}" if said else f"printed nothing within {self.start_timeout_s:g} s"
+            raise DeviceError(
+                f"the servo emulator did not start: it {how} instead of its pty path; "
+                f"check its arguments: {' '.join(self.argv[5:])}"
             )
         return self
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+    def _last_error_line(self) -> str:
+        """The last line the process wrote to stderr if it has exited (its own error message)."""
+        try:
+            self.proc.wait(1.0)
+        except subprocess.TimeoutExpired:
+            return ""  # still running, silent: reading its stderr would block
+        try:
+            lines = [ln for ln in self.proc.stderr.read(65536).splitlines() if ln.strip()]
+        except (OSError, ValueError):
+            return ""
+        return lines[-1] if lines else ""
 
     def stop(self, timeout_s: float = 5.0) -> int | None:
         """Terminate the process (SIGTERM, then SIGKILL); returns its exit status."""
@@ -903,6 +919,10 @@ class EmulatorProcess:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(timeout_s)
+        if proc.stdout is not None:  # its last line says whether the servos were left with torque off
+            for line in proc.stdout.read().splitlines():
+                if line.startswith("servo emulator stopped:"):
+                    (log.warning if "torque ON" in line else log.info)("%s", line)
         for stream in (proc.stdout, proc.stderr):
             if stream is not None:
                 stream.close()

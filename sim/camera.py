@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from aes_planner.config import require, require_numbers
+from aes_planner.devices import Camera, CameraImage
 from aes_planner.errors import AesPlannerError
 from aes_planner.geometry import Intrinsics, validate_cam2world
 from aes_planner.geometry.camera import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE
@@ -107,12 +108,16 @@ class SimCameraConfig:
         )
 
 
-class SimCamera:
+class SimCamera(Camera):
     """A camera in a :class:`Scene` that turns poses into :class:`PosedFrame` records.
 
     Quick use: ``SimCamera(scene).capture_joints(pan_rad, tilt_rad)`` on a rig scene, or
     ``capture_pose(cam2world)``. For latency, set poses over time with :meth:`move_to` /
     :meth:`move_joints` and call :meth:`capture` (timing model in the module docstring).
+
+    It is also a :class:`~aes_planner.devices.Camera` (nothing to open; :attr:`ready` once placed;
+    :meth:`read` is :meth:`capture` as a :class:`~aes_planner.devices.CameraImage`, the pose it
+    reports included), which is how the sim camera nodes publish it.
     """
 
     def __init__(self, scene: Scene, config: SimCameraConfig | None = None):
@@ -134,6 +139,30 @@ class SimCamera:
         self._stamps: list[float] = []
         self._poses: list[np.ndarray] = []
         self.frames_captured = 0
+
+    # ------------------------------------------------------------------------------ device
+    @property
+    def connected(self) -> bool:
+        return True
+
+    def connect(self) -> None:
+        return None
+
+    def disconnect(self) -> None:
+        return None
+
+    @property
+    def ready(self) -> bool:
+        """True once the camera has a pose (:meth:`move_to` / :meth:`move_joints`)."""
+        return bool(self._stamps)
+
+    def read(self, stamp_s: float) -> CameraImage | None:
+        """:meth:`capture` at ``stamp_s`` (image, depth, and the pose it reports); None before the
+        camera has a pose. The ground truth of ``frame.extras`` is not part of a reading."""
+        if not self._stamps:
+            return None
+        frame = self.capture(stamp_s)
+        return CameraImage(frame.image, frame.stamp_s, frame.depth_m, frame.cam2world)
 
     # ------------------------------------------------------------------------------ motion
     def move_to(self, cam2world: np.ndarray, stamp_s: float = 0.0) -> None:

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from aes_planner.calibrate.board import BOARD_TEXTURE_PREFIX, BoardError, board_texture
 from aes_planner.config import ConfigError, from_dict, load_yaml, short_repr
 from aes_planner.errors import AesPlannerError
 from aes_planner.paths import PathOutsideError, resolve_inside
@@ -68,6 +69,12 @@ class Scene:
             key = f"objects[{i}].material.image"
             if obj.material.image is None:
                 continue
+            if obj.material.image.startswith(BOARD_TEXTURE_PREFIX):  # a calibration board, drawn exactly
+                try:
+                    self.textures[i] = board_texture(obj.material.image)
+                except BoardError as exc:
+                    raise ConfigError(key, str(exc)) from None
+                continue
             try:
                 if self.base_dir is not None:  # a scene file: its image paths stay inside its folder
                     path = resolve_inside(self.base_dir, obj.material.image, key, allow_outside, (ASSETS_DIR,))
@@ -83,8 +90,9 @@ class Scene:
                 self.textures[i] = cache[path]
 
     def image_path(self, image: str | None) -> Path | None:
-        """Where a material's ``image`` entry points (absolute when ``base_dir`` is known)."""
-        if image is None:
+        """Where a material's ``image`` entry points (absolute when ``base_dir`` is known); None for
+        none and for a generated ``board:SPEC`` texture."""
+        if image is None or image.startswith(BOARD_TEXTURE_PREFIX):
             return None
         path = Path(image).expanduser()
         if not path.is_absolute() and self.base_dir is not None:

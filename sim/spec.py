@@ -21,9 +21,10 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 
-from aes_planner.config import ConfigError, from_dict, require, require_finite, to_dict
+from aes_planner.config import from_dict, require, require_finite, tag_of, to_dict
 from aes_planner.geometry import Intrinsics, PanTilt, PanTiltConfig, rot_x, rot_y, rot_z
 from aes_planner.geometry.camera import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE
+from aes_planner.geometry.plausible import intrinsics_problem
 from aes_planner.geometry.rig import rig_dict
 from aes_planner.platform import DroneBox
 
@@ -158,7 +159,9 @@ class MaterialSpec:
     * ``albedo``: base colour (Lambertian reflectance).
     * ``pattern``: optional :class:`PatternSpec` mixing ``albedo`` and ``pattern.colour2``.
     * ``image``: optional image file (PNG, JPEG: anything cv2 reads), relative to the scene
-      file; its texels replace ``albedo``. Stretched over a quad; tiled in squares of
+      file; its texels replace ``albedo``. ``board:SPEC`` (``board:chessboard:9x6:0.06``) draws
+      a calibration board instead (:func:`aes_planner.calibrate.board.board_texture`: the pattern
+      with one white square of margin; size the quad to match, 0.72 x 0.54 m for that one). Stretched over a quad; tiled in squares of
       ``tile_m`` metres on other primitives (default 1 m) and on quads that set ``tile_m``.
     * ``emission``: light the surface gives off, as a multiple of its own colour, added to
       what it reflects (a window, a lamp shade, a lit screen).
@@ -343,6 +346,8 @@ class CameraSpec:
         require(self.height >= 1, "height", f"must be >= 1 pixel, got {self.height}")
         require(0.0 < self.hfov_deg < 180.0, "hfov_deg", f"must be in (0, 180), got {self.hfov_deg}")
         _require_camera_size(self.width, self.height)
+        problem = intrinsics_problem(self.intrinsics())  # what every frame it renders must pass
+        require(problem is None, "hfov_deg", str(problem))
 
     def intrinsics(self) -> Intrinsics:
         return Intrinsics.from_fov(self.width, self.height, self.hfov_deg)
@@ -402,11 +407,7 @@ def _parse_tagged(item: Any, key: str, table: Mapping[str, type]) -> Any:
     """A typed spec from a mapping with a ``type`` key (or a spec instance, kept as it is)."""
     if isinstance(item, tuple(table.values())):
         return item
-    if not isinstance(item, Mapping):
-        raise ConfigError(key, f"expected a mapping with a 'type' key (one of {list(table)}), got {item!r}")
-    kind = item.get("type")
-    if kind not in table:
-        raise ConfigError(f"{key}.type", f"must be one of {list(table)}, got {kind!r}")
+    kind = tag_of(item, key, table)
     return from_dict(table[kind], {k: v for k, v in item.items() if k != "type"}, key)
 
 

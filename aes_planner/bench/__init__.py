@@ -37,9 +37,11 @@ GROUPS: dict[str, str] = {
     "reconstruct": "aes_planner.bench.reconstruct",
     "teachers": "aes_planner.bench.teachers",
     "gimbal": "aes_planner.bench.gimbal",
+    "drone": "aes_planner.bench.drone",
     "search": "aes_planner.bench.search",
     "node": "aes_planner.bench.node",
     "field": "aes_planner.bench.field",
+    "ros2": "aes_planner.bench.ros2",
 }
 
 __all__ = ["GROUPS", "Recorder", "run_groups", "time_ms", "machine_info"]

@@ -19,12 +19,10 @@ The last line printed is the path of ``summary.json``.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import datetime as dt
 import json
 import math
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -51,6 +49,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="the platform: pan-tilt rig or drone (free: the older word for drone; default: what the scene has; "
         "a drone on a rig scene flies the box around the rig's base)",
+    )
+    p.add_argument(
+        "--drone",
+        choices=("sim", "mavlink"),
+        default="sim",
+        help="a drone: a simulated one, or a MAVLink vehicle (launch/drone_mavlink.yaml; the package's emulator "
+        "unless --set drone.emulate=false --set drone.connection=...)",
     )
     p.add_argument("--out", default=None, metavar="DIR", help="run folder (default runs/demo-<time>)")
     p.add_argument("--moves", type=int, default=6, help="suggestion-driven moves at most (default 6)")
@@ -86,7 +91,9 @@ def run(args: argparse.Namespace) -> int:
         for name in RUN_FILES:
             output_in(output_folder(args.out, "--out"), name)
     out = Path(args.out) if args.out else Path("runs") / f"demo-{dt.datetime.now().strftime('%Y%m%d-%H%M%S')}"
-    result = run_demo(args.scene, args.mode, out, args.moves, args.set, args.timeout, progress=print, transport=args)
+    result = run_demo(
+        args.scene, args.mode, out, args.moves, args.set, args.timeout, progress=print, transport=args, drone=args.drone
+    )
     print_summary(result)
     print(out.resolve() / "summary.json")
     return 0 if result["state"] == "done" else 1
@@ -102,6 +109,7 @@ def run_demo(
     progress=None,
     planner_overrides: dict | None = None,
     transport: argparse.Namespace | None = None,
+    drone: str = "sim",
 ) -> dict:
     """Run the closed loop and write the run folder; returns the summary dict (plus ``state``).
 
@@ -110,12 +118,13 @@ def run_demo(
 
     ``transport``: the ``--processes/--listen/--foxglove/--record`` flags (see
     :mod:`aes_planner.cli.processes`); every topic is recorded to ``out/recording.mcap``."""
-    from aes_planner.cli.processes import attach_viewers, close_viewers
+    from aes_planner.cli.processes import attach_viewers
     from aes_planner.config import ConfigError
-    from aes_planner.devices import stop_on_signals
     from aes_planner.geometry.poses import cam2world_to_view
     from aes_planner.graph import Launch, build_nodes, load_launch
-    from aes_planner.platform import parse_kind
+    from aes_planner.graph.runner import run_graph
+    from aes_planner.graph.signals import SignalShutdown
+    from aes_planner.platform import DronePlatform, parse_kind
     from aes_planner.sim import load_scene
     from aes_planner.sim.source import platform_of
 
@@ -125,6 +134,10 @@ def run_demo(
     if kind != scene_kind and scene_kind not in CAN_FLY_AROUND:
         raise ConfigError("--mode", f"scene {scene!r} has a drone box, not a pan-tilt rig: use --mode drone")
     launch_file, sets = LAUNCH_FILES[kind]
+    if drone == "mavlink":  # a MAVLink vehicle (aes_planner.drone.demo)
+        from aes_planner.drone import demo as mavlink_demo
+
+        kind, launch_file, sets = DronePlatform.kind, mavlink_demo.LAUNCH_FILE, ["planner.mode=drone"]
     sets = [f"scene={scene}", f"planner.max_moves={moves}", *sets]
     sets += [f"planner.{k}={json.dumps(v)}" for k, v in (planner_overrides or {}).items()]
     spec = load_launch(launch_file, [*sets, *overrides])
@@ -174,17 +187,17 @@ def run_demo(
     out.mkdir(parents=True, exist_ok=True)
     recording = output_in(out, "recording.mcap")
     viewers = argparse.Namespace(foxglove=transport.foxglove, record=transport.record or str(recording))
-    stop = threading.Event()
-    guard = stop_on_signals(on_signal=lambda _s: stop.set()) if _main_thread() else contextlib.nullcontext()
-    with guard:  # SIGTERM / Ctrl-C: the nodes stop, the servos are left with torque off
-        sinks = []
-        try:
-            launch.start()
-            sinks = attach_viewers(launch.bus, viewers)
-            ok = launch.run(timeout_s=timeout_s, until=lambda: report_progress() or stop.is_set())
-        finally:
-            launch.stop()
-            close_viewers(sinks)
+    # SIGTERM / Ctrl-C: the nodes stop, the servos are left with torque off, then exit 128 + signal
+    ended = (lambda: mavlink_demo.aborted(nodes)) if drone == "mavlink" else (lambda: False)
+    ok, stop = run_graph(
+        launch,
+        timeout_s=timeout_s,
+        until=lambda: report_progress() or ended(),
+        open_sinks=lambda bus: attach_viewers(bus, viewers, spec),
+    )
+    if stop.signum is not None:
+        say(f"demo: stopped by {stop.name}: every node stopped, servos left with torque off; not scored")
+        raise SignalShutdown(stop.signum)
     report_progress()
     loop_s = time.time() - t0
     if not ok and not planner.finished:
@@ -194,12 +207,10 @@ def run_demo(
 
     summary = evaluate_run(planner, scene, kind, out, loop_s)
     summary["time_s"] = round(time.time() - t0, 2)
+    if drone == "mavlink":
+        summary["drone"] = mavlink_demo.drone_summary(nodes)
     output_in(out, "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
-
-
-def _main_thread() -> bool:
-    return threading.current_thread() is threading.main_thread()
 
 
 def print_summary(s: dict) -> None:

@@ -120,15 +120,16 @@ def _gimbal(args: argparse.Namespace):
 
 
 def _driving(run):
-    """Run a command that talks to the servos under :func:`~aes_planner.devices.stop_on_signals`:
-    SIGTERM is handled like Ctrl-C (the ``with gimbal`` block turns torque off on the way out),
-    and the command exits with 128 + the signal's number."""
+    """Run a command that talks to the servos under
+    :func:`~aes_planner.graph.signals.stop_on_signals`: the first SIGTERM or SIGINT interrupts it
+    like Ctrl-C (the ``with gimbal`` block turns torque off on the way out), later ones wait for
+    that clean-up, and the command exits with 128 + the first signal's number."""
 
     def wrapped(args: argparse.Namespace) -> int:
-        from aes_planner.devices import SignalShutdown, stop_on_signals
+        from aes_planner.graph.signals import SignalShutdown, stop_on_signals
 
         try:
-            with stop_on_signals():
+            with stop_on_signals(interrupt=True):
                 return run(args)
         except SignalShutdown as exc:
             print(f"{exc}: stopped, torque off", file=sys.stderr, flush=True)
@@ -169,6 +170,14 @@ def run_emulate(args: argparse.Namespace) -> int:
         pass
     finally:
         emu.stop()
+        # the last word of a dry run: did the driver leave the servos safe? (read by EmulatorProcess)
+        with emu.lock:
+            torque = {i: s.torque_on for i, s in sorted(emu.servos.items())}
+        on, off = ([f"id {i}" for i, t in torque.items() if t == want] for want in (True, False))
+        said = "; ".join(
+            p for p in (on and f"torque ON on {', '.join(on)}", off and f"torque off on {', '.join(off)}") if p
+        )
+        print(f"servo emulator stopped: {said}", flush=True)
     return 0
 
 

@@ -1,16 +1,16 @@
 """``aes-planner launch FILE [--set ID.KEY=VALUE ...]``: run a launch file's nodes in one process.
 
 FILE is a path or the name of a shipped launch file (``sim_closed_loop``, ``pan_tilt_rig``,
-``drone``). The nodes run on the in-process bus until the planner finishes, ``--timeout``
-passes, or Ctrl-C / SIGTERM: every node is then stopped in reverse order, so a gimbal's servos
-are left unpowered.
+``drone``). The nodes run on the in-process bus until the planner finishes (exit 0),
+``--timeout`` passes or a node fails (exit 1), or SIGINT / SIGTERM (exit 128 + the signal: 130,
+143): every node is then stopped in reverse order, so a gimbal's servos are left unpowered, and
+signals that follow wait for that clean-up.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
-import threading
 
 log = logging.getLogger(__name__)
 
@@ -34,9 +34,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from aes_planner.cli.processes import attach_viewers, check_timeout, close_viewers, run_processes
-    from aes_planner.devices import stop_on_signals
+    from aes_planner.cli.processes import attach_viewers, check_timeout, run_processes
     from aes_planner.graph import Launch, build_nodes, load_launch
+    from aes_planner.graph.runner import run_graph
 
     check_timeout(args.timeout)
     if args.processes:  # one process per node over Zenoh (aes_planner.graph.supervisor)
@@ -44,32 +44,13 @@ def run(args: argparse.Namespace) -> int:
     spec = load_launch(args.file, args.set)
     nodes = build_nodes(spec)
     print(f"launch {spec.path}: " + ", ".join(f"{n.node_id} ({type(n).__name__})" for n, _ in nodes), flush=True)
-    stop = threading.Event()
-
-    def on_signal(signum: int) -> None:
-        log.warning("signal %d: stopping the nodes (servos are left with torque off)", signum)
-        stop.set()
-
     launch = Launch(nodes)
-    # the drivers' safe shutdown: the first SIGINT/SIGTERM stops the loop, a second one raises,
-    # and either way every node's stop() (a gimbal's torque-off) runs inside this block
-    with stop_on_signals(on_signal=on_signal):
-        sinks = attach_viewers(launch.bus, args, spec)  # --foxglove / --record
-        try:
-            launch.start()
-            finished = launch.run(timeout_s=args.timeout, until=lambda: stop.is_set() or _all_finished(launch))
-        finally:
-            launch.stop()
-            close_viewers(sinks)
+    finished, stop = run_graph(launch, timeout_s=args.timeout, open_sinks=lambda bus: attach_viewers(bus, args, spec))
+    if stop.exit_code is not None:
+        print(f"[launch] stopped by {stop.name}: every node stopped, servos left with torque off", flush=True)
+        return stop.exit_code
     for r in launch.runners:
         line = r.node.outcome() if hasattr(r.node, "outcome") and r.node.finished else None
         if line is not None:
             print(line)
     return 0 if finished else 1
-
-
-def _all_finished(launch) -> bool:
-    from aes_planner.graph.base import Node
-
-    finishing = [r.node for r in launch.runners if type(r.node).finished is not Node.finished]
-    return bool(finishing) and all(n.finished for n in finishing)

@@ -2,17 +2,15 @@
 over Zenoh, supervised), ``--listen``, ``--foxglove [PORT]`` (live view) and ``--record FILE``.
 
 Not a command of its own: :mod:`aes_planner.cli.launch` and :mod:`aes_planner.cli.demo` call
-:func:`add_transport_flags`, :func:`run_processes` and :func:`attach_viewers`.
+:func:`add_transport_flags`, :func:`run_processes` and :func:`attach_viewers` (closed by
+:func:`aes_planner.graph.runner.close_sinks`).
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import logging
-import signal
 import sys
-import threading
 
 from aes_planner.errors import AesPlannerError
 
@@ -55,13 +53,13 @@ def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None =
 
 def declared_outputs(spec) -> list[tuple[str, type, bool]]:
     """``(topic, message type, latched)`` of every output a launch's nodes declare, remapped."""
-    from aes_planner.graph.base import node_class
+    from aes_planner.graph.base import node_class, output_specs
 
     out = []
     for e in spec.nodes:
         if e.type != "external":
-            for name, (msg_type, latched) in node_class(e.type).outputs.items():
-                out.append((e.remap.get(name, name), msg_type, latched))
+            for name, o in output_specs(node_class(e.type)).items():
+                out.append((e.remap.get(name, name), o.msg_type, o.latched))
     return out
 
 
@@ -84,34 +82,11 @@ def attach_viewers(bus, args: argparse.Namespace, spec=None) -> list:
             print(f"Foxglove: open ws://127.0.0.1:{live.port} in the Foxglove app", file=sys.stderr, flush=True)
             sinks.append(live)
     except BaseException:
-        close_viewers(sinks)
+        from aes_planner.graph.runner import close_sinks
+
+        close_sinks(sinks)
         raise
     return sinks
-
-
-def close_viewers(sinks: list) -> None:
-    for s in reversed(sinks):
-        try:
-            s.close()
-        except Exception:
-            logging.getLogger(__name__).exception("closing %s failed", type(s).__name__)
-
-
-@contextlib.contextmanager
-def stop_on_signals():
-    """An event set on SIGINT/SIGTERM (restored afterwards)."""
-    stop = threading.Event()
-    if threading.current_thread() is not threading.main_thread():
-        yield stop
-        return
-    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    for s in old:
-        signal.signal(s, lambda signum, frame: stop.set())
-    try:
-        yield stop
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
 
 
 def supervisor_from_args(args: argparse.Namespace, in_process=(), out=None):
@@ -140,30 +115,27 @@ def supervisor_from_args(args: argparse.Namespace, in_process=(), out=None):
 
 
 def run_processes(args: argparse.Namespace) -> int:
-    """``aes-planner launch FILE --processes``: supervise until the planner finishes, Ctrl-C or
-    ``--timeout``; 0 when a node finished, 1 otherwise."""
+    """``aes-planner launch FILE --processes``: supervise until the planner finishes (0), a node
+    is lost or ``--timeout`` (1), or SIGINT / SIGTERM (128 + the first signal, after every child
+    stopped)."""
+    from aes_planner.graph.runner import run_graph
+
     sup = supervisor_from_args(args)
-    timeout = getattr(args, "timeout", None)
     print(
         f"launch {sup.spec.path} (one process per node, hub {sup.endpoint}): "
         + ", ".join(c.node_id for c in sup.children),
         flush=True,
     )
-    with stop_on_signals() as stop:
-        sup.start()
-        sinks = []
-        try:
-            sinks = attach_viewers(sup.bus, args, sup.spec)
-            finished = sup.run(timeout_s=timeout, until=stop.is_set)
-            if stop.is_set():
-                print("[launch] interrupted: stopping the nodes", flush=True)
-                finished = False
-        finally:
-            close_viewers(sinks)
-            sup.shutdown()
+    finished, stop = run_graph(
+        sup, timeout_s=getattr(args, "timeout", None), open_sinks=lambda bus: attach_viewers(bus, args, sup.spec)
+    )
+    if stop.exit_code is not None:
+        print(f"[launch] stopped by {stop.name}: every node stopped", flush=True)
     died = [c.node_id for c in sup.children if any(code not in (0, 143, -15) for code in c.exit_codes)]
     if died:
         print(f"[launch] nodes that died during the run: {', '.join(died)}", flush=True)
+    if stop.exit_code is not None:
+        return stop.exit_code
     return 0 if finished else 1
 
 

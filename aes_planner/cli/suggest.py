@@ -49,7 +49,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--threads",
         type=int,
         metavar="N",
-        help="CPU threads for torch and the rasterizer (default: all cores; 1 is steadier beside busy processes)",
+        help="CPU threads for torch and the rasterizer (default: the cores idle when it starts, so one beside "
+        "a busy process on two cores; the count used is printed)",
     )
     p.set_defaults(func=run)
 
@@ -110,11 +111,13 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from aes_planner.dataset import load_dataset
+    from aes_planner.messages.suggestion import MAX_CANDIDATES
+    from aes_planner.runtime import suggestion_threads
     from aes_planner.search import SearchConfig, SearchError, build_search_scorer, search_views
     from aes_planner.search.report import render_with, write_report
 
-    if args.top is not None and args.top < 1:
-        raise SearchError(f"--top must be at least 1, got {args.top}")
+    if args.top is not None and not 1 <= args.top <= MAX_CANDIDATES:
+        raise SearchError(f"--top must be in [1, {MAX_CANDIDATES}], got {args.top}")
     if args.threads is not None:
         from aes_planner.runtime import MAX_THREADS, set_threads
 
@@ -139,20 +142,21 @@ def run(args: argparse.Namespace) -> int:
     cfg = SearchConfig.preset(args.preset, mode=platform.kind, **overrides)
     t0 = time.perf_counter()
     kind = args.scorer or "field"
-    try:
-        scorer = build_search_scorer(kind, data.frames, cfg)
-    except SearchError as exc:
-        if args.scorer:  # asked for explicitly: no silent substitute
-            raise
-        print(f"warning: {exc}; scoring with rgb instead")
-        kind = "rgb"
-        scorer = build_search_scorer(kind, data.frames, cfg)
-    args.scorer = kind
-    result = search_views(scorer, data.cam2worlds(), platform, cfg)
+    with suggestion_threads() as job:  # --threads pinned the count; else fewer beside busy processes
+        try:
+            scorer = build_search_scorer(kind, data.frames, cfg)
+        except SearchError as exc:
+            if args.scorer:  # asked for explicitly: no silent substitute
+                raise
+            print(f"warning: {exc}; scoring with rgb instead")
+            kind = "rgb"
+            scorer = build_search_scorer(kind, data.frames, cfg)
+        args.scorer = kind
+        result = search_views(scorer, data.cam2worlds(), platform, cfg)
     latency_ms = (time.perf_counter() - t0) * 1e3
     top = args.top or cfg.top_k
     print(f"{len(result.suggestions[:top])} suggestion(s), {result.mode} mode, preset {args.preset}, "
-          f"scorer {args.scorer}, {latency_ms:.0f} ms")  # fmt: skip
+          f"scorer {args.scorer}, {latency_ms:.0f} ms, {job.threads} thread(s)")  # fmt: skip
     print_table(result, top)
     if len(result.suggestions) < top:  # say what the search left out
         if result.dropped_uncovered:

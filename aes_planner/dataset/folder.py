@@ -40,6 +40,7 @@ import numpy as np
 from aes_planner.config import short_repr
 from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.camera import Intrinsics, IntrinsicsError
+from aes_planner.geometry.plausible import intrinsics_problem
 from aes_planner.geometry.poses import PoseError, validate_cam2world
 from aes_planner.images import ImageError, check_image_size, imread_bounded
 from aes_planner.messages import MessageError, PosedFrame
@@ -305,26 +306,12 @@ def _inside(root: Path, entry: str, key: str, allow_outside: bool) -> Path:
         raise DatasetError(str(exc)) from None
 
 
-#: Fields of view a dataset camera may have, in degrees (a focal length of 1e300 or 1e-300 pixels is
-#: a broken file, not a lens).
-FOV_RANGE_DEG = (0.1, 175.0)
-
-
 def check_intrinsics(k: Intrinsics, key: str) -> Intrinsics:
-    """Refuse intrinsics no real camera has: a field of view outside :data:`FOV_RANGE_DEG`, or a
-    principal point more than half the image size outside the image."""
-    lo, hi = FOV_RANGE_DEG
-    for name, fov, f in (("fx", k.hfov_rad, k.fx), ("fy", k.vfov_rad, k.fy)):
-        if not lo <= math.degrees(fov) <= hi:
-            raise DatasetError(
-                f"{key}.{name}: a focal length of {f:g} px gives a {math.degrees(fov):.3g} deg field of view over "
-                f"{k.width}x{k.height} px; expected {lo} to {hi} deg (are the intrinsics in pixels?)"
-            )
-    for name, c, size in (("cx", k.cx, k.width), ("cy", k.cy, k.height)):
-        if not -0.5 * size <= c <= 1.5 * size:
-            raise DatasetError(
-                f"{key}.{name}: principal point {c:g} px is far outside the {size} px image; expected about {size / 2:g}"
-            )
+    """Refuse intrinsics no real camera has (:func:`aes_planner.geometry.plausible.intrinsics_problem`:
+    the same bounds as frames arriving on topics)."""
+    problem = intrinsics_problem(k)
+    if problem is not None:
+        raise DatasetError(f"{key}.{problem}")
     return k
 
 

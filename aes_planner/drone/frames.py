@@ -134,9 +134,24 @@ def quat_to_matrix(q_wxyz) -> np.ndarray:  # [4] -> [3, 3]
 
 
 def matrix_to_quat(r: np.ndarray) -> np.ndarray:  # [3, 3] -> [4] (w >= 0)
-    from aes_planner.geometry.poses import matrix_to_quat as m2q
-
-    q = np.asarray(m2q(np.asarray(r, dtype=np.float64)), dtype=np.float64)
+    """A rotation matrix as a unit quaternion (w, x, y, z), w >= 0 (Shepperd's method; numpy
+    only, so that the link's process does not load torch)."""
+    m = np.asarray(r, dtype=np.float64)
+    t = np.trace(m)
+    i = int(np.argmax([t, m[0, 0], m[1, 1], m[2, 2]]))
+    if i == 0:
+        s = 2.0 * math.sqrt(1.0 + t)
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    elif i == 1:
+        s = 2.0 * math.sqrt(max(1.0 + m[0, 0] - m[1, 1] - m[2, 2], 1e-300))
+        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
+    elif i == 2:
+        s = 2.0 * math.sqrt(max(1.0 + m[1, 1] - m[0, 0] - m[2, 2], 1e-300))
+        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
+    else:
+        s = 2.0 * math.sqrt(max(1.0 + m[2, 2] - m[0, 0] - m[1, 1], 1e-300))
+        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
+    q = np.asarray(q) / np.linalg.norm(q)
     return q if q[0] >= 0 else -q
 
 

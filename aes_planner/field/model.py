@@ -34,9 +34,11 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, replace
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -279,8 +281,31 @@ def read_checkpoint(path: str | Path) -> dict:
 
 def write_checkpoint(path: str | Path, ckpt: dict) -> Path:
     """Write a checkpoint dict (:meth:`FieldModel.checkpoint`, plus e.g. the optimizer's state)
-    atomically as an :mod:`aes_planner.tensorfile` ``.npz``."""
+    atomically as an :mod:`aes_planner.tensorfile` ``.npz``. A NaN or Inf in any tensor is refused
+    (:class:`ModelError`): a diverged model is never saved."""
+    where = _non_finite(ckpt, "checkpoint")
+    if where is not None:
+        raise ModelError(f"{path}: not written: {where} holds NaN or Inf (training diverged)")
     return tensorfile.save(path, ckpt)
+
+
+def _non_finite(tree: Any, where: str) -> str | None:
+    """The first place in a checkpoint tree holding a non-finite float tensor or array, or None."""
+    if isinstance(tree, torch.Tensor):
+        return None if not tree.is_floating_point() or bool(torch.isfinite(tree).all()) else where
+    if isinstance(tree, np.ndarray):
+        return None if tree.dtype.kind != "f" or bool(np.isfinite(tree).all()) else where
+    if isinstance(tree, Mapping):
+        items = tree.items()
+    elif isinstance(tree, (list, tuple)):
+        items = enumerate(tree)
+    else:
+        return None
+    for k, v in items:
+        found = _non_finite(v, f"{where}[{k!r}]")
+        if found is not None:
+            return found
+    return None
 
 
 def load_model(path: str | Path | None = None) -> FieldModel:

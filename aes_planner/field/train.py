@@ -46,7 +46,15 @@ from aes_planner.runtime import MAX_THREADS, set_threads
 from aes_planner.sources import SceneSource
 from aes_planner.teachers import Teacher, get_teacher
 
-__all__ = ["EVAL_SEED_END", "TRAIN_SEED_START", "TrainConfig", "build_cache", "load_sample", "train"]
+__all__ = [
+    "EVAL_SEED_END",
+    "TRAIN_SEED_START",
+    "TrainConfig",
+    "TrainingDivergedError",
+    "build_cache",
+    "load_sample",
+    "train",
+]
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +66,12 @@ VAL_SEED_START = 500
 TRAIN_SEED_START = 1000
 EVAL_SEED_END = VAL_SEED_START
 FAMILIES = ("indoor", "outdoor", "tabletop", "gallery")
+
+
+#: Largest learning rate (AdamW's steps are about lr in size: past 1 the weights only jump).
+MAX_LR = 1.0
+#: Largest weight of a loss term (the map term has weight 1).
+MAX_LOSS_WEIGHT = 1e3
 
 
 @dataclass
@@ -130,10 +144,12 @@ class TrainConfig:
             f"need 1 <= min_views <= max_views <= 16, got {self.min_views}, {self.max_views}",
         )
         require(self.targets >= 1 and self.steps >= 1, "targets", "targets and steps must be >= 1")
-        require(math.isfinite(self.lr) and self.lr > 0, "lr", f"must be > 0, got {self.lr}")
-        require(self.score_weight >= 0, "score_weight", f"must be >= 0, got {self.score_weight}")
-        require(self.rank_weight >= 0, "rank_weight", f"must be >= 0, got {self.rank_weight}")
-        require(self.listwise_weight >= 0, "listwise_weight", f"must be >= 0, got {self.listwise_weight}")
+        require(
+            math.isfinite(self.lr) and 0 < self.lr <= MAX_LR, "lr", f"must be in (0, {MAX_LR:g}] (AdamW), got {self.lr}"
+        )
+        for name in ("score_weight", "rank_weight", "listwise_weight"):
+            w = getattr(self, name)
+            require(0 <= w <= MAX_LOSS_WEIGHT, name, f"must be in [0, {MAX_LOSS_WEIGHT:g}] (a loss weight), got {w}")
         require(
             math.isfinite(self.listwise_temperature) and self.listwise_temperature > 0,
             "listwise_temperature",
@@ -153,7 +169,12 @@ class TrainConfig:
         require(self.search_targets <= 10_000, "search_targets", f"must be <= 10000, got {self.search_targets}")
         require(self.steps <= 10**9, "steps", f"must be <= 1e9, got {self.steps}")
         require(self.warmup_steps >= 0, "warmup_steps", f"must be >= 0, got {self.warmup_steps}")
-        require(self.weight_decay >= 0, "weight_decay", f"must be >= 0, got {self.weight_decay}")
+        require(
+            0 <= self.weight_decay <= 1 / self.lr,
+            "weight_decay",
+            f"must be in [0, 1/lr = {1 / self.lr:g}] (AdamW shrinks the weights by lr*weight_decay per step, which "
+            f"past 1 flips their sign), got {self.weight_decay}",
+        )
         require(0 <= self.seed < 2**31, "seed", f"must be in [0, 2^31), got {self.seed}")
         require(1 <= self.threads <= MAX_THREADS, "threads", f"must be in [1, {MAX_THREADS}], got {self.threads}")
 
@@ -240,6 +261,20 @@ _SAMPLE_ARRAYS = {
     "target_maps": ("f", 4),
     "target_scores": ("f", 1),
 }
+
+
+class TrainingDivergedError(AesPlannerError):
+    """Training diverged (a non-finite loss or weight): stopped before anything non-finite is saved."""
+
+
+def _diverged(what: str, step: int, config: TrainConfig, out_dir: Path) -> str:
+    last = out_dir / "last.npz"
+    kept = f"the last finite checkpoint is kept ({last}, --resume)" if last.exists() else "no checkpoint was written"
+    return (
+        f"training diverged at step {step + 1}: {what}; {kept}. Lower lr (now {config.lr:g}) or the loss weights "
+        f"(score_weight {config.score_weight:g}, rank_weight {config.rank_weight:g}, "
+        f"listwise_weight {config.listwise_weight:g}), or weight_decay ({config.weight_decay:g})"
+    )
 
 
 class CacheError(AesPlannerError):
@@ -480,8 +515,13 @@ def train(
             for p in model.parameters():
                 dist.all_reduce(p.grad, op=dist.ReduceOp.SUM)
                 p.grad /= world
-        opt.step()
         value = float(loss.detach())
+        if not math.isfinite(value):
+            raise TrainingDivergedError(_diverged(f"the loss is {value}", step, config, out_dir))
+        opt.step()
+        bad = next((n for n, p in model.named_parameters() if not torch.isfinite(p).all()), None)
+        if bad is not None:
+            raise TrainingDivergedError(_diverged(f"the weight {bad} holds NaN or Inf", step, config, out_dir))
         ema = value if ema is None else 0.95 * ema + 0.05 * value
         if hasattr(bar, "set_postfix"):
             bar.set_postfix(loss=f"{ema:.4f}", map=f"{parts['map']:.4f}", score=f"{parts['score']:.5f}")

@@ -7,6 +7,7 @@ The chain, each transform a function of the configuration or a joint::
               @ T(tilt_offset_m)            # tilt-axis origin in the pan frame
               @ Ry(-tilt)                   # tilt joint: positive tilt looks up
               @ T(lever_arm_m)              # camera optical centre in the tilt frame
+              @ R(camera_mount_rpy_deg)     # the camera's mounting error on the bracket (small)
               @ BODY_TO_OPTICAL             # x forward/y left/z up -> OpenCV optical axes
               @ Rz(camera_roll_deg)         # the image's rotation about the optical axis
 
@@ -29,7 +30,7 @@ from torch import Tensor
 from aes_planner.geometry.poses import BODY_TO_OPTICAL, cam2world_to_view, direction_to_yaw_pitch
 from aes_planner.geometry.rig import JointCommandError, JointLimits, PanTiltConfig
 
-__all__ = ["PanTiltConfig", "PanTilt", "JointSolution", "JointCommandError"]
+__all__ = ["PanTiltConfig", "PanTilt", "JointSolution", "JointCommandError", "chain_forward", "rpy_matrix_torch"]
 
 
 @dataclass(frozen=True)
@@ -55,6 +56,44 @@ def _rpy_matrix(rpy_rad: Sequence[float]) -> np.ndarray:
     return rz @ ry @ rx
 
 
+def rpy_matrix_torch(rpy_rad: Tensor) -> Tensor:
+    """``Rz(yaw) Ry(pitch) Rx(roll)`` ``[3, 3]`` from ``rpy_rad [3]``, differentiable (``_rpy_matrix`` in torch)."""
+    r, p, y = rpy_rad.unbind(-1)
+    one, zero = torch.ones_like(r), torch.zeros_like(r)
+    rx = torch.stack([one, zero, zero, zero, r.cos(), -r.sin(), zero, r.sin(), r.cos()]).reshape(3, 3)
+    ry = torch.stack([p.cos(), zero, p.sin(), zero, one, zero, -p.sin(), zero, p.cos()]).reshape(3, 3)
+    rz = torch.stack([y.cos(), -y.sin(), zero, y.sin(), y.cos(), zero, zero, zero, one]).reshape(3, 3)
+    return rz @ ry @ rx
+
+
+def chain_forward(
+    pan: Tensor,  # [...] rad
+    tilt: Tensor,  # [...] rad, same shape
+    tilt_offset: Tensor,  # [3] m, pan frame
+    lever: Tensor,  # [3] m, tilt frame
+    body_to_camera: Tensor,  # [3, 3] tilt frame -> camera axes (mount, optical axes, roll)
+    base_r: Tensor,  # [3, 3] base -> world
+    base_t: Tensor,  # [3] m
+) -> Tensor:  # [..., 4, 4] cam2world
+    """The chain of the module docstring with every link a tensor, differentiable in all of them
+    (:meth:`PanTilt.forward` and the rig calibration's least squares both run it)."""
+    cp, sp = torch.cos(pan), torch.sin(pan)
+    ct, st = torch.cos(tilt), torch.sin(tilt)
+    zero, one = torch.zeros_like(cp), torch.ones_like(cp)
+    # Rz(pan) @ Ry(-tilt), built directly: [..., 3, 3]
+    r_pan = torch.stack([cp, -sp, zero, sp, cp, zero, zero, zero, one], -1).reshape(*cp.shape, 3, 3)
+    r_tilt = torch.stack([ct, zero, -st, zero, one, zero, st, zero, ct], -1).reshape(*cp.shape, 3, 3)
+    r_joint = r_pan @ r_tilt  # tilt frame -> base frame
+    # camera centre in the base frame: Rz(pan) (offset + Ry(-tilt) lever)
+    centre_base = (r_pan @ (tilt_offset + (r_tilt @ lever.unsqueeze(-1)).squeeze(-1)).unsqueeze(-1)).squeeze(-1)
+    rotation = base_r @ (r_joint @ body_to_camera)
+    centre = (base_r @ centre_base.unsqueeze(-1)).squeeze(-1) + base_t
+    top = torch.cat([rotation, centre.unsqueeze(-1)], dim=-1)
+    bottom = torch.zeros(*top.shape[:-2], 1, 4, dtype=top.dtype, device=top.device)
+    bottom[..., 0, 3] = 1.0
+    return torch.cat([top, bottom], dim=-2)
+
+
 class PanTilt:
     """Forward and inverse kinematics of a :class:`PanTiltConfig` rig."""
 
@@ -67,8 +106,9 @@ class PanTilt:
         self.tilt_offset = np.asarray(c.tilt_offset_m, dtype=np.float64)
         self.lever_arm = np.asarray(c.lever_arm_m, dtype=np.float64)
         roll = math.radians(c.camera_roll_deg)
-        # tilt frame -> camera axes: OpenCV optical axes, turned about the optical (z) axis by the roll
-        self.body_to_camera = BODY_TO_OPTICAL @ _rpy_matrix([0.0, 0.0, roll])
+        mount = _rpy_matrix([math.radians(a) for a in c.camera_mount_rpy_deg])
+        # tilt frame -> camera axes: the mount's error, then OpenCV optical axes turned about the optical (z) axis by the roll
+        self.body_to_camera = mount @ BODY_TO_OPTICAL @ _rpy_matrix([0.0, 0.0, roll])
         self.limits = JointLimits.from_config(c)
         self.pan_limits_rad = self.limits.pan_rad
         self.tilt_limits_rad = self.limits.tilt_rad
@@ -108,26 +148,15 @@ class PanTilt:
             if not bool(torch.isfinite(angle).all()):
                 raise JointCommandError(f"PanTilt.forward: {name} contains NaN or Inf; joint angles must be finite")
         kw = dict(dtype=pan.dtype, device=pan.device)
-        cp, sp = torch.cos(pan), torch.sin(pan)
-        ct, st = torch.cos(tilt), torch.sin(tilt)
-        zero, one = torch.zeros_like(cp), torch.ones_like(cp)
-        # Rz(pan) @ Ry(-tilt), built directly: [..., 3, 3]
-        r_pan = torch.stack([cp, -sp, zero, sp, cp, zero, zero, zero, one], -1).reshape(*cp.shape, 3, 3)
-        r_tilt = torch.stack([ct, zero, -st, zero, one, zero, st, zero, ct], -1).reshape(*cp.shape, 3, 3)
-        r_joint = r_pan @ r_tilt  # tilt frame -> base frame
-        offset = torch.as_tensor(self.tilt_offset, **kw)
-        lever = torch.as_tensor(self.lever_arm, **kw)
-        # camera centre in the base frame: Rz(pan) (offset + Ry(-tilt) lever)
-        centre_base = (r_pan @ (offset + (r_tilt @ lever.unsqueeze(-1)).squeeze(-1)).unsqueeze(-1)).squeeze(-1)
-        r_cam_base = r_joint @ torch.as_tensor(self.body_to_camera, **kw)
-        base_r = torch.as_tensor(self.base2world[:3, :3], **kw)
-        base_t = torch.as_tensor(self.base2world[:3, 3], **kw)
-        rotation = base_r @ r_cam_base
-        centre = (base_r @ centre_base.unsqueeze(-1)).squeeze(-1) + base_t
-        top = torch.cat([rotation, centre.unsqueeze(-1)], dim=-1)
-        bottom = torch.zeros(*top.shape[:-2], 1, 4, **kw)
-        bottom[..., 0, 3] = 1.0
-        return torch.cat([top, bottom], dim=-2)
+        return chain_forward(
+            pan,
+            tilt,
+            torch.as_tensor(self.tilt_offset, **kw),
+            torch.as_tensor(self.lever_arm, **kw),
+            torch.as_tensor(self.body_to_camera, **kw),
+            torch.as_tensor(self.base2world[:3, :3], **kw),
+            torch.as_tensor(self.base2world[:3, 3], **kw),
+        )
 
     # ---------------------------------------------------------------------------- inverse
     def _pick_pan(self, pan_rad: float, pan_hint_rad: float) -> float:
@@ -144,14 +173,26 @@ class PanTilt:
         The lever arm translates the camera but does not turn it, so the orientation alone fixes
         the joints; use :meth:`inverse_look_at` to aim at a point, where the lever arm matters.
         Straight up or down (relative to the base) the pan is free: ``pan_hint_rad`` is kept.
+        A camera mount error (``camera_mount_rpy_deg``) turns the optical axis off the tilt frame's
+        x: a few fixed-point steps correct the joints for it.
         """
         d = np.asarray(direction_world, dtype=np.float64)
         if d.shape != (3,) or not np.all(np.isfinite(d)) or not np.any(d):
             raise JointCommandError(f"direction must be 3 finite numbers, not all zero; got {d.tolist()}")
         d_base = self.base2world[:3, :3].T @ d
         pan, tilt = direction_to_yaw_pitch(d_base, float(pan_hint_rad))
-        pan = self._pick_pan(float(pan), float(pan_hint_rad))
-        return self._solution(pan, float(tilt), d)
+        pan, tilt = float(pan), float(tilt)
+        if any(self.config.camera_mount_rpy_deg):
+            want_pan, want_tilt = pan, tilt
+            for _ in range(8):  # the mount error is small: each step shrinks the residual by its order
+                got = self.base2world[:3, :3].T @ self.forward(pan, tilt)[:3, 2]
+                got_pan, got_tilt = direction_to_yaw_pitch(got, pan)
+                step_pan = math.remainder(want_pan - float(got_pan), 2 * math.pi)
+                pan, tilt = pan + step_pan, min(max(tilt + want_tilt - float(got_tilt), -math.pi / 2), math.pi / 2)
+                if abs(step_pan) + abs(want_tilt - float(got_tilt)) < 1e-13:
+                    break
+        pan = self._pick_pan(pan, float(pan_hint_rad))
+        return self._solution(pan, tilt, d)
 
     def inverse_look_at(
         self, target_world: Sequence[float], pan_hint_rad: float = 0.0, iterations: int = 50, tol_rad: float = 1e-12

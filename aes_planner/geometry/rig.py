@@ -39,6 +39,15 @@ class PanTiltConfig:
       counter-clockwise). 0: the image's up is the tilt frame's up. 180 for a rig hung upside
       down (``base_rpy_deg = (180, 0, 0)``) whose camera flips its image, as ceiling mounts do,
       so the images come out upright; leave 0 if its images come out upside down.
+    * ``camera_mount_rpy_deg``: the camera's small mounting error on the tilt bracket, static roll,
+      pitch, yaw (``R = Rz(yaw) Ry(pitch) Rx(roll)``, as ``base_rpy_deg``) about the tilt frame's
+      x (forward, the nominal optical axis), y (left) and z (up), applied after ``lever_arm_m`` and
+      before ``camera_roll_deg``: positive roll turns the image as ``camera_roll_deg`` does, positive
+      pitch points the lens down (REP-103), positive yaw points it left. ``aes-planner calibrate rig``
+      estimates it; (0, 0, 0) is the drawing's ideal mount.
+    * ``camera_latency_s``: how long after the joint states a camera frame shows them (its
+      exposure precedes its stamp by this); the camera node poses each frame at the joints of
+      ``stamp - camera_latency_s``. ``aes-planner calibrate rig --latency`` estimates it.
     """
 
     base_xyz_m: tuple[float, float, float] = (0.0, 0.0, 1.2)
@@ -48,9 +57,19 @@ class PanTiltConfig:
     pan_limits_deg: tuple[float, float] = (-150.0, 150.0)
     tilt_limits_deg: tuple[float, float] = (-60.0, 60.0)
     camera_roll_deg: float = 0.0
+    camera_mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    camera_latency_s: float = 0.0
 
     def __post_init__(self):
-        for name in ("base_xyz_m", "base_rpy_deg", "tilt_offset_m", "lever_arm_m", "pan_limits_deg", "tilt_limits_deg"):
+        for name in (
+            "base_xyz_m",
+            "base_rpy_deg",
+            "tilt_offset_m",
+            "lever_arm_m",
+            "pan_limits_deg",
+            "tilt_limits_deg",
+            "camera_mount_rpy_deg",
+        ):
             require_finite(list(getattr(self, name)), name)
         require_finite(self.camera_roll_deg, "camera_roll_deg")
         for name, most in (("base_xyz_m", MAX_BASE_M), ("tilt_offset_m", MAX_ARM_M), ("lever_arm_m", MAX_ARM_M)):
@@ -60,6 +79,18 @@ class PanTiltConfig:
             -360.0 <= self.camera_roll_deg <= 360.0,
             "camera_roll_deg",
             f"must be in [-360, 360] deg (180 for an image flipped upside down), got {self.camera_roll_deg}",
+        )
+        require_finite(self.camera_latency_s, "camera_latency_s")
+        require(
+            -1.0 <= self.camera_latency_s <= 10.0,
+            "camera_latency_s",
+            f"must be in [-1, 10] s (a camera's delay behind the joint states), got {self.camera_latency_s}",
+        )
+        worst = max(abs(v) for v in self.camera_mount_rpy_deg)
+        require(
+            worst <= 45.0,
+            "camera_mount_rpy_deg",
+            f"a mounting error of {worst:g} deg is not small; at most 45 deg (rotate the image with camera_roll_deg)",
         )
         lo, hi = self.pan_limits_deg
         require(lo < hi, "pan_limits_deg", f"min must be below max, got ({lo}, {hi})")
@@ -71,7 +102,7 @@ class PanTiltConfig:
 
 #: Fields added after rigs were first saved, with the value every older rig had. :func:`rig_dict`
 #: leaves them out at that value, so older scene files and oracle cache keys stay the same.
-LATER_FIELD_DEFAULTS = {"camera_roll_deg": 0.0}
+LATER_FIELD_DEFAULTS = {"camera_roll_deg": 0.0, "camera_mount_rpy_deg": [0.0, 0.0, 0.0], "camera_latency_s": 0.0}
 
 
 def rig_dict(config: PanTiltConfig) -> dict:

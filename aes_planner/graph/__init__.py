@@ -10,10 +10,14 @@
 * :mod:`.supervisor` -- :class:`Supervisor`: one process per node over Zenoh, respawned,
   stopped in reverse order.
 
-Layers: this package imports :mod:`aes_planner.transport` and the messages, and names the node
-types only by import path; the node types (:mod:`aes_planner.node`) import this package; the
-transport never imports either. Names are imported lazily, so ``import aes_planner.graph``
-costs nothing.
+* :mod:`.signals` -- :func:`stop_on_signals`: the first SIGINT/SIGTERM stops the work, later ones
+  wait for the clean-up (torque off), the exit status is 128 + the first.
+
+Layers: this package imports :mod:`aes_planner.transport` and the messages, names the node types
+only by import path (a launch file's ``type:`` word), and loads a launch's simulated scene only
+when a node asks for it (:meth:`LaunchContext.load_scene`); the node types
+(:mod:`aes_planner.node`) import this package; the transport imports neither. Names are imported
+lazily, so ``import aes_planner.graph`` costs nothing.
 """
 
 from __future__ import annotations

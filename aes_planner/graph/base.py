@@ -1,8 +1,10 @@
 """The node contract: a pure ``step(inputs, now) -> outputs`` core, and a registry of node types.
 
-A node declares the topics it reads (:attr:`Node.inputs`: default topic -> message type and
-keep-last depth) and writes (:attr:`Node.outputs`: default topic -> message type and whether the
-topic is latched). Its :meth:`Node.step` takes the messages that arrived since the last step, per
+A node declares the topics it reads (:attr:`Node.inputs`: default topic -> :class:`Input`, the
+message type and keep-last depth) and writes (:attr:`Node.outputs`: default topic ->
+:class:`Output`, the message type, whether the topic is latched, and whether it is reliable or
+best-effort: a camera's frames may drop to the latest rather than block the camera). The QoS is
+declared here, beside the topic, and the runner applies it as declared. Its :meth:`Node.step` takes the messages that arrived since the last step, per
 input topic (oldest first), and the present time, and returns the messages to publish, per
 output topic. It never touches a bus: tests call ``step`` directly, and
 :class:`aes_planner.graph.runner.NodeRunner` (the thin loop) moves messages between a bus and
@@ -24,23 +26,44 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 from aes_planner.config import ConfigError, from_dict
 from aes_planner.errors import AesPlannerError
 
 __all__ = [
     "NODE_TYPES",
+    "Input",
     "LaunchContext",
     "Node",
     "NodeError",
+    "Output",
     "Outputs",
+    "input_specs",
     "make_node",
     "node_class",
+    "output_specs",
     "percentile",
 ]
 
 Outputs = dict[str, list]
+
+
+class Input(NamedTuple):
+    """An input topic's declaration: its message type and the keep-last depth of its queue."""
+
+    msg_type: type
+    depth: int = 1
+
+
+class Output(NamedTuple):
+    """An output topic's declaration (its QoS): ``latched``: a late subscriber still gets the last
+    message; ``reliable``: block rather than drop under load (False: best-effort, may drop to the
+    latest, for a stream like camera frames)."""
+
+    msg_type: type
+    latched: bool = False
+    reliable: bool = True
 
 
 class NodeError(AesPlannerError):
@@ -77,10 +100,12 @@ class Node(ABC):
 
     #: The dataclass a launch entry's ``config`` loads into.
     config_class: ClassVar[type]
-    #: default input topic -> (message type, keep-last depth)
-    inputs: ClassVar[dict[str, tuple[type, int]]] = {}
-    #: default output topic -> (message type, latched)
-    outputs: ClassVar[dict[str, tuple[type, bool]]] = {}
+    #: True for a node that cannot be built without the launch's simulated scene (``scene:``).
+    needs_scene: ClassVar[bool] = False
+    #: default input topic -> Input(message type, keep-last depth) (a plain 2-tuple works too)
+    inputs: ClassVar[dict[str, tuple]] = {}
+    #: default output topic -> Output(message type, latched, reliable) (a plain 2-tuple: reliable)
+    outputs: ClassVar[dict[str, tuple]] = {}
 
     def __init__(self, config: Any, node_id: str = "", context: LaunchContext | None = None):
         self.config = config
@@ -96,6 +121,12 @@ class Node(ABC):
     def finished(self) -> bool:
         """True once the node has done its job (the planner settled); the launch may end."""
         return False
+
+    @classmethod
+    def can_finish(cls) -> bool:
+        """Whether this node type can ever be :attr:`finished` (it overrides the property): a
+        launch ends when every node that can finish has."""
+        return cls.finished is not Node.finished
 
     def start(self) -> None:
         """Open devices and resources (called once, in the process that runs the node)."""
@@ -118,6 +149,9 @@ NODE_TYPES: dict[str, str] = {
     "sim_drone": "aes_planner.node.sim_drone:SimDroneNode",
     "sim": "aes_planner.node.sim_drone:SimDroneNode",  # drone.yaml: --set drone.type=sim
     "camera": "aes_planner.node.camera:CameraNode",
+    "ros2_bridge": "aes_planner.ros2.bridge:Ros2BridgeNode",
+    "mavlink_drone": "aes_planner.drone.node:MavlinkDroneNode",
+    "sim_drone_camera": "aes_planner.drone.camera:DroneSimCameraNode",
 }
 
 
@@ -147,3 +181,15 @@ def percentile(values, q: float) -> float:
     lo = int(math.floor(pos))
     hi = min(lo + 1, len(xs) - 1)
     return xs[lo] + (xs[hi] - xs[lo]) * (pos - lo)
+
+
+def input_specs(node: Node | type[Node]) -> dict[str, Input]:
+    """A node's (or node type's) :attr:`Node.inputs` as :class:`Input` declarations; an instance
+    may narrow its class's (a bridge that serves some topics only)."""
+    return {name: Input(*spec) for name, spec in node.inputs.items()}
+
+
+def output_specs(node: Node | type[Node]) -> dict[str, Output]:
+    """A node's (or node type's) :attr:`Node.outputs` as :class:`Output` declarations (reliable
+    unless declared otherwise)."""
+    return {name: Output(*spec) for name, spec in node.outputs.items()}

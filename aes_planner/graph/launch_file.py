@@ -29,7 +29,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from aes_planner.config import ConfigError, load_yaml, load_yaml_text, short_repr
+from aes_planner.config import ConfigError, from_dict, load_yaml, load_yaml_text, short_repr, tag_of
 from aes_planner.graph.base import NODE_TYPES, LaunchContext, Node, make_node
 
 __all__ = [
@@ -89,58 +89,46 @@ def parse_launch(data: Any, path: str = "") -> LaunchSpec:
     scene = data.get("scene")
     if scene is not None and not isinstance(scene, str):
         raise ConfigError("scene", f"expected FAMILY:SEED or a scene file path, got {scene!r}")
-    nodes_raw = data.get("nodes")
-    if not isinstance(nodes_raw, list) or not nodes_raw:
-        raise ConfigError("nodes", "expected a non-empty list of nodes")
     entries, seen = [], set()
-    for i, raw in enumerate(nodes_raw):
+    for i, raw in enumerate(_node_list(data)):
         key = f"nodes[{i}]"
-        if not isinstance(raw, Mapping):
-            raise ConfigError(key, f"expected a mapping with id and type, got {raw!r}")
-        for k in raw:
-            if k not in _ENTRY_KEYS:
-                raise ConfigError(f"{key}.{k}", f"unknown key; expected one of: {', '.join(_ENTRY_KEYS)}")
-        node_id = raw.get("id")
-        if not isinstance(node_id, str) or not re.fullmatch(r"[A-Za-z0-9_]{1,64}", node_id):
+        tag_of(raw, key, [*NODE_TYPES, "external"])
+        raw = {k: v for k, v in raw.items() if not (k in ("config", "remap") and v is None)}  # `config:` left empty
+        entry = from_dict(LaunchEntry, raw, key)  # every key's type, unknown keys, named
+        if not re.fullmatch(r"[A-Za-z0-9_]{1,64}", entry.id):
             raise ConfigError(
                 f"{key}.id",
-                f"expected a word like 'planner' (ASCII letters, digits, '_'; 64 at most), got {short_repr(node_id)}",
+                f"expected a word like 'planner' (ASCII letters, digits, '_'; 64 at most), got {short_repr(entry.id)}",
             )
-        if node_id in seen:
-            raise ConfigError(f"{key}.id", f"duplicate node id {node_id!r}")
-        seen.add(node_id)
-        node_type = raw.get("type")
-        if node_type != "external" and node_type not in NODE_TYPES:
-            raise ConfigError(
-                f"{key}.type", f"unknown node type {node_type!r}; known: {', '.join(sorted(NODE_TYPES))}, external"
-            )
-        config = raw.get("config") or {}
-        if not isinstance(config, Mapping):
-            raise ConfigError(f"{key}.config", f"expected a mapping, got {config!r}")
-        remap = raw.get("remap") or {}
-        if not isinstance(remap, Mapping) or not all(
-            isinstance(a, str) and isinstance(b, str) for a, b in remap.items()
-        ):
-            raise ConfigError(f"{key}.remap", f"expected a mapping of topic names, got {remap!r}")
+        if entry.id in seen:
+            raise ConfigError(f"{key}.id", f"duplicate node id {entry.id!r}")
+        seen.add(entry.id)
         from aes_planner.transport import validate_topic
 
-        for a, b in remap.items():
+        for a, b in entry.remap.items():
             for t in (a, b):
                 try:
                     validate_topic(t)
                 except Exception as exc:
                     raise ConfigError(f"{key}.remap", str(exc)) from None
-        respawn = raw.get("respawn", False)
-        if not isinstance(respawn, bool):
-            raise ConfigError(f"{key}.respawn", f"expected true or false, got {respawn!r}")
-        entries.append(LaunchEntry(node_id, node_type, dict(config), dict(remap), respawn))
+        entries.append(entry)
+    if all(e.type == "external" for e in entries):
+        raise ConfigError("nodes", "every node is 'external' (runs elsewhere): this launch would start nothing here")
     bus = None
     if data.get("bus") is not None:  # where a multi-process launch's hub listens, whom it joins
-        from aes_planner.config import from_dict
         from aes_planner.transport.config import ZenohConfig
 
         bus = from_dict(ZenohConfig, data["bus"], "bus")
     return LaunchSpec(entries, scene, path, bus)
+
+
+def _node_list(data: Mapping[str, Any]) -> list:
+    nodes = data.get("nodes")
+    if not isinstance(nodes, list) or not nodes:
+        raise ConfigError(
+            "nodes", f"expected a non-empty list of nodes (each with id and type), got {short_repr(nodes)}"
+        )
+    return nodes
 
 
 def apply_overrides(data: Mapping[str, Any], overrides: Sequence[str]) -> dict:
@@ -149,6 +137,8 @@ def apply_overrides(data: Mapping[str, Any], overrides: Sequence[str]) -> dict:
         raise ConfigError(
             "", f"a launch file is a mapping with 'nodes' (and optionally 'scene'), got {short_repr(data)}"
         )
+    if overrides:
+        parse_launch(data)  # the file's own shape first, named as in a launch without --set
     out = copy.deepcopy(dict(data))
     for item in overrides:
         if "=" not in item:
@@ -164,10 +154,13 @@ def apply_overrides(data: Mapping[str, Any], overrides: Sequence[str]) -> dict:
         node_id, _, key = path.partition(".")
         if not key:
             raise ConfigError("--set", f"expected ID.KEY=VALUE, got {item!r}")
-        nodes = out.get("nodes") or []
+        nodes = _node_list(out)
         entry = next((n for n in nodes if isinstance(n, Mapping) and n.get("id") == node_id), None)
         if entry is None:
-            raise ConfigError(f"--set {path}", f"no node {node_id!r}; the launch has {[n.get('id') for n in nodes]}")
+            raise ConfigError(
+                f"--set {path}",
+                f"no node {node_id!r}; the launch has {[n.get('id') for n in nodes if isinstance(n, Mapping)]}",
+            )
         if key in ("type", "respawn"):
             entry[key] = value
             continue

@@ -1,13 +1,16 @@
 """The thin loop around a node core, and a launch: several nodes on one bus in one process.
 
 :class:`NodeRunner` subscribes a node's inputs (keep-last depth as the node declares), declares
-its outputs (latched where declared; ``camera/frame`` best-effort, the rest reliable), and calls
+its outputs (latched and reliable or best-effort as the node declares them), and calls
 ``step`` with whatever arrived, at the node's period or as soon as an input arrives. A step that
 raises is logged and counted; the node keeps running. Subscription counters (received, dropped,
 rejected) are added to the node's own diagnostics as ``<topic>.<counter>``.
 
 :class:`Launch` starts the nodes of a launch file in order, each in its own thread, and stops them
-in reverse order (devices left safe) however the run ends.
+in reverse order (devices left safe) however the run ends. :func:`run_graph` runs a
+:class:`Launch` or a :class:`~aes_planner.graph.supervisor.Supervisor` from start to stop under
+:func:`~aes_planner.graph.signals.stop_on_signals`: what every entry point that launches a graph
+(``aes-planner launch``, ``demo``) calls.
 """
 
 from __future__ import annotations
@@ -17,14 +20,13 @@ import threading
 import time
 from collections.abc import Mapping
 
-from aes_planner.graph.base import Node
+from aes_planner.graph.base import Node, input_specs, output_specs
+from aes_planner.graph.signals import SignalStop, stop_on_signals
 from aes_planner.messages import Diagnostics
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Launch", "NodeRunner"]
-
-BEST_EFFORT_TOPICS = ("camera/frame",)
+__all__ = ["Launch", "NodeRunner", "close_sinks", "run_graph"]
 
 
 class NodeRunner:
@@ -47,11 +49,11 @@ class NodeRunner:
 
     def open(self) -> None:
         """Declare the node's subscriptions and publishers on the bus."""
-        for name, (msg_type, depth) in self.node.inputs.items():
-            self.subs[name] = self.bus.subscribe(self.topic(name), msg_type, depth=depth)
-        for name, (msg_type, latched) in self.node.outputs.items():
+        for name, spec in input_specs(self.node).items():
+            self.subs[name] = self.bus.subscribe(self.topic(name), spec.msg_type, depth=spec.depth)
+        for name, spec in output_specs(self.node).items():
             self.pubs[name] = self.bus.publisher(
-                self.topic(name), msg_type, latched=latched, reliable=name not in BEST_EFFORT_TOPICS
+                self.topic(name), spec.msg_type, latched=spec.latched, reliable=spec.reliable
             )
 
     def close(self) -> None:
@@ -159,17 +161,27 @@ class Launch:
             self.stop()
             raise
 
+    @property
+    def finished(self) -> bool:
+        """True when there are nodes that can finish (:meth:`Node.can_finish`) and all have."""
+        finishing = [r.node for r in self.runners if r.node.can_finish()]
+        return bool(finishing) and all(n.finished for n in finishing)
+
+    @property
+    def failed(self) -> bool:
+        """True when a node's loop died."""
+        return any(r.error is not None for r in self.runners)
+
     def run(self, timeout_s: float | None = None, until=None, poll_s: float = 0.05) -> bool:
         """Wait until every node that can finish has finished (or ``until()`` is true); False on
         timeout or when a node's loop died."""
         deadline = None if timeout_s is None else time.time() + timeout_s
-        finishing = [r for r in self.runners if type(r.node).finished is not Node.finished]
         while True:
-            if any(r.error is not None for r in self.runners):
+            if self.failed:
                 return False
             if until is not None and until():
                 return True
-            if until is None and finishing and all(r.node.finished for r in finishing):
+            if self.finished:
                 time.sleep(poll_s * 2)  # let the last messages out
                 return True
             if deadline is not None and time.time() > deadline:
@@ -196,3 +208,41 @@ class Launch:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+
+def close_sinks(sinks) -> None:
+    """Close what watched a run (recorders, live views), newest first; a failure is logged."""
+    for s in reversed(list(sinks)):
+        try:
+            s.close()
+        except Exception:
+            log.exception("closing %s failed", type(s).__name__)
+
+
+def run_graph(graph, *, timeout_s: float | None = None, until=None, open_sinks=None) -> tuple[bool, SignalStop]:
+    """Start ``graph`` (a :class:`Launch` or a :class:`~aes_planner.graph.supervisor.Supervisor`),
+    run it until its nodes finish, ``until()`` is true, ``timeout_s`` passes or the first SIGINT /
+    SIGTERM arrives, then stop it (torque off), under
+    :func:`~aes_planner.graph.signals.stop_on_signals`: later signals are counted and logged and
+    cannot cut the stop short.
+
+    ``open_sinks(bus) -> [sink]``: viewers attached as soon as the graph's bus exists (before
+    the nodes start for a :class:`Launch`), closed after the nodes stop. Returns ``(finished,
+    stop)``: ``finished`` is False when a signal, the timeout or a failure ended the run;
+    ``stop.exit_code`` is ``128 + the first signal`` (None without one).
+    """
+    with stop_on_signals() as stop:
+        sinks, opened, finished = [], open_sinks is None, False
+        try:
+            if not opened and getattr(graph, "bus", None) is not None:
+                sinks, opened = open_sinks(graph.bus), True
+            graph.start()
+            if not opened:
+                sinks = open_sinks(graph.bus)
+            finished = graph.run(timeout_s=timeout_s, until=lambda: stop.is_set() or (until is not None and until()))
+        finally:
+            try:
+                graph.stop()
+            finally:
+                close_sinks(sinks)
+    return finished and not stop.is_set(), stop

@@ -91,8 +91,8 @@ class Supervisor:
         allow_remote = allow_remote or bool(file_bus is not None and file_bus.allow_remote)
         self.prefix = file_bus.prefix if file_bus is not None else "aes"
         self.endpoint = endpoint
-        self.hub_config = ZenohConfig(
-            listen=(endpoint,), connect=tuple(connect), allow_remote=allow_remote, prefix=self.prefix
+        self.hub_config = ZenohConfig(  # a router: it carries the graph to the hubs of other machines
+            listen=(endpoint,), connect=tuple(connect), allow_remote=allow_remote, prefix=self.prefix, mode="router"
         )
         if endpoint.rpartition(":")[2] == "0":  # the children must know where to connect
             from aes_planner.config import ConfigError
@@ -123,21 +123,18 @@ class Supervisor:
     def _check_configs(self) -> None:
         """Every node's config parses here, so a typo fails once, naming the key, not in a child."""
         from aes_planner.config import ConfigError, from_dict
-        from aes_planner.graph.base import node_class
+        from aes_planner.graph.base import LaunchContext, node_class
         from aes_planner.graph.launch_file import check_remap
-        from aes_planner.node.sim_camera import SimCameraNode
 
         for i, e in enumerate(self.spec.nodes):
             if e.type != "external":
                 cls = node_class(e.type)
                 from_dict(cls.config_class, e.config, f"nodes[{i}].config")
                 check_remap(e, cls, f"nodes[{i}].remap")
-                if issubclass(cls, SimCameraNode) and self.spec.scene is None:
+                if cls.needs_scene and self.spec.scene is None:
                     raise ConfigError(f"nodes[{i}]", f"a {e.type} node needs a scene: add 'scene: FAMILY:SEED'")
         if self.spec.scene is not None:  # a bad scene fails here, not in every child
-            from aes_planner.sim import load_scene
-
-            load_scene(self.spec.scene)
+            LaunchContext(scene=self.spec.scene).load_scene()
 
     # -- children ----------------------------------------------------------------------------------
 
@@ -207,13 +204,10 @@ class Supervisor:
     def _local_done(self) -> bool:
         if self.local is None:
             return False
-        from aes_planner.graph.base import Node
-
-        if any(r.error is not None for r in self.local.runners):
+        if self.local.failed:
             self._say("an in-process node's loop died")
             return True
-        finishing = [r.node for r in self.local.runners if type(r.node).finished is not Node.finished]
-        return bool(finishing) and all(n.finished for n in finishing)
+        return self.local.finished
 
     def poll(self) -> bool:
         """Check the children once: report deaths, respawn, notice a finished node. True when
@@ -309,7 +303,7 @@ class Supervisor:
             self.bus.close()
             self.bus = None
 
-    stop = shutdown  # the same shape as aes_planner.node.Launch
+    stop = shutdown  # the same shape as aes_planner.graph.runner.Launch
 
     def __enter__(self) -> Supervisor:
         return self.start()
@@ -367,19 +361,19 @@ def main_child(argv: Sequence[str] | None = None) -> int:
     outcome.setLevel(logging.INFO)
     outcome.propagate = False
 
-    stop = threading.Event()
-    got: list[int] = []
+    from aes_planner.graph.signals import stop_on_signals
 
-    def on_signal(signum, frame):
-        got.append(signum)
-        stop.set()
+    # the first SIGTERM/SIGINT (the supervisor's, or our own when orphaned) stops the node; later
+    # ones wait until its stop() (torque off) and the Zenoh session's close have run
+    with stop_on_signals() as stop:
+        _watch_for_orphaning(parent)
+        return _run_child(args, parent, stop, outcome)
 
-    for s in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(s, on_signal)
-    _watch_for_orphaning(parent)
+
+def _run_child(args: argparse.Namespace, parent: int, stop, outcome: logging.Logger) -> int:
+    orphaned = threading.Event()
     try:
         from aes_planner.graph import Launch, build_nodes, load_launch
-        from aes_planner.graph.base import Node
         from aes_planner.transport.zenoh_bus import ZenohBus
 
         spec = load_launch(args.launch, args.set)
@@ -392,27 +386,27 @@ def main_child(argv: Sequence[str] | None = None) -> int:
     try:
         launch = Launch(nodes, bus=bus)
         node = nodes[0][0]
-        can_finish = type(node).finished is not Node.finished
         try:
             launch.start()
 
-            def orphaned() -> bool:
+            def gone() -> bool:
                 if os.getppid() != parent:
-                    got.append(signal.SIGHUP)
-                    return True
-                return False
+                    orphaned.set()
+                return orphaned.is_set()
 
-            launch.run(until=lambda: stop.is_set() or (can_finish and node.finished) or orphaned())
+            launch.run(until=lambda: stop.is_set() or gone())
         finally:
             launch.stop()
-        if any(r.error is not None for r in launch.runners):
+        if launch.failed:
             return 1
-        if can_finish and node.finished and hasattr(node, "outcome"):
-            line = node.outcome()
+        if stop.exit_code is not None:
+            return stop.exit_code
+        if node.can_finish() and node.finished:
+            line = node.outcome() if hasattr(node, "outcome") else None
             if line is not None:
                 outcome.info("%s", line)
             return 0
-        return 0 if can_finish and node.finished else 128 + (got[0] if got else signal.SIGTERM)
+        return 128 + (signal.SIGHUP if orphaned.is_set() else signal.SIGTERM)
     except AesPlannerError as exc:
         log.error("%s", exc)
         return 2

@@ -1,5 +1,6 @@
-"""The wire format of every message: a small self-describing header, then fixed fields and raw
-little-endian arrays. No pickle, nothing executable, every length checked before it is used.
+"""The wire format of every message: a small self-describing header, then the type's fields in the
+order of its field table. No pickle, nothing executable, every length checked before it is used.
+The full specification, for readers in other languages, is ``docs/wire.md``.
 
 Layout (all integers little-endian)::
 
@@ -12,12 +13,16 @@ Layout (all integers little-endian)::
     12      n     type name, ASCII (``"PosedFrame"``)
     12+n    ...   payload: the type's fields in a fixed order
 
-Payload primitives: ``u8/u32/u64/i64`` integers, ``f64`` floats, ``str`` (uint16 byte length +
-UTF-8), ``opt`` (one flag byte 0/1, then the value when 1) and arrays: a dtype code byte
-(``u1``, ``f4``, ``f8``), the number of dimensions, each dimension as uint32, then the raw
-little-endian C-order data. A reader checks the dtype and the dimensions against what the field
-expects, the byte count against what is left, and floats for NaN/Inf. Every failure raises
-:class:`MessageError` with the reason; a buffer that decodes must be consumed exactly (no
+Each message type declares its fields once, in ``FIELDS`` (a tuple of :class:`Field`:
+:class:`Scalar` ``u8/u16/u32/u64/i64/f64/bool``, :class:`Str` (uint16 byte length + UTF-8),
+:class:`Bytes`, :class:`Enum` (a code byte), :class:`Array` (dtype code byte ``1`` u1, ``2`` f4,
+``3`` f8, the number of dimensions, each dimension as uint32, then the raw little-endian C-order
+data), :class:`Optional` (a flag byte 0/1, then the value), :class:`List` (a u8 or u32 count),
+:class:`Fixed`, :class:`Map`, :class:`Struct`, :class:`Union` (a tag byte, then the variant's
+fields)). That table drives :func:`encode`, :func:`decode`, :func:`describe` (the JSON layout a
+recording carries) and ``to_jsonable``. A reader checks the dtype and the dimensions against what
+the field expects, the byte count against what is left, and floats for NaN/Inf. Every failure
+raises :class:`MessageError` with the reason; a buffer that decodes must be consumed exactly (no
 trailing bytes).
 """
 
@@ -46,6 +51,19 @@ __all__ = [
     "encode",
     "decode",
     "peek_header",
+    "describe",
+    "Field",
+    "Scalar",
+    "Str",
+    "Bytes",
+    "Enum",
+    "Array",
+    "Optional",
+    "Fixed",
+    "List",
+    "Map",
+    "Struct",
+    "Union",
 ]
 
 MAGIC = b"AESM"
@@ -124,10 +142,11 @@ class Writer:
 class Reader:
     """Reads payload fields, checking every length against what is left."""
 
-    def __init__(self, data: bytes | memoryview, type_name: str) -> None:
+    def __init__(self, data: bytes | memoryview, type_name: str, version: int = 1) -> None:
         self._mv = memoryview(data)
         self._pos = 0
         self._type = type_name
+        self.version = version  # the schema version of the message being read
 
     def _take(self, n: int, what: str) -> memoryview:
         if n < 0 or self._pos + n > len(self._mv):
@@ -214,23 +233,396 @@ class Message:
     """Base of every message type: a dataclass that validates itself on construction.
 
     Subclasses set ``TYPE_NAME`` (the name in the header), ``SCHEMA_VERSION`` (bumped when the
-    payload layout changes; a reader refuses versions it does not know), ``MAX_BYTES`` (the cap on
-    the encoded size) and implement ``_write(w)`` and ``_read(r, version)``.
+    payload layout changes, see :data:`FIELDS`), ``MAX_BYTES`` (the cap on the encoded size) and
+    ``FIELDS``: the type's field table, the one place its wire layout is declared. Encoding,
+    decoding, :func:`describe` (the machine-readable layout a recording carries) and
+    :func:`aes_planner.messages.to_jsonable` all follow it.
+
+    Versioning: a field added in version N is appended at the end of ``FIELDS`` with
+    ``since=N`` and a default, and ``SCHEMA_VERSION`` becomes N. A message of an older version
+    decodes (the newer fields take their defaults); a newer one is refused.
     """
 
     TYPE_NAME: ClassVar[str] = ""
     SCHEMA_VERSION: ClassVar[int] = 1
     MAX_BYTES: ClassVar[int] = 1 << 20
+    FIELDS: ClassVar[tuple[Field, ...]] = ()
+    OPTIONS: ClassVar[tuple[str, ...]] = ()  # keyword options encode() takes for this type
 
-    def _write(self, w: Writer, **options) -> None:  # pragma: no cover - abstract
-        raise NotImplementedError
+    def _write(self, w: Writer, **options) -> None:
+        write_fields(w, self, self.FIELDS, options)
 
     @classmethod
-    def _read(cls, r: Reader, version: int) -> Message:  # pragma: no cover - abstract
-        raise NotImplementedError
+    def _read(cls, r: Reader, version: int) -> Message:
+        return cls._from_wire(read_fields(r, cls.FIELDS, version, ""), version)
+
+    @classmethod
+    def _from_wire(cls, values: dict, version: int) -> Message:
+        """The message from its decoded field values (by field name); types whose fields are not
+        their constructor's arguments override this."""
+        return cls(**values)
 
     def encode(self, **options) -> bytes:
         return encode(self, **options)
+
+
+# -- the field table --------------------------------------------------------------------------
+
+_SCALARS = {"u8": "<B", "u16": "<H", "u32": "<I", "u64": "<Q", "i64": "<q", "f64": "<d"}
+
+
+class Field:
+    """One field of a message on the wire: its ``name``, how it is written and read, and its
+    description (:meth:`describe`). ``since``: the schema version that added it (older messages
+    lack it and decode to ``default``). ``attr``: the attribute it is read from when encoding,
+    dotted for a nested one (``intrinsics.fx``); the name by default."""
+
+    def __init__(self, name: str, *, since: int = 1, default=None, attr: str | None = None) -> None:
+        self.name = name
+        self.since = since
+        self.default = default
+        self.attr = attr or name
+
+    def value_of(self, msg, options: dict):
+        v = msg
+        for part in self.attr.split("."):
+            v = getattr(v, part)
+        return v
+
+    def write(self, w: Writer, value, options: dict) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def read(self, r: Reader, what: str):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def kind(self) -> dict:  # pragma: no cover - abstract
+        """The JSON description of the field's type (docs/wire.md, "Type descriptions")."""
+        raise NotImplementedError
+
+    def describe(self) -> dict:
+        out = {"name": self.name, **self.kind()}
+        if self.since > 1:
+            out["since"] = self.since
+            out["default"] = self.default
+        return out
+
+    def json(self, value):
+        """The field's value as JSON (numbers, strings, lists, dicts)."""
+        return value
+
+
+class Scalar(Field):
+    """``u8/u16/u32/u64/i64`` integers, ``f64`` (finite), ``bool`` (a byte 0 or 1)."""
+
+    def __init__(self, name: str, fmt: str, **kw) -> None:
+        super().__init__(name, **kw)
+        if fmt not in _SCALARS and fmt != "bool":
+            raise ValueError(f"unknown scalar {fmt!r}")
+        self.fmt = fmt
+
+    def write(self, w, value, options) -> None:
+        if self.fmt == "bool":
+            w.bool(value)
+        else:
+            w._add(struct.pack(_SCALARS[self.fmt], value))
+
+    def read(self, r, what):
+        if self.fmt == "bool":
+            return r.bool(what)
+        if self.fmt == "f64":
+            return r.f64(what)
+        fmt = _SCALARS[self.fmt]
+        return struct.unpack(fmt, r._take(struct.calcsize(fmt), what))[0]
+
+    def kind(self) -> dict:
+        return {"type": self.fmt}
+
+
+class Str(Field):
+    """UTF-8 text: a uint16 byte length, then the bytes; a reader refuses more than ``max_bytes``."""
+
+    def __init__(self, name: str, max_bytes: int = MAX_STRING_BYTES, **kw) -> None:
+        super().__init__(name, **kw)
+        self.max_bytes = max_bytes
+
+    def write(self, w, value, options) -> None:
+        w.str(value)
+
+    def read(self, r, what):
+        return r.str(what, self.max_bytes)
+
+    def kind(self) -> dict:
+        return {"type": "str", "max_bytes": self.max_bytes}
+
+
+class Bytes(Field):
+    """Raw bytes: a uint32 length, then the bytes (at most ``max_bytes``)."""
+
+    def __init__(self, name: str, max_bytes: int, **kw) -> None:
+        super().__init__(name, **kw)
+        self.max_bytes = max_bytes
+
+    def write(self, w, value, options) -> None:
+        w.raw(value)
+
+    def read(self, r, what):
+        return r.raw(what, self.max_bytes)
+
+    def kind(self) -> dict:
+        return {"type": "bytes", "max_bytes": self.max_bytes}
+
+
+class Enum(Field):
+    """One of ``values`` (strings), written as its index in one byte."""
+
+    def __init__(self, name: str, values: tuple[str, ...], type_name: str = "", **kw) -> None:
+        super().__init__(name, **kw)
+        self.values = tuple(values)
+        self.type_name = type_name
+
+    def write(self, w, value, options) -> None:
+        w.u8(self.values.index(value))
+
+    def read(self, r, what):
+        code = r.u8(what)
+        if code >= len(self.values):
+            raise MessageError(f"{self.type_name or r._type}.{what} code {code} unknown (known: {list(self.values)})")
+        return self.values[code]
+
+    def kind(self) -> dict:
+        return {"type": "enum", "values": list(self.values)}
+
+
+class Array(Field):
+    """A numpy array: dtype code byte, ndim byte, each dimension as uint32 (at most
+    ``max_shape``), then the raw little-endian C-order data. Floats must be finite."""
+
+    def __init__(self, name: str, dtype: str, max_shape: tuple[int, ...], **kw) -> None:
+        super().__init__(name, **kw)
+        self.dtype = dtype
+        self.max_shape = tuple(max_shape)
+
+    def write(self, w, value, options) -> None:
+        w.array(value, self.dtype)
+
+    def read(self, r, what):
+        return r.array(what, self.dtype, len(self.max_shape), self.max_shape)
+
+    def kind(self) -> dict:
+        return {"type": "array", "dtype": self.dtype, "ndim": len(self.max_shape), "max_shape": list(self.max_shape)}
+
+    def json(self, value):
+        if value.size <= 64:
+            return value.tolist()
+        return {  # summarised: echo prints messages, not megabytes
+            "shape": list(value.shape),
+            "mean": float(value.mean()),
+            "max": float(value.max()),
+            "nonzero": float((value != 0).mean()),
+        }
+
+
+class Optional(Field):
+    """A flag byte (0 absent, 1 present), then the value when present. Absent is ``None``."""
+
+    def __init__(self, inner: Field, **kw) -> None:
+        super().__init__(inner.name, attr=inner.attr, **kw)
+        self.inner = inner
+
+    def write(self, w, value, options) -> None:
+        w.bool(value is not None)
+        if value is not None:
+            self.inner.write(w, value, options)
+
+    def read(self, r, what):
+        return self.inner.read(r, what) if r.bool(what) else None
+
+    def kind(self) -> dict:
+        return {"type": "optional", "value": self.inner.kind()}
+
+    def json(self, value):
+        return None if value is None else self.inner.json(value)
+
+
+class Fixed(Field):
+    """Exactly ``n`` items one after another, no count (a pair of temperatures)."""
+
+    def __init__(self, name: str, item: Field, n: int, **kw) -> None:
+        super().__init__(name, **kw)
+        self.item, self.n = item, n
+
+    def write(self, w, value, options) -> None:
+        for v in value:
+            self.item.write(w, v, options)
+
+    def read(self, r, what):
+        return tuple(self.item.read(r, f"{what}[{i}]") for i in range(self.n))
+
+    def kind(self) -> dict:
+        return {"type": "fixed", "n": self.n, "items": self.item.kind()}
+
+    def json(self, value):
+        return [self.item.json(v) for v in value]
+
+
+class List(Field):
+    """A count (``u8`` or ``u32``, at most ``max_count``), then that many items."""
+
+    def __init__(self, name: str, item: Field, count: str, max_count: int, **kw) -> None:
+        super().__init__(name, **kw)
+        self.item, self.count, self.max_count = item, count, max_count
+
+    def write(self, w, value, options) -> None:
+        (w.u8 if self.count == "u8" else w.u32)(len(value))
+        for v in value:
+            self.item.write(w, v, options)
+
+    def read(self, r, what):
+        n = r.u8(what) if self.count == "u8" else r.u32(what)
+        if n > self.max_count:
+            raise MessageError(f"{r._type}.{what}: {n} items exceed the cap of {self.max_count}")
+        return [self.item.read(r, f"{what}[{i}]") for i in range(n)]
+
+    def kind(self) -> dict:
+        return {"type": "list", "count": self.count, "max": self.max_count, "items": self.item.kind()}
+
+    def json(self, value):
+        return [self.item.json(v) for v in value]
+
+
+class Map(Field):
+    """A uint32 count (at most ``max_count``), then that many (key, value) pairs; keys are
+    strings of at most 64 bytes."""
+
+    KEY = Str("key", 64)
+
+    def __init__(self, name: str, value: Field, max_count: int, **kw) -> None:
+        super().__init__(name, **kw)
+        self.value, self.max_count = value, max_count
+
+    def write(self, w, value, options) -> None:
+        w.u32(len(value))
+        for k, v in value.items():
+            w.str(k)
+            self.value.write(w, v, options)
+
+    def read(self, r, what):
+        n = r.u32(what)
+        if n > self.max_count:
+            raise MessageError(f"{r._type}.{what}: {n} entries exceed the cap of {self.max_count}")
+        out = {}
+        for _ in range(n):
+            key = self.KEY.read(r, f"{what} key")
+            out[key] = self.value.read(r, f"{what}[{key!r}]")
+        return out
+
+    def kind(self) -> dict:
+        return {"type": "map", "max": self.max_count, "key": self.KEY.kind(), "value": self.value.kind()}
+
+    def json(self, value):
+        return dict(value)
+
+
+class Struct(Field):
+    """A record with its own field table: ``cls.FIELDS`` one after another, built back with
+    ``cls._from_wire(values, version)``."""
+
+    def __init__(self, name: str, cls: type, **kw) -> None:
+        super().__init__(name, **kw)
+        self.cls = cls
+
+    def write(self, w, value, options) -> None:
+        write_fields(w, value, self.cls.FIELDS, options)
+
+    def read(self, r, what):
+        return self.cls._from_wire(read_fields(r, self.cls.FIELDS, r.version, what + "."), r.version)
+
+    def kind(self) -> dict:
+        return {"type": "struct", "name": self.cls.__name__, "fields": [f.describe() for f in self.cls.FIELDS]}
+
+    def json(self, value):
+        return fields_json(value, self.cls.FIELDS)
+
+
+class Union(Field):
+    """A tag byte, then the fields of the variant it names: ``variants`` maps each tag to a
+    ``(variant name, fields)``. :meth:`to_wire` / :meth:`from_wire` convert the attribute to and
+    from ``(tag, {field: value})``; subclasses implement them."""
+
+    def __init__(self, name: str, variants: dict[int, tuple[str, tuple[Field, ...]]], **kw) -> None:
+        super().__init__(name, **kw)
+        self.variants = variants
+
+    def to_wire(self, value, options: dict) -> tuple[int, dict]:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def from_wire(self, tag: int, values: dict):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def write(self, w, value, options) -> None:
+        tag, values = self.to_wire(value, options)
+        w.u8(tag)
+        for f in self.variants[tag][1]:
+            f.write(w, values[f.name], options)
+
+    def read(self, r, what):
+        tag = r.u8(what)
+        if tag not in self.variants:
+            raise MessageError(f"{r._type}: unknown {self.name} format code {tag} (known: {sorted(self.variants)})")
+        fields = self.variants[tag][1]
+        return self.from_wire(tag, {f.name: f.read(r, f"{what}.{f.name}") for f in fields})
+
+    def kind(self) -> dict:
+        return {
+            "type": "union",
+            "variants": {
+                str(tag): {"name": name, "fields": [f.describe() for f in fields]}
+                for tag, (name, fields) in sorted(self.variants.items())
+            },
+        }
+
+
+def write_fields(w: Writer, obj, fields: tuple[Field, ...], options: dict) -> None:
+    for f in fields:
+        f.write(w, f.value_of(obj, options), options)
+
+
+def read_fields(r: Reader, fields: tuple[Field, ...], version: int, prefix: str) -> dict:
+    """``{name: value}`` of ``fields`` as a message of schema ``version`` has them (later fields
+    take their defaults)."""
+    return {f.name: f.read(r, prefix + f.name) if f.since <= version else f.default for f in fields}
+
+
+def fields_json(obj, fields: tuple[Field, ...]) -> dict:
+    """``obj``'s fields as JSON by the table (a dotted name nests: ``intrinsics.fx`` ->
+    ``{"intrinsics": {"fx": ...}}``), plus what its ``_json_extra()`` adds."""
+    out: dict = {}
+    for f in fields:
+        *parents, leaf = f.name.split(".")
+        node = out
+        for p in parents:
+            node = node.setdefault(p, {})
+        node[leaf] = f.json(f.value_of(obj, {}))
+    extra = getattr(obj, "_json_extra", None)
+    if extra is not None:
+        out.update(extra())
+    return out
+
+
+def describe(cls: type[Message]) -> dict:
+    """The machine-readable layout of ``cls`` (JSON-ready): what a recording's schema of the type
+    holds, so a reader in any language can decode it (grammar in docs/wire.md)."""
+    return {
+        "encoding": "aes-planner",
+        "format_version": FORMAT_VERSION,
+        "doc": "docs/wire.md",
+        "type": cls.TYPE_NAME,
+        "schema_version": cls.SCHEMA_VERSION,
+        "max_bytes": cls.MAX_BYTES,
+        "header": {"magic": MAGIC.decode(), "layout": "<4sBBHI, then the type name (ASCII)"},
+        "array_dtypes": {str(code): dt.str.lstrip("<|") for code, dt in _DTYPES.items()},
+        "fields": [f.describe() for f in cls.FIELDS],
+    }
 
 
 MESSAGE_TYPES: dict[str, type[Message]] = {}
@@ -260,6 +652,9 @@ def encode(msg: Message, **options) -> bytes:
     cls = type(msg)
     if cls.TYPE_NAME not in MESSAGE_TYPES:
         raise MessageError(f"{cls.__name__} is not a registered message type")
+    unknown = sorted(set(options) - set(cls.OPTIONS))
+    if unknown:
+        raise MessageError(f"{cls.TYPE_NAME} takes no encoding option {unknown[0]!r}; its options: {list(cls.OPTIONS)}")
     w = Writer()
     msg._write(w, **options)
     name = cls.TYPE_NAME.encode("ascii")
@@ -316,10 +711,10 @@ def decode(data: bytes | bytearray | memoryview, expected: type[Message] | None 
     cls = message_type(header.type_name)
     if expected is not None and cls is not expected:
         raise MessageError(f"expected a {expected.TYPE_NAME} message, got {header.type_name}")
-    if header.schema_version != cls.SCHEMA_VERSION:
+    if not 1 <= header.schema_version <= cls.SCHEMA_VERSION:
         raise MessageError(
             f"{cls.TYPE_NAME} schema version {header.schema_version} is not supported (this build reads "
-            f"version {cls.SCHEMA_VERSION}); run the same aes-planner version on every machine"
+            f"versions 1 to {cls.SCHEMA_VERSION}); a newer aes-planner wrote it: upgrade this one"
         )
     cap = cls.MAX_BYTES if max_bytes is None else min(max_bytes, cls.MAX_BYTES)
     start = HEADER_SIZE + len(header.type_name)
@@ -330,7 +725,7 @@ def decode(data: bytes | bytearray | memoryview, expected: type[Message] | None 
             f"{cls.TYPE_NAME}: header says {header.payload_len} payload bytes, got {len(data) - start} "
             "(truncated or padded)"
         )
-    r = Reader(memoryview(data)[start:], cls.TYPE_NAME)
+    r = Reader(memoryview(data)[start:], cls.TYPE_NAME, header.schema_version)
     try:
         msg = cls._read(r, header.schema_version)
         r.finish()

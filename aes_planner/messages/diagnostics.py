@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import ClassVar
 
-from aes_planner.messages.codec import Message, MessageError, Reader, Writer, register_message
+from aes_planner.messages.codec import Enum, Map, Message, MessageError, Scalar, Str, register_message
 from aes_planner.messages.fields import check_finite, check_name_map, check_sequence, check_text
 
 __all__ = ["Diagnostics", "PlannerRequest", "REQUEST_KINDS", "MAX_DIAG_ENTRIES"]
@@ -30,6 +30,14 @@ class Diagnostics(Message):
     TYPE_NAME: ClassVar[str] = "Diagnostics"
     SCHEMA_VERSION: ClassVar[int] = 1
     MAX_BYTES: ClassVar[int] = 64 << 10
+    FIELDS = (
+        Scalar("stamp_s", "f64"),
+        Scalar("sequence", "u64"),
+        Str("node", 256),
+        Str("state", 1024),
+        Map("counters", Scalar("value", "u64"), MAX_DIAG_ENTRIES),
+        Map("values", Scalar("value", "f64"), MAX_DIAG_ENTRIES),
+    )
 
     stamp_s: float
     node: str
@@ -46,37 +54,6 @@ class Diagnostics(Message):
         self.values = check_name_map(self.values, "Diagnostics.values", float, MAX_DIAG_ENTRIES)
         self.sequence = check_sequence(self.sequence, "Diagnostics.sequence")
 
-    def _write(self, w: Writer) -> None:
-        w.f64(self.stamp_s)
-        w.u64(self.sequence)
-        w.str(self.node)
-        w.str(self.state)
-        w.u32(len(self.counters))
-        for k, v in self.counters.items():
-            w.str(k)
-            w.u64(v)
-        w.u32(len(self.values))
-        for k, v in self.values.items():
-            w.str(k)
-            w.f64(v)
-
-    @classmethod
-    def _read(cls, r: Reader, version: int) -> Diagnostics:
-        stamp_s = r.f64("stamp_s")
-        sequence = r.u64("sequence")
-        node = r.str("node", 256)
-        state = r.str("state", 1024)
-        counters: dict[str, int] = {}
-        values: dict[str, float] = {}
-        for what, target, read in (("counters", counters, r.u64), ("values", values, r.f64)):
-            n = r.u32(what)
-            if n > MAX_DIAG_ENTRIES:
-                raise MessageError(f"Diagnostics.{what}: {n} entries exceed the cap of {MAX_DIAG_ENTRIES}")
-            for _ in range(n):
-                key = r.str(f"{what} key", 64)
-                target[key] = read(f"{what}[{key!r}]")
-        return cls(stamp_s, node, state, counters, values, sequence)
-
 
 @register_message
 @dataclass
@@ -91,6 +68,12 @@ class PlannerRequest(Message):
     TYPE_NAME: ClassVar[str] = "PlannerRequest"
     SCHEMA_VERSION: ClassVar[int] = 1
     MAX_BYTES: ClassVar[int] = 1024
+    FIELDS = (
+        Enum("kind", REQUEST_KINDS),
+        Scalar("max_candidates", "u32"),
+        Scalar("stamp_s", "f64"),
+        Scalar("sequence", "u64"),
+    )
 
     kind: str = "suggest"
     max_candidates: int = 0
@@ -105,16 +88,3 @@ class PlannerRequest(Message):
             raise MessageError(f"PlannerRequest.max_candidates must be <= 64, got {self.max_candidates}")
         self.stamp_s = check_finite(self.stamp_s, "PlannerRequest.stamp_s")
         self.sequence = check_sequence(self.sequence, "PlannerRequest.sequence")
-
-    def _write(self, w: Writer) -> None:
-        w.u8(REQUEST_KINDS.index(self.kind))
-        w.u32(self.max_candidates)
-        w.f64(self.stamp_s)
-        w.u64(self.sequence)
-
-    @classmethod
-    def _read(cls, r: Reader, version: int) -> PlannerRequest:
-        code = r.u8("kind")
-        if code >= len(REQUEST_KINDS):
-            raise MessageError(f"PlannerRequest.kind code {code} unknown")
-        return cls(REQUEST_KINDS[code], r.u32("max_candidates"), r.f64("stamp_s"), r.u64("sequence"))

@@ -9,8 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
-from aes_planner.messages.codec import Message, MessageError, Reader, Writer, register_message
-from aes_planner.messages.fields import check_finite, check_optional_finite, check_sequence, check_text
+from aes_planner.messages.codec import Enum, Fixed, List, Message, MessageError, Optional, Scalar, Str, register_message
+from aes_planner.messages.fields import check_finite, check_joint, check_optional_finite, check_sequence, check_text
 
 __all__ = ["GimbalCommand", "GimbalState", "COMMAND_KINDS"]
 
@@ -34,6 +34,14 @@ class GimbalCommand(Message):
     TYPE_NAME: ClassVar[str] = "GimbalCommand"
     SCHEMA_VERSION: ClassVar[int] = 1
     MAX_BYTES: ClassVar[int] = 4096
+    FIELDS = (
+        Enum("kind", COMMAND_KINDS),
+        Scalar("pan_rad", "f64"),
+        Scalar("tilt_rad", "f64"),
+        Optional(Scalar("speed_rad_s", "f64")),
+        Scalar("stamp_s", "f64"),
+        Scalar("sequence", "u64"),
+    )
 
     kind: str = "move"
     pan_rad: float = 0.0
@@ -45,35 +53,13 @@ class GimbalCommand(Message):
     def __post_init__(self):
         if self.kind not in COMMAND_KINDS:
             raise MessageError(f"GimbalCommand.kind must be one of {COMMAND_KINDS}, got {self.kind!r}")
-        self.pan_rad = check_finite(self.pan_rad, "GimbalCommand.pan_rad")
+        self.pan_rad = check_finite(self.pan_rad, "GimbalCommand.pan_rad")  # a goal: clamped to the limits
         self.tilt_rad = check_finite(self.tilt_rad, "GimbalCommand.tilt_rad")
         self.speed_rad_s = check_optional_finite(self.speed_rad_s, "GimbalCommand.speed_rad_s")
         if self.speed_rad_s is not None and self.speed_rad_s <= 0:
             raise MessageError(f"GimbalCommand.speed_rad_s must be > 0 (or None), got {self.speed_rad_s}")
         self.stamp_s = check_finite(self.stamp_s, "GimbalCommand.stamp_s")
         self.sequence = check_sequence(self.sequence, "GimbalCommand.sequence")
-
-    def _write(self, w: Writer) -> None:
-        w.u8(COMMAND_KINDS.index(self.kind))
-        w.f64(self.pan_rad)
-        w.f64(self.tilt_rad)
-        w.opt_f64(self.speed_rad_s)
-        w.f64(self.stamp_s)
-        w.u64(self.sequence)
-
-    @classmethod
-    def _read(cls, r: Reader, version: int) -> GimbalCommand:
-        code = r.u8("kind")
-        if code >= len(COMMAND_KINDS):
-            raise MessageError(f"GimbalCommand.kind code {code} unknown")
-        return cls(
-            COMMAND_KINDS[code],
-            r.f64("pan_rad"),
-            r.f64("tilt_rad"),
-            r.opt_f64("speed_rad_s"),
-            r.f64("stamp_s"),
-            r.u64("sequence"),
-        )
 
 
 @register_message
@@ -94,6 +80,18 @@ class GimbalState(Message):
     TYPE_NAME: ClassVar[str] = "GimbalState"
     SCHEMA_VERSION: ClassVar[int] = 1
     MAX_BYTES: ClassVar[int] = 16384
+    FIELDS = (
+        Scalar("pan_rad", "f64"),
+        Scalar("tilt_rad", "f64"),
+        Scalar("goal_pan_rad", "f64"),
+        Scalar("goal_tilt_rad", "f64"),
+        Scalar("moving", "bool"),
+        Fixed("temperature_c", Scalar("value", "f64"), 2),
+        List("hardware_error", Str("fault", 1024), "u8", MAX_FAULTS),
+        Scalar("stamp_s", "f64"),
+        Scalar("sequence", "u64"),
+        Str("status", 256),
+    )
 
     pan_rad: float
     tilt_rad: float
@@ -107,8 +105,9 @@ class GimbalState(Message):
     status: str = "ok"
 
     def __post_init__(self):
-        for name in ("pan_rad", "tilt_rad", "goal_pan_rad", "goal_tilt_rad", "stamp_s"):
-            setattr(self, name, check_finite(getattr(self, name), f"GimbalState.{name}"))
+        for name in ("pan_rad", "tilt_rad", "goal_pan_rad", "goal_tilt_rad"):
+            setattr(self, name, check_joint(getattr(self, name), f"GimbalState.{name}"))
+        self.stamp_s = check_finite(self.stamp_s, "GimbalState.stamp_s")
         if not isinstance(self.moving, bool):
             raise MessageError(f"GimbalState.moving must be a bool, got {self.moving!r}")
         temps = tuple(self.temperature_c) if isinstance(self.temperature_c, (tuple, list)) else None
@@ -152,30 +151,3 @@ class GimbalState(Message):
             hardware_error=self.hardware_error,
             stamp_s=self.stamp_s,
         )
-
-    def _write(self, w: Writer) -> None:
-        for v in (self.pan_rad, self.tilt_rad, self.goal_pan_rad, self.goal_tilt_rad):
-            w.f64(v)
-        w.bool(self.moving)
-        w.f64(self.temperature_c[0])
-        w.f64(self.temperature_c[1])
-        w.u8(len(self.hardware_error))
-        for f in self.hardware_error:
-            w.str(f)
-        w.f64(self.stamp_s)
-        w.u64(self.sequence)
-        w.str(self.status)
-
-    @classmethod
-    def _read(cls, r: Reader, version: int) -> GimbalState:
-        joints = [r.f64(n) for n in ("pan_rad", "tilt_rad", "goal_pan_rad", "goal_tilt_rad")]
-        moving = r.bool("moving")
-        temps = (r.f64("temperature_c"), r.f64("temperature_c"))
-        n = r.u8("hardware_error")
-        if n > MAX_FAULTS:
-            raise MessageError(f"GimbalState: {n} hardware errors exceed the cap of {MAX_FAULTS}")
-        faults = tuple(r.str("hardware_error", 1024) for _ in range(n))
-        stamp_s = r.f64("stamp_s")
-        sequence = r.u64("sequence")
-        status = r.str("status", 256)
-        return cls(*joints, moving, temps, faults, stamp_s, sequence, status)

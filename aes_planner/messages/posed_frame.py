@@ -9,7 +9,18 @@ from typing import ClassVar
 import numpy as np
 
 from aes_planner.geometry.camera import Intrinsics
-from aes_planner.messages.codec import Message, MessageError, Reader, Writer, register_message
+from aes_planner.geometry.plausible import intrinsics_problem, joint_problem, position_problem
+from aes_planner.messages.codec import (
+    Array,
+    Bytes,
+    Message,
+    MessageError,
+    Optional,
+    Scalar,
+    Str,
+    Union,
+    register_message,
+)
 from aes_planner.messages.fields import check_optional_finite, check_pose, check_sequence, check_text
 
 __all__ = ["MessageError", "PosedFrame", "MAX_IMAGE_SIDE_PX", "MAX_IMAGE_PIXELS"]
@@ -17,6 +28,47 @@ __all__ = ["MessageError", "PosedFrame", "MAX_IMAGE_SIDE_PX", "MAX_IMAGE_PIXELS"
 MAX_IMAGE_SIDE_PX = 8192
 MAX_IMAGE_PIXELS = 4096 * 3072  # 12.6 MP: 38 MB of RGB + 50 MB of depth
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_SIDE = (MAX_IMAGE_SIDE_PX, MAX_IMAGE_SIDE_PX)
+IMAGE_FORMATS = ("raw", "png")
+
+
+class ImageField(Union):
+    """The image, in one of two formats (the tag byte): ``0`` raw (an ``[H, W, 3]`` uint8 RGB
+    array) or ``1`` PNG (width, height, then a PNG stream of an 8-bit RGB image of that size,
+    lossless; for recordings: ``encode(frame, image_format="png")``)."""
+
+    def __init__(self) -> None:
+        super().__init__(
+            "image",
+            {
+                0: ("raw", (Array("pixels", "u1", (*_SIDE, 3)),)),
+                1: ("png", (Scalar("width", "u32"), Scalar("height", "u32"), Bytes("png", 96 << 20))),
+            },
+        )
+
+    def value_of(self, msg, options: dict):
+        return msg.image
+
+    def to_wire(self, image: np.ndarray, options: dict) -> tuple[int, dict]:
+        image_format = options.get("image_format", "raw")
+        if image_format == "raw":
+            return 0, {"pixels": image}
+        if image_format == "png":
+            import cv2
+
+            ok, png = cv2.imencode(".png", np.ascontiguousarray(image[..., ::-1]))
+            if not ok:  # pragma: no cover - cv2 encodes any uint8 image
+                raise MessageError("PosedFrame: PNG encoding failed")
+            return 1, {"width": image.shape[1], "height": image.shape[0], "png": png.tobytes()}
+        raise MessageError(f"PosedFrame image_format must be 'raw' or 'png', got {image_format!r}")
+
+    def from_wire(self, tag: int, values: dict) -> np.ndarray:
+        if tag == 0:
+            return values["pixels"]
+        return _decode_png(values["png"], values["width"], values["height"])
+
+    def json(self, image: np.ndarray) -> dict:
+        return {"width": image.shape[1], "height": image.shape[0], "mean_rgb": image.reshape(-1, 3).mean(0).tolist()}
 
 
 @register_message
@@ -45,6 +97,21 @@ class PosedFrame(Message):
     TYPE_NAME: ClassVar[str] = "PosedFrame"
     SCHEMA_VERSION: ClassVar[int] = 1
     MAX_BYTES: ClassVar[int] = 96 << 20
+    OPTIONS: ClassVar[tuple[str, ...]] = ("image_format",)
+    FIELDS = (
+        Scalar("stamp_s", "f64"),
+        Scalar("sequence", "u64"),
+        Str("frame_id"),
+        Scalar("intrinsics.fx", "f64"),
+        Scalar("intrinsics.fy", "f64"),
+        Scalar("intrinsics.cx", "f64"),
+        Scalar("intrinsics.cy", "f64"),
+        Array("cam2world", "f8", (4, 4)),
+        Optional(Scalar("pan_rad", "f64")),
+        Optional(Scalar("tilt_rad", "f64")),
+        ImageField(),
+        Optional(Array("depth_m", "f4", _SIDE)),
+    )
 
     image: np.ndarray
     intrinsics: Intrinsics
@@ -102,6 +169,14 @@ class PosedFrame(Message):
         self.tilt_rad = check_optional_finite(self.tilt_rad, "PosedFrame.tilt_rad")
         if (self.pan_rad is None) != (self.tilt_rad is None):
             raise MessageError("PosedFrame.pan_rad and tilt_rad must be given together (or neither)")
+        problem = (  # the dataset importers' bounds: no real camera has these
+            intrinsics_problem(self.intrinsics)
+            or position_problem(self.cam2world)
+            or joint_problem("pan_rad", self.pan_rad)
+            or joint_problem("tilt_rad", self.tilt_rad)
+        )
+        if problem is not None:
+            raise MessageError(f"PosedFrame.{problem}")
 
     @property
     def width(self) -> int:
@@ -111,70 +186,25 @@ class PosedFrame(Message):
     def height(self) -> int:
         return self.image.shape[0]
 
-    # -- wire format ---------------------------------------------------------------------------
-
-    def _write(self, w: Writer, image_format: str = "raw") -> None:
-        w.f64(self.stamp_s)
-        w.u64(self.sequence)
-        w.str(self.frame_id)
-        k = self.intrinsics
-        for v in (k.fx, k.fy, k.cx, k.cy):
-            w.f64(float(v))
-        w.array(self.cam2world, "f8")
-        w.opt_f64(self.pan_rad)
-        w.opt_f64(self.tilt_rad)
-        if image_format == "raw":
-            w.u8(0)
-            w.array(self.image, "u1")
-        elif image_format == "png":
-            import cv2
-
-            ok, png = cv2.imencode(".png", np.ascontiguousarray(self.image[..., ::-1]))
-            if not ok:  # pragma: no cover - cv2 encodes any uint8 image
-                raise MessageError("PosedFrame: PNG encoding failed")
-            w.u8(1)
-            w.u32(self.width)
-            w.u32(self.height)
-            w.raw(png.tobytes())
-        else:
-            raise MessageError(f"PosedFrame image_format must be 'raw' or 'png', got {image_format!r}")
-        w.bool(self.depth_m is not None)
-        if self.depth_m is not None:
-            w.array(self.depth_m, "f4")
+    # -- wire format (FIELDS) -------------------------------------------------------------------
 
     @classmethod
-    def _read(cls, r: Reader, version: int) -> PosedFrame:
-        stamp_s = r.f64("stamp_s")
-        sequence = r.u64("sequence")
-        frame_id = r.str("frame_id")
-        fx, fy, cx, cy = (r.f64(n) for n in ("intrinsics.fx", "intrinsics.fy", "intrinsics.cx", "intrinsics.cy"))
-        cam2world = r.array("cam2world", "f8", 2, (4, 4))
-        pan = r.opt_f64("pan_rad")
-        tilt = r.opt_f64("tilt_rad")
-        kind = r.u8("image format")
-        side = (MAX_IMAGE_SIDE_PX, MAX_IMAGE_SIDE_PX, 3)
-        if kind == 0:
-            image = r.array("image", "u1", 3, side)
-        elif kind == 1:
-            width, height = r.u32("image width"), r.u32("image height")
-            png = r.raw("image png", cls.MAX_BYTES)
-            image = _decode_png(png, width, height)
-        else:
-            raise MessageError(f"PosedFrame: unknown image format code {kind}")
+    def _from_wire(cls, values: dict, version: int) -> PosedFrame:
+        image = values["image"]
         h, w = image.shape[:2]
         if h * w > MAX_IMAGE_PIXELS:
             raise MessageError(f"PosedFrame.image {w}x{h} exceeds the cap of {MAX_IMAGE_PIXELS} pixels")
-        depth = r.array("depth_m", "f4", 2, side[:2]) if r.bool("has depth") else None
+        k = [values[f"intrinsics.{n}"] for n in ("fx", "fy", "cx", "cy")]
         return cls(
             image=image,
-            intrinsics=Intrinsics(fx, fy, cx, cy, w, h),
-            cam2world=cam2world,
-            stamp_s=stamp_s,
-            depth_m=depth,
-            frame_id=frame_id,
-            sequence=sequence,
-            pan_rad=pan,
-            tilt_rad=tilt,
+            intrinsics=Intrinsics(*k, w, h),
+            cam2world=values["cam2world"],
+            stamp_s=values["stamp_s"],
+            depth_m=values["depth_m"],
+            frame_id=values["frame_id"],
+            sequence=values["sequence"],
+            pan_rad=values["pan_rad"],
+            tilt_rad=values["tilt_rad"],
         )
 
 

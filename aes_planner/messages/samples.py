@@ -11,6 +11,7 @@ from aes_planner.geometry import Intrinsics, view_to_cam2world
 from aes_planner.messages import (
     Candidate,
     Diagnostics,
+    DroneState,
     GimbalCommand,
     GimbalState,
     PlannerRequest,
@@ -51,4 +52,19 @@ def sample_messages() -> dict:
         "GimbalState": GimbalState(0.1, 0.2, 0.3, 0.4, True, (35.0, 36.5), ("pan: overload",), 4.0, 11, "fault"),
         "Diagnostics": Diagnostics(5.0, "planner", "exploring", {"frames_in": 10}, {"latency_p50_s": 0.12}),
         "PlannerRequest": PlannerRequest("suggest", 3, 6.0, 1),
+        "DroneState": DroneState(
+            7.0,
+            c2w,
+            [1.0, 2.0, 3.0],
+            [0.1, 0.0, -0.2],
+            [1.0, 0.0, 0.0, 0.0],
+            -0.2,
+            0.1,
+            "OFFBOARD",
+            True,
+            1,
+            "ok",
+            "flying",
+            3,
+        ),
     }

@@ -8,7 +8,19 @@ from typing import ClassVar
 
 import numpy as np
 
-from aes_planner.messages.codec import Message, MessageError, Reader, Writer, register_message
+from aes_planner.messages.codec import (
+    Array,
+    Enum,
+    List,
+    Map,
+    Message,
+    MessageError,
+    Optional,
+    Scalar,
+    Str,
+    Struct,
+    register_message,
+)
 from aes_planner.messages.fields import (
     check_finite,
     check_name_map,
@@ -18,10 +30,14 @@ from aes_planner.messages.fields import (
     check_text,
 )
 
-__all__ = ["Candidate", "ViewSuggestion", "MAX_CANDIDATES", "MAX_TERMS"]
+__all__ = ["Candidate", "ViewSuggestion", "MAX_CANDIDATES", "MAX_TERMS", "SUGGESTION_KINDS", "MODES"]
 
 MAX_CANDIDATES = 64
 MAX_TERMS = 32
+MODES = ("rig", "free")
+#: What a suggestion is: ``search`` (the ranked result of a search) or ``waypoint`` (the pose a
+#: drone is flying to now: exploring, moving to a candidate, or polishing, scored by prediction).
+SUGGESTION_KINDS = ("search", "waypoint")
 
 
 def view_of(cam2world: np.ndarray) -> np.ndarray:
@@ -48,6 +64,15 @@ class Candidate:
     ``position_m``, ``yaw_rad``, ``pitch_rad`` and ``view`` (x, y, z, yaw, pitch) are read from
     ``cam2world`` with the conventions of :mod:`aes_planner.geometry`.
     """
+
+    FIELDS: ClassVar[tuple] = (
+        Array("cam2world", "f8", (4, 4)),
+        Scalar("score", "f64"),
+        Scalar("coverage", "f64"),
+        Optional(Scalar("pan_rad", "f64")),
+        Optional(Scalar("tilt_rad", "f64")),
+        Map("terms", Scalar("value", "f64"), MAX_TERMS),
+    )
 
     cam2world: np.ndarray
     score: float
@@ -88,32 +113,12 @@ class Candidate:
     def pitch_rad(self) -> float:
         return float(self.view[4])
 
-    def _write(self, w: Writer) -> None:
-        w.array(self.cam2world, "f8")
-        w.f64(self.score)
-        w.f64(self.coverage)
-        w.opt_f64(self.pan_rad)
-        w.opt_f64(self.tilt_rad)
-        w.u32(len(self.terms))
-        for k, v in self.terms.items():
-            w.str(k)
-            w.f64(v)
-
     @classmethod
-    def _read(cls, r: Reader, i: int) -> Candidate:
-        c2w = r.array(f"candidates[{i}].cam2world", "f8", 2, (4, 4))
-        score = r.f64(f"candidates[{i}].score")
-        coverage = r.f64(f"candidates[{i}].coverage")
-        pan = r.opt_f64(f"candidates[{i}].pan_rad")
-        tilt = r.opt_f64(f"candidates[{i}].tilt_rad")
-        n = r.u32(f"candidates[{i}].terms")
-        if n > MAX_TERMS:
-            raise MessageError(f"ViewSuggestion.candidates[{i}]: {n} terms exceed the cap of {MAX_TERMS}")
-        terms = {}
-        for _ in range(n):
-            key = r.str(f"candidates[{i}].terms key", 64)
-            terms[key] = r.f64(f"candidates[{i}].terms[{key!r}]")
-        return cls(c2w, score, coverage, pan, tilt, terms)
+    def _from_wire(cls, values: dict, version: int) -> Candidate:
+        return cls(**values)
+
+    def _json_extra(self) -> dict:
+        return {"view": self.view.tolist()}
 
 
 @register_message
@@ -129,11 +134,23 @@ class ViewSuggestion(Message):
       (nothing better to suggest).
     * ``frame_id``: the frame of the poses, ``"world"``.
     * ``mode``: ``"rig"`` (pan/tilt given) or ``"free"`` (5-DoF views for a drone).
+    * ``kind``: ``"search"`` (the candidates a search ranked) or ``"waypoint"`` (one candidate: the
+      pose the drone is being sent to now, scored by the field's prediction, 0 when it has none;
+      free mode only). Schema version 2; a version-1 message decodes as ``"search"``.
     """
 
     TYPE_NAME: ClassVar[str] = "ViewSuggestion"
-    SCHEMA_VERSION: ClassVar[int] = 1
+    SCHEMA_VERSION: ClassVar[int] = 2
     MAX_BYTES: ClassVar[int] = 1 << 20
+    FIELDS = (
+        Scalar("stamp_s", "f64"),
+        Scalar("sequence", "u64"),
+        Scalar("field_version", "u64"),
+        Str("frame_id"),
+        Enum("mode", MODES),
+        List("candidates", Struct("candidate", Candidate), "u32", MAX_CANDIDATES),
+        Enum("kind", SUGGESTION_KINDS, since=2, default="search"),
+    )
 
     stamp_s: float
     candidates: list[Candidate] = field(default_factory=list)
@@ -141,6 +158,7 @@ class ViewSuggestion(Message):
     sequence: int = 0
     frame_id: str = "world"
     mode: str = "free"
+    kind: str = "search"
 
     def __post_init__(self):
         self.stamp_s = check_finite(self.stamp_s, "ViewSuggestion.stamp_s")
@@ -155,34 +173,11 @@ class ViewSuggestion(Message):
         self.field_version = check_sequence(self.field_version, "ViewSuggestion.field_version")
         self.sequence = check_sequence(self.sequence, "ViewSuggestion.sequence")
         self.frame_id = check_text(self.frame_id, "ViewSuggestion.frame_id")
-        if self.mode not in ("rig", "free"):
+        if self.mode not in MODES:
             raise MessageError(f"ViewSuggestion.mode must be 'rig' or 'free', got {self.mode!r}")
+        if self.kind not in SUGGESTION_KINDS:
+            raise MessageError(f"ViewSuggestion.kind must be one of {SUGGESTION_KINDS}, got {self.kind!r}")
 
     @property
     def best(self) -> Candidate | None:
         return self.candidates[0] if self.candidates else None
-
-    def _write(self, w: Writer) -> None:
-        w.f64(self.stamp_s)
-        w.u64(self.sequence)
-        w.u64(self.field_version)
-        w.str(self.frame_id)
-        w.u8(0 if self.mode == "rig" else 1)
-        w.u32(len(self.candidates))
-        for c in self.candidates:
-            c._write(w)
-
-    @classmethod
-    def _read(cls, r: Reader, version: int) -> ViewSuggestion:
-        stamp_s = r.f64("stamp_s")
-        sequence = r.u64("sequence")
-        field_version = r.u64("field_version")
-        frame_id = r.str("frame_id")
-        mode_code = r.u8("mode")
-        if mode_code > 1:
-            raise MessageError(f"ViewSuggestion.mode code {mode_code} unknown")
-        n = r.u32("candidates")
-        if n > MAX_CANDIDATES:
-            raise MessageError(f"ViewSuggestion: {n} candidates exceed the cap of {MAX_CANDIDATES}")
-        candidates = [Candidate._read(r, i) for i in range(n)]
-        return cls(stamp_s, candidates, field_version, sequence, frame_id, ("rig", "free")[mode_code])

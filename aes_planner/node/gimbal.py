@@ -9,8 +9,9 @@ It publishes ``gimbal/state`` at ``rate_hz`` and executes ``gimbal/command``:
 
 On a hardware error the node stops commanding (moves are refused and counted), reports
 ``status: fault`` with the faults in every state message, and resumes only after a reboot
-request. Communication errors are counted and reported (``status: comm_error``); the driver
-reconnects a port that comes back. :meth:`GimbalNode.stop` disconnects the device, which leaves
+request. Communication errors are counted and reported (``status: comm_error``, ``port_lost``
+while the serial port is gone); the driver reopens a port that comes back, takes control again
+and holds its last goal (its ``port_losses`` and ``reconnects`` are in the diagnostics). :meth:`GimbalNode.stop` disconnects the device, which leaves
 the motors unpowered.
 """
 
@@ -22,8 +23,15 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from aes_planner.config import require, require_numbers
-from aes_planner.devices import DeviceError, Gimbal, GimbalCommError, GimbalHardwareError, make_device
+from aes_planner.config import require, require_numbers, short_repr
+from aes_planner.devices import (
+    DeviceError,
+    Gimbal,
+    GimbalCommError,
+    GimbalHardwareError,
+    GimbalPortLostError,
+    make_device,
+)
 from aes_planner.geometry.rig import JointCommandError, JointLimits
 from aes_planner.graph.base import LaunchContext, Node, Outputs
 from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState
@@ -31,6 +39,21 @@ from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState
 log = logging.getLogger(__name__)
 
 __all__ = ["GimbalNode", "GimbalNodeConfig"]
+
+
+#: ``aes-planner gimbal emulate`` options a launch may pass (the servos and baud come from the device).
+EMULATOR_OPTIONS = ("--link", "--drop-rate", "--corrupt-rate", "--seed")
+
+
+def _check_emulator_args(args: list[str]) -> None:
+    """``emulator_args`` are OPTION VALUE pairs among :data:`EMULATOR_OPTIONS` (the emulator
+    checks the values and says what is wrong with them)."""
+    for i in range(0, len(args), 2):
+        require(
+            args[i] in EMULATOR_OPTIONS and i + 1 < len(args) and not args[i + 1].startswith("--"),
+            f"emulator_args[{i}]",
+            f"expected OPTION VALUE pairs with OPTION one of {', '.join(EMULATOR_OPTIONS)}, got {short_repr(args[i : i + 2])}",
+        )
 
 
 @dataclass
@@ -65,6 +88,7 @@ class GimbalNodeConfig:
             "emulate",
             f"the emulator speaks to the dynamixel_pan_tilt driver; device.type is {self.device.get('type')!r}",
         )
+        _check_emulator_args(self.emulator_args)
         require(0.01 <= self.rate_hz <= 1000, "rate_hz", f"must be in [0.01, 1000] Hz, got {self.rate_hz}")
         for name in ("pan_limits_deg", "tilt_limits_deg"):
             lim = getattr(self, name)
@@ -90,14 +114,25 @@ class GimbalNode(Node):
         spec = dict(config.device)
         if config.emulate:
             spec["port"] = "<emulator>"  # replaced by the emulator's pty on start()
-        self.device: Gimbal = device if device is not None else make_device(spec, "device")
+        self.device: Gimbal = device if device is not None else make_device(spec, "device", kind=Gimbal)
         self.emulator = None
         self.limits_rad = self._limits(context)
         self.status = "idle"
         self.faults: tuple[str, ...] = ()
         self.counters = dict.fromkeys(
-            ("commands_in", "moves", "commands_refused", "comm_errors", "hardware_errors", "reboots", "states"), 0
+            (
+                "commands_in",
+                "moves",
+                "moves_resent",
+                "commands_refused",
+                "comm_errors",
+                "hardware_errors",
+                "reboots",
+                "states",
+            ),
+            0,
         )
+        self._pending_move: tuple[float, float] | None = None  # clamped joints the device has yet to take
         self._seq = 0
         self._last_state_s = -math.inf
         self._last_diag_s = -math.inf
@@ -153,9 +188,12 @@ class GimbalNode(Node):
     # ----------------------------------------------------------------------------------- step
     def step(self, inputs: Mapping[str, list], now: float) -> Outputs:
         out: Outputs = {"gimbal/state": [], "gimbal/diagnostics": []}
-        for cmd in inputs.get("gimbal/command", ()):
+        commands = inputs.get("gimbal/command", ())
+        for cmd in commands:
             self.counters["commands_in"] += 1
             self._execute(cmd)
+        if self._pending_move is not None and not commands:
+            self._resend_pending()
         if now - self._last_state_s >= self.period_s * 0.999:
             self._last_state_s = now
             state = self._read_state()
@@ -169,9 +207,14 @@ class GimbalNode(Node):
         return out
 
     def _counters(self) -> dict[str, int]:
-        """The node's counters, plus the driver's count of servos found with torque off behind its back."""
-        losses = getattr(self.device, "torque_losses", None)
-        return {**self.counters, **({} if losses is None else {"torque_losses": int(losses)})}
+        """The node's counters, plus the driver's own where it keeps them: servos found with torque
+        off behind its back, serial ports lost and reopened."""
+        out = dict(self.counters)
+        for name in ("torque_losses", "port_losses", "reconnects"):
+            value = getattr(self.device, name, None)
+            if isinstance(value, int):
+                out[name] = value
+        return out
 
     def clamp(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
         """Finite joints clamped to the node's limits; :class:`JointCommandError` otherwise."""
@@ -185,6 +228,7 @@ class GimbalNode(Node):
 
     def _execute(self, cmd) -> None:
         kind = getattr(cmd, "kind", None)
+        self._pending_move = None  # a newer command supersedes a move the device has not taken yet
         try:
             if kind == "reboot":
                 self.device.reboot()
@@ -202,10 +246,9 @@ class GimbalNode(Node):
                 )
             elif kind == "move":
                 pan, tilt = self.clamp(cmd.pan_rad, cmd.tilt_rad)
+                self._pending_move = (pan, tilt)  # until the device took it (kept over a lost port)
                 self.device.move_to(pan, tilt)
-                self.counters["moves"] += 1
-                if self.status == "comm_error":
-                    self.status = "ok"
+                self._moved()
             elif kind == "stop":
                 s = self.device.state()
                 self.device.move_to(*self.clamp(*_joints(s)))
@@ -218,11 +261,42 @@ class GimbalNode(Node):
             self._on_fault(tuple(f"{j}: {f}" for j, fs in exc.faults.items() for f in fs) or (str(exc),))
         except GimbalCommError as exc:
             self.counters["comm_errors"] += 1
-            self.status = "comm_error" if self.status != "fault" else self.status
-            log.warning("%s: %s", self.node_id, exc)
+            self.status = _comm_status(exc) if self.status != "fault" else self.status
+            kept = "; the move is kept and sent when the gimbal answers again" if self._pending_move else ""
+            log.warning("%s: %s%s", self.node_id, exc, kept)
         except DeviceError as exc:
             self.counters["comm_errors"] += 1
+            self._pending_move = None
             log.warning("%s: %s", self.node_id, exc)
+
+    def _moved(self) -> None:
+        self._pending_move = None
+        self.counters["moves"] += 1
+        if self.status in _COMM_STATUSES:
+            self.status = "ok"
+
+    def _resend_pending(self) -> None:
+        """A move that met a communication error (a lost port, a bus that did not answer) is sent
+        again at each step until the device takes it or a newer command replaces it: an accepted
+        command is not lost. Each resend is counted (``moves_resent``) once it goes through; the
+        failures are the state reads' ``comm_errors`` already."""
+        if self.status == "fault":
+            self._pending_move = None
+            return
+        try:
+            self.device.move_to(*self._pending_move)
+        except GimbalHardwareError as exc:
+            self._pending_move = None
+            self._on_fault(tuple(f"{j}: {f}" for j, fs in exc.faults.items() for f in fs) or (str(exc),))
+        except GimbalCommError as exc:
+            log.debug("%s: resending the move failed: %s", self.node_id, exc)
+        except DeviceError as exc:
+            self._pending_move = None
+            self.counters["comm_errors"] += 1
+            log.warning("%s: dropped the kept move: %s", self.node_id, exc)
+        else:
+            self.counters["moves_resent"] += 1
+            self._moved()
 
     def _on_fault(self, faults: tuple[str, ...]) -> None:
         if self.status != "fault":
@@ -240,12 +314,12 @@ class GimbalNode(Node):
         except DeviceError as exc:
             self.counters["comm_errors"] += 1
             if self.status != "fault":
-                self.status = "comm_error"
+                self.status = _comm_status(exc)
             log.debug("%s: state read failed: %s", self.node_id, exc)
             return None
         if s.hardware_error:
             self._on_fault(tuple(s.hardware_error))
-        elif self.status == "comm_error":
+        elif self.status in _COMM_STATUSES:
             self.status = "ok"
         self._seq += 1
         self.counters["states"] += 1
@@ -260,6 +334,13 @@ class GimbalNode(Node):
             return None
         self.last_state = msg
         return msg
+
+
+_COMM_STATUSES = ("comm_error", "port_lost")
+
+
+def _comm_status(exc: BaseException) -> str:
+    return "port_lost" if isinstance(exc, GimbalPortLostError) else "comm_error"
 
 
 def _joints(state) -> tuple[float, float]:

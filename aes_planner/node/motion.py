@@ -202,7 +202,7 @@ class DroneMotion(Motion):
     def send(self, node, target, now, out):
         cand = Candidate(target.cam2world, target.predicted if target.predicted is not None else 0.0)
         version = node.proposer.version if node.proposer else 0
-        out["planner/suggestion"].append(node._suggestion([cand], version, now))
+        out["planner/suggestion"].append(node._suggestion([cand], version, now, "waypoint"))
         return True
 
     def arrived(self, target, now, frame, gimbal, config):

@@ -27,6 +27,7 @@ from collections.abc import Mapping
 import numpy as np
 import torch
 
+from aes_planner.geometry.plausible import distance_problem
 from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs, percentile
 from aes_planner.messages import (
     Candidate,
@@ -43,7 +44,7 @@ from aes_planner.node.motion import DroneMotion, Motion, RigMotion
 from aes_planner.node.planner_config import PlannerConfig
 from aes_planner.node.proposer import FieldProposer, Proposer
 from aes_planner.platform import DroneBox, DronePlatform, Platform, RigPlatform, free_box_around
-from aes_planner.runtime import ThreadGovernor, set_threads
+from aes_planner.runtime import ThreadGovernor, set_threads, suggestion_threads
 
 log = logging.getLogger(__name__)
 
@@ -242,6 +243,9 @@ class PlannerNode(ActiveLoop, Node):
         if self._frame is not None and frame.stamp_s < self._frame.stamp_s:
             self.counters["frames_rejected"] += 1  # out of order: older than what we have
             return
+        if self._frame is not None and distance_problem(frame.cam2world, self._frame.cam2world):
+            self.counters["frames_rejected"] += 1  # not the scene the field models (plausibility bounds)
+            return
         self._frame = frame
         if self.platform is None:
             self.platform = self._make_platform(k)
@@ -296,20 +300,16 @@ class PlannerNode(ActiveLoop, Node):
 
     def _propose(self, captured: np.ndarray, k: int, **kw):
         """The proposer's search, timed: its latency, and its CPU efficiency for the governor."""
-        t0, c0 = time.perf_counter(), self.cpu_clock()
-        proposal = self.proposer.propose(self.platform, captured, k, **kw)
-        wall_s, cpu_s = time.perf_counter() - t0, self.cpu_clock() - c0
-        self.latencies_s.append(wall_s)
-        if self.governor is not None:
-            before = self.governor.threads
-            if self.governor.observe(wall_s, cpu_s) != before:
-                set_threads(self.governor.threads)  # from the thread the steps (and searches) run in
+        # the governor's count, learnt from here (threads: N pinned it; adapt_threads: false leaves it)
+        with suggestion_threads(self.governor, self.cpu_clock, adapt=self.config.adapt_threads) as job:
+            proposal = self.proposer.propose(self.platform, captured, k, **kw)
+        self.latencies_s.append(job.wall_s)
         return proposal
 
     # ---------------------------------------------------------------------------- messages
-    def _suggestion(self, candidates: list[Candidate], version: int, now: float) -> ViewSuggestion:
+    def _suggestion(self, candidates: list[Candidate], version: int, now: float, kind="search") -> ViewSuggestion:
         mode = self.motion.suggestion_mode
-        msg = ViewSuggestion(now, list(candidates), int(version), self._next("sugg"), "world", mode)
+        msg = ViewSuggestion(now, list(candidates), int(version), self._next("sugg"), "world", mode, kind)
         self.suggestions.append(msg)
         del self.suggestions[:-64]
         self.counters["suggestions"] += 1

@@ -5,7 +5,8 @@ pose comes from ``gimbal/state`` through the rig's kinematics (the present joint
 from each state's stamp on); :class:`~aes_planner.node.sim_drone.SimDroneNode` is the same camera
 on a simulated drone. Frames carry the joint angles they were taken at, a sequence number, and
 the sim camera's pixel noise, pose noise and latency (:class:`~aes_planner.sim.SimCameraConfig`).
-Frames are stamped with the node's clock (``now``).
+Frames are stamped with the node's clock (``now``) and posed at ``now`` less the rig's
+``camera_latency_s`` (its calibrated delay; the sim camera's ``latency_s`` is the simulated one).
 """
 
 from __future__ import annotations
@@ -14,12 +15,12 @@ import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-import numpy as np
-
-from aes_planner.config import ConfigError, require, require_numbers, short_repr
-from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs
-from aes_planner.messages import GimbalState, PosedFrame
+from aes_planner.config import ConfigError, require_numbers
+from aes_planner.devices import CameraImage
+from aes_planner.graph.base import Input, LaunchContext, NodeError
+from aes_planner.messages import GimbalState
 from aes_planner.messages.posed_frame import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE_PX
+from aes_planner.node.frames import FrameNode, JointHistory, check_frame_source
 
 log = logging.getLogger(__name__)
 
@@ -48,24 +49,19 @@ class SimCameraNodeConfig:
     frame_id: str = "sim_camera"
 
     def __post_init__(self):
-        require(
-            isinstance(self.frame_id, str) and self.frame_id.isprintable() and 1 <= len(self.frame_id) <= 200,
-            "frame_id",
-            f"must be 1-200 printable characters (each frame's id is FRAME_ID/NUMBER), got {short_repr(self.frame_id)}",
-        )
         require_numbers(self, ("rate_hz",))
-        require(0.01 <= self.rate_hz <= 240, "rate_hz", f"must be in [0.01, 240] Hz, got {self.rate_hz}")
+        check_frame_source(self.frame_id, self.rate_hz)
         from aes_planner.config import from_dict
 
         self._camera = from_dict(_camera_config_class(), self.camera, "camera")
 
 
-class SimCameraNode(Node):
+class SimCameraNode(FrameNode):
     """See the module docstring."""
 
     config_class = SimCameraNodeConfig
-    inputs = {"gimbal/state": (GimbalState, 8)}
-    outputs = {"camera/frame": (PosedFrame, False)}
+    needs_scene = True
+    inputs = {"gimbal/state": Input(GimbalState, 8)}
 
     def __init__(
         self,
@@ -80,9 +76,8 @@ class SimCameraNode(Node):
         self.scene = scene if scene is not None else self.context.load_scene()
         self.camera = SimCamera(self.scene, self.config._camera)
         self._check_frame_size()
-        self.frames_published = 0
-        self._last_frame_s = -np.inf
-        self._joints: tuple[float, float] | None = None
+        self.history = JointHistory(history_s=1.0)
+        self._init_frames()
         self._check_platform()
 
     def _check_frame_size(self) -> None:
@@ -104,36 +99,15 @@ class SimCameraNode(Node):
                 f"{self.node_id}: scene {self.scene.name!r} has a drone, not a rig: use the sim_drone node type"
             )
 
-    @property
-    def period_s(self) -> float:
-        return 1.0 / self.config.rate_hz
-
-    def step(self, inputs: Mapping[str, list], now: float) -> Outputs:
-        for s in inputs.get("gimbal/state", ()):
-            self._joints = (s.pan_rad, s.tilt_rad)
+    def observe(self, inputs: Mapping[str, list], now: float) -> None:
+        states = inputs.get("gimbal/state", ())
+        for s in states:  # the camera is where the gimbal put it, from each state's stamp on
             self.camera.move_joints(s.pan_rad, s.tilt_rad, min(s.stamp_s, now))
-        return {"camera/frame": self._maybe_capture(now)}
+        self.history.add(states, now)
 
-    def _maybe_capture(self, now: float) -> list:
-        if now - self._last_frame_s < self.period_s * 0.999 or not self.camera._stamps:
-            return []
-        self._last_frame_s = now
-        frame = self.camera.capture(now)
-        msg = PosedFrame(
-            image=frame.image,
-            intrinsics=frame.intrinsics,
-            cam2world=frame.cam2world,
-            stamp_s=now,
-            depth_m=frame.depth_m if self.config.depth else None,
-            frame_id=f"{self.config.frame_id}/{self.frames_published:06d}",
-            sequence=self.frames_published,
-            **self._joint_fields(),
-        )
-        msg.extras = frame.extras
-        self.frames_published += 1
-        return [msg]
-
-    def _joint_fields(self) -> dict:
-        if self._joints is None:
-            return {}
-        return {"pan_rad": float(self._joints[0]), "tilt_rad": float(self._joints[1])}
+    def pose(self, image: CameraImage):
+        """The pose the sim camera reports (with its pose noise; at the exposure when the rig has a
+        calibrated ``camera_latency_s``), and the joints at the stamp."""
+        latency_s = self.scene.rig.pan_tilt.camera_latency_s
+        cam2world = self.camera.pose_at(image.stamp_s - latency_s) if latency_s else image.cam2world
+        return cam2world, self.history.joints_at(image.stamp_s)

@@ -20,9 +20,10 @@ import numpy as np
 import torch
 
 from aes_planner.config import require, require_numbers
+from aes_planner.devices import CameraImage
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
-from aes_planner.graph.base import LaunchContext, NodeError, Outputs
-from aes_planner.messages import PosedFrame, ViewSuggestion
+from aes_planner.graph.base import Input, LaunchContext, NodeError
+from aes_planner.messages import ViewSuggestion
 from aes_planner.node.sim_camera import SimCameraNode, SimCameraNodeConfig
 from aes_planner.platform import DroneBox
 
@@ -152,8 +153,7 @@ class SimDroneNode(SimCameraNode):
     """A :class:`SimDrone` carrying the sim camera; follows the top candidate of ``planner/suggestion``."""
 
     config_class = SimDroneNodeConfig
-    inputs = {"planner/suggestion": (ViewSuggestion, 4)}
-    outputs = {"camera/frame": (PosedFrame, False)}
+    inputs = {"planner/suggestion": Input(ViewSuggestion, 4)}
 
     def __init__(
         self,
@@ -178,7 +178,7 @@ class SimDroneNode(SimCameraNode):
     def _check_platform(self) -> None:
         pass  # a rig scene flies a box around the rig's base
 
-    def step(self, inputs: Mapping[str, list], now: float) -> Outputs:
+    def observe(self, inputs: Mapping[str, list], now: float) -> None:
         for s in inputs.get("planner/suggestion", ()):
             if s.candidates:
                 self.drone.set_target(s.candidates[0].view)
@@ -186,10 +186,10 @@ class SimDroneNode(SimCameraNode):
             self.drone.advance(now - self._last_s)
         self._last_s = now
         self.camera.move_to(self.drone.cam2world(), now)
-        return {"camera/frame": self._maybe_capture(now)}
 
-    def _joint_fields(self) -> dict:
-        return {}
+    def pose(self, image: CameraImage):
+        """Where the sim camera says the drone had it (no joints on a drone)."""
+        return image.cam2world, None
 
 
 def _survey_start(box: DroneBox) -> np.ndarray:

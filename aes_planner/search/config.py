@@ -17,6 +17,19 @@ from aes_planner.config import ConfigError, require, require_finite
 
 __all__ = ["FREE_MODE_PRESETS", "PRESETS", "SearchConfig"]
 
+from aes_planner.messages.suggestion import MAX_CANDIDATES
+
+#: Largest counts a search takes: each of ``top_k`` is refined by ``steps`` renders and reported as a
+#: tile (at most a suggestion message's candidates); the candidates (segments x samples x neighbours)
+#: are scored in batches.
+_MOST = {
+    "samples_per_segment": 4096,
+    "neighbours": 1024,
+    "top_k": MAX_CANDIDATES,
+    "batch_size": 4096,
+    "steps": 10_000,
+}
+
 
 @dataclass
 class SearchConfig:
@@ -87,6 +100,9 @@ class SearchConfig:
             require(
                 isinstance(v, int) and not isinstance(v, bool) and v >= 1, name, f"must be an integer >= 1, got {v!r}"
             )
+        for name, most in _MOST.items():
+            v = getattr(self, name)
+            require(v <= most, name, f"must be <= {most}, got {v}")
         require(
             isinstance(self.grid_points, int)
             and not isinstance(self.grid_points, bool)

@@ -37,6 +37,7 @@ from aes_planner.geometry.rigid import check_rigid
 from aes_planner.geometry.trajectory import interpolate_poses
 from aes_planner.messages.fields import POSE_TOL
 from aes_planner.platform import Platform
+from aes_planner.runtime import suggestion_threads
 from aes_planner.search.config import SearchConfig
 from aes_planner.search.space import SearchSpace, space_for
 
@@ -242,8 +243,16 @@ def search_views(
 
     ``avoid``: poses ``[M, 4, 4]`` already captured or suggested; stage 1 skips candidates that
     duplicate them (same distance test as between candidates), so an active loop gets new views.
-    Returns at most ``cfg.top_k`` suggestions, best first.
+    Returns at most ``cfg.top_k`` suggestions, best first. Runs on the thread count
+    :func:`aes_planner.runtime.suggestion_threads` picks (fewer threads beside busy processes).
     """
+    with suggestion_threads():
+        return _search_views(scorer, inputs_cam2world, platform, cfg, avoid)
+
+
+def _search_views(
+    scorer: Scorer, inputs_cam2world, platform: Platform, cfg: SearchConfig | None, avoid
+) -> SearchResult:
     if not isinstance(platform, Platform):
         raise SearchError(f"platform must be a Platform (a rig or a drone box), got {type(platform).__name__}")
     if cfg is not None and not isinstance(cfg, SearchConfig):

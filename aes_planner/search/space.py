@@ -19,7 +19,6 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from aes_planner.geometry.pantilt import PanTilt
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world, wrap_angle
 from aes_planner.platform import DroneBox, Platform
 
@@ -104,7 +103,7 @@ class RigSpace(SearchSpace):
 
     def __init__(self, platform: Platform, jitter_rad: float, dedup_rad: float):
         super().__init__(platform, jitter_rad, dedup_rad)
-        self.kinematics = PanTilt(platform.rig)
+        self.kinematics = platform.kinematics
         (plo, phi), (tlo, thi) = self.kinematics.pan_limits_rad, self.kinematics.tilt_limits_rad
         self.lower = torch.tensor([plo, tlo], dtype=torch.float64)
         self.upper = torch.tensor([phi, thi], dtype=torch.float64)

@@ -76,7 +76,7 @@ from aes_planner.transport.bus import (
     validate_topic,
     wait_any,
 )
-from aes_planner.transport.config import BusConfig, ZenohConfig, open_bus
+from aes_planner.transport.config import BusConfig, ZenohConfig
 from aes_planner.transport.inprocess import InProcessBus
 
 __all__ = [
@@ -100,3 +100,14 @@ __all__ = [
     "validate_topic",
     "wait_any",
 ]
+
+
+def open_bus(config: BusConfig | None = None) -> Bus:
+    """A new bus for ``config`` (default: in-process); the Zenoh backend is imported only when
+    asked for."""
+    config = config or BusConfig()
+    if config.backend == "zenoh":
+        from aes_planner.transport.zenoh_bus import ZenohBus
+
+        return ZenohBus(config.zenoh)
+    return InProcessBus()

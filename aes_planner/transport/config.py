@@ -1,4 +1,6 @@
-"""``BusConfig`` / ``ZenohConfig``: the ``bus:`` block of a launch file and the CLI's bus flags."""
+"""``BusConfig`` / ``ZenohConfig``: the ``bus:`` block of a launch file and the CLI's bus flags.
+
+Settings only: :func:`aes_planner.transport.open_bus` builds a bus from them."""
 
 from __future__ import annotations
 
@@ -9,7 +11,7 @@ from typing import Literal
 
 from aes_planner.config import ConfigError, require
 
-__all__ = ["BusConfig", "ZenohConfig", "open_bus", "DEFAULT_ENDPOINT", "DEFAULT_PORT", "EPHEMERAL_ENDPOINT"]
+__all__ = ["BusConfig", "ZenohConfig", "DEFAULT_ENDPOINT", "DEFAULT_PORT", "EPHEMERAL_ENDPOINT"]
 
 # The graph's hub port. Not Zenoh's 7447: zenohd, ROS 2's rmw_zenohd router and the zenoh-bridge-*
 # tools all listen there by default, so a ROS 2 rmw_zenoh system and a launch on the same machine
@@ -50,6 +52,12 @@ class ZenohConfig:
     * ``listen``: endpoints to listen on. Non-loopback addresses need ``allow_remote: true``.
       By default an ephemeral loopback port: the peers learn each other's address from the one
       they connect to (gossip) and then talk directly, so the graph survives any one of them.
+    * ``mode``: ``peer`` (a node process, a tool) or ``router`` (a graph's hub: the launcher).
+      Peers exchange the addresses they listen on (gossip) and talk directly; they do not forward
+      for each other. That meets on one machine, where every address is loopback, but not across
+      machines: a node on host A hears of a node on host B at B's loopback address and cannot reach
+      it. A router forwards between everything connected to it, so two hubs connected to each other
+      carry the graph between hosts, while each node process still listens on loopback only.
     * ``multicast_scouting``: discover peers by UDP multicast on the LAN; off by default.
     * ``prefix``: key prefix of every topic (like a ROS domain): buses with different prefixes
       do not see each other.
@@ -60,6 +68,7 @@ class ZenohConfig:
     listen: tuple[str, ...] = (EPHEMERAL_ENDPOINT,)
     multicast_scouting: bool = False
     allow_remote: bool = False
+    mode: Literal["peer", "router"] = "peer"
     prefix: str = "aes"
     open_timeout_s: float = 2.0
 
@@ -75,6 +84,7 @@ class ZenohConfig:
                 f"listen[{i}]",
                 f"{ep} listens beyond loopback; set allow_remote: true (or --allow-remote) if you mean it",
             )
+        require(self.mode in ("peer", "router"), "mode", f"must be 'peer' or 'router', got {self.mode!r}")
         require(
             not self.multicast_scouting or self.allow_remote,
             "multicast_scouting",
@@ -98,15 +108,3 @@ class BusConfig:
     def __post_init__(self):
         if self.backend not in ("inprocess", "zenoh"):
             raise ConfigError("backend", f"must be 'inprocess' or 'zenoh', got {self.backend!r}")
-
-
-def open_bus(config: BusConfig | None = None):
-    """A new bus for ``config`` (default: in-process)."""
-    config = config or BusConfig()
-    if config.backend == "zenoh":
-        from aes_planner.transport.zenoh_bus import ZenohBus
-
-        return ZenohBus(config.zenoh)
-    from aes_planner.transport.inprocess import InProcessBus
-
-    return InProcessBus()

@@ -25,6 +25,7 @@ server can advertise them before the first message.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from dataclasses import dataclass
@@ -35,6 +36,8 @@ from aes_planner.messages import (
     Message,
     PosedFrame,
     ViewSuggestion,
+    describe,
+    message_type,
     to_jsonable,
 )
 
@@ -50,10 +53,6 @@ __all__ = [
 ]
 
 OUR_ENCODING = "aes-planner"
-_SCHEMA_DOC = (
-    "aes-planner binary message (see aes_planner.messages.codec): 12-byte header "
-    "(magic AESM, format, name length, schema version, payload length), type name, payload."
-)
 
 
 @dataclass(frozen=True)
@@ -68,9 +67,15 @@ class VizMessage:
     data: bytes
 
 
+@functools.cache
 def our_schema(type_name: str, version: int) -> tuple[str, str, bytes]:
-    """(name, encoding, data) of the schema of our own channel for ``type_name``."""
-    return f"aes_planner.{type_name}", OUR_ENCODING, f"{_SCHEMA_DOC} type {type_name} v{version}".encode()
+    """(name, encoding, data) of the schema of our own channel for ``type_name``: the data is the
+    type's machine-readable layout (:func:`aes_planner.messages.describe`, JSON; docs/wire.md), from
+    which a reader in any language decodes the channel's messages."""
+    cls = message_type(type_name)
+    if version != cls.SCHEMA_VERSION:
+        raise ValueError(f"this build describes {type_name} version {cls.SCHEMA_VERSION}, not {version}")
+    return f"aes_planner.{type_name}", OUR_ENCODING, json.dumps(describe(cls), indent=1).encode()
 
 
 @dataclass(frozen=True)
@@ -300,7 +305,12 @@ def foxglove_view(
 
         deletions = [SceneEntityDeletion(timestamp=_stamp(log_time_ns), type=SceneEntityDeletionType.All, id="")]
         out.append(_proto(f"{base}/scene", SceneUpdate(deletions=deletions, entities=entities)))
-        summary: dict = {"stamp_s": msg.stamp_s, "field_version": msg.field_version, "count": len(scores)}
+        summary: dict = {
+            "stamp_s": msg.stamp_s,
+            "kind": msg.kind,
+            "field_version": msg.field_version,
+            "count": len(scores),
+        }
         best = msg.best
         if best is not None:
             out.append(_proto("/tf", _transform("world", SUGGESTION_FRAME, best.cam2world, log_time_ns)))

@@ -63,10 +63,11 @@ _OPEN_BUSES: weakref.WeakSet = weakref.WeakSet()
 
 
 def zenoh_config(cfg: ZenohConfig) -> zenoh.Config:
-    """The Zenoh session configuration for ``cfg``: peer mode, explicit endpoints, no multicast
-    scouting unless asked (gossip scouting over the connected peers stays on)."""
+    """The Zenoh session configuration for ``cfg``: peer mode (router for a graph's hub, see
+    :class:`ZenohConfig`), explicit endpoints, no multicast scouting unless asked (gossip scouting
+    over the connected peers stays on)."""
     conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("mode", json.dumps(cfg.mode))
     conf.insert_json5("connect/endpoints", json.dumps(list(cfg.connect)))
     conf.insert_json5("listen/endpoints", json.dumps(list(cfg.listen)))
     conf.insert_json5("scouting/multicast/enabled", "true" if cfg.multicast_scouting else "false")

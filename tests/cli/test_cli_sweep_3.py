@@ -6,9 +6,10 @@ silently accepted before it was fixed.
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from aes_planner.cli import main  # noqa: F401  (the fixtures call it)
+from aes_planner.cli import main
 
 RIG = "{base_xyz_m: [0, 0, 1.3], pan_limits_deg: [-150, 150], tilt_limits_deg: [-60, 60]}"
 
@@ -34,7 +35,7 @@ def test_camera_device_is_checked_before_opencv_sees_it(tmp_path, cli_error, dev
     "coefficients", ["[0.1, 0.0, 0.0]", "[0.1, 0, 0, 0, 0, 0]", "[" + ", ".join(["0.01"] * 15) + "]"]
 )
 def test_calibration_distortion_count_is_what_opencv_takes(tmp_path, clean_error, coefficients):
-    from aes_planner.node.camera import load_calibration
+    from aes_planner.drivers.camera import load_calibration
 
     cal = write(
         tmp_path,
@@ -43,3 +44,180 @@ def test_calibration_distortion_count_is_what_opencv_takes(tmp_path, clean_error
         f"distortion_coefficients: {coefficients}\n",
     )
     clean_error(load_calibration, cal, match="distortion_coefficients")
+
+
+# ------------------------------------- 8. one validation path for every YAML file: wrong shapes named
+SHAPES = {
+    "type_list": ("nodes: [{id: p, type: [planner]}]\n", "nodes[0].type"),
+    "type_mapping": ("nodes: [{id: p, type: {a: 1}}]\n", "nodes[0].type"),
+    "type_missing": ("nodes: [{id: p}]\n", "nodes[0].type"),
+    "id_list": ("nodes: [{id: [p], type: planner}]\n", "nodes[0].id"),
+    "config_list": ("nodes: [{id: p, type: planner, config: [1]}]\n", "nodes[0].config"),
+    "config_int_key": ("nodes: [{id: p, type: planner, config: {1: 2}}]\n", "nodes[0].config"),
+    "remap_int": ("nodes: [{id: p, type: planner, remap: {a/b: 3}}]\n", "nodes[0].remap"),
+    "respawn_str": ("nodes: [{id: p, type: planner, respawn: yes please}]\n", "nodes[0].respawn"),
+    "nodes_mapping": ("nodes: {p: 1}\n", "nodes"),
+    "nodes_ints": ("nodes: [1, 2]\n", "nodes[0]"),
+    "nodes_string": ("nodes: abc\n", "nodes"),
+    "only_external": ("nodes: [{id: fc, type: external}]\n", "external"),
+    "huge_int": ("nodes: [{id: p, type: planner, config: {max_moves: 100000000000000000000000}}]\n", "64 bits"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SHAPES))
+@pytest.mark.parametrize("with_set", [False, True], ids=["plain", "set"])
+def test_launch_file_of_the_wrong_shape_names_the_key(tmp_path, cli_error, name, with_set):
+    text, key = SHAPES[name]
+    launch = write(tmp_path, "l.yaml", text)
+    extra = ["--set", "p.settle_s=0.5"] if with_set and name != "only_external" else []
+    line = cli_error(["launch", launch, *extra, "--timeout", "3"], key, seconds=30)
+    assert "unhashable" not in line and "has no attribute" not in line
+
+
+def test_only_external_nodes_refused_by_a_multi_process_launch_too(tmp_path, cli_error):
+    launch = write(tmp_path, "l.yaml", "nodes: [{id: fc, type: external}, {id: fc2, type: external}]\n")
+    cli_error(["launch", launch, "--processes", "--timeout", "3"], "would start nothing", seconds=30)
+
+
+@pytest.mark.parametrize(
+    "args, match",
+    [
+        ('["--help"]', "emulator_args[0]"),
+        ('["--models", "xl430-w250"]', "emulator_args[0]"),
+        ('["--seed"]', "emulator_args[0]"),
+        ('["--seed", "1e3"]', "invalid int value"),
+        ('["--drop-rate", "2"]', "drop_rate"),
+        ('["--link", "/nonexistent/folder/pty"]', "does not exist"),
+    ],
+)
+def test_emulator_arguments_end_in_the_emulators_own_error(tmp_path, cli_error, args, match):
+    launch = write(
+        tmp_path,
+        "g.yaml",
+        "nodes:\n  - id: gimbal\n    type: gimbal\n"
+        f"    config: {{emulate: true, emulator_args: {args}, device: {{type: dynamixel_pan_tilt, port: x}}}}\n",
+    )
+    cli_error(["launch", launch, "--timeout", "3"], match, seconds=20)  # not a 30 s wait
+
+
+SCENE_EDITS = {
+    "type_list": ("- type: box", "- type: [box]", "objects[1].type"),
+    "type_mapping": ("- type: box", "- type: {box: 1}", "objects[1].type"),
+    "light_type_list": ("- type: ambient", "- type: [ambient]", "lights[0].type"),
+    "seed_huge_int": ("seed: 7}", "seed: 100000000000000000000000}", "64 bits"),
+    "seed_float": ("seed: 7}", "seed: 1e23}", "seed"),
+    "octaves_huge": ("octaves: 3,", "octaves: 100000000000000000000000,", "64 bits"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SCENE_EDITS))
+def test_scene_file_of_the_wrong_shape_names_the_key(tmp_path, cli_error, name):
+    old, new, key = SCENE_EDITS[name]
+    showcase = (Path(__file__).parents[2] / "sim" / "scenes" / "showcase.yaml").read_text()
+    assert old in showcase
+    scene = write(tmp_path, "s.yaml", showcase.replace(old, new, 1))
+    argv = ["sim", "render", "--scene", scene, "--views", "1", "--out", tmp_path / "out", "--allow-outside-paths"]
+    cli_error([*argv, "--width", "32", "--height", "24"], key, seconds=60)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_post_init_that_breaks_on_a_value_is_a_config_error(clean_error):
+    # The shared mechanism: whatever a dataclass's own check trips over is named, not a traceback.
+    from dataclasses import dataclass
+
+    from aes_planner.config import from_dict
+
+    @dataclass
+    class Odd:
+        n: int = 1
+
+        def __post_init__(self):
+            float(2**self.n)  # OverflowError for a big n
+
+    clean_error(from_dict, Odd, {"n": 5000}, "block", match="block: invalid value (OverflowError")
+
+
+# -------------------------------------------------- 7. training values that can only diverge
+@pytest.mark.parametrize(
+    "line, key",
+    [("lr: 1e30", "lr"), ("weight_decay: 1e30", "weight_decay"), ("score_weight: 1e300", "score_weight")],
+)
+def test_train_refuses_diverging_values_before_any_work(tmp_path, cli_error, line, key):
+    config = write(tmp_path, "t.yaml", line + "\n")
+    cli_error(["train", "--config", config, "--out", tmp_path / "o", "--cache", tmp_path / "c"], key)
+    assert not (tmp_path / "o").exists() and not (tmp_path / "c").exists()
+
+
+# ------------------------------------------------------------------------------ 12. smaller ones
+@pytest.fixture(scope="module")
+def folders(tmp_path_factory):
+    root = tmp_path_factory.mktemp("sweep3")
+    scenes = Path(__file__).parents[1] / "node" / "scenes"
+    out = {}
+    for name, scene in (("rig", "tabletop:0"), ("drone", str(scenes / "yard_drone.yaml"))):
+        args = ["sim", "render", "--scene", scene, "--views", "3", "--out", str(root / name), "--supersample", "1"]
+        assert main([*args, "--width", "32", "--height", "24"]) == 0
+        out[name] = root / name
+    return out
+
+
+@pytest.mark.parametrize("top", ["1000000000", "65", "0", "-1"])
+def test_suggest_top_is_bounded_by_what_a_suggestion_holds(folders, cli_error, top):
+    cli_error(["suggest", folders["rig"], "--top", top], "--top", seconds=30)
+
+
+@pytest.mark.parametrize("what", ["folder", "fifo"])
+def test_suggest_out_where_report_png_is_not_a_file(folders, tmp_path, cli_error, what):
+    import os
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "report.png").mkdir() if what == "folder" else os.mkfifo(out / "report.png")
+    cli_error(["suggest", folders["rig"], "--out", out], "report.png", seconds=30)
+
+
+def test_a_report_that_cannot_be_written_is_an_error(tmp_path, clean_error):
+    from aes_planner.images import write_image
+
+    (tmp_path / "r.png").mkdir()
+    clean_error(write_image, tmp_path / "r.png", np.zeros((4, 4, 3), np.uint8), match="could not write")
+    clean_error(write_image, tmp_path / "r.unknown", np.zeros((4, 4, 3), np.uint8), match="could not write")
+
+
+@pytest.mark.parametrize(
+    "box", [([0, 0, 1], [0, 0, 1]), ([0, 0, 1], [1e-300, 1e-300, 1.0000001]), ([0, 0, 1], [2, 2, 1.05])]
+)
+def test_a_drone_box_thinner_than_a_drone_holds_is_refused(folders, tmp_path, cli_error, box):
+    import json
+    import shutil
+
+    ds = tmp_path / "ds"
+    shutil.copytree(folders["drone"], ds)
+    doc = json.loads((ds / "cameras.json").read_text())
+    doc["meta"]["drone"] = {"bounds_min_m": box[0], "bounds_max_m": box[1]}
+    (ds / "cameras.json").write_text(json.dumps(doc))
+    cli_error(["suggest", ds, "--preset", "fast"], "meta.drone", seconds=30)
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["score", "x.png", "--teacher", ""],
+        ["score", "x.png", "--teacher", "  "],
+        ["score", "x.png", "--teacher="],
+        ["score", ""],
+        ["suggest", "x", "--scorer", ""],
+        ["launch", "sim_closed_loop", "--connect", ""],
+        ["train", "--out", ""],
+    ],
+)
+def test_an_empty_option_value_is_refused_not_taken_for_the_default(cli_error, argv):
+    cli_error(argv, "an empty value", seconds=10)
+
+
+@pytest.mark.parametrize("deg_s", [45001.0, 1500.0, 1e6])
+def test_profile_velocity_is_bounded_by_what_the_servo_can_be_set_to(clean_error, deg_s):
+    from aes_planner.drivers.dynamixel_config import DynamixelPanTiltConfig
+
+    clean_error(DynamixelPanTiltConfig, port="/dev/x", profile_velocity_deg_s=deg_s, match="profile_velocity_deg_s")
+    assert DynamixelPanTiltConfig(port="/dev/x", profile_velocity_deg_s=1400.0).profile_velocity_deg_s == 1400.0

@@ -185,11 +185,12 @@ def corrupt(ckpt, how):
 
 
 def write(path, ckpt, how=None):
-    """Write a checkpoint as the trainer does; ``how="objects"``: then swap a weight for a pickled
-    object array (``np.savez`` pickles those on write), which the loader must refuse unread."""
-    from aes_planner.field.model import write_checkpoint
+    """Write a checkpoint in the trainer's format (``tensorfile.save``: the trainer's own writer
+    refuses NaN, a damaged file may still hold them); ``how="objects"``: then swap a weight for a
+    pickled object array (``np.savez`` pickles those on write), which the loader must refuse unread."""
+    from aes_planner import tensorfile
 
-    write_checkpoint(path, ckpt)
+    tensorfile.save(path, ckpt)
     if how == "objects":
         with np.load(path) as npz:
             arrays = {k: npz[k] for k in npz.files}
@@ -456,7 +457,7 @@ def test_sim_render_refuses_a_camera_its_own_loader_would_refuse(tmp_path, cli_e
     argv = ["sim", "render", "--scene", "indoor:3", "--views", "1", "--supersample", "1"]
     cli_error([*argv, "--width", "2000", "--height", "1", "--out", tmp_path / "wide"], "0.0389 deg fields of view")
     assert not (tmp_path / "wide" / "cameras.json").exists()
-    cli_error([*argv, "--out", ""], "empty path")
+    cli_error([*argv, "--out", ""], "an empty value")
 
 
 def test_suggest_rig_file_that_sets_nothing(tmp_path, dataset, cli_error):

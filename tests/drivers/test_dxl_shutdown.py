@@ -11,52 +11,72 @@ import time
 import pytest
 
 from aes_planner.cli import main
-from aes_planner.devices import SignalShutdown, stop_on_signals
 from aes_planner.drivers.emulator import LinkError, ServoEmulator
+from aes_planner.graph.signals import SignalShutdown, stop_on_signals
 
 
 # ------------------------------------------------------------------------------ stop_on_signals
+@pytest.fixture
+def own_handlers():
+    """After a signal stop the block leaves SIGINT/SIGTERM ignored (the process is exiting): put
+    pytest's handlers back."""
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    yield saved
+    for s, h in saved.items():
+        signal.signal(s, h)
+
+
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
-def test_a_signal_raises_signal_shutdown_and_handlers_are_restored(sig):
-    before = signal.getsignal(sig)
+def test_interrupt_raises_signal_shutdown_at_the_first_signal(sig, own_handlers):
     with pytest.raises(SignalShutdown) as info:
-        with stop_on_signals():
+        with stop_on_signals(interrupt=True) as stop:
             os.kill(os.getpid(), sig)
             time.sleep(5.0)  # interrupted
     assert info.value.signum == sig and info.value.exit_code == 128 + sig
     assert isinstance(info.value, KeyboardInterrupt)  # every Ctrl-C clean-up path applies
-    assert signal.getsignal(sig) is before
+    assert stop.signum == sig and stop.exit_code == 128 + sig and stop.is_set()
+    assert signal.getsignal(sig) is signal.SIG_IGN  # the process is on its way out: no more signals
 
 
-def test_further_signals_do_not_interrupt_the_cleanup():
+def test_without_a_signal_the_previous_handlers_are_restored():
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    with stop_on_signals() as stop:
+        assert signal.getsignal(signal.SIGTERM) is not before[signal.SIGTERM]
+    assert stop.exit_code is None and not stop.is_set()
+    assert {s: signal.getsignal(s) for s in before} == before
+
+
+def test_further_signals_do_not_interrupt_the_cleanup(own_handlers):
     cleaned = []
-    with pytest.raises(SignalShutdown):
-        with stop_on_signals():
+    with pytest.raises(SignalShutdown) as info:
+        with stop_on_signals(interrupt=True) as stop:
             try:
                 os.kill(os.getpid(), signal.SIGTERM)
                 time.sleep(5.0)
             finally:
                 os.kill(os.getpid(), signal.SIGTERM)  # a supervisor repeats itself mid-cleanup
                 os.kill(os.getpid(), signal.SIGINT)
-                time.sleep(0.01)
+                time.sleep(0.05)
                 cleaned.append(True)
     assert cleaned == [True]
+    assert info.value.signum == signal.SIGTERM and stop.count == 3  # the first one decides; all counted
 
 
-def test_on_signal_callback_first_then_raise():
-    seen = []
-    with pytest.raises(SignalShutdown):
-        with stop_on_signals(on_signal=seen.append):
-            os.kill(os.getpid(), signal.SIGTERM)
-            time.sleep(0.01)
-            assert seen == [signal.SIGTERM]  # asked to stop, nothing raised yet
-            os.kill(os.getpid(), signal.SIGTERM)
-            time.sleep(5.0)
+def test_a_loop_stops_on_the_first_signal_and_nothing_is_ever_raised(own_handlers):
+    with stop_on_signals() as stop:
+        os.kill(os.getpid(), signal.SIGINT)
+        assert stop.wait(5.0)  # the loop's stop flag, nothing raised
+        for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGTERM):
+            os.kill(os.getpid(), sig)  # an impatient user: counted, logged, not raised
+        time.sleep(0.05)
+    assert stop.signum == signal.SIGINT and stop.exit_code == 130 and stop.count == 4
 
 
 # ------------------------------------------------------------------------------ gimbal move + SIGTERM
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
-def test_a_signal_during_gimbal_move_stops_with_torque_off(tmp_path, sig):
+@pytest.mark.parametrize(
+    ("sig", "times"), [(signal.SIGTERM, 1), (signal.SIGINT, 1), (signal.SIGTERM, 2), (signal.SIGINT, 2)]
+)
+def test_a_signal_during_gimbal_move_stops_with_torque_off(tmp_path, sig, times):
     cfg = tmp_path / "slow.yaml"
     cfg.write_text(
         "profile_velocity_deg_s: 10.0\nprofile_acceleration_deg_s2: 100.0\nlatency_timer_ms: 100\nretries: 5\n"
@@ -77,6 +97,9 @@ def test_a_signal_during_gimbal_move_stops_with_torque_off(tmp_path, sig):
             with emu.lock:
                 assert [s.torque_on for _, s in sorted(emu.servos.items())] == [True, True]
             proc.send_signal(sig)
+            if times == 2:  # an impatient second one: waits for the torque-off, changes nothing
+                time.sleep(0.1)
+                proc.send_signal(sig)
             rc = proc.wait(20.0)
             err = proc.stderr.read()
         finally:

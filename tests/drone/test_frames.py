@@ -120,3 +120,17 @@ def test_view_round_trip_matches_the_package_view(axes):
         expected = view_to_cam2world(torch.tensor(view)).numpy()
         assert np.allclose(c2w, expected, atol=1e-9)
         assert np.allclose(cam2world_to_view(c2w)[:3], view[:3])
+
+
+def test_matrix_to_quat_matches_the_package():
+    from aes_planner.geometry.poses import matrix_to_quat
+
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        r = fr.euler_to_matrix(*rng.uniform(-3, 3, 3))
+        q = fr.matrix_to_quat(r)
+        ref = np.asarray(matrix_to_quat(r))
+        assert np.allclose(q, ref if ref[0] >= 0 else -ref, atol=1e-9)
+        assert np.allclose(fr.quat_to_matrix(q), r, atol=1e-9)
+    for r in (np.diag([1.0, -1, -1]), np.diag([-1.0, 1, -1]), np.diag([-1.0, -1, 1])):  # w = 0
+        assert np.allclose(fr.quat_to_matrix(fr.matrix_to_quat(r)), r)

@@ -280,3 +280,67 @@ def test_init_from_starts_at_the_checkpoints_weights(cache, tmp_path):
     assert -10.0 < metrics["val_top1_search"] <= 1.0
     with pytest.raises(CacheError, match="init_from default"):  # the shipped model is another architecture
         train(load_config({**TINY, "steps": 1, "init_from": "default"}), train_files, tmp_path / "c")
+
+
+# ------------------------------------------------- issue 33: divergence stops training, never saved
+@pytest.mark.parametrize(
+    "knob",
+    ["lr: 1e30", "lr: 2", "weight_decay: 1e30", "score_weight: 1e300", "rank_weight: 1e4", "listwise_weight: 5e3"],
+)
+def test_config_values_that_can_only_diverge_are_refused(knob):
+    from aes_planner.config import load_yaml_text
+
+    key = knob.split(":")[0]
+    with pytest.raises(ConfigError, match=key):
+        load_config({**TINY, **load_yaml_text(knob)})
+
+
+def _finite_checkpoints(folder: Path) -> list[Path]:
+    files = sorted(folder.glob("*.npz"))
+    for f in files:
+        ckpt = read_checkpoint(f)
+        assert all(torch.isfinite(v).all() for v in ckpt["state_dict"].values()), f
+    return files
+
+
+@pytest.mark.parametrize("where", ["loss", "weights"])
+def test_divergence_stops_with_an_error_and_keeps_the_last_finite_checkpoint(cache, tmp_path, monkeypatch, where):
+    from aes_planner.field import train as train_module
+    from aes_planner.field.train import TrainingDivergedError
+
+    real_loss, real_step = train_module.sample_loss, torch.optim.AdamW.step
+    calls = {"n": 0}
+
+    def loss_nan_at_3(*args, **kwargs):
+        loss, parts = real_loss(*args, **kwargs)
+        calls["n"] += 1
+        return (loss * float("nan"), parts) if calls["n"] == 3 else (loss, parts)
+
+    def step_inf_at_3(self, *args, **kwargs):
+        out = real_step(self, *args, **kwargs)
+        calls["n"] += 1
+        if calls["n"] == 3:
+            with torch.no_grad():
+                self.param_groups[0]["params"][0].fill_(float("inf"))
+        return out
+
+    if where == "loss":
+        monkeypatch.setattr(train_module, "sample_loss", loss_nan_at_3)
+    else:
+        monkeypatch.setattr(torch.optim.AdamW, "step", step_inf_at_3)
+    cfg = load_config({**TINY, "steps": 6, "checkpoint_every": 1, "val_samples": 0})
+    with pytest.raises(TrainingDivergedError, match="diverged at step 3") as info:
+        train(cfg, cache[0], tmp_path)
+    assert "last finite checkpoint is kept" in str(info.value) and "lr" in str(info.value)
+    assert read_checkpoint(tmp_path / "last.npz")["step"] == 2
+    assert len(_finite_checkpoints(tmp_path)) == 2
+
+
+def test_a_non_finite_checkpoint_is_never_written(tmp_path):
+    from aes_planner.field.model import ModelError, write_checkpoint
+
+    model = FieldModel(load_config(TINY).model, 4, (16, 16), "composition")
+    ckpt = model.checkpoint({"optimizer": {"state": {0: {"exp_avg": torch.tensor([1.0, float("inf")])}}}})
+    with pytest.raises(ModelError, match="NaN or Inf"):
+        write_checkpoint(tmp_path / "m.npz", ckpt)
+    assert not list(tmp_path.iterdir())

@@ -1,13 +1,18 @@
-"""CameraNode with a fake capture source: calibration files, pose interpolated at the stamp."""
+"""The camera nodes' one frame path: calibration files, any Camera device, pose interpolated at the
+stamp, best-effort frames, the sim camera behind the same seam."""
 
 import numpy as np
 import pytest
 
 from aes_planner.config import ConfigError
+from aes_planner.devices import Camera, CameraError, CameraImage
+from aes_planner.drivers.camera import load_calibration
 from aes_planner.geometry.pantilt import PanTilt
-from aes_planner.node.camera import CameraNode, CameraNodeConfig, load_calibration
+from aes_planner.graph.runner import NodeRunner
+from aes_planner.node.camera import CameraNode, CameraNodeConfig
+from aes_planner.transport import InProcessBus
 
-from .nodekit import RIG, state
+from .nodekit import RIG, K, state
 
 ROS = """image_width: 32
 image_height: 24
@@ -51,7 +56,8 @@ def test_calibration_formats(tmp_path, text):
     p = tmp_path / "cam.yaml"
     p.write_text(text)
     cal = load_calibration(p)
-    assert (cal.intrinsics.width, cal.intrinsics.height, cal.intrinsics.fx, cal.intrinsics.cx) == (32, 24, 30.0, 16.0)
+    # the file's cx = 16 (OpenCV: pixel centres at integers) is 16.5 in the package's convention (+0.5)
+    assert (cal.intrinsics.width, cal.intrinsics.height, cal.intrinsics.fx, cal.intrinsics.cx) == (32, 24, 30.0, 16.5)
 
 
 def test_bad_calibration_names_the_key(tmp_path):
@@ -84,3 +90,91 @@ def test_failed_reads_are_counted(tmp_path):
     node = CameraNode(CameraNodeConfig(calibration=str(p), rig=RIG), capture=FakeCapture(ok=False))
     node.step({"gimbal/state": [state(0.0, 0.0, stamp=1.0)]}, 1.0)
     assert node.counters["read_failures"] == 1
+
+
+# ------------------------------------------------------------------------------ the Camera seam
+class ToyCamera(Camera):
+    """A camera that is not OpenCV: any Camera device drives the node."""
+
+    def __init__(self, size=(24, 32)):
+        self.intrinsics = K
+        self.size = size
+        self.opened = False
+        self.reads = 0
+
+    @property
+    def connected(self):
+        return self.opened
+
+    def connect(self):
+        self.opened = True
+
+    def disconnect(self):
+        self.opened = False
+
+    def read(self, stamp_s):
+        self.reads += 1
+        h, w = self.size
+        if (h, w) != (K.height, K.width):
+            raise CameraError(f"frame {h}x{w} does not match the calibration {K.width}x{K.height}")
+        return CameraImage(np.full((h, w, 3), 7, np.uint8), stamp_s)
+
+
+def test_any_camera_device_drives_the_camera_node():
+    cam = ToyCamera()
+    node = CameraNode(CameraNodeConfig(rig=RIG, rate_hz=10.0, frame_id="toy"), camera=cam)
+    assert node.step({"gimbal/state": [state(0.1, 0.0, stamp=0.0)]}, 0.5) == {"camera/frame": []}
+    assert cam.reads == 0  # not connected: not read
+    node.start()
+    (frame,) = node.step({}, 1.0)["camera/frame"]
+    assert frame.frame_id == "toy/000000" and frame.sequence == 0 and frame.intrinsics == K
+    assert frame.cam2world == pytest.approx(PanTilt(RIG).forward(0.1, 0.0))
+    assert node.step({}, 1.01)["camera/frame"] == [] and cam.reads == 1  # the node's rate, not the loop's
+    node.stop()
+    assert not cam.opened
+
+
+def test_a_mismatched_image_is_counted_and_the_node_keeps_going():
+    cam = ToyCamera(size=(10, 10))
+    node = CameraNode(CameraNodeConfig(rig=RIG), camera=cam)
+    node.start()
+    node.step({"gimbal/state": [state(0.0, 0.0, stamp=1.0)]}, 1.0)
+    assert node.counters["size_mismatch"] == 1 and node.counters["frames"] == 0
+    cam.size = (K.height, K.width)
+    assert len(node.step({}, 2.0)["camera/frame"]) == 1 and node.counters["frames"] == 1
+
+
+def test_camera_frames_are_declared_best_effort_and_everything_else_reliable():
+    from aes_planner.graph import NODE_TYPES, node_class
+    from aes_planner.graph.base import output_specs
+
+    for word in sorted(set(NODE_TYPES)):
+        for topic, out in output_specs(node_class(word)).items():
+            assert out.reliable == (topic != "camera/frame"), (word, topic)
+    bus = InProcessBus()
+    runner = NodeRunner(CameraNode(CameraNodeConfig(rig=RIG), camera=ToyCamera()), bus)
+    runner.open()
+    assert runner.pubs["camera/frame"].reliable is False
+    runner.close()
+
+
+def test_a_device_of_the_wrong_kind_is_refused_naming_the_key():
+    from aes_planner.node.gimbal import GimbalNode, GimbalNodeConfig
+
+    with pytest.raises(ConfigError, match=r"device\.type.*not a Gimbal"):
+        GimbalNode(GimbalNodeConfig(device={"type": "opencv_camera", "device": 0}))
+
+
+def test_sim_camera_node_publishes_through_the_device_without_extras():
+    from aes_planner.node.sim_camera import SimCameraNode, SimCameraNodeConfig
+    from aes_planner.sim import load_scene
+
+    node = SimCameraNode(
+        SimCameraNodeConfig(rate_hz=5.0, camera={"width": 16, "height": 12}), scene=load_scene("tabletop:1")
+    )
+    assert node.step({}, 0.0) == {"camera/frame": []} and not node.camera.ready  # not placed yet: nothing
+    (frame,) = node.step({"gimbal/state": [state(0.2, -0.1, stamp=0.0)]}, 0.5)["camera/frame"]
+    assert (frame.pan_rad, frame.tilt_rad) == pytest.approx((0.2, -0.1)) and frame.depth_m is not None
+    assert frame.cam2world == pytest.approx(node.camera.kinematics.forward(0.2, -0.1))
+    assert not frame.extras  # the simulator's ground truth is not part of a published frame
+    assert frame.frame_id == "sim_camera/000000" and node.counters["frames"] == 1

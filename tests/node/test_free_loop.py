@@ -62,12 +62,13 @@ def test_free_loop_flies_to_better_views_inside_the_box():
         teacher=FakeTeacher(),
     )
     drone = SimDrone(BOX, SimDroneConfig(max_speed_m_s=3.0, max_yaw_rate_deg_s=360.0), [0, 0, 1.5, 0, 0])
-    now, targets = 0.0, []
+    now, targets, kinds = 0.0, [], {}
     for _ in range(4000):
         c2w = drone.cam2world()
         img = np.full((K.height, K.width, 3), int(255 * value(c2w)), np.uint8)
         out = node.step({"camera/frame": [PosedFrame(img, K, c2w, now)]}, now)
         for s in out["planner/suggestion"]:
+            kinds.setdefault(s.kind, []).append(s)
             if s.candidates:
                 targets.append(s.candidates[0].cam2world)
                 drone.set_target(s.candidates[0].view)
@@ -80,3 +81,6 @@ def test_free_loop_flies_to_better_views_inside_the_box():
     assert max(c.score for c in node.captures) > node.captures[0].score + 0.1
     for t in targets:
         assert BOX.contains(t[:3, 3])  # suggestions the loop flies are feasible
+    # a consumer tells the drone's waypoints (one pose each) from search results
+    assert kinds["waypoint"] and all(len(s.candidates) == 1 for s in kinds["waypoint"])
+    assert kinds["search"] and set(kinds) == {"waypoint", "search"}

@@ -1,24 +1,29 @@
-"""SIGTERM to an ``aes-planner launch`` process that drives servos: it stops every node and
-leaves the servos with torque off (the drivers' safe-shutdown helper), then exits."""
+"""Signals to an ``aes-planner launch`` that drives servos, sent as a service manager or an impatient
+user sends them (real signals, to a process started with the default dispositions): every node
+stops, the servos are left with torque off (read back from the emulated servos afterwards),
+signals that follow wait for that clean-up, and the exit status is 128 + the first signal."""
 
 import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 
+import pytest
+
 from aes_planner.drivers.emulator import ServoEmulator
+from tests.helpers import wait_for
 
 
-def test_sigterm_leaves_torque_off(tmp_path):
-    link = tmp_path / "ttyDXL"
+def _launch_file(tmp_path, device: str, gimbal_extra: str = "") -> str:
     launch = tmp_path / "gimbal.yaml"
     launch.write_text(
         "scene: tabletop:1\n"
         "nodes:\n"
         "  - id: gimbal\n"
         "    type: gimbal\n"
-        f"    config: {{rate_hz: 10, device: {{type: dynamixel_pan_tilt, port: {link}, latency_timer_ms: 30}}}}\n"
+        f"    config: {{rate_hz: 10, device: {device}{gimbal_extra}}}\n"
         "  - id: camera\n"
         "    type: sim_camera\n"
         "    config: {rate_hz: 5, camera: {width: 32, height: 24}}\n"
@@ -26,30 +31,138 @@ def test_sigterm_leaves_torque_off(tmp_path):
         "    type: planner\n"
         "    config: {explore_views: 12, preset: fast}\n"
     )
+    return str(launch)
+
+
+def _torque(emu) -> list[bool]:
+    with emu.lock:
+        return [s.torque_on for _, s in sorted(emu.servos.items())]
+
+
+def _signal_when_torque_on(proc, emu, signals, gap_s=0.1):
+    """Wait until the planner drives the servos, send ``signals`` ``gap_s`` apart, and wait."""
+    wait_for(lambda: all(_torque(emu)) or proc.poll() is not None, timeout_s=90.0, poll_s=0.05)
+    assert proc.poll() is None and all(_torque(emu)), "the planner never moved the gimbal"
+    for i, sig in enumerate(signals):
+        if i:
+            time.sleep(gap_s)
+        os.kill(proc.pid, sig)
+    return proc.communicate(timeout=60)
+
+
+@pytest.mark.parametrize(
+    ("signals", "gap_s"),
+    [
+        ((signal.SIGTERM,), 0.0),
+        ((signal.SIGTERM, signal.SIGTERM), 0.1),  # a script's kill, kill
+        ((signal.SIGINT, signal.SIGINT), 0.1),  # Ctrl-C, Ctrl-C
+        ((signal.SIGTERM, signal.SIGINT, signal.SIGTERM), 0.005),  # landing inside the clean-up
+    ],
+    ids=["sigterm", "sigterm-twice", "sigint-twice", "three-in-the-cleanup"],
+)
+def test_signals_leave_torque_off_and_exit_with_the_first(tmp_path, signals, gap_s):
+    link = tmp_path / "ttyDXL"
+    launch = _launch_file(tmp_path, f"{{type: dynamixel_pan_tilt, port: {link}, latency_timer_ms: 30}}")
     with ServoEmulator(link=link) as emu:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "aes_planner", "launch", str(launch)],
+            [sys.executable, "-m", "aes_planner", "launch", launch],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
         )
         try:
-            deadline = time.time() + 60
-            while time.time() < deadline:
-                with emu.lock:
-                    if all(s.torque_on for s in emu.servos.values()):
-                        break
-                assert proc.poll() is None, proc.communicate()
-                time.sleep(0.05)
-            with emu.lock:
-                assert all(s.torque_on for s in emu.servos.values()), "the planner never moved the gimbal"
-            os.kill(proc.pid, signal.SIGTERM)
-            out, err = proc.communicate(timeout=30)
+            out, err = _signal_when_torque_on(proc, emu, signals, gap_s)
         finally:
             if proc.poll() is None:
                 proc.kill()
                 proc.communicate()
-        with emu.lock:
-            assert not any(s.torque_on for s in emu.servos.values()), err
-    assert proc.returncode in (0, 1), err
-    assert "Traceback" not in err, err
+        assert _torque(emu) == [False, False], err
+    assert proc.returncode == 128 + signals[0], (proc.returncode, err)  # not 0: a script can tell
+    assert f"stopped by {signal.Signals(signals[0]).name}" in out
+    assert "Traceback" not in err and "terminate called" not in err, err
+
+
+def test_two_sigterms_to_a_supervised_launch(tmp_path):
+    """``--processes``: the supervisor stops its children (the gimbal's torque-off) whatever follows."""
+    link = tmp_path / "ttyDXL"
+    launch = _launch_file(tmp_path, f"{{type: dynamixel_pan_tilt, port: {link}, latency_timer_ms: 30}}")
+    with ServoEmulator(link=link) as emu:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "aes_planner", "launch", launch, "--processes", "--listen", "tcp/127.0.0.1:7491"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            out, err = _signal_when_torque_on(proc, emu, (signal.SIGTERM, signal.SIGTERM))
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+        assert _torque(emu) == [False, False], out + err
+    assert proc.returncode == 143, (proc.returncode, out, err)
+    assert "died" not in out and "killing" not in out, out  # every node process stopped by itself, cleanly
+    assert "Traceback" not in out + err and "terminate called" not in out + err
+
+
+def test_two_sigterms_with_the_emulator_in_a_child_process(tmp_path):
+    """``emulate: true`` (the shipped sim launch's gimbal): the driver's torque-off reaches the
+    emulator before it stops, and the emulator reports the servos' torque as it exits."""
+    launch = _launch_file(tmp_path, "{type: dynamixel_pan_tilt, latency_timer_ms: 30}, emulate: true")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "aes_planner", "-v", "launch", launch],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    lines: list[str] = []  # -v: the driver's "torque on" and the emulator's last word arrive on stderr
+    reader = threading.Thread(target=lambda: lines.extend(proc.stderr), daemon=True)
+    reader.start()
+    try:
+        wait_for(lambda: any("torque on:" in ln for ln in lines) or proc.poll() is not None, timeout_s=90.0)
+        assert proc.poll() is None, "".join(lines)
+        os.kill(proc.pid, signal.SIGTERM)
+        time.sleep(0.1)
+        os.kill(proc.pid, signal.SIGTERM)
+        proc.wait(60)
+        reader.join(10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    err = "".join(lines)
+    assert proc.returncode == 143, (proc.returncode, err[-3000:])
+    assert "terminate called" not in err and "Traceback" not in err, err[-3000:]
+    assert "servo emulator stopped: torque off on id 1, id 2" in err, err[-3000:]
+
+
+def test_two_sigterms_to_the_demo(tmp_path):
+    """``demo`` (the shipped sim launch: the driver on the emulator in a child process) stops,
+    unscored, with the servos left with torque off and 143."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "aes_planner", "-v", "demo", "--scene", "tabletop:1", "--moves", "1"]
+        + ["--out", str(tmp_path / "run"), "--set", "planner.preset=fast"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(proc.stderr), daemon=True)
+    reader.start()
+    try:
+        wait_for(lambda: any("torque on:" in ln for ln in lines) or proc.poll() is not None, timeout_s=120.0)
+        assert proc.poll() is None, "".join(lines)
+        os.kill(proc.pid, signal.SIGTERM)
+        time.sleep(0.1)
+        os.kill(proc.pid, signal.SIGTERM)
+        out, _ = proc.communicate(timeout=60)
+        reader.join(10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    err = "".join(lines)
+    assert proc.returncode == 143, (proc.returncode, out, err[-3000:])
+    assert "demo: stopped by SIGTERM" in out and not (tmp_path / "run" / "summary.json").exists()
+    assert "servo emulator stopped: torque off on id 1, id 2" in err, err[-3000:]
+    assert "terminate called" not in err and "Traceback" not in err, err[-3000:]

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from aes_planner.graph import LaunchContext, make_node
+from aes_planner.graph.base import input_specs, output_specs
 from aes_planner.graph.runner import Launch
 from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState, PosedFrame, ViewSuggestion
 from aes_planner.messages.samples import sample_messages
@@ -47,7 +48,8 @@ def extreme(msg_type):
         ]
     if msg_type is GimbalState:
         s = samples["GimbalState"]
-        return [type(s)(**{**s.__dict__, "pan_rad": 1e6, "tilt_rad": -1e6, "stamp_s": 1e12})]
+        # beyond any joint limit but within two turns (a state past that is rejected as implausible)
+        return [type(s)(**{**s.__dict__, "pan_rad": 12.0, "tilt_rad": -12.0, "stamp_s": 1e12})]
     if msg_type is ViewSuggestion:
         s = samples["ViewSuggestion"]
         pose = np.eye(4)
@@ -75,7 +77,7 @@ def test_node_topics_survive_malformed_oversized_and_extreme_messages(node_type,
     runner = launch.runners[0]
     bus = launch.bus
     seen = []
-    for topic, (msg_type, _latched) in node.outputs.items():
+    for topic, (msg_type, *_qos) in output_specs(node).items():
         bus.subscribe(topic, msg_type, depth=64, callback=seen.append)
     samples = sample_messages()
     with deadline(60):
@@ -84,7 +86,7 @@ def test_node_topics_survive_malformed_oversized_and_extreme_messages(node_type,
             time.sleep(0.3)
             steps_before = runner.steps
             sent = {}
-            for topic, (msg_type, _depth) in node.inputs.items():
+            for topic, (msg_type, _depth) in input_specs(node).items():
                 good = samples[msg_type.__name__].encode()
                 other = (samples["Diagnostics"] if msg_type is not Diagnostics else samples["GimbalState"]).encode()
                 raw = bus.publisher(topic, msg_type)

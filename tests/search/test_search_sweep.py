@@ -92,7 +92,9 @@ def test_reversed_and_strided_pose_views_are_poses_like_any_other():
     want = search_views(scorer, np.ascontiguousarray(inputs[::-1]), platform, cfg).best
     np.testing.assert_allclose(got.cam2world, want.cam2world)
     np.testing.assert_allclose(cam2world_to_view(inputs[::-1]), cam2world_to_view(inputs.copy()[::-1].copy()))
-    np.testing.assert_allclose(world2cam(inputs[::-1])[0], world2cam(inputs[-1]))
+    np.testing.assert_allclose(
+        world2cam(inputs[::-1])[0], world2cam(inputs[-1]), atol=1e-12
+    )  # a batch may round differently
 
 
 @pytest.mark.parametrize(

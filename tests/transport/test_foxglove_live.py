@@ -12,7 +12,7 @@ import pytest
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
-from aes_planner.messages import Diagnostics, PosedFrame, ViewSuggestion, decode, encode
+from aes_planner.messages import Diagnostics, GimbalState, PosedFrame, ViewSuggestion, decode, encode
 from aes_planner.messages.samples import sample_messages
 from aes_planner.transport import InProcessBus
 from aes_planner.transport.record import FoxgloveLive
@@ -170,6 +170,16 @@ def test_a_client_that_joins_late_gets_the_latched_suggestion_first(live):
         assert wait_for(lambda: len(client.got.get("/planner/suggestion", [])) == 2, 5)
         assert [decode(d).sequence for _t, d in client.got["/planner/suggestion"]] == [1, 2]
         assert "/camera/frame/image" not in client.got and "/camera/frame" not in client.got
+        # a third client joining gets the latched one; only it does (sent to that client alone)
+        other = Client(server.port, {"/planner/suggestion"})
+        try:
+            assert wait_for(lambda: len(other.got.get("/planner/suggestion", [])) == 1, 5)
+            assert decode(other.got["/planner/suggestion"][0][1]).sequence == 2
+            pub.publish(_suggestion(3, 103.0))
+            assert wait_for(lambda: len(client.got["/planner/suggestion"]) == 3, 5)
+            assert [decode(d).sequence for _t, d in client.got["/planner/suggestion"]] == [1, 2, 3]
+        finally:
+            other.close()
     finally:
         client.close()
 
@@ -223,7 +233,7 @@ def test_the_sdk_subprotocol_is_required():
 
 def test_the_graph_advertises_what_its_nodes_declare():
     from aes_planner.cli.processes import declared_outputs
-    from aes_planner.node import load_launch
+    from aes_planner.graph import load_launch
 
     declared = {t: (cls, latched) for t, cls, latched in declared_outputs(load_launch("sim_closed_loop"))}
     assert declared["planner/suggestion"] == (ViewSuggestion, True)
@@ -242,3 +252,26 @@ def test_the_bytes_on_our_channel_are_the_bus_bytes(live):
         assert client.got["/planner/suggestion"][0][1] == encode(msg)
     finally:
         client.close()
+
+
+def test_the_foxglove_command_advertises_what_the_bus_publishes():
+    """``aes-planner foxglove`` beside a running graph: topics with a publisher are advertised at
+    once, with their latching, before their next message."""
+    bus = InProcessBus()
+    pub = bus.publisher("planner/suggestion", ViewSuggestion, latched=True)
+    bus.publisher("gimbal/state", GimbalState)
+    server = FoxgloveLive(port=0).attach(bus)
+    try:
+        assert server.advertise_bus_topics(bus) == 2
+        client = Client(server.port)
+        try:
+            assert wait_for(lambda: {"/planner/suggestion", "/gimbal/state/json"} <= set(client.subscribed.values()), 5)
+            assert client.channels["/planner/suggestion"]["schemaName"] == "aes_planner.ViewSuggestion"
+            assert wait_for(lambda: server.subscriptions >= 6, 5)
+            pub.publish(_suggestion(0, 1.0))
+            assert wait_for(lambda: "/planner/suggestion" in client.got, 5)
+        finally:
+            client.close()
+    finally:
+        server.close()
+        bus.close()

@@ -1,0 +1,324 @@
+"""Calibration boards: the ``--board`` spec, the pattern to print (or to texture a sim quad), and
+detection of its corners in an image, labelled the same way in every view.
+
+Spec strings (``--board``):
+
+* ``chessboard:COLSxROWS:SQUARE_M`` -- COLS x ROWS **inner** corners (OpenCV's ``patternSize``;
+  the board has COLS+1 x ROWS+1 squares), squares of SQUARE_M metres: ``chessboard:9x6:0.025``.
+* ``charuco:COLSxROWS:SQUARE_M:MARKER_M:DICT`` -- COLS x ROWS **squares** with ArUco markers of
+  MARKER_M metres from opencv-contrib's dictionary DICT (``DICT_5X5_100``, or ``5X5_100``).
+
+Board frame (object points): origin at the first inner corner, x along a row of corners (to the
+right on the printed page), y down the page, z into the board; metres. The printed pattern has
+its top-left square black (OpenCV's generator) and one white square of margin on every side.
+
+Image points are in OpenCV's pixel convention (pixel centres at integer coordinates), as every
+``cv2`` calibration call expects; add 0.5 for the package's convention
+(:mod:`aes_planner.geometry`).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import struct
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from aes_planner.errors import AesPlannerError
+
+__all__ = ["BoardError", "BoardSpec", "Detection", "detect", "parse_board", "write_board"]
+
+
+class BoardError(AesPlannerError, ValueError):
+    """A board spec that names no board, or a board that cannot serve the calibration asked."""
+
+
+_CHESS = re.compile(r"^chessboard:(\d+)x(\d+):([0-9.eE+-]+)$")
+_CHARUCO = re.compile(r"^charuco:(\d+)x(\d+):([0-9.eE+-]+):([0-9.eE+-]+):(?:DICT_)?([0-9A-Za-z_]+)$")
+_HELP = "write chessboard:COLSxROWS:SQUARE_M (inner corners, e.g. chessboard:9x6:0.025) or charuco:COLSxROWS:SQUARE_M:MARKER_M:DICT (squares, e.g. charuco:7x5:0.04:0.03:DICT_5X5_100)"
+
+
+@dataclass(frozen=True)
+class BoardSpec:
+    """A parsed ``--board``: ``kind``, ``cols`` x ``rows`` (inner corners of a chessboard, squares
+    of a ChArUco board), ``square_m``, and for ChArUco ``marker_m`` and ``dictionary``."""
+
+    kind: str
+    cols: int
+    rows: int
+    square_m: float
+    marker_m: float = 0.0
+    dictionary: str = ""
+
+    @property
+    def squares(self) -> tuple[int, int]:
+        """Squares across and down (without the white margin)."""
+        return (self.cols + 1, self.rows + 1) if self.kind == "chessboard" else (self.cols, self.rows)
+
+    @property
+    def corners_grid(self) -> tuple[int, int]:
+        """Inner corners across and down."""
+        sx, sy = self.squares
+        return sx - 1, sy - 1
+
+    @property
+    def n_corners(self) -> int:
+        cx, cy = self.corners_grid
+        return cx * cy
+
+    def size_m(self, margin_squares: int = 1) -> tuple[float, float]:
+        """Printed width and height in metres, ``margin_squares`` white squares on every side."""
+        sx, sy = self.squares
+        return (sx + 2 * margin_squares) * self.square_m, (sy + 2 * margin_squares) * self.square_m
+
+    def object_points(self) -> np.ndarray:
+        """Inner corners in the board frame ``[N, 3]`` (metres, row by row of ``corners_grid[0]``)."""
+        cx, cy = self.corners_grid
+        j, i = np.mgrid[0:cy, 0:cx]
+        return np.stack([i.ravel() * self.square_m, j.ravel() * self.square_m, np.zeros(cx * cy)], -1)
+
+    @property
+    def orientation_unique(self) -> bool:
+        """Whether one view fixes which corner is which: a chessboard with an even and an odd count
+        of inner corners (a 180 deg turn swaps its colours), or any ChArUco board (marker ids)."""
+        return self.kind == "charuco" or (self.cols + self.rows) % 2 == 1
+
+    def aruco_board(self):
+        """The ``cv2.aruco.CharucoBoard`` of a ChArUco spec."""
+        d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, f"DICT_{self.dictionary}"))
+        return cv2.aruco.CharucoBoard((self.cols, self.rows), self.square_m, self.marker_m, d)
+
+    def __str__(self) -> str:
+        if self.kind == "chessboard":
+            return f"chessboard:{self.cols}x{self.rows}:{self.square_m:g}"
+        return f"charuco:{self.cols}x{self.rows}:{self.square_m:g}:{self.marker_m:g}:DICT_{self.dictionary}"
+
+
+def parse_board(text: str) -> BoardSpec:
+    """A :class:`BoardSpec` from a ``--board`` string; :class:`BoardError` saying the form otherwise."""
+    text = str(text).strip()
+    m = _CHESS.match(text)
+    if m:
+        cols, rows, square = int(m.group(1)), int(m.group(2)), _length(m.group(3), "SQUARE_M", text)
+        if cols < 3 or rows < 3 or cols > 40 or rows > 40:
+            raise BoardError(f"--board {text}: a chessboard needs 3..40 inner corners each way (not squares); {_HELP}")
+        return BoardSpec("chessboard", cols, rows, square)
+    m = _CHARUCO.match(text)
+    if m:
+        cols, rows = int(m.group(1)), int(m.group(2))
+        square, marker = _length(m.group(3), "SQUARE_M", text), _length(m.group(4), "MARKER_M", text)
+        name = m.group(5).upper()
+        if not hasattr(cv2.aruco, f"DICT_{name}"):
+            raise BoardError(f"--board {text}: no ArUco dictionary DICT_{name}; use e.g. DICT_5X5_100 or DICT_4X4_50")
+        if not (3 <= cols <= 40 and 3 <= rows <= 40):
+            raise BoardError(f"--board {text}: a ChArUco board needs 3..40 squares each way; {_HELP}")
+        if marker >= square:
+            raise BoardError(f"--board {text}: MARKER_M must be smaller than SQUARE_M (typically 0.75 of it)")
+        spec = BoardSpec("charuco", cols, rows, square, marker, name)
+        size = spec.aruco_board().getDictionary().bytesList.shape[0]
+        if size < (cols * rows) // 2:
+            raise BoardError(f"--board {text}: DICT_{name} has {size} markers, the board needs {(cols * rows) // 2}")
+        return spec
+    raise BoardError(f"--board {text!r} is not a board spec; {_HELP}")
+
+
+def _length(value: str, name: str, text: str) -> float:
+    try:
+        v = float(value)
+    except ValueError:
+        v = math.nan
+    if not (math.isfinite(v) and 1e-4 <= v <= 1.0):
+        raise BoardError(f"--board {text}: {name} must be metres in [0.0001, 1], e.g. 0.025 for 25 mm squares")
+    return v
+
+
+# ----------------------------------------------------------------------------- the pattern
+def pattern(spec: BoardSpec, px_per_square: int, margin_squares: int = 1) -> np.ndarray:
+    """The board as a grayscale image ``[H, W]`` uint8: whole squares of ``px_per_square`` pixels,
+    top-left square black, ``margin_squares`` white squares of margin on every side."""
+    sx, sy = spec.squares
+    m, p = margin_squares, int(px_per_square)
+    if spec.kind == "charuco":
+        inner = spec.aruco_board().generateImage((sx * p, sy * p), marginSize=0, borderBits=1)
+    else:
+        j, i = np.mgrid[0:sy, 0:sx]
+        cells = np.where((i + j) % 2 == 0, 0, 255).astype(np.uint8)
+        inner = np.kron(cells, np.ones((p, p), np.uint8))
+    out = np.full(((sy + 2 * m) * p, (sx + 2 * m) * p), 255, np.uint8)
+    out[m * p : (m + sy) * p, m * p : (m + sx) * p] = inner
+    return out
+
+
+def _png_with_dpi(gray: np.ndarray, px_per_m: float) -> bytes:
+    """PNG bytes of ``gray`` with a pHYs chunk (pixels per metre), so that printing at 100 %
+    ("actual size", no fit-to-page) gives the board's physical size."""
+    ok, data = cv2.imencode(".png", gray)
+    if not ok:  # pragma: no cover - cv2 encodes any uint8 image
+        raise BoardError("could not encode the board as PNG")
+    data = data.tobytes()
+    ppm = round(px_per_m)
+    body = b"pHYs" + struct.pack(">IIB", ppm, ppm, 1)
+    chunk = struct.pack(">I", 9) + body + struct.pack(">I", zlib.crc32(body) & 0xFFFFFFFF)
+    end_ihdr = 8 + 8 + 13 + 4  # signature, IHDR length+type, IHDR data, CRC
+    return data[:end_ihdr] + chunk + data[end_ihdr:]
+
+
+def _svg(spec: BoardSpec, margin_squares: int) -> str:
+    """The chessboard as SVG in millimetres (vector: exact at any printer resolution)."""
+    w_m, h_m = spec.size_m(margin_squares)
+    s = spec.square_m * 1000.0
+    sx, sy = spec.squares
+    rects = [
+        f'<rect x="{(i + margin_squares) * s:.4f}" y="{(j + margin_squares) * s:.4f}" width="{s:.4f}" height="{s:.4f}"/>'
+        for j in range(sy)
+        for i in range(sx)
+        if (i + j) % 2 == 0
+    ]
+    return (
+        f'<svg xmlns="http://www.w3.org/2000/svg" width="{w_m * 1000:.4f}mm" height="{h_m * 1000:.4f}mm" '
+        f'viewBox="0 0 {w_m * 1000:.4f} {h_m * 1000:.4f}">\n<rect width="100%" height="100%" fill="white"/>\n'
+        f'<g fill="black">\n{chr(10).join(rects)}\n</g>\n</svg>\n'
+    )
+
+
+def write_board(spec: BoardSpec, out: str | Path, px_per_square: int = 100, margin_squares: int = 1) -> dict:
+    """Write the board to ``out`` (``.png``, or ``.svg`` for a chessboard) and return what to tell
+    the user: pixel size, physical size, dots per inch at 100 % scale."""
+    out = Path(out)
+    if not 8 <= px_per_square <= 2000:
+        raise BoardError(f"--px-per-square must be in [8, 2000], got {px_per_square}")
+    w_m, h_m = spec.size_m(margin_squares)
+    info = {
+        "board": str(spec),
+        "file": str(out),
+        "width_mm": round(w_m * 1000, 3),
+        "height_mm": round(h_m * 1000, 3),
+        "square_mm": round(spec.square_m * 1000, 3),
+        "margin_squares": margin_squares,
+    }
+    if out.suffix.lower() == ".svg":
+        if spec.kind != "chessboard":
+            raise BoardError("SVG output is for chessboards; write a ChArUco board as .png")
+        out.write_text(_svg(spec, margin_squares), encoding="utf-8")
+        return {**info, "scale": "print at 100 % (actual size, no fit-to-page)"}
+    if out.suffix.lower() != ".png":
+        raise BoardError(f"--out {out}: write the board as .png or .svg")
+    gray = pattern(spec, px_per_square, margin_squares)
+    px_per_m = px_per_square / spec.square_m
+    out.write_bytes(_png_with_dpi(gray, px_per_m))
+    dpi = px_per_m * 0.0254
+    return {
+        **info,
+        "width_px": int(gray.shape[1]),
+        "height_px": int(gray.shape[0]),
+        "dpi": round(dpi, 2),
+        "scale": f"print at 100 % (actual size, no fit-to-page): {dpi:.1f} dpi",
+    }
+
+
+# ---------------------------------------------------------------------------- detection
+@dataclass
+class Detection:
+    """Corners found in one image: ``image_points [N, 2]`` (OpenCV pixels) of the board's
+    ``object_points [N, 3]`` (metres), and the smallest square seen, in pixels."""
+
+    image_points: np.ndarray
+    object_points: np.ndarray
+    square_px: float
+
+
+_CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH + cv2.CALIB_CB_NORMALIZE_IMAGE
+_SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
+
+
+def detect(gray: np.ndarray, spec: BoardSpec) -> Detection | None:
+    """The board's corners in ``gray [H, W]`` uint8, or None when it is not (wholly) there.
+
+    Chessboards: OpenCV's ``findChessboardCorners`` (adaptive threshold, normalised), the sector-based
+    ``findChessboardCornersSB`` when that fails, then ``cornerSubPix`` with OpenCV's 11x11 window (half-size; narrower
+    where squares are under 24 px); corners are put in the board's canonical order (see the module
+    docstring) so that every view labels them alike. ChArUco: ``CharucoDetector``, labelled by id.
+    """
+    if spec.kind == "charuco":
+        return _detect_charuco(gray, spec)
+    cols, rows = spec.corners_grid
+    found, corners = cv2.findChessboardCorners(gray, (cols, rows), flags=_CLASSIC_FLAGS)
+    if not found:
+        # default flags: with NORMALIZE_IMAGE it missed boards whose white margin is darker than the sky behind
+        found, corners = cv2.findChessboardCornersSB(gray, (cols, rows), flags=0)
+        if not found:
+            found, corners = cv2.findChessboardCornersSB(gray, (cols, rows), flags=cv2.CALIB_CB_EXHAUSTIVE)
+        if not found:
+            return None
+    grid = corners.reshape(rows, cols, 2).astype(np.float64)
+    square_px = _smallest_square(grid)
+    # OpenCV's 11x11 (half-size 11) search window, narrowed where a square is under 24 px so that it
+    # never reaches the next corner (which pulls the corner off: a 0.9 px RMS instead of 0.4 measured)
+    half = 11 if square_px >= 24 else int(max(2, math.floor(square_px / 2) - 1))
+    refined = cv2.cornerSubPix(gray, corners.astype(np.float32), (half, half), (-1, -1), _SUBPIX_CRITERIA)
+    grid = _canonical(gray, refined.reshape(rows, cols, 2).astype(np.float64))
+    return Detection(grid.reshape(-1, 2), spec.object_points(), square_px)
+
+
+def _smallest_square(grid: np.ndarray) -> float:
+    across = np.linalg.norm(np.diff(grid, axis=1), axis=-1)
+    down = np.linalg.norm(np.diff(grid, axis=0), axis=-1)
+    return float(min(across.min(), down.min()))
+
+
+def _canonical(gray: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """``grid [rows, cols, 2]`` turned so that x runs along rows and y down columns with the board
+    seen from its front (right-handed in the image), and corner 0 has a black square diagonally
+    outside it (the pattern's top-left square). A board with an even and an odd count is then
+    labelled uniquely; on a symmetric one the 180 deg turn stays ambiguous."""
+    a, b = grid[0, 1] - grid[0, 0], grid[1, 0] - grid[0, 0]
+    if a[0] * b[1] - a[1] * b[0] < 0:  # mirrored: reverse each row
+        grid = grid[:, ::-1]
+        a, b = grid[0, 1] - grid[0, 0], grid[1, 0] - grid[0, 0]
+    outside = _intensity(gray, grid[0, 0] - 0.5 * (a + b))
+    beside = _intensity(gray, grid[0, 0] + 0.5 * (a - b))
+    if outside > beside:  # corner 0 is the far end: turn by 180 deg
+        grid = grid[::-1, ::-1]
+    return np.ascontiguousarray(grid)
+
+
+def _intensity(gray: np.ndarray, xy: np.ndarray) -> float:
+    patch = cv2.getRectSubPix(gray, (3, 3), (float(xy[0]), float(xy[1])))
+    return float(patch.mean())
+
+
+def _detect_charuco(gray: np.ndarray, spec: BoardSpec) -> Detection | None:
+    board = spec.aruco_board()
+    corners, ids, _, _ = cv2.aruco.CharucoDetector(board).detectBoard(gray)
+    if ids is None or len(ids) < 6:
+        return None
+    ids = ids.reshape(-1)
+    # OpenCV's ChArUco frame starts at the board's outer corner: shift it to the first inner corner,
+    # the chessboard's origin here, so both kinds share one board frame
+    obj = np.asarray(board.getChessboardCorners(), dtype=np.float64)[ids] - [spec.square_m, spec.square_m, 0.0]
+    img = corners.reshape(-1, 2).astype(np.float64)
+    d = np.linalg.norm(img[:, None] - img[None], axis=-1)
+    od = np.linalg.norm(obj[:, None] - obj[None], axis=-1)
+    near = (od > 0) & (od <= spec.square_m * 1.01)
+    square_px = float(d[near].min()) if near.any() else 0.0
+    return Detection(img, obj, square_px)
+
+
+#: Texels per square of a ``board:`` texture in a sim scene: an edge blurs over a hundredth of a
+#: square, far below a camera pixel at any distance the board is detected from.
+TEXTURE_PX_PER_SQUARE = 100
+BOARD_TEXTURE_PREFIX = "board:"
+
+
+def board_texture(image: str) -> np.ndarray:
+    """A sim material's ``image: "board:SPEC"`` as an RGB float32 texture ``[h, w, 3]`` in [0, 1]:
+    the pattern with one white square of margin, to stretch over a quad of
+    :meth:`BoardSpec.size_m` (e.g. ``board:chessboard:9x6:0.06`` on a 0.72 x 0.54 m quad)."""
+    spec = parse_board(image[len(BOARD_TEXTURE_PREFIX) :])
+    gray = pattern(spec, TEXTURE_PX_PER_SQUARE, 1)
+    return np.repeat((gray.astype(np.float32) / 255.0)[..., None], 3, axis=-1)
