@@ -22,7 +22,7 @@ from aes_planner.config import ConfigError, from_dict, require, require_numbers
 from aes_planner.drone import frames as fr
 from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs, percentile
 from aes_planner.messages import Diagnostics, DroneState, ViewSuggestion
-from aes_planner.sources import DroneBox
+from aes_planner.platform import DroneBox
 
 log = logging.getLogger(__name__)
 
