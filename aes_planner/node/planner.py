@@ -43,7 +43,7 @@ from aes_planner.node.captures import Capture, Target
 from aes_planner.node.motion import DroneMotion, Motion, RigMotion
 from aes_planner.node.planner_config import PlannerConfig
 from aes_planner.node.proposer import FieldProposer, Proposer
-from aes_planner.platform import DroneBox, DronePlatform, Platform, RigPlatform, free_box_around
+from aes_planner.platform import DronePlatform, Platform, RigPlatform
 from aes_planner.runtime import ThreadGovernor, set_threads, suggestion_threads
 
 log = logging.getLogger(__name__)
@@ -385,8 +385,6 @@ def _platform_from_scene(config: PlannerConfig, scene) -> PlannerConfig:
         return dataclasses.replace(config, rig=scene.rig.pan_tilt)
     if config.mode == RigPlatform.kind:
         raise NodeError(f"scene {scene.name!r} has a drone, not a rig: use mode drone")
-    if scene.drone is not None:
-        box = DroneBox(tuple(scene.drone.bounds_min_m), tuple(scene.drone.bounds_max_m))
-    else:
-        box = free_box_around(scene.rig.pan_tilt)
-    return dataclasses.replace(config, drone=box)
+    from aes_planner.sim.source import platform_of
+
+    return dataclasses.replace(config, drone=platform_of(scene).free_box())
