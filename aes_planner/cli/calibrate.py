@@ -246,6 +246,7 @@ class _Session:
         self.gimbal = None
         self.capture = None
         self.tilt_direction = 1
+        self.tilt_zero_offset_ticks: int | None = None  # the driver's present value (--launch)
 
     def __enter__(self):
         from aes_planner.calibrate.capture import SimViewSource, sim_camera_size
@@ -287,6 +288,7 @@ class _Session:
             )
         device_spec = dict(gimbal_entry.config["device"])
         self.tilt_direction = int(device_spec.get("tilt_direction", 1))
+        self.tilt_zero_offset_ticks = int(device_spec.get("tilt_zero_offset_ticks", 0))
         calibration_file = a.camera_info or camera_entry.config.get("calibration")
         if not calibration_file:
             raise CalibrateUsageError(
@@ -341,6 +343,9 @@ def run_rig(args) -> int:
             session.source, nominal, board, args.views, args.zero_offsets, session.tilt_direction, args.seed
         )
         report["rig_s"] = time.monotonic() - t0
+        if "driver" in report and session.tilt_zero_offset_ticks is not None:
+            change = report["driver"]["tilt_zero_offset_ticks_change"]
+            report["driver"]["tilt_zero_offset_ticks"] = session.tilt_zero_offset_ticks + change
         if args.latency:
             t1 = time.monotonic()
             b2w = np.asarray(report["board2world"])
@@ -368,7 +373,15 @@ def run_rig(args) -> int:
     for u in report["unobservable"]:
         print(f"  not observable: {u['combination']} -> {u['fixed']}")
     if "driver" in report:
-        print(f"  set the driver's tilt_zero_offset_ticks += {report['driver']['tilt_zero_offset_ticks_change']}")
+        d = report["driver"]
+        target = (
+            f" (set tilt_zero_offset_ticks: {d['tilt_zero_offset_ticks']} in the gimbal's device config)"
+            if "tilt_zero_offset_ticks" in d
+            else ""
+        )
+        print(
+            f"  the driver's tilt_zero_offset_ticks += {d['tilt_zero_offset_ticks_change']}{target}; {args.out} is for that driver"
+        )
     if "latency" in report:
         print(
             f"  camera latency {1000 * report['latency']['camera_latency_s']:.1f} ms ({report['latency']['frames_used']} frames)"

@@ -147,7 +147,7 @@ def test_cli_rig_on_a_sim_scene(tmp_path):
     (tmp_path / "nominal.yaml").write_text(yaml.safe_dump(rig_dict(NOMINAL)))
     cmd = [sys.executable, "-m", "aes_planner", "calibrate", "rig", "--scene", str(scene), "--rig",
            str(tmp_path / "nominal.yaml"), "--board", "chessboard:9x6:0.06", "--out", str(tmp_path / "rig.yaml"),
-           "--json", str(tmp_path / "rig.json"), "--views", "14", "--supersample", "1"]  # fmt: skip
+           "--json", str(tmp_path / "rig.json"), "--views", "10", "--supersample", "1"]  # fmt: skip
     out = subprocess.run(cmd, capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     rig = from_dict(PanTiltConfig, yaml.safe_load((tmp_path / "rig.yaml").read_text()), "rig")
