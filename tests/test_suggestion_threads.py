@@ -23,8 +23,10 @@ from tests.helpers import wait_for
 
 
 @pytest.fixture
-def two_threads():
-    """torch on 2 threads, a fresh process governor; both put back afterwards."""
+def two_threads(monkeypatch):
+    """torch on 2 threads, a fresh process governor and no count pinned in this thread (an earlier
+    test's set_threads, e.g. a CLI run in-process, pins one); all put back afterwards."""
+    monkeypatch.setattr(runtime, "_local", threading.local())
     before = torch.get_num_threads()
     torch.set_num_threads(2)
     reset_suggestion_governor()

@@ -193,7 +193,9 @@ def run_demo(
         raise SignalShutdown(stop.signum)
     report_progress()
     loop_s = time.time() - t0
-    if not ok and not planner.finished:
+    if drone == "mavlink" and mavlink_demo.aborted(nodes):
+        say(f"demo: {mavlink_demo.abort_reason(nodes)}")
+    elif not ok and not planner.finished:
         say(f"demo: the loop did not finish within {timeout_s:g} s (state {planner.state})")
     say(f"demo: loop {planner.state} after {loop_s:.1f} s; scoring against the oracle ...")
     summary = evaluate_run(planner, scene, mode, out, loop_s)

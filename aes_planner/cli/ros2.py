@@ -41,6 +41,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     b.add_argument("--allow-remote-dds", action="store_true", help="allow a discovery range beyond this machine")
     b.add_argument("--scene", default=None, metavar="SPEC", help="take the rig's kinematics (tf) from a sim scene")
+    b.add_argument(
+        "--ros-graph",
+        choices=("jazzy", "humble"),
+        default=None,
+        help="announce the bridge as a ROS 2 node (ros2 node list) to nodes of this release (jazzy: Iron and later)",
+    )
     b.add_argument("--inbound", action="store_true", help="also read a ROS 2 camera and gimbal (needs a rig)")
     b.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     _bus_flags(b)
@@ -68,6 +74,8 @@ def build_bridge(args: argparse.Namespace):
     data["dds"] = dds
     if args.inbound:
         data["inbound"] = True
+    if args.ros_graph:
+        data["ros_graph"] = args.ros_graph
     cfg = from_dict(Ros2BridgeConfig, data, "--config" if args.config else "")
     return Ros2BridgeNode(cfg, "ros2", LaunchContext(scene=args.scene))
 

@@ -128,7 +128,13 @@ def run(args: argparse.Namespace) -> int:
         output_in(output_folder(args.out, "--out"), "report.png")
     elif args.truth_scene:
         raise SearchError("--truth-scene renders the report's ground-truth row: give --out DIR for the report too")
-    data = load_dataset(args.dataset, load_depth=True)
+    from aes_planner.images import MAX_WORKING_SIDE_PX
+
+    data = load_dataset(args.dataset, load_depth=True, max_side_px=MAX_WORKING_SIDE_PX)
+    for (w, h), n in data.downscaled.items():  # say so: the report shows the downscaled views
+        print(
+            f"{n} photo(s) of {w}x{h} px downscaled as read: the field works at {MAX_WORKING_SIDE_PX} px a side at most"
+        )
     if not data.frames:
         raise SearchError(f"{args.dataset}: the folder has no frames")
     # the ground truth is set up before the search, so a bad --truth-scene fails first

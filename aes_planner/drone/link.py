@@ -264,8 +264,8 @@ class MavlinkLink:
         if not self.armed:
             self.in_control = False
             return "disarmed"
-        if self.autopilot_seen != c.autopilot:
-            return "unexpected_mode"
+        if self.autopilot_seen in AUTOPILOTS.values() and self.autopilot_seen != c.autopilot:
+            return "unexpected_mode"  # a PX4 read as ArduPilot (or back): its modes would be misread
         if self.mode == control_mode(c.autopilot):
             if not self.in_control:
                 self.in_control, self.pilot_took_over = True, False

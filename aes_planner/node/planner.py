@@ -47,6 +47,7 @@ from aes_planner.geometry.pantilt import PanTilt, PanTiltConfig
 from aes_planner.geometry.plausible import distance_problem
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
 from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs, percentile
+from aes_planner.images import downscale_frame
 from aes_planner.messages import (
     Candidate,
     Diagnostics,
@@ -423,6 +424,7 @@ class PlannerNode(Node):
         if not isinstance(frame, PosedFrame):
             self.counters["frames_rejected"] += 1
             return
+        frame = downscale_frame(frame)  # a 12 MP camera held at full size: gigabytes the field cannot see
         k = frame.intrinsics
         if self._intrinsics is None:
             self._intrinsics = k

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 import time
 from collections import deque
 from collections.abc import Mapping
@@ -103,6 +104,10 @@ class Ros2BridgeConfig:
       sets a trajectory point's ``time_from_start``; ``goal_tolerance_rad``: when a move is done.
     * ``rig``: the pan-tilt kinematics (else the launch's scene's); ``state_history_s``: joint
       states kept to pose images; ``poll_hz``: how often DDS readers are polled (inbound).
+    * ``ros_graph``: ``jazzy`` (also Iron, Kilted) or ``humble``: announce the bridge as ROS 2 node
+      ``ros_node_name`` on ``ros_discovery_info`` (``ros2 node list``); empty = not announced
+      (the message's GID differs between Humble and later releases, and a node of the other kind
+      would fail to read it).
     """
 
     dds: DdsConfig = field(default_factory=DdsConfig)
@@ -122,6 +127,8 @@ class Ros2BridgeConfig:
     rig: PanTiltConfig | None = None
     state_history_s: float = 2.0
     poll_hz: float = 50.0
+    ros_graph: str = ""
+    ros_node_name: str = "aes_planner_bridge"
 
     def __post_init__(self):
         self.outbound = tuple(self.outbound)
@@ -147,6 +154,14 @@ class Ros2BridgeConfig:
         require(len(set(self.joint_names)) == 2 and all(self.joint_names), "joint_names", "must be two distinct names")
         require(1 <= self.jpeg_quality <= 100, "jpeg_quality", f"must be in 1..100, got {self.jpeg_quality}")
         require(self.image_transport in ("raw", "compressed"), "image_transport", "must be 'raw' or 'compressed'")
+        require(
+            self.ros_graph in ("", "jazzy", "humble"), "ros_graph", "must be '', 'jazzy' (Iron and later) or 'humble'"
+        )
+        require(
+            re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,254}", str(self.ros_node_name)) is not None,
+            "ros_node_name",
+            f"must be a ROS 2 node name (letters, digits, '_'; not starting with a digit), got {self.ros_node_name!r}",
+        )
         require(
             self.command_interface in ("joint_trajectory", "forward_position"),
             "command_interface",
@@ -276,6 +291,8 @@ class Ros2BridgeNode(Node):
             self._inbound = Inbound(self, self.dds)
         for key, sample in self.mapper.static(time.time()):
             self._write(key, sample)
+        if c.ros_graph:
+            self.dds.announce_node(c.ros_node_name, c.ros_graph)
         log.info(
             "%s: ROS 2 bridge on DDS domain %d (discovery %s), %d outbound topics%s",
             self.node_id,

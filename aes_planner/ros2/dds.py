@@ -219,11 +219,14 @@ class DdsParticipant:
                 f"cannot join DDS domain {self.domain_id}: {exc}; check CYCLONEDDS_URI and ROS_DOMAIN_ID"
             ) from None
         self._topics: dict[str, object] = {}
+        self.writers: list = []
+        self.readers: list = []
+        self._graph_writer = None
 
-    def _topic(self, name: str, idl_type: type):
+    def _topic(self, name: str, idl_type: type, raw: bool = False):
         from cyclonedds.topic import Topic
 
-        key = ros_topic(name)
+        key = name if raw else ros_topic(name)
         top = self._topics.get(key)
         if top is None:
             top = self._topics[key] = Topic(self.participant, key, idl_type)
@@ -234,12 +237,41 @@ class DdsParticipant:
     def writer(self, name: str, idl_type: type, profile: str, depth: int | None = None):
         from cyclonedds.pub import DataWriter
 
-        return DataWriter(self.participant, self._topic(name, idl_type), _qos(profile, depth))
+        w = DataWriter(self.participant, self._topic(name, idl_type), _qos(profile, depth))
+        self.writers.append(w)
+        return w
 
     def reader(self, name: str, idl_type: type, profile: str, depth: int | None = None):
         from cyclonedds.sub import DataReader
 
-        return DataReader(self.participant, self._topic(name, idl_type), _qos(profile, depth))
+        r = DataReader(self.participant, self._topic(name, idl_type), _qos(profile, depth))
+        self.readers.append(r)
+        return r
+
+    def announce_node(self, node_name: str, distro: str = "jazzy", namespace: str = "/") -> None:
+        """Publish this participant's node on ``ros_discovery_info`` as rmw_dds_common does, so
+        ``ros2 node list`` lists it and ``ros2 topic info -v`` names it: the participant's GID and
+        its readers' and writers' GIDs (DDS GUIDs; Humble's GID type is 24 bytes, zero-padded).
+        Reliable, transient local, depth 1, no ``rt/`` prefix; published again after each change."""
+        from cyclonedds.pub import DataWriter
+
+        from aes_planner.ros2 import idl
+
+        humble = distro == "humble"
+        gid_t = idl.GidHumble if humble else idl.Gid
+        info_t = idl.ParticipantEntitiesInfoHumble if humble else idl.ParticipantEntitiesInfo
+        node_t = idl.NodeEntitiesInfoHumble if humble else idl.NodeEntitiesInfo
+        size = 24 if humble else 16
+
+        def gid(entity):
+            return gid_t(list(entity.get_guid().bytes) + [0] * (size - 16))
+
+        if self._graph_writer is None:
+            self._graph_writer = DataWriter(
+                self.participant, self._topic("ros_discovery_info", info_t, raw=True), _qos("latched")
+            )
+        node = node_t(namespace, node_name, [gid(r) for r in self.readers], [gid(w) for w in self.writers])
+        self._graph_writer.write(info_t(gid(self.participant), [node]))
 
     def close(self) -> None:
         """Delete the participant (and its readers and writers); safe to call twice."""
@@ -247,6 +279,7 @@ class DdsParticipant:
         if p is not None:
             p.__del__()  # cyclonedds deletes an entity (and its readers and writers) in __del__; idempotent
         self._topics = {}
+        self.writers, self.readers, self._graph_writer = [], [], None
 
 
 def take_checked(reader, idl_type: type, max_n: int = 64) -> tuple[list, list[str]]:

@@ -58,6 +58,8 @@ class ZenohConfig:
       machines: a node on host A hears of a node on host B at B's loopback address and cannot reach
       it. A router forwards between everything connected to it, so two hubs connected to each other
       carry the graph between hosts, while each node process still listens on loopback only.
+      A router's link lease is 30 s (Zenoh's default 10 s), so a network cut shorter than that
+      pauses the graph and loses nothing reliable.
     * ``multicast_scouting``: discover peers by UDP multicast on the LAN; off by default.
     * ``prefix``: key prefix of every topic (like a ROS domain): buses with different prefixes
       do not see each other.

@@ -204,3 +204,28 @@ def test_cli_emulate_bad_flags_are_one_line_errors():
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert r.returncode == 2 and "packet_loss" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_no_setpoint_outside_the_box_and_no_nan_whatever_the_suggestion():
+    port = free_port()
+    n = node(port, emulate=True)
+    n.start()
+    try:
+        assert wait_for(lambda: n.step({}, time.time()) is not None and n.link.status == "flying", 60)
+        n.link.set_view_goal([float("nan"), 0.0, 1.0, 0.0, 0.0], time.time())  # refused in the link process
+        n.link.set_view_goal([40.0, -40.0, 30.0, 0.3, 0.0], time.time())  # far outside: clamped into the box
+        corner = [2.0 - 0.02, -2.0 + 0.02, 2.5 - 0.02]  # the box shrunk by box_margin_m
+
+        def at_corner():
+            n.step({}, time.time())
+            with n.link.lock:
+                p = n.link.position_ned
+            return np.allclose([p[1], p[0], -p[2]], corner, atol=0.02)
+
+        assert wait_for(at_corner, 60)
+        counters = n.diagnostics(time.time()).counters
+        assert counters["goals_refused"] == 1 and counters["goals_clamped"] >= 1
+        rep = n.emulator.report()
+        assert rep["rejected"]["fence"] == 0 and rep["rejected"]["nan"] == 0 and rep["max_outside_fence_m"] == 0.0
+    finally:
+        n.stop()

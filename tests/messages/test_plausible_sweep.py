@@ -107,7 +107,7 @@ def test_the_planner_rejects_and_counts_a_frame_that_is_not_its_scene():
     "matrix", ["[1e-300, 0, 32, 0, 50, 24, 0, 0, 1]", "[1e300, 0, 1e300, 0, 1e300, 1e300, 0, 0, 1]"]
 )
 def test_a_camera_calibration_no_camera_has_is_refused_at_start(tmp_path, clean_error, matrix):
-    from aes_planner.node.camera import load_calibration
+    from aes_planner.drivers.camera import load_calibration
 
     (tmp_path / "cal.yaml").write_text(
         f"image_width: 64\nimage_height: 48\ncamera_matrix: {{rows: 3, cols: 3, data: {matrix}}}\n"

@@ -137,3 +137,20 @@ def test_aes_planner_msgs_field_names_are_no_idl_cpp_or_python_keywords():
     for name in ("aes_planner_msgs/msg/ViewSuggestion", "aes_planner_msgs/msg/ViewCandidate"):
         for field, _ in typestore().fielddefs[name][1]:
             assert field.lower() not in IDL_KEYWORDS and field not in cpp and not keyword.iskeyword(field), field
+
+
+def test_graph_info_structs_are_each_releases_ros_discovery_info():
+    from rosbags.typesys import Stores, get_typestore
+
+    name = "rmw_dds_common/msg/ParticipantEntitiesInfo"
+    for store, info_t, node_t, gid_t, size in (
+        (Stores.ROS2_JAZZY, idl.ParticipantEntitiesInfo, idl.NodeEntitiesInfo, idl.Gid, 16),
+        (Stores.ROS2_KILTED, idl.ParticipantEntitiesInfo, idl.NodeEntitiesInfo, idl.Gid, 16),
+        (Stores.ROS2_HUMBLE, idl.ParticipantEntitiesInfoHumble, idl.NodeEntitiesInfoHumble, idl.GidHumble, 24),
+    ):
+        gid = gid_t(list(range(size)))
+        raw = info_t(gid, [node_t("/", "aes_planner_bridge", [gid], [gid, gid])]).serialize(use_version_2=False)
+        msg = get_typestore(store).deserialize_cdr(raw, name)
+        (node,) = msg.node_entities_info_seq
+        assert list(msg.gid.data) == list(range(size)) and node.node_name == "aes_planner_bridge"
+        assert len(node.reader_gid_seq) == 1 and len(node.writer_gid_seq) == 2, store

@@ -305,3 +305,42 @@ def test_images_are_best_effort_and_volatile(bridge, peer):
     )
     assert got and not Peer.take_raw(reliable)
     assert not reliable.get_matched_publications()
+
+
+def test_the_bridge_announces_itself_on_the_ros2_graph(peer):
+    """With ros_graph set, ros_discovery_info (rmw_dds_common, stock Jazzy type) names the bridge's
+    node and lists the GIDs of its writers, which are the DDS GUIDs a ROS 2 graph cache sees."""
+    from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication
+    from cyclonedds.sub import DataReader
+    from cyclonedds.topic import Topic
+
+    from tests.ros2.stock import idl_class, qos
+
+    node = Ros2BridgeNode(
+        Ros2BridgeConfig(
+            dds=DdsConfig(domain_id=domain_for_tests()),
+            outbound=("suggestion",),
+            ros_graph="jazzy",
+            ros_node_name="aes",
+        )
+    )
+    node.start()
+    try:
+        name = "rmw_dds_common/msg/ParticipantEntitiesInfo"
+        reader = DataReader(
+            peer.participant, Topic(peer.participant, "ros_discovery_info", idl_class(name)), qos("latched")
+        )
+        infos = _collect(peer, reader, name)
+        pubs = BuiltinDataReader(peer.participant, BuiltinTopicDcpsPublication)
+        seen = []
+        assert wait_for(
+            lambda: seen.extend(pubs.take(64)) or any(p.topic_name == "rt/planner/suggestion" for p in seen)
+        )
+    finally:
+        node.stop()
+    (node_info,) = infos[-1].node_entities_info_seq
+    assert (node_info.node_namespace, node_info.node_name) == ("/", "aes")
+    writer_gids = {bytes(g.data) for g in node_info.writer_gid_seq}
+    suggestion = next(p for p in seen if p.topic_name == "rt/planner/suggestion")
+    assert suggestion.key.bytes in writer_gids
+    assert suggestion.participant_key.bytes == bytes(infos[-1].gid.data)

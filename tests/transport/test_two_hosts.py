@@ -164,6 +164,17 @@ def test_the_launchers_hub_is_a_router(endpoint):
     assert Supervisor("sim_closed_loop", endpoint=endpoint).hub_config.mode == "router"
 
 
+def test_a_hubs_link_outlives_short_network_cuts():
+    """Hubs (routers) keep a silent link for 30 s, node processes (peers, on loopback) Zenoh's 10 s."""
+    from aes_planner.transport import ZenohConfig
+    from aes_planner.transport.zenoh_bus import zenoh_config
+
+    def lease_ms(mode):
+        return json.loads(zenoh_config(ZenohConfig(mode=mode, connect=())).get_json("transport/link/tx/lease"))
+
+    assert lease_ms("router") == 30_000 and lease_ms("peer") == 10_000
+
+
 # A short loop: the point is where it runs, not how well it frames.
 SHORT_LOOP = ("planner.max_moves=2", "planner.explore_views=3", "planner.polish_captures=0")
 
