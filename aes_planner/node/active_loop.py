@@ -15,7 +15,7 @@
     polishing  climb around the best captured view with real captures: its four neighbours
                ``polish_step_deg`` away (pan/tilt; a drone: yaw/pitch), then those of a better one,
                up to ``polish_captures`` (composition peaks are a few degrees wide, narrower than
-               the field sees: docs/benchmarks.md, session 12)
+               the field sees: docs/journal/benchmarks.md, "The rasterizer in place")
     settling   go back to the best captured view, capture it once more -> done
     done / failed   the end (failed: a camera gone silent, a fault that outlasted
                ``fault_timeout_s``, or a settle target not reached; the captures are kept)

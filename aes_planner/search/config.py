@@ -199,8 +199,8 @@ PRESETS: dict[str, dict[str, Any]] = {
 
 #: What a preset changes for a drone (5 DoF, "free mode"). There a denser stage 1 finds better views; in rig
 #: mode (2 DoF, already densely sampled) it finds more of the field's over-estimates. Chosen on
-#: validation scenes and confirmed on the held-out and hand-written ones (docs/benchmarks.md,
-#: session 7): balanced 0.620 -> 0.654 and 0.637 -> 0.754 of the oracle, 0.58 -> 0.89 s.
+#: validation scenes and confirmed on the held-out and hand-written ones (docs/journal/benchmarks.md,
+#: "The closed loop's plans"): balanced 0.620 -> 0.654 and 0.637 -> 0.754 of the oracle, 0.58 -> 0.89 s.
 FREE_MODE_PRESETS: dict[str, dict[str, Any]] = {
     "balanced": dict(samples_per_segment=32, top_k=3),
 }
