@@ -26,7 +26,7 @@ from aes_planner.geometry import Intrinsics, PanTilt, PanTiltConfig, rot_x, rot_
 from aes_planner.geometry.camera import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE
 from aes_planner.geometry.plausible import intrinsics_problem
 from aes_planner.geometry.rig import rig_dict
-from aes_planner.sources import DroneBox
+from aes_planner.platform import DroneBox
 
 __all__ = [
     "AmbientLightSpec",
@@ -398,7 +398,7 @@ class DroneSpec:
 
     def survey_poses(self, n: int, pitch_deg: float = -10.0) -> np.ndarray:
         """``n`` cam2world ``[n, 4, 4]`` on an arc inside the box, looking across its centre
-        (:meth:`aes_planner.sources.DroneBox.survey_poses`)."""
+        (:meth:`aes_planner.platform.DroneBox.survey_poses`)."""
         return DroneBox(tuple(self.bounds_min_m), tuple(self.bounds_max_m)).survey_poses(n, pitch_deg)
 
 
