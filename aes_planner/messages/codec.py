@@ -49,6 +49,7 @@ __all__ = [
     "register_message",
     "message_type",
     "encode",
+    "check_envelope",
     "decode",
     "peek_header",
     "describe",
@@ -701,12 +702,14 @@ def peek_header(data: bytes | bytearray | memoryview) -> Header:
     return Header(name, version, payload_len)
 
 
-def decode(data: bytes | bytearray | memoryview, expected: type[Message] | None = None, max_bytes: int | None = None):
-    """Decode one message, checking everything; raise :class:`MessageError` with the reason.
-
-    ``expected``: refuse any other type. ``max_bytes``: a tighter cap than the type's own.
-    Never returns a message with NaN/Inf, and never raises anything but :class:`MessageError`.
-    """
+def check_envelope(
+    data: bytes | bytearray | memoryview, expected: type[Message] | None = None, max_bytes: int | None = None
+) -> tuple[type[Message], Header]:
+    """Check everything but the payload's contents, in O(1): the header, the type (``expected``:
+    refuse any other), its schema version, the size cap (``max_bytes``: tighter than the type's
+    own) and that the payload is as long as the header says. Returns (the type, the header);
+    raises :class:`MessageError` with the reason. A transport screens arriving samples with it
+    before it queues them, so a sample that cannot decode never takes a good one's place."""
     header = peek_header(data)
     cls = message_type(header.type_name)
     if expected is not None and cls is not expected:
@@ -725,6 +728,17 @@ def decode(data: bytes | bytearray | memoryview, expected: type[Message] | None 
             f"{cls.TYPE_NAME}: header says {header.payload_len} payload bytes, got {len(data) - start} "
             "(truncated or padded)"
         )
+    return cls, header
+
+
+def decode(data: bytes | bytearray | memoryview, expected: type[Message] | None = None, max_bytes: int | None = None):
+    """Decode one message, checking everything; raise :class:`MessageError` with the reason.
+
+    ``expected``: refuse any other type. ``max_bytes``: a tighter cap than the type's own.
+    Never returns a message with NaN/Inf, and never raises anything but :class:`MessageError`.
+    """
+    cls, header = check_envelope(data, expected, max_bytes)
+    start = HEADER_SIZE + len(header.type_name)
     r = Reader(memoryview(data)[start:], cls.TYPE_NAME, header.schema_version)
     try:
         msg = cls._read(r, header.schema_version)

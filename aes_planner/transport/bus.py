@@ -13,7 +13,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from aes_planner.errors import AesPlannerError
-from aes_planner.messages import Message, MessageError, decode, peek_header
+from aes_planner.messages import Message, MessageError, check_envelope, decode, peek_header
 
 __all__ = [
     "Bus",
@@ -203,6 +203,20 @@ class Subscription:
         except MessageError as exc:
             self._reject(str(exc))
             return None
+
+    def _admits(self, data: bytes) -> bool:
+        """The O(1) check of a sample before a backend queues it undecoded (header, type, size,
+        declared length: :func:`~aes_planner.messages.codec.check_envelope`); False when it is
+        rejected (counted), so a sample that cannot decode never pushes an accepted one out."""
+        try:
+            if self.raw:
+                peek_header(data)
+            else:
+                check_envelope(data, self.msg_type, self.max_bytes)
+        except MessageError as exc:
+            self._reject(str(exc))
+            return False
+        return True
 
     def _reject(self, reason: str) -> None:
         with self._lock:

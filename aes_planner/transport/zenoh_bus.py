@@ -320,6 +320,8 @@ class ZenohBus(Bus):
 
     def _enqueue(self, inbox: _Inbox, topic: str, data: bytes, att: bytes) -> None:
         sub = inbox.sub
+        if not sub._admits(data):
+            return
         with self._work:
             if len(inbox.items) >= sub.depth:
                 inbox.items.popleft()

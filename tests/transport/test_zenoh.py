@@ -178,3 +178,23 @@ def test_latched_value_published_while_a_subscriber_joins_is_not_lost(zenoh_pair
         time.sleep(0.05)
         got = [m.sequence for m in sub.take()]
         assert got[-1] == 2 and len(got) == len(set(got)), (i, got)  # the newest, each once
+
+
+def test_a_burst_of_undecodable_samples_is_rejected_whole_and_pushes_nothing_out(zenoh_pair):
+    """Ten samples whose header declares 0xFFFFFFFF payload bytes, sent faster than a depth-4
+    subscription takes them: each is rejected and counted once, on arrival, and none of them
+    takes the place of an accepted message (they were counted 'dropped' and 'received' before)."""
+    hub, peer = zenoh_pair
+    sub = peer.subscribe("camera/frame", PosedFrame, depth=4)
+    assert matched(hub, peer, "camera/frame")
+    frame = sample_messages()["PosedFrame"]
+    hub.publish("camera/frame", frame)
+    assert wait_for(lambda: sub.received == 1)
+    bad = bytearray(encode(frame))
+    bad[8:12] = (0xFFFFFFFF).to_bytes(4, "little")  # the header's payload length
+    put = hub.session.declare_publisher("aes/camera/frame", congestion_control=zenoh.CongestionControl.BLOCK).put
+    for _ in range(10):
+        put(bytes(bad))
+    assert wait_for(lambda: sub.rejected == 10)
+    assert sub.received == 1 and sub.dropped == 0 and "payload" in sub.last_error
+    assert (sub.poll().image == frame.image).all()  # the accepted frame is still there
