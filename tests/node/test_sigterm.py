@@ -191,22 +191,28 @@ def test_two_sigterms_to_the_demo(tmp_path):
         stderr=subprocess.PIPE,
         text=True,
     )
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(proc.stderr), daemon=True)
-    reader.start()
+    lines: list[str] = []  # one reader per pipe: communicate() beside a reader would split lines
+    printed: list[str] = []
+    readers = [
+        threading.Thread(target=lambda: lines.extend(proc.stderr), daemon=True),
+        threading.Thread(target=lambda: printed.extend(proc.stdout), daemon=True),
+    ]
+    for r in readers:
+        r.start()
     try:
         wait_for(lambda: any("torque on:" in ln for ln in lines) or proc.poll() is not None, timeout_s=120.0)
         assert proc.poll() is None, "".join(lines)
         os.kill(proc.pid, signal.SIGTERM)
         time.sleep(0.1)
         os.kill(proc.pid, signal.SIGTERM)
-        out, _ = proc.communicate(timeout=60)
-        reader.join(10)
+        proc.wait(60)
+        for r in readers:
+            r.join(10)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
-    err = "".join(lines)
+    err, out = "".join(lines), "".join(printed)
     assert proc.returncode == 143, (proc.returncode, out, err[-3000:])
     assert "demo: stopped by SIGTERM" in out and not (tmp_path / "run" / "summary.json").exists()
     assert "servo emulator stopped: torque off on id 1, id 2" in err, err[-3000:]
