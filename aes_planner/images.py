@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from aes_planner.errors import AesPlannerError
-from aes_planner.geometry.camera import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE
+from aes_planner.geometry.camera import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, Intrinsics
 from aes_planner.messages import PosedFrame
 
 __all__ = [
@@ -27,6 +27,10 @@ __all__ = [
     "ImageError",
     "check_image_size",
     "image_size",
+    "write_image",
+    "MAX_WORKING_SIDE_PX",
+    "downscale_frame",
+    "downscale_parts",
     "imread_bounded",
     "read_image",
     "write_contact_sheet",
@@ -199,10 +203,66 @@ def write_contact_sheet(frames: Sequence[PosedFrame], path: str | Path) -> Path:
         d8 = np.where(valid, 255 - np.clip(d / scale * 255, 0, 255), 0).astype(np.uint8)
         cols.append(np.vstack([rgb, cv2.applyColorMap(d8, cv2.COLORMAP_VIRIDIS)]))
     sheet = np.hstack([np.pad(c, ((2, 2), (2, 2), (0, 0)), constant_values=255) for c in cols])
+    return write_image(path, sheet, "the contact sheet")
+
+
+def write_image(path: str | Path, bgr: np.ndarray, what: str = "the image") -> Path:
+    """``cv2.imwrite`` that raises :class:`ImageError` when nothing was written (``imwrite`` only
+    returns False: a folder in the way, no permission, an unknown extension)."""
+    path = Path(path)
     try:
-        ok = cv2.imwrite(str(path), sheet)
+        ok = cv2.imwrite(str(path), bgr)
     except cv2.error:
         ok = False
-    if not ok:
-        raise ImageError(f"{path}: could not write the contact sheet; check the folder exists and is writable")
+    if not ok or not path.is_file():
+        raise ImageError(f"{path}: could not write {what}; check that it is a file name in a writable folder")
     return path
+
+
+#: The largest side, in pixels, of a frame the field, the reconstruction and the search work on:
+#: the field encodes its input views on the reconstruction's stride grid (about 128 px across),
+#: the teachers look at 224 px or less and the search renders at 32-64 px. A photo is downscaled to
+#: this on the way in (:func:`downscale_frame`): a 12 MP photo held at full size costs 84 MB with
+#: its depth, and its plane-sweep stereo grows with its pixels (8 views of 640x480: 170 s and
+#: 3.1 GB; of 320x240: 3.5 s and 0.5 GB), for nothing the field can see.
+MAX_WORKING_SIDE_PX = 320
+
+
+def downscale_parts(
+    image: np.ndarray,  # [H, W, 3] uint8
+    depth: np.ndarray | None,  # [H, W] metres
+    intrinsics: Intrinsics,
+    max_side_px: int = MAX_WORKING_SIDE_PX,
+) -> tuple[np.ndarray, np.ndarray | None, Intrinsics]:
+    """The image area-averaged to at most ``max_side_px`` a side, the depth sampled (nearest: no
+    depth mixed across an edge) and the intrinsics scaled with them (same field of view); as they
+    are when already that small."""
+    h, w = image.shape[:2]
+    if max(h, w) <= max_side_px:
+        return image, depth, intrinsics
+    s = max_side_px / max(h, w)
+    nw, nh = max(1, round(w * s)), max(1, round(h * s))
+    image = cv2.resize(image, (nw, nh), interpolation=cv2.INTER_AREA)
+    if depth is not None:
+        depth = cv2.resize(depth, (nw, nh), interpolation=cv2.INTER_NEAREST)
+    return image, depth, intrinsics.scaled(nw, nh)
+
+
+def downscale_frame(frame: PosedFrame, max_side_px: int = MAX_WORKING_SIDE_PX) -> PosedFrame:
+    """``frame`` with its longer side at most ``max_side_px`` (:func:`downscale_parts`); the pose,
+    stamp, ids and joints kept. A frame already that small is returned as is."""
+    if max(frame.image.shape[:2]) <= max_side_px:
+        return frame
+    image, depth, k = downscale_parts(frame.image, frame.depth_m, frame.intrinsics, max_side_px)
+    return PosedFrame(
+        image,
+        k,
+        frame.cam2world,
+        frame.stamp_s,
+        depth,
+        frame.frame_id,
+        dict(frame.extras),
+        frame.sequence,
+        frame.pan_rad,
+        frame.tilt_rad,
+    )

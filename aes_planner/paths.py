@@ -48,7 +48,8 @@ def output_folder(path: str | Path, flag: str = "--out") -> Path:
 def output_in(folder: str | Path, name: str | Path) -> Path:
     """``folder / name``, a file a command names and writes inside its output folder; raises
     :class:`OutputPathError` when it, or a folder between, is a symlink: a link left in the
-    output folder would send the write (an overwrite) wherever it points."""
+    output folder would send the write (an overwrite) wherever it points, or when a folder (or
+    anything else but a file) is already there."""
     base = Path(folder)
     path = base / name
     part = path
@@ -58,13 +59,20 @@ def output_in(folder: str | Path, name: str | Path) -> Path:
                 f"{part}: is a symlink; the output folder must not redirect its writes elsewhere (remove it)"
             )
         part = part.parent
+    if path.exists() and not path.is_file():  # a folder there: cv2.imwrite would fail silently
+        raise OutputPathError(
+            f"{path}: exists and is not a file (a folder?); remove it or choose another output folder"
+        )
     return path
 
 
 def output_file(path: str | Path, flag: str = "--json") -> Path:
     """``path`` as a file the command can write (its folder created now; an existing file is
-    replaced). Raises :class:`OutputPathError` naming ``flag`` for a folder or an unwritable place."""
+    replaced). Raises :class:`OutputPathError` naming ``flag`` for a folder, a symlink (dangling or not)
+    or an unwritable place."""
     file = Path(path)
+    if file.is_symlink():  # dangling or not: the write would go wherever it points
+        raise OutputPathError(f"{flag} {file}: is a symlink; give the file itself (a link is never written through)")
     if file.is_dir():
         raise OutputPathError(f"{flag} {file}: is a folder; give a file name, e.g. {file / 'out.json'}")
     if file.exists() and not file.is_file():

@@ -3,10 +3,15 @@ rasterizer), how long torch's idle OpenMP threads spin, and glibc malloc's thres
 
 * **Threads.** On a 2-core machine with another busy process, torch's OpenMP threads spin
   against it and a ``balanced`` suggestion takes about 2.5x longer with 2 threads than with 1;
-  idle, 2 threads are faster. The planner node and ``aes-planner suggest`` take the count as a
-  knob (``threads``, 0 = torch's default: all cores). With all cores, the node's
-  :class:`ThreadGovernor` (``adapt_threads``) notices when its suggestions stop getting the
-  cores they ask for, tries one thread, and keeps whichever count runs them faster.
+  idle, 2 threads are faster. Every suggestion is computed inside :func:`suggestion_threads`,
+  the one place that picks its thread count: the library's :func:`~aes_planner.search.search_views`,
+  ``aes-planner suggest``, ``bench search`` and the planner node. A count set explicitly
+  (:func:`set_threads`: ``suggest --threads N``, a node's ``threads: N``) is kept. Otherwise a
+  :class:`ThreadGovernor` picks it: the node's own (``adapt_threads``), or one per process
+  for the others, which starts from the cores that are idle right now (:func:`threads_for_load`,
+  a 50 ms look at ``/proc/stat``: one thread beside a busy process on two cores). A governor
+  notices when suggestions stop getting the cores they ask for, tries one thread, probes all
+  of them now and then, and keeps whichever count runs them faster.
 * **OpenMP spinning.** torch's threads (GNU OpenMP) spin ``GOMP_SPINCOUNT`` rounds after each
   parallel op before they sleep: 300,000 by default, long enough that they were still spinning
   on both cores while the rasterizer's threads ran next. :func:`tune_openmp` lowers it to
@@ -27,20 +32,30 @@ Figures: docs/benchmarks.md, "Threading layer".
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import logging
 import math
 import os
 import statistics
 import sys
+import threading
+import time
 from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 
 __all__ = [
     "GOMP_SPINCOUNT",
     "MAX_THREADS",
+    "SuggestionJob",
     "ThreadGovernor",
     "available_cores",
+    "idle_cores",
+    "reset_suggestion_governor",
     "set_threads",
+    "suggestion_threads",
+    "threads_for_load",
     "tune_malloc",
     "tune_openmp",
 ]
@@ -73,17 +88,32 @@ def tune_openmp() -> bool:
 
 def set_threads(n: int) -> None:
     """Use ``n`` CPU threads: torch's for the whole process, numba's for the calling thread (numba
-    counts per thread, so call it from the thread that renders)."""
+    counts per thread, so call it from the thread that renders). An explicit choice: the
+    suggestions computed in this thread keep it (:func:`suggestion_threads` does not adapt it)."""
     if not isinstance(n, int) or isinstance(n, bool) or not 1 <= n <= MAX_THREADS:
         raise ValueError(f"threads: must be an integer in [1, {MAX_THREADS}], got {n!r}")
+    _apply_threads(n)
+    _local.pinned = n
+
+
+def _apply_threads(n: int) -> None:
     import torch  # here, not at the top: the package imports this module before torch
 
-    torch.set_num_threads(n)
+    if torch.get_num_threads() != n:
+        torch.set_num_threads(n)
     try:
         import numba
     except ImportError:  # the torch backend needs no numba
         return
     numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+
+
+def _numba_threads() -> int | None:
+    try:
+        import numba
+    except ImportError:
+        return None
+    return numba.get_num_threads()
 
 
 def available_cores() -> int:
@@ -92,6 +122,55 @@ def available_cores() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):
         return max(1, os.cpu_count() or 1)
+
+
+def _cpu_ticks(cpus: set[int]) -> tuple[int, int] | None:
+    """``(idle, total)`` jiffies of ``cpus`` from /proc/stat (None where it cannot be read)."""
+    try:
+        with open("/proc/stat") as f:
+            lines = f.read().splitlines()
+    except OSError:
+        return None
+    idle = total = 0
+    for line in lines:
+        name, _, rest = line.partition(" ")
+        if not (name.startswith("cpu") and name[3:].isdigit() and int(name[3:]) in cpus):
+            continue
+        ticks = [int(v) for v in rest.split()[:8]]  # user nice system idle iowait irq softirq steal
+        idle += ticks[3] + ticks[4]
+        total += sum(ticks)
+    return (idle, total) if total else None
+
+
+def idle_cores(window_s: float = 0.05) -> float | None:
+    """How many of this process's cores were idle over the next ``window_s`` (a sum of idle
+    fractions, 0..available_cores()), from /proc/stat; None where that cannot be read."""
+    try:
+        cpus = set(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cpus = set(range(os.cpu_count() or 1))
+    before = _cpu_ticks(cpus)
+    if before is None:
+        return None
+    time.sleep(window_s)
+    after = _cpu_ticks(cpus)
+    if after is None or after[1] <= before[1]:
+        return None
+    share = (after[0] - before[0]) / (after[1] - before[1])  # idle share of all those cores' time
+    return max(0.0, min(1.0, share)) * len(cpus)
+
+
+def threads_for_load(max_threads: int | None = None, window_s: float = 0.05) -> int:
+    """The thread count a compute job should start with now: the cores that are idle (rounded
+    down, with 0.35 of a core's slack), at least 1 and at most ``max_threads`` (default: the
+    available cores). Two idle cores give 2; one busy process on two cores gives 1, where two
+    threads would wait for each other at every parallel step. Where /proc/stat cannot be read,
+    ``max_threads``."""
+    max_threads = max_threads or available_cores()
+    idle = idle_cores(window_s)
+    if idle is None:
+        return max_threads
+    return max(1, min(max_threads, int(math.floor(idle + 0.35))))
 
 
 class ThreadGovernor:
@@ -125,6 +204,7 @@ class ThreadGovernor:
         patience: int = 2,
         probe_every: int = 8,
         max_probe_every: int = 64,
+        start: int | None = None,
     ) -> None:
         if not isinstance(max_threads, int) or isinstance(max_threads, bool) or not 1 <= max_threads <= MAX_THREADS:
             raise ValueError(f"max_threads: must be an integer in [1, {MAX_THREADS}], got {max_threads!r}")
@@ -136,6 +216,8 @@ class ThreadGovernor:
             raise ValueError(
                 f"probe_every: need 1 <= probe_every <= max_probe_every, got {probe_every}, {max_probe_every}"
             )
+        if start is not None and not (isinstance(start, int) and 1 <= start <= max_threads):
+            raise ValueError(f"start: must be an integer in [1, max_threads={max_threads}], got {start!r}")
         self.max_threads = max_threads
         self.low_efficiency = low_efficiency
         self.patience = patience
@@ -151,6 +233,9 @@ class ThreadGovernor:
         self.probing = False
         self.changes = 0
         self.last_efficiency = math.nan
+        if start is not None and start < max_threads:  # as after a won trial: probes all threads later
+            self.threads = 1
+            self.walls[1] = deque(maxlen=patience)
 
     def observe(self, wall_s: float, cpu_s: float) -> int:
         """Record one job; returns the thread count for the next. Jobs too short to judge (wall
@@ -199,6 +284,96 @@ class ThreadGovernor:
         self.jobs_here = 0
         self.low_run = 0
         self.changes += 1
+
+
+@dataclass
+class SuggestionJob:
+    """One suggestion's compute, as :func:`suggestion_threads` ran it: ``threads`` it ran on
+    (None when nested in another job), and once it ended its ``wall_s`` and ``cpu_s``."""
+
+    threads: int | None
+    wall_s: float = math.nan
+    cpu_s: float = math.nan
+
+
+_local = threading.local()  # per thread: pinned (an explicit set_threads count), depth (nesting)
+_governor_lock = threading.Lock()
+_process_governor: ThreadGovernor | None = None
+
+
+def suggestion_governor() -> ThreadGovernor:
+    """The process's governor of suggestions computed outside a node (library calls, ``suggest``,
+    ``bench``): made on first use, starting from :func:`threads_for_load`."""
+    global _process_governor
+    with _governor_lock:
+        if _process_governor is None:
+            import torch
+
+            most = max(1, min(MAX_THREADS, torch.get_num_threads()))
+            start = threads_for_load(most)
+            _process_governor = ThreadGovernor(most, start=start)
+            log.info("suggestions start on %d of %d threads (cores idle now)", start, most)
+        return _process_governor
+
+
+def reset_suggestion_governor() -> None:
+    """Forget the process's governor: the next suggestion looks at the load again (tests, bench)."""
+    global _process_governor
+    with _governor_lock:
+        _process_governor = None
+
+
+@contextlib.contextmanager
+def suggestion_threads(
+    governor: ThreadGovernor | None = None,
+    cpu_clock: Callable[[], float] = time.process_time,
+    adapt: bool = True,
+) -> Iterator[SuggestionJob]:
+    """Run one suggestion's compute (scorer build and search) on the thread count picked for it,
+    and let the governor learn from its wall and CPU time (the module docstring says how).
+
+    ``governor``: the caller's (a planner node's); default: the count pinned by :func:`set_threads`
+    in this thread if any, else the process's :func:`suggestion_governor`, and the thread counts
+    are restored afterwards; ``adapt=False``: the current count, only timed. Nested calls (a
+    node's job around the library's search) run inside the outer job unchanged."""
+    if getattr(_local, "depth", 0):
+        yield SuggestionJob(None)
+        return
+    pinned = getattr(_local, "pinned", None)
+    own = governor is None and pinned is None and adapt
+    gov = governor if governor is not None else (suggestion_governor() if own else None)
+    if own:
+        import torch
+
+        restore = (torch.get_num_threads(), _numba_threads())
+    if gov is not None:
+        _apply_threads(gov.threads)
+    job = SuggestionJob(gov.threads if gov is not None else pinned)
+    _local.depth = 1
+    t0, c0 = time.perf_counter(), cpu_clock()
+    try:
+        yield job
+    finally:
+        _local.depth = 0
+        job.wall_s, job.cpu_s = time.perf_counter() - t0, cpu_clock() - c0
+        if gov is not None:
+            with _governor_lock if own else contextlib.nullcontext():
+                gov.observe(job.wall_s, job.cpu_s)
+            if not own:
+                _apply_threads(gov.threads)  # the caller's count for its next job
+        if own:
+            _restore_threads(*restore)
+
+
+def _restore_threads(torch_threads: int, numba_threads: int | None) -> None:
+    import torch
+
+    if torch.get_num_threads() != torch_threads:
+        torch.set_num_threads(torch_threads)
+    if numba_threads is not None:
+        import numba
+
+        numba.set_num_threads(numba_threads)
 
 
 def _median(values) -> float:

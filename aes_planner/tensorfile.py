@@ -30,7 +30,7 @@ import torch
 
 from aes_planner.errors import AesPlannerError
 
-__all__ = ["FORMAT", "VERSION", "TensorFileError", "load", "save"]
+__all__ = ["FORMAT", "VERSION", "TensorFileError", "load", "read_npz", "save"]
 
 FORMAT = "aes-planner-tensorfile"
 VERSION = 1
@@ -150,6 +150,30 @@ def load(path: str | Path, *, max_bytes: int = MAX_BYTES) -> Any:
     except Exception as exc:  # zipfile/zlib/numpy errors on damaged bytes (BadZipFile, EOFError, ValueError, ...)
         text = " ".join(str(exc).split())[:160]
         raise TensorFileError(f"{path} is not a readable tensor file ({type(exc).__name__}: {text})") from None
+
+
+def read_npz(path: str | Path, *, max_bytes: int = MAX_BYTES) -> dict[str, np.ndarray]:
+    """Every array of a plain ``.npz`` (``np.savez``), each header checked before its data is read:
+    numeric dtype (nothing unpickled), its declared size within what is left of ``max_bytes`` and
+    within what its zip entry says it holds. A file that declares a huge array (an "npz bomb") or
+    is damaged is a :class:`TensorFileError` naming it, before anything large is allocated."""
+    path = Path(path)
+    if not path.is_file():
+        raise TensorFileError(f"{path} does not exist" + (" (it is a folder)" if path.is_dir() else ""))
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            infos = {i.filename: i for i in npz.zip.infolist()}
+            out, budget = {}, max_bytes
+            for name in npz.files:
+                arr = _array(npz, name, path, min(budget, infos[name + ".npy"].file_size), f"array {name!r}")
+                budget -= arr.nbytes
+                out[name] = arr
+            return out
+    except TensorFileError:
+        raise
+    except Exception as exc:  # zipfile/zlib/numpy errors on damaged bytes (BadZipFile, EOFError, ValueError, ...)
+        text = " ".join(str(exc).split())[:160]
+        raise TensorFileError(f"{path} is not a readable .npz ({type(exc).__name__}: {text})") from None
 
 
 def _legacy(path: Path) -> str:

@@ -21,6 +21,7 @@ import numpy as np
 from aes_planner.config import ConfigError, require, short_repr
 from aes_planner.devices import Camera, CameraError, CameraImage, DeviceError
 from aes_planner.geometry.camera import Intrinsics
+from aes_planner.geometry.plausible import intrinsics_problem
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +92,9 @@ def load_calibration(path: str | Path) -> Calibration:
     # OpenCV and ROS put pixel centres at integers, the package at +0.5 (aes_planner.geometry)
     cx, cy = float(K[0, 2]) + 0.5, float(K[1, 2]) + 0.5
     k = Intrinsics(float(K[0, 0]), float(K[1, 1]), cx, cy, data["image_width"], data["image_height"])
+    problem = intrinsics_problem(k)  # every frame would be refused: say so now
+    if problem is not None:
+        raise ConfigError("calibration.camera_matrix", f"{path}: {problem}")
     return Calibration(k, dist)
 
 

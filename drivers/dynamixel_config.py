@@ -74,7 +74,8 @@ class DynamixelPanTiltConfig:
       positive (pan left, tilt up), else -1.
     * ``*_limits_deg``: joint limits, written to Min/Max Position Limit and enforced in software.
     * ``profile_velocity_deg_s``/``profile_acceleration_deg_s2``: motion profile (0 = no limit);
-      refused beyond what the servos' 32-bit registers hold (about 45000 deg/s, 700000 deg/s^2).
+      refused beyond what the servos can be set to (about 1400 deg/s, the Velocity Limit register's
+      range, and 700000 deg/s^2, the Profile Acceleration register's).
     * ``retries``/``backoff_s``: retries of a failed exchange (0..20), the first wait (doubling
       after, each wait at most :data:`MAX_BACKOFF_S`).
     * ``latency_timer_ms``: the USB adapter's latency timer; the SDK waits ``2 x`` this plus

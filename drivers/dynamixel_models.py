@@ -229,6 +229,7 @@ class ServoModel:
             return 0
         units = max(1, round(deg_s / 6.0 / self.velocity_unit_rpm))  # 1 rpm = 6 deg/s
         self._check_register("profile_velocity", units, f"{deg_s:g} deg/s")
+        self._check_register("velocity_limit", units, f"{deg_s:g} deg/s")  # the servo never turns faster
         return units
 
     def acceleration_units(self, deg_s2: float) -> int:
@@ -248,8 +249,11 @@ class ServoModel:
 
     @property
     def max_profile_velocity_deg_s(self) -> float:
-        """The largest profile velocity the Profile Velocity register holds, in deg/s."""
-        return (self.item("profile_velocity").hi + 0.49) * 6.0 * self.velocity_unit_rpm
+        """The largest profile velocity that means something, in deg/s: what the Velocity Limit register
+        holds (the servo never turns faster than its velocity limit; the Profile Velocity register
+        itself would hold 32 times more)."""
+        hi = min(self.item("profile_velocity").hi, self.item("velocity_limit").hi)
+        return (hi + 0.49) * 6.0 * self.velocity_unit_rpm
 
     @property
     def max_profile_acceleration_deg_s2(self) -> float:

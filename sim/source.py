@@ -7,10 +7,11 @@ import numpy as np
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.poses import validate_cam2world
 from aes_planner.messages import PosedFrame
+from aes_planner.platform import DroneBox, DronePlatform, Platform, RigPlatform
 from aes_planner.sim.camera import SimCamera, SimCameraConfig
 from aes_planner.sim.raycast import render
 from aes_planner.sim.scene import Scene, load_scene
-from aes_planner.sources import DroneBox, Platform, SceneSource
+from aes_planner.sources import SceneSource
 
 __all__ = ["SimSource", "platform_of"]
 
@@ -19,9 +20,9 @@ def platform_of(scene: Scene, intrinsics: Intrinsics | None = None) -> Platform:
     """The :class:`Platform` of a scene's rig or drone section."""
     k = intrinsics or scene.intrinsics()
     if scene.rig is not None:
-        return Platform("rig", k, rig=scene.rig.pan_tilt)
+        return RigPlatform(k, scene.rig.pan_tilt)
     box = DroneBox(tuple(scene.drone.bounds_min_m), tuple(scene.drone.bounds_max_m))
-    return Platform("drone", k, drone=box)
+    return DronePlatform(k, box)
 
 
 class SimSource(SceneSource):

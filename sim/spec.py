@@ -24,8 +24,9 @@ import numpy as np
 from aes_planner.config import from_dict, require, require_finite, tag_of, to_dict
 from aes_planner.geometry import Intrinsics, PanTilt, PanTiltConfig, rot_x, rot_y, rot_z
 from aes_planner.geometry.camera import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE
+from aes_planner.geometry.plausible import intrinsics_problem
 from aes_planner.geometry.rig import rig_dict
-from aes_planner.sources import DroneBox
+from aes_planner.platform import DroneBox
 
 __all__ = [
     "AmbientLightSpec",
@@ -345,6 +346,8 @@ class CameraSpec:
         require(self.height >= 1, "height", f"must be >= 1 pixel, got {self.height}")
         require(0.0 < self.hfov_deg < 180.0, "hfov_deg", f"must be in (0, 180), got {self.hfov_deg}")
         _require_camera_size(self.width, self.height)
+        problem = intrinsics_problem(self.intrinsics())  # what every frame it renders must pass
+        require(problem is None, "hfov_deg", str(problem))
 
     def intrinsics(self) -> Intrinsics:
         return Intrinsics.from_fov(self.width, self.height, self.hfov_deg)
@@ -395,7 +398,7 @@ class DroneSpec:
 
     def survey_poses(self, n: int, pitch_deg: float = -10.0) -> np.ndarray:
         """``n`` cam2world ``[n, 4, 4]`` on an arc inside the box, looking across its centre
-        (:meth:`aes_planner.sources.DroneBox.survey_poses`)."""
+        (:meth:`aes_planner.platform.DroneBox.survey_poses`)."""
         return DroneBox(tuple(self.bounds_min_m), tuple(self.bounds_max_m)).survey_poses(n, pitch_deg)
 
 

@@ -8,12 +8,13 @@ import math
 from pathlib import Path
 
 from aes_planner.dataset import DatasetError, save_dataset
-from aes_planner.dataset.folder import FOV_RANGE_DEG, check_intrinsics, check_output_folder
+from aes_planner.dataset.folder import check_intrinsics, check_output_folder
+from aes_planner.geometry.plausible import FOV_RANGE_DEG
 from aes_planner.images import write_contact_sheet
+from aes_planner.platform import platform_to_meta
 from aes_planner.sim.camera import SimCamera, SimCameraConfig
 from aes_planner.sim.scene import load_scene
 from aes_planner.sim.source import platform_of
-from aes_planner.sources import platform_to_meta
 
 log = logging.getLogger(__name__)
 

@@ -4,8 +4,8 @@ import torch
 
 from aes_planner.config import ConfigError
 from aes_planner.field import ScorerError, check_poses
+from aes_planner.platform import DroneBox, DronePlatform, RigPlatform, parse_kind
 from aes_planner.sim import SimSource
-from aes_planner.sources import DroneBox, Platform
 
 
 def test_sim_source_rig_renders_ground_truth_at_any_pose():
@@ -29,7 +29,12 @@ def test_drone_box_and_platform_validate():
         DroneBox((0, 0, 0), (1, 0, 1))
     src = SimSource("indoor:1")
     with pytest.raises(ConfigError):
-        Platform("drone", src.platform.intrinsics, rig=src.platform.rig)
+        DronePlatform(src.platform.intrinsics, src.platform.rig)  # a rig is not a drone's box
+    with pytest.raises(ConfigError):
+        RigPlatform(src.platform.intrinsics, None)
+    assert [parse_kind(w) for w in ("rig", "drone", "free")] == ["rig", "drone", "drone"]
+    with pytest.raises(ConfigError, match="kind"):
+        parse_kind("boat")
 
 
 def test_check_poses_refuses_bad_batches():
@@ -48,17 +53,17 @@ def test_rig_metadata_round_trips_every_field():
     import json
 
     from aes_planner.geometry import Intrinsics, PanTiltConfig
+    from aes_planner.platform import platform_from_meta, platform_to_meta
     from aes_planner.search.oracle import _platform_dict
-    from aes_planner.sources import platform_from_meta, platform_to_meta
 
     k = Intrinsics.from_fov(64, 48, 60.0)
     rig = PanTiltConfig(base_xyz_m=(0.0, 0.0, 2.6), base_rpy_deg=(180.0, 0.0, 0.0), camera_roll_deg=180.0)
-    meta = json.loads(json.dumps(platform_to_meta(Platform("rig", k, rig=rig))))
+    meta = json.loads(json.dumps(platform_to_meta(RigPlatform(k, rig))))
     assert meta["rig"]["camera_roll_deg"] == 180.0
     assert platform_from_meta(meta, k).rig == rig
     # the oracle cache key names the roll only when it is set (older rigs keep their keys)
-    assert _platform_dict(Platform("rig", k, rig=rig))["rig"]["camera_roll_deg"] == 180.0
-    assert "camera_roll_deg" not in _platform_dict(Platform("rig", k, rig=PanTiltConfig()))["rig"]
+    assert _platform_dict(RigPlatform(k, rig))["rig"]["camera_roll_deg"] == 180.0
+    assert "camera_roll_deg" not in _platform_dict(RigPlatform(k, PanTiltConfig()))["rig"]
 
 
 def test_box_around_a_centre():

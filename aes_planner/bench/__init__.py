@@ -37,6 +37,7 @@ GROUPS: dict[str, str] = {
     "reconstruct": "aes_planner.bench.reconstruct",
     "teachers": "aes_planner.bench.teachers",
     "gimbal": "aes_planner.bench.gimbal",
+    "drone": "aes_planner.bench.drone",
     "search": "aes_planner.bench.search",
     "node": "aes_planner.bench.node",
     "field": "aes_planner.bench.field",

@@ -144,6 +144,13 @@ def _frame_cpu(domain: int, make_frame, seconds: float) -> float:
 def run(rec: Recorder, quick: bool) -> None:
     import numpy as np
 
+    try:
+        import cyclonedds  # noqa: F401
+    except ImportError:
+        from aes_planner.errors import AesPlannerError
+
+        raise AesPlannerError("bench ros2 needs the ros2 extra (cyclonedds): pip install 'aes-planner[ros2]'") from None
+
     from aes_planner.geometry import Intrinsics, view_to_cam2world
     from aes_planner.messages import Candidate, PosedFrame, ViewSuggestion
     from aes_planner.sim import load_scene

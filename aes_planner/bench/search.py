@@ -15,6 +15,10 @@ balanced search on RGB scoring), on held-out scenes with 4 input frames of 128x9
 * ``search.<preset>.raster_ms``: the rasterizer's part of the latency (the wall time of its
   autograd Function's forward and backward bodies: kernels and their numpy glue; numba backend
   only).
+* ``search.balanced.busy_latency_ms``: ``balanced`` beside one busy process (a Python loop
+  spinning on one core), as a fresh process computes it (:func:`aes_planner.runtime.suggestion_threads`
+  picks the threads; ``.busy_threads`` says how many); ``.busy_all_threads_latency_ms`` the same
+  on all cores, the count used before; ``.busy_speedup`` their ratio, measured in the same run.
 
 ``search_pareto.png`` (latency against normalised score, with bars of +-1 standard error over the
 scenes) is written into ``bench/`` under the working directory. When the field is not available in
@@ -26,6 +30,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import statistics
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -36,6 +42,7 @@ import torch
 from aes_planner.bench import Recorder
 from aes_planner.eval.search import HELD_OUT_SCENES, standard_error
 from aes_planner.gaussians import resolve_backend
+from aes_planner.runtime import reset_suggestion_governor, suggestion_threads
 from aes_planner.search import GroundTruthScorer, SearchConfig, SearchError, build_search_scorer
 from aes_planner.search import search_views as _search
 from aes_planner.teachers import get_teacher
@@ -71,7 +78,10 @@ def run(rec: Recorder, quick: bool) -> None:
             cfg = SearchConfig.preset("balanced" if case == "rgb" else case)
             use = kind if field_ok else "rgb"
             for r in range(repeats + 1):  # the first run warms up (numba caches, allocations)
-                with numba_backend.profile_stages() if numba else contextlib.nullcontext({}) as stages:
+                with (
+                    numba_backend.profile_stages() if numba else contextlib.nullcontext({}) as stages,
+                    suggestion_threads(),  # as `suggest` computes it
+                ):
                     t0, c0 = time.perf_counter(), time.process_time()
                     try:
                         scorer = build_search_scorer(use, frames, cfg, teacher)
@@ -110,9 +120,48 @@ def run(rec: Recorder, quick: bool) -> None:
         if se is not None:
             rec.record(f"{key}.normalized_se", se, "ratio", len(norm))
         points[case] = (statistics.median(lat), float(np.mean(norm)), se)
+    busy_case(rec, SCENES[0], teacher, "field" if field_ok else "rgb", repeats)
     rec.meta.setdefault("backends", {})["search_scorer"] = "field" if field_ok else "rgb (field not available)"
     rec.meta["search_scenes"] = scenes
     write_pareto(points, Path("bench") / "search_pareto.png")
+
+
+def busy_case(rec: Recorder, spec: str, teacher, kind: str, repeats: int) -> None:
+    """``balanced`` beside one busy process: the threads :func:`suggestion_threads` picks for a
+    fresh process against all cores, alternating run by run (module docstring)."""
+    from aes_planner.geometry.pantilt import PanTilt
+    from aes_planner.sim import SimSource
+
+    source = SimSource(spec, supersample=1)
+    pt = PanTilt(source.platform.rig)
+    j = pt.sweep(4)
+    inputs = pt.forward(j[:, 0], j[:, 1])
+    frames = [source.capture(p) for p in inputs]
+    cfg = SearchConfig.preset("balanced")
+    lat: dict[str, list[float]] = {"picked": [], "all": []}
+    threads = []
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"], stdin=subprocess.DEVNULL)
+    try:
+        time.sleep(0.2)  # let it take its core before the load is looked at
+        for r in range(repeats + 1):  # the first pair warms up
+            for how in ("picked", "all"):
+                reset_suggestion_governor()  # a fresh process: it looks at the load now
+                t0 = time.perf_counter()
+                with suggestion_threads(adapt=how == "picked") as job:
+                    _search(build_search_scorer(kind, frames, cfg, teacher), inputs, source.platform, cfg)
+                if r:
+                    lat[how].append((time.perf_counter() - t0) * 1e3)
+                    if how == "picked":
+                        threads.append(job.threads or torch.get_num_threads())
+    finally:
+        busy.kill()
+        busy.wait()
+        reset_suggestion_governor()
+    picked, full = statistics.median(lat["picked"]), statistics.median(lat["all"])
+    rec.record("search.balanced.busy_latency_ms", picked, "ms", len(lat["picked"]))
+    rec.record("search.balanced.busy_all_threads_latency_ms", full, "ms", len(lat["all"]))
+    rec.record("search.balanced.busy_speedup", full / picked, "ratio", len(lat["picked"]))
+    rec.record("search.balanced.busy_threads", statistics.median(threads), "threads", len(threads))
 
 
 def write_pareto(points: dict[str, tuple], path: Path) -> Path:
@@ -155,5 +204,6 @@ def write_pareto(points: dict[str, tuple], path: Path) -> Path:
         img, "latency (ms, log) vs oracle-normalised score", (m, m - 12), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1
     )
     path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), img)
-    return path
+    from aes_planner.images import write_image
+
+    return write_image(path, img, "the trade-off plot")

@@ -239,47 +239,81 @@ _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.00
 def detect(gray: np.ndarray, spec: BoardSpec) -> Detection | None:
     """The board's corners in ``gray [H, W]`` uint8, or None when it is not (wholly) there.
 
-    Chessboards: OpenCV's ``findChessboardCorners`` (adaptive threshold, normalised), the sector-based
-    ``findChessboardCornersSB`` when that fails, then ``cornerSubPix`` with OpenCV's 11x11 window (half-size; narrower
-    where squares are under 24 px); corners are put in the board's canonical order (see the module
-    docstring) so that every view labels them alike. ChArUco: ``CharucoDetector``, labelled by id.
+    Chessboards: OpenCV's ``findChessboardCorners`` (adaptive threshold, normalised), the
+    sector-based ``findChessboardCornersSB`` when that fails, then ``cornerSubPix`` with OpenCV's
+    11x11 window (half-size; narrower where squares are under 24 px). A grid with a corner off the
+    line of its neighbours (:func:`_consistent`: a stray corner the detector took for the board's)
+    counts as not found by that detector. Corners are put in the board's canonical order (see the
+    module docstring) so that every view labels them alike. ChArUco: ``CharucoDetector``, by id.
     """
     if spec.kind == "charuco":
         return _detect_charuco(gray, spec)
     cols, rows = spec.corners_grid
-    found, corners = cv2.findChessboardCorners(gray, (cols, rows), flags=_CLASSIC_FLAGS)
-    if not found:
-        found, corners = cv2.findChessboardCornersSB(gray, (cols, rows), flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
+    attempts = (
+        lambda: cv2.findChessboardCorners(gray, (cols, rows), flags=_CLASSIC_FLAGS),
+        # default flags: with NORMALIZE_IMAGE it missed boards whose white margin is darker than the sky behind
+        lambda: cv2.findChessboardCornersSB(gray, (cols, rows), flags=0),
+        lambda: cv2.findChessboardCornersSB(gray, (cols, rows), flags=cv2.CALIB_CB_EXHAUSTIVE),
+    )
+    for attempt in attempts:
+        found, corners = attempt()
         if not found:
-            return None
-    grid = corners.reshape(rows, cols, 2).astype(np.float64)
-    square_px = _smallest_square(grid)
-    # OpenCV's 11x11 (half-size 11) search window, narrowed where a square is under 24 px so that it
-    # never reaches the next corner (which pulls the corner off: a 0.9 px RMS instead of 0.4 measured)
-    half = 11 if square_px >= 24 else int(max(2, math.floor(square_px / 2) - 1))
-    refined = cv2.cornerSubPix(gray, corners.astype(np.float32), (half, half), (-1, -1), _SUBPIX_CRITERIA)
-    grid = _canonical(gray, refined.reshape(rows, cols, 2).astype(np.float64))
-    return Detection(grid.reshape(-1, 2), spec.object_points(), square_px)
+            continue
+        grid = corners.reshape(rows, cols, 2).astype(np.float64)
+        square_px = _typical_square(grid)
+        # OpenCV's 11x11 (half-size 11) search window, narrowed where a square is under 24 px so that it
+        # never reaches the next corner (which pulls the corner off: a 0.9 px RMS instead of 0.4 measured)
+        half = 11 if square_px >= 24 else int(max(2, math.floor(square_px / 2) - 1))
+        refined = cv2.cornerSubPix(gray, corners.astype(np.float32), (half, half), (-1, -1), _SUBPIX_CRITERIA)
+        grid = refined.reshape(rows, cols, 2).astype(np.float64)
+        if not _consistent(grid):
+            continue
+        grid = _canonical(gray, grid)
+        return Detection(grid.reshape(-1, 2), spec.object_points(), square_px)
+    return None
 
 
-def _smallest_square(grid: np.ndarray) -> float:
-    across = np.linalg.norm(np.diff(grid, axis=1), axis=-1)
-    down = np.linalg.norm(np.diff(grid, axis=0), axis=-1)
-    return float(min(across.min(), down.min()))
+def _typical_square(grid: np.ndarray) -> float:
+    """The median distance between neighbouring corners, pixels."""
+    across = np.linalg.norm(np.diff(grid, axis=1), axis=-1).ravel()
+    down = np.linalg.norm(np.diff(grid, axis=0), axis=-1).ravel()
+    return float(np.median(np.concatenate([across, down])))
+
+
+def _consistent(grid: np.ndarray) -> bool:
+    """Whether ``grid [rows, cols, 2]`` is a smooth grid: the second difference of every three
+    neighbours along a row or a column under 0.3 of a square (perspective and lens distortion bend
+    a grid far less; a stray corner the detector took for the board's does not)."""
+    limit = 0.3 * _typical_square(grid)
+    along = np.linalg.norm(grid[:, 2:] - 2 * grid[:, 1:-1] + grid[:, :-2], axis=-1)
+    down = np.linalg.norm(grid[2:] - 2 * grid[1:-1] + grid[:-2], axis=-1)
+    return bool(along.max(initial=0.0) <= limit and down.max(initial=0.0) <= limit)
+
+
+def _homography(grid: np.ndarray) -> np.ndarray:
+    """The least-squares homography ``[3, 3]`` from board units (squares; corner ``(i, j)`` at
+    ``(i, j)``) to the image, of ``grid [rows, cols, 2]``."""
+    rows, cols = grid.shape[:2]
+    j, i = np.mgrid[0:rows, 0:cols]
+    src = np.stack([i.ravel(), j.ravel()], -1).astype(np.float64)
+    h, _ = cv2.findHomography(src, grid.reshape(-1, 2), 0)
+    return h
 
 
 def _canonical(gray: np.ndarray, grid: np.ndarray) -> np.ndarray:
     """``grid [rows, cols, 2]`` turned so that x runs along rows and y down columns with the board
     seen from its front (right-handed in the image), and corner 0 has a black square diagonally
     outside it (the pattern's top-left square). A board with an even and an odd count is then
-    labelled uniquely; on a symmetric one the 180 deg turn stays ambiguous."""
-    a, b = grid[0, 1] - grid[0, 0], grid[1, 0] - grid[0, 0]
+    labelled uniquely; on a symmetric one the 180 deg turn stays ambiguous. Directions and the
+    squares sampled come from the grid's homography, not from single corners."""
+    rows, cols = grid.shape[:2]
+    a = (grid[:, -1] - grid[:, 0]).mean(0)  # along a row
+    b = (grid[-1] - grid[0]).mean(0)  # down a column
     if a[0] * b[1] - a[1] * b[0] < 0:  # mirrored: reverse each row
         grid = grid[:, ::-1]
-        a, b = grid[0, 1] - grid[0, 0], grid[1, 0] - grid[0, 0]
-    outside = _intensity(gray, grid[0, 0] - 0.5 * (a + b))
-    beside = _intensity(gray, grid[0, 0] + 0.5 * (a - b))
-    if outside > beside:  # corner 0 is the far end: turn by 180 deg
+    h = _homography(grid)
+    outside, beside = cv2.perspectiveTransform(np.array([[[-0.5, -0.5]], [[0.5, -0.5]]]), h).reshape(2, 2)
+    if _intensity(gray, outside) > _intensity(gray, beside):  # corner 0 is the far end: turn by 180 deg
         grid = grid[::-1, ::-1]
     return np.ascontiguousarray(grid)
 
@@ -295,7 +329,9 @@ def _detect_charuco(gray: np.ndarray, spec: BoardSpec) -> Detection | None:
     if ids is None or len(ids) < 6:
         return None
     ids = ids.reshape(-1)
-    obj = np.asarray(board.getChessboardCorners(), dtype=np.float64)[ids]
+    # OpenCV's ChArUco frame starts at the board's outer corner: shift it to the first inner corner,
+    # the chessboard's origin here, so both kinds share one board frame
+    obj = np.asarray(board.getChessboardCorners(), dtype=np.float64)[ids] - [spec.square_m, spec.square_m, 0.0]
     img = corners.reshape(-1, 2).astype(np.float64)
     d = np.linalg.norm(img[:, None] - img[None], axis=-1)
     od = np.linalg.norm(obj[:, None] - obj[None], axis=-1)

@@ -60,20 +60,43 @@ class ViewSource:
         pass
 
 
+#: Narrowest sim image the rig calibration renders (wider scenes keep their own camera).
+MIN_SIM_WIDTH_PX = 640
+
+
+def sim_camera_size(scene, min_width: int = MIN_SIM_WIDTH_PX) -> tuple[int, int]:
+    """The size the calibration renders a sim scene's camera at: its own, or ``min_width`` wide
+    (same field of view and aspect) when it is narrower, since a board needs ~8 px squares to be
+    found and the rig's kinematics do not depend on the resolution."""
+    cam = scene.rig.camera
+    if cam.width >= min_width:
+        return cam.width, cam.height
+    return min_width, max(1, round(min_width * cam.height / cam.width))
+
+
 class SimViewSource(ViewSource):
-    """The sim scene's camera on its true rig; ``joint_noise_deg`` adds reading noise to the angles
-    reported (what an encoder would), the image stays at the commanded pose."""
+    """The sim scene's camera on its true rig (at :func:`sim_camera_size`); ``joint_noise_deg``
+    adds reading noise to the angles reported (what an encoder would), the image stays at the
+    commanded pose."""
 
     def __init__(
-        self, scene, supersample: int = 2, pixel_noise_sigma: float = 0.0, joint_noise_deg: float = 0.0, seed: int = 0
+        self,
+        scene,
+        supersample: int = 2,
+        pixel_noise_sigma: float = 0.0,
+        joint_noise_deg: float = 0.0,
+        seed: int = 0,
+        min_width: int = MIN_SIM_WIDTH_PX,
     ):
         from aes_planner.sim import SimCamera, SimCameraConfig
 
         if scene.rig is None:
             raise RigCalibrationError(f"scene {scene.name!r} has a drone, not a pan-tilt rig")
-        self.sim = SimCamera(
-            scene, SimCameraConfig(supersample=supersample, pixel_noise_sigma=pixel_noise_sigma, seed=seed)
+        w, h = sim_camera_size(scene, min_width)
+        config = SimCameraConfig(
+            width=w, height=h, supersample=supersample, pixel_noise_sigma=pixel_noise_sigma, seed=seed
         )
+        self.sim = SimCamera(scene, config)
         k = self.sim.intrinsics
         K = np.array([[k.fx, 0, k.cx - 0.5], [0, k.fy, k.cy - 0.5], [0, 0, 1.0]])  # to OpenCV's pixel centres
         self.camera = CameraModel(K, np.zeros(5), k.width, k.height)
@@ -147,7 +170,7 @@ def plan_views(
     board: BoardSpec,
     board2world: np.ndarray,
     n_views: int,
-    margin: float = 0.06,
+    margin: float = 0.05,
     seed: int = 0,
 ) -> np.ndarray:
     """``[n, 2]`` joint poses where the nominal rig sees the whole board ``margin`` (fraction of the
@@ -156,14 +179,11 @@ def plan_views(
     kin = PanTilt(nominal)
     hfov, vfov = _fov_rad(camera)
     obj = board.object_points()
-    # the outline of the printed squares (one square beyond the inner corners), to keep in view
+    # the outline of the board with its white margin (the detector needs that quiet zone), to keep in view
     cx, cy = board.corners_grid
     s = board.square_m
-    outline = (
-        np.array([[-s, -s, 0], [cx * s, -s, 0], [-s, cy * s, 0], [cx * s, cy * s, 0]])
-        if board.kind == "chessboard"
-        else obj
-    )
+    lo, hi_x, hi_y = -2 * s, (cx + 1) * s, (cy + 1) * s
+    outline = np.array([[lo, lo, 0], [hi_x, lo, 0], [lo, hi_y, 0], [hi_x, hi_y, 0]])
     corners_w = outline @ board2world[:3, :3].T + board2world[:3, 3]
     centre_w = obj.mean(0) @ board2world[:3, :3].T + board2world[:3, 3]
     aim = kin.inverse_look_at(centre_w)
@@ -253,10 +273,13 @@ class SimStream:
         frame_period_s: float = 1 / 15,
         state_period_s: float = 0.01,
         seed: int = 0,
+        min_width: int = MIN_SIM_WIDTH_PX,
     ):
         from aes_planner.sim import SimCamera, SimCameraConfig
 
-        self.sim = SimCamera(scene, SimCameraConfig(supersample=supersample, latency_s=latency_s, seed=seed))
+        w, h = sim_camera_size(scene, min_width)
+        config = SimCameraConfig(width=w, height=h, supersample=supersample, latency_s=latency_s, seed=seed)
+        self.sim = SimCamera(scene, config)
         k = self.sim.intrinsics
         K = np.array([[k.fx, 0, k.cx - 0.5], [0, k.fy, k.cy - 0.5], [0, 0, 1.0]])
         self.camera = CameraModel(K, np.zeros(5), k.width, k.height)

@@ -22,8 +22,9 @@ from aes_planner.calibrate.rig import (
     UNOBSERVABLE,
     RigCalibrationError,
     fit_board_pose,
+    reprojection_rms,
     rezero_tilt,
-    solve_pnp,
+    seen_joints,
     solve_rig,
 )
 from aes_planner.config import to_dict
@@ -138,8 +139,8 @@ def estimate_latency(
 
     ``stream(trajectory, duration_s)`` sweeps the pan along ``trajectory(t) -> (pan, tilt)`` and
     returns ``(frames, joint_states)``: ``[(stamp_s, gray)]`` as the camera stamps them and
-    ``[(stamp_s, pan, tilt)]`` as the gimbal reports them. Each frame's camera orientation (PnP,
-    through the calibrated rig and board pose) gives the pan it shows; the delay is the shift of
+    ``[(stamp_s, pan, tilt)]`` as the gimbal reports them. Each frame gives the pan it shows (the
+    joints at which the calibrated rig re-projects the board, at its calibrated pose, where it was seen); the delay is the shift of
     the joint-state curve that matches those best (a constant pan bias allowed), to a millisecond.
     """
     p0, t0 = centre
@@ -148,27 +149,18 @@ def estimate_latency(
         return p0 + amplitude_rad * math.sin(2 * math.pi * frequency_hz * t), t0
 
     frames, states = stream(trajectory, duration_s)
-    kin = PanTilt(config)
     seen_t, seen_pan = [], []
-    from aes_planner.calibrate.rig import RigObservations
-
     for stamp, gray in frames:
         found = detect(gray, board)
         if found is None:
             continue
-        obs = RigObservations(
-            np.zeros(1),
-            np.zeros(1),
-            np.zeros(len(found.object_points), np.int64),
-            found.object_points,
-            camera.undistort(found.image_points),
-            camera.K,
-        )
-        b2c = solve_pnp(obs)[0]
-        c2w = board2world @ np.linalg.inv(b2c)
-        sol = kin.inverse_direction(c2w[:3, 2], pan_hint_rad=p0)
+        uv = camera.undistort(found.image_points)
+        start = (seen_pan[-1], t0) if seen_pan else (p0, t0)
+        pan, _, rms = seen_joints(config, board2world, camera.K, found.object_points, uv, start)
+        if rms > 3.0:  # a view the rig cannot explain (a misdetection, motion blur): left out
+            continue
         seen_t.append(stamp)
-        seen_pan.append(sol.pan_rad)
+        seen_pan.append(pan)
     if len(seen_t) < 8:
         raise RigCalibrationError(
             f"the board was found in only {len(seen_t)} frames of the sweep; the latency needs 8 or more: slow the "
@@ -191,9 +183,9 @@ def estimate_latency(
         a, b, c = costs[i - 1 : i + 2]
         den = a - 2 * b + c
         if den > 0:
-            tau += 0.001 * 0.5 * (a - c) / den
+            tau += float(0.001 * 0.5 * (a - c) / den)
     return {
-        "camera_latency_s": tau,
+        "camera_latency_s": float(tau),
         "frames_used": len(ft),
         "frames": len(frames),
         "residual_rms_deg": math.degrees(math.sqrt(cost(tau))),
@@ -215,13 +207,7 @@ def verify_rig(source: ViewSource, config: PanTiltConfig, board: BoardSpec, n_vi
         raise RigCalibrationError(f"the board was found in only {obs.n_views} verification views; need 4 or more")
     fit_idx, test_idx = np.arange(0, obs.n_views, 2), np.arange(1, obs.n_views, 2)
     b2w, fit_rms, _ = fit_board_pose(obs.subset(fit_idx), config)
-    held = obs.subset(test_idx)
-    from aes_planner.calibrate.rig import _per_view_rms, _Problem, _rms
-
-    problem = _Problem(held, config, b2w[:3, :3])
-    x = problem.x_from(config, b2w)
-    held_rms = _rms(problem.residuals(x).detach())
-    held_views = _per_view_rms(problem, x, held.n_views)
+    held_rms, held_views = reprojection_rms(obs.subset(test_idx), config, b2w)
     _, all_rms, per_view = fit_board_pose(obs, config)
     return {
         "views": int(obs.n_views),

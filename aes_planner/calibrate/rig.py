@@ -50,6 +50,7 @@ __all__ = [
     "RigSolution",
     "UNOBSERVABLE",
     "fit_board_pose",
+    "reprojection_rms",
     "rezero_tilt",
     "solve_rig",
 ]
@@ -340,6 +341,14 @@ def fit_board_pose(obs: RigObservations, config: PanTiltConfig) -> tuple[np.ndar
     return out, _rms(problem.residuals(x).detach()), _per_view_rms(problem, x, obs.n_views)
 
 
+def reprojection_rms(obs: RigObservations, config: PanTiltConfig, board2world: np.ndarray) -> tuple[float, np.ndarray]:
+    """RMS reprojection error (px) of ``obs`` with the rig and the board's pose both held fixed,
+    overall and per view ``[V]``."""
+    problem = _Problem(obs, config, board2world[:3, :3])
+    x = problem.x_from(config, board2world)
+    return _rms(problem.residuals(x).detach()), _per_view_rms(problem, x, obs.n_views)
+
+
 def solve_rig(obs: RigObservations, nominal: PanTiltConfig, outlier_factor: float = 5.0) -> RigSolution:
     """Calibrate the rig from ``obs``, starting at ``nominal`` (see the module docstring)."""
     check_spread(obs)
@@ -360,6 +369,11 @@ def solve_rig(obs: RigObservations, nominal: PanTiltConfig, outlier_factor: floa
         keep = keep[~bad]
         check_spread(obs.subset(keep))
     r = problem.residuals(x).detach()
+    if not (bool(torch.isfinite(x).all()) and bool(torch.isfinite(r).all())):
+        raise RigCalibrationError(
+            "the least squares diverged (non-finite parameters); check that --rig is the rig's drawing (lengths in "
+            "metres, angles in degrees) and that the board spec matches the board"
+        )
     dof = max(r.numel() - x.numel(), 1)
     sigma2 = float(r @ r) / dof
     try:
@@ -439,3 +453,41 @@ def compare_kinematics(estimate: PanTiltConfig, truth: PanTiltConfig, n: int = 1
         "angle_rms_deg": float(np.sqrt((ang**2).mean())),
         "angle_max_deg": float(ang.max()),
     }
+
+
+def seen_joints(
+    config: PanTiltConfig,
+    board2world: np.ndarray,
+    K: np.ndarray,
+    object_points: np.ndarray,
+    image_points: np.ndarray,
+    start: tuple[float, float],
+) -> tuple[float, float, float]:
+    """The joint angles ``(pan, tilt)`` at which the rig ``config`` sees the board (at
+    ``board2world``) where it was seen (``image_points [N, 2]``, OpenCV pixels, undistorted), and the
+    RMS left in pixels: Gauss-Newton on the reprojection error from ``start``. Better conditioned
+    than a single view's PnP orientation (the board's image shift fixes the joints directly)."""
+    from torch.func import jacfwd
+
+    kin = PanTilt(config)
+    kw = dict(dtype=torch.float64)
+    world = torch.as_tensor(object_points @ board2world[:3, :3].T + board2world[:3, 3], **kw)
+    uv = torch.as_tensor(image_points, **kw)
+    k = torch.as_tensor(K, **kw)
+
+    def residual(q: Tensor) -> Tensor:
+        c2w = kin.forward(q[0], q[1])
+        pc = (world - c2w[:3, 3]) @ c2w[:3, :3]
+        z = pc[:, 2].clamp_min(1e-6)
+        proj = torch.stack([k[0, 0] * pc[:, 0] / z + k[0, 2], k[1, 1] * pc[:, 1] / z + k[1, 2]], -1)
+        return (proj - uv).reshape(-1)
+
+    q = torch.as_tensor(start, **kw)
+    jac = jacfwd(residual)
+    for _ in range(10):
+        r = residual(q)
+        step = torch.linalg.lstsq(jac(q), -r.unsqueeze(-1)).solution.squeeze(-1)
+        q = q + step
+        if float(step.abs().max()) < 1e-7:  # 1e-7 rad: far below a pixel
+            break
+    return float(q[0]), float(q[1]), _rms(residual(q).detach())

@@ -30,6 +30,7 @@ COMMANDS = [
     "aes_planner.cli.score",
     "aes_planner.cli.teachers",
     "aes_planner.cli.gimbal",
+    "aes_planner.cli.drone",
     "aes_planner.cli.calibrate",
     "aes_planner.cli.bus",
     "aes_planner.cli.ros2",
@@ -51,7 +52,30 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def terminal_safe(text: str) -> str:
+    """``text`` with every non-printable character but newlines escaped (``\\x1b``): what arrives
+    from the bus or a file (topic names, error messages quoting them) must not write control
+    sequences into a terminal."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() or c == "\n" else repr(c)[1:-1] for c in text)
+
+
+def _empty_value(argv: list[str]) -> str | None:
+    """The option (or argument) given an empty string, if any: no option of this CLI takes one."""
+    for i, token in enumerate(argv):
+        if token.startswith("--") and token.endswith("=") and "=" not in token[:-1]:
+            return token[:-1]
+        if not token.strip():
+            return argv[i - 1] if i and argv[i - 1].startswith("-") else f"argument {i + 1}"
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
+    empty = _empty_value([str(a) for a in (sys.argv[1:] if argv is None else argv)])
+    if empty is not None:  # `--teacher ''` would otherwise mean "the default" to `args.x or DEFAULT`
+        print(f"error: {empty}: an empty value; give one, or leave the option out for its default", file=sys.stderr)
+        return 2
     parser = build_parser()
     args = parser.parse_args(argv)
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
@@ -62,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except AesPlannerError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(terminal_safe(f"error: {exc}"), file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:  # Ctrl-C, or a signal stop that ended a command (SignalShutdown)
         return getattr(exc, "exit_code", 130)
@@ -75,9 +99,9 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
             # a file the command reads or writes (disk full, permissions, a folder where a file
             # was expected): the user's to fix, not a bug
-            print(f"error: {str(exc.filename)[:300]}: {exc.strerror}", file=sys.stderr)
+            print(terminal_safe(f"error: {str(exc.filename)[:300]}: {exc.strerror}"), file=sys.stderr)
             return 2
-        text = " ".join(str(exc).split())
+        text = terminal_safe(" ".join(str(exc).split()))
         print(
             f"error: unexpected {type(exc).__name__}: {text[:300]} (this is a bug in aes-planner; please report it "
             "with the command line; rerun with -v for the traceback)",

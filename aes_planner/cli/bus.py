@@ -2,9 +2,13 @@
 
 * ``aes-planner echo TOPIC [--once] [--json]``: print messages as they arrive (images summarised).
 * ``aes-planner topics [--duration S] [--json]``: topics with their types, publishers,
-  subscribers and rates.
+  subscribers and rates (over S <= 600 seconds).
+
+Everything printed that came from the bus (topic and type names, messages, errors quoting them)
+has its non-printable characters escaped: a peer cannot write control sequences into a terminal.
 * ``aes-planner record [TOPIC ...] -o FILE.mcap``: record (all topics by default) until Ctrl-C.
-* ``aes-planner replay FILE.mcap [--rate R] [--loop]``: publish a recording again.
+* ``aes-planner replay FILE.mcap [--rate R] [--loop | --count N] [--duration S]``: publish a
+  recording again (once, N times, or until Ctrl-C or S seconds).
 * ``aes-planner foxglove [--port P]``: serve the bus live to the Foxglove app (loopback).
 
 Each joins the network of ``aes-planner launch --processes`` at ``tcp/127.0.0.1:7390`` unless
@@ -18,8 +22,10 @@ import contextlib
 import json
 import math
 import sys
+import threading
 import time
 
+from aes_planner.cli import terminal_safe
 from aes_planner.cli.processes import DEFAULT_ENDPOINT
 from aes_planner.errors import AesPlannerError
 from aes_planner.graph.signals import stop_on_signals
@@ -103,7 +109,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("file", metavar="FILE.mcap")
     p.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1; 0 = as fast as possible)")
-    p.add_argument("--loop", action="store_true", help="start over at the end until Ctrl-C")
+    p.add_argument("--loop", action="store_true", help="start over at the end until Ctrl-C (or --count, --duration)")
+    p.add_argument("--count", type=int, default=None, metavar="N", help="play the recording N times (implies --loop)")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     p.add_argument("--topics", nargs="+", default=None, help="only these topics")
     p.add_argument("--wait", type=float, default=1.0, metavar="S", help="wait for subscribers first (default 1 s)")
     _bus_flags(p)
@@ -119,6 +127,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     f.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     _bus_flags(f)
     f.set_defaults(func=run_foxglove)
+
+
+def _say(text: str, *, err: bool = False) -> None:
+    print(terminal_safe(text), file=sys.stderr if err else sys.stdout, flush=True)
+
+
+#: Longest ``topics --duration``: it measures rates, it does not watch.
+MAX_RATE_WINDOW_S = 600.0
 
 
 def _check_seconds(value: float | None, flag: str) -> None:
@@ -160,13 +176,13 @@ def run_echo(args: argparse.Namespace) -> int:
                     msg = decode(sample.data)
                 except MessageError as exc:
                     rejected += 1
-                    print(f"rejected on {sample.topic}: {exc}", file=sys.stderr)
+                    _say(f"rejected on {sample.topic}: {exc}", err=True)
                     continue
                 body = {"topic": sample.topic, **_short(to_jsonable(msg))}
                 if args.json:
-                    print(json.dumps(body), flush=True)
+                    _say(json.dumps(body))
                 else:
-                    print(yaml.safe_dump(body, sort_keys=False, width=120).rstrip() + "\n---", flush=True)
+                    _say(yaml.safe_dump(body, sort_keys=False, width=120).rstrip() + "\n---")
                 printed += 1
                 if args.once:
                     return 0
@@ -175,7 +191,9 @@ def run_echo(args: argparse.Namespace) -> int:
     if rejected:
         print(f"{rejected} malformed message(s) rejected", file=sys.stderr)
     if printed == 0 and not interrupted:
-        raise AesPlannerError(f"no message on {args.topic} within {args.timeout:g} s; is a publisher running?")
+        raise AesPlannerError(
+            terminal_safe(f"no message on {args.topic} within {args.timeout:g} s; is a publisher running?")
+        )
     return 0
 
 
@@ -183,12 +201,15 @@ def run_topics(args: argparse.Namespace) -> int:
     from aes_planner.messages import MessageError, peek_header
 
     _check_seconds(args.duration, "--duration")
+    if args.duration > MAX_RATE_WINDOW_S:
+        raise AesPlannerError(f"--duration is the window rates are measured over: at most {MAX_RATE_WINDOW_S:g} s")
     bus = open_cli_bus(args)
     counts: dict[str, int] = {}
     types: dict[str, str] = {}
     try:
         sub = bus.subscribe_raw("**", depth=100_000, catch_up=False)
-        time.sleep(args.duration)
+        with stop_on_signals() as stop:
+            stop.wait(args.duration)
         for s in sub.take():
             counts[s.topic] = counts.get(s.topic, 0) + 1
             try:
@@ -212,7 +233,7 @@ def run_topics(args: argparse.Namespace) -> int:
             }
         )
     if args.json:
-        print(json.dumps(rows, indent=1))
+        _say(json.dumps(rows, indent=1))
         return 0
     if not rows:
         print("no topics (is `aes-planner launch ... --processes` running? see --connect)")
@@ -220,16 +241,19 @@ def run_topics(args: argparse.Namespace) -> int:
     print(f"{'topic':32} {'type':16} {'pubs':>4} {'subs':>4} {'rate_hz':>8}")
     for r in rows:
         latched = " latched" if r["latched"] else ""
-        print(f"{r['topic']:32} {r['type']:16} {r['publishers']:4d} {r['subscribers']:4d} {r['rate_hz']:8.2f}{latched}")
+        topic, kind = terminal_safe(r["topic"]), terminal_safe(r["type"])
+        _say(f"{topic:32} {kind:16} {r['publishers']:4d} {r['subscribers']:4d} {r['rate_hz']:8.2f}{latched}")
     return 0
 
 
 def run_record(args: argparse.Namespace) -> int:
+    from aes_planner.paths import output_file
     from aes_planner.transport import validate_pattern
     from aes_planner.transport.record import Recorder
 
     _check_seconds(args.duration, "--duration")
     patterns = [validate_pattern(t) for t in args.topics]
+    output_file(args.output, "-o")  # not a symlink, a folder or a fifo, in a folder that can be written
     rec = Recorder(args.output, viz=not args.no_viz)
     with contextlib.closing(rec), stop_on_signals() as stop, contextlib.closing(open_cli_bus(args)) as bus:
         rec.attach(bus, patterns)
@@ -250,10 +274,21 @@ def run_replay(args: argparse.Namespace) -> int:
         validate_topic(t)
     if not math.isfinite(args.wait) or not 0 <= args.wait <= 60:
         raise AesPlannerError(f"--wait must be in [0, 60] seconds, got {args.wait}")
+    _check_seconds(args.duration, "--duration")
+    if args.count is not None and not 1 <= args.count <= 1_000_000:
+        raise AesPlannerError(f"--count must be in [1, 1000000] passes, got {args.count}")
+    passes = args.count if args.count is not None else (None if args.loop else 1)
     next(iter(read_recording(args.file)), None)  # a clear error for a bad file before joining the bus
     with stop_on_signals() as stop, contextlib.closing(open_cli_bus(args)) as bus:
-        stop.wait(args.wait)
-        n = replay(args.file, bus, rate=args.rate, loop=args.loop, topics=args.topics, stop=stop)
+        until = threading.Event()  # a signal, or --duration after the start
+        threading.Thread(target=lambda: (stop.wait(args.duration), until.set()), daemon=True).start()
+        until.wait(args.wait)
+        n = done = 0
+        while not until.is_set() and (passes is None or done < passes):
+            got = replay(args.file, bus, rate=args.rate, topics=args.topics, stop=until)
+            n, done = n + got, done + 1
+            if got == 0:
+                break
         time.sleep(0.2)  # let the last samples leave before the session closes
     print(f"{n} messages replayed from {args.file}")
     return 0

@@ -65,7 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     _source_args(r, board_help)
     r.add_argument("--out", required=True, metavar="RIG_YAML", help="calibrated rig (PanTiltConfig fields)")
-    r.add_argument("--views", type=int, default=30, help="planned views (default 30)")
+    r.add_argument("--views", type=int, default=40, help="planned views (default 40)")
     r.add_argument("--latency", action="store_true", help="also estimate camera_latency_s from a continuous sweep")
     r.add_argument(
         "--zero-offsets",
@@ -109,10 +109,19 @@ def _source_args(p: argparse.ArgumentParser, board_help: str) -> None:
         metavar="YAML",
         help="intrinsics (default: the launch's camera calibration; the scene's camera)",
     )
-    p.add_argument("--supersample", type=int, default=2, help="sim: anti-aliasing samples per pixel side (default 2)")
+    p.add_argument(
+        "--supersample",
+        type=int,
+        help="sim: anti-aliasing samples per pixel side (default 2 up to 640x540 images, else 1)",
+    )
     p.add_argument("--pixel-noise", type=float, default=0.0, help="sim: image noise sigma, 8-bit levels")
     p.add_argument("--joint-noise-deg", type=float, default=0.0, help="sim: noise of the reported joint angles")
     p.add_argument("--sim-latency", type=float, default=0.0, metavar="S", help="sim: the camera's simulated latency")
+    p.add_argument(
+        "--allow-outside-paths",
+        action="store_true",
+        help="sim: let the scene file's image paths leave its folder (absolute, '..', symlinks); only for files you trust",
+    )
     p.add_argument("--settle-s", type=float, default=0.5, help="hardware: wait after arrival before a capture")
     p.add_argument("--seed", type=int, default=0, help="sim noise seed")
 
@@ -237,16 +246,23 @@ class _Session:
         self.gimbal = None
         self.capture = None
         self.tilt_direction = 1
+        self.tilt_zero_offset_ticks: int | None = None  # the driver's present value (--launch)
 
     def __enter__(self):
-        from aes_planner.calibrate.capture import SimViewSource
+        from aes_planner.calibrate.capture import SimViewSource, sim_camera_size
 
         a = self.args
         if a.scene:
             from aes_planner.sim import load_scene
 
-            self.scene = load_scene(a.scene)
-            self.source = SimViewSource(self.scene, a.supersample, a.pixel_noise, a.joint_noise_deg, a.seed)
+            self.scene = load_scene(a.scene, allow_outside=a.allow_outside_paths)
+            if self.scene.rig is None:
+                raise CalibrateUsageError(f"--scene {a.scene}: the scene has a drone; calibration needs a rig scene")
+            w, h = sim_camera_size(self.scene)
+            supersample = a.supersample or (2 if w * h <= 640 * 540 else 1)
+            if not 1 <= supersample <= 8:
+                raise CalibrateUsageError(f"--supersample must be 1..8, got {supersample}")
+            self.source = SimViewSource(self.scene, supersample, a.pixel_noise, a.joint_noise_deg, a.seed)
             if a.camera_info:
                 log.warning("--camera-info is not used with --scene: the scene's camera is exact")
             return self
@@ -272,6 +288,7 @@ class _Session:
             )
         device_spec = dict(gimbal_entry.config["device"])
         self.tilt_direction = int(device_spec.get("tilt_direction", 1))
+        self.tilt_zero_offset_ticks = int(device_spec.get("tilt_zero_offset_ticks", 0))
         calibration_file = a.camera_info or camera_entry.config.get("calibration")
         if not calibration_file:
             raise CalibrateUsageError(
@@ -326,12 +343,15 @@ def run_rig(args) -> int:
             session.source, nominal, board, args.views, args.zero_offsets, session.tilt_direction, args.seed
         )
         report["rig_s"] = time.monotonic() - t0
+        if "driver" in report and session.tilt_zero_offset_ticks is not None:
+            change = report["driver"]["tilt_zero_offset_ticks_change"]
+            report["driver"]["tilt_zero_offset_ticks"] = session.tilt_zero_offset_ticks + change
         if args.latency:
             t1 = time.monotonic()
             b2w = np.asarray(report["board2world"])
             centre, amplitude = latency_sweep_centre(session.source.camera, config, board, b2w)
             lat = estimate_latency(session.stream(), session.source.camera, config, board, b2w, centre, amplitude)
-            config = replace(config, camera_latency_s=round(lat["camera_latency_s"], 4))
+            config = replace(config, camera_latency_s=round(float(lat["camera_latency_s"]), 4))
             report["latency"] = {**lat, "runtime_s": time.monotonic() - t1}
     Path(args.out).write_text(
         rig_yaml(
@@ -353,7 +373,15 @@ def run_rig(args) -> int:
     for u in report["unobservable"]:
         print(f"  not observable: {u['combination']} -> {u['fixed']}")
     if "driver" in report:
-        print(f"  set the driver's tilt_zero_offset_ticks += {report['driver']['tilt_zero_offset_ticks_change']}")
+        d = report["driver"]
+        target = (
+            f" (set tilt_zero_offset_ticks: {d['tilt_zero_offset_ticks']} in the gimbal's device config)"
+            if "tilt_zero_offset_ticks" in d
+            else ""
+        )
+        print(
+            f"  the driver's tilt_zero_offset_ticks += {d['tilt_zero_offset_ticks_change']}{target}; {args.out} is for that driver"
+        )
     if "latency" in report:
         print(
             f"  camera latency {1000 * report['latency']['camera_latency_s']:.1f} ms ({report['latency']['frames_used']} frames)"

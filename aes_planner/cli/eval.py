@@ -57,7 +57,7 @@ def register_search(esub: argparse._SubParsersAction) -> None:
     s.add_argument("--scene", action="append", metavar="FILE_OR_FAMILY:SEED", help="a scene (repeatable)")
     s.add_argument("--scenes", type=int, default=4, help="number of held-out scenes when no --scene (default 4)")
     s.add_argument("--views", type=_int_list, default=[4], help="input view counts, e.g. 2,4,6 (default 4)")
-    s.add_argument("--modes", default="rig,free", help="rig, free or rig,free (default both)")
+    s.add_argument("--modes", default="rig,drone", help="rig, drone or rig,drone (default both; free is read as drone)")
     s.add_argument("--methods", help="comma-separated subset of the methods (default all)")
     s.add_argument("--no-ablations", action="store_true", help="skip Tables 3, 4 and S1")
     s.add_argument("--oracle-step-deg", type=float, default=5.0, help="rig oracle grid step (default 5)")

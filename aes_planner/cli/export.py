@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,6 +29,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
+def _demo_scene(recording: Path) -> str | None:
+    """The simulated rig scene of the demo run folder the recording is in (its summary.json)."""
+    import json
+
+    try:
+        summary = json.loads((recording.parent / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    scene = summary.get("scene") if isinstance(summary, dict) and summary.get("mode") == "rig" else None
+    if isinstance(scene, str) and scene:
+        print(f"rig tf links from the run's scene {scene} (--scene to choose another)")
+        return scene
+    return None
+
+
 def run_rosbag2(args: argparse.Namespace) -> int:
     from aes_planner.config import from_dict, load_yaml
     from aes_planner.errors import AesPlannerError
@@ -40,7 +56,8 @@ def run_rosbag2(args: argparse.Namespace) -> int:
             f"export rosbag2 needs the ros2 extra ({exc.name} is missing): pip install 'aes-planner[ros2]'"
         ) from None
     cfg = from_dict(Ros2BridgeConfig, load_yaml(args.config) or {}, "--config") if args.config else None
-    counts = export_rosbag2(args.recording, args.out_dir, cfg, scene=args.scene)
+    scene = args.scene if args.scene is not None else _demo_scene(Path(args.recording))
+    counts = export_rosbag2(args.recording, args.out_dir, cfg, scene=scene)
     for topic, n in sorted(counts.items()):
         print(f"{topic:32} {n:6d}")
     print(f"wrote {args.out_dir} ({sum(v for k, v in counts.items() if k.startswith('/'))} messages)")

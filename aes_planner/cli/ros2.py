@@ -1,6 +1,6 @@
 """``aes-planner ros2 bridge``: the package's bus on a ROS 2 DDS domain, as a process of its own.
 
-Joins the Zenoh bus as ``echo`` does (``tcp/127.0.0.1:7447`` unless ``--connect``) and runs the
+Joins the Zenoh bus as ``echo`` does (``tcp/127.0.0.1:7390`` unless ``--connect``) and runs the
 ``ros2_bridge`` node (:mod:`aes_planner.ros2.bridge`) on it until Ctrl-C. ``ROS_DOMAIN_ID``,
 ``ROS_AUTOMATIC_DISCOVERY_RANGE``, ``ROS_STATIC_PEERS`` and ``CYCLONEDDS_URI`` are honoured as
 rmw_cyclonedds does; discovery stays on this machine unless ``--discovery-range`` (with
@@ -34,12 +34,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--domain-id", type=int, default=None, help="DDS domain (default: ROS_DOMAIN_ID, else 0)")
     b.add_argument(
         "--discovery-range",
-        choices=("localhost", "subnet", "off", "system_default"),
+        choices=("loopback", "localhost", "subnet", "off", "system_default"),
         default=None,
-        help="as ROS_AUTOMATIC_DISCOVERY_RANGE (default: that variable, else localhost)",
+        help="as ROS_AUTOMATIC_DISCOVERY_RANGE (default: that variable, else loopback: this machine over the "
+        "loopback interface only; localhost: as rmw_cyclonedds does, to meet ROS 2 nodes run with LOCALHOST)",
     )
     b.add_argument("--allow-remote-dds", action="store_true", help="allow a discovery range beyond this machine")
     b.add_argument("--scene", default=None, metavar="SPEC", help="take the rig's kinematics (tf) from a sim scene")
+    b.add_argument(
+        "--ros-graph",
+        choices=("jazzy", "humble"),
+        default=None,
+        help="announce the bridge as a ROS 2 node (ros2 node list) to nodes of this release (jazzy: Iron and later)",
+    )
     b.add_argument("--inbound", action="store_true", help="also read a ROS 2 camera and gimbal (needs a rig)")
     b.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     _bus_flags(b)
@@ -49,10 +56,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def build_bridge(args: argparse.Namespace):
     """The bridge node from the flags (and ``--config``)."""
-    from aes_planner.config import from_dict, load_yaml
+    from aes_planner.config import ConfigError, from_dict, load_yaml
     from aes_planner.graph.base import LaunchContext
     from aes_planner.ros2.bridge import Ros2BridgeConfig, Ros2BridgeNode
+    from aes_planner.ros2.dds import MAX_DOMAIN_ID
 
+    if args.domain_id is not None and not 0 <= args.domain_id <= MAX_DOMAIN_ID:
+        raise ConfigError("--domain-id", f"must be in 0..{MAX_DOMAIN_ID} (as ROS_DOMAIN_ID), got {args.domain_id}")
     data = dict(load_yaml(args.config) or {}) if args.config else {}
     dds = dict(data.get("dds") or {})
     if args.domain_id is not None:
@@ -64,6 +74,8 @@ def build_bridge(args: argparse.Namespace):
     data["dds"] = dds
     if args.inbound:
         data["inbound"] = True
+    if args.ros_graph:
+        data["ros_graph"] = args.ros_graph
     cfg = from_dict(Ros2BridgeConfig, data, "--config" if args.config else "")
     return Ros2BridgeNode(cfg, "ros2", LaunchContext(scene=args.scene))
 
@@ -100,4 +112,4 @@ def run_bridge(args: argparse.Namespace) -> int:
             runner.close()
     sent = {k[5:]: v for k, v in node.counters.items() if k.startswith("sent.")}
     print("sent: " + (", ".join(f"{k} {v}" for k, v in sorted(sent.items())) or "nothing"))
-    return 0
+    return stop.exit_code or 0  # 128 + signal after Ctrl-C or SIGTERM, as launch returns

@@ -25,7 +25,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("dataset", metavar="DATASET_DIR", help="folder with cameras.json and images/")
     p.add_argument("--preset", default="balanced", choices=["fast", "balanced", "accurate"], help="speed/accuracy")
-    p.add_argument("--mode", choices=["rig", "free"], help="default: the folder's platform (rig if it has none)")
+    p.add_argument(
+        "--mode",
+        choices=["rig", "drone", "free"],
+        help="platform: rig or drone (free: the older word for drone); default: the folder's platform (rig if it has none)",
+    )
     p.add_argument("--rig", metavar="FILE", help="rig kinematics and joint limits as YAML (PanTiltConfig fields)")
     p.add_argument("--top", type=int, metavar="K", help="number of suggestions (default: the preset's K)")
     p.add_argument(
@@ -45,7 +49,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--threads",
         type=int,
         metavar="N",
-        help="CPU threads for torch and the rasterizer (default: all cores; 1 is steadier beside busy processes)",
+        help="CPU threads for torch and the rasterizer (default: the cores idle when it starts, so one beside "
+        "a busy process on two cores; the count used is printed)",
     )
     p.set_defaults(func=run)
 
@@ -55,39 +60,39 @@ def _platform(meta: dict, frames, mode: str | None, rig_file: str | None):
 
     from aes_planner.config import from_dict, load_yaml
     from aes_planner.geometry.rig import PanTiltConfig
+    from aes_planner.platform import DroneBox, DronePlatform, RigPlatform, parse_kind, platform_from_meta
     from aes_planner.search import SearchError
-    from aes_planner.sources import DroneBox, Platform, platform_from_meta
 
     k = frames[0].intrinsics
     stored = platform_from_meta(meta, k)
-    mode = mode or ("free" if (stored is not None and stored.kind == "drone") else "rig")
-    if mode == "rig":
+    kind = parse_kind(mode, "--mode") if mode else (stored.kind if stored is not None else RigPlatform.kind)
+    if stored is not None and stored.kind == kind and not rig_file:
+        if stored.rig is not None and not meta.get("rig"):
+            raise SearchError("meta.rig: empty; give the rig's PanTiltConfig fields or pass --rig FILE")
+        return stored
+    if kind == RigPlatform.kind:
         if rig_file:
             doc = load_yaml(rig_file)
             if not doc:
                 raise SearchError(f"--rig {rig_file}: the file sets nothing; give the rig's PanTiltConfig fields")
-            return Platform("rig", k, rig=from_dict(PanTiltConfig, doc, "rig"))
-        if stored is not None and stored.kind == "rig":
-            if not meta.get("rig"):
-                raise SearchError("meta.rig: empty; give the rig's PanTiltConfig fields or pass --rig FILE")
-            return stored
+            return RigPlatform(k, from_dict(PanTiltConfig, doc, "rig"))
         raise SearchError(
             "rig mode needs the rig's kinematics and joint limits: this folder's cameras.json meta has no 'rig' "
-            "section; pass --rig FILE (YAML with PanTiltConfig fields) or use --mode free"
+            "section; pass --rig FILE (YAML with PanTiltConfig fields) or use --mode drone"
         )
     if rig_file:
-        log.warning("--rig %s is not used in free mode (a drone flies the folder's box)", rig_file)
-    if stored is not None and stored.kind == "drone":
+        log.warning("--rig %s is not used for a drone (it flies the folder's box)", rig_file)
+    if stored is not None and stored.drone is not None:
         return stored
     pos = np.stack([f.cam2world[:3, 3] for f in frames])
     lo, hi = pos.min(0) - 1.0, pos.max(0) + 1.0
     log.warning("no drone box in the folder's metadata: searching the inputs' bounding box grown by 1 m")
-    return Platform("drone", k, drone=DroneBox(tuple(lo), tuple(hi)))
+    return DronePlatform(k, DroneBox(tuple(lo), tuple(hi)))
 
 
 def print_table(result, top: int) -> None:
-    rig = result.mode == "rig"
     shown = result.suggestions[:top]
+    rig = bool(shown) and getattr(shown[0], "pan_rad", None) is not None  # joints: a rig's suggestions
     # positions far from the origin (a site's own coordinates) widen their columns rather than shift the row
     w = max([7] + [len(f"{v:.2f}") for s in shown for v in (() if rig else s.position_m)])
     head = "pan_deg tilt_deg" if rig else f"{'x_m':<{w}} {'y_m':<{w}} {'z_m':<{w}} yaw_deg pitch_deg"
@@ -106,11 +111,13 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from aes_planner.dataset import load_dataset
-    from aes_planner.search import SearchConfig, SearchError, build_search_scorer, search_mode, search_views
+    from aes_planner.messages.suggestion import MAX_CANDIDATES
+    from aes_planner.runtime import suggestion_threads
+    from aes_planner.search import SearchConfig, SearchError, build_search_scorer, search_views
     from aes_planner.search.report import render_with, write_report
 
-    if args.top is not None and args.top < 1:
-        raise SearchError(f"--top must be at least 1, got {args.top}")
+    if args.top is not None and not 1 <= args.top <= MAX_CANDIDATES:
+        raise SearchError(f"--top must be in [1, {MAX_CANDIDATES}], got {args.top}")
     if args.threads is not None:
         from aes_planner.runtime import MAX_THREADS, set_threads
 
@@ -125,30 +132,37 @@ def run(args: argparse.Namespace) -> int:
         output_in(output_folder(args.out, "--out"), "report.png")
     elif args.truth_scene:
         raise SearchError("--truth-scene renders the report's ground-truth row: give --out DIR for the report too")
-    data = load_dataset(args.dataset, load_depth=True)
+    from aes_planner.images import MAX_WORKING_SIDE_PX
+
+    data = load_dataset(args.dataset, load_depth=True, max_side_px=MAX_WORKING_SIDE_PX)
+    for (w, h), n in data.downscaled.items():  # say so: the report shows the downscaled views
+        print(
+            f"{n} photo(s) of {w}x{h} px downscaled as read: the field works at {MAX_WORKING_SIDE_PX} px a side at most"
+        )
     if not data.frames:
         raise SearchError(f"{args.dataset}: the folder has no frames")
     # the ground truth is set up before the search, so a bad --truth-scene fails first
     gt = _ground_truth(data.meta, data.frames[0].intrinsics, args.truth_scene) if args.out else None
     platform = _platform(data.meta, data.frames, args.mode, args.rig)
     overrides = {"top_k": args.top} if args.top else {}
-    cfg = SearchConfig.preset(args.preset, mode=search_mode(platform.kind), **overrides)
+    cfg = SearchConfig.preset(args.preset, mode=platform.kind, **overrides)
     t0 = time.perf_counter()
     kind = args.scorer or "field"
-    try:
-        scorer = build_search_scorer(kind, data.frames, cfg)
-    except SearchError as exc:
-        if args.scorer:  # asked for explicitly: no silent substitute
-            raise
-        print(f"warning: {exc}; scoring with rgb instead")
-        kind = "rgb"
-        scorer = build_search_scorer(kind, data.frames, cfg)
-    args.scorer = kind
-    result = search_views(scorer, data.cam2worlds(), platform, cfg)
+    with suggestion_threads() as job:  # --threads pinned the count; else fewer beside busy processes
+        try:
+            scorer = build_search_scorer(kind, data.frames, cfg)
+        except SearchError as exc:
+            if args.scorer:  # asked for explicitly: no silent substitute
+                raise
+            print(f"warning: {exc}; scoring with rgb instead")
+            kind = "rgb"
+            scorer = build_search_scorer(kind, data.frames, cfg)
+        args.scorer = kind
+        result = search_views(scorer, data.cam2worlds(), platform, cfg)
     latency_ms = (time.perf_counter() - t0) * 1e3
     top = args.top or cfg.top_k
     print(f"{len(result.suggestions[:top])} suggestion(s), {result.mode} mode, preset {args.preset}, "
-          f"scorer {args.scorer}, {latency_ms:.0f} ms")  # fmt: skip
+          f"scorer {args.scorer}, {latency_ms:.0f} ms, {job.threads} thread(s)")  # fmt: skip
     print_table(result, top)
     if len(result.suggestions) < top:  # say what the search left out
         if result.dropped_uncovered:

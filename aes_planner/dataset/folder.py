@@ -40,8 +40,9 @@ import numpy as np
 from aes_planner.config import short_repr
 from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.camera import Intrinsics, IntrinsicsError
+from aes_planner.geometry.plausible import intrinsics_problem
 from aes_planner.geometry.poses import PoseError, validate_cam2world
-from aes_planner.images import ImageError, check_image_size, imread_bounded
+from aes_planner.images import ImageError, check_image_size, downscale_parts, imread_bounded
 from aes_planner.messages import MessageError, PosedFrame
 from aes_planner.paths import OutputPathError, PathOutsideError, output_in, resolve_inside
 
@@ -64,6 +65,8 @@ class PosedDataset:
     frames: list[PosedFrame]
     meta: dict[str, Any] = field(default_factory=dict)
     root: Path | None = None
+    #: ``{(width, height) as stored: frames downscaled from that size}`` by ``load_dataset(max_side_px=)``
+    downscaled: dict[tuple[int, int], int] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -305,26 +308,12 @@ def _inside(root: Path, entry: str, key: str, allow_outside: bool) -> Path:
         raise DatasetError(str(exc)) from None
 
 
-#: Fields of view a dataset camera may have, in degrees (a focal length of 1e300 or 1e-300 pixels is
-#: a broken file, not a lens).
-FOV_RANGE_DEG = (0.1, 175.0)
-
-
 def check_intrinsics(k: Intrinsics, key: str) -> Intrinsics:
-    """Refuse intrinsics no real camera has: a field of view outside :data:`FOV_RANGE_DEG`, or a
-    principal point more than half the image size outside the image."""
-    lo, hi = FOV_RANGE_DEG
-    for name, fov, f in (("fx", k.hfov_rad, k.fx), ("fy", k.vfov_rad, k.fy)):
-        if not lo <= math.degrees(fov) <= hi:
-            raise DatasetError(
-                f"{key}.{name}: a focal length of {f:g} px gives a {math.degrees(fov):.3g} deg field of view over "
-                f"{k.width}x{k.height} px; expected {lo} to {hi} deg (are the intrinsics in pixels?)"
-            )
-    for name, c, size in (("cx", k.cx, k.width), ("cy", k.cy, k.height)):
-        if not -0.5 * size <= c <= 1.5 * size:
-            raise DatasetError(
-                f"{key}.{name}: principal point {c:g} px is far outside the {size} px image; expected about {size / 2:g}"
-            )
+    """Refuse intrinsics no real camera has (:func:`aes_planner.geometry.plausible.intrinsics_problem`:
+    the same bounds as frames arriving on topics)."""
+    problem = intrinsics_problem(k)
+    if problem is not None:
+        raise DatasetError(f"{key}.{problem}")
     return k
 
 
@@ -350,8 +339,14 @@ def frame_from_parts(
         raise DatasetError(f"{key}: {exc}") from None
 
 
-def load_dataset(path: str | Path, load_depth: bool = True, allow_outside: bool = False) -> PosedDataset:
+def load_dataset(
+    path: str | Path, load_depth: bool = True, allow_outside: bool = False, max_side_px: int | None = None
+) -> PosedDataset:
     """Read a dataset folder (or its ``cameras.json``) into :class:`PosedFrame` records.
+
+    ``max_side_px``: downscale each frame as it is read to at most this many pixels a side
+    (:func:`aes_planner.images.downscale_parts`, intrinsics scaled with it), so that a folder of
+    full-resolution photos never sits in memory at full size.
 
     Image and depth paths must lead to files inside the folder (:func:`aes_planner.paths.resolve_inside`);
     ``allow_outside=True`` lifts that for a ``cameras.json`` you trust."""
@@ -370,6 +365,7 @@ def load_dataset(path: str | Path, load_depth: bool = True, allow_outside: bool 
         raise DatasetError(f"{cameras}: 'frames' must be a list")
     frames = []
     frame_meta = []
+    downscaled: dict[tuple[int, int], int] = {}
     for i, e in enumerate(entries):
         key = f"frames[{i}]"
         if not isinstance(e, dict):
@@ -398,6 +394,10 @@ def load_dataset(path: str | Path, load_depth: bool = True, allow_outside: bool 
             scale = finite_number(e, "depth_png_scale_m", key, 0.001)
             check_depth_scale(scale, f"{key}.depth_png_scale_m")
             depth = read_depth(_inside(root, e["depth"], f"{key}.depth", allow_outside), f"{key}.depth", scale)
+        if max_side_px is not None and max(image.shape[:2]) > max_side_px:  # a 24 MP photo is over a frame's cap
+            size = (image.shape[1], image.shape[0])
+            downscaled[size] = downscaled.get(size, 0) + 1
+            image, depth, k = downscale_parts(image, depth, k, max_side_px)
         frames.append(frame_from_parts(key, image, k, c2w, stamp, depth, str(e.get("frame_id", i))))
         frame_meta.append(e.get("meta", {}))
     for f, m in zip(frames, frame_meta):
@@ -405,4 +405,4 @@ def load_dataset(path: str | Path, load_depth: bool = True, allow_outside: bool 
     meta = doc.get("meta", {})
     if not isinstance(meta, dict):
         raise DatasetError(f"{cameras}: 'meta' must be an object")
-    return PosedDataset(frames, meta, root)
+    return PosedDataset(frames, meta, root, downscaled)

@@ -5,8 +5,10 @@
   to the JSON file; ``transform_matrix`` is cam2world with **OpenGL camera axes** (x right, y up,
   z backward), converted here to OpenCV (x right, y down, z forward) by flipping the y and z
   camera axes. ``depth_file_path`` is read when present (16-bit PNG scaled by
-  ``depth_unit_scale_factor``, default 1e-3 m, or ``.npy`` metres). Distortion coefficients are
-  not modelled: a non-zero one is reported in the log and ignored.
+  ``depth_unit_scale_factor``, default 1e-3 m, or ``.npy`` metres). The planner models a pinhole
+  camera: frames with distortion coefficients are undistorted on import to the same intrinsics
+  (``camera_model`` ``OPENCV``: ``k1 k2 p1 p2 k3``; ``OPENCV_FISHEYE``: ``k1``-``k4``); another model
+  with non-zero coefficients is refused.
 * **RealEstate10K** (one ``.txt`` per clip): first line the video URL, then one line per frame:
   ``timestamp_us fx fy cx cy 0 0`` (intrinsics normalised by the image size) followed by a 3x4
   **world-to-camera** matrix, row-major (19 numbers per line). Frame images are looked up as
@@ -28,8 +30,8 @@ from typing import Literal
 
 import numpy as np
 
+from aes_planner.config import short_repr
 from aes_planner.dataset.folder import (
-    FOV_RANGE_DEG,
     DatasetError,
     PosedDataset,
     _inside,
@@ -43,6 +45,7 @@ from aes_planner.dataset.folder import (
     read_rgb,
 )
 from aes_planner.geometry.camera import Intrinsics, IntrinsicsError
+from aes_planner.geometry.plausible import FOV_RANGE_DEG
 from aes_planner.geometry.poses import PoseError, rigid_inverse, validate_cam2world
 
 log = logging.getLogger(__name__)
@@ -91,6 +94,44 @@ def _apply_up(frames_c2w: list[np.ndarray], up: UpMode) -> tuple[list[np.ndarray
     return [r @ m for m in frames_c2w], r
 
 
+def _undistort(
+    image: np.ndarray,  # [H, W, 3] uint8
+    depth: np.ndarray | None,  # [H, W] metres
+    k: Intrinsics,
+    merged: dict,
+    key: str,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The frame undistorted to the pinhole camera ``k`` (same intrinsics), by nerfstudio's
+    ``camera_model``: ``OPENCV`` (``k1 k2 p1 p2 [k3]``) or ``OPENCV_FISHEYE`` (``k1``-``k4``);
+    other models with non-zero coefficients are refused. Depth is resampled nearest-neighbour;
+    pixels that see outside the original image are black (depth 0: unknown)."""
+    import cv2
+
+    c = {d: finite_number(merged, d, key, 0.0) for d in ("k1", "k2", "k3", "k4", "p1", "p2")}
+    if not any(c.values()):
+        return image, depth
+    model = merged.get("camera_model", "OPENCV")
+    size = (k.width, k.height)
+    if model == "OPENCV" and not c["k4"]:
+        dist = np.array([c["k1"], c["k2"], c["p1"], c["p2"], c["k3"]])
+        maps = cv2.initUndistortRectifyMap(k.K, dist, None, k.K, size, cv2.CV_32FC1)
+    elif model == "OPENCV_FISHEYE" and not (c["p1"] or c["p2"]):
+        dist = np.array([c["k1"], c["k2"], c["k3"], c["k4"]])
+        maps = cv2.fisheye.initUndistortRectifyMap(k.K, dist, np.eye(3), k.K, size, cv2.CV_32FC1)
+    else:
+        raise DatasetError(
+            f"{key}: camera_model {short_repr(model)} with distortion { ({d: v for d, v in c.items() if v}) } is not "
+            "undistorted here (OPENCV takes k1 k2 p1 p2 k3, OPENCV_FISHEYE k1-k4); undistort the images first"
+        )
+    log.info("%s: undistorted (%s %s)", key, model, ", ".join(f"{d}={v:g}" for d, v in c.items() if v))
+    out = cv2.remap(image, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    if depth is not None:
+        depth = cv2.remap(
+            depth.astype(np.float32), *maps, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0
+        ).astype(depth.dtype)
+    return out, depth
+
+
 def import_nerfstudio(
     transforms_json: str | Path, up: UpMode = "keep", load_depth: bool = True, allow_outside: bool = False
 ) -> PosedDataset:
@@ -112,14 +153,6 @@ def import_nerfstudio(
         image = read_rgb(_inside(root, fr["file_path"], f"{key}.file_path", allow_outside), f"{key}.file_path")
         h, w = image.shape[:2]
         merged = {**doc, **fr}
-        for dist in ("k1", "k2", "k3", "k4", "p1", "p2"):
-            if finite_number(merged, dist, key, 0.0):
-                log.warning(
-                    "%s: distortion %s=%s is ignored (pinhole model); undistort the images first",
-                    key,
-                    dist,
-                    merged[dist],
-                )
         if pixel_count(merged, "w", key, w) != w or pixel_count(merged, "h", key, h) != h:
             raise DatasetError(f"{key}: w/h say {merged.get('w')}x{merged.get('h')} but {fr['file_path']} is {w}x{h}")
         fx = finite_number(merged, "fl_x", key, None)
@@ -158,6 +191,7 @@ def import_nerfstudio(
             check_depth_scale(scale, f"{key}.depth_unit_scale_factor")
             depth_path = _inside(root, fr["depth_file_path"], f"{key}.depth_file_path", allow_outside)
             depth = read_depth(depth_path, f"{key}.depth_file_path", scale)
+        image, depth = _undistort(image, depth, k, merged, key)
         parts.append((key, image, k, m @ OPENGL_TO_OPENCV, depth, Path(fr["file_path"]).stem))
     if not parts:
         raise DatasetError(f"{path}: 'frames' is empty; there is nothing to import")

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-__all__ = ["LAUNCH_FILE", "aborted", "drone_summary"]
+__all__ = ["LAUNCH_FILE", "abort_reason", "aborted", "drone_summary"]
 
 LAUNCH_FILE = "drone_mavlink.yaml"
 
@@ -27,6 +27,22 @@ def _drones(nodes) -> list:
 def aborted(nodes) -> bool:
     """A vehicle's link has been lost (or never came up) for its ``link_loss_abort_s``."""
     return any(d.aborted for d in _drones(nodes))
+
+
+def abort_reason(nodes) -> str:
+    """One line: why the run ended early (no vehicle heard, or its link lost for too long)."""
+    for d in _drones(nodes):
+        if d.aborted:
+            c = d.config
+            if d.link.sysid is None:
+                return (
+                    f"no MAVLink vehicle heard on {c.connection} within {c.link_loss_abort_s:g} s (link_loss_abort_s); "
+                    "is it sending there (PX4 SITL: udp 14540)?"
+                )
+            return (
+                f"the vehicle's link was lost for more than {c.link_loss_abort_s:g} s; the run ends (the vehicle holds)"
+            )
+    return ""
 
 
 def drone_summary(nodes) -> dict:

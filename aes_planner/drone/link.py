@@ -115,6 +115,7 @@ class MavlinkLink:
         self._stop = threading.Event()
         self._last_hb_out = -math.inf
         self._last_tick = None
+        self._goal_pending = False
 
     # ------------------------------------------------------------------------- lifecycle
     def start(self) -> None:
@@ -142,6 +143,7 @@ class MavlinkLink:
                 self.gate.counters["goals_refused"] += 1
                 return False
             self.view_goal, self.goal_s, self.first_setpoint_after_goal_s = v, now, None
+            self._goal_pending = True  # steer at once, not at the next tick
             return True
 
     # -------------------------------------------------------------------------- the loop
@@ -161,9 +163,11 @@ class MavlinkLink:
                 except OSError:
                     msg = None
             now = self.clock()
-            if now >= next_tick:
-                next_tick = max(next_tick + period, now - period)
+            if now >= next_tick or self._goal_pending:
+                if now >= next_tick:
+                    next_tick = max(next_tick + period, now - period)
                 with self.lock:
+                    self._goal_pending = False
                     try:
                         self._tick(now)
                     except OSError as exc:  # the vehicle's address went away; the next tick retries
@@ -260,8 +264,8 @@ class MavlinkLink:
         if not self.armed:
             self.in_control = False
             return "disarmed"
-        if self.autopilot_seen != c.autopilot:
-            return "unexpected_mode"
+        if self.autopilot_seen in AUTOPILOTS.values() and self.autopilot_seen != c.autopilot:
+            return "unexpected_mode"  # a PX4 read as ArduPilot (or back): its modes would be misread
         if self.mode == control_mode(c.autopilot):
             if not self.in_control:
                 self.in_control, self.pilot_took_over = True, False

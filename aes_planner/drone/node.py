@@ -22,7 +22,7 @@ from aes_planner.config import ConfigError, from_dict, require, require_numbers
 from aes_planner.drone import frames as fr
 from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs, percentile
 from aes_planner.messages import Diagnostics, DroneState, ViewSuggestion
-from aes_planner.sources import DroneBox
+from aes_planner.platform import DroneBox
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +69,7 @@ class MavlinkDroneConfig:
     * ``vehicle_system_id``: the vehicle to fly (0: the first autopilot heard; others are ignored
       and counted); ``source_system`` (0: the vehicle's, as a companion), ``source_component``,
       ``heartbeat_type`` (``onboard_controller`` or ``gcs``).
-    * ``stream_rate_hz``: setpoints per second (PX4 needs > 2; 20 by default).
+    * ``stream_rate_hz``: setpoints per second (PX4 needs > 2; 30 by default: a stall of 70 ms still leaves 10 Hz).
     * ``heartbeat_timeout_s``, ``pose_timeout_s``: link loss; ``link_loss_abort_s``: a loss (or no
       vehicle at all) this long ends the run (``aborted``).
     * ``prime_s``: setpoints streamed before the switch is requested; ``offboard_retry_s``.
@@ -93,7 +93,7 @@ class MavlinkDroneConfig:
     source_system: int = 0
     source_component: int = 191
     heartbeat_type: str = "onboard_controller"
-    stream_rate_hz: float = 20.0
+    stream_rate_hz: float = 30.0
     heartbeat_timeout_s: float = 2.5
     pose_timeout_s: float = 1.0
     link_loss_abort_s: float = 20.0
@@ -192,9 +192,9 @@ class MavlinkDroneNode(Node):
         if c.bounds_min_m is not None:
             self.box = DroneBox(tuple(c.bounds_min_m), tuple(c.bounds_max_m))
         elif self.context.scene is not None:
-            from aes_planner.node.sim_drone import _drone_box
+            from aes_planner.sim.source import platform_of
 
-            self.box = _drone_box(self.context.load_scene())
+            self.box = platform_of(self.context.load_scene()).free_box()  # a rig scene: around its base
         else:
             raise ConfigError(
                 f"{node_id}.bounds_min_m", "give the flight box (bounds_min_m, bounds_max_m; world ENU) or a scene"

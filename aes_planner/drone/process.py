@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import math
 import multiprocessing as mp
+import os
 import threading
 import time
 from types import SimpleNamespace
@@ -41,10 +42,21 @@ _SNAPSHOT = (
 )
 
 
+def _raise_priority(what: str) -> None:
+    """Ask the scheduler to run this process before compute (nice -10; allowed for root or with
+    CAP_SYS_NICE, else it keeps the default and says so once): a loaded machine otherwise stalls
+    the stream for longer than a setpoint period (0.185 s measured at load 9 on 2 cores)."""
+    try:
+        os.nice(-10)
+    except OSError:
+        log.info("%s: cannot raise its priority (not root, no CAP_SYS_NICE); it runs at the default", what)
+
+
 def _link_main(config: dict, lo, hi, pipe, log_level: int) -> None:  # the child process
     from aes_planner.drone.link import MavlinkLink
 
     logging.basicConfig(level=log_level, format="%(levelname)s %(name)s: %(message)s")
+    _raise_priority("the MAVLink link")
     cfg = SimpleNamespace(**config)
     cfg.gimbal_config = SimpleNamespace(**config["gimbal_config"])
     link = MavlinkLink(cfg, lo, hi)
@@ -175,6 +187,7 @@ def _emulator_main(config, pipe, log_level: int) -> None:
     from aes_planner.drone.emulator import VehicleEmulator
 
     logging.basicConfig(level=log_level, format="%(levelname)s %(name)s: %(message)s")
+    _raise_priority("the vehicle emulator")  # a vehicle's own clock does not stall
     with VehicleEmulator(config) as emu:
         pipe.send(("started", None))
         while True:

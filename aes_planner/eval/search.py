@@ -43,17 +43,17 @@ from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.pantilt import PanTilt
 from aes_planner.geometry.poses import view_to_cam2world
 from aes_planner.paths import output_in
+from aes_planner.platform import RIG_FREE_BOX_HALF_M, DronePlatform, Platform, RigPlatform, parse_kind
 from aes_planner.search import (
     GroundTruthScorer,
     SearchConfig,
     build_search_scorer,
+    normalized,
     oracle_search,
-    search_mode,
     search_views,
 )
 from aes_planner.search.pipeline import SearchError, refine_params
-from aes_planner.search.space import SearchSpace, space_for
-from aes_planner.sources import RIG_FREE_BOX_HALF_M, DroneBox, Platform
+from aes_planner.search.space import RigSpace, SearchSpace, space_for
 from aes_planner.teachers import get_teacher
 from aes_planner.teachers.evaluator import CompositionEvaluator
 
@@ -96,15 +96,15 @@ SAME_TOL = 0.01
 @dataclasses.dataclass
 class SearchEvalConfig:
     """What ``eval search`` runs. ``scenes``: FILE_OR_FAMILY:SEED specs; ``views``: input counts;
-    ``modes``: ``rig`` and/or ``free`` (a drone scene runs in free mode only: rig mode alone on one
-    is an error); ``oracle_step_deg``: the rig oracle's grid step; ``supersample``: of the
+    ``modes``: platform kinds, ``rig`` and/or ``drone`` (``free``, the older word, is read as drone;
+    a drone scene runs as a drone only: rig mode alone on one is an error); ``oracle_step_deg``: the rig oracle's grid step; ``supersample``: of the
     ground-truth renders; ``ablations``: run Tables 3, 4 and S1 on the first ``ablation_scenes``
     rig scenes (rig, 4 views); ``free_box_m``: half-size of the drone box around a rig scene's
-    base in free mode (a drone scene flies its own box); ``width``/``height`` override the scenes' camera (tests)."""
+    base for a drone (a drone scene flies its own box); ``width``/``height`` override the scenes' camera (tests)."""
 
     scenes: list[str] = dataclasses.field(default_factory=lambda: HELD_OUT_SCENES[:4])
     views: list[int] = dataclasses.field(default_factory=lambda: [4])
-    modes: list[str] = dataclasses.field(default_factory=lambda: ["rig", "free"])
+    modes: list[str] = dataclasses.field(default_factory=lambda: ["rig", "drone"])
     methods: list[str] = dataclasses.field(default_factory=lambda: list(METHODS))
     oracle_step_deg: float = 5.0
     oracle_free_positions: tuple[int, int, int] = (3, 3, 2)
@@ -126,6 +126,8 @@ class SearchEvalConfig:
     def __post_init__(self):
         from aes_planner.config import distinct, require
 
+        require(isinstance(self.modes, list), "modes", f"must be a list of rig and/or drone, got {self.modes!r}")
+        self.modes = [parse_kind(m, "modes") for m in self.modes]  # 'free' (the older word) is a drone
         for name in ("scenes", "views", "modes", "methods"):
             setattr(self, name, distinct(getattr(self, name), name))
         require(len(self.scenes) >= 1, "scenes", "give at least one scene (FAMILY:SEED or a YAML file)")
@@ -134,7 +136,7 @@ class SearchEvalConfig:
             "views",
             f"must be integers in [1, 16]: {self.views}",
         )
-        require(set(self.modes) <= {"rig", "free"} and self.modes, "modes", f"must be rig and/or free: {self.modes}")
+        require(bool(self.modes), "modes", "give rig and/or drone")
         unknown = sorted(set(self.methods) - set(METHODS))
         require(not unknown, "methods", f"unknown {unknown}; choose from {METHODS}")
         require(
@@ -150,16 +152,18 @@ class SearchEvalError(AesPlannerError, ValueError):
 
 # ------------------------------------------------------------------------------------ set-up
 def _free_platform(source, box_half_m) -> Platform:
-    """A drone scene's own box; for a rig scene, a box around the rig's base (free mode flies near it)."""
-    if source.platform.rig is None:  # a drone scene
-        return source.platform
-    box = DroneBox.around(source.platform.rig.base_xyz_m, np.asarray(box_half_m))
-    return Platform("drone", source.platform.intrinsics, drone=box)
+    """A drone scene's own box; for a rig scene, a box around the rig's base (a drone flies near it)."""
+    return DronePlatform(source.platform.intrinsics, source.platform.free_box(box_half_m))
+
+
+def _mode_platform(source, kind: str, box_half_m) -> Platform:
+    """The scene's own platform when it is of ``kind``, else a drone in the box around it."""
+    return source.platform if source.platform.kind == kind else _free_platform(source, box_half_m)
 
 
 def _scene_modes(scene, modes: list[str]) -> list[str]:
-    """The modes of ``modes`` a scene supports: a drone scene (no rig) has free mode only."""
-    return [m for m in modes if m == "free" or scene.rig is not None]
+    """The platform kinds of ``modes`` a scene supports: a drone scene (no rig) is a drone only."""
+    return [m for m in modes if m == DronePlatform.kind or scene.rig is not None]
 
 
 def _drone_inputs(platform: Platform, n: int) -> np.ndarray:  # -> [n, 4, 4]
@@ -181,7 +185,7 @@ def _inputs(source, platform: Platform, n: int) -> np.ndarray:  # -> [n, 4, 4]
     pt = PanTilt(source.platform.rig)
     j = pt.sweep(n)
     poses = pt.forward(j[:, 0], j[:, 1])
-    if platform.kind == "drone":
+    if isinstance(platform, DronePlatform):
         poses = poses.copy()
         poses[:, :3, 3] = platform.drone.diagonal_positions_m(n)
     return poses
@@ -193,7 +197,7 @@ def _local_grid(space: SearchSpace, anchor: torch.Tensor, half_rad: float, half_
     offs = np.linspace(-1.0, 1.0, n)
     a, b = np.meshgrid(offs, offs, indexing="ij")
     a, b = torch.as_tensor(a.ravel()), torch.as_tensor(b.ravel())
-    if space.kind == "rig":
+    if isinstance(space, RigSpace):
         scale = half_rad * (0.3 if kind == "inplane" else 1.0)
         return space.project(anchor[None] + torch.stack([a, b], -1) * scale)
     p = anchor[None].repeat(len(a), 1)
@@ -230,7 +234,7 @@ def _method_pose(
     try:
         if method in FIELD_PRESETS or method == "rgb":
             preset = FIELD_PRESETS.get(method, "balanced")
-            scfg = SearchConfig.preset(preset, mode=search_mode(platform.kind), seed=cfg.seed)
+            scfg = SearchConfig.preset(preset, mode=platform.kind, seed=cfg.seed)
             scorer = build_search_scorer("field" if method != "rgb" else "rgb", frames, scfg, teacher)
             result = search_views(scorer, inputs, platform, scfg)
             return result.best.cam2world
@@ -240,9 +244,7 @@ def _method_pose(
         if method in ("inplane", "rotation"):
             space = space_for(platform, SearchConfig())
             hfov = platform.intrinsics.hfov_rad
-            diag = 0.0
-            if platform.kind == "drone":
-                diag = float(np.linalg.norm(np.subtract(platform.drone.bounds_max_m, platform.drone.bounds_min_m)))
+            diag = platform.drone.diagonal_m if platform.drone is not None else 0.0
             anchors = space.from_poses(inputs)
             cands = torch.cat(
                 [_local_grid(space, a, 0.35 * hfov, 0.1 * diag, cfg.local_grid, method) for a in anchors]
@@ -276,24 +278,22 @@ def run_search_eval(
         scene = load_scene(spec)
         modes = _scene_modes(scene, cfg.modes)
         if not modes:
-            raise SearchEvalError(f"scene {spec} has no rig (a drone scene): evaluate it with --modes free")
+            raise SearchEvalError(f"scene {spec} has no rig (a drone scene): evaluate it with --modes drone")
         if len(modes) < len(cfg.modes):
-            log.info("eval search: %s is a drone scene: free mode only", spec)
+            log.info("eval search: %s is a drone scene: drone only", spec)
         scenes.append((spec, scene, modes))
     for spec, scene, modes in scenes:
         source = _source(scene, cfg)
         source.name = spec
         for mode in modes:
-            platform = source.platform if mode == "rig" else _free_platform(source, cfg.free_box_m)
+            platform = _mode_platform(source, mode, cfg.free_box_m)
             if progress:
                 progress(f"{spec} {mode}: oracle")
             o_score, o_pose, o_extra = scene_oracle(spec, source, teacher, platform, cfg)
             judge = Judge(source, teacher, evaluator)
             mean_random = o_extra["mean_random"]
             # the oracle's own random poses (same space, seed and count), so 'random' normalises to 0
-            space = space_for(platform, SearchConfig())
-            rand_poses = space.to_poses(space.random(cfg.random_samples, np.random.default_rng(cfg.seed))).numpy()
-            _, rand_e = judge.measure(rand_poses)
+            _, rand_e = judge.measure(platform.random_poses(cfg.random_samples, np.random.default_rng(cfg.seed)))
             for n in cfg.views:
                 inputs = _inputs(source, platform, n)
                 frames = [source.capture(p) for p in inputs]
@@ -315,12 +315,12 @@ def run_search_eval(
                     row["methods"][method] = {
                         "teacher": t,
                         "evaluator": e,
-                        "normalized": _normalise(t, o_score, mean_random),
+                        "normalized": normalized(t, o_score, mean_random),
                     }
                 per_scene.append(row)
-            if out and mode == "rig" and {"field_balanced", "rgb"} & set(cfg.methods):
+            if out and isinstance(platform, RigPlatform) and {"field_balanced", "rgb"} & set(cfg.methods):
                 _rig_map(out, spec, source, platform, frames, teacher, o_extra, cfg)
-            if out and mode == "free" and {"field_balanced", "rgb"} & set(cfg.methods):
+            if out and isinstance(platform, DronePlatform) and {"field_balanced", "rgb"} & set(cfg.methods):
                 _top_view(out, spec, platform, frames, inputs, teacher, cfg)
     doc = _aggregate(per_scene, cfg)
     if cfg.ablations:
@@ -365,11 +365,6 @@ def hash_text(text: str) -> str:
     import hashlib
 
     return hashlib.sha256(text.encode()).hexdigest()[:12]
-
-
-def _normalise(t: float, oracle: float, mean_random: float) -> float:
-    span = oracle - mean_random
-    return float((t - mean_random) / span) if span > 1e-9 else 0.0
 
 
 def standard_error(values) -> float | None:
@@ -479,7 +474,7 @@ def run_ablations(cfg: SearchEvalConfig, teacher, progress=None) -> dict[str, An
             scfg: SearchConfig, scorer=scorer, inputs=inputs, platform=platform, gt=gt, o=o_score, r=mean_random
         ):
             best = search_views(scorer, inputs, platform, scfg).best.cam2world
-            return _normalise(float(gt.score(torch.as_tensor(best[None])).score[0]), o, r)
+            return normalized(float(gt.score(torch.as_tensor(best[None])).score[0]), o, r)
 
         if progress:
             progress(f"{spec}: K / steps / S x N ablations on {scorer_kind}")
@@ -636,7 +631,7 @@ def _rig_map(out: Path, spec: str, source, platform, frames, teacher, o_extra, c
 
 def _top_view(out: Path, spec: str, platform, frames, inputs, teacher, cfg: SearchEvalConfig) -> None:
     """Fig. 5 analogue: stage-1 candidates seen from above (x right, y up), coloured by score."""
-    scfg = SearchConfig.preset("balanced", mode=search_mode(platform.kind), seed=cfg.seed)
+    scfg = SearchConfig.preset("balanced", mode=platform.kind, seed=cfg.seed)
     try:
         scorer = build_search_scorer("field", frames, scfg, teacher)
     except SearchError:

@@ -56,6 +56,10 @@ def build_scorer(kind: str, frames: list, teacher=None, **knobs: Any) -> Scorer:
     if unknown:
         raise ScorerError(f"build_scorer: unknown knobs {unknown}; known: {sorted(names)} (and 'model' for 'field')")
     config = ScorerConfig(**knobs)
+    from aes_planner.images import downscale_frame
+    from aes_planner.messages import PosedFrame
+
+    frames = [downscale_frame(f) if isinstance(f, PosedFrame) else f for f in frames]  # what the field can see
     if kind == "rgb":
         if model is not None:
             raise ScorerError("build_scorer: 'model' is a knob of the 'field' scorer, not of 'rgb'")

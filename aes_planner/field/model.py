@@ -520,6 +520,9 @@ class AestheticField(Scorer):
         for i, f in enumerate(frames):
             if not isinstance(f, PosedFrame):
                 raise ScorerError(f"AestheticField.build: frames[{i}] is a {type(f).__name__}, not a PosedFrame")
+        from aes_planner.images import downscale_frame
+
+        frames = [downscale_frame(f) for f in frames]  # to what the field can see
         with autograd_on():  # the teacher's tensors normal, also under a caller's inference_mode
             fld = cls(
                 model, teacher or get_teacher(model.teacher_name), frames[0].intrinsics if frames else None, config
@@ -542,6 +545,9 @@ class AestheticField(Scorer):
         the new one, so memory stays bounded by the reconstruction budget, not by the stream."""
         if not isinstance(frame, PosedFrame):
             raise ScorerError(f"AestheticField.add_frame takes a PosedFrame, got {type(frame).__name__}")
+        from aes_planner.images import downscale_frame
+
+        frame = downscale_frame(frame)  # to what the field can see (aes_planner.images.MAX_WORKING_SIDE_PX)
         if self._inputs is None:
             self.intrinsics = render_intrinsics(frame.intrinsics, self.config.render_width_px)
         self._rebuild([*self._frames, frame])

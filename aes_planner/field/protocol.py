@@ -15,7 +15,7 @@ is later given:
 * ``sweep`` -- a rig's survey sweep (:meth:`PanTilt.sweep`: the whole pan range, tilt zig-zagging),
   as ``aes-planner sim render`` writes it, the planner node explores and ``eval search`` feeds the
   search; depth on half of the samples (the simulator writes it, a real rig has none).
-* ``survey`` -- free flight from a box around the rig's base (``RIG_FREE_BOX_HALF_M``, as ``eval
+* ``survey`` -- free flight from a box around the rig's base (:meth:`Platform.free_box`, as ``eval
   search`` flies a rig scene): the sweep's directions from positions along the box's diagonal, or
   an arc inside the box looking across its centre (a drone scene's ``survey_poses``); with depth.
 
@@ -45,11 +45,12 @@ from aes_planner.config import require
 from aes_planner.geometry.pantilt import PanTilt
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
 from aes_planner.geometry.trajectory import interpolate_poses
-from aes_planner.sources import RIG_FREE_BOX_HALF_M, DroneBox, Platform
+from aes_planner.platform import Platform, RigPlatform
 
 __all__ = ["SOURCES", "ViewPlan", "plan_views"]
 
 SOURCES = ("rig", "free", "sweep", "survey")
+RIG_SOURCES = ("rig", "sweep")  # inputs a rig's joints take
 CANDIDATE_JITTER_FOV = 0.35  # the search's direction jitter (SearchConfig.jitter_fov)
 
 
@@ -83,7 +84,7 @@ def _rig_plan(platform: Platform, n_views: int, n_targets: int, n_search: int, r
 
 
 def _free_plan(platform: Platform, n_views: int, n_targets: int, n_search: int, rng: np.random.Generator) -> ViewPlan:
-    if platform.kind == "rig":
+    if isinstance(platform, RigPlatform):  # near the rig: a path through its camera's place
         pt = PanTilt(platform.rig)
         (plo, phi), _ = pt.pan_limits_rad, pt.tilt_limits_rad
         centre = pt.forward(0.0, 0.0)[:3, 3]
@@ -165,13 +166,12 @@ def _sweep_plan(platform: Platform, n_views: int, n_targets: int, n_search: int,
 
 
 def _survey_plan(platform: Platform, n_views: int, n_targets: int, n_search: int, rng: np.random.Generator) -> ViewPlan:
-    if platform.kind == "rig":
-        box = DroneBox.around(platform.rig.base_xyz_m, np.asarray(RIG_FREE_BOX_HALF_M))
+    box = platform.free_box()
+    if isinstance(platform, RigPlatform):  # the rig's survey directions
         pt = PanTilt(platform.rig)
         sweep = pt.sweep(n_views)
         yaw_pitch = cam2world_to_view(pt.forward(sweep[:, 0], sweep[:, 1]))[:, 3:]  # [V, 2]
     else:
-        box = platform.drone
         yaw_pitch = np.stack([rng.uniform(-np.pi, np.pi, n_views), np.full(n_views, np.radians(-10))], 1)
     lo, hi = np.asarray(box.bounds_min_m), np.asarray(box.bounds_max_m)
     if rng.random() < 0.5:  # along the box's horizontal diagonal at mid height, the sweep's directions
@@ -206,12 +206,12 @@ def plan_views(
     require(source in SOURCES, "source", f"must be one of {list(SOURCES)}, got {source!r}")
     require(n_views >= 1 and n_targets >= 1, "n_views", f"need >= 1 input and target, got {n_views}, {n_targets}")
     require(n_search >= 0, "n_search", f"must be >= 0, got {n_search}")
-    if source in ("rig", "sweep"):
-        require(
-            platform.kind == "rig", "source", f"{source!r} inputs need a scene with a pan-tilt rig; use --source free"
-        )
-        plan = _rig_plan if source == "rig" else _sweep_plan
-        return plan(platform, n_views, n_targets, n_search, rng)
-    if source == "survey":
-        return _survey_plan(platform, n_views, n_targets, n_search, rng)
-    return _free_plan(platform, n_views, n_targets, n_search, rng)
+    require(
+        source not in RIG_SOURCES or isinstance(platform, RigPlatform),
+        "source",
+        f"{source!r} inputs need a scene with a pan-tilt rig; use --source free",
+    )
+    return _PLANS[source](platform, n_views, n_targets, n_search, rng)
+
+
+_PLANS = {"rig": _rig_plan, "free": _free_plan, "sweep": _sweep_plan, "survey": _survey_plan}

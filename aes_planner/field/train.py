@@ -24,7 +24,6 @@ import logging
 import math
 import os
 import time
-import zipfile
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,6 +33,7 @@ import torch
 import torch.distributed as dist
 from torch import Tensor
 
+from aes_planner import tensorfile
 from aes_planner.config import from_dict, require, to_dict
 from aes_planner.errors import AesPlannerError
 from aes_planner.field.common import ScorerConfig
@@ -209,10 +209,14 @@ def make_sample(
     frames = [source.capture(p, depth=plan.depth) for p in plan.inputs]
     inputs = FieldInputs.from_frames(frames, teacher, config.scorer.reconstruct_config())
     targets = plan.targets if plan.search_targets is None else np.concatenate([plan.targets, plan.search_targets])
-    gt = torch.from_numpy(source.render_rgb(targets)).permute(0, 3, 1, 2)  # [T + S, 3, H, W]
-    with torch.no_grad():
-        maps = teacher.features(gt)
-        scores = teacher.head(maps)
+    maps_list, scores_list = [], []
+    for i in range(0, len(targets), TARGET_CHUNK):  # renders in chunks: 10,000 at once would be gigabytes
+        gt = torch.from_numpy(source.render_rgb(targets[i : i + TARGET_CHUNK])).permute(0, 3, 1, 2)  # [t, 3, H, W]
+        with torch.no_grad():
+            maps_list.append(teacher.features(gt))
+            scores_list.append(teacher.head(maps_list[-1]))
+        del gt
+    maps, scores = torch.cat(maps_list), torch.cat(scores_list)  # [T + S, C, fh, fw], [T + S]
     return {
         **inputs_to_arrays(inputs),
         "targets": targets,
@@ -263,6 +267,41 @@ _SAMPLE_ARRAYS = {
 }
 
 
+#: Largest cache entry (a training sample's arrays in all), written or read.
+MAX_SAMPLE_BYTES = 512 << 20
+#: Targets rendered and scored at a time while a sample is made.
+TARGET_CHUNK = 64
+
+
+#: Most targets one training step renders (with gradients): a sample with more gives a random
+#: subset of them each step, so a step's memory does not grow with ``targets``.
+TARGETS_PER_STEP = 256
+
+
+def _some_targets(sample: dict, rng: np.random.Generator) -> dict:
+    """``sample`` with at most :data:`TARGETS_PER_STEP` of its targets (a random subset, in order)."""
+    t = len(sample["targets"])
+    if t <= TARGETS_PER_STEP:
+        return sample
+    idx = np.sort(rng.choice(t, TARGETS_PER_STEP, replace=False))
+    return {**sample, **{k: sample[k][idx] for k in ("targets", "target_maps", "target_scores")}}
+
+
+def check_sample_size(config: TrainConfig, teacher: Teacher) -> None:
+    """Refuse a config whose samples would exceed :data:`MAX_SAMPLE_BYTES` (the teacher's maps of
+    every target dominate: VEN's are 400 kB each), naming ``targets``, before anything is rendered."""
+    c, (fh, fw) = teacher.feature_channels, teacher.feature_size
+    per_target = c * fh * fw * 4 + 16 * 8 + 4  # its map, its pose and its score
+    need = (config.targets + config.search_targets) * per_target
+    require(
+        need <= MAX_SAMPLE_BYTES,
+        "targets",
+        f"{config.targets} + {config.search_targets} search targets with {teacher.name}'s {c}x{fh}x{fw} maps make "
+        f"{need / 2**20:.0f} MiB per cached sample, over {MAX_SAMPLE_BYTES >> 20} MiB; use at most "
+        f"{MAX_SAMPLE_BYTES // per_target} targets in all",
+    )
+
+
 class TrainingDivergedError(AesPlannerError):
     """Training diverged (a non-finite loss or weight): stopped before anything non-finite is saved."""
 
@@ -286,13 +325,10 @@ def load_sample(path: Path) -> dict[str, np.ndarray]:
     finite numbers): a damaged file is a :class:`CacheError` naming it, not a crash mid-training."""
     path = Path(path)
     redo = "delete it and the cache renders it again"
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            a = {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as exc:
-        raise CacheError(
-            f"{path}: not a readable sample file ({type(exc).__name__}: {str(exc)[:120]}); {redo}"
-        ) from None
+    try:  # every header checked before its data is read: an entry declaring a huge array is refused
+        a = tensorfile.read_npz(path, max_bytes=MAX_SAMPLE_BYTES)
+    except tensorfile.TensorFileError as exc:
+        raise CacheError(f"{str(exc)[:300]}; {redo}") from None
     for name, (kind, ndim) in _SAMPLE_ARRAYS.items():
         v = a.get(name)
         if v is None:
@@ -332,6 +368,7 @@ def build_cache(
     The file name holds everything the sample depends on, so a changed config never reuses a
     stale sample. ``workers > 1`` renders in that many processes (``make_source`` must then be
     picklable, e.g. a class or a ``functools.partial``; each process loads its own teacher)."""
+    check_sample_size(config, teacher)
     cache_dir.mkdir(parents=True, exist_ok=True)
     sc = config.scorer
     tag = f"{teacher.name}_w{sc.render_width_px}_g{sc.max_gaussians}_t{config.targets}_s{config.gt_supersample}"
@@ -500,7 +537,7 @@ def train(
         loss, parts = sample_loss(
             model,
             teacher,
-            data[i],
+            _some_targets(data[i], rng),
             inputs[i],
             config.score_weight,
             config.scorer.render_width_px,
@@ -591,7 +628,13 @@ def validate(model: FieldModel, teacher: Teacher, val: list[tuple[dict, FieldInp
 
             g = embed_inputs(model, inputs)
             k = render_intrinsics(inputs.intrinsics, width_px)
-            maps, _ = render_maps(model, g, inputs.local_frame, torch.from_numpy(d["targets"]), k)
+            poses = torch.from_numpy(d["targets"])
+            maps = torch.cat(  # in chunks: every target of a sample at once could be gigabytes
+                [
+                    render_maps(model, g, inputs.local_frame, poses[j : j + TARGET_CHUNK], k)[0]
+                    for j in range(0, len(poses), TARGET_CHUNK)
+                ]
+            )
             p, t = teacher.head(maps).numpy(), d["target_scores"]
             pred.append(p)
             true.append(t)

@@ -91,8 +91,8 @@ class Supervisor:
         allow_remote = allow_remote or bool(file_bus is not None and file_bus.allow_remote)
         self.prefix = file_bus.prefix if file_bus is not None else "aes"
         self.endpoint = endpoint
-        self.hub_config = ZenohConfig(
-            listen=(endpoint,), connect=tuple(connect), allow_remote=allow_remote, prefix=self.prefix
+        self.hub_config = ZenohConfig(  # a router: it carries the graph to the hubs of other machines
+            listen=(endpoint,), connect=tuple(connect), allow_remote=allow_remote, prefix=self.prefix, mode="router"
         )
         if endpoint.rpartition(":")[2] == "0":  # the children must know where to connect
             from aes_planner.config import ConfigError

@@ -20,7 +20,8 @@ REQUEST_KINDS = ("suggest", "reset", "stop")
 class Diagnostics(Message):
     """What ``<node>/diagnostics`` carries.
 
-    * ``node``: the node's id; ``state``: its state word (``"exploring"``, ``"settled"``...).
+    * ``node``: the node's id; ``state``: its state word (the planner's are
+      :class:`aes_planner.node.active_loop.LoopState`: ``"exploring"``, ``"settling"``, ``"done"``...).
     * ``counters``: named non-negative integers (``frames_in``, ``frames_dropped``...).
     * ``values``: named finite floats (``latency_p50_s``, ``field_gaussians``...).
     At most ``MAX_DIAG_ENTRIES`` of each; names are 1-64 chars of ``[A-Za-z0-9_.:/-]``.

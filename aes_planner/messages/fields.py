@@ -28,6 +28,17 @@ def check_finite(value, name: str) -> float:
     return v
 
 
+def check_joint(value, name: str) -> float:
+    """A finite joint angle within :data:`aes_planner.geometry.plausible.MAX_JOINT_RAD`."""
+    from aes_planner.geometry.plausible import joint_problem
+
+    v = check_finite(value, name)
+    problem = joint_problem(name, v)
+    if problem is not None:
+        raise MessageError(problem)
+    return v
+
+
 def check_optional_finite(value, name: str) -> float | None:
     return None if value is None else check_finite(value, name)
 

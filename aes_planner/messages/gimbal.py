@@ -6,12 +6,11 @@ Joints are ``pan`` (about the base's +z) and ``tilt`` (positive looks up), in ra
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import ClassVar
 
 from aes_planner.messages.codec import Enum, Fixed, List, Message, MessageError, Optional, Scalar, Str, register_message
-from aes_planner.messages.fields import check_finite, check_optional_finite, check_sequence, check_text
+from aes_planner.messages.fields import check_finite, check_joint, check_optional_finite, check_sequence, check_text
 
 __all__ = ["GimbalCommand", "GimbalState", "COMMAND_KINDS"]
 
@@ -54,7 +53,7 @@ class GimbalCommand(Message):
     def __post_init__(self):
         if self.kind not in COMMAND_KINDS:
             raise MessageError(f"GimbalCommand.kind must be one of {COMMAND_KINDS}, got {self.kind!r}")
-        self.pan_rad = check_finite(self.pan_rad, "GimbalCommand.pan_rad")
+        self.pan_rad = check_finite(self.pan_rad, "GimbalCommand.pan_rad")  # a goal: clamped to the limits
         self.tilt_rad = check_finite(self.tilt_rad, "GimbalCommand.tilt_rad")
         self.speed_rad_s = check_optional_finite(self.speed_rad_s, "GimbalCommand.speed_rad_s")
         if self.speed_rad_s is not None and self.speed_rad_s <= 0:
@@ -106,8 +105,9 @@ class GimbalState(Message):
     status: str = "ok"
 
     def __post_init__(self):
-        for name in ("pan_rad", "tilt_rad", "goal_pan_rad", "goal_tilt_rad", "stamp_s"):
-            setattr(self, name, check_finite(getattr(self, name), f"GimbalState.{name}"))
+        for name in ("pan_rad", "tilt_rad", "goal_pan_rad", "goal_tilt_rad"):
+            setattr(self, name, check_joint(getattr(self, name), f"GimbalState.{name}"))
+        self.stamp_s = check_finite(self.stamp_s, "GimbalState.stamp_s")
         if not isinstance(self.moving, bool):
             raise MessageError(f"GimbalState.moving must be a bool, got {self.moving!r}")
         temps = tuple(self.temperature_c) if isinstance(self.temperature_c, (tuple, list)) else None
@@ -122,18 +122,13 @@ class GimbalState(Message):
 
     @classmethod
     def from_device(cls, state, *, sequence: int = 0, status: str | None = None) -> GimbalState:
-        """From the device layer's state (joint fields ``pan_rad``/``tilt_rad``, or the older
-        ``yaw_rad``/``pitch_rad`` names of the same joints)."""
-
-        def joint(new: str, old: str) -> float:
-            return getattr(state, new) if hasattr(state, new) else getattr(state, old)
-
+        """From the device layer's state (:class:`aes_planner.devices.GimbalState`)."""
         faults = tuple(getattr(state, "hardware_error", ()))
         return cls(
-            pan_rad=joint("pan_rad", "yaw_rad"),
-            tilt_rad=joint("tilt_rad", "pitch_rad"),
-            goal_pan_rad=joint("goal_pan_rad", "goal_yaw_rad"),
-            goal_tilt_rad=joint("goal_tilt_rad", "goal_pitch_rad"),
+            pan_rad=state.pan_rad,
+            tilt_rad=state.tilt_rad,
+            goal_pan_rad=state.goal_pan_rad,
+            goal_tilt_rad=state.goal_tilt_rad,
             moving=bool(state.moving),
             temperature_c=tuple(state.temperature_c),
             hardware_error=faults,
@@ -143,20 +138,16 @@ class GimbalState(Message):
         )
 
     def to_device(self):
-        """The device layer's dataclass with the same values (whatever its joint field names)."""
+        """The device layer's dataclass with the same values."""
         from aes_planner.devices import GimbalState as DeviceState
 
-        names = {f.name for f in dataclasses.fields(DeviceState)}
-        pan, tilt = ("pan", "tilt") if "pan_rad" in names else ("yaw", "pitch")
         return DeviceState(
-            **{
-                f"{pan}_rad": self.pan_rad,
-                f"{tilt}_rad": self.tilt_rad,
-                f"goal_{pan}_rad": self.goal_pan_rad,
-                f"goal_{tilt}_rad": self.goal_tilt_rad,
-                "moving": self.moving,
-                "temperature_c": self.temperature_c,
-                "hardware_error": self.hardware_error,
-                "stamp_s": self.stamp_s,
-            }
+            pan_rad=self.pan_rad,
+            tilt_rad=self.tilt_rad,
+            goal_pan_rad=self.goal_pan_rad,
+            goal_tilt_rad=self.goal_tilt_rad,
+            moving=self.moving,
+            temperature_c=self.temperature_c,
+            hardware_error=self.hardware_error,
+            stamp_s=self.stamp_s,
         )

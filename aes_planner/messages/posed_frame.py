@@ -9,6 +9,7 @@ from typing import ClassVar
 import numpy as np
 
 from aes_planner.geometry.camera import Intrinsics
+from aes_planner.geometry.plausible import intrinsics_problem, joint_problem, position_problem
 from aes_planner.messages.codec import (
     Array,
     Bytes,
@@ -168,6 +169,14 @@ class PosedFrame(Message):
         self.tilt_rad = check_optional_finite(self.tilt_rad, "PosedFrame.tilt_rad")
         if (self.pan_rad is None) != (self.tilt_rad is None):
             raise MessageError("PosedFrame.pan_rad and tilt_rad must be given together (or neither)")
+        problem = (  # the dataset importers' bounds: no real camera has these
+            intrinsics_problem(self.intrinsics)
+            or position_problem(self.cam2world)
+            or joint_problem("pan_rad", self.pan_rad)
+            or joint_problem("tilt_rad", self.tilt_rad)
+        )
+        if problem is not None:
+            raise MessageError(f"PosedFrame.{problem}")
 
     @property
     def width(self) -> int:

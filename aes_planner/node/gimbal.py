@@ -32,7 +32,7 @@ from aes_planner.devices import (
     GimbalPortLostError,
     make_device,
 )
-from aes_planner.geometry.rig import JointCommandError
+from aes_planner.geometry.rig import JointCommandError, JointLimits
 from aes_planner.graph.base import LaunchContext, Node, Outputs
 from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState
 
@@ -223,9 +223,7 @@ class GimbalNode(Node):
         if not (math.isfinite(pan_rad) and math.isfinite(tilt_rad)):
             raise JointCommandError(f"joint command must be finite, got pan {pan_rad!r}, tilt {tilt_rad!r}")
         if self.limits_rad is not None:
-            (plo, phi), (tlo, thi) = self.limits_rad
-            pan_rad = min(max(pan_rad, plo), phi)
-            tilt_rad = min(max(tilt_rad, tlo), thi)
+            pan_rad, tilt_rad = JointLimits(*self.limits_rad).clamp(pan_rad, tilt_rad)
         return float(pan_rad), float(tilt_rad)
 
     def _execute(self, cmd) -> None:

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from aes_planner.messages import Candidate, PosedFrame
-from aes_planner.sources import Platform
+from aes_planner.platform import Platform
 
 log = logging.getLogger(__name__)
 
@@ -113,14 +113,13 @@ class FieldProposer(Proposer):
     def propose(
         self, platform: Platform, captured_cam2world: np.ndarray, top_k: int, keep_near: int | None = None
     ) -> Proposal:
-        from aes_planner.search import SearchConfig, search_mode, search_views
+        from aes_planner.search import SearchConfig, search_views
 
         scorer = self.scorer()
         frames = [f for f, _ in self._frames]
         inputs = np.stack([f.cam2world for f in frames])  # [N, 4, 4]
         captured = np.asarray(captured_cam2world, dtype=np.float64).reshape(-1, 4, 4)
-        mode = search_mode(platform.kind)
-        config = SearchConfig.preset(self.preset, mode=mode, top_k=max(top_k, 1), seed=self.seed)
+        config = SearchConfig.preset(self.preset, mode=platform.kind, top_k=max(top_k, 1), seed=self.seed)
         avoid = captured if keep_near is None else np.delete(captured, keep_near, axis=0)
         result = search_views(scorer, inputs, platform, config, avoid=avoid if len(avoid) else None)
         candidates = []

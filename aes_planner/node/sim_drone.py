@@ -25,7 +25,7 @@ from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
 from aes_planner.graph.base import Input, LaunchContext, NodeError
 from aes_planner.messages import ViewSuggestion
 from aes_planner.node.sim_camera import SimCameraNode, SimCameraNodeConfig
-from aes_planner.sources import DroneBox
+from aes_planner.platform import DroneBox
 
 __all__ = ["SimDrone", "SimDroneConfig", "SimDroneNode", "SimDroneNodeConfig"]
 
@@ -164,7 +164,9 @@ class SimDroneNode(SimCameraNode):
     ):
         super().__init__(config or SimDroneNodeConfig(), node_id, context, scene)
         c = self.config
-        box = _drone_box(self.scene)
+        from aes_planner.sim.source import platform_of
+
+        box = platform_of(self.scene).free_box()  # a rig scene: the box around the rig's base
         if c.start_view is not None:
             x, y, z, yaw, pitch = c.start_view
             start = [x, y, z, math.radians(yaw), math.radians(pitch)]
@@ -188,16 +190,6 @@ class SimDroneNode(SimCameraNode):
     def pose(self, image: CameraImage):
         """Where the sim camera says the drone had it (no joints on a drone)."""
         return image.cam2world, None
-
-
-def _drone_box(scene) -> DroneBox:
-    """The scene's flight box, or (a rig scene) a box of +-1 m x +-1 m x +-0.5 m around the rig's base."""
-    if scene.drone is not None:
-        return DroneBox(tuple(scene.drone.bounds_min_m), tuple(scene.drone.bounds_max_m))
-    base = np.asarray(scene.rig.pan_tilt.base_xyz_m, dtype=np.float64)
-    lo = base - [1.0, 1.0, 0.5]
-    lo[2] = max(lo[2], 0.3)
-    return DroneBox(tuple(lo), tuple(np.maximum(base + [1.0, 1.0, 0.5], lo + 0.2)))
 
 
 def _survey_start(box: DroneBox) -> np.ndarray:

@@ -72,6 +72,7 @@ def export_rosbag2(recording: str | Path, out_dir: str | Path, config=None, scen
         raise BagExportError(f"{recording}: no such recording; give the .mcap a run wrote (aes-planner demo --out RUN)")
     if out_dir.exists():
         raise BagExportError(f"{out_dir} exists; rosbag2 writes a new folder: give a new name or remove it")
+    next(iter(read_recording(recording)), None)  # a clear error for a bad file before the folder exists
     config = config or Ros2BridgeConfig()
     rig = config.rig
     if rig is None and scene is not None:
@@ -109,6 +110,7 @@ def export_rosbag2(recording: str | Path, out_dir: str | Path, config=None, scen
         counts[config.topic(key)] = counts.get(config.topic(key), 0) + 1
 
     writer.open()
+    ok = False
     try:
         first = True
         for _topic, data, log_ns in read_recording(recording):
@@ -126,8 +128,13 @@ def export_rosbag2(recording: str | Path, out_dir: str | Path, config=None, scen
                 first = False
             for key, sample in mapper.map(msg):
                 write(key, sample, _stamp_ns(sample, log_ns, idl))
+        ok = True
     finally:
         writer.close()
+        if not ok:  # no half bag left behind for ros2 bag to choke on
+            import shutil
+
+            shutil.rmtree(out_dir, ignore_errors=True)
     if rejected:
         log.warning(
             "%s: %d message(s) of types without a ROS 2 mapping or undecodable were skipped", recording, rejected

@@ -29,13 +29,16 @@ the rig's kinematics at the joint angles interpolated to the image's stamp from
 ``/joint_states``; joint states become ``gimbal/state``; ``gimbal/command`` goes out as a
 ``trajectory_msgs/JointTrajectory`` (joint_trajectory_controller) or a
 ``std_msgs/Float64MultiArray`` (forward_position_controller), clamped to the rig's limits.
-Anything unusable is counted in ``ros2/diagnostics`` (``rejected.<key>``) and dropped.
+Anything unusable is counted in ``ros2/diagnostics`` (``rejected.<key>``) and dropped. The
+diagnostics also count what was sent (``sent.<key>``) and, as values, the DDS subscribers matched
+on each outbound topic (``subscribers.<key>``).
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import re
 import time
 from collections import deque
 from collections.abc import Mapping
@@ -45,7 +48,7 @@ import numpy as np
 
 from aes_planner.config import ConfigError, require
 from aes_planner.geometry.rig import PanTiltConfig
-from aes_planner.graph.base import LaunchContext, Node, Output, Outputs
+from aes_planner.graph.base import LaunchContext, Node, NodeError, Output, Outputs
 from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState, PosedFrame, ViewSuggestion
 from aes_planner.ros2.dds import QOS_PROFILES, DdsConfig
 
@@ -100,7 +103,11 @@ class Ros2BridgeConfig:
     * ``command_interface``: ``joint_trajectory`` or ``forward_position``; ``move_speed_rad_s``
       sets a trajectory point's ``time_from_start``; ``goal_tolerance_rad``: when a move is done.
     * ``rig``: the pan-tilt kinematics (else the launch's scene's); ``state_history_s``: joint
-      states kept to pose images; ``poll_hz``: how often DDS readers are polled.
+      states kept to pose images; ``poll_hz``: how often DDS readers are polled (inbound).
+    * ``ros_graph``: ``jazzy`` (also Iron, Kilted) or ``humble``: announce the bridge as ROS 2 node
+      ``ros_node_name`` on ``ros_discovery_info`` (``ros2 node list``); empty = not announced
+      (the message's GID differs between Humble and later releases, and a node of the other kind
+      would fail to read it).
     """
 
     dds: DdsConfig = field(default_factory=DdsConfig)
@@ -120,6 +127,8 @@ class Ros2BridgeConfig:
     rig: PanTiltConfig | None = None
     state_history_s: float = 2.0
     poll_hz: float = 50.0
+    ros_graph: str = ""
+    ros_node_name: str = "aes_planner_bridge"
 
     def __post_init__(self):
         self.outbound = tuple(self.outbound)
@@ -145,6 +154,14 @@ class Ros2BridgeConfig:
         require(len(set(self.joint_names)) == 2 and all(self.joint_names), "joint_names", "must be two distinct names")
         require(1 <= self.jpeg_quality <= 100, "jpeg_quality", f"must be in 1..100, got {self.jpeg_quality}")
         require(self.image_transport in ("raw", "compressed"), "image_transport", "must be 'raw' or 'compressed'")
+        require(
+            self.ros_graph in ("", "jazzy", "humble"), "ros_graph", "must be '', 'jazzy' (Iron and later) or 'humble'"
+        )
+        require(
+            re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,254}", str(self.ros_node_name)) is not None,
+            "ros_node_name",
+            f"must be a ROS 2 node name (letters, digits, '_'; not starting with a digit), got {self.ros_node_name!r}",
+        )
         require(
             self.command_interface in ("joint_trajectory", "forward_position"),
             "command_interface",
@@ -201,6 +218,7 @@ class Ros2BridgeNode(Node):
         "gimbal/state": (GimbalState, 32),
         "planner/diagnostics": (Diagnostics, 8),
         "gimbal/diagnostics": (Diagnostics, 8),
+        "drone/diagnostics": (Diagnostics, 8),
         "gimbal/command": (GimbalCommand, 8),
     }
     outputs = {
@@ -213,6 +231,12 @@ class Ros2BridgeNode(Node):
         self, config: Ros2BridgeConfig | None = None, node_id: str = "ros2", context: LaunchContext | None = None
     ):
         super().__init__(config or Ros2BridgeConfig(), node_id, context)
+        try:
+            import cyclonedds  # noqa: F401
+        except ImportError:
+            raise NodeError(
+                f"{node_id}: the ros2_bridge node needs the ros2 extra: pip install 'aes-planner[ros2]'"
+            ) from None
         c = self.config
         rig = c.rig
         if rig is None and self.context.scene is not None and self.context.load_scene().rig is not None:
@@ -232,17 +256,16 @@ class Ros2BridgeNode(Node):
         self.counters: dict[str, int] = {}
         self.dds = None
         self._writers: dict = {}
-        self._readers: dict = {}
         from aes_planner.ros2.outbound import OutboundMapper
 
         self.mapper = OutboundMapper(c, self.links)
         self._last_diag_s = -math.inf
         self._inbound = None
-        self._seq = 0
 
     @property
     def period_s(self) -> float:
-        return 1.0 / self.config.poll_hz
+        # outbound work is woken by the bus; only DDS readers (inbound) need polling
+        return 1.0 / self.config.poll_hz if self.config.inbound else 0.2
 
     def count(self, key: str, n: int = 1) -> None:
         self.counters[key] = self.counters.get(key, 0) + n
@@ -268,6 +291,8 @@ class Ros2BridgeNode(Node):
             self._inbound = Inbound(self, self.dds)
         for key, sample in self.mapper.static(time.time()):
             self._write(key, sample)
+        if c.ros_graph:
+            self.dds.announce_node(c.ros_node_name, c.ros_graph)
         log.info(
             "%s: ROS 2 bridge on DDS domain %d (discovery %s), %d outbound topics%s",
             self.node_id,
@@ -318,4 +343,10 @@ class Ros2BridgeNode(Node):
         counters = dict(sorted(self.counters.items())[:120])
         rejected = sum(v for k, v in self.counters.items() if k.startswith("rejected."))
         state = "rejecting input" if rejected and self._inbound and self._inbound.recent_rejections() else "bridging"
-        return Diagnostics(now, self.node_id, state, counters, {"search_latency_s": self.mapper.search_latency_s})
+        values = {"search_latency_s": self.mapper.search_latency_s}
+        for key, w in self._writers.items():  # who listens: the first question when a topic seems silent
+            try:
+                values[f"subscribers.{key}"] = float(len(w.get_matched_subscriptions()))
+            except Exception:  # a writer deleted under us (stopping): no figure
+                continue
+        return Diagnostics(now, self.node_id, state, counters, values)

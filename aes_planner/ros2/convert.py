@@ -143,13 +143,12 @@ def view_suggestion(msg: ViewSuggestion, frame_id: str, search_latency_s: float 
                 term_values=[float(v) for v in c.terms.values()],
             )
         )
-    kind = getattr(msg, "kind", "search")
     return idl.ViewSuggestion(
         header=idl.Header(stamp(msg.stamp_s), frame_id),
-        sequence=msg.sequence,
+        sequence_number=msg.sequence,
         field_version=msg.field_version,
         mode=0 if msg.mode == "rig" else 1,
-        kind=1 if kind == "waypoint" else 0,
+        kind=1 if msg.kind == "waypoint" else 0,
         search_latency_s=float(search_latency_s) if math.isfinite(search_latency_s) else 0.0,
         candidates=cands,
     )

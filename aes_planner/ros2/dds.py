@@ -3,15 +3,23 @@
 * Domain: ``domain_id`` in the config, else ``ROS_DOMAIN_ID``, else 0 (0-232, as ROS 2 allows).
 * Discovery range: ``discovery_range`` in the config, else ``ROS_AUTOMATIC_DISCOVERY_RANGE``
   (``LOCALHOST``, ``SUBNET``, ``OFF``, ``SYSTEM_DEFAULT``; ``ROS_LOCALHOST_ONLY=1`` of Humble
-  means ``LOCALHOST``), else **localhost** (not ROS 2's subnet default: this package opens no
-  listener beyond loopback unless told to). Static peers from ``static_peers`` or
-  ``ROS_STATIC_PEERS`` (``;``-separated), as rmw_cyclonedds adds them.
-* The Cyclone configuration is rmw_cyclonedds_cpp's fragment for that range (multicast off,
-  ``ParticipantIndex auto``, ``MaxAutoParticipantIndex 32``, the loopback peer for localhost),
-  with, for localhost, the loopback interface as the only network interface (unless
-  ``CYCLONEDDS_URI`` is set: Cyclone would select it twice, and the user's file decides); then
-  ``CYCLONEDDS_URI`` is appended after a comma exactly as rmw_cyclonedds does, so the user's file
-  overrides what it sets. Ranges beyond the machine need ``allow_remote`` (the explicit option).
+  means ``LOCALHOST``), else **loopback**: this package's default, stricter than ROS 2's (which
+  is ``SUBNET``): this package opens no listener beyond loopback unless told to. Static peers from
+  ``static_peers`` or ``ROS_STATIC_PEERS`` (``;``-separated), as rmw_cyclonedds adds them.
+* The Cyclone configuration is rmw_cyclonedds_cpp's fragment for that range: multicast off,
+  ``ParticipantIndex auto``, ``MaxAutoParticipantIndex 32`` and the peer ``localhost`` for
+  ``localhost``; ``loopback`` is the same with the loopback interface as the only network
+  interface (unless ``CYCLONEDDS_URI`` is set: Cyclone would select it twice, and the user's file
+  decides) and the peer ``127.0.0.1``. Then ``CYCLONEDDS_URI`` is appended after a comma exactly
+  as rmw_cyclonedds does, so the user's file overrides what it sets. Ranges beyond the machine
+  need ``allow_remote`` (the explicit option).
+
+  ``loopback`` and ``localhost`` differ for peers on the default interface: a participant on the
+  loopback interface alone does not reach one that advertises the host's other address (a ROS 2
+  node with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` on rmw_cyclonedds, measured here), while a
+  ``localhost`` participant reaches both kinds; in exchange its data socket is bound to the
+  default interface's address (discovery still only asks this machine). Setting
+  ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` (as for the ROS 2 nodes) picks ``localhost``.
 * QoS profiles (:data:`QOS_PROFILES`): ``latched`` (reliable, transient local, keep last 1),
   ``reliable`` (reliable, volatile, keep last 10: ROS 2's default), ``sensor_data`` (best effort,
   volatile, keep last 5: ``rclcpp::SensorDataQoS``). Every reader and writer pins the XCDR1
@@ -39,7 +47,7 @@ __all__ = [
     "resolve_range",
 ]
 
-RANGES = ("localhost", "subnet", "off", "system_default")
+RANGES = ("loopback", "localhost", "subnet", "off", "system_default")
 QOS_PROFILES = ("latched", "reliable", "sensor_data")
 MAX_DOMAIN_ID = 232
 
@@ -51,7 +59,7 @@ class DdsError(AesPlannerError):
 @dataclass
 class DdsConfig:
     """* ``domain_id``: -1 = ``ROS_DOMAIN_ID`` (else 0).
-    * ``discovery_range``: ``""`` = ``ROS_AUTOMATIC_DISCOVERY_RANGE`` (else localhost).
+    * ``discovery_range``: ``""`` = ``ROS_AUTOMATIC_DISCOVERY_RANGE`` (else loopback).
     * ``static_peers``: extra unicast peers (addresses), as ``ROS_STATIC_PEERS``.
     * ``allow_remote``: needed for a range or a peer beyond this machine.
     """
@@ -101,11 +109,12 @@ def resolve_range(config: DdsConfig, env: dict | None = None) -> tuple[str, tupl
     rng = config.discovery_range
     if not rng:
         text = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").strip().lower()
-        if text and text not in RANGES:
-            raise DdsError(f"ROS_AUTOMATIC_DISCOVERY_RANGE must be one of {', '.join(r.upper() for r in RANGES)}")
-        rng = text or "localhost"
-        if not text and env.get("ROS_LOCALHOST_ONLY", "") not in ("", "1", "0"):
+        if text and text not in RANGES[1:]:
+            raise DdsError(f"ROS_AUTOMATIC_DISCOVERY_RANGE must be one of {', '.join(r.upper() for r in RANGES[1:])}")
+        localhost_only = env.get("ROS_LOCALHOST_ONLY", "")
+        if not text and localhost_only not in ("", "1", "0"):
             raise DdsError("ROS_LOCALHOST_ONLY must be 0 or 1")
+        rng = text or ("localhost" if localhost_only == "1" else "loopback")
     peers = config.static_peers or tuple(p for p in env.get("ROS_STATIC_PEERS", "").split(";") if p.strip())
     return rng, tuple(p.strip() for p in peers)
 
@@ -129,15 +138,16 @@ def cyclone_config(rng: str, peers: tuple[str, ...], allow_remote: bool, uri: st
     if (rng in ("subnet", "system_default") or remote) and not allow_remote:
         raise DdsError(
             f"discovery range {rng!r}{' with peers ' + ', '.join(remote) if remote else ''} reaches beyond this "
-            "machine; pass --allow-remote (or allow_remote: true) if you mean it"
+            "machine; pass --allow-remote-dds (or dds.allow_remote: true in the bridge's config) if you mean it"
         )
     if rng == "system_default":
         frag = ""
     else:
-        general = "<AllowMulticast>false</AllowMulticast>" if rng in ("localhost", "off") else ""
-        if rng == "localhost" and not uri:  # a user's CYCLONEDDS_URI picks its own interfaces
+        general = "<AllowMulticast>false</AllowMulticast>" if rng in ("loopback", "localhost", "off") else ""
+        if rng == "loopback" and not uri:  # a user's CYCLONEDDS_URI picks its own interfaces
             general = '<Interfaces><NetworkInterface address="127.0.0.1"/></Interfaces>' + general
-        peer_list = (["127.0.0.1"] if rng == "localhost" else []) + (list(peers) if rng != "off" else [])
+        local = {"loopback": ["127.0.0.1"], "localhost": ["localhost"]}.get(rng, [])
+        peer_list = local + (list(peers) if rng != "off" else [])
         if rng == "off":
             disc = f"<ParticipantIndex>none</ParticipantIndex><Tag>ros_discovery_off_{os.getpid()}</Tag>"
         else:
@@ -209,11 +219,14 @@ class DdsParticipant:
                 f"cannot join DDS domain {self.domain_id}: {exc}; check CYCLONEDDS_URI and ROS_DOMAIN_ID"
             ) from None
         self._topics: dict[str, object] = {}
+        self.writers: list = []
+        self.readers: list = []
+        self._graph_writer = None
 
-    def _topic(self, name: str, idl_type: type):
+    def _topic(self, name: str, idl_type: type, raw: bool = False):
         from cyclonedds.topic import Topic
 
-        key = ros_topic(name)
+        key = name if raw else ros_topic(name)
         top = self._topics.get(key)
         if top is None:
             top = self._topics[key] = Topic(self.participant, key, idl_type)
@@ -224,12 +237,41 @@ class DdsParticipant:
     def writer(self, name: str, idl_type: type, profile: str, depth: int | None = None):
         from cyclonedds.pub import DataWriter
 
-        return DataWriter(self.participant, self._topic(name, idl_type), _qos(profile, depth))
+        w = DataWriter(self.participant, self._topic(name, idl_type), _qos(profile, depth))
+        self.writers.append(w)
+        return w
 
     def reader(self, name: str, idl_type: type, profile: str, depth: int | None = None):
         from cyclonedds.sub import DataReader
 
-        return DataReader(self.participant, self._topic(name, idl_type), _qos(profile, depth))
+        r = DataReader(self.participant, self._topic(name, idl_type), _qos(profile, depth))
+        self.readers.append(r)
+        return r
+
+    def announce_node(self, node_name: str, distro: str = "jazzy", namespace: str = "/") -> None:
+        """Publish this participant's node on ``ros_discovery_info`` as rmw_dds_common does, so
+        ``ros2 node list`` lists it and ``ros2 topic info -v`` names it: the participant's GID and
+        its readers' and writers' GIDs (DDS GUIDs; Humble's GID type is 24 bytes, zero-padded).
+        Reliable, transient local, depth 1, no ``rt/`` prefix; published again after each change."""
+        from cyclonedds.pub import DataWriter
+
+        from aes_planner.ros2 import idl
+
+        humble = distro == "humble"
+        gid_t = idl.GidHumble if humble else idl.Gid
+        info_t = idl.ParticipantEntitiesInfoHumble if humble else idl.ParticipantEntitiesInfo
+        node_t = idl.NodeEntitiesInfoHumble if humble else idl.NodeEntitiesInfo
+        size = 24 if humble else 16
+
+        def gid(entity):
+            return gid_t(list(entity.get_guid().bytes) + [0] * (size - 16))
+
+        if self._graph_writer is None:
+            self._graph_writer = DataWriter(
+                self.participant, self._topic("ros_discovery_info", info_t, raw=True), _qos("latched")
+            )
+        node = node_t(namespace, node_name, [gid(r) for r in self.readers], [gid(w) for w in self.writers])
+        self._graph_writer.write(info_t(gid(self.participant), [node]))
 
     def close(self) -> None:
         """Delete the participant (and its readers and writers); safe to call twice."""
@@ -237,6 +279,7 @@ class DdsParticipant:
         if p is not None:
             p.__del__()  # cyclonedds deletes an entity (and its readers and writers) in __del__; idempotent
         self._topics = {}
+        self.writers, self.readers, self._graph_writer = [], [], None
 
 
 def take_checked(reader, idl_type: type, max_n: int = 64) -> tuple[list, list[str]]:

@@ -266,6 +266,48 @@ class JointTrajectory(IdlStruct, typename="trajectory_msgs::msg::dds_::JointTraj
     points: t.sequence[JointTrajectoryPoint] = field(default_factory=list)
 
 
+# -- rmw_dds_common: the ROS 2 graph (``ros_discovery_info``) ----------------------------------
+# Gid is char[16] from Iron on (Jazzy, Kilted) and char[24] in Humble: two structs of one name.
+
+
+@dataclass
+class Gid(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
+    data: t.array[t.uint8, 16] = field(default_factory=lambda: [0] * 16)
+
+
+@dataclass
+class NodeEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
+    node_namespace: t.bounded_str[256] = "/"
+    node_name: t.bounded_str[256] = ""
+    reader_gid_seq: t.sequence[Gid] = field(default_factory=list)
+    writer_gid_seq: t.sequence[Gid] = field(default_factory=list)
+
+
+@dataclass
+class ParticipantEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"):
+    gid: Gid = field(default_factory=Gid)
+    node_entities_info_seq: t.sequence[NodeEntitiesInfo] = field(default_factory=list)
+
+
+@dataclass
+class GidHumble(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
+    data: t.array[t.uint8, 24] = field(default_factory=lambda: [0] * 24)
+
+
+@dataclass
+class NodeEntitiesInfoHumble(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
+    node_namespace: t.bounded_str[256] = "/"
+    node_name: t.bounded_str[256] = ""
+    reader_gid_seq: t.sequence[GidHumble] = field(default_factory=list)
+    writer_gid_seq: t.sequence[GidHumble] = field(default_factory=list)
+
+
+@dataclass
+class ParticipantEntitiesInfoHumble(IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"):
+    gid: GidHumble = field(default_factory=GidHumble)
+    node_entities_info_seq: t.sequence[NodeEntitiesInfoHumble] = field(default_factory=list)
+
+
 # -- aes_planner_msgs (ros2/aes_planner_msgs/msg/*.msg) -----------------------------------------
 
 
@@ -287,7 +329,7 @@ class ViewCandidate(IdlStruct, typename="aes_planner_msgs::msg::dds_::ViewCandid
 @dataclass
 class ViewSuggestion(IdlStruct, typename="aes_planner_msgs::msg::dds_::ViewSuggestion_"):
     header: Header = field(default_factory=Header)
-    sequence: t.uint64 = 0
+    sequence_number: t.uint64 = 0
     field_version: t.uint64 = 0
     mode: t.uint8 = 0  # MODE_RIG=0 MODE_FREE=1
     kind: t.uint8 = 0  # KIND_SEARCH_RESULT=0 KIND_WAYPOINT=1

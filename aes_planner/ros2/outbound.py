@@ -39,10 +39,11 @@ class OutboundMapper:
             return [("diagnostics", convert.diagnostic_array(msg))]
         if isinstance(msg, ViewSuggestion):
             out = []
-            best = convert.pose_stamped(msg, c.world_frame)
-            if best is not None:
-                out.append(("suggestion", best))
-            out.append(("suggestions", convert.pose_array(msg, c.world_frame)))
+            if msg.kind == "search":  # a drone's waypoints only on view_suggestion, which says which is which
+                best = convert.pose_stamped(msg, c.world_frame)
+                if best is not None:
+                    out.append(("suggestion", best))
+                out.append(("suggestions", convert.pose_array(msg, c.world_frame)))
             out.append(("view_suggestion", convert.view_suggestion(msg, c.world_frame, self.search_latency_s)))
             return out
         if isinstance(msg, GimbalState):

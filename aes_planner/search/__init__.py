@@ -4,20 +4,20 @@
 
     from aes_planner.search import SearchConfig, search_views
 
-    cfg = SearchConfig.preset("balanced", mode="rig", steps=30)  # fast | balanced | accurate; rig | free
+    cfg = SearchConfig.preset("balanced", mode=platform.kind, steps=30)  # fast | balanced | accurate; rig | drone
     result = search_views(scorer, inputs_cam2world, platform, cfg)   # [N, 4, 4] world poses
     best = result.suggestions[0]   # cam2world, pan_rad/tilt_rad (rig), position_m, yaw/pitch, score...
 
-The loop is :mod:`aes_planner.search.pipeline`; the spaces (rig joints, free 5-DoF) are
+The loop is :mod:`aes_planner.search.pipeline`; the spaces (rig joints, a drone's 5 DoF) are
 :mod:`aes_planner.search.space`; :class:`GroundTruthScorer` scores ground-truth renders of a
 scene source; :func:`oracle_search` searches the whole feasible space on them (cached).
 """
 
 from __future__ import annotations
 
-from aes_planner.search.config import FREE_MODE_PRESETS, PRESETS, SearchConfig, search_mode
+from aes_planner.search.config import FREE_MODE_PRESETS, PRESETS, SearchConfig
 from aes_planner.search.ground_truth import GroundTruthScorer
-from aes_planner.search.oracle import oracle_search
+from aes_planner.search.oracle import normalized, oracle_search
 from aes_planner.search.pipeline import SearchError, SearchResult, Suggestion, search_views
 from aes_planner.search.scorers import SCORERS, build_search_scorer
 
@@ -31,7 +31,7 @@ __all__ = [
     "SearchResult",
     "build_search_scorer",
     "Suggestion",
+    "normalized",
     "oracle_search",
-    "search_mode",
     "search_views",
 ]

@@ -1,8 +1,8 @@
 """``SearchConfig``: every knob of the two-stage viewpoint search, with presets.
 
 Presets (``fast``, ``balanced``, ``accurate``) fix the speed/accuracy knobs; any field can be
-overridden (``SearchConfig.preset("balanced", steps=30)``); ``mode="free"`` gives a preset's
-free-mode values (``FREE_MODE_PRESETS``). Their place on the speed/accuracy
+overridden (``SearchConfig.preset("balanced", steps=30)``); ``mode="drone"`` gives a preset's
+values for a drone's 5 DoF (``FREE_MODE_PRESETS``). Their place on the speed/accuracy
 curve is measured by ``aes-planner bench search`` and written to ``docs/benchmarks.md``.
 """
 
@@ -15,7 +15,20 @@ from typing import Any
 
 from aes_planner.config import ConfigError, require, require_finite
 
-__all__ = ["FREE_MODE_PRESETS", "PRESETS", "SearchConfig", "search_mode"]
+__all__ = ["FREE_MODE_PRESETS", "PRESETS", "SearchConfig"]
+
+from aes_planner.messages.suggestion import MAX_CANDIDATES
+
+#: Largest counts a search takes: each of ``top_k`` is refined by ``steps`` renders and reported as a
+#: tile (at most a suggestion message's candidates); the candidates (segments x samples x neighbours)
+#: are scored in batches.
+_MOST = {
+    "samples_per_segment": 4096,
+    "neighbours": 1024,
+    "top_k": MAX_CANDIDATES,
+    "batch_size": 4096,
+    "steps": 10_000,
+}
 
 
 @dataclass
@@ -87,6 +100,9 @@ class SearchConfig:
             require(
                 isinstance(v, int) and not isinstance(v, bool) and v >= 1, name, f"must be an integer >= 1, got {v!r}"
             )
+        for name, most in _MOST.items():
+            v = getattr(self, name)
+            require(v <= most, name, f"must be <= {most}, got {v}")
         require(
             isinstance(self.grid_points, int)
             and not isinstance(self.grid_points, bool)
@@ -157,19 +173,20 @@ class SearchConfig:
 
     @classmethod
     def preset(cls, name: str = "balanced", mode: str = "rig", **overrides: Any) -> SearchConfig:
-        """The named preset for a search ``mode`` (``rig`` or ``free``: ``FREE_MODE_PRESETS``
-        change some presets in free mode) with ``overrides`` applied; unknown names or keys are
-        errors."""
+        """The named preset for a platform kind ``mode`` (``rig`` or ``drone``, ``free`` read as
+        drone: ``FREE_MODE_PRESETS`` change some presets for a drone) with ``overrides`` applied;
+        unknown names or keys are errors."""
+        from aes_planner.platform import parse_kind
+
         if name not in PRESETS:
             raise ConfigError("preset", f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
-        if mode not in ("rig", "free"):
-            raise ConfigError("mode", f"must be 'rig' or 'free', got {mode!r}")
+        kind = parse_kind(mode, "mode")
         known = {f.name for f in dataclasses.fields(cls)}
         for key in overrides:
             if key not in known:
                 raise ConfigError(key, f"unknown search setting; expected one of: {', '.join(sorted(known))}")
-        free = FREE_MODE_PRESETS.get(name, {}) if mode == "free" else {}
-        values = {**PRESETS[name], **free, "preset_name": name, **overrides}
+        drone = FREE_MODE_PRESETS.get(name, {}) if kind == "drone" else {}
+        values = {**PRESETS[name], **drone, "preset_name": name, **overrides}
         return cls(**values)
 
 
@@ -180,15 +197,10 @@ PRESETS: dict[str, dict[str, Any]] = {
     "accurate": dict(samples_per_segment=32, neighbours=16, top_k=3, steps=30, render_width_px=64),
 }
 
-#: What a preset changes in free mode (5 DoF). There a denser stage 1 finds better views; in rig
+#: What a preset changes for a drone (5 DoF, "free mode"). There a denser stage 1 finds better views; in rig
 #: mode (2 DoF, already densely sampled) it finds more of the field's over-estimates. Chosen on
-#: validation scenes and confirmed on the held-out and hand-written ones (docs/benchmarks.md,
-#: session 7): balanced 0.620 -> 0.654 and 0.637 -> 0.754 of the oracle, 0.58 -> 0.89 s.
+#: validation scenes and confirmed on the held-out and hand-written ones (docs/journal/benchmarks.md,
+#: "The closed loop's plans"): balanced 0.620 -> 0.654 and 0.637 -> 0.754 of the oracle, 0.58 -> 0.89 s.
 FREE_MODE_PRESETS: dict[str, dict[str, Any]] = {
     "balanced": dict(samples_per_segment=32, top_k=3),
 }
-
-
-def search_mode(platform_kind: str) -> str:
-    """The search mode of a platform kind: ``rig`` for a rig, ``free`` for a drone."""
-    return "rig" if platform_kind == "rig" else "free"

@@ -5,8 +5,8 @@
 * free: a grid of positions in the flight box x yaw x pitch (inside ``pitch_limits_deg``), then the
   same pattern search in 5-DoF (positions step a fraction of the box).
 
-It also scores ``random_samples`` uniformly random feasible poses: their mean is the "chance"
-level of the oracle-normalised score ``(s - mean random) / (oracle - mean random)``.
+It also scores ``random_samples`` uniformly random feasible poses (the platform's sampler,
+:meth:`~aes_planner.platform.Platform.random_poses`): their mean is the "chance" level of the oracle-normalised score ``(s - mean random) / (oracle - mean random)``.
 
 Results are cached as ``.npz`` (arrays) + ``.json`` (settings) under ``cache_dir`` (default
 ``$AES_PLANNER_CACHE/oracle`` or ``~/.cache/aes-planner/oracle``), keyed by a hash of the scene key,
@@ -28,16 +28,24 @@ import numpy as np
 import torch
 
 from aes_planner.geometry.rig import rig_dict
+from aes_planner.platform import Platform
 from aes_planner.search.config import SearchConfig
 from aes_planner.search.ground_truth import GroundTruthScorer
-from aes_planner.search.space import SearchSpace, space_for
-from aes_planner.sources import Platform, SceneSource
+from aes_planner.search.space import SearchSpace
+from aes_planner.sources import SceneSource
 
 log = logging.getLogger(__name__)
 
-__all__ = ["default_cache_dir", "oracle_search"]
+__all__ = ["default_cache_dir", "normalized", "oracle_search"]
 
 ORACLE_VERSION = 1
+
+
+def normalized(score: float, oracle_score: float, mean_random: float) -> float:
+    """The oracle-normalised score ``(score - mean random) / (oracle - mean random)``: 1 = the
+    oracle's view, 0 = chance (0 when the oracle is no better than chance)."""
+    span = oracle_score - mean_random
+    return float((score - mean_random) / span) if span > 1e-9 else 0.0
 
 
 def default_cache_dir() -> Path:
@@ -52,26 +60,6 @@ def _platform_dict(platform: Platform) -> dict[str, Any]:
     if platform.drone is not None:
         d["drone"] = dataclasses.asdict(platform.drone)
     return d
-
-
-def _grid(space: SearchSpace, step_rad: float, free_positions: tuple[int, int, int]) -> torch.Tensor:  # [G, D]
-    lo, hi = space.lower.numpy(), space.upper.numpy()
-
-    def span(a: float, b: float, step: float) -> np.ndarray:
-        n = max(2, int(math.floor((b - a) / step)) + 1)
-        return np.linspace(a, b, n)
-
-    if space.kind == "rig":
-        pans, tilts = np.meshgrid(span(lo[0], hi[0], step_rad), span(lo[1], hi[1], step_rad), indexing="xy")
-        return torch.as_tensor(np.stack([pans.ravel(), tilts.ravel()], -1))
-    axes = []
-    for i, n in enumerate(free_positions):  # cell centres, so no view sits on a wall
-        edges = np.linspace(lo[i], hi[i], n + 1)
-        axes.append(0.5 * (edges[:-1] + edges[1:]))
-    yaws = np.arange(0.0, 2 * math.pi, step_rad) - math.pi
-    pitches = span(lo[4], hi[4], step_rad)
-    mesh = np.meshgrid(*axes, yaws, pitches, indexing="ij")
-    return torch.as_tensor(np.stack([m.ravel() for m in mesh], -1))
 
 
 def _pattern_search(
@@ -125,8 +113,8 @@ def oracle_search(
     ``random_scores [R]``, ``mean_random``, ``renders`` and ``cached``.
     """
     platform = platform or source.platform
-    cfg = SearchConfig(pitch_limits_deg=pitch_limits_deg)
-    space = space_for(platform, cfg)
+    space_cfg = SearchConfig(pitch_limits_deg=pitch_limits_deg)
+    space = platform.search_space(space_cfg)
     settings = {
         "version": ORACLE_VERSION,
         "scene": scene_key or source.name,
@@ -151,18 +139,12 @@ def oracle_search(
         return float(data["best_score"]), data["best_cam2world"], extras
 
     scorer = GroundTruthScorer(source, teacher)
-    step = math.radians(step_deg if space.kind == "rig" else free_step_deg)
-    grid = _grid(space, step, free_positions)
+    grid, step, steps = space.exhaustive_grid(step_deg, free_step_deg, free_positions)
     log.info("oracle: scoring %d grid poses of %s", len(grid), settings["scene"])
     grid_scores = scorer.score_batched(space.to_poses(grid)).score.double()
-    rng = np.random.default_rng(seed)
-    rand = space.random(random_samples, rng)
-    random_scores = scorer.score_batched(space.to_poses(rand)).score.double()
+    rand = platform.random_poses(random_samples, np.random.default_rng(seed), space_cfg)  # [R, 4, 4]
+    random_scores = scorer.score_batched(torch.as_tensor(rand)).score.double()
 
-    steps = np.full(space.dims, step / 2)
-    if space.kind == "free":
-        lo, hi = space.lower.numpy()[:3], space.upper.numpy()[:3]
-        steps[:3] = (hi - lo) / np.asarray(free_positions) / 2
     best_p, best_s = grid[int(torch.argmax(grid_scores))], float(grid_scores.max())
     for i in torch.argsort(grid_scores, descending=True)[:refine_starts].tolist():
         p, s = _pattern_search(
@@ -222,7 +204,5 @@ def _extras(space: SearchSpace, data: dict[str, np.ndarray], cached: bool) -> di
         "renders": int(data["renders"]),
         "cached": cached,
     }
-    if space.kind == "rig":
-        extras["pan_values"] = np.unique(data["grid_params"][:, 0])
-        extras["tilt_values"] = np.unique(data["grid_params"][:, 1])
+    extras.update(space.grid_axes(data["grid_params"]))
     return extras

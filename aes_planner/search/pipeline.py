@@ -36,9 +36,10 @@ from aes_planner.geometry.poses import c_order, cam2world_to_view
 from aes_planner.geometry.rigid import check_rigid
 from aes_planner.geometry.trajectory import interpolate_poses
 from aes_planner.messages.fields import POSE_TOL
-from aes_planner.search.config import SearchConfig, search_mode
+from aes_planner.platform import Platform
+from aes_planner.runtime import suggestion_threads
+from aes_planner.search.config import SearchConfig
 from aes_planner.search.space import SearchSpace, space_for
-from aes_planner.sources import Platform
 
 log = logging.getLogger(__name__)
 
@@ -87,7 +88,7 @@ class SearchResult:
     """Suggestions best first, the stage-1 candidates (for plots) and where the time went."""
 
     suggestions: list[Suggestion]
-    mode: str
+    mode: str  # the platform kind searched: rig or drone
     timings_ms: dict[str, float] = field(default_factory=dict)
     candidates_cam2world: np.ndarray | None = None  # [C, 4, 4] stage-1 candidates
     candidates_score: np.ndarray | None = None  # [C]
@@ -242,15 +243,23 @@ def search_views(
 
     ``avoid``: poses ``[M, 4, 4]`` already captured or suggested; stage 1 skips candidates that
     duplicate them (same distance test as between candidates), so an active loop gets new views.
-    Returns at most ``cfg.top_k`` suggestions, best first.
+    Returns at most ``cfg.top_k`` suggestions, best first. Runs on the thread count
+    :func:`aes_planner.runtime.suggestion_threads` picks (fewer threads beside busy processes).
     """
+    with suggestion_threads():
+        return _search_views(scorer, inputs_cam2world, platform, cfg, avoid)
+
+
+def _search_views(
+    scorer: Scorer, inputs_cam2world, platform: Platform, cfg: SearchConfig | None, avoid
+) -> SearchResult:
     if not isinstance(platform, Platform):
         raise SearchError(f"platform must be a Platform (a rig or a drone box), got {type(platform).__name__}")
     if cfg is not None and not isinstance(cfg, SearchConfig):
         raise SearchError(
             f"cfg must be a SearchConfig (e.g. SearchConfig.preset('balanced')), got {type(cfg).__name__}"
         )
-    cfg = cfg or SearchConfig.preset("balanced", mode=search_mode(platform.kind))
+    cfg = cfg or SearchConfig.preset("balanced", mode=platform.kind)
     t_start = time.perf_counter()
     inputs = _check_inputs(inputs_cam2world)
     space = space_for(platform, cfg)
@@ -339,9 +348,7 @@ def search_views(
 def _suggestion(space: SearchSpace, params: Tensor, pose: Tensor, out: ScoreOutput, i: int, obj: float) -> Suggestion:
     pose_np = pose.detach().double().numpy()
     view = cam2world_to_view(pose_np)
-    pan = tilt = None
-    if space.kind == "rig":
-        pan, tilt = float(params[0]), float(params[1])
+    pan, tilt = space.joints(params)
     return Suggestion(
         cam2world=pose_np,
         position_m=pose_np[:3, 3].copy(),

@@ -108,5 +108,6 @@ def write_report(
     sheet = np.vstack([_row(r, width) for r in rows])
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), sheet)
-    return path
+    from aes_planner.images import write_image
+
+    return write_image(path, sheet, "the report")

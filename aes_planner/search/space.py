@@ -19,9 +19,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from aes_planner.geometry.pantilt import PanTilt
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world, wrap_angle
-from aes_planner.sources import DroneBox, Platform
+from aes_planner.platform import DroneBox, Platform
 
 __all__ = ["FreeSpace", "RigSpace", "SearchSpace", "space_for"]
 
@@ -33,6 +32,11 @@ def _forward_dirs(cam2world: Tensor) -> Tensor:  # [M, 4, 4] -> [M, 3]
 def _angle_matrix(a: Tensor, b: Tensor) -> Tensor:  # [M, 3], [P, 3] unit -> [M, P] radians
     cross = torch.linalg.cross(a[:, None, :].expand(-1, b.shape[0], -1), b[None, :, :].expand(a.shape[0], -1, -1))
     return torch.atan2(cross.norm(dim=-1), a @ b.T)
+
+
+def _span(a: float, b: float, step: float) -> np.ndarray:  # -> [n] from a to b, at most step apart
+    n = max(2, int(math.floor((b - a) / step)) + 1)
+    return np.linspace(a, b, n)
 
 
 class SearchSpace:
@@ -66,6 +70,21 @@ class SearchSpace:
         db = _forward_dirs(self.to_poses(b).detach())
         return _angle_matrix(da, db) / self.dedup_rad
 
+    def exhaustive_grid(
+        self, step_deg: float, free_step_deg: float, free_positions: tuple[int, int, int]
+    ) -> tuple[Tensor, float, np.ndarray]:  # -> grid [G, D], step (rad), pattern steps [D]
+        """The oracle's grid over the whole space, its angular step, and the first step of its
+        pattern search per parameter (:func:`aes_planner.search.oracle_search`)."""
+        raise NotImplementedError
+
+    def grid_axes(self, grid: np.ndarray) -> dict[str, np.ndarray]:  # [G, D] -> named axes
+        """The axes of an :meth:`exhaustive_grid` where it is a plain 2-D table (a rig's pan x tilt)."""
+        return {}
+
+    def joints(self, params: Tensor) -> tuple[float | None, float | None]:  # [D] -> (pan, tilt) radians
+        """The rig's joint angles of ``params`` (None, None where the platform has no joints)."""
+        return None, None
+
     def random(self, n: int, rng: np.random.Generator) -> Tensor:  # -> [n, D] uniform in the bounds
         lo, hi = self.lower.numpy(), self.upper.numpy()
         return torch.as_tensor(rng.uniform(lo, hi, size=(n, self.dims)))
@@ -84,7 +103,7 @@ class RigSpace(SearchSpace):
 
     def __init__(self, platform: Platform, jitter_rad: float, dedup_rad: float):
         super().__init__(platform, jitter_rad, dedup_rad)
-        self.kinematics = PanTilt(platform.rig)
+        self.kinematics = platform.kinematics
         (plo, phi), (tlo, thi) = self.kinematics.pan_limits_rad, self.kinematics.tilt_limits_rad
         self.lower = torch.tensor([plo, tlo], dtype=torch.float64)
         self.upper = torch.tensor([phi, thi], dtype=torch.float64)
@@ -99,6 +118,17 @@ class RigSpace(SearchSpace):
             out.append((sol.pan_rad, sol.tilt_rad))
             hint = sol.pan_rad
         return self.project(torch.tensor(out, dtype=torch.float64).reshape(-1, 2))
+
+    def joints(self, params: Tensor) -> tuple[float, float]:  # [2] -> (pan, tilt)
+        return float(params[0]), float(params[1])
+
+    def exhaustive_grid(self, step_deg, free_step_deg, free_positions):  # pan x tilt, step_deg apart
+        lo, hi, step = self.lower.numpy(), self.upper.numpy(), math.radians(step_deg)
+        pans, tilts = np.meshgrid(_span(lo[0], hi[0], step), _span(lo[1], hi[1], step), indexing="xy")
+        return torch.as_tensor(np.stack([pans.ravel(), tilts.ravel()], -1)), step, np.full(self.dims, step / 2)
+
+    def grid_axes(self, grid: np.ndarray) -> dict[str, np.ndarray]:
+        return {"pan_values": np.unique(grid[:, 0]), "tilt_values": np.unique(grid[:, 1])}
 
     def neighbours(self, params: Tensor, n: int, rng: np.random.Generator) -> Tensor:  # [M, 2] -> [M * n, 2]
         jitter = torch.as_tensor(rng.uniform(-self.jitter_rad, self.jitter_rad, size=(params.shape[0], n, 2)))
@@ -119,7 +149,7 @@ class RigSpace(SearchSpace):
 class FreeSpace(SearchSpace):
     """5-DoF views (x, y, z, yaw, pitch): position in the box, pitch in its limits, yaw free."""
 
-    kind = "free"
+    kind = "drone"
     dims = 5
 
     def __init__(
@@ -165,6 +195,18 @@ class FreeSpace(SearchSpace):
         angle = super().distance(a, b)
         return angle + torch.cdist(a[:, :3], b[:, :3]) / self.dedup_m
 
+    def exhaustive_grid(self, step_deg, free_step_deg, free_positions):  # box cells x yaw x pitch
+        lo, hi, step = self.lower.numpy(), self.upper.numpy(), math.radians(free_step_deg)
+        axes = []
+        for i, n in enumerate(free_positions):  # cell centres, so no view sits on a wall
+            edges = np.linspace(lo[i], hi[i], n + 1)
+            axes.append(0.5 * (edges[:-1] + edges[1:]))
+        yaws = np.arange(0.0, 2 * math.pi, step) - math.pi
+        mesh = np.meshgrid(*axes, yaws, _span(lo[4], hi[4], step), indexing="ij")
+        steps = np.full(self.dims, step / 2)
+        steps[:3] = (hi[:3] - lo[:3]) / np.asarray(free_positions) / 2
+        return torch.as_tensor(np.stack([m.ravel() for m in mesh], -1)), step, steps
+
     def random(self, n: int, rng: np.random.Generator) -> Tensor:  # [n, 5]
         lo, hi = self.lower.numpy().copy(), self.upper.numpy().copy()
         lo[3], hi[3] = -math.pi, math.pi
@@ -172,17 +214,6 @@ class FreeSpace(SearchSpace):
 
 
 def space_for(platform: Platform, cfg) -> SearchSpace:
-    """The search space of a platform under a :class:`~aes_planner.search.SearchConfig`."""
-    hfov = platform.intrinsics.hfov_rad
-    if platform.kind == "rig":
-        return RigSpace(platform, cfg.jitter_fov * hfov, cfg.dedup_fov * hfov)
-    box = platform.drone
-    diag = float(np.linalg.norm(np.subtract(box.bounds_max_m, box.bounds_min_m)))
-    return FreeSpace(
-        platform,
-        cfg.jitter_fov * hfov,
-        cfg.dedup_fov * hfov,
-        cfg.shift_frac * diag,
-        cfg.dedup_frac * diag,
-        cfg.pitch_limits_rad,
-    )
+    """The search space of a platform under a :class:`~aes_planner.search.SearchConfig`
+    (:meth:`Platform.search_space <aes_planner.platform.Platform.search_space>`)."""
+    return platform.search_space(cfg)

@@ -81,14 +81,33 @@ def validate_topic(name: str) -> str:
     return bare
 
 
+#: Most ``**`` tokens in a pattern (each multiplies the cost of matching a topic against it).
+MAX_DOUBLE_WILDCARDS = 4
+
+
 def validate_pattern(pattern: str) -> str:
-    """A topic name in which a token may be ``*`` (one token) or ``**`` (any number of tokens)."""
+    """A topic name in which a token may be ``*`` (one token) or ``**`` (any number of tokens),
+    returned in Zenoh's canonical form (``**/**`` -> ``**``, ``**/*`` -> ``*/**``: the same set of
+    topics, which Zenoh otherwise refuses); at most :data:`MAX_DOUBLE_WILDCARDS` ``**``."""
     if pattern in ("", "/", "**", "/**"):
         return "**"
     bare = pattern[1:] if pattern.startswith("/") else pattern
     plain = "/".join("x" if t in ("*", "**") else t for t in bare.split("/"))
     validate_topic(plain)
-    return bare
+    tokens = bare.split("/")
+    changed = True
+    while changed:
+        changed = False
+        for i in range(len(tokens) - 1):
+            if tokens[i] == "**" and tokens[i + 1] in ("*", "**"):
+                tokens[i : i + 2] = ["**"] if tokens[i + 1] == "**" else ["*", "**"]
+                changed = True
+                break
+    if tokens.count("**") > MAX_DOUBLE_WILDCARDS:
+        raise TopicError(
+            f"pattern {pattern[:80]!r}: {tokens.count('**')} '**' tokens; use at most {MAX_DOUBLE_WILDCARDS}"
+        )
+    return "/".join(tokens)
 
 
 def topic_matches(pattern: str, topic: str) -> bool:

@@ -52,6 +52,14 @@ class ZenohConfig:
     * ``listen``: endpoints to listen on. Non-loopback addresses need ``allow_remote: true``.
       By default an ephemeral loopback port: the peers learn each other's address from the one
       they connect to (gossip) and then talk directly, so the graph survives any one of them.
+    * ``mode``: ``peer`` (a node process, a tool) or ``router`` (a graph's hub: the launcher).
+      Peers exchange the addresses they listen on (gossip) and talk directly; they do not forward
+      for each other. That meets on one machine, where every address is loopback, but not across
+      machines: a node on host A hears of a node on host B at B's loopback address and cannot reach
+      it. A router forwards between everything connected to it, so two hubs connected to each other
+      carry the graph between hosts, while each node process still listens on loopback only.
+      A router's link lease is 30 s (Zenoh's default 10 s), so a network cut shorter than that
+      pauses the graph and loses nothing reliable.
     * ``multicast_scouting``: discover peers by UDP multicast on the LAN; off by default.
     * ``prefix``: key prefix of every topic (like a ROS domain): buses with different prefixes
       do not see each other.
@@ -62,6 +70,7 @@ class ZenohConfig:
     listen: tuple[str, ...] = (EPHEMERAL_ENDPOINT,)
     multicast_scouting: bool = False
     allow_remote: bool = False
+    mode: Literal["peer", "router"] = "peer"
     prefix: str = "aes"
     open_timeout_s: float = 2.0
 
@@ -77,6 +86,7 @@ class ZenohConfig:
                 f"listen[{i}]",
                 f"{ep} listens beyond loopback; set allow_remote: true (or --allow-remote) if you mean it",
             )
+        require(self.mode in ("peer", "router"), "mode", f"must be 'peer' or 'router', got {self.mode!r}")
         require(
             not self.multicast_scouting or self.allow_remote,
             "multicast_scouting",

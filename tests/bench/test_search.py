@@ -1,6 +1,7 @@
 """The search bench's Pareto plot, and (slow) its wiring: the keys `Checked by` asks for."""
 
 import pytest
+import torch
 
 from aes_planner.bench.search import CASES, write_pareto
 
@@ -36,3 +37,7 @@ def test_bench_search_keys(wiring_recorder, monkeypatch, tmp_path):
         assert -1.0 <= wiring_recorder.results[f"search.{case}.normalized"]["value"] <= 1.5
         assert f"search.{case}.normalized_se" not in wiring_recorder.results  # quick: one scene, no spread
     assert (tmp_path / "bench" / "search_pareto.png").is_file()
+    # beside a busy process: what a fresh process picks against all cores, in the same run
+    res = wiring_recorder.results
+    assert res["search.balanced.busy_latency_ms"]["value"] > 0 and res["search.balanced.busy_speedup"]["value"] > 0
+    assert 1 <= res["search.balanced.busy_threads"]["value"] <= torch.get_num_threads()

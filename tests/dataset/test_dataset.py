@@ -137,6 +137,7 @@ def test_nerfstudio_opengl_axes_become_opencv(tmp_path):
 
 
 def test_nerfstudio_camera_angle_and_errors(tmp_path, caplog):
+    caplog.set_level("INFO")
     write_image(tmp_path / "a.png")
     pose = np.eye(4).tolist()
     (tmp_path / "transforms.json").write_text(
@@ -146,7 +147,7 @@ def test_nerfstudio_camera_angle_and_errors(tmp_path, caplog):
     )
     ds = import_nerfstudio(tmp_path)
     assert ds.frames[0].intrinsics.fx == pytest.approx(8.0)
-    assert "distortion k1" in caplog.text
+    assert "undistorted (OPENCV k1=0.1)" in caplog.text
     (tmp_path / "transforms.json").write_text(
         json.dumps({"frames": [{"file_path": "a.png", "transform_matrix": pose}]})
     )

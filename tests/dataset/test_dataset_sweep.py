@@ -203,6 +203,10 @@ NERF_CASES = [
     (_top("frames", []), "frames", "nothing to import"),
     (_top("frames", "all"), "frames", "'frames' list"),
     (_top("k1", "x"), "k1", "finite number"),
+    (lambda d: d.update(k1=0.1, camera_model="EQUIRECTANGULAR"), "frames[0]", "not undistorted here"),
+    (lambda d: d.update(k4=0.01), "frames[0]", "not undistorted here"),  # OPENCV's k4 is not nerfstudio's
+    (lambda d: d.update(p1=0.01, camera_model="OPENCV_FISHEYE"), "frames[0]", "not undistorted here"),
+    (lambda d: d.update(k1=0.1, camera_model=["OPENCV"]), "frames[0]", "not undistorted here"),
     (_top("w", 99), "frames[0]", "w/h say 99"),
     (_fr("file_path", "/etc/hostname"), "file_path", "leads outside"),
     (_fr("file_path", "../secret.png"), "file_path", "leads outside"),
@@ -223,6 +227,27 @@ NERF_CASES = [
 def test_bad_transforms_json_names_the_field(nerf, clean_error, mutate, key, match):
     err = clean_error(import_nerfstudio, nerf(mutate), match=match)
     assert key in str(err)
+
+
+@pytest.mark.parametrize("model, coefficients", [("OPENCV", {"k1": -0.2, "p2": 0.01}), ("OPENCV_FISHEYE", {"k1": 0.1})])
+def test_nerfstudio_distortion_is_undistorted_not_ignored(tmp_path, model, coefficients):
+    # Imported as if undistorted, every ray off the image centre would point the wrong way.
+    rng = np.random.default_rng(0)
+    raw = rng.integers(0, 255, (H, W, 3), dtype=np.uint8)
+    cv2.imwrite(str(tmp_path / "a.png"), raw[..., ::-1])
+    doc = {"fl_x": 20.0, "w": W, "h": H, "camera_model": model, **coefficients}
+    doc["frames"] = [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist()}]
+    (tmp_path / "transforms.json").write_text(json.dumps(doc))
+    frame = import_nerfstudio(tmp_path).frames[0]
+    K = frame.intrinsics.K
+    if model == "OPENCV":
+        dist = np.array([coefficients.get(k, 0.0) for k in ("k1", "k2", "p1", "p2", "k3")])
+        expected = cv2.undistort(raw, K, dist)
+    else:
+        dist = np.array([coefficients.get(k, 0.0) for k in ("k1", "k2", "k3", "k4")])
+        expected = cv2.fisheye.undistortImage(raw, K, dist, Knew=K)
+    assert not np.array_equal(frame.image, raw)
+    assert np.abs(frame.image.astype(int) - expected.astype(int)).mean() < 2.0
 
 
 def test_nerfstudio_outside_paths_only_when_allowed(nerf, clean_error):

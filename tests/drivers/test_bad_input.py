@@ -30,7 +30,7 @@ from aes_planner.drivers.protocol import Inst, Packet, PacketParser, build_packe
         (["gimbal", "emulate", "--link", "/tmp/" + "a" * 300], "--link"),
         (["gimbal", "emulate", "--link", "/proc/version"], "a file exists there"),
         (["gimbal", "scan", "--port", "/dev/null"], "cannot open serial port /dev/null"),
-        (["gimbal", "scan", "--port", ""], "cannot open serial port"),
+        (["gimbal", "scan", "--port", ""], "--port: an empty value"),
         (["gimbal", "scan", "--port", "/tmp"], "cannot open serial port /tmp"),
         (["gimbal", "scan", "--port", "/dev/x", "--baud", "-5"], "baud -5 is not one of"),
         (["gimbal", "state", "--port", "/dev/null"], "cannot open serial port /dev/null"),

@@ -24,7 +24,7 @@ def node(port, **kw) -> MavlinkDroneNode:
     return MavlinkDroneNode(from_dict(MavlinkDroneConfig, cfg))
 
 
-def fly(n: MavlinkDroneNode, view, timeout_s=20.0) -> bool:
+def fly(n: MavlinkDroneNode, view, timeout_s=60.0) -> bool:
     """Step the node until the vehicle is flying, send the view, wait until the reported camera is there."""
     assert wait_for(lambda: n.step({}, time.time()) is not None and n.link.status == "flying", timeout_s)
     n.link.set_view_goal(view, time.time())
@@ -164,3 +164,68 @@ def test_spec_vehicle_waits_for_the_pilot_and_never_commands_an_unexpected_syste
     finally:
         n.stop()
         v.stop()
+
+
+def test_cli_emulator_in_its_own_process(tmp_path):
+    import json
+    import signal
+    import subprocess
+    import sys
+
+    port = free_port()
+    emu = subprocess.Popen(
+        [sys.executable, "-m", "aes_planner", "drone", "emulate", "--connection", f"udpout:127.0.0.1:{port}",
+         "--start-ned=0,0,-1.5", "--heading-deg", "90", "--fence-min-ned=-2,-2,-2.5",
+         "--fence-max-ned=2,2,-0.5", "--packet-loss", "0.05"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    n = node(port)
+    n.start()
+    try:
+        assert fly(n, [1.0, 1.0, 2.0, 0.0, -0.5]), emu.poll() is None or emu.communicate()
+    finally:
+        n.stop()
+        emu.send_signal(signal.SIGTERM)
+        out, err = emu.communicate(timeout=20)
+    assert emu.returncode == 0, err
+    report = json.loads(out[out.index("{") :])
+    assert report["rejected"]["fence"] == 0 and report["rejected"]["nan"] == 0
+    assert report["mode_requests"] == ["OFFBOARD"] and report["forbidden_requests"] == []
+    assert report["max_outside_fence_m"] == 0.0
+    assert report["position_ned_m"] == pytest.approx([1.0, 1.0, -2.0], abs=0.04)
+
+
+def test_cli_emulate_bad_flags_are_one_line_errors():
+    import subprocess
+    import sys
+
+    r = subprocess.run(
+        [sys.executable, "-m", "aes_planner", "drone", "emulate", "--packet-loss", "2"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert r.returncode == 2 and "packet_loss" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_no_setpoint_outside_the_box_and_no_nan_whatever_the_suggestion():
+    port = free_port()
+    n = node(port, emulate=True)
+    n.start()
+    try:
+        assert wait_for(lambda: n.step({}, time.time()) is not None and n.link.status == "flying", 60)
+        n.link.set_view_goal([float("nan"), 0.0, 1.0, 0.0, 0.0], time.time())  # refused in the link process
+        n.link.set_view_goal([40.0, -40.0, 30.0, 0.3, 0.0], time.time())  # far outside: clamped into the box
+        corner = [2.0 - 0.02, -2.0 + 0.02, 2.5 - 0.02]  # the box shrunk by box_margin_m
+
+        def at_corner():
+            n.step({}, time.time())
+            with n.link.lock:
+                p = n.link.position_ned
+            return np.allclose([p[1], p[0], -p[2]], corner, atol=0.02)
+
+        assert wait_for(at_corner, 60)
+        counters = n.diagnostics(time.time()).counters
+        assert counters["goals_refused"] == 1 and counters["goals_clamped"] >= 1
+        rep = n.emulator.report()
+        assert rep["rejected"]["fence"] == 0 and rep["rejected"]["nan"] == 0 and rep["max_outside_fence_m"] == 0.0
+    finally:
+        n.stop()

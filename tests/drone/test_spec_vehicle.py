@@ -97,3 +97,26 @@ def test_link_cut_mid_flight_ends_cleanly_and_the_vehicle_holds(tmp_path):
             assert np.allclose(v.pos, holds)  # nothing moves it any more
     finally:
         v.stop()
+
+
+@pytest.mark.slow
+def test_demo_on_the_emulator_with_packet_loss_and_a_link_loss(tmp_path):
+    """The dry run, faults on: 10 % of packets lost each way and the link cut for 3 s mid-flight."""
+    out = tmp_path / "run"
+    cmd = [
+        sys.executable, "-m", "aes_planner", "demo", "--drone", "mavlink", "--scene", str(SCENE),
+        "--set", f"drone.connection=udpin:127.0.0.1:{free_port()}", "--set", "drone.request_offboard=true",
+        "--set", "drone.emulator.packet_loss=0.1", "--set", "drone.emulator.link_loss=[[10, 3]]",
+        "--moves", "1", "--set", "planner.explore_views=2", "--set", "planner.polish_captures=2",
+        "--timeout", "200", "--out", str(out),
+    ]  # fmt: skip
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=400)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    summary = json.loads((out / "summary.json").read_text())
+    drone, emu = summary["drone"], summary["drone"]["emulator"]
+    assert summary["state"] == "done" and drone["emulated"]
+    assert emu["rejected"] == {"fence": 0, "nan": 0, "wrong_frame": 0, "wrong_target": 0}
+    assert emu["forbidden_requests"] == [] and emu["max_outside_fence_m"] == 0.0
+    assert drone["counters"]["link_losses"] >= 1  # and the loop still completed
+    final = np.array(summary["final_cam2world"])
+    assert np.linalg.norm(final[:3, 3] - np.array(drone["final_position_m"])) < 0.06

@@ -23,7 +23,7 @@ def tiny(tmp_path, **kw) -> SearchEvalConfig:
 
 def test_eval_search_tables_and_normalisation(tmp_path):
     doc = run_search_eval(tiny(tmp_path), out_dir=tmp_path / "out")
-    for mode in ("rig", "free"):
+    for mode in ("rig", "drone"):
         table = doc["views"]["2"][mode]
         assert set(table) == set(GT_METHODS)
         assert table["oracle"]["normalized"] == pytest.approx(1.0)
@@ -131,7 +131,7 @@ def test_eval_search_on_a_drone_scene_flies_its_own_box(tmp_path):
     assert len({round(float(y), 3) for y in views[:, 3]}) == 4  # four different headings
 
     doc = run_search_eval(cfg)
-    table = doc["views"]["4"]["free"]
+    table = doc["views"]["4"]["drone"]
     assert table["oracle"]["normalized"] == pytest.approx(1.0)
     assert table["rotation"]["teacher"] >= table["best_input"]["teacher"] - 1e-9
 
@@ -139,7 +139,7 @@ def test_eval_search_on_a_drone_scene_flies_its_own_box(tmp_path):
 def test_eval_search_rig_mode_on_a_drone_scene_is_refused_before_any_work(tmp_path):
     from aes_planner.eval.search import SearchEvalError
 
-    with pytest.raises(SearchEvalError, match="--modes free"):
+    with pytest.raises(SearchEvalError, match="--modes drone"):
         run_search_eval(tiny(tmp_path, scenes=["tabletop:102", YARD_DRONE], modes=["rig"]))
 
 
@@ -148,15 +148,15 @@ def test_eval_search_both_modes_over_rig_and_drone_scenes(tmp_path):
     holds the rig scene, the free table both, and the ablations (rig mode) skip the drone scene."""
     doc = run_search_eval(tiny(tmp_path, scenes=[YARD_DRONE, "tabletop:102"], methods=["best_input", "oracle"]))
     rows = {(r["scene"], r["mode"]) for r in doc["per_scene"]}
-    assert rows == {(YARD_DRONE, "free"), ("tabletop:102", "rig"), ("tabletop:102", "free")}
+    assert rows == {(YARD_DRONE, "drone"), ("tabletop:102", "rig"), ("tabletop:102", "drone")}
     assert doc["views"]["2"]["rig"]["oracle"]["n"] == 1
-    assert doc["views"]["2"]["free"]["oracle"]["n"] == 2
+    assert doc["views"]["2"]["drone"]["oracle"]["n"] == 2
     md = markdown(doc)
     assert "2 input views, rig (Table 2 analogue, 1 scene)" in md
-    assert "2 input views, free (Table 2 analogue, 2 scenes)" in md
+    assert "2 input views, drone (Table 2 analogue, 2 scenes)" in md
 
     only_drones = run_search_eval(tiny(tmp_path, scenes=[YARD_DRONE], methods=["oracle"], ablations=True))
-    assert set(only_drones["views"]["2"]) == {"free", "latency_ms"}
+    assert set(only_drones["views"]["2"]) == {"drone", "latency_ms"}
     assert only_drones["ablations"] == {}  # rig-mode tables: no rig scene to run them on
 
 

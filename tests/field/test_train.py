@@ -175,8 +175,8 @@ def test_rig_search_targets_cover_the_joint_range_and_keep_the_plan():
 def test_sweep_and_survey_samples_take_their_inputs_as_the_product_does():
     from aes_planner.field.protocol import plan_views
     from aes_planner.geometry.pantilt import PanTilt
+    from aes_planner.platform import RIG_FREE_BOX_HALF_M
     from aes_planner.sim.spec import DroneSpec
-    from aes_planner.sources import RIG_FREE_BOX_HALF_M
 
     platform = _source("indoor:1000").platform
     pt = PanTilt(platform.rig)

@@ -59,4 +59,4 @@ def test_demo_cli_takes_its_mode_from_the_scene(tmp_path, capsys):
     drone_scene = str(Path(__file__).parent / "scenes" / "yard_drone.yaml")
     assert main(["demo", "--scene", drone_scene, "--mode", "rig", "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--mode free" in err[0]
+    assert len(err) == 1 and "--mode drone" in err[0]

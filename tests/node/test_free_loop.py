@@ -8,13 +8,14 @@ import torch
 
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
 from aes_planner.messages import Candidate, PosedFrame
-from aes_planner.node.planner import DroneBoxConfig, PlannerConfig, PlannerNode
+from aes_planner.node.planner import PlannerConfig, PlannerNode
 from aes_planner.node.proposer import Proposal, Proposer
 from aes_planner.node.sim_drone import SimDrone, SimDroneConfig
+from aes_planner.platform import DroneBox
 
 from .nodekit import FakeTeacher, K
 
-BOX = DroneBoxConfig((-1.0, -1.0, 1.0), (1.0, 1.0, 2.0))
+BOX = DroneBox((-1.0, -1.0, 1.0), (1.0, 1.0, 2.0))
 PEAK = np.array([0.5, -0.4, 1.5, 0.7, -0.1])  # the view the scripted scorer likes best
 
 
@@ -60,7 +61,7 @@ def test_free_loop_flies_to_better_views_inside_the_box():
         proposer=FreeProposer(),
         teacher=FakeTeacher(),
     )
-    drone = SimDrone(BOX.box(), SimDroneConfig(max_speed_m_s=3.0, max_yaw_rate_deg_s=360.0), [0, 0, 1.5, 0, 0])
+    drone = SimDrone(BOX, SimDroneConfig(max_speed_m_s=3.0, max_yaw_rate_deg_s=360.0), [0, 0, 1.5, 0, 0])
     now, targets, kinds = 0.0, [], {}
     for _ in range(4000):
         c2w = drone.cam2world()
@@ -75,11 +76,11 @@ def test_free_loop_flies_to_better_views_inside_the_box():
         now += 0.02
         if node.finished:
             break
-    assert node.state == "done" and node.mode == "free"
+    assert node.state == "done" and node.kind == "drone"
     assert node.captures[-1].kind == "settle"
     assert max(c.score for c in node.captures) > node.captures[0].score + 0.1
     for t in targets:
-        assert BOX.box().contains(t[:3, 3])  # suggestions the loop flies are feasible
+        assert BOX.contains(t[:3, 3])  # suggestions the loop flies are feasible
     # a consumer tells the drone's waypoints (one pose each) from search results
     assert kinds["waypoint"] and all(len(s.candidates) == 1 for s in kinds["waypoint"])
     assert kinds["search"] and set(kinds) == {"waypoint", "search"}

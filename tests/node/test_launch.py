@@ -17,14 +17,14 @@ def test_sim_closed_loop_builds_its_nodes():
     nodes = build_nodes(load_launch("sim_closed_loop", ["scene=tabletop:1"]))
     assert [n.node_id for n, _ in nodes] == ["gimbal", "camera", "planner"]
     planner = nodes[-1][0]
-    assert planner.mode == "rig" and planner.config.rig is not None
+    assert planner.kind == "rig" and planner.config.rig is not None
 
 
 def test_drone_external_by_default_and_sim_on_request():
     assert [n.node_id for n, _ in build_nodes(load_launch("drone"))] == ["planner"]
     nodes = build_nodes(load_launch("drone", ["drone.type=sim"]))
     assert [type(n).__name__ for n, _ in nodes] == ["SimDroneNode", "PlannerNode"]
-    assert nodes[1][0].mode == "free"
+    assert nodes[1][0].kind == "drone"
 
 
 @pytest.mark.parametrize("launch_file, sets", [("sim_closed_loop", []), ("drone", ["drone.type=sim"])])

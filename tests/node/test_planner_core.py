@@ -395,3 +395,31 @@ def test_start_readies_the_rasterizer_once_for_the_field_and_not_for_a_stand_in(
     assert len(calls) == 1  # compiled (or loaded) at start, not in the first plan
     make().start()  # a scripted proposer renders nothing
     assert len(calls) == 1
+
+
+def test_step_takes_time_only_from_now(monkeypatch):
+    """No wall clock inside the loop: every command and suggestion is stamped with a step's ``now``
+    (the command chosen by a planning leaves in the next step, stamped with that step's clock),
+    and the loop runs to its end with ``time.time`` unusable."""
+    import time
+
+    def no_wall_clock():
+        raise AssertionError("the planner read the wall clock inside step")
+
+    monkeypatch.setattr(time, "time", no_wall_clock)
+    prop = ScriptedProposer()
+    node = make(prop, explore_views=3, max_moves=2, polish_captures=2)
+    sim, nows, suggestions = SimRig(prop), set(), []
+    now = 100.0
+    for _ in range(400):
+        nows.add(now)
+        out = node.step(sim.inputs(now), now)
+        suggestions += out["planner/suggestion"]
+        sim.apply(out)
+        now += 0.05
+        if node.finished:
+            break
+    assert node.state == "done" and node.moves >= 1 and suggestions
+    assert {c.stamp_s for c in sim.commands} <= nows
+    assert {s.stamp_s for s in suggestions} <= nows
+    assert node.diagnostics(now).state == "done"  # the state word on the wire is the enum's value

@@ -8,7 +8,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from aes_planner.node.sim_drone import SimDrone, SimDroneConfig
-from aes_planner.sources import DroneBox
+from aes_planner.platform import DroneBox
 
 BOX = DroneBox((-2.0, -2.0, 0.5), (2.0, 2.0, 2.5))
 

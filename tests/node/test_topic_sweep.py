@@ -48,7 +48,8 @@ def extreme(msg_type):
         ]
     if msg_type is GimbalState:
         s = samples["GimbalState"]
-        return [type(s)(**{**s.__dict__, "pan_rad": 1e6, "tilt_rad": -1e6, "stamp_s": 1e12})]
+        # beyond any joint limit but within two turns (a state past that is rejected as implausible)
+        return [type(s)(**{**s.__dict__, "pan_rad": 12.0, "tilt_rad": -12.0, "stamp_s": 1e12})]
     if msg_type is ViewSuggestion:
         s = samples["ViewSuggestion"]
         pose = np.eye(4)

@@ -59,6 +59,8 @@ def typestore():
 def _annotation(spec):
     kind, rest = spec
     if kind == Nodetype.BASE:
+        if rest[0] == "string" and rest[1]:  # string<=N
+            return t.bounded_str[rest[1]]
         return _BASE[rest[0]]
     if kind == Nodetype.NAME:
         return idl_class(rest)

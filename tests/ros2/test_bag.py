@@ -98,3 +98,29 @@ def test_the_shipped_interface_package_and_the_packaged_definitions_are_the_same
     assert shipped == ["ViewCandidate.msg", "ViewSuggestion.msg"]
     for name in shipped:
         assert (PACKAGED / name).read_bytes() == (MSG_DIR / name).read_bytes(), name
+
+
+def test_a_demo_run_folder_gives_the_rig_for_tf_static(recording, tmp_path, capsys):
+    import json
+
+    (recording.parent / "summary.json").write_text(json.dumps({"scene": "indoor:3", "mode": "rig"}))
+    out = tmp_path / "bag"
+    assert main(["export", "rosbag2", str(recording), str(out)]) == 0
+    assert "indoor:3" in capsys.readouterr().out
+    with Reader(out) as reader:
+        static = [c for c in reader.connections if c.topic == "/tf_static"]
+        assert static
+        ((_, _, raw),) = list(reader.messages(connections=static))
+    msg = typestore().deserialize_cdr(raw, "tf2_msgs/msg/TFMessage")
+    assert [(t.header.frame_id, t.child_frame_id) for t in msg.transforms] == [
+        ("map", "gimbal_base"),
+        ("gimbal_tilt", "camera_link"),
+        ("camera_link", "camera_optical"),
+    ]
+
+
+def test_a_file_that_is_not_a_recording_leaves_no_folder(tmp_path, capsys):
+    bad = tmp_path / "notes.mcap"
+    bad.write_text("not an mcap file")
+    assert main(["export", "rosbag2", str(bad), str(tmp_path / "bag")]) == 2
+    assert "MCAP" in capsys.readouterr().err and not (tmp_path / "bag").exists()

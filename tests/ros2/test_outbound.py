@@ -87,7 +87,7 @@ def test_suggestion_topics_carry_the_best_pose_the_ranked_list_and_everything_el
     assert np.allclose([ps.pose.position.x, ps.pose.position.y, ps.pose.position.z], best[:3, 3])
     assert len(pa.poses) == 2 and pa.header.frame_id == "map"
     assert np.allclose(_rotation(pa.poses[1].orientation), msg.candidates[1].cam2world[:3, :3], atol=1e-9)
-    assert (vs.sequence, vs.field_version, vs.mode, vs.kind) == (2, 4, 0, 0)
+    assert (vs.sequence_number, vs.field_version, vs.mode, vs.kind) == (2, 4, 0, 0)
     c0, c1 = vs.candidates
     assert (c0.rank, c1.rank) == (0, 1)
     assert c0.score == pytest.approx(0.8) and c0.coverage == pytest.approx(0.95)
@@ -191,6 +191,8 @@ def test_joint_states_and_diagnostics(bridge, peer):
     planner = [s for a in arrays for s in a.status if s.name == "aes_planner: planner"]
     assert planner and planner[0].message == "exploring" and planner[0].level == 0
     assert {kv.key: kv.value for kv in planner[0].values}["frames_in"] == "10"
+    diag_values = bridge.diagnostics(60.0).values
+    assert diag_values["subscribers.joint_states"] == 1.0 and diag_values["subscribers.image"] == 0.0
 
 
 _LISTENER = r"""
@@ -241,3 +243,104 @@ def test_a_subscriber_process_on_a_loopback_unicast_config_gets_the_latched_sugg
     assert fields[0] == "map" and int(fields[1]) + int(fields[2]) * 1e-9 == pytest.approx(msg.stamp_s)
     q = np.array([float(v) for v in fields[3:7]])
     assert np.linalg.norm(q) == pytest.approx(1.0)
+
+
+def test_localhost_range_meets_a_ros2_node_run_with_localhost_discovery(tmp_path):
+    """discovery_range localhost is rmw_cyclonedds's own LOCALHOST configuration: a subscriber
+    process configured as a ROS 2 node with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (default
+    interface, unicast to localhost) receives from it."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from aes_planner.ros2.dds import cyclone_config
+
+    domain = domain_for_tests() + 1  # a domain this process has not configured yet
+    node = Ros2BridgeNode(Ros2BridgeConfig(dds=DdsConfig(domain_id=domain, discovery_range="localhost")))
+    node.start()
+    try:
+        msg = sample_messages()["ViewSuggestion"]
+        node.step({"planner/suggestion": [msg]}, now=1.0)
+        env = {**os.environ, "CYCLONEDDS_URI": cyclone_config("localhost", (), False, None)}
+        root = str(Path(__file__).resolve().parents[2])
+        out = subprocess.run(
+            [sys.executable, "-c", _LISTENER, str(domain), root], capture_output=True, text=True, timeout=60, env=env
+        )
+    finally:
+        node.stop()
+    assert out.stdout.split()[:1] == ["map"], out.stderr[-2000:]
+
+
+def test_a_drones_waypoint_is_told_apart_and_kept_off_the_suggestion_topics(bridge, peer):
+    msgs = sample_messages()
+    search = msgs["ViewSuggestion"]
+    waypoint = type(search)(9.0, search.candidates[:1], 4, 3, "world", "free", kind="waypoint")
+    bridge.step({"planner/suggestion": [search]}, now=1.0)
+    bridge.step({"planner/suggestion": [waypoint]}, now=2.0)
+    ps = _collect(
+        peer,
+        peer.reader("/planner/suggestion", "geometry_msgs/msg/PoseStamped", "latched"),
+        "geometry_msgs/msg/PoseStamped",
+    )
+    assert _stamp(ps[-1].header.stamp) == pytest.approx(search.stamp_s)  # still the search result
+    vs = _collect(
+        peer,
+        peer.reader("/planner/view_suggestion", "aes_planner_msgs/msg/ViewSuggestion", "latched"),
+        "aes_planner_msgs/msg/ViewSuggestion",
+    )
+    assert (vs[-1].kind, vs[-1].mode, vs[-1].sequence_number) == (1, 1, 3)
+
+
+def test_images_are_best_effort_and_volatile(bridge, peer):
+    """A reliable reader does not match the image writer (sensor-data QoS is best effort), and a
+    best-effort reader that joins after a frame does not get it (volatile)."""
+    frame = sample_messages()["PosedFrame"]
+    bridge.step({"camera/frame": [frame]}, now=1.0)
+    late = peer.reader("/camera/image/compressed", "sensor_msgs/msg/CompressedImage", "sensor_data")
+    reliable = peer.reader("/camera/image/compressed", "sensor_msgs/msg/CompressedImage", "reliable")
+    assert not wait_for(lambda: Peer.take_raw(late), 0.5)
+    got = _collect(
+        peer, late, "sensor_msgs/msg/CompressedImage", push=lambda: bridge.step({"camera/frame": [frame]}, 2.0)
+    )
+    assert got and not Peer.take_raw(reliable)
+    assert not reliable.get_matched_publications()
+
+
+def test_the_bridge_announces_itself_on_the_ros2_graph(peer):
+    """With ros_graph set, ros_discovery_info (rmw_dds_common, stock Jazzy type) names the bridge's
+    node and lists the GIDs of its writers, which are the DDS GUIDs a ROS 2 graph cache sees."""
+    from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication
+    from cyclonedds.sub import DataReader
+    from cyclonedds.topic import Topic
+
+    from tests.ros2.stock import idl_class, qos
+
+    node = Ros2BridgeNode(
+        Ros2BridgeConfig(
+            dds=DdsConfig(domain_id=domain_for_tests()),
+            outbound=("suggestion",),
+            ros_graph="jazzy",
+            ros_node_name="aes",
+        )
+    )
+    node.start()
+    try:
+        name = "rmw_dds_common/msg/ParticipantEntitiesInfo"
+        reader = DataReader(
+            peer.participant, Topic(peer.participant, "ros_discovery_info", idl_class(name)), qos("latched")
+        )
+        infos = _collect(peer, reader, name)
+        pubs = BuiltinDataReader(peer.participant, BuiltinTopicDcpsPublication)
+        seen = []
+        assert wait_for(
+            lambda: seen.extend(pubs.take(64)) or any(p.topic_name == "rt/planner/suggestion" for p in seen)
+        )
+    finally:
+        node.stop()
+    (node_info,) = infos[-1].node_entities_info_seq
+    assert (node_info.node_namespace, node_info.node_name) == ("/", "aes")
+    writer_gids = {bytes(g.data) for g in node_info.writer_gid_seq}
+    suggestion = next(p for p in seen if p.topic_name == "rt/planner/suggestion")
+    assert suggestion.key.bytes in writer_gids
+    assert suggestion.participant_key.bytes == bytes(infos[-1].gid.data)

@@ -9,9 +9,9 @@ import pytest
 import torch
 
 from aes_planner.geometry import PanTilt
+from aes_planner.platform import DroneBox, DronePlatform
 from aes_planner.search import GroundTruthScorer, SearchConfig, oracle_search, search_views
 from aes_planner.sim import SimCameraConfig, SimSource
-from aes_planner.sources import DroneBox, Platform
 from aes_planner.teachers import get_teacher
 
 
@@ -69,7 +69,7 @@ def test_oracle_rig_is_cached_and_beats_its_grid(tiny, tmp_path):
 def test_oracle_free_inside_box(tiny, tmp_path):
     source, teacher = tiny
     box = DroneBox((-0.5, -0.5, 1.0), (0.5, 0.5, 1.5))
-    platform = Platform("drone", source.platform.intrinsics, drone=box)
+    platform = DronePlatform(source.platform.intrinsics, box)
     best, pose, extras = oracle_search(
         source, teacher, platform, free_positions=(1, 1, 1), free_step_deg=90.0, refine_starts=1,
         min_step_deg=45.0, random_samples=2, cache_dir=tmp_path,

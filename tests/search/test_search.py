@@ -11,8 +11,8 @@ import torch
 from aes_planner.config import ConfigError
 from aes_planner.field.scorer import ScoreOutput, Scorer, check_poses
 from aes_planner.geometry import Intrinsics, PanTilt, PanTiltConfig, view_to_cam2world
+from aes_planner.platform import DroneBox, DronePlatform, Platform, RigPlatform
 from aes_planner.search import SearchConfig, SearchError, search_views
-from aes_planner.sources import DroneBox, Platform
 
 K = Intrinsics.from_fov(32, 24, 60.0)
 
@@ -51,11 +51,11 @@ class AimScorer(Scorer):
 
 
 def rig_platform(**kw) -> Platform:
-    return Platform("rig", K, rig=PanTiltConfig(**kw))
+    return RigPlatform(K, PanTiltConfig(**kw))
 
 
 def drone_platform(lo=(-2.0, -2.0, 0.5), hi=(2.0, 2.0, 2.5)) -> Platform:
-    return Platform("drone", K, drone=DroneBox(lo, hi))
+    return DronePlatform(K, DroneBox(lo, hi))
 
 
 def rig_inputs(platform: Platform, n: int = 4) -> np.ndarray:
@@ -106,9 +106,9 @@ def test_presets_and_overrides():
 def test_free_mode_presets():
     """balanced samples stage 1 twice as densely and keeps 3 in free mode (FREE_MODE_PRESETS);
     the rig's presets and free fast/accurate are unchanged, and overrides still win."""
-    from aes_planner.search import FREE_MODE_PRESETS, search_mode
+    from aes_planner.search import FREE_MODE_PRESETS
 
-    rig, free = SearchConfig.preset("balanced"), SearchConfig.preset("balanced", mode="free")
+    rig, free = SearchConfig.preset("balanced"), SearchConfig.preset("balanced", mode="drone")
     assert (rig.samples_per_segment, rig.top_k) == (16, 2)
     assert (free.samples_per_segment, free.top_k, free.neighbours, free.steps) == (32, 3, 8, 25)
     assert free.preset_name == "balanced"
@@ -116,9 +116,9 @@ def test_free_mode_presets():
     for name in ("fast", "accurate"):
         assert SearchConfig.preset(name, mode="free") == SearchConfig.preset(name)
     assert SearchConfig.preset("balanced", mode="free", top_k=1).top_k == 1
+    assert SearchConfig.preset("balanced", mode="free") == free  # the older word for a drone
     with pytest.raises(ConfigError, match="mode"):
-        SearchConfig.preset("balanced", mode="drone")
-    assert (search_mode("rig"), search_mode("drone")) == ("rig", "free")
+        SearchConfig.preset("balanced", mode="boat")
     # without a config, search_views takes balanced of the platform's mode
     platform = drone_platform()
     inputs = view_to_cam2world(np.array([[-1.0, -1.0, 1.5, 0.0, 0.0], [1.0, 1.0, 1.5, -1.5, -0.2]]))

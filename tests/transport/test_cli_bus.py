@@ -97,3 +97,86 @@ def test_record_refuses_an_existing_file(tmp_path, capsys, endpoint):
     f.write_text("keep me")
     assert main(["record", "-o", str(f), "--duration", "0.1", "--connect", endpoint]) == 2
     assert f.read_text() == "keep me" and "exists" in capsys.readouterr().err
+
+
+# ------------------------------------------------------- issue 33, item 9: the bus and the terminal
+def test_what_comes_from_the_bus_is_printed_escaped(hub, capsys):
+    """A peer that announces a publisher, and puts data, on a key with escape sequences (with Zenoh
+    directly, past our topic checks) cannot write them into the terminal of `topics` or `echo`."""
+    bus, ep = hub
+    evil = "evil\x1b[2J\x1b]0;owned\x07/x"
+    token = bus.session.liveliness().declare_token(f"{bus.prefix}/@meta/pub/Bad\x1b[31mType/0/peer/{evil}")
+    stop = threading.Event()
+
+    def put():
+        while not stop.wait(0.05):
+            bus.session.put(f"{bus.prefix}/{evil}", b"\x1b[31mnot a message")
+
+    t = threading.Thread(target=put)
+    t.start()
+    try:
+        for argv in (["topics", "--duration", "1"], ["topics", "--duration", "1", "--json"]):
+            assert main([*argv, "--connect", ep]) == 0
+            out = capsys.readouterr().out
+            assert "\x1b" not in out and "\x07" not in out and "evil" in out and "2J" in out
+        assert main(["echo", "**", "--timeout", "1.5", "--connect", ep]) in (0, 2)
+        both = capsys.readouterr()
+        assert "\x1b" not in both.out + both.err and "\x07" not in both.out + both.err
+    finally:
+        stop.set()
+        t.join()
+        token.undeclare()
+
+
+@pytest.mark.parametrize(
+    "pattern, canonical",
+    [("a/**/**/b", "a/**/b"), ("a/**/*/b", "a/*/**/b"), ("**/*/**/*", "*/*/**"), ("/**/**", "**")],
+)
+def test_patterns_are_made_canonical_for_zenoh(pattern, canonical, endpoint, capsys):
+    from aes_planner.transport import validate_pattern
+
+    assert validate_pattern(pattern) == canonical
+    assert main(["echo", pattern, "--timeout", "0.3", "--connect", endpoint]) == 2  # no publisher: a clear error
+    err = capsys.readouterr().err
+    assert err.startswith("error: no message on") and "bug" not in err
+
+
+@pytest.mark.parametrize(
+    "argv, match",
+    [
+        (["echo", "/".join(["**", "x"] * 30), "--timeout", "1"], "'**' tokens"),
+        (["topics", "--duration", "1e7"], "at most 600"),
+        (["replay", "x.mcap", "--count", "0"], "--count"),
+        (["replay", "x.mcap", "--loop", "--duration", "inf"], "--duration"),
+    ],
+)
+def test_bus_commands_refuse_what_would_hang(argv, match, capsys, deadline):
+    with deadline(10):
+        assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert match in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("target", ["missing_folder/x.mcap", "x.mcap"])
+def test_record_refuses_a_symlink_dangling_or_not(tmp_path, capsys, endpoint, target, deadline):
+    link = tmp_path / "link.mcap"
+    link.symlink_to(tmp_path / target)
+    with deadline(10):
+        assert main(["record", "-o", str(link), "--duration", "0.1", "--connect", endpoint]) == 2
+    assert "symlink" in capsys.readouterr().err and not (tmp_path / target).exists()
+
+
+def test_replay_loop_is_bounded_by_count_and_duration(hub, capsys, tmp_path, deadline):
+    bus, ep = hub
+    rec = tmp_path / "r.mcap"
+    assert main(["record", "planner/suggestion", "-o", str(rec), "--duration", "1", "--connect", ep]) == 0
+    capsys.readouterr()
+    with deadline(30):
+        assert main(["replay", str(rec), "--rate", "0", "--wait", "0", "--count", "3", "--connect", ep]) == 0
+    assert capsys.readouterr().out.startswith("3 messages replayed")
+    with deadline(30):
+        t0 = time.monotonic()
+        assert main(["replay", str(rec), "--loop", "--duration", "1.5", "--wait", "0", "--connect", ep]) == 0
+        assert time.monotonic() - t0 < 10
+    n = int(capsys.readouterr().out.split()[0])
+    assert n >= 2  # looped, then stopped by itself

@@ -1,0 +1,86 @@
+"""Plausibility bounds of a posed camera: what no real camera, rig or scene has.
+
+One set of bounds, used wherever a frame enters the package: the dataset importers (a file), the
+:class:`~aes_planner.messages.PosedFrame` and gimbal messages' own validation (so a frame arriving
+on a topic with absurd values is rejected by the subscription and counted, like any message that
+does not decode), and the planner's check that a frame belongs to the scene it is modelling.
+
+- field of view within :data:`FOV_RANGE_DEG` (a focal length of 1e300 or 1e-300 px is a broken
+  file or sender, not a lens);
+- principal point within half the image size of the image;
+- camera position within :data:`MAX_COORDINATE_M` of the world origin (GNSS/UTM coordinates are
+  ~1e7 m);
+- joint angles within :data:`MAX_JOINT_RAD` (a position-mode joint turns less than two turns);
+- a frame within :data:`MAX_LOCAL_DISTANCE_M` of the frame before it (the field models one scene
+  in a local frame recentred on its first frame).
+
+Each function returns what is wrong as text starting with the offending field, or ``None``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from aes_planner.geometry.camera import Intrinsics
+
+__all__ = [
+    "FOV_RANGE_DEG",
+    "MAX_COORDINATE_M",
+    "MAX_JOINT_RAD",
+    "MAX_LOCAL_DISTANCE_M",
+    "intrinsics_problem",
+    "joint_problem",
+    "position_problem",
+    "distance_problem",
+]
+
+#: Fields of view a camera may have, in degrees.
+FOV_RANGE_DEG = (0.1, 175.0)
+#: Farthest camera position from the world origin, metres.
+MAX_COORDINATE_M = 1e9
+#: Largest joint angle magnitude, radians (two turns).
+MAX_JOINT_RAD = 4 * math.pi
+#: Farthest a frame may be from the one before it and still show the same scene, metres.
+MAX_LOCAL_DISTANCE_M = 1e5
+
+
+def intrinsics_problem(k: Intrinsics) -> str | None:
+    """What is implausible about ``k`` (field of view, principal point), or None."""
+    lo, hi = FOV_RANGE_DEG
+    for name, fov, f in (("fx", k.hfov_rad, k.fx), ("fy", k.vfov_rad, k.fy)):
+        if not lo <= math.degrees(fov) <= hi:
+            return (
+                f"{name}: a focal length of {f:g} px gives a {math.degrees(fov):.3g} deg field of view over "
+                f"{k.width}x{k.height} px; expected {lo} to {hi} deg (are the intrinsics in pixels?)"
+            )
+    for name, c, size in (("cx", k.cx, k.width), ("cy", k.cy, k.height)):
+        if not -0.5 * size <= c <= 1.5 * size:
+            return f"{name}: principal point {c:g} px is far outside the {size} px image; expected about {size / 2:g}"
+    return None
+
+
+def joint_problem(name: str, angle_rad: float | None) -> str | None:
+    """What is implausible about a joint angle (``None``: no angle, fine)."""
+    if angle_rad is not None and not abs(angle_rad) <= MAX_JOINT_RAD:
+        return f"{name}: a joint angle of {angle_rad:.3g} rad is beyond two turns ({MAX_JOINT_RAD:.3g} rad)"
+    return None
+
+
+def position_problem(cam2world: np.ndarray) -> str | None:  # [4, 4]
+    """What is implausible about the camera position of ``cam2world``, or None."""
+    far = float(np.abs(np.asarray(cam2world)[:3, 3]).max())
+    if not far <= MAX_COORDINATE_M:
+        return f"cam2world: a camera {far:.3g} m from the world origin is beyond {MAX_COORDINATE_M:.0e} m"
+    return None
+
+
+def distance_problem(cam2world: np.ndarray, previous_cam2world: np.ndarray) -> str | None:  # [4, 4], [4, 4]
+    """What is implausible about a frame at ``cam2world`` following one at ``previous_cam2world``."""
+    d = float(np.linalg.norm(np.asarray(cam2world)[:3, 3] - np.asarray(previous_cam2world)[:3, 3]))
+    if not d <= MAX_LOCAL_DISTANCE_M:
+        return (
+            f"cam2world: {d:.3g} m from the frame before (more than {MAX_LOCAL_DISTANCE_M:.0e} m: not the same scene)"
+        )
+    return None

@@ -1,0 +1,283 @@
+"""The planner's active loop: its states (:class:`LoopState`) and its one transition function,
+:meth:`ActiveLoop._advance`, read top to bottom::
+
+    waiting    until the camera (and on a rig the gimbal, standing still) reports
+    initial    capture the view the camera starts at (it is the baseline)
+    exploring  visit a few poses spread over the joint range (rig) or around the start (drone),
+               capturing each
+    planning   build the scorer from every capture, search, and pick the best candidate that the
+               same scorer expects to beat the best captured view by ``margin``
+               (none, or ``max_moves`` spent -> polishing)
+    moving     command it (``gimbal/command``; a drone flies the top candidate of
+               ``planner/suggestion``), wait for arrival (``gimbal/state``, or frames at the pose),
+               capture there and score the real capture with the teacher (it verifies the
+               prediction and feeds the field) -> planning
+    polishing  climb around the best captured view with real captures: its four neighbours
+               ``polish_step_deg`` away (pan/tilt; a drone: yaw/pitch), then those of a better one,
+               up to ``polish_captures`` (composition peaks are a few degrees wide, narrower than
+               the field sees: docs/journal/benchmarks.md, "The rasterizer in place")
+    settling   go back to the best captured view, capture it once more -> done
+    done / failed   the end (failed: a camera gone silent, a fault that outlasted
+               ``fault_timeout_s``, or a settle target not reached; the captures are kept)
+
+A capture is the first frame stamped at least ``settle_s`` after arrival. A gimbal that reports a
+hardware fault pauses the loop in its state (counter ``faults``) until the fault clears (a reboot
+request to the gimbal node). Time comes only from the step's ``now``: a command leaves in the step
+after the planning that chose it, stamped with that step's clock.
+
+What differs between a rig and a drone is asked of the motion adapter (:mod:`.motion`).
+:class:`ActiveLoop` is the active half of :class:`~aes_planner.node.planner.PlannerNode`.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import math
+
+import numpy as np
+import torch
+
+from aes_planner.graph.base import Outputs
+from aes_planner.messages import Candidate, PosedFrame
+from aes_planner.node.captures import Capture, Target, hopes, near_captured
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ActiveLoop", "LoopState"]
+
+
+class LoopState(str, enum.Enum):
+    """The planner's state word (``planner/diagnostics``' ``state``); ``suggesting`` is passive mode's."""
+
+    WAITING = "waiting"
+    INITIAL = "initial"
+    EXPLORING = "exploring"
+    PLANNING = "planning"
+    MOVING = "moving"
+    POLISHING = "polishing"
+    SETTLING = "settling"
+    DONE = "done"
+    FAILED = "failed"
+    SUGGESTING = "suggesting"
+
+    def __str__(self) -> str:
+        return self.value
+
+    __format__ = str.__format__
+
+
+class ActiveLoop:
+    """The active loop's transition function and its helpers (a mixin of ``PlannerNode``)."""
+
+    # ---------------------------------------------------------------- the transition function
+    def _advance(self, now: float, out: Outputs) -> None:
+        if self.motion is None or self._gimbal_fault(now):
+            return
+        if self.state is LoopState.WAITING:
+            if not self.motion.ready(self._frame, self._gimbal):
+                return
+            self._target = self.motion.here("initial", self._frame, self._gimbal)
+            self._target.sent_s = now
+            self._target.arrived_s = now
+            self.state = LoopState.INITIAL
+        if self._target is not None:  # going to a view, or there and waiting for its frame
+            if self._target.arrived_s is None:
+                self._check_arrival(now, out)
+                return
+            frame = self._frame
+            if frame is None or frame.stamp_s < self._target.arrived_s + self.config.settle_s:
+                if now - self._target.arrived_s > self.config.settle_s + self.config.move_timeout_s:
+                    self._capture_timeout(now)
+                return
+            self._record_capture(self._target, frame)
+            finished_target = self._target
+            self._target = None
+            if finished_target.kind == "settle":
+                self._finish(now, LoopState.DONE)
+                return
+        # choose what comes next
+        if self.state is LoopState.INITIAL:
+            self._queue = self.motion.explore(self.config.explore_views, self._frame, self.captures)
+            self.state = LoopState.EXPLORING
+        if self.state is LoopState.EXPLORING and not self._queue:
+            self.state = LoopState.PLANNING
+        if self.state is LoopState.PLANNING:
+            nxt = self._plan(now, out)
+            if nxt is None:
+                self._begin_polish(now)
+            else:
+                self._queue = [nxt]
+                self.state = LoopState.MOVING
+            return  # the command leaves in the next step, stamped after the planning
+        if self.state is LoopState.MOVING and not self._queue:
+            self.state = LoopState.PLANNING
+            return
+        if self.state is LoopState.POLISHING and not self._queue:
+            self._polish_step(now)
+        if self._queue:
+            self._target = self._queue.pop(0)
+            self._send(self._target, now, out)
+
+    # ---------------------------------------------------------------------------- planning
+    def _plan(self, now: float, out: Outputs) -> Target | None:
+        """Search on the field of every capture; the best candidate worth a move, or None."""
+        c = self.config
+        if self.moves >= c.max_moves:
+            return None
+        captured = np.stack([cap.cam2world for cap in self.captures])  # [M, 4, 4]
+        try:
+            best = int(np.argmax([cap.score for cap in self.captures]))
+            proposal = self._propose(captured, max(c.top_k, 4), keep_near=best)
+        except Exception:
+            log.exception("%s: planning failed; settling on the best captured view", self.node_id)
+            return None
+        cands = [cd for cd in proposal.candidates if self._safe_candidate(cd)]
+        out["planner/suggestion"].append(self._suggestion(cands[: c.top_k], proposal.field_version, now))
+        hope = hopes(cands, self.captures, proposal.captured_pred, c.optimism, c.min_sigma, c.residual_length_deg)
+        best_true = max(cap.score for cap in self.captures)
+        for i in np.argsort(-hope, kind="stable"):
+            cd = cands[int(i)]
+            if hope[i] - best_true < c.margin:
+                break  # sorted by hope: no later one promises more
+            if near_captured(self.captures, cd.cam2world, c.min_move_deg, c.min_move_m):
+                continue
+            return Target("move", cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=float(hope[i]))
+        return None
+
+    def _safe_candidate(self, cd: Candidate) -> bool:
+        """A finite candidate, clamped into the platform's range (refusals counted)."""
+        if not np.all(np.isfinite(cd.cam2world)) or not math.isfinite(cd.score):
+            return False
+        if not self.motion.safe(cd):
+            self.counters["commands_refused"] += 1
+            return False
+        return True
+
+    # --------------------------------------------------------------------- polish and settle
+    def _begin_polish(self, now: float) -> None:
+        self._polish_left = self.config.polish_captures
+        self._polish_centre = None
+        self.state = LoopState.POLISHING
+        self._polish_step(now)
+
+    def _polish_step(self, now: float) -> None:
+        """Queue the unvisited neighbours of the best capture when it is new (the climb moved), or
+        settle: the budget is spent, or no neighbour beat the centre."""
+        best = max(self.captures, key=lambda cap: cap.score) if self.captures else None
+        if best is None or best is self._polish_centre or self._polish_left <= 0:
+            self._begin_settle(now)
+            return
+        self._polish_centre = best
+        c = self.config
+        neighbours = self.motion.polish(best, math.radians(c.polish_step_deg))
+        half_step_deg = 0.5 * c.polish_step_deg
+        targets = [t for t in neighbours if not near_captured(self.captures, t.cam2world, half_step_deg, c.min_move_m)]
+        self._queue = targets[: self._polish_left]
+        self._polish_left -= len(self._queue)
+        if not self._queue:
+            self._begin_settle(now)
+
+    def _begin_settle(self, now: float) -> None:
+        if not self.captures:
+            self._finish(now, LoopState.FAILED)
+            return
+        best = max(self.captures, key=lambda cap: cap.score)
+        self._queue = [Target("settle", best.cam2world.copy(), best.pan_rad, best.tilt_rad, predicted=best.score)]
+        self.state = LoopState.SETTLING
+
+    def _finish(self, now: float, state: LoopState) -> None:
+        self.state = state
+        self.finished_s = now
+        self._queue.clear()
+        self._target = None
+
+    # ------------------------------------------------------------------ moving and arriving
+    def _send(self, target: Target, now: float, out: Outputs) -> None:
+        target.sent_s = now
+        target.arrived_s = None
+        if target.kind == "move":
+            self.moves += 1
+            self.counters["moves"] += 1
+        if not self.motion.send(self, target, now, out):
+            self.counters["commands_refused"] += 1
+            self._target = None
+
+    def _check_arrival(self, now: float, out: Outputs) -> None:
+        t, c = self._target, self.config
+        if self.motion.arrived(t, now, self._frame, self._gimbal, c):
+            t.arrived_s = now
+            return
+        waited = now - t.sent_s
+        if waited > c.move_timeout_s / 2 and not t.resent:
+            t.resent = True
+            log.warning("%s: no arrival after %.1f s; sending the command again", self.node_id, waited)
+            if t.kind == "move":
+                self.moves -= 1
+                self.counters["moves"] -= 1
+            self._send(t, now, out)
+            t.sent_s = now - waited
+        elif waited > c.move_timeout_s:
+            self.counters["move_timeouts"] += 1
+            log.warning("%s: target %s not reached in %.1f s; skipped", self.node_id, t.kind, waited)
+            self._target = None
+            if t.kind == "settle":
+                self._finish(now, LoopState.FAILED)
+
+    def _gimbal_fault(self, now: float) -> bool:
+        """Whether a device fault pauses the loop now (and the loop's end when it lasts)."""
+        g = self._gimbal
+        if not self.motion.faulty(g):
+            if self._fault_since is not None:
+                log.warning("%s: gimbal fault cleared; resuming", self.node_id)
+                self._fault_since = None
+                if self._target is not None and self._target.arrived_s is None:
+                    self._target.resent = False
+                    self._target.sent_s = now  # re-command below on the timeout path
+                    self._queue.insert(0, self._target)
+                    self._target = None
+            return False
+        if self._fault_since is None:
+            self._fault_since = now
+            self.counters["faults"] += 1
+            log.error("%s: gimbal reports %s; commands stopped", self.node_id, ", ".join(g.hardware_error) or g.status)
+        if now - self._fault_since > self.config.fault_timeout_s and not self.finished:
+            self._finish(now, LoopState.FAILED)
+        return True
+
+    # ----------------------------------------------------------------------------- capturing
+    def _capture_timeout(self, now: float) -> None:
+        """No frame since the arrival: the camera is silent, and nothing can be captured."""
+        self.counters["capture_timeouts"] += 1
+        log.error(
+            "%s: no usable camera frame %.1f s after arriving for the %s capture (is the camera running? %d "
+            "frames rejected so far, see the warnings); the loop ends",
+            self.node_id,
+            now - self._target.arrived_s,
+            self._target.kind,
+            self.counters["frames_rejected"],
+        )
+        self._finish(now, LoopState.FAILED)
+
+    def _record_capture(self, target: Target, frame: PosedFrame) -> None:
+        img = torch.from_numpy(np.ascontiguousarray(frame.image)).permute(2, 0, 1)[None].float() / 255.0
+        with torch.no_grad():
+            score = float(self.teacher.score(img)[0])
+        pan = frame.pan_rad if getattr(frame, "pan_rad", None) is not None else target.pan_rad
+        tilt = frame.tilt_rad if getattr(frame, "tilt_rad", None) is not None else target.tilt_rad
+        if pan is None:
+            pan, tilt = self.motion.joints_now(self._gimbal)
+        cap = Capture(
+            target.kind, frame.cam2world.copy(), score, frame.stamp_s, pan, tilt, target.predicted, frame.image
+        )
+        self.captures.append(cap)
+        self.counters["captures"] += 1
+        self.counters["frames_used"] += 1
+        self.proposer.add_frame(frame, keep=True)
+        log.info(
+            "%s: captured (%s) score %.3f%s",
+            self.node_id,
+            target.kind,
+            score,
+            f" (predicted {target.predicted:.3f})" if target.predicted is not None else "",
+        )

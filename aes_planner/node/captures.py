@@ -1,0 +1,86 @@
+"""What the planner's active loop keeps: the views it captured (:class:`Capture`) and the views it
+goes to (:class:`Target`), and two questions asked of the captures: is a view already captured
+(:func:`near_captured`), and what may a candidate score given the scorer's errors at the captures
+(:func:`hopes`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from aes_planner.messages import Candidate
+from aes_planner.platform import view_angle_deg
+
+__all__ = ["Capture", "Target", "hopes", "near_captured"]
+
+
+@dataclass
+class Capture:
+    """A view the active loop captured and scored with the teacher (the real image)."""
+
+    kind: str  # initial | explore | move | polish | settle (| passive: the last pose seen)
+    cam2world: np.ndarray  # [4, 4]
+    score: float
+    stamp_s: float
+    pan_rad: float | None = None
+    tilt_rad: float | None = None
+    predicted: float | None = None
+    image: np.ndarray | None = field(default=None, repr=False)  # [H, W, 3] uint8
+
+
+@dataclass
+class Target:
+    """A view the loop commands and then captures (joints on a rig; the pose always)."""
+
+    kind: str  # what its capture will be: initial | explore | move | polish | settle
+    cam2world: np.ndarray  # [4, 4]
+    pan_rad: float | None = None
+    tilt_rad: float | None = None
+    predicted: float | None = None
+    sent_s: float = -1.0
+    arrived_s: float | None = None
+    resent: bool = False
+
+
+def near_captured(captures: list[Capture], cam2world: np.ndarray, limit_deg: float, limit_m: float) -> bool:
+    """Whether a capture looks (almost) the same way from (almost) the same place: closer than
+    ``limit_deg`` with at most ``limit_m`` between them."""
+    for cap in captures:
+        if (
+            view_angle_deg(cap.cam2world, cam2world) < limit_deg
+            and np.linalg.norm(cap.cam2world[:3, 3] - cam2world[:3, 3]) <= limit_m
+        ):
+            return True
+    return False
+
+
+def hopes(
+    cands: list[Candidate],
+    captures: list[Capture],
+    captured_pred: np.ndarray,  # [M]
+    optimism: float,
+    min_sigma: float,
+    residual_length_deg: float,
+) -> np.ndarray:  # -> [C]
+    """What each candidate may score (teacher units): the scorer's prediction corrected by its
+    errors at the captures (true teacher score - prediction; the median error everywhere, the
+    nearby captures' errors on top, by a Gaussian kernel of ``residual_length_deg`` on the view
+    direction), plus ``optimism`` times the errors' spread (at least ``min_sigma``), shrinking
+    near the captures."""
+    scores = np.array([cd.score for cd in cands], dtype=np.float64)
+    true = np.array([cap.score for cap in captures], dtype=np.float64)
+    pred = np.asarray(captured_pred, dtype=np.float64)
+    if not len(cands) or pred.shape != true.shape or not len(true) or not np.all(np.isfinite(pred)):
+        return scores
+    resid = true - pred
+    offset = float(np.median(resid))
+    sigma = max(float(np.sqrt(np.mean((resid - offset) ** 2))) if len(resid) > 1 else 0.0, min_sigma)
+    out = np.empty(len(cands))
+    for j, cd in enumerate(cands):
+        ang = np.array([view_angle_deg(cd.cam2world, cap.cam2world) for cap in captures])
+        w = np.exp(-((ang / residual_length_deg) ** 2))
+        local = float(np.sum(w * (resid - offset)) / (1.0 + np.sum(w)))
+        out[j] = cd.score + offset + local + optimism * sigma / math.sqrt(1.0 + float(np.sum(w)))
+    return out

@@ -1,0 +1,213 @@
+"""How the planner's active loop moves the camera: one adapter per platform.
+
+* :class:`RigMotion` -- a pan-tilt rig: targets are joints, a command is ``gimbal/command``
+  (clamped by :meth:`RigPlatform.clamp <aes_planner.platform.RigPlatform.clamp>`, the planner's
+  one clamp), arrival is the gimbal's own state, a hardware fault pauses the loop.
+* :class:`DroneMotion` -- a drone that flies the top candidate of ``planner/suggestion``:
+  targets are poses inside the box, arrival is a frame seen at the pose.
+
+The loop (:mod:`aes_planner.node.active_loop`) asks the adapter and never the platform's kind.
+The platform needs the camera's intrinsics, so an adapter is made from the config and bound to
+its platform when the first frame arrives (:meth:`Motion.bind`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from abc import ABC, abstractmethod
+
+import numpy as np
+import torch
+
+from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
+from aes_planner.geometry.rig import PanTiltConfig
+from aes_planner.graph.base import Outputs
+from aes_planner.messages import Candidate, GimbalCommand, GimbalState, MessageError, PosedFrame
+from aes_planner.node.captures import Capture, Target
+from aes_planner.platform import DroneBox, DronePlatform, Platform, RigPlatform
+
+log = logging.getLogger(__name__)
+
+__all__ = ["DroneMotion", "Motion", "RigMotion"]
+
+
+class Motion(ABC):
+    """The platform-specific half of the active loop."""
+
+    #: ``ViewSuggestion.mode``'s word for the platform (the wire format's: ``rig`` or ``free``)
+    suggestion_mode: str
+    platform: Platform | None = None
+
+    @abstractmethod
+    def bind(self, intrinsics) -> Platform:
+        """Make (once) and return the platform, with the camera's intrinsics."""
+
+    def faulty(self, gimbal: GimbalState | None) -> bool:
+        """Whether the device reports a hardware fault (the loop pauses)."""
+        return False
+
+    @abstractmethod
+    def ready(self, frame: PosedFrame | None, gimbal: GimbalState | None) -> bool:
+        """Whether the loop can take its first capture."""
+
+    def here(self, kind: str, frame: PosedFrame, gimbal: GimbalState | None) -> Target:
+        """A target at the view the camera shows now."""
+        return Target(kind, frame.cam2world.copy())
+
+    @abstractmethod
+    def explore(self, n: int, frame: PosedFrame, captures: list[Capture]) -> list[Target]:
+        """``n`` exploration targets."""
+
+    @abstractmethod
+    def polish(self, cap: Capture, step_rad: float) -> list[Target]:
+        """The four neighbours ``step_rad`` from a capture, inside the platform's range."""
+
+    @abstractmethod
+    def safe(self, cd: Candidate) -> bool:
+        """Clamp a finite candidate into the platform's range (in place); False to drop it."""
+
+    @abstractmethod
+    def send(self, node, target: Target, now: float, out: Outputs) -> bool:
+        """Command the move to ``target`` (stamped ``now``); False when the command was refused."""
+
+    @abstractmethod
+    def arrived(self, target: Target, now: float, frame, gimbal, config) -> bool:
+        """Whether the camera reached ``target`` (``config``: the planner's tolerances)."""
+
+    def joints_now(self, gimbal: GimbalState | None) -> tuple[float | None, float | None]:
+        """The joints to record with a capture that carries none."""
+        return None, None
+
+
+class RigMotion(Motion):
+    suggestion_mode = "rig"
+
+    def __init__(self, rig: PanTiltConfig):
+        self.rig = rig
+        self.platform: RigPlatform | None = None
+
+    def bind(self, intrinsics) -> RigPlatform:
+        if self.platform is None:
+            self.platform = RigPlatform(intrinsics, self.rig)
+        return self.platform
+
+    def faulty(self, gimbal):
+        return gimbal is not None and (bool(gimbal.hardware_error) or gimbal.status == "fault")
+
+    def ready(self, frame, gimbal):
+        return frame is not None and gimbal is not None and not gimbal.moving
+
+    def here(self, kind, frame, gimbal):
+        if gimbal is None:
+            return super().here(kind, frame, gimbal)
+        kin = self.platform.kinematics
+        return Target(kind, kin.forward(gimbal.pan_rad, gimbal.tilt_rad), gimbal.pan_rad, gimbal.tilt_rad)
+
+    def explore(self, n, frame, captures):
+        """A survey sweep over the joint range, starting at the end nearer the last capture."""
+        kin = self.platform.kinematics
+        joints = kin.sweep(n)  # [n, 2] left to right
+        start = captures[-1].pan_rad if captures else 0.0
+        if start is not None and abs(joints[-1, 0] - start) < abs(joints[0, 0] - start):
+            joints = joints[::-1]
+        return [Target("explore", kin.forward(p, t), float(p), float(t)) for p, t in joints]
+
+    def polish(self, cap, step_rad):
+        if cap.pan_rad is None or cap.tilt_rad is None:
+            return []
+        out = []
+        for dp, dt in ((step_rad, 0.0), (-step_rad, 0.0), (0.0, step_rad), (0.0, -step_rad)):
+            pan, tilt = self.platform.clamp(cap.pan_rad + dp, cap.tilt_rad + dt)
+            out.append(Target("polish", self.platform.kinematics.forward(pan, tilt), pan, tilt))
+        return out
+
+    def safe(self, cd):
+        if cd.pan_rad is None or not (math.isfinite(cd.pan_rad) and math.isfinite(cd.tilt_rad)):
+            return False
+        cd.pan_rad, cd.tilt_rad = self.platform.clamp(cd.pan_rad, cd.tilt_rad)
+        cd.cam2world = self.platform.kinematics.forward(cd.pan_rad, cd.tilt_rad)
+        return True
+
+    def send(self, node, target, now, out):
+        try:
+            pan, tilt = self.platform.clamp(target.pan_rad, target.tilt_rad)
+            cmd = GimbalCommand("move", pan, tilt, stamp_s=now, sequence=node._next("cmd"))
+        except (MessageError, ValueError) as exc:  # JointCommandError: NaN/Inf
+            log.warning("%s: refused to command %s: %s", node.node_id, target, exc)
+            return False
+        target.pan_rad, target.tilt_rad = pan, tilt
+        target.cam2world = self.platform.kinematics.forward(pan, tilt)
+        out["gimbal/command"].append(cmd)
+        node.counters["commands_sent"] += 1
+        return True
+
+    def arrived(self, target, now, frame, gimbal, config):
+        if gimbal is None or gimbal.stamp_s <= target.sent_s:
+            return False
+        # a goal other than ours: the device clamped it (narrower limits), or this state
+        # predates our command; accept it only once the device had time to see the command
+        any_goal = now - target.sent_s > 2.0 and gimbal.stamp_s > target.sent_s + 1.0
+        tol = math.radians(config.arrival_tolerance_deg)
+        return self.platform.arrived(gimbal, target.pan_rad, target.tilt_rad, tol, any_goal=any_goal)
+
+    def joints_now(self, gimbal):
+        return (gimbal.pan_rad, gimbal.tilt_rad) if gimbal is not None else (None, None)
+
+
+class DroneMotion(Motion):
+    suggestion_mode = "free"
+
+    def __init__(self, box: DroneBox, search_config):
+        self.box = box
+        self.search_config = search_config  # the proposer's: its pitch range bounds the polish
+        self.platform: DronePlatform | None = None
+        self.space = None
+
+    def bind(self, intrinsics) -> DronePlatform:
+        if self.platform is None:
+            self.platform = DronePlatform(intrinsics, self.box)
+            self.space = self.platform.search_space(self.search_config)
+        return self.platform
+
+    def ready(self, frame, gimbal):
+        return frame is not None
+
+    def _pose(self, x, y, z, yaw, pitch) -> np.ndarray:  # -> [4, 4], position in the box
+        x, y, z = self.box.clamp([x, y, z])
+        return view_to_cam2world(torch.tensor([x, y, z, yaw, pitch], dtype=torch.float64)).numpy()
+
+    def explore(self, n, frame, captures):
+        """Turn in place at the start position: yaw spread around the circle, pitched alternately
+        10 deg down and 5 deg up."""
+        x, y, z, yaw0, _ = cam2world_to_view(frame.cam2world)
+        targets = []
+        for i in range(1, n + 1):
+            yaw = yaw0 + 2 * math.pi * i / (n + 1)
+            pitch = math.radians(-10.0) if i % 2 else math.radians(5.0)
+            targets.append(Target("explore", self._pose(x, y, z, math.atan2(math.sin(yaw), math.cos(yaw)), pitch)))
+        return targets
+
+    def polish(self, cap, step_rad):
+        """Yaw and pitch ``step_rad`` away, the position kept, the pitch inside the searched range."""
+        lo, hi = float(self.space.lower[4]), float(self.space.upper[4])
+        x, y, z, yaw, pitch = (float(v) for v in cam2world_to_view(cap.cam2world))
+        offsets = ((step_rad, 0.0), (-step_rad, 0.0), (0.0, step_rad), (0.0, -step_rad))
+        return [Target("polish", self._pose(x, y, z, yaw + dy, min(max(pitch + dp, lo), hi))) for dy, dp in offsets]
+
+    def safe(self, cd):
+        cd.cam2world = self.platform.clamp(cd.cam2world)
+        return True
+
+    def send(self, node, target, now, out):
+        cand = Candidate(target.cam2world, target.predicted if target.predicted is not None else 0.0)
+        version = node.proposer.version if node.proposer else 0
+        out["planner/suggestion"].append(node._suggestion([cand], version, now, "waypoint"))
+        return True
+
+    def arrived(self, target, now, frame, gimbal, config):
+        if frame is None or frame.stamp_s <= target.sent_s:
+            return False
+        return self.platform.arrived(
+            frame.cam2world, target.cam2world, config.arrival_tolerance_deg, config.arrival_tolerance_m
+        )

@@ -1,0 +1,151 @@
+"""``PlannerConfig``: every knob of :class:`~aes_planner.node.planner.PlannerNode`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from aes_planner.config import require, require_numbers
+from aes_planner.geometry.rig import PanTiltConfig
+from aes_planner.platform import DroneBox, parse_kind
+from aes_planner.runtime import MAX_THREADS
+
+__all__ = ["PlannerConfig"]
+
+
+@dataclass
+class PlannerConfig:
+    """How the planner builds its field, searches and (on a rig) drives the active loop.
+
+    * ``scorer``: ``"field"`` (the trained aesthetic field, the default: better and faster in the
+      closed loop on held-out scenes, docs/benchmarks.md) or ``"rgb"`` (RGB scoring of the
+      reconstruction).
+    * ``preset``: search preset (``fast``, ``balanced``, ``accurate``); ``teacher``: the teacher name.
+    * ``active``: run the active loop (commands the gimbal / flies the drone); false = suggest only.
+    * ``explore_views``: captures spread over the range before the first suggestion.
+    * ``max_moves``: suggestion-driven moves at most; ``margin``: the gain (teacher units) a
+      suggestion must promise over the best captured view to be worth a move. The promise is the
+      scorer's prediction calibrated on the captures (their true teacher scores: ``true = pred +
+      offset``, offset the median residual) plus ``optimism`` times the residuals' spread (at
+      least ``min_sigma``): a scorer that is often wrong earns more checks. Errors at captures
+      within about ``residual_length_deg`` of a candidate correct it most (and shrink its spread).
+    * ``min_move_deg``: a candidate closer than this (view direction) to a captured view, with
+      no more than ``min_move_m`` of translation, is not a new view.
+    * ``polish_captures``: captures spent, after the last move, on a hill climb around the best
+      captured view (neighbours ``polish_step_deg`` away in pan and tilt, or yaw and pitch for a
+      drone; the climb moves to a better neighbour and stops when none is better); 0 = settle
+      at once. ``polish_step_deg`` should exceed ``arrival_tolerance_deg``.
+    * ``top_k``: candidates per published suggestion.
+    * ``max_frames``: frames the field holds (memory bound); captures are kept before passive frames.
+    * ``arrival_tolerance_deg`` / ``arrival_tolerance_m``: how close counts as arrived;
+      ``settle_s``: wait after arrival before a frame counts as the capture;
+      ``move_timeout_s``: give up on a target after this long; a camera that sends no frame
+      for this long after an arrival ends the loop (``failed``, the captures so far kept).
+    * ``max_stamp_ahead_s``: a frame or gimbal state stamped further ahead of this node's clock
+      is rejected and counted: kept as the newest, it would hide every later one (a publisher
+      whose clock is wrong; synchronise the machines' clocks, e.g. with chrony).
+    * ``fault_timeout_s``: how long a hardware fault may last before the loop ends.
+    * ``min_suggest_period_s``: passive mode, the shortest time between suggestions.
+    * ``diagnostics_period_s``: how often ``planner/diagnostics`` is published.
+    * ``rig`` / ``drone``: the platform: a rig's kinematics and joint limits, or a drone's box
+      (a :class:`~aes_planner.platform.DroneBox`; a sim launch fills either from the scene).
+    * ``mode``: the platform kind: ``auto`` (the platform given or the scene's), ``rig`` or
+      ``drone`` (on a rig scene, a drone in the box around the rig's base:
+      :meth:`~aes_planner.platform.Platform.free_box`); ``free`` is read as ``drone``.
+    * ``seed``: for the search's sampling.
+    * ``threads``: CPU threads for the planner's torch and numba work (torch's count is
+      process-wide); 0 = torch's default, all cores. 1 keeps a suggestion steady beside busy
+      processes (``balanced``, 2 cores, one busy process beside: 0.86 s with 1 thread, 2.1 s with
+      2; idle 0.76 s against 0.62 s; docs/benchmarks.md, "Threading layer").
+    * ``adapt_threads``: with ``threads: 0``, let a :class:`~aes_planner.runtime.ThreadGovernor`
+      try one thread when the suggestions do not get the cores (a busy neighbour), keep whichever
+      count runs them faster, and probe all cores again now and then; diagnostics report
+      ``threads``, ``cpu_efficiency`` and ``thread_changes``.
+    """
+
+    scorer: str = "field"
+    preset: str = "balanced"
+    teacher: str = "composition"
+    active: bool = True
+    explore_views: int = 6
+    max_moves: int = 6
+    margin: float = 0.01
+    optimism: float = 1.0
+    min_sigma: float = 0.02
+    residual_length_deg: float = 15.0
+    min_move_deg: float = 3.0
+    min_move_m: float = 0.1
+    polish_captures: int = 8
+    polish_step_deg: float = 2.5
+    top_k: int = 3
+    max_frames: int = 24
+    arrival_tolerance_deg: float = 1.5
+    arrival_tolerance_m: float = 0.05
+    settle_s: float = 0.05
+    move_timeout_s: float = 20.0
+    max_stamp_ahead_s: float = 5.0
+    fault_timeout_s: float = 10.0
+    min_suggest_period_s: float = 0.5
+    diagnostics_period_s: float = 1.0
+    rig: PanTiltConfig | None = None
+    drone: DroneBox | None = None
+    mode: str = "auto"
+    seed: int = 0
+    threads: int = 0
+    adapt_threads: bool = True
+
+    def __post_init__(self):
+        require(self.scorer in ("field", "rgb"), "scorer", f"must be 'field' or 'rgb', got {self.scorer!r}")
+        require(
+            self.preset in ("fast", "balanced", "accurate"),
+            "preset",
+            f"must be fast, balanced or accurate, got {self.preset!r}",
+        )
+        for name in ("explore_views", "max_moves", "top_k", "max_frames", "threads", "polish_captures"):
+            v = getattr(self, name)
+            require(
+                isinstance(v, int) and not isinstance(v, bool) and v >= 0, name, f"must be an integer >= 0, got {v!r}"
+            )
+        require(self.top_k >= 1, "top_k", f"must be >= 1, got {self.top_k}")
+        from aes_planner.messages.suggestion import MAX_CANDIDATES
+
+        # a suggestion message holds at most MAX_CANDIDATES (more failed every publish)
+        require(self.top_k <= MAX_CANDIDATES, "top_k", f"must be <= {MAX_CANDIDATES}, got {self.top_k}")
+        for name, most in (
+            ("explore_views", 64),
+            ("polish_captures", 64),
+            ("max_moves", 10_000),
+            ("max_frames", 1024),
+            ("threads", MAX_THREADS),
+        ):
+            v = getattr(self, name)
+            require(v <= most, name, f"must be <= {most}, got {v}")
+        require(self.max_frames >= 2, "max_frames", f"must be >= 2, got {self.max_frames}")
+        require_numbers(
+            self, ("margin", "optimism", "min_sigma", "min_move_deg", "min_move_m", "settle_s"), strict=False
+        )
+        require_numbers(self, ("residual_length_deg", "polish_step_deg"))
+        require(self.polish_step_deg <= 30.0, "polish_step_deg", f"must be <= 30, got {self.polish_step_deg}")
+        require_numbers(
+            self,
+            (
+                "arrival_tolerance_deg",
+                "arrival_tolerance_m",
+                "move_timeout_s",
+                "max_stamp_ahead_s",
+                "fault_timeout_s",
+                "min_suggest_period_s",
+                "diagnostics_period_s",
+            ),
+        )
+        for name, most in (  # time-like knobs: an hour at most (1e6 s waited as good as forever)
+            ("settle_s", 60.0),
+            ("move_timeout_s", 3600.0),
+            ("max_stamp_ahead_s", 3600.0),
+            ("fault_timeout_s", 3600.0),
+            ("min_suggest_period_s", 3600.0),
+            ("diagnostics_period_s", 3600.0),
+        ):
+            v = getattr(self, name)
+            require(v <= most, name, f"must be <= {most:g} s, got {v}")
+        require(self.rig is None or self.drone is None, "drone", "give a rig or a drone, not both")
+        self.mode = parse_kind(self.mode, "mode", allow_auto=True)

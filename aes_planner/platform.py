@@ -1,0 +1,353 @@
+"""Platforms: where the camera can go, and how it gets there.
+
+A platform is a :class:`RigPlatform` (a camera on a pan-tilt rig: its kinematics and joint limits)
+or a :class:`DronePlatform` (a camera that flies inside an axis-aligned box). The platform owns
+everything that differs between the two, so code above it asks the platform instead of testing
+its kind:
+
+* its search space (:meth:`Platform.search_space`: joints or 5-DoF views, with the bounds the
+  search projects onto) and its random poses (:meth:`Platform.random_poses`: the one sampler
+  behind every "mean random" baseline, the oracle's included);
+* the clamp a command passes (:meth:`RigPlatform.clamp`: the joint limits, NaN/Inf refused;
+  :meth:`DronePlatform.clamp`: the box);
+* the box free flight takes around it (:meth:`Platform.free_box`: a rig's is
+  ``RIG_FREE_BOX_HALF_M`` around its base, a drone's is its own);
+* the arrival test (:meth:`RigPlatform.arrived`: the gimbal at its goal, the goal ours;
+  :meth:`DronePlatform.arrived`: a frame's pose close to the target's).
+
+**One word for the kind**: ``rig`` or ``drone`` (:attr:`Platform.kind`). ``free`` -- the word the
+search, the launch files and the command line used for a drone before -- is still accepted
+wherever a kind is read (:func:`parse_kind`), so no launch file or command breaks.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from aes_planner.config import ConfigError, require, require_finite, short_repr, to_dict
+from aes_planner.geometry.camera import Intrinsics
+from aes_planner.geometry.pantilt import PanTilt
+from aes_planner.geometry.poses import view_to_cam2world
+from aes_planner.geometry.rig import PanTiltConfig
+
+__all__ = [
+    "KINDS",
+    "RIG_FREE_BOX_HALF_M",
+    "DroneBox",
+    "DronePlatform",
+    "Platform",
+    "RigPlatform",
+    "free_box_around",
+    "parse_kind",
+    "platform_from_meta",
+    "platform_to_meta",
+    "view_angle_deg",
+]
+
+#: The platform kinds, and the older words read as one of them (``free`` flew a drone).
+KINDS = ("rig", "drone")
+_ALIASES = {"rig": "rig", "drone": "drone", "free": "drone"}
+
+#: Half-size of the box free flight takes around a rig's base, metres: ``eval search``'s drone mode
+#: on a rig scene, the field's ``survey`` training inputs, and the simulated drone of ``demo --mode
+#: drone`` on a rig scene. (The sim drone flew +-1 m x 1 m x 0.5 m before; this box is the one the
+#: committed ``eval search`` tables and the shipped field's training inputs were made with.)
+RIG_FREE_BOX_HALF_M = (0.8, 0.8, 0.3)
+
+#: A drone box's largest side and farthest coordinate, metres (a search samples inside it).
+MAX_BOX_SIDE_M = 1e6
+#: A drone box's smallest side, metres: a drone holds its position to about this; a thinner box
+#: (a side of 0 or 1e-300 m) is a mistake, and would leave the search nowhere to go.
+MIN_BOX_SIDE_M = 0.1
+MAX_COORDINATE_M = 1e9
+
+
+def parse_kind(word, key: str = "kind", allow_auto: bool = False) -> str:
+    """``rig`` or ``drone`` from what a user wrote (``free`` means ``drone``; ``auto`` passes through
+    when ``allow_auto``); anything else is a :class:`~aes_planner.config.ConfigError` on ``key``."""
+    if allow_auto and word == "auto":
+        return "auto"
+    if isinstance(word, str) and word in _ALIASES:
+        return _ALIASES[word]
+    choices = "auto, rig or drone" if allow_auto else "rig or drone"
+    raise ConfigError(key, f"must be {choices} ('free' is read as drone), got {short_repr(word)}")
+
+
+@dataclass(frozen=True)
+class DroneBox:
+    """The axis-aligned box a drone may fly in, world metres."""
+
+    bounds_min_m: tuple[float, float, float]
+    bounds_max_m: tuple[float, float, float]
+
+    def __post_init__(self):
+        require_finite(list(self.bounds_min_m) + list(self.bounds_max_m), "bounds_m")
+        require(
+            len(self.bounds_min_m) == 3 and len(self.bounds_max_m) == 3,
+            "bounds_m",
+            f"need 3 numbers each (x, y, z), got {list(self.bounds_min_m)} / {list(self.bounds_max_m)}",
+        )
+        require(
+            all(lo < hi for lo, hi in zip(self.bounds_min_m, self.bounds_max_m)),
+            "bounds_max_m",
+            f"every component must exceed bounds_min_m, got {list(self.bounds_min_m)} / {list(self.bounds_max_m)}",
+        )
+        for name in ("bounds_min_m", "bounds_max_m"):
+            far = max(abs(v) for v in getattr(self, name))
+            require(far <= MAX_COORDINATE_M, name, f"a coordinate of {far:.3g} m is beyond {MAX_COORDINATE_M:.0e} m")
+        thin = min(hi - lo for lo, hi in zip(self.bounds_min_m, self.bounds_max_m))
+        require(
+            thin >= MIN_BOX_SIDE_M,
+            "bounds_max_m",
+            f"a box {thin:.3g} m thin is smaller than a drone holds its position ({MIN_BOX_SIDE_M} m); "
+            "give every side at least that",
+        )
+        side = max(hi - lo for lo, hi in zip(self.bounds_min_m, self.bounds_max_m))
+        require(
+            side <= MAX_BOX_SIDE_M, "bounds_max_m", f"a box {side:.3g} m across is larger than {MAX_BOX_SIDE_M:.0e} m"
+        )
+
+    def contains(self, xyz_m) -> np.ndarray:  # [..., 3] -> [...] bool
+        p = np.asarray(xyz_m, dtype=np.float64)
+        return np.all((p >= self.bounds_min_m) & (p <= self.bounds_max_m), axis=-1)
+
+    def clamp(self, xyz_m) -> np.ndarray:  # [..., 3] -> [..., 3]
+        return np.clip(np.asarray(xyz_m, dtype=np.float64), self.bounds_min_m, self.bounds_max_m)
+
+    @property
+    def diagonal_m(self) -> float:
+        return float(np.linalg.norm(np.subtract(self.bounds_max_m, self.bounds_min_m)))
+
+    @classmethod
+    def around(cls, centre_m, half_m, floor_m: float = 0.3) -> DroneBox:
+        """The box ``centre_m +- half_m`` (world metres), its floor raised to ``floor_m``."""
+        half = np.broadcast_to(np.asarray(half_m, dtype=np.float64), (3,))
+        require(bool(np.all(half > 0)), "half_m", f"must be > 0 in every axis, got {half.tolist()}")
+        lo = np.asarray(centre_m, dtype=np.float64) - half
+        hi = np.asarray(centre_m, dtype=np.float64) + half
+        lo[2] = max(lo[2], floor_m)
+        return cls(tuple(lo.tolist()), tuple(hi.tolist()))
+
+    def diagonal_positions_m(self, n: int) -> np.ndarray:  # -> [n, 3]
+        """``n`` positions from 1/4 to 3/4 along the box's horizontal diagonal, at mid height."""
+        lo, hi = np.asarray(self.bounds_min_m), np.asarray(self.bounds_max_m)
+        ts = np.linspace(0.25, 0.75, n) if n > 1 else np.array([0.5])
+        return lo + ts[:, None] * (hi - lo) * np.array([1.0, 1.0, 0.0]) + np.array([0, 0, 0.5]) * (hi - lo)
+
+    def survey_poses(self, n: int, pitch_deg: float = -10.0) -> np.ndarray:  # -> [n, 4, 4]
+        """``n`` cam2world on an arc inside the box (a quarter of the way in from its walls, at mid
+        height), each looking across the box centre, slightly down."""
+        if n < 1:
+            raise ValueError(f"survey_poses needs n >= 1 views, got {n}")
+        lo, hi = np.asarray(self.bounds_min_m), np.asarray(self.bounds_max_m)
+        centre, half = (lo + hi) / 2, (hi - lo) / 4
+        angles = np.linspace(-0.75 * np.pi, 0.75 * np.pi, n) if n > 1 else np.zeros(1)
+        views = np.stack(
+            [
+                centre[0] - half[0] * np.cos(angles),
+                centre[1] - half[1] * np.sin(angles),
+                np.full(n, centre[2]),
+                angles,  # from the arc, looking back across the centre
+                np.full(n, np.radians(pitch_deg)),
+            ],
+            axis=-1,
+        )
+        return view_to_cam2world(views)
+
+
+def view_angle_deg(a: np.ndarray, b: np.ndarray) -> float:  # [4, 4], [4, 4] -> degrees
+    """Angle between two cam2world poses' optical axes, degrees."""
+    za, zb = a[:3, 2], b[:3, 2]
+    return math.degrees(math.atan2(np.linalg.norm(np.cross(za, zb)), float(np.dot(za, zb))))
+
+
+def free_box_around(rig: PanTiltConfig, half_m=RIG_FREE_BOX_HALF_M) -> DroneBox:
+    """The box free flight takes around a rig's base: ``half_m`` each way, the floor at 0.3 m."""
+    return DroneBox.around(rig.base_xyz_m, np.asarray(half_m))
+
+
+@dataclass(frozen=True)
+class Platform(ABC):
+    """Where the camera can go (see the module docstring). ``rig`` / ``drone`` are the
+    :class:`PanTiltConfig` / :class:`DroneBox` of the platform that has one, else None."""
+
+    intrinsics: Intrinsics
+    kind: ClassVar[str]
+    rig = None
+    drone = None
+
+    def search_space(self, cfg=None):
+        """The search space of this platform under a :class:`~aes_planner.search.SearchConfig`
+        (default settings when None)."""
+        from aes_planner.search.config import SearchConfig
+
+        return self._space(cfg if cfg is not None else SearchConfig())
+
+    def random_poses(self, n: int, rng: np.random.Generator, cfg=None) -> np.ndarray:  # -> [n, 4, 4]
+        """``n`` feasible poses drawn uniformly over the search space's bounds (rig: the joint
+        ranges; drone: the box, any yaw, the searched pitch range): the chance level of every
+        oracle-normalised score."""
+        space = self.search_space(cfg)
+        return space.to_poses(space.random(n, rng)).detach().numpy()
+
+    @abstractmethod
+    def _space(self, cfg):
+        """The search space (the search package's class for this kind)."""
+
+    @abstractmethod
+    def free_box(self, half_m=RIG_FREE_BOX_HALF_M) -> DroneBox:
+        """The box a drone flies in here: a rig's ``half_m`` around its base, a drone's own."""
+
+    def as_drone(self) -> DronePlatform:
+        """The drone platform of :meth:`free_box` (itself for a drone)."""
+        return DronePlatform(self.intrinsics, self.free_box())
+
+    @abstractmethod
+    def to_meta(self) -> dict:
+        """The JSON-ready description a dataset folder's ``meta`` carries."""
+
+
+@dataclass(frozen=True)
+class RigPlatform(Platform):
+    """A camera on a pan-tilt rig: joints inside their limits, through the rig's kinematics."""
+
+    rig: PanTiltConfig
+    kind: ClassVar[str] = "rig"
+
+    def __post_init__(self):
+        require(isinstance(self.rig, PanTiltConfig), "rig", f"a rig platform needs a PanTiltConfig, got {self.rig!r}")
+
+    @functools.cached_property
+    def kinematics(self) -> PanTilt:
+        return PanTilt(self.rig)
+
+    def _space(self, cfg):
+        from aes_planner.search.space import RigSpace
+
+        hfov = self.intrinsics.hfov_rad
+        return RigSpace(self, cfg.jitter_fov * hfov, cfg.dedup_fov * hfov)
+
+    def clamp(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
+        """The joints inside the limits (:meth:`JointLimits.clamp`; NaN/Inf raise
+        :class:`~aes_planner.geometry.JointCommandError`): the one clamp a planner's command passes."""
+        return self.kinematics.clamp(pan_rad, tilt_rad)
+
+    def arrived(self, state, pan_rad: float, tilt_rad: float, tol_rad: float, any_goal: bool = False) -> bool:
+        """Whether a gimbal ``state`` (:class:`~aes_planner.messages.GimbalState`) stands still at
+        its goal, and that goal is ``(pan_rad, tilt_rad)`` within ``tol_rad`` (``any_goal``: any
+        goal, for a device that clamped ours to narrower limits)."""
+        if state is None or state.moving:
+            return False
+        at_goal = (
+            abs(state.pan_rad - state.goal_pan_rad) < tol_rad and abs(state.tilt_rad - state.goal_tilt_rad) < tol_rad
+        )
+        ours = abs(state.goal_pan_rad - pan_rad) < tol_rad and abs(state.goal_tilt_rad - tilt_rad) < tol_rad
+        return at_goal and (ours or any_goal)
+
+    def free_box(self, half_m=RIG_FREE_BOX_HALF_M) -> DroneBox:
+        return free_box_around(self.rig, half_m)
+
+    def to_meta(self) -> dict:
+        return {"platform": "rig", "rig": to_dict(self.rig)}
+
+
+@dataclass(frozen=True)
+class DronePlatform(Platform):
+    """A camera that flies inside ``drone`` (a :class:`DroneBox`), 5 DoF (x, y, z, yaw, pitch)."""
+
+    drone: DroneBox
+    kind: ClassVar[str] = "drone"
+
+    def __post_init__(self):
+        require(isinstance(self.drone, DroneBox), "drone", f"a drone platform needs a DroneBox, got {self.drone!r}")
+
+    @property
+    def box(self) -> DroneBox:
+        return self.drone
+
+    def _space(self, cfg):
+        from aes_planner.search.space import FreeSpace
+
+        hfov, diag = self.intrinsics.hfov_rad, self.drone.diagonal_m
+        return FreeSpace(
+            self,
+            cfg.jitter_fov * hfov,
+            cfg.dedup_fov * hfov,
+            cfg.shift_frac * diag,
+            cfg.dedup_frac * diag,
+            cfg.pitch_limits_rad,
+        )
+
+    def clamp(self, cam2world: np.ndarray) -> np.ndarray:  # [4, 4] -> [4, 4], the position inside the box
+        """The pose with its position moved into the box (the same pose when it is inside)."""
+        if bool(self.drone.contains(cam2world[:3, 3])):
+            return cam2world
+        out = np.array(cam2world, dtype=np.float64)
+        out[:3, 3] = self.drone.clamp(out[:3, 3])
+        return out
+
+    def arrived(self, cam2world: np.ndarray, target: np.ndarray, tol_deg: float, tol_m: float) -> bool:
+        """Whether a camera at ``cam2world [4, 4]`` looks within ``tol_deg`` of the way ``target
+        [4, 4]`` does, from within ``tol_m`` of its place."""
+        close = view_angle_deg(cam2world, target) < tol_deg
+        return close and bool(np.linalg.norm(cam2world[:3, 3] - target[:3, 3]) < tol_m)
+
+    def free_box(self, half_m=RIG_FREE_BOX_HALF_M) -> DroneBox:
+        return self.drone
+
+    def as_drone(self) -> DronePlatform:
+        return self
+
+    def to_meta(self) -> dict:
+        box = self.drone
+        return {
+            "platform": "drone",
+            "drone": {"bounds_min_m": list(box.bounds_min_m), "bounds_max_m": list(box.bounds_max_m)},
+        }
+
+
+def platform_to_meta(platform: Platform) -> dict:
+    """The JSON-ready description a dataset folder's ``meta`` carries: ``{"platform": "rig",
+    "rig": {PanTiltConfig fields}}`` or ``{"platform": "drone", "drone": {"bounds_min_m", "bounds_max_m"}}``."""
+    return platform.to_meta()
+
+
+def platform_from_meta(meta: dict, intrinsics: Intrinsics) -> Platform | None:
+    """The :class:`Platform` written by :func:`platform_to_meta`, or ``None`` when ``meta`` has none.
+
+    Malformed sections raise :class:`~aes_planner.config.ConfigError` naming the key."""
+    from aes_planner.config import from_dict
+
+    kind = meta.get("platform")
+    if kind is None:
+        return None
+    if kind not in KINDS:
+        raise ConfigError("meta.platform", f"must be 'rig' or 'drone', got {short_repr(kind)}")
+    section = meta.get(kind)
+    if section is None:
+        return None
+    if not isinstance(section, dict):
+        raise ConfigError(f"meta.{kind}", f"expected a mapping, got {short_repr(section)}")
+    if kind == "rig":
+        rig = from_dict(
+            PanTiltConfig, {k: tuple(v) if isinstance(v, list) else v for k, v in section.items()}, "meta.rig"
+        )
+        return RigPlatform(intrinsics, rig)
+    require(set(section) == {"bounds_min_m", "bounds_max_m"}, "meta.drone", "needs bounds_min_m and bounds_max_m only")
+    lo, hi = section["bounds_min_m"], section["bounds_max_m"]
+    require(
+        isinstance(lo, list) and isinstance(hi, list) and len(lo) == 3 and len(hi) == 3,
+        "meta.drone",
+        f"bounds must be 3 numbers each, got {lo!r} / {hi!r}",
+    )
+    try:
+        box = DroneBox(tuple(lo), tuple(hi))
+    except ConfigError as exc:
+        raise ConfigError(f"meta.drone.{exc.key}", exc.message) from None
+    return DronePlatform(intrinsics, box)
