@@ -112,7 +112,7 @@ def test_suggest_report_never_reads_a_scene_file_named_by_the_folder(tmp_path, d
 @pytest.fixture(scope="module")
 def folders(tmp_path_factory):
     root = tmp_path_factory.mktemp("sweep3")
-    scenes = Path(__file__).parents[1] / "node" / "scenes"
+    scenes = Path(__file__).parents[1] / "scenes"
     out = {}
     for name, scene in (("rig", "tabletop:0"), ("drone", str(scenes / "yard_drone.yaml"))):
         args = ["sim", "render", "--scene", scene, "--views", "3", "--out", str(root / name), "--supersample", "1"]
