@@ -41,7 +41,7 @@ __all__ = [
     "CameraError",
     "CameraImage",
     "Gimbal",
-    "GimbalState",
+    "GimbalReading",
     "GimbalFaults",
     "DeviceError",
     "GimbalCommError",
@@ -97,8 +97,10 @@ class GimbalHardwareError(DeviceError):
 
 
 @dataclass(frozen=True)
-class GimbalState:
-    """What a gimbal reports.
+class GimbalReading:
+    """What a gimbal reports, read from its servos (the device layer's view, numpy-free so that a
+    driver process starts fast). On the bus it travels as the message
+    :class:`aes_planner.messages.GimbalState` (``GimbalState.from_device``).
 
     * ``pan_rad``, ``tilt_rad``: present pan and tilt joint angles (``pan_deg``/``tilt_deg`` too).
     * ``goal_pan_rad``, ``goal_tilt_rad``: the goal the servos are moving to.
@@ -192,11 +194,11 @@ class Gimbal(Device):
         """
 
     @abstractmethod
-    def state(self) -> GimbalState:
+    def state(self) -> GimbalReading:
         """Read the present state."""
 
     @abstractmethod
-    def wait_until_reached(self, timeout_s: float | None = None) -> GimbalState:
+    def wait_until_reached(self, timeout_s: float | None = None) -> GimbalReading:
         """Block until the last goal is reached and the joints are still; return that state.
 
         Raises :class:`GimbalTimeoutError` after ``timeout_s`` (the implementation's default
@@ -298,7 +300,7 @@ MAX_WAIT_S = 600.0  # the longest wait_until_reached() accepts
 
 
 def wait_for_arrival(
-    read_state: Callable[[], GimbalState],
+    read_state: Callable[[], GimbalReading],
     timeout_s: float,
     tolerance_rad: float,
     poll_interval_s: float,
@@ -307,7 +309,7 @@ def wait_for_arrival(
     sleep: Callable[[float], None] = time.sleep,
     faults: Callable[[], Mapping[str, tuple[str, ...]]] = dict,
     hint: str = "",
-) -> GimbalState:
+) -> GimbalReading:
     """The loop behind :meth:`Gimbal.wait_until_reached`: poll ``read_state()`` until the joints are
     still and within ``tolerance_rad`` of the goal.
 

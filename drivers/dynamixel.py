@@ -13,7 +13,7 @@ Protocol 2.0, position mode. The life of a command::
 Faults: every SDK exchange runs under one lock, resets the SDK's ``is_using`` flag afterwards and
 is retried with exponential backoff on timeouts and corrupt replies (a short status packet counts
 as corrupt; the SDK would index past its end). A status with the hardware-alert bit reads
-Hardware Error Status, reports the fault in :class:`GimbalState`, turns torque off on both
+Hardware Error Status, reports the fault in :class:`GimbalReading`, turns torque off on both
 servos and refuses motion until :meth:`DynamixelPanTilt.reboot`. Communication lost after every
 retry is fatal too (torque off, best effort).
 
@@ -53,7 +53,7 @@ from aes_planner.devices import (
     GimbalHardwareError,
     GimbalPortLostError,
     GimbalProtocolError,
-    GimbalState,
+    GimbalReading,
     joint_command,
     wait_for_arrival,
 )
@@ -253,7 +253,7 @@ class DynamixelPanTilt(Gimbal):
             self._last_goals = goals
         return pan_rad, tilt_rad
 
-    def state(self) -> GimbalState:
+    def state(self) -> GimbalReading:
         with self._lock:
             self._ensure_port(polling=True)
             rows, alerts = self._sync_read_state()
@@ -262,7 +262,7 @@ class DynamixelPanTilt(Gimbal):
             hardware_error = tuple(f"{j}: {f}" for j in JOINTS for f in self._faults.get(j, ()))
         stamp_s = time.time()
         pan, tilt = rows["pan"], rows["tilt"]
-        return GimbalState(
+        return GimbalReading(
             pan_rad=self._cal["pan"].to_rad(pan["present_position"]),
             tilt_rad=self._cal["tilt"].to_rad(tilt["present_position"]),
             goal_pan_rad=self._cal["pan"].to_rad(pan["goal_position"]),
@@ -273,7 +273,7 @@ class DynamixelPanTilt(Gimbal):
             stamp_s=stamp_s,
         )
 
-    def wait_until_reached(self, timeout_s: float | None = None) -> GimbalState:
+    def wait_until_reached(self, timeout_s: float | None = None) -> GimbalReading:
         return wait_for_arrival(
             self.state,
             *arrival_settings(self.config, timeout_s),

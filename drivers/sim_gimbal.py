@@ -9,7 +9,7 @@ The ``sim_pan_tilt`` launch type, for fast node tests and simulated closed loops
   ``max_acceleration_deg_s2``), integrated in steps of at most 2 ms whenever the gimbal is read;
 * torque off (``disconnect()``, a hardware error, communication lost after the retries) stops
   the joints where they are;
-* time comes from ``clock`` (seconds; ``time.time`` by default, so that ``GimbalState.stamp_s``
+* time comes from ``clock`` (seconds; ``time.time`` by default, so that ``GimbalReading.stamp_s``
   is wall-clock time as on the real driver) and waits go through ``sleep``. Pass a
   :class:`SimClock` to run faster than real time: its ``sleep`` advances it instantly.
 
@@ -42,7 +42,7 @@ from aes_planner.devices import (
     GimbalCommError,
     GimbalHardwareError,
     GimbalPortLostError,
-    GimbalState,
+    GimbalReading,
     joint_command,
     wait_for_arrival,
 )
@@ -241,11 +241,11 @@ class SimPanTilt(Gimbal):
             self.commands.append((pan_rad, tilt_rad))
         return pan_rad, tilt_rad
 
-    def state(self) -> GimbalState:
+    def state(self) -> GimbalReading:
         with self._lock:
             self._exchange("sync read state")
             pan, tilt = self._joints["pan"], self._joints["tilt"]
-            return GimbalState(
+            return GimbalReading(
                 pan_rad=pan.position,
                 tilt_rad=tilt.position,
                 goal_pan_rad=pan.goal,
@@ -256,7 +256,7 @@ class SimPanTilt(Gimbal):
                 stamp_s=self._t_last,
             )
 
-    def wait_until_reached(self, timeout_s: float | None = None) -> GimbalState:
+    def wait_until_reached(self, timeout_s: float | None = None) -> GimbalReading:
         return wait_for_arrival(
             self.state,
             *arrival_settings(self.config, timeout_s),

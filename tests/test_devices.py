@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import pytest
 
 from aes_planner.config import ConfigError, require
-from aes_planner.devices import DEVICE_TYPES, Device, Gimbal, GimbalState, device_class, make_device, register_device
+from aes_planner.devices import DEVICE_TYPES, Device, Gimbal, GimbalReading, device_class, make_device, register_device
 from tests.helpers import run_python_without
 
 
@@ -43,7 +43,7 @@ class _ToyGimbal(Gimbal):
         return self._goal
 
     def state(self):
-        return GimbalState(*self._goal, *self._goal, False, (25.0, 25.0), (), 0.0)
+        return GimbalReading(*self._goal, *self._goal, False, (25.0, 25.0), (), 0.0)
 
     def wait_until_reached(self, timeout_s=None):
         return self.state()
@@ -68,7 +68,7 @@ def test_context_manager_disconnects_even_on_error(toy_type):
 
 
 def test_state_summary_and_degrees():
-    st = GimbalState(math.radians(10), math.radians(-5), 0.0, 0.0, True, (31.0, 33.0), ("tilt: overload",), 1.0)
+    st = GimbalReading(math.radians(10), math.radians(-5), 0.0, 0.0, True, (31.0, 33.0), ("tilt: overload",), 1.0)
     assert st.pan_deg == pytest.approx(10) and st.tilt_deg == pytest.approx(-5)
     assert (
         st.summary()

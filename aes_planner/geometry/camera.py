@@ -88,7 +88,7 @@ class Intrinsics:
         """From intrinsics normalised by the image size (fx/W, fy/H, cx/W, cy/H)."""
         return cls(fx_n * width, fy_n * height, cx_n * width, cy_n * height, int(width), int(height))
 
-    def normalized(self) -> tuple[float, float, float, float]:
+    def to_normalized(self) -> tuple[float, float, float, float]:
         """(fx/W, fy/H, cx/W, cy/H), the DepthSplat/RealEstate10K form."""
         return (self.fx / self.width, self.fy / self.height, self.cx / self.width, self.cy / self.height)
 

@@ -74,7 +74,7 @@ class GimbalState(Message):
     * ``status``: the gimbal node's state word (``"ok"``, ``"fault"``, ``"stopped"``, ...).
     * ``stamp_s``: time of the reading; ``sequence``: the node's counter.
 
-    :meth:`from_device` converts the device layer's dataclass (:class:`aes_planner.devices.GimbalState`).
+    :meth:`from_device` converts the device layer's dataclass (:class:`aes_planner.devices.GimbalReading`).
     """
 
     TYPE_NAME: ClassVar[str] = "GimbalState"
@@ -122,7 +122,7 @@ class GimbalState(Message):
 
     @classmethod
     def from_device(cls, state, *, sequence: int = 0, status: str | None = None) -> GimbalState:
-        """From the device layer's state (:class:`aes_planner.devices.GimbalState`)."""
+        """From the device layer's state (:class:`aes_planner.devices.GimbalReading`)."""
         faults = tuple(getattr(state, "hardware_error", ()))
         return cls(
             pan_rad=state.pan_rad,
@@ -139,7 +139,7 @@ class GimbalState(Message):
 
     def to_device(self):
         """The device layer's dataclass with the same values."""
-        from aes_planner.devices import GimbalState as DeviceState
+        from aes_planner.devices import GimbalReading as DeviceState
 
         return DeviceState(
             pan_rad=self.pan_rad,

@@ -56,6 +56,10 @@ IMAGE_ENCODINGS = {"rgb8": 3, "bgr8": 3, "mono8": 1}
 MAX_COMPRESSED_BYTES = 64 << 20
 MAX_DISTORTION = 14  # OpenCV's longest model (k1..k6, p1, p2, s1..s4, tx, ty)
 DIAG_OK, DIAG_WARN, DIAG_ERROR = 0, 1, 2
+# ViewSuggestion.msg's constants for the package message's ``mode`` and ``kind`` words.
+MODE_CODES = {"rig": 0, "free": 1}  # MODE_RIG, MODE_FREE
+KIND_CODES = {"search": 0, "waypoint": 1}  # KIND_SEARCH_RESULT, KIND_WAYPOINT
+
 _ERROR_STATES = ("fault", "error", "failed")
 _WARN_STATES = ("stopped", "degraded", "stale", "unposed")
 
@@ -147,8 +151,8 @@ def view_suggestion(msg: ViewSuggestion, frame_id: str, search_latency_s: float 
         header=idl.Header(stamp(msg.stamp_s), frame_id),
         sequence_number=msg.sequence,
         field_version=msg.field_version,
-        mode=0 if msg.mode == "rig" else 1,
-        kind=1 if msg.kind == "waypoint" else 0,
+        mode=MODE_CODES[msg.mode],
+        kind=KIND_CODES[msg.kind],
         search_latency_s=float(search_latency_s) if math.isfinite(search_latency_s) else 0.0,
         candidates=cands,
     )

@@ -164,7 +164,7 @@ def test_nerfstudio_camera_angle_and_errors(tmp_path, caplog):
 
 def re10k_line(stamp, k: Intrinsics, c2w):
     w2c = world2cam(c2w)[:3].reshape(-1)
-    nums = [*k.normalized(), 0.0, 0.0, *w2c]
+    nums = [*k.to_normalized(), 0.0, 0.0, *w2c]
     return f"{stamp} " + " ".join(repr(float(v)) for v in nums)
 
 

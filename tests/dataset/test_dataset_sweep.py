@@ -265,7 +265,7 @@ def clip(tmp_path):
     (tmp_path / "secret.png").write_bytes((frames_dir / "1000.png").read_bytes())
     k = Intrinsics(20.0, 20.0, W / 2, H / 2, W, H)
     w2c = world2cam(np.eye(4))[:3].reshape(-1)
-    fields = ["1000", *(repr(float(v)) for v in (*k.normalized(), 0.0, 0.0, *w2c))]
+    fields = ["1000", *(repr(float(v)) for v in (*k.to_normalized(), 0.0, 0.0, *w2c))]
 
     def write(edit=None, text=None):
         f = list(fields)

@@ -40,7 +40,7 @@ def test_supersampled_rays_average_to_pixel_centre():
 
 def test_normalized_round_trip_and_scaling():
     k = Intrinsics(300.0, 310.0, 160.0, 118.0, 320, 240)
-    assert Intrinsics.from_normalized(*k.normalized(), 320, 240) == k
+    assert Intrinsics.from_normalized(*k.to_normalized(), 320, 240) == k
     half = k.scaled(160, 120)
     assert half.fx == 150 and half.cy == 59
     assert half.hfov_rad == pytest.approx(k.hfov_rad)

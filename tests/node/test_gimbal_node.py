@@ -6,7 +6,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from aes_planner.devices import Gimbal, GimbalHardwareError, GimbalState
+from aes_planner.devices import Gimbal, GimbalHardwareError, GimbalReading
 from aes_planner.messages import GimbalCommand
 from aes_planner.node.gimbal import GimbalNode, GimbalNodeConfig
 
@@ -38,9 +38,9 @@ class FakeGimbal(Gimbal):
 
     def state(self):
         p, t = self.goal
-        names = {f.name for f in __import__("dataclasses").fields(GimbalState)}
+        names = {f.name for f in __import__("dataclasses").fields(GimbalReading)}
         j = ("pan", "tilt") if "pan_rad" in names else ("yaw", "pitch")
-        return GimbalState(
+        return GimbalReading(
             **{f"{j[0]}_rad": p, f"{j[1]}_rad": t, f"goal_{j[0]}_rad": p, f"goal_{j[1]}_rad": t},
             moving=False,
             temperature_c=(30.0, 31.0),

@@ -114,6 +114,42 @@ def test_two_sigterms_to_a_supervised_launch(tmp_path):
     assert "Traceback" not in out + err and "terminate called" not in out + err
 
 
+def test_two_sigterms_to_the_gimbal_process_of_a_supervised_launch(tmp_path):
+    """A node process signalled directly (a user's ``kill PID``, twice): it finishes its torque-off,
+    exits 143, and the supervisor reports it gone and ends the launch."""
+    link = tmp_path / "ttyDXL"
+    launch = _launch_file(tmp_path, f"{{type: dynamixel_pan_tilt, port: {link}, latency_timer_ms: 30}}")
+    with ServoEmulator(link=link) as emu:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "aes_planner", "launch", launch, "--processes"]
+            + ["--listen", f"tcp/127.0.0.1:{free_port()}"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        lines: list[str] = []
+        reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
+        reader.start()
+        try:
+            wait_for(lambda: all(_torque(emu)) or proc.poll() is not None, timeout_s=90.0, poll_s=0.05)
+            assert all(_torque(emu)), "".join(lines)
+            (pid,) = [int(ln.split("pid ")[1].rstrip(")\n")) for ln in lines if "started gimbal (pid" in ln]
+            os.kill(pid, signal.SIGTERM)
+            time.sleep(0.1)
+            os.kill(pid, signal.SIGTERM)
+            proc.wait(60)
+            reader.join(10)
+            err = proc.stderr.read()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+        assert _torque(emu) == [False, False], "".join(lines) + err
+    out = "".join(lines)
+    assert "gimbal died (exit code 143)" in out and "ending the launch: gimbal is gone" in out, out
+    assert proc.returncode == 1 and "Traceback" not in out + err, (proc.returncode, out, err)
+
+
 def test_two_sigterms_with_the_emulator_in_a_child_process(tmp_path):
     """``emulate: true`` (the shipped sim launch's gimbal): the driver's torque-off reaches the
     emulator before it stops, and the emulator reports the servos' torque as it exits."""
@@ -155,22 +191,28 @@ def test_two_sigterms_to_the_demo(tmp_path):
         stderr=subprocess.PIPE,
         text=True,
     )
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(proc.stderr), daemon=True)
-    reader.start()
+    lines: list[str] = []  # one reader per pipe: communicate() beside a reader would split lines
+    printed: list[str] = []
+    readers = [
+        threading.Thread(target=lambda: lines.extend(proc.stderr), daemon=True),
+        threading.Thread(target=lambda: printed.extend(proc.stdout), daemon=True),
+    ]
+    for r in readers:
+        r.start()
     try:
         wait_for(lambda: any("torque on:" in ln for ln in lines) or proc.poll() is not None, timeout_s=120.0)
         assert proc.poll() is None, "".join(lines)
         os.kill(proc.pid, signal.SIGTERM)
         time.sleep(0.1)
         os.kill(proc.pid, signal.SIGTERM)
-        out, _ = proc.communicate(timeout=60)
-        reader.join(10)
+        proc.wait(60)
+        for r in readers:
+            r.join(10)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
-    err = "".join(lines)
+    err, out = "".join(lines), "".join(printed)
     assert proc.returncode == 143, (proc.returncode, out, err[-3000:])
     assert "demo: stopped by SIGTERM" in out and not (tmp_path / "run" / "summary.json").exists()
     assert "servo emulator stopped: torque off on id 1, id 2" in err, err[-3000:]
