@@ -120,3 +120,10 @@ def no_unpickling(monkeypatch):
         monkeypatch.setattr(owner, name, never)
     monkeypatch.setattr(torch, "load", never)
     monkeypatch.setattr(torch.serialization, "load", never)
+
+
+@pytest.fixture
+def work(tmp_path):
+    """A scratch folder holding one plain file, ``a_file``: a destination that is not a folder."""
+    (tmp_path / "a_file").write_text("x")
+    return tmp_path

@@ -4,7 +4,8 @@ the conftest.py files.
 * rasterizer tests: render with any backend, collect every gradient, compare with a tolerance;
 * reconstruction tests: an analytic scene (ground, sphere, wall) whose surfaces are known in
   closed form, and capturing posed frames from the simulator;
-* import checks: run code in a fresh interpreter where optional dependencies cannot be imported.
+* import checks: run code in a fresh interpreter where optional dependencies cannot be imported;
+* bad-input sweeps: write a file, list a folder, write a damaged field checkpoint.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -164,3 +166,61 @@ def wait_for(pred, timeout_s: float = 20.0, poll_s: float = 0.01) -> bool:
             return True
         time.sleep(poll_s)
     return bool(pred())
+
+
+# ------------------------------------------------------------------------------ bad-input sweeps
+def write_file(folder: Path, name: str, text: str) -> Path:
+    (folder / name).write_text(text)
+    return folder / name
+
+
+def tree(folder: Path) -> set:
+    """Every path under ``folder``, relative to it: compare before and after to see what was written."""
+    return {p.relative_to(folder) for p in folder.rglob("*")}
+
+
+class Evil:
+    """Prints ``unpickled!`` when unpickled: a loader that must never unpickle is checked by its absence."""
+
+    def __reduce__(self):
+        return (print, ("unpickled!",))
+
+
+def corrupt_checkpoint(ckpt, how):
+    """A copy of a field model checkpoint damaged as ``how`` says (see the cases in the branches)."""
+    c = dict(ckpt)
+    sd = dict(c["state_dict"])
+    name = next(k for k, v in sd.items() if v.is_floating_point())
+    if how == "nan":
+        sd[name] = torch.full_like(sd[name], float("nan"))
+    elif how == "huge":
+        sd[name] = torch.full_like(sd[name], 1e30)
+    elif how == "shape":
+        sd[name] = sd[name].flatten()[:1]
+    elif how == "state_str":
+        return {**c, "state_dict": "x"}
+    elif how == "no_config":
+        del c["model_config"]
+        return c
+    elif how == "channels":
+        return {**c, "feature_channels": -3}
+    elif how == "channels_str":
+        return {**c, "feature_channels": "abc"}
+    elif how == "size":
+        return {**c, "feature_size": 5}
+    return {**c, "state_dict": sd}
+
+
+def write_checkpoint(path, ckpt, how=None):
+    """Write a checkpoint in the trainer's format (``tensorfile.save``: the trainer's own writer
+    refuses NaN, a damaged file may still hold them); ``how="objects"``: then swap a weight for a
+    pickled object array (``np.savez`` pickles those on write), which the loader must refuse unread."""
+    from aes_planner import tensorfile
+
+    tensorfile.save(path, ckpt)
+    if how == "objects":
+        with np.load(path) as npz:
+            arrays = {k: npz[k] for k in npz.files}
+        arrays["a0"] = np.array([Evil()], dtype=object)
+        np.savez(path, **arrays)
+    return path

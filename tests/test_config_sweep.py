@@ -109,3 +109,19 @@ def test_any_unicode_text_loads_or_raises_config_error_slow(text):
         load_yaml_text(text)
     except ConfigError as exc:
         assert "\n" not in str(exc)
+
+
+def test_a_post_init_that_breaks_on_a_value_is_a_config_error(clean_error):
+    # The shared mechanism: whatever a dataclass's own check trips over is named, not a traceback.
+    from dataclasses import dataclass
+
+    from aes_planner.config import from_dict
+
+    @dataclass
+    class Odd:
+        n: int = 1
+
+        def __post_init__(self):
+            float(2**self.n)  # OverflowError for a big n
+
+    clean_error(from_dict, Odd, {"n": 5000}, "block", match="block: invalid value (OverflowError")

@@ -1,5 +1,6 @@
-"""Bad-input sweep: image headers read before decoding (aes_planner.images) and paths
-kept inside their folder (aes_planner.paths)."""
+"""Bad-input sweep: image headers read before decoding, images that cannot be written, frames
+downscaled with their camera (aes_planner.images), and paths kept inside their folder
+(aes_planner.paths)."""
 
 import struct
 import zlib
@@ -104,3 +105,28 @@ def test_resolve_inside(tmp_path, clean_error):
     assert (
         resolve_inside(root, str(tmp_path / "secret"), "k", also_inside=[tmp_path]) == (tmp_path / "secret").resolve()
     )
+
+
+def test_a_report_that_cannot_be_written_is_an_error(tmp_path, clean_error):
+    from aes_planner.images import write_image
+
+    (tmp_path / "r.png").mkdir()
+    clean_error(write_image, tmp_path / "r.png", np.zeros((4, 4, 3), np.uint8), match="could not write")
+    clean_error(write_image, tmp_path / "r.unknown", np.zeros((4, 4, 3), np.uint8), match="could not write")
+
+
+def test_downscale_frame_keeps_the_camera():
+    from aes_planner.geometry.camera import Intrinsics
+    from aes_planner.images import downscale_frame
+    from aes_planner.messages import PosedFrame
+
+    k = Intrinsics(3000.0, 3000.0, 2000.0, 1500.0, 4000, 3000)
+    depth = np.full((3000, 4000), 2.0, np.float32)
+    depth[:, :2000] = 0.0  # unknown on the left: never averaged into the known half
+    frame = PosedFrame(np.zeros((3000, 4000, 3), np.uint8), k, np.eye(4), 1.0, depth, "f", pan_rad=0.1, tilt_rad=0.2)
+    small = downscale_frame(frame, 320)
+    assert small.image.shape == (240, 320, 3) and small.depth_m.shape == (240, 320)
+    assert small.intrinsics.hfov_rad == pytest.approx(k.hfov_rad) and small.intrinsics.cx == pytest.approx(160.0)
+    assert set(np.unique(small.depth_m)) == {0.0, 2.0} and (small.pan_rad, small.frame_id) == (0.1, "f")
+    tiny = downscale_frame(small, 320)
+    assert tiny is small

@@ -1,4 +1,4 @@
-"""One mechanism picks the thread count of every suggestion (issue 33 item 11): the library's
+"""One mechanism picks the thread count of every suggestion: the library's
 search, ``suggest``, ``bench search`` and the planner node all run their compute inside
 ``aes_planner.runtime.suggestion_threads``; outside a node it starts from the cores idle now."""
 

@@ -14,14 +14,11 @@ import pytest
 import yaml
 
 from aes_planner.cli import main
+from tests.helpers import tree
 
 SHOWCASE = Path(str(resources.files("aes_planner.sim") / "scenes" / "showcase.yaml"))
 ASSET = Path(str(resources.files("aes_planner.sim") / "assets" / "sunset.png"))
 SMALL = ["--width", "8", "--height", "6", "--supersample", "1", "--views", "1"]
-
-
-def tree(folder: Path) -> set:
-    return {p.relative_to(folder) for p in folder.rglob("*")}
 
 
 @pytest.fixture

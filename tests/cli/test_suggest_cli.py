@@ -127,7 +127,7 @@ def test_suggest_truth_scene_for_a_scene_file(tmp_path, capsys, monkeypatch):
     import aes_planner.search as search
     import aes_planner.search.report as report
 
-    scene = "tests/node/scenes/harbour_rig.yaml"
+    scene = "tests/scenes/harbour_rig.yaml"
     folder = tmp_path / "harbour"
     args = ["sim", "render", "--scene", scene, "--views", "3", "--out", str(folder), "--supersample", "1"]
     assert main([*args, "--width", "32", "--height", "24"]) == 0

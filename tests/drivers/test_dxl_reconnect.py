@@ -1,4 +1,4 @@
-"""The serial port disappears and comes back (issue 33 item 10): the emulator is stopped and a new
+"""The serial port disappears and comes back: the emulator is stopped and a new
 one started on the same path, as a USB adapter unplugged and plugged in again, or a servo bus
 that lost power. The driver reports the loss, reopens the port with back-off, takes control again
 (limits in EEPROM, profile, torque on) and holds its last goal; the gimbal node reports it in its
@@ -130,7 +130,7 @@ def test_a_hardware_error_found_on_reconnection_keeps_torque_off(tmp_path, make_
 
 
 def test_the_gimbal_node_rides_through_an_emulator_process_stopped_and_restarted(tmp_path):
-    """The issue's sequence with the emulator in its own process (`aes-planner gimbal emulate
+    """The same sequence with the emulator in its own process (`aes-planner gimbal emulate
     --link`): stopped at 4 s, restarted at 8 s; a move that arrives while it is gone is kept."""
     link = str(tmp_path / "ttyDXL")
     device = {"type": "dynamixel_pan_tilt", "port": link, **FAST, "profile_velocity_deg_s": 120.0}
@@ -146,7 +146,7 @@ def test_the_gimbal_node_rides_through_an_emulator_process_stopped_and_restarted
         node.start()
         step(GimbalCommand("move", 0.2, 0.05))
         assert wait_for(lambda: bool(step()["gimbal/state"]) and not node.last_state.moving, timeout_s=20.0)
-        emu.stop()  # 4 s in the issue's run
+        emu.stop()  # about 4 s in
         assert wait_for(lambda: step()["gimbal/diagnostics"][0].state == "port_lost", timeout_s=20.0)
         step(GimbalCommand("move", -0.25, 0.1))  # accepted while the port is gone
         diag = step()["gimbal/diagnostics"][0]

@@ -9,7 +9,7 @@ from aes_planner.geometry.poses import view_to_cam2world
 from aes_planner.graph.base import LaunchContext
 from aes_planner.messages import DroneState
 
-SCENE = str(Path(__file__).resolve().parents[1] / "node" / "scenes" / "garden_drone.yaml")
+SCENE = str(Path(__file__).resolve().parents[1] / "scenes" / "garden_drone.yaml")
 
 
 def test_frames_show_the_reported_pose_and_stop_when_the_link_is_lost():

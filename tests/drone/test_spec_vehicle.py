@@ -16,7 +16,7 @@ from tests.helpers import wait_for
 
 pytest.importorskip("pymavlink")
 
-SCENE = Path(__file__).resolve().parents[1] / "node" / "scenes" / "garden_drone.yaml"
+SCENE = Path(__file__).resolve().parents[1] / "scenes" / "garden_drone.yaml"
 ORIGIN = (5000.0, -3000.0, 0.0)  # the scene's box is around (5000, -3000): the vehicle's local origin there
 FENCE_NED = ((-3.0, -3.0, -4.0), (3.0, 3.0, -1.0))  # the box in the vehicle's local NED
 

@@ -111,7 +111,7 @@ def test_held_out_scenes_are_none_of_the_fields():
     assert set(SCENES) <= set(HELD_OUT_SCENES)
 
 
-YARD_DRONE = str(Path(__file__).parents[1] / "node" / "scenes" / "yard_drone.yaml")
+YARD_DRONE = str(Path(__file__).parents[1] / "scenes" / "yard_drone.yaml")
 
 
 def test_eval_search_on_a_drone_scene_flies_its_own_box(tmp_path):
@@ -160,9 +160,7 @@ def test_eval_search_both_modes_over_rig_and_drone_scenes(tmp_path):
     assert only_drones["ablations"] == {}  # rig-mode tables: no rig scene to run them on
 
 
-@pytest.mark.parametrize(
-    "path", sorted((Path(__file__).parents[1] / "node" / "scenes").glob("*.yaml")), ids=lambda p: p.stem
-)
+@pytest.mark.parametrize("path", sorted((Path(__file__).parents[1] / "scenes").glob("*.yaml")), ids=lambda p: p.stem)
 def test_hand_written_scenes_load_and_show_their_objects(path, tmp_path):
     """The hand-written check scenes (docs/journal/benchmarks.md, "The closed loop's plans") stay
     loadable, and their inputs see something besides sky."""

@@ -26,3 +26,12 @@ def depth_frames(rig_source):
     pt = PanTilt(rig_source.platform.rig)
     poses = np.stack([pt.forward(p, -0.15) for p in np.radians([-10.0, 10.0])])
     return [rig_source.capture(p, depth=True) for p in poses], poses
+
+
+@pytest.fixture(scope="module")
+def checkpoint():
+    """A tiny field model's checkpoint (a dict, as the trainer writes it)."""
+    from aes_planner.field.model import FieldModel, FieldModelConfig
+
+    model = FieldModel(FieldModelConfig(hidden=4, encoder_channels=4), 4, (16, 16), "composition")
+    return model.checkpoint({"step": 1})

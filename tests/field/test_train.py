@@ -282,7 +282,7 @@ def test_init_from_starts_at_the_checkpoints_weights(cache, tmp_path):
         train(load_config({**TINY, "steps": 1, "init_from": "default"}), train_files, tmp_path / "c")
 
 
-# ------------------------------------------------- issue 33: divergence stops training, never saved
+# ----------------------------------------------------------- divergence stops training, never saved
 @pytest.mark.parametrize(
     "knob",
     ["lr: 1e30", "lr: 2", "weight_decay: 1e30", "score_weight: 1e300", "rank_weight: 1e4", "listwise_weight: 5e3"],

@@ -1,4 +1,4 @@
-"""Garbage a node must not swallow (issue 33, item 5): frames whose intrinsics, pose or joint angles
+"""Garbage a node must not swallow: frames whose intrinsics, pose or joint angles
 no real camera has are refused by the message's own validation, the same bounds the dataset
 importers apply, so a subscription rejects and counts them; the planner rejects a frame that is not
 the scene it models and counts it. None of them reaches the field."""

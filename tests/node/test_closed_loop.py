@@ -56,7 +56,7 @@ def test_demo_cli_rejects_a_bad_scene_in_one_line(tmp_path, capsys):
 def test_demo_cli_takes_its_mode_from_the_scene(tmp_path, capsys):
     from aes_planner.cli import main
 
-    drone_scene = str(Path(__file__).parent / "scenes" / "yard_drone.yaml")
+    drone_scene = str(Path(__file__).parents[1] / "scenes" / "yard_drone.yaml")
     assert main(["demo", "--scene", drone_scene, "--mode", "rig", "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--mode drone" in err[0]

@@ -20,6 +20,7 @@ from aes_planner.config import from_dict
 from aes_planner.errors import AesPlannerError
 from aes_planner.sim import Scene, SceneSpec, SimCamera, SimCameraConfig, load_scene, render
 from aes_planner.sim.survey import render_survey
+from tests.helpers import write_file
 
 SHOWCASE = Path(str(resources.files("aes_planner.sim") / "scenes" / "showcase.yaml"))
 ASSET = Path(str(resources.files("aes_planner.sim") / "assets" / "sunset.png"))
@@ -216,3 +217,24 @@ def test_extreme_numbers_give_a_config_error_or_a_finite_render(field, value):
         assert "\n" not in str(exc)
         return
     assert np.isfinite(out.rgb).all() and np.isfinite(out.depth_m).all() and (out.depth_m >= 0).all(), field[0]
+
+
+SCENE_EDITS = {
+    "type_list": ("- type: box", "- type: [box]", "objects[1].type"),
+    "type_mapping": ("- type: box", "- type: {box: 1}", "objects[1].type"),
+    "light_type_list": ("- type: ambient", "- type: [ambient]", "lights[0].type"),
+    "seed_huge_int": ("seed: 7}", "seed: 100000000000000000000000}", "64 bits"),
+    "seed_float": ("seed: 7}", "seed: 1e23}", "seed"),
+    "octaves_huge": ("octaves: 3,", "octaves: 100000000000000000000000,", "64 bits"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SCENE_EDITS))
+def test_scene_file_of_the_wrong_shape_names_the_key(tmp_path, cli_error, name):
+    old, new, key = SCENE_EDITS[name]
+    showcase = (Path(__file__).parents[2] / "sim" / "scenes" / "showcase.yaml").read_text()
+    assert old in showcase
+    scene = write_file(tmp_path, "s.yaml", showcase.replace(old, new, 1))
+    argv = ["sim", "render", "--scene", scene, "--views", "1", "--out", tmp_path / "out", "--allow-outside-paths"]
+    cli_error([*argv, "--width", "32", "--height", "24"], key, seconds=60)
+    assert not (tmp_path / "out").exists()

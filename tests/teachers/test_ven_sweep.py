@@ -140,7 +140,7 @@ def test_convert_ven_to_a_bad_destination(tmp_path, cli_error):
     assert (tmp_path / "afile").read_text() == "x"
 
 
-# ----------------------------------------------- issue 33: declared sizes are checked before torch.load
+# ----------------------------------------------------- declared sizes are checked before torch.load
 def _legacy_bytes(obj) -> bytes:
     buf = io.BytesIO()
     torch.save(obj, buf, _use_new_zipfile_serialization=False)
@@ -224,3 +224,9 @@ def test_a_tar_archive_is_refused(tmp_path, clean_error, torch_load_never_runs):
         (tmp_path / "storages").write_bytes(b"\x00" * 64)
         tar.add(tmp_path / "storages", arcname="storages")
     clean_error(load_ven_state_dict, tmp_path / "w.tar", match="tar archive")
+
+
+def test_a_device_given_as_ven_weights_is_refused_unread(clean_error, torch_load_never_runs):
+    from aes_planner.teachers.ven import load_ven_state_dict
+
+    clean_error(load_ven_state_dict, "/dev/zero", match="not a regular file")

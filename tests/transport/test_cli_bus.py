@@ -99,7 +99,7 @@ def test_record_refuses_an_existing_file(tmp_path, capsys, endpoint):
     assert f.read_text() == "keep me" and "exists" in capsys.readouterr().err
 
 
-# ------------------------------------------------------- issue 33, item 9: the bus and the terminal
+# ------------------------------------------- what comes from the bus is escaped before the terminal
 def test_what_comes_from_the_bus_is_printed_escaped(hub, capsys):
     """A peer that announces a publisher, and puts data, on a key with escape sequences (with Zenoh
     directly, past our topic checks) cannot write them into the terminal of `topics` or `echo`."""

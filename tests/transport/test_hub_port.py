@@ -1,5 +1,5 @@
 """The graph's default hub port does not clash with a ROS 2 rmw_zenoh router (7447), and a port
-that is taken is named with what may hold it (issue 29 item 12)."""
+that is taken is named with what may hold it."""
 
 import logging
 import socket

@@ -1,4 +1,4 @@
-"""Two hosts for real (issue 33 item 2): two network namespaces joined by a veth pair, each with
+"""Two hosts for real: two network namespaces joined by a veth pair, each with
 its own loopback, as two machines on a cable. The graph splits as the README's multi-machine
 set-up says: the rig's launch (gimbal on the servo emulator, camera) on one host joins the
 planner's launch on the other through their hubs.
