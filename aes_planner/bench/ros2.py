@@ -24,6 +24,7 @@ import sys
 import time
 
 from aes_planner.bench import Recorder
+from aes_planner.graph.base import percentile
 
 _SUBSCRIBER = r"""
 import json, sys, time, threading
@@ -53,12 +54,6 @@ while not done.wait(0.2) and time.time() < end:
         break
 print(json.dumps(lat[-n:]), flush=True)
 """
-
-
-def _percentile(xs: list[float], q: float) -> float:
-    from aes_planner.graph.base import percentile
-
-    return percentile(xs, q)
 
 
 def _measure(domain: int, key: str, make_msg, bus_topic: str, n: int, rate_hz: float):
@@ -171,11 +166,11 @@ def run(rec: Recorder, quick: bool) -> None:
     n = 20 if quick else 100
     rec.meta["backends"]["ros2"] = "cyclonedds, loopback, subscriber in another process; in-process bus"
     lat = _measure(domain, "suggestion", suggestion, "planner/suggestion", n, 20.0)
-    rec.record("ros2.suggestion.latency_p50_ms", _percentile(lat, 50), "ms", len(lat))
-    rec.record("ros2.suggestion.latency_p95_ms", _percentile(lat, 95), "ms", len(lat))
+    rec.record("ros2.suggestion.latency_p50_ms", percentile(lat, 50), "ms", len(lat))
+    rec.record("ros2.suggestion.latency_p95_ms", percentile(lat, 95), "ms", len(lat))
     lat = _measure(domain, "image", frame, "camera/frame", n, 30.0)
-    rec.record("ros2.frame_640x480.latency_p50_ms", _percentile(lat, 50), "ms", len(lat))
-    rec.record("ros2.frame_640x480.latency_p95_ms", _percentile(lat, 95), "ms", len(lat))
+    rec.record("ros2.frame_640x480.latency_p50_ms", percentile(lat, 50), "ms", len(lat))
+    rec.record("ros2.frame_640x480.latency_p95_ms", percentile(lat, 95), "ms", len(lat))
     rec.record("ros2.frame_640x480.received", len(lat), "frames", n)
     share = _frame_cpu(domain, frame, 3.0 if quick else 10.0)
     rec.record("ros2.frames_30hz.cpu_share_pct", share if math.isfinite(share) else 0.0, "%")

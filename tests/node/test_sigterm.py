@@ -87,18 +87,23 @@ def test_signals_leave_torque_off_and_exit_with_the_first(tmp_path, signals, gap
     assert "Traceback" not in err and "terminate called" not in err, err
 
 
+def _supervised(launch) -> subprocess.Popen:
+    """``aes-planner launch FILE --processes`` on a free hub port, its output piped."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "aes_planner", "launch", launch, "--processes"]
+        + ["--listen", f"tcp/127.0.0.1:{free_port()}"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
 def test_two_sigterms_to_a_supervised_launch(tmp_path):
     """``--processes``: the supervisor stops its children (the gimbal's torque-off) whatever follows."""
     link = tmp_path / "ttyDXL"
     launch = _launch_file(tmp_path, f"{{type: dynamixel_pan_tilt, port: {link}, latency_timer_ms: 30}}")
     with ServoEmulator(link=link) as emu:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "aes_planner", "launch", launch, "--processes"]
-            + ["--listen", f"tcp/127.0.0.1:{free_port()}"],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
+        proc = _supervised(launch)
         try:
             out, err = _signal_when_torque_on(proc, emu, (signal.SIGTERM, signal.SIGTERM))
         finally:
@@ -120,13 +125,7 @@ def test_two_sigterms_to_the_gimbal_process_of_a_supervised_launch(tmp_path):
     link = tmp_path / "ttyDXL"
     launch = _launch_file(tmp_path, f"{{type: dynamixel_pan_tilt, port: {link}, latency_timer_ms: 30}}")
     with ServoEmulator(link=link) as emu:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "aes_planner", "launch", launch, "--processes"]
-            + ["--listen", f"tcp/127.0.0.1:{free_port()}"],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
+        proc = _supervised(launch)
         lines: list[str] = []
         reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
         reader.start()
