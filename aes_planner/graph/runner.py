@@ -88,6 +88,7 @@ class NodeRunner:
                 if key != "callback_errors":
                     counters[f"{name}.{key}"] = int(value)
         counters["step_errors"] = self.step_errors
+        counters.update({f"bus.{k}": int(v) for k, v in self.bus.health().items()})  # a lost session shows here
         msg.counters = dict(list(counters.items())[:128])
 
     def loop(self) -> None:
