@@ -27,6 +27,7 @@ from collections.abc import Mapping
 import numpy as np
 import torch
 
+from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.plausible import distance_problem
 from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs, percentile
 from aes_planner.images import downscale_frame
@@ -106,6 +107,7 @@ class PlannerNode(ActiveLoop, Node):
                 "move_timeouts",
                 "capture_timeouts",
                 "faults",
+                "framing_rejected",
             ),
             0,
         )
@@ -262,6 +264,8 @@ class PlannerNode(ActiveLoop, Node):
 
     def _on_request(self, req, now: float) -> None:
         kind = getattr(req, "kind", "suggest")
+        if getattr(req, "set_framing", False) and not self._set_framing(req):
+            return  # refused: counted, the framing in force stays
         if kind == "suggest":
             self._suggest_requested = True
             self._dirty = self._dirty or not self.config.active
@@ -277,6 +281,31 @@ class PlannerNode(ActiveLoop, Node):
             self._queue.clear()
             self._target = None
             self._begin_settle(now)
+
+    def _set_framing(self, req) -> bool:
+        """Apply a request's keep/avoid regions to the next searches (both empty: none); False, counted
+        and logged, when a region names no held frame or lies outside its image."""
+        from aes_planner.search.framing import FramingConfig, Region
+
+        try:
+            keep = [Region(r.frame, r.x0, r.y0, r.x1, r.y1) for r in req.keep]
+            avoid = [Region(r.frame, r.x0, r.y0, r.x1, r.y1) for r in req.avoid]
+            if keep or avoid:
+                self.proposer.check_framing(keep, avoid)
+            cfg = FramingConfig(margin_frac=req.keep_margin)
+        except AesPlannerError as exc:
+            self.counters["framing_rejected"] += 1
+            log.warning("%s: framing request refused: %s", self.node_id, exc)
+            return False
+        self.proposer.framing = (keep, avoid, cfg) if keep or avoid else None
+        self.proposer.framing_held = []
+        self._dirty = True  # the next search applies it
+        log.info(
+            "%s: framing %s",
+            self.node_id,
+            ", ".join([f"keep {r.text()}" for r in keep] + [f"avoid {r.text()}" for r in avoid]) or "off",
+        )
+        return True
 
     # ---------------------------------------------------------------------------- passive
     def _passive(self, now: float, out: Outputs) -> None:
@@ -335,6 +364,14 @@ class PlannerNode(ActiveLoop, Node):
         if self.governor is not None and math.isfinite(self.governor.last_efficiency):
             values["cpu_efficiency"] = self.governor.last_efficiency
             values["thread_changes"] = float(self.governor.changes)
+        framing = getattr(self.proposer, "framing", None)
+        if framing is not None:  # which regions are active, and how much of each kept subject the last view held
+            keep, avoid, _ = framing
+            held = getattr(self.proposer, "framing_held", [])
+            for i, r in enumerate(keep):
+                values[diag_name(f"framing.keep.{r.text()}")] = held[i] if i < len(held) else -1.0
+            for r in avoid:
+                values[diag_name(f"framing.avoid.{r.text()}")] = 1.0
         scored = [cap for cap in self.captures if math.isfinite(cap.score)]
         if scored:
             values["initial_score"] = scored[0].score
@@ -368,6 +405,13 @@ class PlannerNode(ActiveLoop, Node):
             f"{self.node_id}: {res['state']} after {moves} move{'' if moves == 1 else 's'}; "
             f"best captured score {res['best'].score:.3f}"
         )
+
+
+def diag_name(text: str) -> str:
+    """``text`` as a diagnostics name (1-64 chars of ``[A-Za-z0-9_.:/-]``; others become ``_``)."""
+    import re
+
+    return re.sub(r"[^A-Za-z0-9_.:/-]", "_", text)[:64] or "_"
 
 
 def _motion(config: PlannerConfig) -> Motion | None:

@@ -82,6 +82,8 @@ class FieldProposer(Proposer):
         self._scorer = None
         self._scorer_version = -1
         self.version = 0
+        self.framing = None  # (keep [Region], avoid [Region], FramingConfig) the searches apply, or None
+        self.framing_held: list[float] = []  # how much of each kept subject the last best suggestion held
 
     @property
     def size(self) -> int:
@@ -98,6 +100,34 @@ class FieldProposer(Proposer):
             passive = next((i for i, (_, k) in enumerate(self._frames) if not k), None)
             del self._frames[passive if passive is not None else 0]
         self.version += 1
+
+    def check_framing(self, keep, avoid) -> None:
+        """A :class:`~aes_planner.search.framing.FramingError` unless every region names a held frame
+        and lies inside its image."""
+        from aes_planner.search.framing import FramingError, frame_index
+
+        index = frame_index([f for f, _ in self._frames])
+        for key, regions in (("keep", keep), ("avoid", avoid)):
+            for r in regions:
+                if r.frame not in index:
+                    raise FramingError(f"{key} {r.text()}: the planner holds no frame named {r.frame!r}")
+                k = self._frames[index[r.frame]][0].intrinsics
+                r.checked(key, k.width, k.height)
+
+    def _framing(self, scorer, frames, platform):
+        """The framing of the present frames (lifted anew: the reconstruction changes), or None."""
+        if self.framing is None:
+            return None
+        from aes_planner.search.framing import build_framing
+
+        keep, avoid, cfg = self.framing
+        named = {}
+        from aes_planner.search.framing import frame_index
+
+        for name, i in frame_index(frames).items():
+            f = frames[i]
+            named[name] = (f.cam2world, f.intrinsics, (f.intrinsics.width, f.intrinsics.height))
+        return build_framing(scorer, named, keep, avoid, platform.intrinsics, cfg)
 
     def scorer(self):
         """The scorer of the present frames (rebuilt only when they changed)."""
@@ -121,7 +151,11 @@ class FieldProposer(Proposer):
         captured = np.asarray(captured_cam2world, dtype=np.float64).reshape(-1, 4, 4)
         config = SearchConfig.preset(self.preset, mode=platform.kind, top_k=max(top_k, 1), seed=self.seed)
         avoid = captured if keep_near is None else np.delete(captured, keep_near, axis=0)
-        result = search_views(scorer, inputs, platform, config, avoid=avoid if len(avoid) else None)
+        framing = self._framing(scorer, frames, platform)
+        result = search_views(scorer, inputs, platform, config, avoid=avoid if len(avoid) else None, framing=framing)
+        if framing is not None and result.suggestions:
+            pose = torch.as_tensor(result.best.cam2world[None])
+            self.framing_held = [float(framing.held_each(pose)[0, i]) for i in range(len(framing.keep))]
         candidates = []
         for s in result.suggestions:
             pan = getattr(s, "pan_rad", None)
