@@ -290,21 +290,14 @@ class PlannerNode(ActiveLoop, Node):
         try:
             keep = [Region(r.frame, r.x0, r.y0, r.x1, r.y1) for r in req.keep]
             avoid = [Region(r.frame, r.x0, r.y0, r.x1, r.y1) for r in req.avoid]
-            if keep or avoid:
-                self.proposer.check_framing(keep, avoid)
-            cfg = FramingConfig(margin_frac=req.keep_margin)
+            self.proposer.set_framing(keep, avoid, FramingConfig(margin_frac=req.keep_margin))
         except AesPlannerError as exc:
             self.counters["framing_rejected"] += 1
             log.warning("%s: framing request refused: %s", self.node_id, exc)
             return False
-        self.proposer.framing = (keep, avoid, cfg) if keep or avoid else None
-        self.proposer.framing_held = []
         self._dirty = True  # the next search applies it
-        log.info(
-            "%s: framing %s",
-            self.node_id,
-            ", ".join([f"keep {r.text()}" for r in keep] + [f"avoid {r.text()}" for r in avoid]) or "off",
-        )
+        regions = [f"keep {r.text()}" for r in keep] + [f"avoid {r.text()}" for r in avoid]
+        log.info("%s: framing %s", self.node_id, ", ".join(regions) or "off")
         return True
 
     # ---------------------------------------------------------------------------- passive
@@ -366,7 +359,7 @@ class PlannerNode(ActiveLoop, Node):
             values["thread_changes"] = float(self.governor.changes)
         framing = getattr(self.proposer, "framing", None)
         if framing is not None:  # which regions are active, and how much of each kept subject the last view held
-            keep, avoid, _ = framing
+            keep, avoid = framing[0], framing[1]
             held = getattr(self.proposer, "framing_held", [])
             for i, r in enumerate(keep):
                 values[diag_name(f"framing.keep.{r.text()}")] = held[i] if i < len(held) else -1.0

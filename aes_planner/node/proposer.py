@@ -41,6 +41,17 @@ class Proposer(ABC):
 
     #: bumped whenever the frames behind the proposals change
     version: int = 0
+    #: the keep/avoid regions its searches apply (``set_framing``), and how much of each kept subject
+    #: the last best suggestion held
+    framing = None
+    framing_held: list[float] = []
+
+    def set_framing(self, keep, avoid, cfg) -> None:
+        """Apply keep/avoid regions to the next searches (a proposer without a reconstruction cannot)."""
+        from aes_planner.search.framing import FramingError
+
+        if keep or avoid:
+            raise FramingError(f"{type(self).__name__} has no reconstruction to lift keep/avoid regions from")
 
     @abstractmethod
     def add_frame(self, frame: PosedFrame, keep: bool = False) -> None:
@@ -82,7 +93,7 @@ class FieldProposer(Proposer):
         self._scorer = None
         self._scorer_version = -1
         self.version = 0
-        self.framing = None  # (keep [Region], avoid [Region], FramingConfig) the searches apply, or None
+        self.framing = None  # (keep, avoid, FramingConfig, {frame: view}) the searches apply: set_framing
         self.framing_held: list[float] = []  # how much of each kept subject the last best suggestion held
 
     @property
@@ -101,33 +112,39 @@ class FieldProposer(Proposer):
             del self._frames[passive if passive is not None else 0]
         self.version += 1
 
-    def check_framing(self, keep, avoid) -> None:
-        """A :class:`~aes_planner.search.framing.FramingError` unless every region names a held frame
-        and lies inside its image."""
+    def set_framing(self, keep, avoid, cfg) -> None:
+        """Apply keep/avoid regions (:class:`~aes_planner.search.framing.Region`) to the next
+        searches; none of either: no framing. Each region's view (pose, camera, image size) is
+        resolved now, so a frame evicted later, or ``latest`` (the newest frame held), keeps meaning
+        the image the box was drawn on. A :class:`~aes_planner.search.framing.FramingError` (nothing
+        changed) when a region names no held frame or lies outside its image."""
         from aes_planner.search.framing import FramingError, frame_index
 
-        index = frame_index([f for f, _ in self._frames])
+        if not keep and not avoid:
+            self.framing, self.framing_held = None, []
+            return
+        frames = [f for f, _ in self._frames]
+        index = frame_index(frames)
+        if frames:
+            index["latest"] = len(frames) - 1
+        views = {}
         for key, regions in (("keep", keep), ("avoid", avoid)):
             for r in regions:
                 if r.frame not in index:
                     raise FramingError(f"{key} {r.text()}: the planner holds no frame named {r.frame!r}")
-                k = self._frames[index[r.frame]][0].intrinsics
+                k = frames[index[r.frame]].intrinsics
                 r.checked(key, k.width, k.height)
+                views[r.frame] = (frames[index[r.frame]].cam2world.copy(), k, (k.width, k.height))
+        self.framing, self.framing_held = (list(keep), list(avoid), cfg, views), []
 
-    def _framing(self, scorer, frames, platform):
-        """The framing of the present frames (lifted anew: the reconstruction changes), or None."""
+    def _framing(self, scorer, platform):
+        """The framing lifted from the present reconstruction (it changes as frames come), or None."""
         if self.framing is None:
             return None
         from aes_planner.search.framing import build_framing
 
-        keep, avoid, cfg = self.framing
-        named = {}
-        from aes_planner.search.framing import frame_index
-
-        for name, i in frame_index(frames).items():
-            f = frames[i]
-            named[name] = (f.cam2world, f.intrinsics, (f.intrinsics.width, f.intrinsics.height))
-        return build_framing(scorer, named, keep, avoid, platform.intrinsics, cfg)
+        keep, avoid, cfg, views = self.framing
+        return build_framing(scorer, views, keep, avoid, platform.intrinsics, cfg)
 
     def scorer(self):
         """The scorer of the present frames (rebuilt only when they changed)."""
@@ -151,7 +168,7 @@ class FieldProposer(Proposer):
         captured = np.asarray(captured_cam2world, dtype=np.float64).reshape(-1, 4, 4)
         config = SearchConfig.preset(self.preset, mode=platform.kind, top_k=max(top_k, 1), seed=self.seed)
         avoid = captured if keep_near is None else np.delete(captured, keep_near, axis=0)
-        framing = self._framing(scorer, frames, platform)
+        framing = self._framing(scorer, platform)
         result = search_views(scorer, inputs, platform, config, avoid=avoid if len(avoid) else None, framing=framing)
         if framing is not None and result.suggestions:
             pose = torch.as_tensor(result.best.cam2world[None])
