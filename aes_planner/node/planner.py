@@ -365,6 +365,8 @@ class PlannerNode(ActiveLoop, Node):
                 values[diag_name(f"framing.keep.{r.text()}")] = held[i] if i < len(held) else -1.0
             for r in avoid:
                 values[diag_name(f"framing.avoid.{r.text()}")] = 1.0
+            for i, (kind, sub) in enumerate(getattr(self.proposer, "framing_boxes", [])[:8]):
+                values.update(box_values(f"framing.box{i}.{kind}", sub))  # drawn by the Foxglove view
         scored = [cap for cap in self.captures if math.isfinite(cap.score)]
         if scored:
             values["initial_score"] = scored[0].score
@@ -398,6 +400,16 @@ class PlannerNode(ActiveLoop, Node):
             f"{self.node_id}: {res['state']} after {moves} move{'' if moves == 1 else 's'}; "
             f"best captured score {res['best'].score:.3f}"
         )
+
+
+def box_values(prefix: str, subject) -> dict[str, float]:
+    """A lifted subject's 3D box as diagnostics values ``<prefix>.cx/cy/cz`` (centre, m),
+    ``.sx/sy/sz`` (size along its axes, m) and ``.yaw_rad`` (its first axis from world x, about z):
+    what :func:`aes_planner.transport.foxglove_view.framing_boxes` reads back."""
+    c, size, ax = subject.centre_m, subject.size_m, subject.axes[0]
+    out = {"cx": c[0], "cy": c[1], "cz": c[2], "sx": size[0], "sy": size[1], "sz": size[2]}
+    out["yaw_rad"] = math.atan2(ax[1], ax[0])
+    return {f"{prefix}.{k}": float(v) for k, v in out.items()}
 
 
 def diag_name(text: str) -> str:

@@ -45,6 +45,7 @@ class Proposer(ABC):
     #: the last best suggestion held
     framing = None
     framing_held: list[float] = []
+    framing_boxes: list = []  # [(keep|avoid, Subject)] of the last search: their 3D boxes
 
     def set_framing(self, keep, avoid, cfg) -> None:
         """Apply keep/avoid regions to the next searches (a proposer without a reconstruction cannot)."""
@@ -121,7 +122,7 @@ class FieldProposer(Proposer):
         from aes_planner.search.framing import FramingError, frame_index
 
         if not keep and not avoid:
-            self.framing, self.framing_held = None, []
+            self.framing, self.framing_held, self.framing_boxes = None, [], []
             return
         frames = [f for f, _ in self._frames]
         index = frame_index(frames)
@@ -135,7 +136,7 @@ class FieldProposer(Proposer):
                 k = frames[index[r.frame]].intrinsics
                 r.checked(key, k.width, k.height)
                 views[r.frame] = (frames[index[r.frame]].cam2world.copy(), k, (k.width, k.height))
-        self.framing, self.framing_held = (list(keep), list(avoid), cfg, views), []
+        self.framing, self.framing_held, self.framing_boxes = (list(keep), list(avoid), cfg, views), [], []
 
     def _framing(self, scorer, platform):
         """The framing lifted from the present reconstruction (it changes as frames come), or None."""
@@ -170,6 +171,10 @@ class FieldProposer(Proposer):
         avoid = captured if keep_near is None else np.delete(captured, keep_near, axis=0)
         framing = self._framing(scorer, platform)
         result = search_views(scorer, inputs, platform, config, avoid=avoid if len(avoid) else None, framing=framing)
+        if framing is not None:
+            self.framing_boxes = [
+                (kind, sub) for kind, subs in (("keep", framing.keep), ("avoid", framing.avoid)) for sub in subs
+            ]
         if framing is not None and result.suggestions:
             pose = torch.as_tensor(result.best.cam2world[None])
             self.framing_held = [float(framing.held_each(pose)[0, i]) for i in range(len(framing.keep))]

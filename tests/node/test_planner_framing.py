@@ -51,6 +51,11 @@ def test_planner_keeps_the_requested_subject_in_its_suggestions():
     diag = node.diagnostics(now + 0.2)
     active = {name: v for name, v in diag.values.items() if name.startswith("framing.keep.latest")}
     assert len(active) == 1 and list(active.values())[0] == 1.0
+    # the lifted box, for the Foxglove view: around the subject's true centre
+    from aes_planner.transport.foxglove_view import framing_boxes
+
+    ((kind, centre, size, _),) = framing_boxes(diag.values)
+    assert kind == "keep" and np.all(np.abs(centre - points.mean(0)) < size / 2 + 0.05)
     # both lists empty: framing off
     node.step({"planner/request": [PlannerRequest("suggest", set_framing=True)]}, now + 0.3)
     assert node.proposer.framing is None
