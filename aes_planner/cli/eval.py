@@ -80,6 +80,7 @@ def register_framing(esub: argparse._SubParsersAction) -> None:
     f.add_argument("--preset", default="balanced", choices=["fast", "balanced", "accurate"], help="search preset")
     f.add_argument("--keep-margin", type=float, default=0.05, metavar="FRAC", help="as suggest --keep-margin")
     f.add_argument("--json", metavar="OUT", help="write the results as JSON")
+    f.add_argument("--figure", metavar="PNG", help="write a figure: input box, suggestion, constrained oracle per case")
     f.set_defaults(func=run_framing)
 
 
@@ -97,10 +98,12 @@ def run_framing(args: argparse.Namespace) -> int:
     _check_scenes(scenes)
     if args.json:
         output_file(args.json, "--json")
+    if args.figure:
+        output_file(args.figure, "--figure")
     cfg = FramingEvalConfig(
         scenes=scenes, seeds=args.seeds, mode=args.mode, preset=args.preset, keep_margin=args.keep_margin
     )
-    doc = run_framing_eval(cfg, progress=lambda text: log.info("eval framing: %s", text))
+    doc = run_framing_eval(cfg, progress=lambda text: log.info("eval framing: %s", text), figure=args.figure)
     print(markdown(doc))
     if args.json:
         Path(args.json).write_text(json.dumps(doc, indent=1, default=float) + "\n")

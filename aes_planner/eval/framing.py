@@ -181,6 +181,7 @@ def constrained_oracle(space, judge: Judge, points: np.ndarray, intrinsics, cfg:
     teacher, evaluator = judge.measure(poses)
     mean_t, mean_e = float(teacher.mean()), float(evaluator.mean())
     best_t, best_e = float(teacher.max()), float(evaluator.max())
+    best_pose = poses[int(np.argmax(teacher))]
     min_scale = math.radians(cfg.oracle_min_step_deg) / step * 2
     for scores in (teacher, evaluator):  # a compass search from the best of each, inside the set
         p, cur = grid[int(np.argmax(scores))].clone(), scores
@@ -200,6 +201,8 @@ def constrained_oracle(space, judge: Judge, points: np.ndarray, intrinsics, cfg:
                 scale /= 2
                 continue
             t, e = judge.measure(pp[hold])
+            if float(t.max()) > best_t:
+                best_pose = pp[hold][int(np.argmax(t))]
             best_t, best_e = max(best_t, float(t.max())), max(best_e, float(e.max()))
             s = (t, e)[key]
             j = int(np.argmax(s))
@@ -208,7 +211,7 @@ def constrained_oracle(space, judge: Judge, points: np.ndarray, intrinsics, cfg:
             else:
                 scale /= 2
     return {"best_teacher": best_t, "best_evaluator": best_e, "mean_teacher": mean_t, "mean_evaluator": mean_e,
-            "holding_views": int(ok.sum()), "grid_views": int(len(ok))}  # fmt: skip
+            "holding_views": int(ok.sum()), "grid_views": int(len(ok)), "best_cam2world": best_pose.tolist()}  # fmt: skip
 
 
 def _norm(score: float, mean: float, best: float) -> float:
@@ -216,10 +219,65 @@ def _norm(score: float, mean: float, best: float) -> float:
 
 
 # ------------------------------------------------------------------------------ the run
-def run_framing_eval(cfg: FramingEvalConfig, progress=None) -> dict[str, Any]:
+def _outline(image: np.ndarray, points: np.ndarray, pose: np.ndarray, intrinsics, colour) -> np.ndarray:
+    """``image`` with the convex hull of ``points`` projected at ``pose`` drawn on it."""
+    import cv2
+
+    out = np.ascontiguousarray(image).copy()
+    pc = (points - pose[:3, 3]) @ pose[:3, :3]
+    front = pc[:, 2] > 1e-3
+    if front.sum() >= 3:
+        uv = np.stack([intrinsics.fx * pc[front, 0] / pc[front, 2] + intrinsics.cx,
+                       intrinsics.fy * pc[front, 1] / pc[front, 2] + intrinsics.cy], -1)  # fmt: skip
+        hull = cv2.convexHull(np.clip(uv, -1e4, 1e4).astype(np.float32)).round().astype(np.int32)
+        cv2.polylines(out, [hull], True, colour, 1, cv2.LINE_AA)
+    return out
+
+
+def write_figure(path, rows: list[dict], sources: dict, cfg: FramingEvalConfig) -> None:
+    """One row per searched case: the input view with the subject's box, the suggestion and the
+    constrained oracle's view (ground-truth renders, the true outline drawn), with their scores."""
+    import cv2
+
+    from aes_planner.images import write_image
+
+    tiles = []
+    for r in rows:
+        if "holds" not in r:
+            continue
+        source, inputs, k = sources[r["scene"]]
+        points = object_points(source.scene.objects[r["object"]])
+        views = [inputs[r["view"]], np.asarray(r["cam2world"]), np.asarray(r["best_cam2world"])]
+        imgs = (source.render_rgb(np.stack(views), k) * 255).round().astype(np.uint8)
+        x0, y0, x1, y1 = (int(round(v)) for v in r["box"])
+        first = imgs[0].copy()
+        cv2.rectangle(first, (x0, y0), (x1 - 1, y1 - 1), (40, 200, 60), 1)
+        second = _outline(imgs[1], points, views[1], k, (40, 200, 60) if r["holds"] else (220, 40, 40))
+        third = _outline(imgs[2], points, views[2], k, (40, 200, 60))
+        labels = [
+            f"{r['scene']} {r['subject']}"[:28],
+            f"suggest t{r['teacher']:.2f} ({r['normalized_teacher']:.2f})",
+            f"oracle t{r['best_teacher']:.2f}",
+        ]
+        row = []
+        for img, label in zip((first, second, third), labels):
+            big = cv2.resize(img, (img.shape[1] * 2, img.shape[0] * 2), interpolation=cv2.INTER_NEAREST)
+            tile = np.full((big.shape[0] + 16, big.shape[1] + 4, 3), 255, np.uint8)
+            tile[16:, 2:-2] = big
+            cv2.putText(tile, label, (2, 12), cv2.FONT_HERSHEY_PLAIN, 0.9, (0, 0, 0), 1, cv2.LINE_AA)
+            row.append(tile)
+        tiles.append(np.hstack(row))
+    if tiles:
+        width = max(t.shape[1] for t in tiles)
+        sheet = np.vstack([np.pad(t, ((0, 0), (0, width - t.shape[1]), (0, 0)), constant_values=255) for t in tiles])
+        write_image(path, cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR), "the framing figure")
+
+
+def run_framing_eval(cfg: FramingEvalConfig, progress=None, figure: str | None = None) -> dict[str, Any]:
     teacher = get_teacher()
     evaluator = CompositionEvaluator()
     rows = []
+    sources = {}
     for spec in cfg.scenes:
         source = _source(spec, cfg)
         platform = _mode_platform(source, cfg.mode, cfg.free_box_m)
@@ -228,6 +286,7 @@ def run_framing_eval(cfg: FramingEvalConfig, progress=None) -> dict[str, Any]:
         inputs = _inputs(source, platform, cfg.views)
         frames = [source.capture(p) for p in inputs]
         k = platform.intrinsics
+        sources[spec] = (source, inputs, k)
         judge = Judge(source, teacher, evaluator)
         scfg = SearchConfig.preset(cfg.preset, mode=platform.kind)
         space = platform.search_space(scfg)
@@ -243,7 +302,7 @@ def run_framing_eval(cfg: FramingEvalConfig, progress=None) -> dict[str, Any]:
             obj = source.scene.objects[obj_i]
             points = object_points(obj)
             row: dict[str, Any] = {"scene": spec, "seed": seed, "subject": obj.name or f"object {obj_i + 1}",
-                                   "view": view, "box": [region.x0, region.y0, region.x1, region.y1]}  # fmt: skip
+                                   "view": view, "box": [region.x0, region.y0, region.x1, region.y1], "object": obj_i}  # fmt: skip
             oracle = constrained_oracle(space, judge, points, k, cfg)
             if oracle is None:
                 row["error"] = "no grid view holds the subject"
@@ -264,6 +323,7 @@ def run_framing_eval(cfg: FramingEvalConfig, progress=None) -> dict[str, Any]:
                 continue
             row["latency_ms"] = (time.perf_counter() - t0) * 1e3
             pose = result.best.cam2world
+            row["cam2world"] = pose.tolist()
             row["holds"] = bool(true_holds(points, pose[None], k)[0])
             row["held_predicted"] = result.best.held
             t, e = judge.measure(pose[None])
@@ -273,6 +333,8 @@ def run_framing_eval(cfg: FramingEvalConfig, progress=None) -> dict[str, Any]:
             row["subject_box_m"] = framing.keep[0].to_json()
             rows.append(row)
             log.info("%s", {k2: v for k2, v in row.items() if k2 != "subject_box_m"})
+    if figure:
+        write_figure(figure, rows, sources, cfg)
     return {"config": dataclasses.asdict(cfg), "rows": rows, "summary": summarize(rows)}
 
 

@@ -14,8 +14,8 @@ the lifted subjects into what the two-stage search needs:
   never further than ``depth_cap`` times the box's larger side at the mode's depth from the mode
   (a floor running through the box does not drag the subject to the horizon). The subject is what
   lies in that slab: the box's pixels there (unprojected), the Gaussians behind the box there
-  (sides other views saw) and the box's own frustum cut by the slab (what the user drew is held
-  whole, also where this view hides part of it). Its 3D box is their extent (min/max) in an
+  (sides other views saw) and the box's own rectangle at the mode's depth (what the user drew is
+  held whole, also where this view hides part of it). Its 3D box is their extent (min/max) in an
   oriented box whose vertical axis is world z and whose horizontal axes are the principal axes of
   their x-y spread.
 * **the constraint** (:meth:`Framing.violation`, differentiable): 0 exactly when every corner of
@@ -308,12 +308,11 @@ def lift_region(
              np.ones(int(sel.sum()))], -1,
         ) * pix_z[sel, None]  # fmt: skip
         parts.append(cam @ c2w[:3, :3].T + c2w[:3, 3])
-    # the box itself, cut by the slab: what the user drew is held whole even where the view hides it
+    # the box itself at the mode's depth: what the user drew is held whole even where the view hides it
     bu = np.array([region.x0, region.x1, region.x0, region.x1])
     bv = np.array([region.y0, region.y0, region.y1, region.y1])
-    for zz in (z_lo, z_hi):
-        cam = np.stack([(bu - intrinsics.cx) / intrinsics.fx, (bv - intrinsics.cy) / intrinsics.fy, np.ones(4)], -1)
-        parts.append((cam * zz) @ c2w[:3, :3].T + c2w[:3, 3])
+    cam = np.stack([(bu - intrinsics.cx) / intrinsics.fx, (bv - intrinsics.cy) / intrinsics.fy, np.ones(4)], -1)
+    parts.append((cam * z_mode) @ c2w[:3, :3].T + c2w[:3, 3])
     pts = np.concatenate(parts)  # [M, 3] world
     if len(pts) < 4:
         raise FramingError(
