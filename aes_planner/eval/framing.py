@@ -33,9 +33,11 @@ import torch
 
 from aes_planner.errors import AesPlannerError
 from aes_planner.eval.search import HELD_OUT_SCENES, Judge, _inputs, _mode_platform, _source
+from aes_planner.field.scorer import ScoreOutput, Scorer
 from aes_planner.platform import RIG_FREE_BOX_HALF_M, parse_kind
 from aes_planner.search import SearchConfig, build_search_scorer, search_views
 from aes_planner.search.framing import FramingConfig, FramingError, Region, build_framing
+from aes_planner.search.oracle import pattern_search
 from aes_planner.teachers import get_teacher
 from aes_planner.teachers.evaluator import CompositionEvaluator
 
@@ -180,38 +182,42 @@ def constrained_oracle(space, judge: Judge, points: np.ndarray, intrinsics, cfg:
     grid, poses = grid[torch.as_tensor(ok)], poses[ok]
     teacher, evaluator = judge.measure(poses)
     mean_t, mean_e = float(teacher.mean()), float(evaluator.mean())
-    best_t, best_e = float(teacher.max()), float(evaluator.max())
-    best_pose = poses[int(np.argmax(teacher))]
+    best = {
+        "teacher": float(teacher.max()),
+        "evaluator": float(evaluator.max()),
+        "pose": poses[int(np.argmax(teacher))],
+    }
     min_scale = math.radians(cfg.oracle_min_step_deg) / step * 2
-    for scores in (teacher, evaluator):  # a compass search from the best of each, inside the set
-        p, cur = grid[int(np.argmax(scores))].clone(), scores
-        best_here, scale = float(scores.max()), 1.0
-        key = 0 if cur is teacher else 1
-        while scale >= min_scale:
-            probes = []
-            for d in range(space.dims):
-                for sign in (1.0, -1.0):
-                    q = p.clone()
-                    q[d] += sign * scale * steps[d]
-                    probes.append(q)
-            probes_t = space.project(torch.stack(probes))
-            pp = space.to_poses(probes_t).detach().numpy()
-            hold = true_holds(points, pp, intrinsics)
-            if not hold.any():
-                scale /= 2
-                continue
-            t, e = judge.measure(pp[hold])
-            if float(t.max()) > best_t:
-                best_pose = pp[hold][int(np.argmax(t))]
-            best_t, best_e = max(best_t, float(t.max())), max(best_e, float(e.max()))
-            s = (t, e)[key]
-            j = int(np.argmax(s))
-            if float(s[j]) > best_here + 1e-9:
-                p, best_here = probes_t[torch.as_tensor(hold)][j], float(s[j])
-            else:
-                scale /= 2
+
+    def holds(cam2world: torch.Tensor) -> np.ndarray:  # [M, 4, 4] -> [M] bool
+        return true_holds(points, cam2world.numpy(), intrinsics)
+
+    for key, scores in (("teacher", teacher), ("evaluator", evaluator)):  # from the best of each, inside the set
+        i = int(np.argmax(scores))
+        pattern_search(_Measured(judge, key, best), space, grid[i], float(scores[i]), steps, min_scale, holds)
+    best_t, best_e, best_pose = best["teacher"], best["evaluator"], best["pose"]
     return {"best_teacher": best_t, "best_evaluator": best_e, "mean_teacher": mean_t, "mean_evaluator": mean_e,
             "holding_views": int(ok.sum()), "grid_views": int(len(ok)), "best_cam2world": best_pose.tolist()}  # fmt: skip
+
+
+class _Measured(Scorer):
+    """Ground-truth renders scored by the teacher or the evaluator (``key``) for the compass
+    search; the best teacher and evaluator scores seen (and the teacher's pose) go into ``best``."""
+
+    name = "ground_truth"
+
+    def __init__(self, judge: Judge, key: str, best: dict):
+        self.judge, self.key, self.best = judge, key, best
+        self.intrinsics = judge.gt.intrinsics
+
+    def score(self, cam2world: torch.Tensor) -> ScoreOutput:  # [B, 4, 4] -> ScoreOutput [B]
+        poses = cam2world.detach().numpy()
+        t, e = self.judge.measure(poses)
+        if float(t.max()) > self.best["teacher"]:
+            self.best["teacher"], self.best["pose"] = float(t.max()), poses[int(np.argmax(t))]
+        self.best["evaluator"] = max(self.best["evaluator"], float(e.max()))
+        score = torch.as_tensor(t if self.key == "teacher" else e)
+        return ScoreOutput(score, torch.ones_like(score), {"score": score})
 
 
 def _norm(score: float, mean: float, best: float) -> float:

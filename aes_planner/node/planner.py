@@ -108,6 +108,7 @@ class PlannerNode(ActiveLoop, Node):
                 "capture_timeouts",
                 "faults",
                 "framing_rejected",
+                "framing_failed",
             ),
             0,
         )
@@ -325,8 +326,14 @@ class PlannerNode(ActiveLoop, Node):
     def _propose(self, captured: np.ndarray, k: int, **kw):
         """The proposer's search, timed: its latency, and its CPU efficiency for the governor."""
         # the governor's count, learnt from here (threads: N pinned it; adapt_threads: false leaves it)
-        with suggestion_threads(self.governor, self.cpu_clock, adapt=self.config.adapt_threads) as job:
-            proposal = self.proposer.propose(self.platform, captured, k, **kw)
+        from aes_planner.search.framing import FramingError
+
+        try:
+            with suggestion_threads(self.governor, self.cpu_clock, adapt=self.config.adapt_threads) as job:
+                proposal = self.proposer.propose(self.platform, captured, k, **kw)
+        except FramingError:  # e.g. no reachable view holds the kept subject: counted, the caller goes on
+            self.counters["framing_failed"] += 1
+            raise
         self.latencies_s.append(job.wall_s)
         return proposal
 
