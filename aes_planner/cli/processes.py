@@ -102,7 +102,7 @@ def supervisor_from_args(args: argparse.Namespace, in_process=(), out=None):
     except ConfigError as exc:
         raise ConfigError("--listen" if exc.key.startswith("listen") else "--connect", exc.message) from None
     level = logging.getLogger().getEffectiveLevel()
-    return Supervisor(
+    supervisor = Supervisor(
         args.file,
         args.set,
         endpoint=args.listen,
@@ -112,6 +112,11 @@ def supervisor_from_args(args: argparse.Namespace, in_process=(), out=None):
         out=out,
         log_level=level,
     )
+    if supervisor.spec.scene is not None:  # a bad scene fails here, not in every child
+        from aes_planner.sim import load_scene
+
+        load_scene(supervisor.spec.scene)
+    return supervisor
 
 
 def run_processes(args: argparse.Namespace) -> int:

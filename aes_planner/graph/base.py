@@ -75,24 +75,14 @@ class LaunchContext:
     """What a launch file shares with every node it builds.
 
     ``scene``: the simulated scene spec (``"indoor:3"`` or a YAML path) of a sim launch, else None;
-    ``values``: free-form extras (the run folder...).
+    ``loaded_scene``: that scene once loaded (the graph never loads the simulator: the node types
+    that take a scene load it through :func:`aes_planner.node.scene.launch_scene`, once per launch,
+    or a caller that has it already puts it here); ``values``: free-form extras (the run folder...).
     """
 
     scene: str | None = None
     values: dict[str, Any] = field(default_factory=dict)
-    _scene_obj: Any = None
-
-    def load_scene(self):
-        """The :class:`aes_planner.sim.Scene` (loaded once)."""
-        if self.scene is None:
-            raise NodeError(
-                "this node needs a simulated scene: add 'scene: FAMILY:SEED' (or a scene file) to the launch file"
-            )
-        if self._scene_obj is None:
-            from aes_planner.sim import load_scene
-
-            self._scene_obj = load_scene(self.scene)
-        return self._scene_obj
+    loaded_scene: Any = None
 
 
 class Node(ABC):

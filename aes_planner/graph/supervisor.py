@@ -123,7 +123,7 @@ class Supervisor:
     def _check_configs(self) -> None:
         """Every node's config parses here, so a typo fails once, naming the key, not in a child."""
         from aes_planner.config import ConfigError, from_dict
-        from aes_planner.graph.base import LaunchContext, node_class
+        from aes_planner.graph.base import node_class
         from aes_planner.graph.launch_file import check_remap
 
         for i, e in enumerate(self.spec.nodes):
@@ -133,8 +133,6 @@ class Supervisor:
                 check_remap(e, cls, f"nodes[{i}].remap")
                 if cls.needs_scene and self.spec.scene is None:
                     raise ConfigError(f"nodes[{i}]", f"a {e.type} node needs a scene: add 'scene: FAMILY:SEED'")
-        if self.spec.scene is not None:  # a bad scene fails here, not in every child
-            LaunchContext(scene=self.spec.scene).load_scene()
 
     # -- children ----------------------------------------------------------------------------------
 

@@ -30,13 +30,18 @@ from aes_planner.devices import (
     GimbalCommError,
     GimbalHardwareError,
     GimbalPortLostError,
+    joint_command,
     make_device,
 )
 from aes_planner.geometry.rig import JointCommandError, JointLimits
 from aes_planner.graph.base import LaunchContext, Node, Outputs
 from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState
+from aes_planner.node.scene import launch_scene
 
 log = logging.getLogger(__name__)
+
+#: No limits of the launch's own: only the finiteness check (the device's limits still apply).
+_UNLIMITED = JointLimits((-math.inf, math.inf), (-math.inf, math.inf))
 
 __all__ = ["GimbalNode", "GimbalNodeConfig"]
 
@@ -142,7 +147,7 @@ class GimbalNode(Node):
         c = self.config
         pan, tilt = c.pan_limits_deg, c.tilt_limits_deg
         if (pan is None or tilt is None) and context is not None and context.scene is not None:
-            scene = context.load_scene()
+            scene = launch_scene(context)
             if scene.rig is not None:
                 pan = pan or scene.rig.pan_tilt.pan_limits_deg
                 tilt = tilt or scene.rig.pan_tilt.tilt_limits_deg
@@ -217,14 +222,12 @@ class GimbalNode(Node):
         return out
 
     def clamp(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
-        """Finite joints clamped to the node's limits; :class:`JointCommandError` otherwise."""
-        if not (isinstance(pan_rad, (int, float)) and isinstance(tilt_rad, (int, float))):
-            raise JointCommandError(f"joint command must be numbers, got {pan_rad!r}, {tilt_rad!r}")
-        if not (math.isfinite(pan_rad) and math.isfinite(tilt_rad)):
-            raise JointCommandError(f"joint command must be finite, got pan {pan_rad!r}, tilt {tilt_rad!r}")
-        if self.limits_rad is not None:
-            pan_rad, tilt_rad = JointLimits(*self.limits_rad).clamp(pan_rad, tilt_rad)
-        return float(pan_rad), float(tilt_rad)
+        """The joints inside the launch's limits when it sets some (the shared check of the values,
+        then :meth:`JointLimits.clamp`); the device clamps to its own after. :class:`JointCommandError`
+        for anything but two finite numbers."""
+        pan_rad, tilt_rad = joint_command(pan_rad, tilt_rad)
+        limits = JointLimits(*self.limits_rad) if self.limits_rad is not None else _UNLIMITED
+        return limits.clamp(pan_rad, tilt_rad)
 
     def _execute(self, cmd) -> None:
         kind = getattr(cmd, "kind", None)

@@ -40,21 +40,19 @@ import logging
 import math
 import re
 import time
-from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-
-import numpy as np
 
 from aes_planner.config import ConfigError, require
 from aes_planner.geometry.rig import PanTiltConfig
 from aes_planner.graph.base import LaunchContext, Node, NodeError, Output, Outputs
 from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState, PosedFrame, ViewSuggestion
+from aes_planner.node.scene import launch_scene
 from aes_planner.ros2.dds import QOS_PROFILES, DdsConfig
 
 log = logging.getLogger(__name__)
 
-__all__ = ["OUTBOUND", "INBOUND", "Ros2BridgeConfig", "Ros2BridgeNode", "JointHistory"]
+__all__ = ["OUTBOUND", "INBOUND", "Ros2BridgeConfig", "Ros2BridgeNode"]
 
 #: key -> (default ROS 2 topic, "pkg/msg/Type", QoS profile)
 OUTBOUND = {
@@ -183,31 +181,6 @@ class Ros2BridgeConfig:
         return self.qos.get(key) or {**OUTBOUND, **INBOUND}[key][2]
 
 
-class JointHistory:
-    """Joint angles over time, linearly interpolated at a stamp (held at the ends)."""
-
-    def __init__(self, history_s: float):
-        self.history_s = history_s
-        self.stamps: deque[float] = deque()
-        self.joints: deque[tuple[float, float]] = deque()
-
-    def add(self, stamp_s: float, pan: float, tilt: float) -> None:
-        if self.stamps and stamp_s <= self.stamps[-1]:
-            return
-        self.stamps.append(stamp_s)
-        self.joints.append((pan, tilt))
-        while len(self.stamps) > 2 and self.stamps[0] < stamp_s - self.history_s:
-            self.stamps.popleft()
-            self.joints.popleft()
-
-    def at(self, stamp_s: float) -> tuple[float, float] | None:
-        if not self.stamps or stamp_s < self.stamps[0] - self.history_s:
-            return None
-        j = np.asarray(self.joints)  # [N, 2]
-        t = np.asarray(self.stamps)  # [N]
-        return float(np.interp(stamp_s, t, j[:, 0])), float(np.interp(stamp_s, t, j[:, 1]))
-
-
 class Ros2BridgeNode(Node):
     """See the module docstring."""
 
@@ -239,8 +212,8 @@ class Ros2BridgeNode(Node):
             ) from None
         c = self.config
         rig = c.rig
-        if rig is None and self.context.scene is not None and self.context.load_scene().rig is not None:
-            rig = self.context.load_scene().rig.pan_tilt
+        if rig is None and self.context.scene is not None and launch_scene(self.context).rig is not None:
+            rig = launch_scene(self.context).rig.pan_tilt
         from aes_planner.ros2.links import RigLinks
 
         self.links = RigLinks(rig) if rig is not None else None
@@ -342,7 +315,7 @@ class Ros2BridgeNode(Node):
     def diagnostics(self, now: float) -> Diagnostics:
         counters = dict(sorted(self.counters.items())[:120])
         rejected = sum(v for k, v in self.counters.items() if k.startswith("rejected."))
-        state = "rejecting input" if rejected and self._inbound and self._inbound.recent_rejections() else "bridging"
+        state = "rejecting input" if rejected and self._inbound and self._inbound.recent_rejections(now) else "bridging"
         values = {"search_latency_s": self.mapper.search_latency_s}
         for key, w in self._writers.items():  # who listens: the first question when a topic seems silent
             try:
