@@ -125,7 +125,10 @@ class Lockstep:
         self.topics = dict(topics)
         self.clock_sub = bus.subscribe(CLOCK_TOPIC, Clock, depth=16)
         self.ack_pub = bus.publisher(ACK_TOPIC, ClockAck)
-        self.expected: dict[str, int] | None = None  # per input: messages published to it so far
+        # per input: messages published to it so far. Nothing is published before the first tick
+        # (a node that joins a running graph, respawned, does not wait for what came before it)
+        self.expected = {name: sub.received for name, sub in self.subs.items()}
+        self.started = False
         self.tick = 0
         self.now_ns = 0
         self.stalls = 0
@@ -140,16 +143,14 @@ class Lockstep:
         while not stop.is_set():
             new = [c for c in self.clock_sub.take() if c.tick > self.tick]
             if new:
-                first = self.expected is None
-                if first:  # joined now: what arrived before is not ours to wait for
-                    self.expected = {name: sub.received for name, sub in self.subs.items()}
-                else:
+                if self.started:  # the first tick's counts are of the ticks before this node joined
                     for c in new:
                         for name in self.subs:
                             self.expected[name] += c.sent.get(self.topics[name], 0)
+                self.started = True
                 self.tick, self.now_ns = new[-1].tick, new[-1].stamp_ns
                 return new[-1]
-            if self.expected is None and time.monotonic() - self._ready_at > 0.5:
+            if not self.started and time.monotonic() - self._ready_at > 0.5:
                 self._ready_at = time.monotonic()
                 self.ack_pub.publish(ClockAck(self.node_id, 0))
             self.clock_sub.wait(0.1)
@@ -175,7 +176,7 @@ class Lockstep:
                     "%s: tick %d (t = %.3f s): still waiting for %s",
                     self.node_id,
                     self.tick,
-                    self.now_ns * 1e-9,
+                    self.now_ns / 1e9,
                     ", ".join(f"{self.topics[n]} ({self.subs[n].received}/{self.expected[n]})" for n in short),
                 )
             wait_any([self.subs[n] for n in short], 0.05)
@@ -213,7 +214,7 @@ class ClockMaster:
 
     @property
     def now_s(self) -> float:
-        return self.now_ns * 1e-9
+        return self.now_ns / 1e9
 
     def _on_ack(self, ack: ClockAck) -> None:
         if ack.node not in self.nodes:

@@ -130,7 +130,7 @@ class NodeRunner:
                 return
             sent: dict[str, int] = {}
             if ls.now_ns >= next_ns or any(inputs.values()):
-                sent = self.run_once(ls.now_ns * 1e-9, inputs)
+                sent = self.run_once(ls.now_ns / 1e9, inputs)
                 next_ns = ls.now_ns + period_ns
             ls.ack(sent, next_ns)
 

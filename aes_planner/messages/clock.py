@@ -53,7 +53,7 @@ class Clock(Message):
 
     @property
     def stamp_s(self) -> float:
-        return self.stamp_ns * 1e-9
+        return self.stamp_ns / 1e9
 
 
 @register_message
