@@ -185,6 +185,10 @@ class MavlinkDroneNode(Node):
     inputs = {"planner/suggestion": (ViewSuggestion, 8), "planner/diagnostics": (Diagnostics, 8)}
     outputs = {"drone/state": (DroneState, False), "drone/diagnostics": (Diagnostics, False)}
 
+    @classmethod
+    def sim_clock_problem(cls, config) -> str | None:
+        return "talks MAVLink to a vehicle (or its emulator), which flies in real time"
+
     def __init__(
         self, config: MavlinkDroneConfig | None = None, node_id: str = "drone", context: LaunchContext | None = None
     ):

@@ -200,6 +200,10 @@ class Ros2BridgeNode(Node):
         "ros2/diagnostics": (Diagnostics, False),
     }
 
+    @classmethod
+    def sim_clock_problem(cls, config) -> str | None:
+        return "bridges to a ROS 2 graph, which runs on its own clock"
+
     def __init__(
         self, config: Ros2BridgeConfig | None = None, node_id: str = "ros2", context: LaunchContext | None = None
     ):
