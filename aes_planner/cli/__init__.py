@@ -10,6 +10,7 @@ its traceback.
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib
 import logging
 import os
@@ -58,6 +59,31 @@ def build_parser() -> argparse.ArgumentParser:
     for name in COMMANDS:
         importlib.import_module(name).register(sub)
     return parser
+
+
+def drives_servos(run):
+    """Run a subcommand that opens a servo device (a :class:`~aes_planner.devices.Gimbal`) under
+    the one :func:`~aes_planner.graph.signals.stop_on_signals`: the first SIGTERM or SIGINT
+    interrupts it like Ctrl-C (its ``with gimbal:`` blocks turn torque off on the way out), later
+    ones wait for that clean-up, and the command exits with 128 + the first signal's number.
+
+    Every subcommand that opens a gimbal carries this (or runs a graph under
+    :func:`~aes_planner.graph.runner.run_graph`, which does the same for a loop);
+    ``tests/cli/test_servo_signals_sweep.py`` finds them from the code and sends them signals."""
+
+    @functools.wraps(run)
+    def wrapped(args: argparse.Namespace) -> int:
+        from aes_planner.graph.signals import SignalShutdown, stop_on_signals
+
+        try:
+            with stop_on_signals(interrupt=True):
+                return run(args)
+        except SignalShutdown as exc:
+            print(f"{exc}: stopped, torque off", file=sys.stderr, flush=True)
+            return exc.exit_code
+
+    wrapped.drives_servos = True
+    return wrapped
 
 
 def terminal_safe(text: str) -> str:
