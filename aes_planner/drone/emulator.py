@@ -40,9 +40,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from aes_planner.config import require, require_numbers
+from aes_planner.config import require, require_numbers, require_within, short_repr
 from aes_planner.drone import frames as fr
-from aes_planner.drone.modes import ARDUPILOT_MODES, connect, mavlink, mode_name, px4_custom_mode
+from aes_planner.drone.connection import connect, parse_connection
+from aes_planner.drone.modes import ARDUPILOT_MODES, mavlink, mode_name, px4_custom_mode
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +58,10 @@ FORBIDDEN_COMMANDS = {
     mav.MAV_CMD_NAV_VTOL_TAKEOFF: "vtol_takeoff",
 }
 STREAM_POLICIES = ("always", "on_request", "data_stream_only")
+#: How far from its local origin an emulated vehicle may start or fence itself, metres.
+MAX_LOCAL_M = 1e4
+#: The longest emulated run (a week), seconds: link-loss windows and ``drone emulate --duration``.
+MAX_RUN_S = 7 * 86400.0
 #: The telemetry the emulator sends: message -> (its id, the REQUEST_DATA_STREAM group holding it).
 TELEMETRY = {
     "LOCAL_POSITION_NED": (mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mav.MAV_DATA_STREAM_POSITION),
@@ -105,10 +110,31 @@ class EmulatorConfig:
         for name in ("system_id", "component_id"):
             v = getattr(self, name)
             require(isinstance(v, int) and 1 <= v <= 255, name, f"must be an integer in 1-255, got {v!r}")
+        parse_connection(self.connection, "connection")
         require_numbers(
             self,
             ("max_speed_m_s", "position_gain_1_s", "max_yaw_rate_deg_s", "gimbal_rate_deg_s"),
             minimum=0.0,
+        )
+        require_within(self, ("start_ned_m",), -MAX_LOCAL_M, MAX_LOCAL_M)
+        require_within(self, ("start_heading_deg",), -360.0, 360.0)
+        require_within(self, ("max_speed_m_s",), 0.0, 30.0)  # a camera drone's top speed, and then some
+        require_within(self, ("position_gain_1_s",), 0.0, 100.0)
+        require_within(self, ("max_yaw_rate_deg_s", "gimbal_rate_deg_s"), 0.0, 1000.0)
+        require_within(self, ("wind_m_s",), -30.0, 30.0)
+        require_within(self, ("offboard_loss_s",), 0.0, 60.0)
+        require(len(self.start_ned_m) == 3, "start_ned_m", f"expected (north, east, down), got {self.start_ned_m!r}")
+        require(len(self.wind_m_s) == 3, "wind_m_s", f"expected (north, east, down), got {self.wind_m_s!r}")
+        for name in ("gimbal_pitch_limits_deg", "gimbal_yaw_limits_deg"):
+            require_within(self, (name,), -180.0, 180.0)
+            lo, hi = getattr(self, name)
+            require(lo < hi, name, f"must be (min, max) with min < max, got {(lo, hi)}")
+        lo, hi = self.gimbal_pitch_limits_deg
+        require_within(self, ("start_gimbal_pitch_deg",), lo, hi)
+        require(
+            isinstance(self.seed, int) and not isinstance(self.seed, bool) and 0 <= self.seed < 2**63,
+            "seed",
+            f"must be an integer in [0, 2**63), got {self.seed!r}",
         )
         if self.heartbeat_hz is None:
             self.heartbeat_hz = 2.0 if self.autopilot == "px4" else 1.0
@@ -126,11 +152,27 @@ class EmulatorConfig:
         require(
             (self.fence_min_ned_m is None) == (self.fence_max_ned_m is None), "fence_max_ned_m", "give both or neither"
         )
-        for w in self.link_loss:
+        if self.fence_min_ned_m is not None:
+            require_within(self, ("fence_min_ned_m", "fence_max_ned_m"), -MAX_LOCAL_M, MAX_LOCAL_M)
+            lo, hi = self.fence_min_ned_m, self.fence_max_ned_m
             require(
-                isinstance(w, (list, tuple)) and len(w) == 2 and all(math.isfinite(float(x)) for x in w),
+                len(lo) == len(hi) == 3 and all(a < b for a, b in zip(lo, hi)),
+                "fence_max_ned_m",
+                f"the fence must be larger than fence_min_ned_m on every axis (not reversed, not empty), got {lo} .. {hi}",
+            )
+        require(
+            isinstance(self.link_loss, list) and len(self.link_loss) <= 100,
+            "link_loss",
+            f"expected at most 100 [start_s, duration_s] windows, got {short_repr(self.link_loss)}",
+        )
+        for w in self.link_loss:
+            ok = isinstance(w, (list, tuple)) and len(w) == 2
+            ok = ok and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in w)
+            require(
+                ok and 0 <= w[0] <= MAX_RUN_S and 0 < w[1] <= MAX_RUN_S,
                 "link_loss",
-                f"expected [[start_s, duration_s], ...], got {self.link_loss!r}",
+                f"expected [[start_s, duration_s], ...] with 0 <= start_s <= {MAX_RUN_S:g} and 0 < duration_s <= "
+                f"{MAX_RUN_S:g}, got {short_repr(self.link_loss)}",
             )
 
 

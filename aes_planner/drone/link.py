@@ -47,7 +47,8 @@ import time
 import numpy as np
 
 from aes_planner.drone import frames as fr
-from aes_planner.drone.modes import connect, control_mode, mavlink, mode_name, set_mode_params
+from aes_planner.drone.connection import connect
+from aes_planner.drone.modes import control_mode, mavlink, mode_name, set_mode_params
 from aes_planner.drone.safety import GateLimits, SetpointGate
 from aes_planner.geometry.plausible import MAX_COORDINATE_M
 

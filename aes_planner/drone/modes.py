@@ -103,14 +103,3 @@ def set_mode_params(autopilot: str, name: str) -> tuple[float, float, float]:
         return float(CUSTOM_MODE_ENABLED), float(main), float(sub)
     number = next(k for k, v in ARDUPILOT_MODES.items() if v == name)
     return float(CUSTOM_MODE_ENABLED), float(number), 0.0
-
-
-def connect(connection: str, source_system: int, source_component: int):
-    """A pymavlink connection speaking MAVLink 2 with the common dialect (gimbal protocol v2 and
-    the ids above 255 exist only there)."""
-    mavlink()
-    from pymavlink import mavutil
-
-    return mavutil.mavlink_connection(
-        connection, source_system=source_system, source_component=source_component, dialect="common"
-    )

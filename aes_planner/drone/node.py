@@ -127,11 +127,9 @@ class MavlinkDroneConfig:
     emulator: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        require(
-            isinstance(self.connection, str) and 0 < len(self.connection) <= 300,
-            "connection",
-            "give a pymavlink connection string such as udpin:127.0.0.1:14540",
-        )
+        from aes_planner.drone.connection import parse_connection
+
+        self.connection_parsed = parse_connection(self.connection, "connection")
         require(
             self.autopilot in ("px4", "ardupilot"), "autopilot", f"must be px4 or ardupilot, got {self.autopilot!r}"
         )
@@ -207,7 +205,7 @@ class MavlinkDroneConfig:
 
             from_dict(EmulatorConfig, self.emulator, "emulator")  # a bad key fails here, named
             require(
-                self.connection.startswith("udpin:"),
+                self.connection_parsed.scheme == "udpin",
                 "emulate",
                 f"the emulator sends to a udpin connection; got {self.connection!r}",
             )
@@ -315,10 +313,10 @@ class MavlinkDroneNode(Node):
         from aes_planner.node.sim_drone import _survey_start
 
         c = self.config
-        host_port = c.connection.split(":", 1)[1]
+        conn = c.connection_parsed
         start = _survey_start(self.box)  # the sim drone's start: the box's centre, looking east
         defaults = {
-            "connection": f"udpout:{host_port}",
+            "connection": f"udpout:{'127.0.0.1' if conn.host in ('0.0.0.0', 'localhost') else conn.host}:{conn.port}",
             "autopilot": c.autopilot,
             "start_ned_m": tuple(fr.enu_to_ned(start[:3, 3] - np.asarray(c.origin_m)).tolist()),
             "start_heading_deg": 90.0,
