@@ -45,7 +45,7 @@ class _Parser(argparse.ArgumentParser):
     parsers are of this class too (argparse makes them of their parent's class)."""
 
     def error(self, message: str):
-        self.exit(2, terminal_safe(f"error: {self.prog}: {message} (see {self.prog} --help)") + "\n")
+        self.exit(2, error_line(f"error: {self.prog}: {message} (see {self.prog} --help)") + "\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -95,6 +95,21 @@ def terminal_safe(text: str) -> str:
     return "".join(c if c.isprintable() or c == "\n" else repr(c)[1:-1] for c in text)
 
 
+#: The longest error line the CLI prints: what an error echoes (a 10,000-character frame id, a
+#: file's garbage) is cut here, once, for every command.
+MAX_ERROR_CHARS = 600
+
+
+def error_line(text: str, limit: int = MAX_ERROR_CHARS) -> str:
+    """``text`` as the one line the CLI prints for an error: newlines and runs of spaces folded,
+    control characters escaped (:func:`terminal_safe`), and cut at ``limit`` characters with a
+    note of how much was left out."""
+    text = terminal_safe(" ".join(str(text).split()))
+    if len(text) <= limit:
+        return text
+    return f"{text[: limit - 40]} ... [{len(text) - limit + 40} characters cut]"
+
+
 def _empty_value(argv: list[str]) -> str | None:
     """The option (or argument) given an empty string, if any: no option of this CLI takes one."""
     for i, token in enumerate(argv):
@@ -120,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except AesPlannerError as exc:
-        print(terminal_safe(f"error: {exc}"), file=sys.stderr)
+        print(error_line(f"error: {exc}"), file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:  # Ctrl-C, or a signal stop that ended a command (SignalShutdown)
         return getattr(exc, "exit_code", 130)
@@ -133,11 +148,11 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
             # a file the command reads or writes (disk full, permissions, a folder where a file
             # was expected): the user's to fix, not a bug
-            print(terminal_safe(f"error: {str(exc.filename)[:300]}: {exc.strerror}"), file=sys.stderr)
+            print(error_line(f"error: {exc.filename}: {exc.strerror}"), file=sys.stderr)
             return 2
-        text = terminal_safe(" ".join(str(exc).split()))
+        text = error_line(str(exc), 300)
         print(
-            f"error: unexpected {type(exc).__name__}: {text[:300]} (this is a bug in aes-planner; please report it "
+            f"error: unexpected {type(exc).__name__}: {text} (this is a bug in aes-planner; please report it "
             "with the command line; rerun with -v for the traceback)",
             file=sys.stderr,
         )

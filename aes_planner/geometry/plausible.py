@@ -12,7 +12,10 @@ does not decode), and the planner's check that a frame belongs to the scene it i
   ~1e7 m);
 - joint angles within :data:`MAX_JOINT_RAD` (a position-mode joint turns less than two turns);
 - a frame within :data:`MAX_LOCAL_DISTANCE_M` of the frame before it (the field models one scene
-  in a local frame recentred on its first frame).
+  in a local frame recentred on its first frame);
+- a stamp within ``[0, MAX_STAMP_S]`` seconds (the epoch, or a simulated clock's zero, to
+  2038-01-19: what ``builtin_interfaces/Time``'s int32 seconds hold; a stamp of 1e11 s is a
+  broken clock, not a date), and no more than a receiver's ``max_stamp_ahead_s`` ahead of its clock.
 
 Each function returns what is wrong as text starting with the offending field, or ``None``.
 """
@@ -30,7 +33,9 @@ __all__ = [
     "MAX_COORDINATE_M",
     "MAX_JOINT_RAD",
     "MAX_LOCAL_DISTANCE_M",
+    "MAX_STAMP_S",
     "intrinsics_problem",
+    "stamp_problem",
     "joint_problem",
     "position_problem",
     "distance_problem",
@@ -44,6 +49,20 @@ MAX_COORDINATE_M = 1e9
 MAX_JOINT_RAD = 4 * math.pi
 #: Farthest a frame may be from the one before it and still show the same scene, metres.
 MAX_LOCAL_DISTANCE_M = 1e5
+#: Latest stamp a message may carry, seconds (2038-01-19T03:14:07Z: ROS 2 Time's int32 seconds).
+MAX_STAMP_S = float(2**31 - 1)
+
+
+def stamp_problem(
+    t_s: float, what: str = "stamp", now_s: float | None = None, max_ahead_s: float = math.inf
+) -> str | None:
+    """What is implausible about a stamp ``t_s`` (seconds), or None: not finite, negative, beyond
+    :data:`MAX_STAMP_S`, or more than ``max_ahead_s`` ahead of the receiver's clock ``now_s``."""
+    if not (isinstance(t_s, (int, float)) and math.isfinite(t_s) and 0.0 <= t_s <= MAX_STAMP_S):
+        return f"{what}: {t_s:.6g} s is not a time (expected 0 to {MAX_STAMP_S:.0f} s, 2038-01-19)"
+    if now_s is not None and t_s - now_s > max_ahead_s:
+        return f"{what}: {t_s - now_s:.3g} s ahead of this clock (more than {max_ahead_s:g} s: a clock is wrong)"
+    return None
 
 
 def intrinsics_problem(k: Intrinsics) -> str | None:

@@ -26,6 +26,7 @@ import numpy as np
 
 from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.camera import Intrinsics
+from aes_planner.geometry.plausible import stamp_problem
 from aes_planner.messages import Diagnostics, GimbalState, PosedFrame, ViewSuggestion
 from aes_planner.messages.posed_frame import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE_PX
 from aes_planner.ros2 import idl
@@ -72,12 +73,12 @@ class Ros2InputError(AesPlannerError, ValueError):
 
 
 def stamp(t_s: float) -> idl.Time:
-    """Seconds -> ``builtin_interfaces/Time`` (sec floored, 0 <= nanosec < 1e9; int32 range)."""
-    if not math.isfinite(t_s):
-        raise Ros2InputError(f"stamp must be finite, got {t_s}")
-    ns = round(t_s * 1e9)
-    sec, nsec = divmod(ns, 1_000_000_000)
-    sec = max(-(1 << 31), min((1 << 31) - 1, sec))
+    """Seconds -> ``builtin_interfaces/Time`` (sec floored, 0 <= nanosec < 1e9); a stamp the
+    plausibility bounds refuse (negative, beyond 2038: int32 seconds) raises, never clamped."""
+    problem = stamp_problem(t_s)
+    if problem is not None:
+        raise Ros2InputError(problem)
+    sec, nsec = divmod(round(t_s * 1e9), 1_000_000_000)
     return idl.Time(int(sec), int(nsec))
 
 
