@@ -5,9 +5,8 @@ or a :class:`DronePlatform` (a camera that flies inside an axis-aligned box). Th
 everything that differs between the two, so code above it asks the platform instead of testing
 its kind:
 
-* its search space (:meth:`Platform.search_space`: joints or 5-DoF views, with the bounds the
-  search projects onto) and its random poses (:meth:`Platform.random_poses`: the one sampler
-  behind every "mean random" baseline, the oracle's included);
+* what the search moves (the search owns its spaces: :func:`aes_planner.search.space.space_for`
+  opens a rig's joints or a drone's 5-DoF views; this module is a leaf that imports no search);
 * the clamp a command passes (:meth:`RigPlatform.clamp`: the joint limits, NaN/Inf refused;
   :meth:`DronePlatform.clamp`: the box);
 * the box free flight takes around it (:meth:`Platform.free_box`: a rig's is
@@ -182,24 +181,6 @@ class Platform(ABC):
     rig = None
     drone = None
 
-    def search_space(self, cfg=None):
-        """The search space of this platform under a :class:`~aes_planner.search.SearchConfig`
-        (default settings when None)."""
-        from aes_planner.search.config import SearchConfig
-
-        return self._space(cfg if cfg is not None else SearchConfig())
-
-    def random_poses(self, n: int, rng: np.random.Generator, cfg=None) -> np.ndarray:  # -> [n, 4, 4]
-        """``n`` feasible poses drawn uniformly over the search space's bounds (rig: the joint
-        ranges; drone: the box, any yaw, the searched pitch range): the chance level of every
-        oracle-normalised score."""
-        space = self.search_space(cfg)
-        return space.to_poses(space.random(n, rng)).detach().numpy()
-
-    @abstractmethod
-    def _space(self, cfg):
-        """The search space (the search package's class for this kind)."""
-
     @abstractmethod
     def free_box(self, half_m=RIG_FREE_BOX_HALF_M) -> DroneBox:
         """The box a drone flies in here: a rig's ``half_m`` around its base, a drone's own."""
@@ -226,12 +207,6 @@ class RigPlatform(Platform):
     @functools.cached_property
     def kinematics(self) -> PanTilt:
         return PanTilt(self.rig)
-
-    def _space(self, cfg):
-        from aes_planner.search.space import RigSpace
-
-        hfov = self.intrinsics.hfov_rad
-        return RigSpace(self, cfg.jitter_fov * hfov, cfg.dedup_fov * hfov)
 
     def clamp(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
         """The joints inside the limits (:meth:`JointLimits.clamp`; NaN/Inf raise
@@ -270,19 +245,6 @@ class DronePlatform(Platform):
     @property
     def box(self) -> DroneBox:
         return self.drone
-
-    def _space(self, cfg):
-        from aes_planner.search.space import FreeSpace
-
-        hfov, diag = self.intrinsics.hfov_rad, self.drone.diagonal_m
-        return FreeSpace(
-            self,
-            cfg.jitter_fov * hfov,
-            cfg.dedup_fov * hfov,
-            cfg.shift_frac * diag,
-            cfg.dedup_frac * diag,
-            cfg.pitch_limits_rad,
-        )
 
     def clamp(self, cam2world: np.ndarray) -> np.ndarray:  # [4, 4] -> [4, 4], the position inside the box
         """The pose with its position moved into the box (the same pose when it is inside)."""

@@ -45,6 +45,7 @@ from aes_planner.node.captures import Capture, Target
 from aes_planner.node.motion import DroneMotion, Motion, RigMotion
 from aes_planner.node.planner_config import PlannerConfig
 from aes_planner.node.proposer import FieldProposer, Proposer
+from aes_planner.node.scene import launch_scene
 from aes_planner.platform import DronePlatform, Platform, RigPlatform
 from aes_planner.runtime import ThreadGovernor, set_threads, suggestion_threads
 
@@ -78,7 +79,7 @@ class PlannerNode(ActiveLoop, Node):
     ):
         config = config or PlannerConfig()
         if config.rig is None and config.drone is None and context is not None and context.scene is not None:
-            config = _platform_from_scene(config, context.load_scene())
+            config = _platform_from_scene(config, launch_scene(context))
         super().__init__(config, node_id, context)
         c = self.config
         self.motion: Motion | None = _motion(c)

@@ -46,21 +46,20 @@ import logging
 import math
 import re
 import time
-from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from aes_planner.config import ConfigError, require
+from aes_planner.geometry.plausible import MAX_STAMP_AHEAD_S
 from aes_planner.geometry.rig import PanTiltConfig
 from aes_planner.graph.base import LaunchContext, Node, NodeError, Output, Outputs
 from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState, PlannerRequest, PosedFrame, ViewSuggestion
+from aes_planner.node.scene import launch_scene
 from aes_planner.ros2.dds import QOS_PROFILES, DdsConfig
 
 log = logging.getLogger(__name__)
 
-__all__ = ["OUTBOUND", "INBOUND", "Ros2BridgeConfig", "Ros2BridgeNode", "JointHistory"]
+__all__ = ["OUTBOUND", "INBOUND", "Ros2BridgeConfig", "Ros2BridgeNode"]
 
 #: key -> (default ROS 2 topic, "pkg/msg/Type", QoS profile)
 OUTBOUND = {
@@ -111,7 +110,9 @@ class Ros2BridgeConfig:
     * ``command_interface``: ``joint_trajectory`` or ``forward_position``; ``move_speed_rad_s``
       sets a trajectory point's ``time_from_start``; ``goal_tolerance_rad``: when a move is done.
     * ``rig``: the pan-tilt kinematics (else the launch's scene's); ``state_history_s``: joint
-      states kept to pose images; ``poll_hz``: how often DDS readers are polled (inbound).
+      states kept to pose images; ``poll_hz``: how often DDS readers are polled (inbound);
+      ``max_stamp_ahead_s``: an inbound image or joint state stamped further ahead of the node's
+      clock is rejected and counted (the planner's guard, where ROS 2 messages enter).
     * ``framing_in``: read ``/planner/keep`` and ``/planner/avoid`` (RegionOfInterest) into
       ``planner/request``; ``framing_frame``: the frame their boxes are drawn on (``latest``: the
       newest the planner holds), ``keep_margin``: the margin those requests ask for.
@@ -137,6 +138,7 @@ class Ros2BridgeConfig:
     goal_tolerance_rad: float = 0.02
     rig: PanTiltConfig | None = None
     state_history_s: float = 2.0
+    max_stamp_ahead_s: float = MAX_STAMP_AHEAD_S
     poll_hz: float = 50.0
     ros_graph: str = ""
     ros_node_name: str = "aes_planner_bridge"
@@ -197,6 +199,7 @@ class Ros2BridgeConfig:
             ("move_speed_rad_s", 1e-3, 100),
             ("goal_tolerance_rad", 1e-4, 1),
             ("state_history_s", 0.1, 60),
+            ("max_stamp_ahead_s", 0.0, 3600),
             ("poll_hz", 1, 1000),
         ):
             v = getattr(self, name)
@@ -207,31 +210,6 @@ class Ros2BridgeConfig:
 
     def profile(self, key: str) -> str:
         return self.qos.get(key) or {**OUTBOUND, **INBOUND}[key][2]
-
-
-class JointHistory:
-    """Joint angles over time, linearly interpolated at a stamp (held at the ends)."""
-
-    def __init__(self, history_s: float):
-        self.history_s = history_s
-        self.stamps: deque[float] = deque()
-        self.joints: deque[tuple[float, float]] = deque()
-
-    def add(self, stamp_s: float, pan: float, tilt: float) -> None:
-        if self.stamps and stamp_s <= self.stamps[-1]:
-            return
-        self.stamps.append(stamp_s)
-        self.joints.append((pan, tilt))
-        while len(self.stamps) > 2 and self.stamps[0] < stamp_s - self.history_s:
-            self.stamps.popleft()
-            self.joints.popleft()
-
-    def at(self, stamp_s: float) -> tuple[float, float] | None:
-        if not self.stamps or stamp_s < self.stamps[0] - self.history_s:
-            return None
-        j = np.asarray(self.joints)  # [N, 2]
-        t = np.asarray(self.stamps)  # [N]
-        return float(np.interp(stamp_s, t, j[:, 0])), float(np.interp(stamp_s, t, j[:, 1]))
 
 
 class Ros2BridgeNode(Node):
@@ -254,6 +232,10 @@ class Ros2BridgeNode(Node):
         "planner/request": (PlannerRequest, False),
     }
 
+    @classmethod
+    def sim_clock_problem(cls, config) -> str | None:
+        return "bridges to a ROS 2 graph, which runs on its own clock"
+
     def __init__(
         self, config: Ros2BridgeConfig | None = None, node_id: str = "ros2", context: LaunchContext | None = None
     ):
@@ -266,8 +248,8 @@ class Ros2BridgeNode(Node):
             ) from None
         c = self.config
         rig = c.rig
-        if rig is None and self.context.scene is not None and self.context.load_scene().rig is not None:
-            rig = self.context.load_scene().rig.pan_tilt
+        if rig is None and self.context.scene is not None and launch_scene(self.context).rig is not None:
+            rig = launch_scene(self.context).rig.pan_tilt
         from aes_planner.ros2.links import RigLinks
 
         self.links = RigLinks(rig) if rig is not None else None
@@ -417,7 +399,7 @@ class Ros2BridgeNode(Node):
     def diagnostics(self, now: float) -> Diagnostics:
         counters = dict(sorted(self.counters.items())[:120])
         rejected = sum(v for k, v in self.counters.items() if k.startswith("rejected."))
-        state = "rejecting input" if rejected and self._inbound and self._inbound.recent_rejections() else "bridging"
+        state = "rejecting input" if rejected and self._inbound and self._inbound.recent_rejections(now) else "bridging"
         values = {"search_latency_s": self.mapper.search_latency_s}
         for key, w in self._writers.items():  # who listens: the first question when a topic seems silent
             try:

@@ -6,7 +6,7 @@
   same pattern search in 5-DoF (positions step a fraction of the box).
 
 It also scores ``random_samples`` uniformly random feasible poses (the platform's sampler,
-:meth:`~aes_planner.platform.Platform.random_poses`): their mean is the "chance" level of the oracle-normalised score ``(s - mean random) / (oracle - mean random)``.
+:func:`~aes_planner.search.space.random_poses`): their mean is the "chance" level of the oracle-normalised score ``(s - mean random) / (oracle - mean random)``.
 
 Results are cached as ``.npz`` (arrays) + ``.json`` (settings) under ``cache_dir`` (default
 ``$AES_PLANNER_CACHE/oracle`` or ``~/.cache/aes-planner/oracle``), keyed by a hash of the scene key,
@@ -31,7 +31,7 @@ from aes_planner.geometry.rig import rig_dict
 from aes_planner.platform import Platform
 from aes_planner.search.config import SearchConfig
 from aes_planner.search.ground_truth import GroundTruthScorer
-from aes_planner.search.space import SearchSpace
+from aes_planner.search.space import SearchSpace, random_poses, space_for
 from aes_planner.sources import SceneSource
 
 log = logging.getLogger(__name__)
@@ -121,7 +121,7 @@ def oracle_search(
     """
     platform = platform or source.platform
     space_cfg = SearchConfig(pitch_limits_deg=pitch_limits_deg)
-    space = platform.search_space(space_cfg)
+    space = space_for(platform, space_cfg)
     settings = {
         "version": ORACLE_VERSION,
         "scene": scene_key or source.name,
@@ -149,7 +149,7 @@ def oracle_search(
     grid, step, steps = space.exhaustive_grid(step_deg, free_step_deg, free_positions)
     log.info("oracle: scoring %d grid poses of %s", len(grid), settings["scene"])
     grid_scores = scorer.score_batched(space.to_poses(grid)).score.double()
-    rand = platform.random_poses(random_samples, np.random.default_rng(seed), space_cfg)  # [R, 4, 4]
+    rand = random_poses(platform, random_samples, np.random.default_rng(seed), space_cfg)  # [R, 4, 4]
     random_scores = scorer.score_batched(torch.as_tensor(rand)).score.double()
 
     best_p, best_s = grid[int(torch.argmax(grid_scores))], float(grid_scores.max())
