@@ -36,7 +36,7 @@ import numpy as np
 from aes_planner.config import ConfigError, require, require_finite, short_repr, to_dict
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.pantilt import PanTilt
-from aes_planner.geometry.poses import view_to_cam2world
+from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
 from aes_planner.geometry.rig import PanTiltConfig
 
 __all__ = [
@@ -59,6 +59,8 @@ KINDS = ("rig", "drone")
 _ALIASES = {"rig": "rig", "drone": "drone", "free": "drone"}
 #: The hand-held photographer's kind (:class:`HandHeldPlatform`): searched, never driven by a node.
 HANDHELD = "handheld"
+#: How far beyond the photos' own pitches a hand-held search looks, degrees.
+HANDHELD_PITCH_MARGIN_DEG = 10.0
 
 #: Half-size of the box free flight takes around a rig's base, metres: ``eval search``'s drone mode
 #: on a rig scene, the field's ``survey`` training inputs, and the simulated drone of ``demo --mode
@@ -364,6 +366,9 @@ class HandHeldPlatform(Platform):
 
     centres_m: tuple[tuple[float, float, float], ...]
     margin_m: float
+    #: The pitch range searched, degrees: the photos' own pitches widened by ``HANDHELD_PITCH_MARGIN_DEG``
+    #: (:meth:`around_photos`); a photographer who never aimed at the floor is not sent to.
+    pitch_limits_deg: tuple[float, float] = (-90.0, 90.0)
     kind: ClassVar[str] = HANDHELD
 
     def __post_init__(self):
@@ -373,6 +378,25 @@ class HandHeldPlatform(Platform):
         require(self.margin_m > 0, "margin_m", f"must be > 0, got {self.margin_m!r}")
         far = float(np.abs(c).max())
         require(far <= MAX_COORDINATE_M, "centres_m", f"a coordinate of {far:.3g} is beyond {MAX_COORDINATE_M:.0e}")
+        lo, hi = self.pitch_limits_deg
+        require_finite([lo, hi], "pitch_limits_deg")
+        require(-90.0 <= lo < hi <= 90.0, "pitch_limits_deg", f"need -90 <= low < high <= 90, got {[lo, hi]}")
+
+    @classmethod
+    def around_photos(
+        cls, intrinsics: Intrinsics, cam2world: np.ndarray, margin_m: float | None = None
+    ) -> HandHeldPlatform:
+        """The region walked by the photos at ``cam2world [N, 4, 4]``: within ``margin_m`` (default a
+        quarter of the cameras' spread, at least 0.1) of the paths between them, pitched within
+        ``HANDHELD_PITCH_MARGIN_DEG`` of the photos' own pitches."""
+        poses = np.asarray(cam2world, dtype=np.float64)
+        pos = poses[:, :3, 3]
+        spread = float(np.max(np.linalg.norm(pos[:, None] - pos[None], axis=-1)))
+        pitch = np.degrees(cam2world_to_view(poses)[:, 4])
+        lo = max(-90.0, float(pitch.min()) - HANDHELD_PITCH_MARGIN_DEG)
+        hi = min(90.0, float(pitch.max()) + HANDHELD_PITCH_MARGIN_DEG)
+        margin = margin_m if margin_m is not None else max(0.25 * spread, 0.1)
+        return cls(intrinsics, tuple(map(tuple, pos.tolist())), float(margin), (lo, hi))
 
     @functools.cached_property
     def centres(self) -> np.ndarray:  # [N, 3]
@@ -405,7 +429,10 @@ class HandHeldPlatform(Platform):
             cfg.dedup_fov * hfov,
             cfg.shift_frac * diag,
             cfg.dedup_frac * diag,
-            cfg.pitch_limits_rad,
+            (
+                max(cfg.pitch_limits_rad[0], math.radians(self.pitch_limits_deg[0])),
+                min(cfg.pitch_limits_rad[1], math.radians(self.pitch_limits_deg[1])),
+            ),
         )
 
     def free_box(self, half_m=RIG_FREE_BOX_HALF_M) -> DroneBox:
@@ -417,7 +444,11 @@ class HandHeldPlatform(Platform):
     def to_meta(self) -> dict:
         return {
             "platform": HANDHELD,
-            HANDHELD: {"centres_m": [list(c) for c in self.centres_m], "margin_m": self.margin_m},
+            HANDHELD: {
+                "centres_m": [list(c) for c in self.centres_m],
+                "margin_m": self.margin_m,
+                "pitch_limits_deg": list(self.pitch_limits_deg),
+            },
         }
 
 
@@ -444,8 +475,17 @@ def platform_from_meta(meta: dict, intrinsics: Intrinsics) -> Platform | None:
     if not isinstance(section, dict):
         raise ConfigError(f"meta.{kind}", f"expected a mapping, got {short_repr(section)}")
     if kind == HANDHELD:
-        require(set(section) == {"centres_m", "margin_m"}, "meta.handheld", "needs centres_m and margin_m only")
-        centres, margin = section["centres_m"], section["margin_m"]
+        require(
+            set(section) == {"centres_m", "margin_m", "pitch_limits_deg"},
+            "meta.handheld",
+            "needs centres_m, margin_m and pitch_limits_deg only",
+        )
+        centres, margin, pitch = section["centres_m"], section["margin_m"], section["pitch_limits_deg"]
+        require(
+            isinstance(pitch, list) and len(pitch) == 2 and all(isinstance(v, (int, float)) for v in pitch),
+            "meta.handheld.pitch_limits_deg",
+            "must be [low, high] degrees",
+        )
         require(
             isinstance(centres, list)
             and all(isinstance(c, list) and len(c) == 3 for c in centres)
@@ -461,7 +501,12 @@ def platform_from_meta(meta: dict, intrinsics: Intrinsics) -> Platform | None:
             "centres_m and margin_m must be numbers",
         )
         try:
-            return HandHeldPlatform(intrinsics, tuple(tuple(float(v) for v in c) for c in centres), float(margin))
+            return HandHeldPlatform(
+                intrinsics,
+                tuple(tuple(float(v) for v in c) for c in centres),
+                float(margin),
+                (float(pitch[0]), float(pitch[1])),
+            )
         except ConfigError as exc:
             raise ConfigError(f"meta.handheld.{exc.key}", exc.message) from None
     if kind == "rig":

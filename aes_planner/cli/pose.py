@@ -90,9 +90,12 @@ def run_pose(images, out, cfg, quiet: bool = False):
 
     from aes_planner.photos import pose_images
 
-    bar = tqdm(total=0, unit="photo", desc="pose", leave=False, disable=quiet)
+    bars = []  # opened at the first progress report: bad input is refused before, on one clean line
 
     def progress(stage: str, done: int, total: int) -> None:
+        if not bars:
+            bars.append(tqdm(total=total, unit="photo", desc="pose", leave=False, disable=quiet))
+        bar = bars[0]
         bar.set_description(f"pose: {stage}")
         if bar.total != total:
             bar.reset(total=total)
@@ -102,7 +105,8 @@ def run_pose(images, out, cfg, quiet: bool = False):
     try:
         result = pose_images(images, out, cfg, progress=progress)
     finally:
-        bar.close()
+        for bar in bars:
+            bar.close()
     print(
         f"posed {len(result.registered)} of {result.total} photos ({result.cameras} camera(s)), mean reprojection "
         f"error {result.mean_reprojection_px:.2f} px, {result.time_s:.1f} s"

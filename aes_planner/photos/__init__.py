@@ -16,7 +16,7 @@ the photographer walked, around the registered cameras with a stated margin.
 """
 
 from aes_planner.photos.align import PoseErrors, pose_errors, umeyama
-from aes_planner.photos.relative import RelativeMove, nearest_photo, relative_move
+from aes_planner.photos.relative import RelativeMove, moves_from_photos, nearest_photo, relative_move
 from aes_planner.photos.sfm import MIN_REGISTERED, PoseConfig, PoseError, PoseResult, list_images, pose_images
 
 __all__ = [
@@ -27,6 +27,7 @@ __all__ = [
     "PoseResult",
     "RelativeMove",
     "list_images",
+    "moves_from_photos",
     "nearest_photo",
     "pose_errors",
     "pose_images",

@@ -17,7 +17,7 @@ import numpy as np
 
 from aes_planner.geometry.poses import cam2world_to_view, wrap_angle
 
-__all__ = ["RelativeMove", "nearest_photo", "relative_move"]
+__all__ = ["RelativeMove", "moves_from_photos", "nearest_photo", "relative_move"]
 
 #: Below these a component is not worth saying ("0.0 m right").
 SAY_MIN_LENGTH = 0.05
@@ -36,6 +36,7 @@ class RelativeMove:
     turn_left_deg: float
     tilt_up_deg: float
     unit: str = "m"
+    photo_index: int = -1  # the photo's index among the inputs
 
     def text(self) -> str:
         u = "m" if self.unit == "m" else "units"
@@ -62,6 +63,7 @@ class RelativeMove:
             "turn_left_deg": self.turn_left_deg,
             "tilt_up_deg": self.tilt_up_deg,
             "unit": self.unit,
+            "photo_index": self.photo_index,
             "text": self.text(),
         }
 
@@ -75,7 +77,23 @@ def nearest_photo(target: np.ndarray, photos_cam2world: np.ndarray, scale: float
     return int(np.argmin(d + np.arccos(cos)))
 
 
-def relative_move(photo: str, photo_cam2world: np.ndarray, target: np.ndarray, unit: str = "m") -> RelativeMove:
+def moves_from_photos(
+    targets: np.ndarray, photos_cam2world: np.ndarray, names: list[str], unit: str = "m"
+) -> list[RelativeMove]:
+    """Each of ``targets [K, 4, 4]`` as a :class:`RelativeMove` from its :func:`nearest_photo` among
+    ``photos_cam2world [N, 4, 4]`` (named ``names``), the cameras' spread weighing distance against angle."""
+    photos = np.asarray(photos_cam2world, np.float64)
+    spread = float(np.max(np.linalg.norm(photos[:, None, :3, 3] - photos[None, :, :3, 3], axis=-1)))
+    out = []
+    for target in np.asarray(targets, np.float64).reshape(-1, 4, 4):
+        j = nearest_photo(target, photos, spread)
+        out.append(relative_move(names[j], photos[j], target, unit, j))
+    return out
+
+
+def relative_move(
+    photo: str, photo_cam2world: np.ndarray, target: np.ndarray, unit: str = "m", photo_index: int = -1
+) -> RelativeMove:
     """The :class:`RelativeMove` from a photo's pose to ``target`` (both cam2world ``[4, 4]``, world z up)."""
     va, vb = (
         cam2world_to_view(np.asarray(photo_cam2world, np.float64)),
@@ -93,4 +111,5 @@ def relative_move(photo: str, photo_cam2world: np.ndarray, target: np.ndarray, u
         turn_left_deg=math.degrees(float(wrap_angle(np.asarray(vb[3] - va[3])))),
         tilt_up_deg=math.degrees(float(vb[4] - va[4])),
         unit=unit,
+        photo_index=photo_index,
     )

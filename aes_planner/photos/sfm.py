@@ -34,10 +34,12 @@ Steps (:func:`pose_images`):
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import re
 import shutil
+import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -71,6 +73,17 @@ MIN_PARALLAX = 0.02
 #: Fewest photos the pose step takes, and most (exhaustive matching grows with their square).
 MIN_IMAGES, MAX_IMAGES = 3, 500
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp", ".pgm", ".ppm", ".pnm")
+
+
+def import_pycolmap():
+    """pycolmap, imported where used (``import aes_planner`` works without it), always after OpenCV:
+    pycolmap's wheel bundles its own zlib, and OpenCV loaded after it writes PNGs through that
+    zlib's symbols and crashes ("double free" in ``deflateEnd``: measured with pycolmap 4.2.1 and
+    opencv-contrib-python-headless 5.0). This module imports cv2 at its top, so here it is loaded."""
+    assert "cv2" in sys.modules
+    import pycolmap
+
+    return pycolmap
 
 
 class PoseError(AesPlannerError, ValueError):
@@ -138,6 +151,7 @@ class PoseResult:
     other_models: list[int] = field(default_factory=list)  # sizes of the models left out
     timings_s: dict[str, float] = field(default_factory=dict)
     margin: float = 0.0
+    distortion: str = ""
 
     def to_json(self) -> dict:
         return {
@@ -150,6 +164,7 @@ class PoseResult:
             "metric": self.metric,
             "scale_source": self.scale_source,
             "cameras": self.cameras,
+            "distortion": self.distortion,
             "other_models": list(self.other_models),
             "time_s": self.time_s,
             "timings_s": dict(self.timings_s),
@@ -222,11 +237,19 @@ def _prepare(files: list[Path], work: Path, max_side_px: int) -> tuple[list[_Pho
     photos = []
     keys: dict[tuple, int] = {}
     groups: list[list[int]] = []
+    seen: dict[str, str] = {}  # pixel digest -> photo name
     for i, p in enumerate(files):
         try:
             bgr = imread_bounded(p, cv2.IMREAD_COLOR, str(p), PoseError)
         except ImageError as exc:
             raise PoseError(str(exc)) from None
+        digest = hashlib.sha1(bgr.tobytes()).hexdigest()
+        if digest in seen:
+            raise PoseError(
+                f"{p.name} and {seen[digest]} are the same photo (identical pixels); structure from motion needs "
+                "photos taken from different places: remove the copies"
+            )
+        seen[digest] = p.name
         h, w = bgr.shape[:2]
         tags = read_camera_tags(p)
         key = (w, h, tags.make, tags.model, tags.focal_mm)  # one camera: same size, same EXIF camera
@@ -375,7 +398,7 @@ def pose_images(
     progress bar's hook). ``work_dir``: where pycolmap's database and models go (a temporary folder,
     removed after, by default)."""
     cfg = cfg or PoseConfig()
-    import pycolmap  # COLMAP's bindings: only the pose step needs them
+    pycolmap = import_pycolmap()  # COLMAP's bindings: only the pose step needs them
 
     t_start = time.perf_counter()
     report = progress or (lambda stage, done, total: None)
@@ -450,6 +473,27 @@ def pose_images(
             raise _too_few_error(0, len(files), [p.name for p in photos])
         ordered = sorted(models.items(), key=lambda kv: -kv[1].num_reg_images())
         model_id, rec = ordered[0]
+        distortion = "estimated (SIMPLE_RADIAL k)"
+        if any(
+            cam.has_bogus_params(
+                options.min_focal_length_ratio, options.max_focal_length_ratio, options.max_extra_param
+            )
+            for cam in rec.cameras.values()
+        ):  # the photos did not pin the distortion down (it traded against the focal length): map again without it
+            log.warning("the distortion came out implausible (%s); mapping again with none", _camera_text(rec))
+            options.ba_refine_extra_params = False
+            (work / "sparse_pinhole").mkdir(exist_ok=True)
+            t0 = time.perf_counter()
+            again = pycolmap.incremental_mapping(db_path, work / "input", work / "sparse_pinhole", options=options)
+            timings["mapping"] += time.perf_counter() - t0
+            if again:
+                best = max(again.items(), key=lambda kv: kv[1].num_reg_images())
+                if best[1].num_reg_images() >= rec.num_reg_images():
+                    ordered = sorted(again.items(), key=lambda kv: -kv[1].num_reg_images())
+                    model_id, rec = best
+                    (work / "sparse").rename(work / "sparse_bogus")
+                    (work / "sparse_pinhole").rename(work / "sparse")
+                    distortion = "not determined by these photos: none assumed"
         others = [m.num_reg_images() for _, m in ordered[1:]]
         by_work = {p.work_name: p for p in photos}
         reg_ids = sorted(rec.reg_image_ids(), key=lambda i: files.index(by_work[rec.images[i].name].path))
@@ -510,15 +554,14 @@ def pose_images(
             unit = f"the distance between the cameras of {reg_names[0]} and {reg_names[1]} (no metric scale given)"
             source = "none"
         c2w[:, :3, 3] *= scale
-        spread = float(np.max(np.linalg.norm(c2w[:, None, :3, 3] - c2w[None, :, :3, 3], axis=-1)))
-        margin = cfg.margin_m if cfg.margin_m is not None else 0.25 * spread
 
         # ---- outputs
         frames = [
             frame_from_parts(f"photo {n}", img, k, m, float(j), None, n)
             for j, (n, img, k, m) in enumerate(zip(reg_names, frames_rgb, ks, c2w))
         ]
-        platform = HandHeldPlatform(ks[0], tuple(map(tuple, c2w[:, :3, 3].tolist())), margin)
+        platform = HandHeldPlatform.around_photos(ks[0], c2w, cfg.margin_m)
+        margin = platform.margin_m
         meta = {
             "source": "aes-planner pose",
             "unit": unit,
@@ -527,6 +570,7 @@ def pose_images(
             "photos": reg_names,
             "unregistered": missing,
             "mean_reprojection_error_px": mean_err,
+            "distortion": distortion,
             "frame": (
                 f"levelled (z up: perpendicular to the cameras' right axes), origin at {reg_names[0]}'s camera, "
                 f"x along its levelled view; lengths in {'metres' if metric else unit}"
@@ -556,7 +600,12 @@ def pose_images(
         other_models=others,
         timings_s=timings,
         margin=margin,
+        distortion=distortion,
     )
+
+
+def _camera_text(rec) -> str:
+    return "; ".join(f"{c.model_name} {', '.join(f'{v:.4g}' for v in c.params)}" for c in rec.cameras.values())
 
 
 def _check_parallax(rec, reg_ids: list[int], total: int) -> None:

@@ -4,7 +4,9 @@ arc around it, for tests, the ``bench photos`` figure and trying ``aes-planner p
 The scene is plain data (a scene YAML mapping, :mod:`aes_planner.sim.spec`'s format): a floor and a
 back wall carrying photographs, boxes and panels with photographs on their faces at several depths
 (parallax), under soft light. The photographs are the caller's image files (``textures``); without
-them procedural noise patterns stand in (rich enough for SIFT, less like a real photo).
+them procedural noise patterns stand in (less like a real photo, and poorer in corners);
+:func:`dead_leaves_textures` writes stand-ins with a photograph's statistics (occluding discs of
+every size: edges, corners and texture at every scale).
 """
 
 from __future__ import annotations
@@ -17,10 +19,34 @@ import numpy as np
 
 from aes_planner.geometry.poses import look_at
 
-__all__ = ["arc_poses", "photo_scene"]
+__all__ = ["arc_poses", "dead_leaves_textures", "photo_scene"]
 
 #: Where the photographed subject stands (world metres): the arc's cameras look at it.
 SUBJECT_M = (3.0, 0.0, 0.7)
+
+
+def dead_leaves_textures(out_dir: str | Path, n: int = 6, size_px: int = 256, seed: int = 0) -> list[Path]:
+    """Write ``n`` "dead leaves" images (``size_px`` square PNGs, discs of random colours and radii
+    falling on one another, radii spread as 1/r^3 like a photograph's objects) into ``out_dir``;
+    returns their paths. A classic model of natural image statistics, for scenes without photos."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for i in range(n):
+        img = np.full((size_px, size_px, 3), rng.integers(0, 256, 3), np.uint8)
+        r_min, r_max = 2.0, size_px / 4
+        for _ in range(900):
+            u = rng.uniform()  # inverse CDF of p(r) ~ r^-3 on [r_min, r_max]
+            r = 1.0 / math.sqrt(u / r_max**2 + (1 - u) / r_min**2)
+            centre = (int(rng.integers(0, size_px)), int(rng.integers(0, size_px)))
+            cv2.circle(img, centre, int(round(r)), [int(c) for c in rng.integers(0, 256, 3)], -1, cv2.LINE_AA)
+        path = out / f"leaves_{i}.png"
+        cv2.imwrite(str(path), img)
+        paths.append(path)
+    return paths
 
 
 def _material(textures: Sequence[str], i: int, rng: np.random.Generator) -> dict:
