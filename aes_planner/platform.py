@@ -7,9 +7,9 @@ cameras with a margin; ``aes-planner pose`` writes it). The platform owns
 everything that differs between the two, so code above it asks the platform instead of testing
 its kind:
 
-* its search space (:meth:`Platform.search_space`: joints or 5-DoF views, with the bounds the
-  search projects onto) and its random poses (:meth:`Platform.random_poses`: the one sampler
-  behind every "mean random" baseline, the oracle's included);
+* what the search moves (the search owns its spaces: :func:`aes_planner.search.space.space_for`
+  opens a rig's joints, a drone's or a hand-held camera's 5-DoF views; this module is a leaf that
+  imports no search);
 * the clamp a command passes (:meth:`RigPlatform.clamp`: the joint limits, NaN/Inf refused;
   :meth:`DronePlatform.clamp`: the box);
 * the box free flight takes around it (:meth:`Platform.free_box`: a rig's is
@@ -193,24 +193,6 @@ class Platform(ABC):
     rig = None
     drone = None
 
-    def search_space(self, cfg=None):
-        """The search space of this platform under a :class:`~aes_planner.search.SearchConfig`
-        (default settings when None)."""
-        from aes_planner.search.config import SearchConfig
-
-        return self._space(cfg if cfg is not None else SearchConfig())
-
-    def random_poses(self, n: int, rng: np.random.Generator, cfg=None) -> np.ndarray:  # -> [n, 4, 4]
-        """``n`` feasible poses drawn uniformly over the search space's bounds (rig: the joint
-        ranges; drone: the box, any yaw, the searched pitch range): the chance level of every
-        oracle-normalised score."""
-        space = self.search_space(cfg)
-        return space.to_poses(space.random(n, rng)).detach().numpy()
-
-    @abstractmethod
-    def _space(self, cfg):
-        """The search space (the search package's class for this kind)."""
-
     @abstractmethod
     def free_box(self, half_m=RIG_FREE_BOX_HALF_M) -> DroneBox:
         """The box a drone flies in here: a rig's ``half_m`` around its base, a drone's own."""
@@ -237,12 +219,6 @@ class RigPlatform(Platform):
     @functools.cached_property
     def kinematics(self) -> PanTilt:
         return PanTilt(self.rig)
-
-    def _space(self, cfg):
-        from aes_planner.search.space import RigSpace
-
-        hfov = self.intrinsics.hfov_rad
-        return RigSpace(self, cfg.jitter_fov * hfov, cfg.dedup_fov * hfov)
 
     def clamp(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
         """The joints inside the limits (:meth:`JointLimits.clamp`; NaN/Inf raise
@@ -281,19 +257,6 @@ class DronePlatform(Platform):
     @property
     def box(self) -> DroneBox:
         return self.drone
-
-    def _space(self, cfg):
-        from aes_planner.search.space import FreeSpace
-
-        hfov, diag = self.intrinsics.hfov_rad, self.drone.diagonal_m
-        return FreeSpace(
-            self,
-            cfg.jitter_fov * hfov,
-            cfg.dedup_fov * hfov,
-            cfg.shift_frac * diag,
-            cfg.dedup_frac * diag,
-            cfg.pitch_limits_rad,
-        )
 
     def clamp(self, cam2world: np.ndarray) -> np.ndarray:  # [4, 4] -> [4, 4], the position inside the box
         """The pose with its position moved into the box (the same pose when it is inside)."""
@@ -417,23 +380,6 @@ class HandHeldPlatform(Platform):
         out = np.array(cam2world, dtype=np.float64)
         out[:3, 3] = q + (out[:3, 3] - q) * (self.margin_m / d)
         return out
-
-    def _space(self, cfg):
-        from aes_planner.search.space import HandHeldSpace
-
-        hfov = self.intrinsics.hfov_rad
-        diag = self.free_box().diagonal_m
-        return HandHeldSpace(
-            self,
-            cfg.jitter_fov * hfov,
-            cfg.dedup_fov * hfov,
-            cfg.shift_frac * diag,
-            cfg.dedup_frac * diag,
-            (
-                max(cfg.pitch_limits_rad[0], math.radians(self.pitch_limits_deg[0])),
-                min(cfg.pitch_limits_rad[1], math.radians(self.pitch_limits_deg[1])),
-            ),
-        )
 
     def free_box(self, half_m=RIG_FREE_BOX_HALF_M) -> DroneBox:
         """The region's bounding box (the cameras' grown by the margin; at least ``MIN_BOX_SIDE_M`` a side)."""

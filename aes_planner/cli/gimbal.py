@@ -45,6 +45,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--corrupt-rate", type=float, default=0.0, help="fraction of replies with a broken CRC")
     e.add_argument("--seed", type=int, default=0, help="seed of the fault injection")
     e.add_argument(
+        "--clock-file",
+        metavar="PATH",
+        help="take the servos' time from this file (a simulated clock's, written by the gimbal node) "
+        "instead of the machine's",
+    )
+    e.add_argument(
         "--exit-with-parent",
         action="store_true",
         help="stop when the process that started this one goes away (how the gimbal node runs it)",
@@ -146,7 +152,12 @@ def run_emulate(args: argparse.Namespace) -> int:
     models = [m.strip() for m in args.models.split(",") if m.strip()]
     try:
         faults = FaultPlan(drop_rate=args.drop_rate, corrupt_rate=args.corrupt_rate, seed=args.seed)
-        emu = ServoEmulator(models, baud=args.baud, link=args.link, faults=faults)
+        clock = {}
+        if args.clock_file:
+            from aes_planner.drivers.emulator import FileClock
+
+            clock = {"clock": FileClock(args.clock_file)}
+        emu = ServoEmulator(models, baud=args.baud, link=args.link, faults=faults, **clock)
     except (KeyError, ValueError) as exc:
         raise AesPlannerError(f"cannot emulate: {exc.args[0] if exc.args else exc}") from None
 

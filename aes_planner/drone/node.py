@@ -22,6 +22,7 @@ from aes_planner.config import ConfigError, from_dict, require, require_numbers
 from aes_planner.drone import frames as fr
 from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs, percentile
 from aes_planner.messages import Diagnostics, DroneState, ViewSuggestion
+from aes_planner.node.scene import launch_scene
 from aes_planner.platform import DroneBox
 
 log = logging.getLogger(__name__)
@@ -184,6 +185,10 @@ class MavlinkDroneNode(Node):
     inputs = {"planner/suggestion": (ViewSuggestion, 8), "planner/diagnostics": (Diagnostics, 8)}
     outputs = {"drone/state": (DroneState, False), "drone/diagnostics": (Diagnostics, False)}
 
+    @classmethod
+    def sim_clock_problem(cls, config) -> str | None:
+        return "talks MAVLink to a vehicle (or its emulator), which flies in real time"
+
     def __init__(
         self, config: MavlinkDroneConfig | None = None, node_id: str = "drone", context: LaunchContext | None = None
     ):
@@ -194,7 +199,7 @@ class MavlinkDroneNode(Node):
         elif self.context.scene is not None:
             from aes_planner.sim.source import platform_of
 
-            self.box = platform_of(self.context.load_scene()).free_box()  # a rig scene: around its base
+            self.box = platform_of(launch_scene(self.context)).free_box()  # a rig scene: around its base
         else:
             raise ConfigError(
                 f"{node_id}.bounds_min_m", "give the flight box (bounds_min_m, bounds_max_m; world ENU) or a scene"

@@ -55,11 +55,12 @@ def _qos(profile: str, depth: int):
     return Qos(QosHistory.KEEP_LAST, depth, reliability, durability, zero, zero, QosLiveliness.AUTOMATIC, zero, False)
 
 
-def export_rosbag2(recording: str | Path, out_dir: str | Path, config=None, scene: str | None = None) -> dict[str, int]:
+def export_rosbag2(recording: str | Path, out_dir: str | Path, config=None, rig=None) -> dict[str, int]:
     """Write the rosbag2 folder ``out_dir`` (which must not exist); returns messages per ROS 2 topic.
 
     ``config``: a :class:`~aes_planner.ros2.bridge.Ros2BridgeConfig` (topics, frames, rig);
-    ``scene``: take the rig's kinematics from a simulated scene (for the rig's tf links)."""
+    ``rig``: the rig's kinematics (a :class:`~aes_planner.geometry.PanTiltConfig`) for the rig's tf
+    links when ``config`` names none (the command line takes it from the run's simulated scene)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     from aes_planner.ros2 import idl
@@ -74,12 +75,7 @@ def export_rosbag2(recording: str | Path, out_dir: str | Path, config=None, scen
         raise BagExportError(f"{out_dir} exists; rosbag2 writes a new folder: give a new name or remove it")
     next(iter(read_recording(recording)), None)  # a clear error for a bad file before the folder exists
     config = config or Ros2BridgeConfig()
-    rig = config.rig
-    if rig is None and scene is not None:
-        from aes_planner.sim import load_scene
-
-        sc = load_scene(scene)
-        rig = sc.rig.pan_tilt if sc.rig is not None else None
+    rig = config.rig if config.rig is not None else rig
     links = None
     if rig is not None:
         from aes_planner.ros2.links import RigLinks

@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 
 import numpy as np
 
+from aes_planner.geometry.trajectory import JointHistory
 from aes_planner.messages import GimbalCommand, GimbalState, MessageError, PosedFrame
 from aes_planner.ros2 import convert, idl
 from aes_planner.ros2.convert import Ros2InputError
@@ -38,8 +38,6 @@ class Inbound:
     """Readers and the command writer of an inbound bridge (``node``: the bridge node)."""
 
     def __init__(self, node, dds):
-        from aes_planner.ros2.bridge import JointHistory
-
         self.node = node
         c = node.config
         self.image_key = "image_in" if c.image_transport == "raw" else "compressed_in"
@@ -67,15 +65,16 @@ class Inbound:
         self.states = 0
         self._rejections: list[float] = []
         self._last_joint: tuple[float, float, float] | None = None
+        self._now = -math.inf  # the time of the step being polled
 
-    def recent_rejections(self, window_s: float = 10.0) -> int:
-        now = time.monotonic()
+    def recent_rejections(self, now: float, window_s: float = 10.0) -> int:
+        """Inputs refused in the ``window_s`` seconds before ``now`` (the node's step time)."""
         self._rejections = [t for t in self._rejections if now - t < window_s]
         return len(self._rejections)
 
     def _reject(self, key: str, reason: str) -> None:
         self.node.count(f"rejected.{key}")
-        self._rejections.append(time.monotonic())
+        self._rejections.append(self._now)
         n = self.node.counters[f"rejected.{key}"]
         log.log(
             logging.WARNING if n <= 3 else logging.DEBUG, "ros2 bridge: rejected %s (%d so far): %s", key, n, reason
@@ -92,6 +91,7 @@ class Inbound:
     # -- the poll --------------------------------------------------------------------------------
 
     def poll(self, commands, out: dict, now: float) -> None:
+        self._now = now  # the step's time: every decision below takes its time from it
         for cmd in commands:
             self._command(cmd, now)
         for msg in self._take("camera_info_in"):
@@ -135,7 +135,7 @@ class Inbound:
         self.history.add(t, pan, tilt)
         goal = self.goal or (pan, tilt)
         far = max(abs(goal[0] - pan), abs(goal[1] - tilt)) > c.goal_tolerance_rad
-        moving = speed > MOVING_RAD_S or (far and time.time() - self.goal_s < SETTLE_TIMEOUT_S)
+        moving = speed > MOVING_RAD_S or (far and self._now - self.goal_s < SETTLE_TIMEOUT_S)
         self.states += 1
         return GimbalState(pan, tilt, goal[0], goal[1], moving=bool(moving), stamp_s=t, sequence=self.states)
 
@@ -154,7 +154,7 @@ class Inbound:
             self.node.count("size_mismatch")
             raise Ros2InputError(f"image is {rgb.shape[1]}x{rgb.shape[0]} but CameraInfo says {k.width}x{k.height}")
         t = convert.stamp_s(msg.header.stamp, "image header.stamp")
-        joints = self.history.at(t)
+        joints = self.history.joints_at(t)
         if joints is None:
             self.node.count("unposed")
             return None
@@ -181,7 +181,7 @@ class Inbound:
         if cmd.kind == "reboot":
             self.node.count("ignored_commands")
             return
-        present = self.history.at(math.inf) if self.history.stamps else None
+        present = self.history.latest()
         if cmd.kind == "stop":
             if present is None:
                 self.node.count("ignored_commands")
@@ -198,4 +198,4 @@ class Inbound:
         self.command_writer.write(sample)
         self.node.count(f"sent.{self.cmd_key}")
         self.goal = (pan, tilt)
-        self.goal_s = time.time()
+        self.goal_s = now

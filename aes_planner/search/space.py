@@ -23,9 +23,9 @@ import torch
 from torch import Tensor
 
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world, wrap_angle
-from aes_planner.platform import DroneBox, Platform
+from aes_planner.platform import DroneBox, DronePlatform, HandHeldPlatform, Platform, RigPlatform
 
-__all__ = ["FreeSpace", "HandHeldSpace", "RigSpace", "SearchSpace", "space_for"]
+__all__ = ["FreeSpace", "HandHeldSpace", "RigSpace", "SearchSpace", "random_poses", "space_for"]
 
 
 def _forward_dirs(cam2world: Tensor) -> Tensor:  # [M, 4, 4] -> [M, 3]
@@ -262,7 +262,47 @@ class HandHeldSpace(FreeSpace):
         return self.project(torch.cat([on_path + offset, angles], dim=-1))
 
 
-def space_for(platform: Platform, cfg) -> SearchSpace:
-    """The search space of a platform under a :class:`~aes_planner.search.SearchConfig`
-    (:meth:`Platform.search_space <aes_planner.platform.Platform.search_space>`)."""
-    return platform.search_space(cfg)
+def space_for(platform: Platform, cfg=None) -> SearchSpace:
+    """The search space of a platform under a :class:`~aes_planner.search.SearchConfig` (default
+    settings when None): a rig's joints (:class:`RigSpace`), a drone's 5-DoF views
+    (:class:`FreeSpace`) or a hand-held camera's (:class:`HandHeldSpace`), with the bounds the search
+    projects onto."""
+    if cfg is None:
+        from aes_planner.search.config import SearchConfig
+
+        cfg = SearchConfig()
+    hfov = platform.intrinsics.hfov_rad
+    if isinstance(platform, RigPlatform):
+        return RigSpace(platform, cfg.jitter_fov * hfov, cfg.dedup_fov * hfov)
+    if isinstance(platform, HandHeldPlatform):  # the region walked: its bounding box sizes the shifts
+        diag = platform.free_box().diagonal_m
+        lo_deg, hi_deg = platform.pitch_limits_deg
+        return HandHeldSpace(
+            platform,
+            cfg.jitter_fov * hfov,
+            cfg.dedup_fov * hfov,
+            cfg.shift_frac * diag,
+            cfg.dedup_frac * diag,
+            (max(cfg.pitch_limits_rad[0], math.radians(lo_deg)), min(cfg.pitch_limits_rad[1], math.radians(hi_deg))),
+        )
+    if isinstance(platform, DronePlatform):
+        diag = platform.drone.diagonal_m
+        return FreeSpace(
+            platform,
+            cfg.jitter_fov * hfov,
+            cfg.dedup_fov * hfov,
+            cfg.shift_frac * diag,
+            cfg.dedup_frac * diag,
+            cfg.pitch_limits_rad,
+        )
+    raise TypeError(
+        f"no search space for a {type(platform).__name__}; expected a RigPlatform, a DronePlatform or a HandHeldPlatform"
+    )
+
+
+def random_poses(platform: Platform, n: int, rng: np.random.Generator, cfg=None) -> np.ndarray:  # -> [n, 4, 4]
+    """``n`` feasible poses drawn uniformly over the search space's bounds (rig: the joint ranges;
+    drone: the box, any yaw, the searched pitch range): the chance level of every oracle-normalised
+    score, the one sampler behind every "mean random" baseline."""
+    space = space_for(platform, cfg)
+    return space.to_poses(space.random(n, rng)).detach().numpy()

@@ -13,6 +13,7 @@ from aes_planner.config import ConfigError
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.platform import HandHeldPlatform, platform_from_meta, walked_edges
 from aes_planner.search import SearchConfig
+from aes_planner.search.space import random_poses, space_for
 
 K = Intrinsics.from_fov(64, 48, 60.0)
 CENTRES = ((0.0, 0.0, 1.5), (1.0, 0.0, 1.5), (2.0, 0.5, 1.6), (3.0, 1.5, 1.5))
@@ -41,7 +42,7 @@ def test_contains_and_clamp():
 
 @given(st.lists(st.floats(-20, 20), min_size=5, max_size=5))
 def test_the_projection_lands_inside_and_is_idempotent(values):
-    space = _platform().search_space(SearchConfig.preset("fast", mode="handheld"))
+    space = space_for(_platform(), SearchConfig.preset("fast", mode="handheld"))
     params = torch.tensor([values], dtype=torch.float64)
     once = space.project(params)
     assert torch.isfinite(once).all()
@@ -53,14 +54,14 @@ def test_the_projection_lands_inside_and_is_idempotent(values):
 
 def test_the_pitch_range_is_the_photos_and_the_search_presets_read_handheld():
     cfg = SearchConfig.preset("balanced", mode="handheld")
-    space = _platform().search_space(cfg)
+    space = space_for(_platform(), cfg)
     assert space.kind == "handheld"
     np.testing.assert_allclose(np.degrees([float(space.lower[4]), float(space.upper[4])]), [-30.0, 10.0])
 
 
 def test_random_poses_stay_in_the_region():
     p = _platform()
-    poses = p.random_poses(200, np.random.default_rng(0))
+    poses = random_poses(p, 200, np.random.default_rng(0))
     assert bool(p.contains(poses[:, :3, 3]).all())
     # spread along the whole walk, not bunched at one camera
     assert poses[:, 0, 3].min() < 0.5 and poses[:, 0, 3].max() > 2.5
