@@ -110,11 +110,13 @@ def run_demo(
     planner_overrides: dict | None = None,
     transport: argparse.Namespace | None = None,
     drone: str = "sim",
+    hook=None,
 ) -> dict:
     """Run the closed loop and write the run folder; returns the summary dict (plus ``state``).
 
     ``mode``: the platform kind, ``rig`` or ``drone`` (``free`` read as drone); ``None`` takes what
-    the scene has (a rig, else its drone box).
+    the scene has (a rig, else its drone box). ``hook(nodes)``: called with the built nodes before
+    they run (``eval loop``'s perturbations).
 
     ``transport``: the ``--processes/--listen/--foxglove/--record`` flags (see
     :mod:`aes_planner.cli.processes`); every topic is recorded to ``out/recording.mcap``."""
@@ -143,6 +145,8 @@ def run_demo(
     spec = load_launch(launch_file, [*sets, *overrides])
     nodes = build_nodes(spec)
     planner = next(n for n, _ in nodes if n.node_id == "planner")
+    if hook is not None:
+        hook(nodes)
     say(f"demo: {kind} on {scene}: {', '.join(f'{n.node_id} ({type(n).__name__})' for n, _ in nodes)}")
     from aes_planner.gaussians.warmup import warm_kernels
 

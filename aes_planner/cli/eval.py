@@ -1,4 +1,4 @@
-"""``aes-planner eval field|search``: the paper's experiments on held-out simulated scenes."""
+"""``aes-planner eval field|search|loop``: the paper's experiments and the closed loop on held-out simulated scenes."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     esub = p.add_subparsers(dest="eval_command", metavar="EXPERIMENT", required=True)
     register_field(esub)
     register_search(esub)
+    register_loop(esub)
 
 
 def _int_list(text: str) -> list[int]:
@@ -64,6 +65,75 @@ def register_search(esub: argparse._SubParsersAction) -> None:
     s.add_argument("--json", metavar="OUT", help="write the results as JSON")
     s.add_argument("--out", metavar="DIR", help="write markdown tables and plots into DIR")
     s.set_defaults(func=run_search)
+
+
+def register_loop(esub: argparse._SubParsersAction) -> None:
+    from aes_planner.eval.loop import DEFAULT_PERTURBATIONS
+
+    lp = esub.add_parser(
+        "loop",
+        help="the closed loop on many scenes under small perturbations (backend, threads, noise, seeds): "
+        "oracle-normalised score, moves and spread per scene",
+    )
+    lp.add_argument(
+        "--scene",
+        action="append",
+        metavar="FILE_OR_FAMILY:SEED[@drone]",
+        help="a scene (repeatable; default the held-out loop set)",
+    )
+    lp.add_argument(
+        "--set-name",
+        choices=("heldout", "dev"),
+        default="heldout",
+        help="the scene set when no --scene: heldout (never tuned on) or dev (for tuning); default heldout",
+    )
+    lp.add_argument(
+        "--perturb",
+        action="append",
+        metavar="P",
+        help="a perturbation: base, torch, numba, threads:N, noise:R, seed:N, joined with + (repeatable; default "
+        + " ".join(DEFAULT_PERTURBATIONS)
+        + ")",
+    )
+    lp.add_argument("--moves", type=int, default=4, help="suggestion-driven moves at most (default 4)")
+    lp.add_argument(
+        "--set", action="append", default=[], metavar="ID.KEY=VALUE", help="launch-file override for every run"
+    )
+    lp.add_argument("--timeout", type=float, default=900.0, help="per run, seconds (default 900)")
+    lp.add_argument(
+        "--out",
+        default="runs/eval_loop",
+        metavar="DIR",
+        help="results.json (resumed) and report.md (default runs/eval_loop)",
+    )
+    lp.set_defaults(func=run_loop)
+
+
+def run_loop(args: argparse.Namespace) -> int:
+    from aes_planner.eval.loop import (
+        DEFAULT_PERTURBATIONS,
+        DEV_LOOP_SCENES,
+        HELD_OUT_LOOP_SCENES,
+        LoopEvalConfig,
+        run_loop_eval,
+        split_scene,
+    )
+    from aes_planner.paths import output_folder
+
+    scenes = args.scene or (HELD_OUT_LOOP_SCENES if args.set_name == "heldout" else DEV_LOOP_SCENES)
+    _check_scenes([split_scene(s)[0] for s in scenes])
+    out = output_folder(args.out, "--out")
+    cfg = LoopEvalConfig(
+        scenes=list(scenes),
+        perturbations=args.perturb or list(DEFAULT_PERTURBATIONS),
+        moves=args.moves,
+        timeout_s=args.timeout,
+        sets=args.set,
+    )
+    results = run_loop_eval(cfg, Path(out), progress=print)
+    print((Path(out) / "report.md").read_text())
+    s = results["summary"]
+    return 0 if s.get("errors", 1) == 0 else 1
 
 
 def run_search(args: argparse.Namespace) -> int:
