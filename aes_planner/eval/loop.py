@@ -36,6 +36,7 @@ import json
 import logging
 import math
 import os
+import shutil
 import time
 from pathlib import Path
 
@@ -271,6 +272,8 @@ def run_loop_eval(config: LoopEvalConfig, out: Path, progress=None) -> dict:
                 continue
             p = parse_perturbation(ptext)
             run_dir = out / "runs" / _slug(key)
+            if run_dir.is_dir():  # a run stopped half-way: start it afresh (its recording refuses to append)
+                shutil.rmtree(run_dir)
             say(f"eval loop: {scene} [{ptext}] ...")
             try:
                 runs[key] = run_one(scene, p, config.moves, run_dir, config.sets, config.timeout_s)
