@@ -58,7 +58,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "unless --set drone.emulate=false --set drone.connection=...)",
     )
     p.add_argument("--out", default=None, metavar="DIR", help="run folder (default runs/demo-<time>)")
-    p.add_argument("--moves", type=int, default=6, help="suggestion-driven moves at most (default 6)")
+    p.add_argument("--moves", type=int, default=4, help="suggestion-driven moves at most (default 4)")
     p.add_argument(
         "--set", action="append", default=[], metavar="ID.KEY=VALUE", help="override a launch-file value (repeatable)"
     )
@@ -103,7 +103,7 @@ def run_demo(
     scene: str,
     mode: str | None,
     out: Path,
-    moves: int = 6,
+    moves: int = 4,
     overrides=(),
     timeout_s: float = 600.0,
     progress=None,

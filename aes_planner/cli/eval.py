@@ -64,6 +64,11 @@ def register_search(esub: argparse._SubParsersAction) -> None:
     s.add_argument("--oracle-step-deg", type=float, default=5.0, help="rig oracle grid step (default 5)")
     s.add_argument("--json", metavar="OUT", help="write the results as JSON")
     s.add_argument("--out", metavar="DIR", help="write markdown tables and plots into DIR")
+    s.add_argument(
+        "--from-json",
+        metavar="FILE",
+        help="run nothing: print the tables (and the preset front) of an earlier --json result, plots into --out",
+    )
     s.set_defaults(func=run_search)
 
 
@@ -147,6 +152,15 @@ def run_search(args: argparse.Namespace) -> int:
         raise ConfigError(
             "--scenes", f"must be in [1, {len(HELD_OUT_SCENES)}] (the held-out scenes), got {args.scenes}"
         )
+    if args.from_json:
+        from aes_planner.eval.search import write_front_plots
+
+        doc = _read_json(args.from_json, "--from-json")
+        print(markdown(doc))
+        if args.out:
+            for path in write_front_plots(doc, output_folder(args.out, "--out")):
+                print(f"wrote {path}")
+        return 0
     scenes = args.scene or HELD_OUT_SCENES[: args.scenes]
     _check_scenes(scenes)
     if args.json:  # bad destinations fail before the evaluation, not after it
@@ -218,6 +232,18 @@ def run_field(args: argparse.Namespace) -> int:
         print(f"{views} views: " + ", ".join(f"{m} PLCC {r['plcc']:.3f}" for m, r in methods.items()))
     print("wrote " + ", ".join(str(p) for p in paths))
     return 0
+
+
+def _read_json(path: str, flag: str) -> dict:
+    from aes_planner.config import ConfigError
+
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise ConfigError(flag, f"cannot read {path} as a JSON result of eval search --json ({exc})") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("views"), dict) or "scenes" not in doc:
+        raise ConfigError(flag, f"{path} is not a result of eval search --json (no 'views' and 'scenes')")
+    return doc
 
 
 def _check_scenes(scenes: list[str]) -> None:

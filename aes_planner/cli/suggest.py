@@ -24,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("dataset", metavar="DATASET_DIR", help="folder with cameras.json and images/")
-    p.add_argument("--preset", default="balanced", choices=["fast", "balanced", "accurate"], help="speed/accuracy")
+    p.add_argument("--preset", default="balanced", choices=["fast", "balanced"], help="speed/accuracy")
     p.add_argument(
         "--mode",
         choices=["rig", "drone", "free"],

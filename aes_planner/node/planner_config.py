@@ -19,7 +19,7 @@ class PlannerConfig:
     * ``scorer``: ``"field"`` (the trained aesthetic field, the default: better and faster in the
       closed loop on held-out scenes, docs/benchmarks.md) or ``"rgb"`` (RGB scoring of the
       reconstruction).
-    * ``preset``: search preset (``fast``, ``balanced``, ``accurate``); ``teacher``: the teacher name.
+    * ``preset``: search preset (``fast``, ``balanced``); ``teacher``: the teacher name.
     * ``active``: run the active loop (commands the gimbal / flies the drone); false = suggest only.
     * ``explore_views``: captures spread over the range before the first suggestion.
     * ``max_moves``: suggestion-driven moves at most; ``margin``: the gain (teacher units) a
@@ -110,11 +110,14 @@ class PlannerConfig:
 
     def __post_init__(self):
         require(self.scorer in ("field", "rgb"), "scorer", f"must be 'field' or 'rgb', got {self.scorer!r}")
+        from aes_planner.search.config import PRESETS, REMOVED_PRESETS
+
         require(
-            self.preset in ("fast", "balanced", "accurate"),
+            self.preset not in REMOVED_PRESETS,
             "preset",
-            f"must be fast, balanced or accurate, got {self.preset!r}",
+            f"{self.preset!r} was removed: {REMOVED_PRESETS.get(self.preset)}",
         )
+        require(self.preset in PRESETS, "preset", f"must be {' or '.join(PRESETS)}, got {self.preset!r}")
         for name in (
             "explore_views",
             "max_moves",
