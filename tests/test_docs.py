@@ -1,7 +1,14 @@
-"""The architecture page names real files: every repository path it quotes exists."""
+"""The architecture page is true: every repository path it quotes exists, and its floors are the
+import-linter contract CI enforces."""
 
 import re
+import sys
 from pathlib import Path
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10: pip vendors the same parser
+    from pip._vendor import tomli as tomllib
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -16,3 +23,27 @@ def test_every_path_the_architecture_page_names_exists():
     assert not missing, f"docs/architecture.md names paths that do not exist: {missing}"
     links = re.findall(r"\]\(([^)#]+)\)", text)
     assert not [p for p in links if not (ROOT / "docs" / p).exists()], "a link of docs/architecture.md is broken"
+
+
+def _module(path: str) -> str:
+    """``aes_planner/geometry/`` or ``aes_planner/images.py`` -> its module name."""
+    return path.rstrip("/").removesuffix(".py").replace("/", ".")
+
+
+def test_the_floor_table_is_the_layers_contract():
+    """The page's floors, row by row from the ground, are the layers of ``[tool.importlinter]``
+    that ``make lint`` checks; a package in neither, or on a different floor, fails here."""
+    text = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
+    table = text[text.index("## The floors") : text.index("## Rules no floor breaks")]
+    rows = re.findall(r"^\| (\d+) \| (.+?) \| .+\|$", table, flags=re.M)
+    page = {int(n): {_module(p) for p in re.findall(r"`(aes_planner/[^`]+)`", cell)} for n, cell in rows}
+    assert sorted(page) == list(range(len(page))) and len(page) > 10
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["tool"]["importlinter"]
+    (layers,) = [c["layers"] for c in config["contracts"] if c["type"] == "layers"]
+    contract = {i: set(re.split(r"\s*[|:]\s*", layer)) for i, layer in enumerate(reversed(layers))}
+    assert page == contract
+    # every module of the package is on a floor (or beside them: sim, drivers, launch)
+    tops = {p.stem if p.suffix == ".py" else p.name for p in (ROOT / "aes_planner").iterdir()}
+    tops -= {"__init__", "__main__", "__pycache__"}
+    placed = {m.split(".")[1] for floor in page.values() for m in floor}
+    assert not sorted(tops - placed), f"not on any floor of docs/architecture.md: {sorted(tops - placed)}"

@@ -52,7 +52,7 @@ from aes_planner.search import (
     search_views,
 )
 from aes_planner.search.pipeline import SearchError, refine_params
-from aes_planner.search.space import RigSpace, SearchSpace, space_for
+from aes_planner.search.space import RigSpace, SearchSpace, random_poses, space_for
 from aes_planner.teachers import get_teacher
 from aes_planner.teachers.evaluator import CompositionEvaluator
 
@@ -291,7 +291,7 @@ def run_search_eval(
             judge = Judge(source, teacher, evaluator)
             mean_random = o_extra["mean_random"]
             # the oracle's own random poses (same space, seed and count), so 'random' normalises to 0
-            _, rand_e = judge.measure(platform.random_poses(cfg.random_samples, np.random.default_rng(cfg.seed)))
+            _, rand_e = judge.measure(random_poses(platform, cfg.random_samples, np.random.default_rng(cfg.seed)))
             for n in cfg.views:
                 inputs = _inputs(source, platform, n)
                 frames = [source.capture(p) for p in inputs]

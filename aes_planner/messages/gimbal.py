@@ -136,18 +136,3 @@ class GimbalState(Message):
             sequence=sequence,
             status=status if status is not None else ("fault" if faults else "ok"),
         )
-
-    def to_device(self):
-        """The device layer's dataclass with the same values."""
-        from aes_planner.devices import GimbalReading as DeviceState
-
-        return DeviceState(
-            pan_rad=self.pan_rad,
-            tilt_rad=self.tilt_rad,
-            goal_pan_rad=self.goal_pan_rad,
-            goal_tilt_rad=self.goal_tilt_rad,
-            moving=self.moving,
-            temperature_c=self.temperature_c,
-            hardware_error=self.hardware_error,
-            stamp_s=self.stamp_s,
-        )
