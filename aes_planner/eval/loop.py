@@ -268,8 +268,8 @@ def run_loop_eval(config: LoopEvalConfig, out: Path, progress=None) -> dict:
     for scene in config.scenes:
         for ptext in config.perturbations:
             key = f"{scene}|{ptext}"
-            if key in runs:
-                continue
+            if key in runs and runs[key].get("state") != "error":
+                continue  # done (a run that failed is tried again)
             p = parse_perturbation(ptext)
             run_dir = out / "runs" / _slug(key)
             if run_dir.is_dir():  # a run stopped half-way: start it afresh (its recording refuses to append)
