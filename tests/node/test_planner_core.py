@@ -457,3 +457,28 @@ def test_step_takes_time_only_from_now(monkeypatch):
     assert {c.stamp_s for c in sim.commands} <= nows
     assert {s.stamp_s for s in suggestions} <= nows
     assert node.diagnostics(now).state == "done"  # the state word on the wire is the enum's value
+
+
+class _TwoHills(ScriptedProposer):
+    """A narrow hill of 0.75 at (0.6, 0.2) and a wide one of 1.0 at (-0.35, 0)."""
+
+    def value(self, pan, tilt):
+        a = 0.75 * math.exp(-((pan - 0.6) ** 2 + (tilt - 0.2) ** 2) / 0.01)
+        b = math.exp(-((pan + 0.35) ** 2 + tilt**2) / 0.4)
+        return float(max(a, b))
+
+
+def test_polish_probes_a_second_hill_before_it_climbs():
+    """The move lands on the narrow hill's top (0.75), the start view sits on the wide hill's flank
+    (0.74): climbing around the best capture alone ends at 0.75; probing the runner-up's coarse
+    neighbours first finds the higher hill."""
+    finals = {}
+    for starts in (1, 2):
+        prop = _TwoHills()
+        _one_candidate(prop, 0.6, 0.2)
+        node = make(prop, explore_views=2, max_moves=1, polish_captures=16, polish_starts=starts)
+        drive(node, SimRig(prop))
+        assert node.state == "done" and node.moves == 1
+        finals[starts] = node.captures[-1].score
+    assert finals[1] == pytest.approx(0.75, abs=0.01)
+    assert finals[2] > 0.9
