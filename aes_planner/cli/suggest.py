@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="DATASET_DIR",
         help="folder with cameras.json and images/, or a folder of photos without poses (posed first)",
     )
-    p.add_argument("--preset", default="balanced", choices=["fast", "balanced", "accurate"], help="speed/accuracy")
+    p.add_argument("--preset", default="balanced", choices=["fast", "balanced"], help="speed/accuracy")
     p.add_argument(
         "--mode",
         choices=["rig", "drone", "free", "handheld"],
