@@ -41,6 +41,7 @@ def render_photo_set(
     supersample: int = 2,
     poses: np.ndarray | None = None,
     hfov_deg: float = 60.0,
+    board: str | None = None,
 ) -> tuple[Path, np.ndarray, Path]:
     """Render ``n`` photos (``IMG_0000.jpg``...) of :func:`~aes_planner.photos.simscene.photo_scene`
     from :func:`~aes_planner.photos.simscene.arc_poses` (or ``poses [n, 4, 4]``) into
@@ -58,7 +59,9 @@ def render_photo_set(
     if not textures:
         textures = dead_leaves_textures(out / "textures", seed=seed)
     scene_file = out / "scene.yaml"
-    scene_file.write_text(yaml.safe_dump(photo_scene(textures, seed=seed, camera=(size[0], size[1], hfov_deg))))
+    scene_file.write_text(
+        yaml.safe_dump(photo_scene(textures, seed=seed, camera=(size[0], size[1], hfov_deg), board=board))
+    )
     scene = load_scene(scene_file, allow_outside=True)
     truth = arc_poses(n, seed=seed) if poses is None else np.asarray(poses, np.float64)
     k = scene.intrinsics()
