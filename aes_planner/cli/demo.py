@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aes_planner.errors import AesPlannerError
 from aes_planner.paths import output_in
 
 DEFAULT_SCENE = "indoor:3"
@@ -224,7 +225,10 @@ def run_demo(
     report_progress()
     loop_s = time.time() - t0
     if drone == "mavlink" and mavlink_demo.aborted(nodes):
-        say(f"demo: {mavlink_demo.abort_reason(nodes)}")
+        reason = mavlink_demo.abort_reason(nodes)
+        say(f"demo: {reason}")
+        if not planner.captures:  # nothing to score: the reason is the error, not "captured nothing"
+            raise AesPlannerError(f"demo: the vehicle was not flown: {reason}")
     elif not ok and not planner.finished:
         say(f"demo: the loop did not finish within {timeout_s:g} s (state {planner.state})")
     say(f"demo: loop {planner.state} after {loop_s:.1f} s; scoring against the oracle ...")

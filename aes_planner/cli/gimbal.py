@@ -16,6 +16,7 @@ import threading
 import time
 from typing import Any
 
+from aes_planner.cli import drives_servos
 from aes_planner.config import from_dict, load_yaml
 from aes_planner.errors import AesPlannerError
 
@@ -125,27 +126,6 @@ def _gimbal(args: argparse.Namespace):
     return DynamixelPanTilt(_driver_config(args))
 
 
-def _driving(run):
-    """Run a command that talks to the servos under
-    :func:`~aes_planner.graph.signals.stop_on_signals`: the first SIGTERM or SIGINT interrupts it
-    like Ctrl-C (the ``with gimbal`` block turns torque off on the way out), later ones wait for
-    that clean-up, and the command exits with 128 + the first signal's number."""
-
-    def wrapped(args: argparse.Namespace) -> int:
-        from aes_planner.graph.signals import SignalShutdown, stop_on_signals
-
-        try:
-            with stop_on_signals(interrupt=True):
-                return run(args)
-        except SignalShutdown as exc:
-            print(f"{exc}: stopped, torque off", file=sys.stderr, flush=True)
-            return exc.exit_code
-
-    wrapped.__name__ = run.__name__
-    wrapped.__doc__ = run.__doc__
-    return wrapped
-
-
 def run_emulate(args: argparse.Namespace) -> int:
     from aes_planner.drivers.emulator import FaultPlan, ServoEmulator
 
@@ -192,7 +172,7 @@ def run_emulate(args: argparse.Namespace) -> int:
     return 0
 
 
-@_driving
+@drives_servos
 def run_scan(args: argparse.Namespace) -> int:
     from aes_planner.drivers.dynamixel import scan
 
@@ -225,7 +205,7 @@ def _joint_args(args: argparse.Namespace) -> tuple[float, float]:
     return out[0], out[1]
 
 
-@_driving
+@drives_servos
 def run_move(args: argparse.Namespace) -> int:
     from aes_planner.drivers.dynamixel import MAX_MOVE_TIMEOUT_S
 
@@ -249,7 +229,7 @@ def run_move(args: argparse.Namespace) -> int:
     return 0
 
 
-@_driving
+@drives_servos
 def run_state(args: argparse.Namespace) -> int:
     with _gimbal(args) as gimbal:
         state = gimbal.state()
@@ -259,7 +239,7 @@ def run_state(args: argparse.Namespace) -> int:
     return 0
 
 
-@_driving
+@drives_servos
 def run_reboot(args: argparse.Namespace) -> int:
     with _gimbal(args) as gimbal:
         before = gimbal.faults

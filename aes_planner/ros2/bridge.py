@@ -50,6 +50,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from aes_planner.config import ConfigError, require
+from aes_planner.geometry.plausible import MAX_STAMP_AHEAD_S
 from aes_planner.geometry.rig import PanTiltConfig
 from aes_planner.graph.base import LaunchContext, Node, NodeError, Output, Outputs
 from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState, PlannerRequest, PosedFrame, ViewSuggestion
@@ -109,7 +110,9 @@ class Ros2BridgeConfig:
     * ``command_interface``: ``joint_trajectory`` or ``forward_position``; ``move_speed_rad_s``
       sets a trajectory point's ``time_from_start``; ``goal_tolerance_rad``: when a move is done.
     * ``rig``: the pan-tilt kinematics (else the launch's scene's); ``state_history_s``: joint
-      states kept to pose images; ``poll_hz``: how often DDS readers are polled (inbound).
+      states kept to pose images; ``poll_hz``: how often DDS readers are polled (inbound);
+      ``max_stamp_ahead_s``: an inbound image or joint state stamped further ahead of the node's
+      clock is rejected and counted (the planner's guard, where ROS 2 messages enter).
     * ``framing_in``: read ``/planner/keep`` and ``/planner/avoid`` (RegionOfInterest) into
       ``planner/request``; ``framing_frame``: the frame their boxes are drawn on (``latest``: the
       newest the planner holds), ``keep_margin``: the margin those requests ask for.
@@ -135,6 +138,7 @@ class Ros2BridgeConfig:
     goal_tolerance_rad: float = 0.02
     rig: PanTiltConfig | None = None
     state_history_s: float = 2.0
+    max_stamp_ahead_s: float = MAX_STAMP_AHEAD_S
     poll_hz: float = 50.0
     ros_graph: str = ""
     ros_node_name: str = "aes_planner_bridge"
@@ -195,6 +199,7 @@ class Ros2BridgeConfig:
             ("move_speed_rad_s", 1e-3, 100),
             ("goal_tolerance_rad", 1e-4, 1),
             ("state_history_s", 0.1, 60),
+            ("max_stamp_ahead_s", 0.0, 3600),
             ("poll_hz", 1, 1000),
         ):
             v = getattr(self, name)
