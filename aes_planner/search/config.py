@@ -180,12 +180,12 @@ class SearchConfig:
 
         if name not in PRESETS:
             raise ConfigError("preset", f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
-        kind = parse_kind(mode, "mode")
+        kind = parse_kind(mode, "mode", allow_handheld=True)
         known = {f.name for f in dataclasses.fields(cls)}
         for key in overrides:
             if key not in known:
                 raise ConfigError(key, f"unknown search setting; expected one of: {', '.join(sorted(known))}")
-        drone = FREE_MODE_PRESETS.get(name, {}) if kind == "drone" else {}
+        drone = FREE_MODE_PRESETS.get(name, {}) if kind in ("drone", "handheld") else {}  # both 5 DoF
         values = {**PRESETS[name], **drone, "preset_name": name, **overrides}
         return cls(**values)
 
