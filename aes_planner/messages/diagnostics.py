@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import ClassVar
 
-from aes_planner.messages.codec import Enum, Map, Message, MessageError, Scalar, Str, register_message
+from aes_planner.messages.codec import Enum, Map, Message, MessageError, Scalar, Str, register_message, text_cap
 from aes_planner.messages.fields import check_finite, check_name_map, check_sequence, check_text
 
 __all__ = ["Diagnostics", "PlannerRequest", "REQUEST_KINDS", "MAX_DIAG_ENTRIES"]
@@ -31,12 +31,15 @@ class Diagnostics(Message):
     SCHEMA_VERSION: ClassVar[int] = 1
     MAX_BYTES: ClassVar[int] = 64 << 10
     FIELDS = (
-        Scalar("stamp_s", "f64"),
-        Scalar("sequence", "u64"),
-        Str("node", 256),
-        Str("state", 1024),
-        Map("counters", Scalar("value", "u64"), MAX_DIAG_ENTRIES),
-        Map("values", Scalar("value", "f64"), MAX_DIAG_ENTRIES),
+        Scalar("stamp_s", "f64", doc="the node's step time when it reported"),
+        Scalar("sequence", "u64", doc="the node's diagnostics counter: 1 for its first report, +1 for each"),
+        Str("node", 256, doc="the node's id"),
+        Str("state", 1024, doc="its state word"),
+        Map("counters", Scalar("value", "u64"), MAX_DIAG_ENTRIES, doc="named counts since the node started"),
+        Map("values", Scalar("value", "f64"), MAX_DIAG_ENTRIES, doc="named figures (`latency_p50_s`, ...)"),
+    )
+    WIRE_RULES: ClassVar[tuple[str, ...]] = (
+        "a `counters` or `values` key that is not 1-64 characters of `A-Z a-z 0-9 _ . : / -`",
     )
 
     stamp_s: float
@@ -48,8 +51,8 @@ class Diagnostics(Message):
 
     def __post_init__(self):
         self.stamp_s = check_finite(self.stamp_s, "Diagnostics.stamp_s")
-        self.node = check_text(self.node, "Diagnostics.node", 64)
-        self.state = check_text(self.state, "Diagnostics.state", 256)
+        self.node = check_text(self.node, "Diagnostics.node", text_cap(self.FIELDS, "node"))
+        self.state = check_text(self.state, "Diagnostics.state", text_cap(self.FIELDS, "state"))
         self.counters = check_name_map(self.counters, "Diagnostics.counters", int, MAX_DIAG_ENTRIES)
         self.values = check_name_map(self.values, "Diagnostics.values", float, MAX_DIAG_ENTRIES)
         self.sequence = check_sequence(self.sequence, "Diagnostics.sequence")
@@ -60,7 +63,8 @@ class Diagnostics(Message):
 class PlannerRequest(Message):
     """What ``planner/request`` carries.
 
-    * ``kind``: ``"suggest"`` (publish a suggestion now, and reply with it), ``"reset"``
+    * ``kind``: ``"suggest"`` (a suggestion now: a passive planner searches at once, the active
+      loop re-publishes its newest), ``"reset"``
       (forget the field and start over), ``"stop"`` (end the active loop and settle).
     * ``max_candidates``: how many candidates to return; 0 = the planner's default.
     """
@@ -69,11 +73,21 @@ class PlannerRequest(Message):
     SCHEMA_VERSION: ClassVar[int] = 1
     MAX_BYTES: ClassVar[int] = 1024
     FIELDS = (
-        Enum("kind", REQUEST_KINDS),
-        Scalar("max_candidates", "u32"),
-        Scalar("stamp_s", "f64"),
-        Scalar("sequence", "u64"),
+        Enum(
+            "kind",
+            REQUEST_KINDS,
+            doc="`suggest`: a suggestion on `planner/suggestion` now. A passive planner (`active: false`) searches "
+            "its newest field at once; the active loop's planner does not start a search (it searches on its own "
+            "schedule) and publishes its newest suggestion again, the same message with the same `sequence` (nothing "
+            "before its first). `reset`: forget the field and start over; `stop`: end the active loop and settle",
+        ),
+        Scalar(
+            "max_candidates", "u32", doc="at most 64; 0 = the planner's default (the planner node does not use it yet)"
+        ),
+        Scalar("stamp_s", "f64", doc="when it was sent"),
+        Scalar("sequence", "u64", doc="the sender's request counter"),
     )
+    WIRE_RULES: ClassVar[tuple[str, ...]] = ("`max_candidates` above 64",)
 
     kind: str = "suggest"
     max_candidates: int = 0
