@@ -262,6 +262,12 @@ class SimPanTilt(Gimbal):
                 stamp_s=self._t_last,
             )
 
+    def use_clock(self, clock: Callable[[], float]) -> None:
+        """Take time from ``clock`` from now on (a graph's simulated time); the joints stand
+        where they are at its present time."""
+        self.clock = clock
+        self._t_last = clock()
+
     def wait_until_reached(self, timeout_s: float | None = None) -> GimbalReading:
         return wait_for_arrival(
             self.state,

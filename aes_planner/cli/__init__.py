@@ -10,6 +10,7 @@ its traceback.
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib
 import logging
 import os
@@ -45,7 +46,7 @@ class _Parser(argparse.ArgumentParser):
     parsers are of this class too (argparse makes them of their parent's class)."""
 
     def error(self, message: str):
-        self.exit(2, terminal_safe(f"error: {self.prog}: {message} (see {self.prog} --help)") + "\n")
+        self.exit(2, error_line(f"error: {self.prog}: {message} (see {self.prog} --help)") + "\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -61,6 +62,31 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def drives_servos(run):
+    """Run a subcommand that opens a servo device (a :class:`~aes_planner.devices.Gimbal`) under
+    the one :func:`~aes_planner.graph.signals.stop_on_signals`: the first SIGTERM or SIGINT
+    interrupts it like Ctrl-C (its ``with gimbal:`` blocks turn torque off on the way out), later
+    ones wait for that clean-up, and the command exits with 128 + the first signal's number.
+
+    Every subcommand that opens a gimbal carries this (or runs a graph under
+    :func:`~aes_planner.graph.runner.run_graph`, which does the same for a loop);
+    ``tests/cli/test_servo_signals_sweep.py`` finds them from the code and sends them signals."""
+
+    @functools.wraps(run)
+    def wrapped(args: argparse.Namespace) -> int:
+        from aes_planner.graph.signals import SignalShutdown, stop_on_signals
+
+        try:
+            with stop_on_signals(interrupt=True):
+                return run(args)
+        except SignalShutdown as exc:
+            print(f"{exc}: stopped, torque off", file=sys.stderr, flush=True)
+            return exc.exit_code
+
+    wrapped.drives_servos = True
+    return wrapped
+
+
 def terminal_safe(text: str) -> str:
     """``text`` with every non-printable character but newlines escaped (``\\x1b``): what arrives
     from the bus or a file (topic names, error messages quoting them) must not write control
@@ -68,6 +94,21 @@ def terminal_safe(text: str) -> str:
     if text.isprintable():
         return text
     return "".join(c if c.isprintable() or c == "\n" else repr(c)[1:-1] for c in text)
+
+
+#: The longest error line the CLI prints: what an error echoes (a 10,000-character frame id, a
+#: file's garbage) is cut here, once, for every command.
+MAX_ERROR_CHARS = 600
+
+
+def error_line(text: str, limit: int = MAX_ERROR_CHARS) -> str:
+    """``text`` as the one line the CLI prints for an error: newlines and runs of spaces folded,
+    control characters escaped (:func:`terminal_safe`), and cut at ``limit`` characters with a
+    note of how much was left out."""
+    text = terminal_safe(" ".join(str(text).split()))
+    if len(text) <= limit:
+        return text
+    return f"{text[: limit - 40]} ... [{len(text) - limit + 40} characters cut]"
 
 
 def _empty_value(argv: list[str]) -> str | None:
@@ -95,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except AesPlannerError as exc:
-        print(terminal_safe(f"error: {exc}"), file=sys.stderr)
+        print(error_line(f"error: {exc}"), file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:  # Ctrl-C, or a signal stop that ended a command (SignalShutdown)
         return getattr(exc, "exit_code", 130)
@@ -108,11 +149,11 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
             # a file the command reads or writes (disk full, permissions, a folder where a file
             # was expected): the user's to fix, not a bug
-            print(terminal_safe(f"error: {str(exc.filename)[:300]}: {exc.strerror}"), file=sys.stderr)
+            print(error_line(f"error: {exc.filename}: {exc.strerror}"), file=sys.stderr)
             return 2
-        text = terminal_safe(" ".join(str(exc).split()))
+        text = error_line(str(exc), 300)
         print(
-            f"error: unexpected {type(exc).__name__}: {text[:300]} (this is a bug in aes-planner; please report it "
+            f"error: unexpected {type(exc).__name__}: {text} (this is a bug in aes-planner; please report it "
             "with the command line; rerun with -v for the traceback)",
             file=sys.stderr,
         )

@@ -16,6 +16,7 @@ import math
 import time
 from pathlib import Path
 
+from aes_planner.cli import drives_servos
 from aes_planner.errors import AesPlannerError
 
 log = logging.getLogger(__name__)
@@ -351,6 +352,7 @@ class _Session:
             self.gimbal.disconnect()
 
 
+@drives_servos
 def run_rig(args) -> int:
     from dataclasses import replace
 
@@ -417,6 +419,7 @@ def run_rig(args) -> int:
     return 0
 
 
+@drives_servos
 def run_verify(args) -> int:
     from aes_planner.calibrate.board import parse_board
     from aes_planner.calibrate.pipeline import verify_rig

@@ -55,6 +55,16 @@ def topics_markdown() -> str:
         for topic, spec in input_specs(cls).items():
             t = topics.setdefault(topic, {"type": spec.msg_type, "out": [], "in": [], "qos": set()})
             t["in"].append(word)
+    from aes_planner.graph.clock import ACK_TOPIC, CLOCK_TOPIC
+    from aes_planner.messages.clock import Clock, ClockAck
+
+    # the graph's own topics (a launch with `clock: sim`): not a node type's declarations
+    graph_topics = {
+        CLOCK_TOPIC: (Clock, "latched, reliable", "the graph's clock (`clock: sim` launches)", "every node"),
+        ACK_TOPIC: (ClockAck, "reliable", "every node, on a simulated clock", "the graph's clock"),
+    }
+    for topic, (msg_type, qos, out, reads) in graph_topics.items():
+        topics[topic] = {"type": msg_type, "out": [], "in": [], "qos": {qos}, "out_text": out, "in_text": reads}
     lines = [
         "| topic | type | QoS | published by | read by | recording channels |",
         "|---|---|---|---|---|---|",
@@ -62,8 +72,8 @@ def topics_markdown() -> str:
     for topic in sorted(topics):
         t = topics[topic]
         channels = [f"/{topic}"] + [c for c, _, _ in view_channels(topic, t["type"])]
-        out = ", ".join(f"`{w}`" for w in t["out"]) or "you (no node type publishes it)"
-        reads = ", ".join(f"`{w}`" for w in t["in"]) or "you"
+        out = t.get("out_text") or ", ".join(f"`{w}`" for w in t["out"]) or "you (no node type publishes it)"
+        reads = t.get("in_text") or ", ".join(f"`{w}`" for w in t["in"]) or "you"
         qos = " / ".join(sorted(t["qos"])) or "(as you publish it)"
         lines.append(
             f"| `{topic}` | `{t['type'].TYPE_NAME}` | {qos} | {out} | {reads} | {', '.join(f'`{c}`' for c in channels)} |"

@@ -15,6 +15,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     esub = p.add_subparsers(dest="eval_command", metavar="EXPERIMENT", required=True)
     register_field(esub)
     register_search(esub)
+    register_framing(esub)
 
 
 def _int_list(text: str) -> list[int]:
@@ -64,6 +65,50 @@ def register_search(esub: argparse._SubParsersAction) -> None:
     s.add_argument("--json", metavar="OUT", help="write the results as JSON")
     s.add_argument("--out", metavar="DIR", help="write markdown tables and plots into DIR")
     s.set_defaults(func=run_search)
+
+
+def register_framing(esub: argparse._SubParsersAction) -> None:
+    f = esub.add_parser(
+        "framing",
+        help="suggest --keep: how often the suggestion holds a scene object whole, and its score against the best "
+        "view that holds it (a constrained oracle)",
+    )
+    f.add_argument("--scene", action="append", metavar="FILE_OR_FAMILY:SEED", help="a scene (repeatable)")
+    f.add_argument("--scenes", type=int, default=4, help="number of held-out scenes when no --scene (default 4)")
+    f.add_argument("--seeds", type=_int_list, default=[0, 1], help="subjects per scene: 0,1 = the two largest")
+    f.add_argument("--mode", default="rig", choices=["rig", "drone", "free"], help="platform (default rig)")
+    f.add_argument("--preset", default="balanced", choices=["fast", "balanced", "accurate"], help="search preset")
+    f.add_argument("--keep-margin", type=float, default=0.05, metavar="FRAC", help="as suggest --keep-margin")
+    f.add_argument("--json", metavar="OUT", help="write the results as JSON")
+    f.add_argument("--figure", metavar="PNG", help="write a figure: input box, suggestion, constrained oracle per case")
+    f.set_defaults(func=run_framing)
+
+
+def run_framing(args: argparse.Namespace) -> int:
+    from aes_planner.config import ConfigError
+    from aes_planner.eval.framing import FramingEvalConfig, markdown, run_framing_eval
+    from aes_planner.eval.search import HELD_OUT_SCENES
+    from aes_planner.paths import output_file
+
+    if not args.scene and not 1 <= args.scenes <= len(HELD_OUT_SCENES):
+        raise ConfigError(
+            "--scenes", f"must be in [1, {len(HELD_OUT_SCENES)}] (the held-out scenes), got {args.scenes}"
+        )
+    scenes = args.scene or HELD_OUT_SCENES[: args.scenes]
+    _check_scenes(scenes)
+    if args.json:
+        output_file(args.json, "--json")
+    if args.figure:
+        output_file(args.figure, "--figure")
+    cfg = FramingEvalConfig(
+        scenes=scenes, seeds=args.seeds, mode=args.mode, preset=args.preset, keep_margin=args.keep_margin
+    )
+    doc = run_framing_eval(cfg, progress=lambda text: log.info("eval framing: %s", text), figure=args.figure)
+    print(markdown(doc))
+    if args.json:
+        Path(args.json).write_text(json.dumps(doc, indent=1, default=float) + "\n")
+        print(f"wrote {args.json}")
+    return 0
 
 
 def run_search(args: argparse.Namespace) -> int:

@@ -51,6 +51,22 @@ def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None =
     g.add_argument("--record", default=None, metavar="FILE.mcap", help="record every topic to an MCAP file")
 
 
+def add_clock_flag(p: argparse.ArgumentParser, default_help: str) -> None:
+    """``--clock sim|wall``: the graph's time (docs/guides/clock.md)."""
+    p.add_argument(
+        "--clock",
+        choices=("sim", "wall"),
+        default=None,
+        help="sim: simulated time in lockstep (a result depends on the scene and the code, not on the load); "
+        f"wall: real time; default: {default_help}",
+    )
+
+
+def clock_overrides(args: argparse.Namespace) -> list[str]:
+    """The ``--set`` a ``--clock`` flag stands for."""
+    return [f"clock={args.clock}"] if getattr(args, "clock", None) else []
+
+
 def declared_outputs(spec) -> list[tuple[str, type, bool]]:
     """``(topic, message type, latched)`` of every output a launch's nodes declare, remapped."""
     from aes_planner.graph.base import node_class, output_specs
@@ -72,7 +88,11 @@ def attach_viewers(bus, args: argparse.Namespace, spec=None) -> list:
     sinks = []
     try:
         if getattr(args, "record", None):
-            sinks.append(Recorder(args.record).attach(bus))
+            rec = Recorder(args.record)
+            sinks.append(rec)
+            if spec is not None:  # which clock ran (a simulated run's stamps are simulated seconds)
+                rec.add_metadata("run", {"clock": spec.clock.source, "clock_step_s": spec.clock.step_s})
+            rec.attach(bus)
         port = getattr(args, "foxglove", None)
         if port is not None:
             if not 0 <= port <= 65535:

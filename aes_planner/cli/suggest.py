@@ -43,6 +43,31 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="render the report's ground-truth row from this scene (default: the folder's scene when `sim render` "
         "wrote it from FAMILY:SEED; a scene file named inside a folder is never opened)",
     )
+    p.add_argument(
+        "--keep",
+        action="append",
+        default=[],
+        metavar="FRAME:X0,Y0,X1,Y1",
+        help="keep this subject whole in the suggested view: a box in pixels of the input image FRAME (its file "
+        "name as in cameras.json, e.g. 00003.png:21,0,61,36); repeatable (docs/guides/framing.md)",
+    )
+    p.add_argument(
+        "--avoid",
+        action="append",
+        default=[],
+        metavar="FRAME:X0,Y0,X1,Y1",
+        help="steer away from views that show what this box shows (same form as --keep); repeatable",
+    )
+    p.add_argument(
+        "--keep-at", choices=["centre", "thirds"], help="also prefer the kept subject at the centre or on the thirds"
+    )
+    p.add_argument(
+        "--keep-margin",
+        type=float,
+        default=0.05,
+        metavar="FRAC",
+        help="the kept subject stays this fraction of the frame's width/height inside every edge (default 0.05)",
+    )
     p.add_argument("--json", metavar="OUT", help="write the suggestions as JSON")
     p.add_argument("--out", metavar="DIR", help="write the report image (report.png) into DIR")
     p.add_argument(
@@ -144,6 +169,7 @@ def run(args: argparse.Namespace) -> int:
     # the ground truth is set up before the search, so a bad --truth-scene fails first
     gt = _ground_truth(data.meta, data.frames[0].intrinsics, args.truth_scene) if args.out else None
     platform = _platform(data.meta, data.frames, args.mode, args.rig)
+    framing_cfg, keep, avoid = _framing_args(args)
     overrides = {"top_k": args.top} if args.top else {}
     cfg = SearchConfig.preset(args.preset, mode=platform.kind, **overrides)
     t0 = time.perf_counter()
@@ -158,7 +184,15 @@ def run(args: argparse.Namespace) -> int:
             kind = "rgb"
             scorer = build_search_scorer(kind, data.frames, cfg)
         args.scorer = kind
-        result = search_views(scorer, data.cam2worlds(), platform, cfg)
+        framing = None
+        if keep or avoid:
+            from aes_planner.search.framing import build_framing, dataset_frames
+
+            frames = dataset_frames(data.frames)
+            framing = build_framing(scorer, frames, keep, avoid, platform.intrinsics, framing_cfg)
+            for line in framing.describe():
+                print(f"framing: {line}")
+        result = search_views(scorer, data.cam2worlds(), platform, cfg, framing=framing)
     latency_ms = (time.perf_counter() - t0) * 1e3
     top = args.top or cfg.top_k
     print(f"{len(result.suggestions[:top])} suggestion(s), {result.mode} mode, preset {args.preset}, "
@@ -182,6 +216,10 @@ def run(args: argparse.Namespace) -> int:
             "latency_ms": latency_ms,
             "suggestions": [s.to_json() for s in result.suggestions[:top]],
         }
+        if framing is not None:
+            doc["keep"] = [s.to_json() for s in framing.keep]
+            doc["avoid"] = [s.to_json() for s in framing.avoid]
+            doc["keep_margin"] = framing.cfg.margin_frac
         Path(args.json).write_text(json.dumps(doc, indent=1) + "\n")
         print(f"wrote {args.json}")
     if args.out:
@@ -205,10 +243,48 @@ def run(args: argparse.Namespace) -> int:
                 + ", ".join(f"#{i + 1} {v:.3f}" for i, v in enumerate(scores["truth"][:top]))
             )
         report = write_report(
-            output_in(args.out, "report.png"), [f.image for f in data.frames], result, renderers, scores=scores
+            output_in(args.out, "report.png"),
+            [f.image for f in data.frames],
+            result,
+            renderers,
+            scores=scores,
+            outlines=_outlines(framing, data.frames) if framing is not None else None,
         )
         print(f"wrote {report}")
     return 0
+
+
+def _framing_args(args):
+    """``--keep``/``--avoid``/``--keep-at``/``--keep-margin`` -> (FramingConfig, keep, avoid), checked
+    before anything is loaded."""
+    from aes_planner.config import ConfigError
+    from aes_planner.search.framing import FramingConfig, FramingError, Region
+
+    keep = [Region.parse(t, "--keep") for t in args.keep]
+    avoid = [Region.parse(t, "--avoid") for t in args.avoid]
+    if args.keep_at and not keep:
+        raise FramingError("--keep-at places the kept subject: give the subject with --keep FRAME:X0,Y0,X1,Y1")
+    try:
+        cfg = FramingConfig(margin_frac=args.keep_margin, keep_at=args.keep_at)
+    except ConfigError as exc:
+        raise FramingError(f"--keep-margin: {exc}") from None
+    return cfg, keep, avoid
+
+
+def _outlines(framing, frames) -> dict:
+    """What the report outlines: each region's box in its input image, each subject's 3D box."""
+    from aes_planner.search.framing import frame_index
+
+    index = frame_index(frames)
+    boxes = []
+    for kind, subjects in (("keep", framing.keep), ("avoid", framing.avoid)):
+        for s in subjects:
+            f = frames[index[s.region.frame]]
+            w, h = f.extras.get("stored_size", (f.intrinsics.width, f.intrinsics.height))
+            sx, sy = f.image.shape[1] / w, f.image.shape[0] / h
+            r = s.region.scaled(sx, sy)
+            boxes.append((index[s.region.frame], kind, (r.x0, r.y0, r.x1, r.y1)))
+    return {"input_boxes": boxes, "framing": framing}
 
 
 def _scores(scorer, poses) -> list[float]:

@@ -161,6 +161,11 @@ class JointHistory:
         w = (stamp_s - t0) / (t1 - t0) if t1 > t0 else 1.0
         return p0 + w * (p1 - p0), q0 + w * (q1 - q0)
 
+    @property
+    def newest_stamp_s(self) -> float | None:
+        """The newest reading's stamp; None before any."""
+        return self._stamps[-1] if self._stamps else None
+
     def latest(self) -> tuple[float, float] | None:
         """The newest reading's (pan, tilt); None before any."""
         return self._joints[-1] if self._joints else None

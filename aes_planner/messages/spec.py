@@ -26,6 +26,8 @@ TYPE_ORDER = (
     "Diagnostics",
     "DroneState",
     "PlannerRequest",
+    "Clock",
+    "ClockAck",
 )
 
 

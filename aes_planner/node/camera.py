@@ -64,6 +64,10 @@ class CameraNode(FrameNode):
     config_class = CameraNodeConfig
     inputs = {"gimbal/state": Input(GimbalState, 64)}
 
+    @classmethod
+    def sim_clock_problem(cls, config) -> str | None:
+        return "reads a real camera, which takes pictures in real time"
+
     def __init__(
         self,
         config: CameraNodeConfig | None = None,

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from aes_planner.config import require, require_numbers
+from aes_planner.geometry.plausible import MAX_STAMP_AHEAD_S
 from aes_planner.geometry.rig import PanTiltConfig
 from aes_planner.platform import DroneBox, parse_kind
 from aes_planner.runtime import MAX_THREADS
@@ -82,7 +83,7 @@ class PlannerConfig:
     arrival_tolerance_m: float = 0.05
     settle_s: float = 0.05
     move_timeout_s: float = 20.0
-    max_stamp_ahead_s: float = 5.0
+    max_stamp_ahead_s: float = MAX_STAMP_AHEAD_S
     fault_timeout_s: float = 10.0
     min_suggest_period_s: float = 0.5
     diagnostics_period_s: float = 1.0

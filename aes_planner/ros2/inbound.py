@@ -9,6 +9,13 @@ Polled from :meth:`aes_planner.ros2.bridge.Ros2BridgeNode.step`:
 * ``Image`` / ``CompressedImage`` -> ``camera/frame`` posed at the joints interpolated to the
   image's stamp. No camera info yet, a size that differs from it, or no joint state near the
   stamp: dropped and counted (``no_camera_info``, ``size_mismatch``, ``unposed``).
+* Every entry is held to the package's plausibility bounds (``aes_planner.geometry.plausible``):
+  stamps within 0..2038 and at most ``max_stamp_ahead_s`` ahead of the node's clock (the
+  planner's guard, applied where the messages enter), joint angles, intrinsics and distortion
+  (an unknown ``distortion_model`` is refused, never read as plumb_bob); what fails is rejected
+  and counted (``rejected.<input>``). Joint states that jump back in time by more than
+  ``state_history_s`` (a publisher's clock corrected, a bag replayed from its start) reset the
+  joint history (``joint_history_resets``), so no stale or far-future state poisons it for good.
 * ``gimbal/command`` (move, stop) -> one trajectory point or a forward command, clamped to the
   rig's limits; ``reboot`` has no ROS 2 counterpart here and is counted (``ignored_commands``).
 """
@@ -20,6 +27,7 @@ import math
 
 import numpy as np
 
+from aes_planner.geometry.plausible import stamp_problem
 from aes_planner.geometry.trajectory import JointHistory
 from aes_planner.messages import GimbalCommand, GimbalState, MessageError, PosedFrame
 from aes_planner.ros2 import convert, idl
@@ -101,7 +109,7 @@ class Inbound:
                 self._reject("camera_info_in", str(exc))
         for msg in self._take("joint_states_in"):
             try:
-                state = self._joint_state(msg)
+                state = self._joint_state(msg, now)
             except (Ros2InputError, MessageError) as exc:
                 self._reject("joint_states_in", str(exc))
                 continue
@@ -109,20 +117,37 @@ class Inbound:
                 out["gimbal/state"].append(state)
         for msg in self._take(self.image_key):
             try:
-                frame = self._frame(msg)
+                frame = self._frame(msg, now)
             except (Ros2InputError, MessageError) as exc:
                 self._reject(self.image_key, str(exc))
                 continue
             if frame is not None:
                 out["camera/frame"].append(frame)
 
-    def _joint_state(self, msg: idl.JointState) -> GimbalState | None:
+    def _stamp(self, msg, what: str, now: float) -> float:
+        """The message's stamp, held to the plausibility bounds and the stamp-ahead guard."""
+        t = convert.stamp_s(msg.header.stamp, what)
+        problem = stamp_problem(t, what, now, self.node.config.max_stamp_ahead_s)
+        if problem is not None:
+            raise Ros2InputError(f"{problem}; synchronise the clocks (e.g. chrony)")
+        return t
+
+    def _joint_state(self, msg: idl.JointState, now: float) -> GimbalState | None:
         c = self.node.config
         joints = convert.joint_positions(msg, c.joint_names)
         if joints is None:
             self.node.count("ignored_joint_states")
             return None
-        t = convert.stamp_s(msg.header.stamp, "JointState.header.stamp")
+        t = self._stamp(msg, "JointState.header.stamp", now)
+        newest_s = self.history.newest_stamp_s
+        if newest_s is not None and t < newest_s - c.state_history_s:
+            log.warning(
+                "ros2 bridge: joint states jumped back %.3g s in time: the joint history starts again",
+                newest_s - t,
+            )
+            self.node.count("joint_history_resets")
+            self.history = JointHistory(c.state_history_s)
+            self._last_joint = None
         pan, tilt = joints
         speed = 0.0
         if len(msg.velocity) == len(msg.name):
@@ -139,7 +164,7 @@ class Inbound:
         self.states += 1
         return GimbalState(pan, tilt, goal[0], goal[1], moving=bool(moving), stamp_s=t, sequence=self.states)
 
-    def _frame(self, msg) -> PosedFrame | None:
+    def _frame(self, msg, now: float) -> PosedFrame | None:
         import cv2
 
         if isinstance(msg, idl.Image):
@@ -153,7 +178,7 @@ class Inbound:
         if rgb.shape[:2] != (k.height, k.width):
             self.node.count("size_mismatch")
             raise Ros2InputError(f"image is {rgb.shape[1]}x{rgb.shape[0]} but CameraInfo says {k.width}x{k.height}")
-        t = convert.stamp_s(msg.header.stamp, "image header.stamp")
+        t = self._stamp(msg, "image header.stamp", now)
         joints = self.history.joints_at(t)
         if joints is None:
             self.node.count("unposed")

@@ -36,7 +36,7 @@ from aes_planner.sources import SceneSource
 
 log = logging.getLogger(__name__)
 
-__all__ = ["default_cache_dir", "normalized", "oracle_search"]
+__all__ = ["default_cache_dir", "normalized", "oracle_search", "pattern_search"]
 
 ORACLE_VERSION = 1
 
@@ -62,15 +62,17 @@ def _platform_dict(platform: Platform) -> dict[str, Any]:
     return d
 
 
-def _pattern_search(
+def pattern_search(
     scorer: GroundTruthScorer,
     space: SearchSpace,
     start: torch.Tensor,
     score0: float,
     steps: np.ndarray,
     min_scale: float,
+    feasible=None,
 ) -> tuple[torch.Tensor, float]:
-    """Compass search from ``start [D]``: try +-step on each axis, move to the best, else halve."""
+    """Compass search from ``start [D]``: try +-step on each axis, move to the best, else halve.
+    ``feasible``: poses ``[M, 4, 4]`` -> ``[M]`` bool; probes it refuses are never scored."""
     p, best, scale = start.clone(), score0, 1.0
     while scale >= min_scale:
         probes = []
@@ -80,6 +82,11 @@ def _pattern_search(
                 q[d] += sign * scale * steps[d]
                 probes.append(q)
         probes_t = space.project(torch.stack(probes))
+        if feasible is not None:
+            probes_t = probes_t[torch.as_tensor(feasible(space.to_poses(probes_t).detach()))]
+            if not len(probes_t):
+                scale /= 2
+                continue
         out = scorer.score_batched(space.to_poses(probes_t))
         i = int(torch.argmax(out.score))
         if float(out.score[i]) > best + 1e-9:
@@ -147,7 +154,7 @@ def oracle_search(
 
     best_p, best_s = grid[int(torch.argmax(grid_scores))], float(grid_scores.max())
     for i in torch.argsort(grid_scores, descending=True)[:refine_starts].tolist():
-        p, s = _pattern_search(
+        p, s = pattern_search(
             scorer, space, grid[i], float(grid_scores[i]), steps, math.radians(min_step_deg) / step * 2
         )
         if s > best_s:

@@ -187,7 +187,7 @@ def recording(tmp_path_factory):
         rec.attach(bus)
         for name, msg in samples.items():
             bus.publish(f"t/{name.lower()}", msg)
-            sent.append((f"/t/{name.lower()}", msg, 2 if name == "ViewSuggestion" else 1))
+            sent.append((f"/t/{name.lower()}", msg, type(msg).SCHEMA_VERSION))
         rec.write_raw("t/png_frame", encode(samples["PosedFrame"], image_format="png"))
         sent.append(("/t/png_frame", samples["PosedFrame"], 1))
         rec.write_raw("t/old_suggestion", version_1_suggestion(samples["ViewSuggestion"]))
