@@ -279,6 +279,7 @@ class ZenohBus(Bus):
         self._watches = bool(self.config.connect)
         self._own: list = []  # the heartbeat's publisher and subscriber of the current session
         self._hub_zids: set[str] = set()  # Zenoh ids of the hubs heard
+        self._reopen_blocked_until = 0.0  # simulate_session_loss
         self._heard = None  # RingChannel handler of the hubs' heartbeats
         self._declare_liveness()
         self._catch_ups: list = []  # heap of (due_s, n, inbox, pub_id, attempt)
@@ -691,6 +692,8 @@ class ZenohBus(Bus):
                     ", ".join(self.config.connect),
                     now - last_heard,
                 )
+            if now < self._reopen_blocked_until:  # simulate_session_loss: the network is still away
+                continue
             if lost_at is not None and now >= next_reopen and self._wedged(now - lost_at):
                 self._reopen()
                 reopened += 1
@@ -729,9 +732,12 @@ class ZenohBus(Bus):
         )
         threading.Thread(target=_close_quietly, args=(old,), name="aes-zenoh-close-old", daemon=True).start()
 
-    def simulate_session_loss(self) -> None:
-        """Testing hook: close the current session under the bus, as a link lost for good would
-        leave it (nothing is delivered, no error); the liveness watch has to notice and recover."""
+    def simulate_session_loss(self, duration_s: float = 0.0) -> None:
+        """Testing hook (tests, ``aes-planner bench soak``): close the current session under the
+        bus, as a link lost for good leaves it (nothing delivered, no error), and let no new one
+        open for ``duration_s`` (the network is away that long); the liveness watch has to notice
+        the loss and recover."""
+        self._reopen_blocked_until = time.monotonic() + duration_s
         _close_quietly(self.session)
 
     # -- request/reply, topics, close ---------------------------------------------------------
