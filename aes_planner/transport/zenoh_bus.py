@@ -221,7 +221,7 @@ class _Inbox:
         self.sub = sub
         self.items: deque = deque()
         self.seen: dict[str, int] = {}  # publisher id -> last sequence delivered
-        self.latched_pubs: set[str] = set()  # ids of the latched publishers whose token is alive
+        self.latched_pubs: set[str] = set()  # tokens (<id>.g<N>) of the latched publishers alive
 
 
 def _zenoh_timeout(err) -> bool:
@@ -232,10 +232,11 @@ def _zenoh_timeout(err) -> bool:
     return err.payload.to_bytes() == b"Timeout"
 
 
-def _pub_id(token_key: str, prefix: str) -> str:
-    """The publisher id in a publisher token's key (``P/@meta/pub/<Type>/<L>/<id>.g<N>/<topic>``)."""
+def _pub_token(token_key: str, prefix: str) -> str:
+    """``<id>.g<N>`` of a publisher token's key (``P/@meta/pub/<Type>/<L>/<id>.g<N>/<topic>``): the
+    publisher's id and the generation of the session that declared it."""
     parts = token_key[len(prefix) + len("/@meta/pub/") :].split("/")
-    return parts[2].partition(".g")[0] if len(parts) > 2 else ""
+    return parts[2] if len(parts) > 2 else ""
 
 
 def _split_attachment(att: bytes) -> tuple[str, int | None]:
@@ -467,17 +468,17 @@ class ZenohBus(Bus):
     def _latched_token(self, inbox: _Inbox, sample) -> None:
         """Zenoh's thread: a latched publisher of the subscription's topic appeared (ask it for its
         last sample) or went (stop asking)."""
-        pub_id = _pub_id(str(sample.key_expr), self.prefix)
+        token = _pub_token(str(sample.key_expr), self.prefix)
         with self._catch_up_wake:
             if sample.kind == zenoh.SampleKind.PUT:
-                inbox.latched_pubs.add(pub_id)
-                self._schedule_catch_up(inbox, pub_id, 0, 0.0)
-            else:
-                inbox.latched_pubs.discard(pub_id)
+                inbox.latched_pubs.add(token)
+                self._schedule_catch_up(inbox, token, 0, 0.0)
+            else:  # (a publisher's token of an older session may go after its new one came)
+                inbox.latched_pubs.discard(token)
 
-    def _schedule_catch_up(self, inbox: _Inbox, pub_id: str, attempt: int, delay_s: float) -> None:
+    def _schedule_catch_up(self, inbox: _Inbox, token: str, attempt: int, delay_s: float) -> None:
         with self._catch_up_wake:
-            heapq.heappush(self._catch_ups, (time.monotonic() + delay_s, next(self._counter), inbox, pub_id, attempt))
+            heapq.heappush(self._catch_ups, (time.monotonic() + delay_s, next(self._counter), inbox, token, attempt))
             self._catch_up_wake.notify()
 
     def _catch_up_loop(self) -> None:
@@ -490,17 +491,18 @@ class ZenohBus(Bus):
                     self._catch_up_wake.wait(wait)
                 if self._stop:
                     return
-                _, _, inbox, pub_id, attempt = heapq.heappop(self._catch_ups)
-                if inbox.sub.closed or pub_id not in inbox.latched_pubs:
+                _, _, inbox, token, attempt = heapq.heappop(self._catch_ups)
+                if inbox.sub.closed or token not in inbox.latched_pubs:
                     continue
             try:
                 answered = self._catch_up(inbox)
             except Exception:
                 log.exception("latched catch-up failed")
                 answered = set()
+            pub_id = token.partition(".g")[0]
             if pub_id not in answered:
                 lo, hi = CATCH_UP_RETRY_S
-                self._schedule_catch_up(inbox, pub_id, attempt + 1, min(hi, lo * 2**attempt))
+                self._schedule_catch_up(inbox, token, attempt + 1, min(hi, lo * 2**attempt))
                 if attempt == 10:
                     log.info(
                         "%s: latched publisher %s has not answered after 10 queries; still asking",
