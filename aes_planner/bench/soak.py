@@ -92,6 +92,19 @@ class SoakRun:
         got = sum(1 for s in self.published if any(abs(s - f) < 1e-6 for f in self.forwarded))
         return 100.0 * got / len(self.published)
 
+    def summary(self) -> dict:
+        """One line of figures for the log."""
+        skip = None if self.loss_at is None else (self.loss_wall - 0.5, self.loss_wall + 15)
+        return {
+            "launch_rc": self.launch_rc,
+            "suggestions": sorted(self.sequences),
+            "delivered_pct": self.delivered_pct(),
+            "forwarded_pct": self.forwarded_pct(),
+            "max_silence_s": {k: round(v, 2) for k, v in self.max_silence_s(skip).items()},
+            "detect_s": None if self.detected_at is None else round(self.detected_at - self.loss_at, 2),
+            "recover_s": None if self.recovered_at is None else round(self.recovered_at - self.loss_at, 2),
+        }
+
     def max_silence_s(self, skip: tuple[float, float] | None = None) -> dict[str, float]:
         """Per stream at 5 Hz or more: the longest gap between two arrivals (``skip``: a window
         whose gaps are not counted, the injected loss)."""
@@ -231,14 +244,21 @@ def run(rec: Recorder, quick: bool) -> None:
         return
     runs = 2 if quick else 10
     for case, loss_s in (("closed_loop", 0.0), ("loss_5s", 5.0)):
-        results = [soak_run(loss_s) for _ in range(runs)]
+        results = []
+        for i in range(runs):
+            r = soak_run(loss_s)
+            results.append(r)
+            log.info("soak %s run %d: %s", case, i + 1, json.dumps(r.summary()))
         key = f"soak.{case}"
         rec.record(f"{key}.runs_completed", sum(r.launch_rc == 0 for r in results), "runs", runs)
         rec.record(f"{key}.suggestions_published", sum(len(r.published) for r in results), "msgs", runs)
         rec.record(f"{key}.suggestions_delivered_pct", min(r.delivered_pct() for r in results), "%", runs)
         rec.record(f"{key}.suggestions_forwarded_pct", min(r.forwarded_pct() for r in results), "%", runs)
         rec.record(
-            f"{key}.runs_all_forwarded", sum(r.forwarded_pct() == 100 and r.published for r in results), "runs", runs
+            f"{key}.runs_all_forwarded",
+            sum(bool(r.published) and r.forwarded_pct() == 100 for r in results),
+            "runs",
+            runs,
         )
         silences = [
             max(
