@@ -47,3 +47,25 @@ def test_the_floor_table_is_the_layers_contract():
     tops -= {"__init__", "__main__", "__pycache__"}
     placed = {m.split(".")[1] for floor in page.values() for m in floor}
     assert not sorted(tops - placed), f"not on any floor of docs/architecture.md: {sorted(tops - placed)}"
+
+
+def test_docs_wire_check_and_update_as_a_user_runs_them(tmp_path):
+    """``aes-planner docs wire --check`` passes on the committed page, fails (1) on a stale copy
+    and names the part; ``--update`` makes the copy current; a page without the markers is an
+    error naming them (2)."""
+    import subprocess
+
+    cli = [sys.executable, "-m", "aes_planner", "docs", "wire"]
+    page = ROOT / "docs" / "wire.md"
+    ok = subprocess.run([*cli, "--check", str(page)], capture_output=True, text=True, timeout=300)
+    assert ok.returncode == 0, ok.stdout + ok.stderr
+    stale = tmp_path / "wire.md"
+    stale.write_text(page.read_text(encoding="utf-8").replace("| `stamp_s` | f64 |", "| `stamp_s` | f32 |", 1))
+    out = subprocess.run([*cli, "--check", str(stale)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 1 and "wire-types" in out.stdout
+    subprocess.run([*cli, "--update", str(stale)], check=True, capture_output=True, timeout=300)
+    assert stale.read_text(encoding="utf-8") == page.read_text(encoding="utf-8")
+    bare = tmp_path / "bare.md"
+    bare.write_text("# nothing generated here\n")
+    out = subprocess.run([*cli, "--check", str(bare)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 2 and "<!-- generated: wire-topics -->" in out.stderr

@@ -38,6 +38,7 @@ COMMANDS = [
     "aes_planner.cli.ros2",
     "aes_planner.cli.export",
     "aes_planner.cli.train",
+    "aes_planner.cli.docs",
 ]
 
 

@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="DATASET_DIR",
         help="folder with cameras.json and images/, or a folder of photos without poses (posed first)",
     )
-    p.add_argument("--preset", default="balanced", choices=["fast", "balanced", "accurate"], help="speed/accuracy")
+    p.add_argument("--preset", default="balanced", choices=["fast", "balanced"], help="speed/accuracy")
     p.add_argument(
         "--mode",
         choices=["rig", "drone", "free", "handheld"],
@@ -308,11 +308,12 @@ def run(args: argparse.Namespace) -> int:
         Path(args.json).write_text(json.dumps(doc, indent=1) + "\n")
         print(f"wrote {args.json}")
     if args.out:
-        renderers, scores = {}, {}
+        renderers, scores, row_labels = {}, {}, {}
         poses = np.stack([s.cam2world for s in result.suggestions])  # [K, 4, 4] world
         if moves:  # the photo each suggestion is said from, beside the suggested view
             every = _hand_held_moves(platform, data, result.suggestions)
             renderers["from photo"] = lambda _poses: [data.frames[m.photo_index].image for m in every]
+            row_labels["from photo"] = [f"#{i + 1} {m.photo}" for i, m in enumerate(every)]
         own = render_with(scorer)
         if own is not None:
             renderers[args.scorer] = own
@@ -337,6 +338,7 @@ def run(args: argparse.Namespace) -> int:
             renderers,
             scores=scores,
             outlines=_outlines(framing, data.frames) if framing is not None else None,
+            labels=row_labels,
         )
         print(f"wrote {report}")
     return 0
