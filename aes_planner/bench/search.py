@@ -1,6 +1,6 @@
 """Benchmark group ``search``: each preset's place on the speed/accuracy curve.
 
-For each preset (``fast``, ``balanced``, ``accurate``, on the field) and for ``rgb`` (the
+For each preset (``fast``, ``balanced``, on the field) and for ``rgb`` (the
 balanced search on RGB scoring), on held-out scenes with 4 input frames of 128x96 (rig mode):
 
 * ``search.<preset>.latency_ms``: median time of one suggestion, scorer build (reconstruction,
@@ -50,7 +50,7 @@ from aes_planner.teachers import get_teacher
 log = logging.getLogger(__name__)
 
 SCENES = HELD_OUT_SCENES[:4]  # never seen by the field in training or validation (docs/field.md, seeds)
-CASES = [("fast", "field"), ("balanced", "field"), ("accurate", "field"), ("rgb", "rgb")]
+CASES = [("fast", "field"), ("balanced", "field"), ("rgb", "rgb")]
 
 
 def run(rec: Recorder, quick: bool) -> None:

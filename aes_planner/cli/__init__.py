@@ -24,6 +24,7 @@ COMMANDS = [
     "aes_planner.cli.launch",
     "aes_planner.cli.sim",
     "aes_planner.cli.dataset",
+    "aes_planner.cli.pose",
     "aes_planner.cli.suggest",
     "aes_planner.cli.eval",
     "aes_planner.cli.bench",

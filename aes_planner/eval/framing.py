@@ -38,6 +38,7 @@ from aes_planner.platform import RIG_FREE_BOX_HALF_M, parse_kind
 from aes_planner.search import SearchConfig, build_search_scorer, search_views
 from aes_planner.search.framing import FramingConfig, FramingError, Region, build_framing
 from aes_planner.search.oracle import pattern_search
+from aes_planner.search.space import space_for
 from aes_planner.teachers import get_teacher
 from aes_planner.teachers.evaluator import CompositionEvaluator
 
@@ -295,7 +296,7 @@ def run_framing_eval(cfg: FramingEvalConfig, progress=None, figure: str | None =
         sources[spec] = (source, inputs, k)
         judge = Judge(source, teacher, evaluator)
         scfg = SearchConfig.preset(cfg.preset, mode=platform.kind)
-        space = platform.search_space(scfg)
+        space = space_for(platform, scfg)
         scorer = None
         for seed in cfg.seeds:
             picked = pick_subject(source.scene, inputs, frames[0].intrinsics, seed, cfg)

@@ -13,8 +13,7 @@ spread: ``normalized_se`` (standard error over the scenes) and, for each method 
 ``field_balanced`` on the same scenes, the paired difference with its standard error and how
 many scenes it did better, the same (within ``SAME_TOL``) or worse.
 
-Methods: ``field_fast``/``field_balanced``/``field_accurate`` (the two-stage search on the field
-at each preset), ``rgb`` (the same pipeline on RGB scoring, balanced), ``best_input``,
+Methods: ``field_fast``/``field_balanced`` (the two-stage search on the field at each preset), ``rgb`` (the same pipeline on RGB scoring, balanced), ``best_input``,
 ``inplane`` and ``rotation`` (exhaustive local sampling around each input, scored on ground
 truth: the paper's starred upper bounds of single-view methods), ``random`` (feasible random
 views: its mean) and ``oracle`` (:func:`aes_planner.search.oracle_search`).
@@ -78,7 +77,6 @@ HELD_OUT_SCENES = [f"{HELD_OUT_FAMILIES[i % 4]}:{HELD_OUT_SEED_START + i}" for i
 METHODS = [
     "field_fast",
     "field_balanced",
-    "field_accurate",
     "rgb",
     "best_input",
     "inplane",
@@ -86,7 +84,7 @@ METHODS = [
     "random",
     "oracle",
 ]
-FIELD_PRESETS = {"field_fast": "fast", "field_balanced": "balanced", "field_accurate": "accurate"}
+FIELD_PRESETS = {"field_fast": "fast", "field_balanced": "balanced"}
 #: The method every other one is compared with, scene by scene (``vs_field_balanced``).
 REFERENCE_METHOD = "field_balanced"
 #: Paired differences of normalized score within this count as the same (1 % of oracle - random).
@@ -330,7 +328,71 @@ def run_search_eval(
     if out:
         output_in(out, "search_eval.json").write_text(json.dumps(doc, indent=1) + "\n")
         output_in(out, "search_eval.md").write_text(markdown(doc))
+        write_front_plots(doc, out)
     return doc
+
+
+#: A slower preset is on the front only when it beats the next faster one by this much (oracle-normalised).
+FRONT_MIN_GAIN = 0.03
+#: The presets in order of cost, and the reference points drawn beside them.
+FRONT_PRESETS = ("field_fast", "field_balanced", "field_accurate")  # accurate: in results from before its removal
+FRONT_REFERENCES = ("rgb", "best_input")
+
+
+def preset_front(table: dict[str, Any], latency_ms: dict[str, float]) -> list[dict[str, Any]]:
+    """The presets of one (views, mode) table, fastest first: latency, normalised score, the gain
+    over the next faster preset on the front and whether the preset is on the front (it beats every
+    faster one on it by at least ``FRONT_MIN_GAIN``; otherwise a faster preset is as good)."""
+    rows, best = [], None
+    for method in sorted((m for m in FRONT_PRESETS if m in table), key=lambda m: latency_ms.get(m, math.inf)):
+        norm = float(table[method]["normalized"])
+        gain = None if best is None else norm - best
+        on = best is None or gain >= FRONT_MIN_GAIN
+        rows.append({"method": method, "latency_ms": latency_ms.get(method), "normalized": norm,
+                     "normalized_se": table[method].get("normalized_se"), "gain": gain, "on_front": on})  # fmt: skip
+        if on:
+            best = norm
+    return rows
+
+
+def _front_lines(table: dict[str, Any], latency_ms: dict[str, float]) -> list[str]:
+    rows = preset_front(table, latency_ms)
+    if len(rows) < 2:
+        return []
+    lines = [f"Preset front (a slower preset must beat the faster ones by >= {FRONT_MIN_GAIN}):", ""]
+    for r in rows:
+        ms = "?" if r["latency_ms"] is None else f"{r['latency_ms']:.0f} ms"
+        gain = "" if r["gain"] is None else f", {r['gain']:+.3f} over the front so far"
+        verdict = "on the front" if r["on_front"] else "NOT on the front (a faster preset is as good)"
+        lines.append(f"- {r['method']}: {_pm(r['normalized'], r['normalized_se'])} in {ms}{gain}: {verdict}")
+    for ref in FRONT_REFERENCES:
+        if ref in table:
+            ms = f"{latency_ms[ref]:.0f} ms" if ref in latency_ms else "?"
+            lines.append(f"- reference {ref}: {_pm(table[ref]['normalized'], table[ref].get('normalized_se'))} in {ms}")
+    return [*lines, ""]
+
+
+def write_front_plots(doc: dict[str, Any], out: Path) -> list[Path]:
+    """``preset_front_<views>v_<mode>.png`` per table: latency against oracle-normalised score, the
+    presets joined, RGB scoring and best-input as reference points (:func:`~aes_planner.bench.search.write_pareto`)."""
+    from aes_planner.bench.search import write_pareto
+
+    paths = []
+    for n, modes in doc["views"].items():
+        for mode, table in modes.items():
+            if mode == "latency_ms":
+                continue
+            lat = modes.get("latency_ms", {}).get(mode, {})
+            names = {"field_fast": "fast", "field_balanced": "balanced", "field_accurate": "accurate"}
+            names["best_input"] = "input (best)"  # its own initial on the plot
+            points = {
+                names.get(m, m): (lat[m], table[m]["normalized"], table[m].get("normalized_se"))
+                for m in (*FRONT_PRESETS, *FRONT_REFERENCES)
+                if m in table and m in lat
+            }
+            if points:
+                paths.append(write_pareto(points, output_in(out, f"preset_front_{n}v_{mode}.png")))
+    return paths
 
 
 def _oracle_kw(cfg: SearchEvalConfig) -> dict[str, Any]:
@@ -530,7 +592,8 @@ def markdown(doc: dict[str, Any]) -> str:
                         if d is None else f"{_pm(d['diff'], d['diff_se'], '+')} ({d['better']} / {d['same']} / {d['worse']})"
                     )  # fmt: skip
                 lines.append("| " + " | ".join([*cells, ms]) + " |")
-            lines += ["", *_per_scene_table(doc.get("per_scene", []), n, mode, list(table))]
+            lines += ["", *_front_lines(table, lat)]
+            lines += [*_per_scene_table(doc.get("per_scene", []), n, mode, list(table))]
     ab = doc.get("ablations")
     if ab:
         se = {name: ab.get(f"{name}_se", {}) for name in ("gradient_gain", "top_k", "steps", "samples_x_neighbours")}
