@@ -64,7 +64,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "unless --set drone.emulate=false --set drone.connection=...)",
     )
     p.add_argument("--out", default=None, metavar="DIR", help="run folder (default runs/demo-<time>)")
-    p.add_argument("--moves", type=int, default=6, help="suggestion-driven moves at most (default 6)")
+    p.add_argument("--moves", type=int, default=4, help="suggestion-driven moves at most (default 4)")
     p.add_argument(
         "--set", action="append", default=[], metavar="ID.KEY=VALUE", help="override a launch-file value (repeatable)"
     )
@@ -119,19 +119,21 @@ def run_demo(
     scene: str,
     mode: str | None,
     out: Path,
-    moves: int = 6,
+    moves: int = 4,
     overrides=(),
     timeout_s: float = 600.0,
     progress=None,
     planner_overrides: dict | None = None,
     transport: argparse.Namespace | None = None,
     drone: str = "sim",
+    hook=None,
     clock: str | None = None,
 ) -> dict:
     """Run the closed loop and write the run folder; returns the summary dict (plus ``state``).
 
     ``mode``: the platform kind, ``rig`` or ``drone`` (``free`` read as drone); ``None`` takes what
-    the scene has (a rig, else its drone box). ``clock``: ``sim`` (default) or ``wall``.
+    the scene has (a rig, else its drone box). ``clock``: ``sim`` (default) or ``wall``. ``hook(nodes)``:
+    called with the built nodes before they run (``eval loop``'s perturbations).
 
     ``transport``: the ``--processes/--listen/--foxglove/--record`` flags (see
     :mod:`aes_planner.cli.processes`); every topic is recorded to ``out/recording.mcap``."""
@@ -163,6 +165,8 @@ def run_demo(
     spec = load_launch(launch_file, [*sets, *overrides])
     nodes = build_nodes(spec)
     planner = next(n for n, _ in nodes if n.node_id == "planner")
+    if hook is not None:
+        hook(nodes)
     say(
         f"demo: {kind} on {scene}, {spec.clock.source} clock: "
         + ", ".join(f"{n.node_id} ({type(n).__name__})" for n, _ in nodes)

@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="DATASET_DIR",
         help="folder with cameras.json and images/, or a folder of photos without poses (posed first)",
     )
-    p.add_argument("--preset", default="balanced", choices=["fast", "balanced", "accurate"], help="speed/accuracy")
+    p.add_argument("--preset", default="balanced", choices=["fast", "balanced"], help="speed/accuracy")
     p.add_argument(
         "--mode",
         choices=["rig", "drone", "free", "handheld"],
@@ -225,6 +225,7 @@ def run(args: argparse.Namespace) -> int:
         raise SearchError("--truth-scene renders the report's ground-truth row: give --out DIR for the report too")
     from aes_planner.images import MAX_WORKING_SIDE_PX
 
+    framing_cfg, keep, avoid = _framing_args(args)  # a malformed box fails before the pose step and the search
     args.dataset = _pose_first(args)
     data = load_dataset(args.dataset, load_depth=True, max_side_px=MAX_WORKING_SIDE_PX)
     for (w, h), n in data.downscaled.items():  # say so: the report shows the downscaled views
@@ -236,7 +237,6 @@ def run(args: argparse.Namespace) -> int:
     # the ground truth is set up before the search, so a bad --truth-scene fails first
     gt = _ground_truth(data.meta, data.frames[0].intrinsics, args.truth_scene) if args.out else None
     platform = _platform(data.meta, data.frames, args.mode, args.rig)
-    framing_cfg, keep, avoid = _framing_args(args)
     overrides = {"top_k": args.top} if args.top else {}
     cfg = SearchConfig.preset(args.preset, mode=platform.kind, **overrides)
     t0 = time.perf_counter()

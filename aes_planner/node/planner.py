@@ -125,6 +125,7 @@ class PlannerNode(ActiveLoop, Node):
         self._queue: list[Target] = []
         self._target: Target | None = None
         self._polish_left = 0
+        self._polish_scale = 0
         self._polish_centre: Capture | None = None
         self._fault_since: float | None = None
         self._last_diag = -math.inf
