@@ -126,7 +126,7 @@ def _pose_first(args: argparse.Namespace) -> str:
     elif args.out:
         posed = Path(args.out) / "posed"
     else:
-        posed = src.parent / f"{src.name}-posed"
+        posed = src.resolve().parent / f"{src.resolve().name}-posed"  # "." names its folder
     print(f"{src}: photos without poses: running the pose step first (aes-planner pose {src} --out {posed})")
     run_pose(src, posed, cfg)
     return str(posed)
