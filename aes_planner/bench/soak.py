@@ -1,288 +1,219 @@
-"""Benchmark group ``soak``: the multi-process closed loop with the ROS 2 bridge, under load.
+"""The soak: frames at 30 Hz into a passive planner for a while, with garbage on every topic.
 
-Each run starts two busy processes (``while True: pass``, one per core of a 2-core machine), the
-closed loop ``aes-planner launch sim_closed_loop --processes --clock wall`` (real time, as on a
-robot: the simulated clock pauses the whole graph while the planner searches, which is no
-transport silence) in a free domain of its own, and
-beside it, in this process, the ROS 2 bridge (the ``ros2_bridge`` node on a Zenoh bus of its own,
-as ``aes-planner ros2 bridge`` runs it) and a raw Zenoh subscriber of every topic; a DDS reader
-process reads the bridge's ``/planner/view_suggestion`` (latched; every suggestion, with or without
-candidates) and ``/gimbal/joint_states``. Then:
-
-* every suggestion the planner publishes must reach the raw subscriber and, through the bridge,
-  the DDS reader (``suggestions_delivered_pct`` / ``suggestions_forwarded_pct``);
-* ``max_silence_s``: the longest gap between two messages of a topic while its publisher runs
-  (the raw subscriber's topics at 5 Hz or more, and the DDS joint states);
-* ``<Type>.latency_p50_ms`` / ``_p99_ms``: bus latency per message type, the raw subscriber's
-  arrival time minus the message's ``stamp_s`` (one machine, one clock; a suggestion is stamped
-  when its planner step began, so its figure includes the search).
-
-The ``loss_5s`` case repeats the runs with a 5 s session loss injected into the bridge when the
-first suggestion is out: :meth:`~aes_planner.transport.zenoh_bus.ZenohBus.simulate_session_loss`
-closes the bridge's session under it (as a link lost for good leaves it) and lets no new one open
-for 5 s. Figures: ``loss_reported_pct`` (runs whose bridge reported the loss, ``session_ok`` 0),
-``detect_s`` (from the loss to the report), ``recover_s`` (to heartbeats heard again) and the
-suggestions forwarded (the latched one published during the loss must arrive by catch-up).
-``runs`` is 10 (2 with ``--quick``). Figures are taken under load by construction.
+Used by the short soak test (``make test``), its long form (``@pytest.mark.slow``) and
+``aes-planner bench node``. A publisher thread sends frames of a simulated rig scene (a fixed set
+rendered once, re-stamped and cycled, so the field keeps changing) at ``rate_hz``; another sends
+malformed and oversized payloads on every topic of the planner at ``garbage_hz``; the planner
+(passive: it suggests on every field change, at most every ``min_suggest_period_s``) runs in its
+thread loop over the in-process bus. A recorder subscribes to everything the planner publishes
+and checks every number is finite.
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import os
-import random
-import statistics
-import subprocess
-import sys
 import threading
 import time
+from dataclasses import dataclass, field
 
-from aes_planner.bench import Recorder
-from aes_planner.graph.base import percentile
+import numpy as np
+
+from aes_planner.graph.runner import NodeRunner
+from aes_planner.messages import Diagnostics, PlannerRequest, PosedFrame, ViewSuggestion
+from aes_planner.node.planner import PlannerConfig, PlannerNode
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SoakRun", "run", "soak_run"]
+__all__ = ["OVERSIZED_MB", "SoakResult", "rss_mb", "run_soak"]
 
-_DDS_READER = r"""
-import json, sys, time
-from aes_planner.ros2 import idl
-from aes_planner.ros2.dds import DdsConfig, DdsParticipant
-dds = DdsParticipant(DdsConfig(domain_id=int(sys.argv[1])))
-sug = dds.reader("/planner/view_suggestion", idl.ROS_TYPES["aes_planner_msgs/msg/ViewSuggestion"], "latched")
-js = dds.reader("/gimbal/joint_states", idl.ROS_TYPES["sensor_msgs/msg/JointState"], "reliable")
-print("ready", flush=True)
-while True:
-    now = time.time()
-    for s in sug.take(16):
-        if getattr(s, "header", None) is None:  # an invalid sample (a writer disposed at the end)
-            continue
-        print(json.dumps({"t": now, "sug": s.header.stamp.sec + s.header.stamp.nanosec * 1e-9}), flush=True)
-    if js.take(64):
-        print(json.dumps({"t": now, "js": 1}), flush=True)
-    time.sleep(0.01)
-"""
+OVERSIZED_MB = 70  # MiB of zeros appended to a good frame: the oversized garbage on camera/frame
 
 
-class SoakRun:
-    """What one run saw (see the module docstring)."""
-
-    def __init__(self) -> None:
-        self.published: set[float] = set()  # suggestion stamps seen on the bus
-        self.sequences: set[int] = set()  # their sequence numbers (the planner counts from 1)
-        self.forwarded: set[float] = set()  # suggestion stamps the DDS reader got
-        self.arrivals: dict[str, list[float]] = {}  # topic -> arrival times (raw subscriber)
-        self.latency_s: dict[str, list[float]] = {}  # type -> arrival - stamp
-        self.dds_js: list[float] = []
-        self.launch_rc: int | None = None
-        self.loss_at: float | None = None
-        self.loss_wall: float = 0.0
-        self.detected_at: float | None = None
-        self.recovered_at: float | None = None
-
-    def delivered_pct(self) -> float:
-        """Suggestions the raw subscriber got of those the planner published (its sequence
-        numbers count them: a gap is a suggestion lost)."""
-        return 0.0 if not self.sequences else 100.0 * len(self.sequences) / max(self.sequences)
-
-    def forwarded_pct(self) -> float:
-        if not self.published:
-            return 0.0
-        got = sum(1 for s in self.published if any(abs(s - f) < 1e-6 for f in self.forwarded))
-        return 100.0 * got / len(self.published)
-
-    def summary(self) -> dict:
-        """One line of figures for the log."""
-        skip = None if self.loss_at is None else (self.loss_wall - 0.5, self.loss_wall + 15)
-        return {
-            "launch_rc": self.launch_rc,
-            "suggestions": sorted(self.sequences),
-            "delivered_pct": self.delivered_pct(),
-            "forwarded_pct": self.forwarded_pct(),
-            "max_silence_s": {k: round(v, 2) for k, v in self.max_silence_s(skip).items()},
-            "detect_s": None if self.detected_at is None else round(self.detected_at - self.loss_at, 2),
-            "recover_s": None if self.recovered_at is None else round(self.recovered_at - self.loss_at, 2),
-        }
-
-    def max_silence_s(self, skip: tuple[float, float] | None = None) -> dict[str, float]:
-        """Per stream at 5 Hz or more: the longest gap between two arrivals (``skip``: a window
-        whose gaps are not counted, the injected loss)."""
-        out = {}
-        streams = dict(self.arrivals)
-        states = self.arrivals.get("gimbal/state", [])
-        if states:  # while the gimbal publishes (a last state may cross as it shuts down)
-            streams["dds:/gimbal/joint_states"] = [t for t in self.dds_js if t <= states[-1] + 0.5]
-        for topic, times in streams.items():
-            if len(times) < 10 or (times[-1] - times[0]) <= 0 or len(times) / (times[-1] - times[0]) < 5:
-                continue
-            gaps = [b - a for a, b in zip(times, times[1:]) if skip is None or b < skip[0] or a > skip[1]]
-            out[topic] = max(gaps, default=0.0)
-        return out
+def rss_mb() -> float:
+    """Resident set size of this process, MB (Linux /proc)."""
+    with open(f"/proc/{os.getpid()}/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
-def _free_domain() -> int:
-    from aes_planner.transport.config import hub_endpoint
-    from aes_planner.transport.zenoh_bus import _port_taken
+@dataclass
+class SoakResult:
+    duration_s: float
+    frames_sent: int
+    frames_in: int
+    frames_dropped: int  # by the planner (batch) + by the subscription queue
+    frames_used: int
+    suggestions: int
+    garbage_sent: int
+    rejected: dict[str, int]
+    rss_start_mb: float
+    rss_end_mb: float
+    latency_p50_s: float
+    latency_p95_s: float
+    field_frames_max: int
+    nonfinite: int
+    step_errors: int
+    rss_samples_mb: list[float] = field(default_factory=list)
 
-    for d in random.sample(range(100, 233), 133):
-        if not _port_taken(hub_endpoint(d)):
-            return d
-    raise RuntimeError("no free domain on this machine")
+
+def _frames(scene: str, n: int, width: int) -> list[PosedFrame]:
+    from aes_planner.sim import SimCamera, SimCameraConfig, load_scene
+
+    sc = load_scene(scene)
+    cam = SimCamera(sc, SimCameraConfig(width=width, height=width * 3 // 4))
+    joints = sc.rig.kinematics().sweep(n)
+    return [cam.capture_joints(p, t, stamp_s=float(i)) for i, (p, t) in enumerate(joints)]
 
 
-def soak_run(loss_s: float = 0.0, busy: int = 2, timeout_s: float = 400.0) -> SoakRun:
-    """One run (module docstring); ``loss_s`` > 0 injects a session loss that long into the bridge."""
-    from aes_planner.graph.runner import NodeRunner
-    from aes_planner.messages import MessageError, decode
-    from aes_planner.ros2.bridge import Ros2BridgeConfig, Ros2BridgeNode
-    from aes_planner.ros2.dds import DdsConfig
-    from aes_planner.transport import ZenohConfig
-    from aes_planner.transport.zenoh_bus import ZenohBus
+def _finite(msg) -> bool:
+    if isinstance(msg, ViewSuggestion):
+        return all(
+            np.isfinite(c.cam2world).all() and np.isfinite(c.score) and all(np.isfinite(list(c.terms.values())))
+            for c in msg.candidates
+        )
+    if isinstance(msg, Diagnostics):
+        return all(np.isfinite(v) for v in msg.values.values())
+    return True
 
-    res = SoakRun()
-    domain = _free_domain()
-    env = dict(os.environ, PYTHONUNBUFFERED="1", CYCLONEDDS_URI="")
-    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(busy)]
-    reader = subprocess.Popen(
-        [sys.executable, "-c", _DDS_READER, str(domain)], stdout=subprocess.PIPE, text=True, env=env
+
+def run_soak(
+    duration_s: float = 8.0,
+    rate_hz: float = 30.0,
+    scene: str = "indoor:3",
+    scorer: str = "rgb",
+    preset: str = "fast",
+    width: int = 64,
+    max_frames: int = 8,
+    garbage_hz: float = 5.0,
+    views: int = 12,
+    min_suggest_period_s: float = 0.2,
+) -> SoakResult:
+    from aes_planner.graph.base import percentile
+    from aes_planner.transport import InProcessBus
+
+    frames = _frames(scene, views, width)
+    bus = InProcessBus()
+    planner = PlannerNode(
+        PlannerConfig(
+            scorer=scorer,
+            preset=preset,
+            active=False,
+            max_frames=max_frames,
+            min_suggest_period_s=min_suggest_period_s,
+            diagnostics_period_s=0.5,
+            mode="rig",
+        ),
+        node_id="planner",
+        context=_context(scene),
     )
-    procs.append(reader)
-    first_suggestion = threading.Event()
+    runner = NodeRunner(planner, bus)
+    runner.open()
+    planner.start()
+    seen = {"suggestions": 0, "nonfinite": 0}
+    field_max = [0]
 
-    def on_raw(sample) -> None:
-        now = time.time()
-        res.arrivals.setdefault(sample.topic, []).append(now)
-        try:
-            msg = decode(sample.data)
-        except MessageError:
-            return
-        stamp = getattr(msg, "stamp_s", None)
-        if stamp is not None and abs(now - stamp) < 60:  # stamped on this machine's wall clock
-            res.latency_s.setdefault(type(msg).__name__, []).append(now - stamp)
-        if sample.topic == "planner/suggestion":
-            res.published.add(msg.stamp_s)
-            res.sequences.add(msg.sequence)
-            first_suggestion.set()
+    def record(msg):
+        seen["suggestions"] += isinstance(msg, ViewSuggestion)
+        if not _finite(msg):
+            seen["nonfinite"] += 1
 
-    def read_dds() -> None:
-        for line in reader.stdout:
-            if line.startswith("{"):
-                d = json.loads(line)
-                if "sug" in d:
-                    res.forwarded.add(d["sug"])
+    subs = [
+        bus.subscribe("planner/suggestion", ViewSuggestion, callback=record),
+        bus.subscribe("planner/diagnostics", Diagnostics, callback=record),
+    ]
+    frame_pub = bus.publisher("camera/frame", PosedFrame, reliable=False)
+    raw_pubs = {t: bus.publisher(t, m) for t, m in (("gimbal/state", _gs()), ("planner/request", PlannerRequest))}
+    raw_pubs["camera/frame"] = frame_pub
+    stop = threading.Event()
+    sent = {"frames": 0, "garbage": 0}
+
+    def send_frames():
+        period, i, t_next = 1.0 / rate_hz, 0, time.time()
+        while not stop.is_set():
+            f = frames[i % len(frames)]
+            msg = PosedFrame(f.image, f.intrinsics, f.cam2world, time.time(), f.depth_m, f.frame_id, sequence=i)
+            frame_pub.publish(msg)
+            sent["frames"] += 1
+            i += 1
+            t_next += period
+            stop.wait(max(0.0, t_next - time.time()))
+
+    rng = np.random.default_rng(0)
+    good = frames[0].encode() if hasattr(frames[0], "encode") else b""
+
+    def send_garbage():
+        while not stop.wait(1.0 / garbage_hz):
+            for topic, pub in raw_pubs.items():
+                kind = sent["garbage"] % 4
+                if kind == 0:
+                    data = rng.integers(0, 256, 64, dtype=np.uint8).tobytes()  # noise
+                elif kind == 1:
+                    data = good[: len(good) // 2]  # truncated
+                elif kind == 2:
+                    big = topic == "camera/frame"
+                    data = good + bytes(OVERSIZED_MB << 20) if big else good  # oversized / wrong type
                 else:
-                    res.dds_js.append(d["t"])
+                    b = bytearray(good)
+                    b[len(b) // 3] ^= 0xFF  # a bit flip
+                    data = bytes(b)
+                pub.publish_raw(data)
+                sent["garbage"] += 1
 
-    raw_bus = bridge_bus = runner = node = launch = None
-    try:
-        assert reader.stdout is not None
-        if reader.stdout.readline().strip() != "ready":
-            raise RuntimeError("the DDS reader did not start")
-        threading.Thread(target=read_dds, daemon=True).start()
-        launch = subprocess.Popen(
-            [sys.executable, "-m", "aes_planner", "launch", "sim_closed_loop", "--processes"]
-            + ["--clock", "wall", "--domain", str(domain), "--timeout", str(timeout_s)],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-            env=env,
-            start_new_session=True,
-        )
-        procs.append(launch)
-        raw_bus = ZenohBus(ZenohConfig(domain=domain))
-        raw_bus.subscribe_raw("**", depth=100_000, callback=on_raw)
-        bridge_bus = ZenohBus(ZenohConfig(domain=domain))
-        node = Ros2BridgeNode(Ros2BridgeConfig(dds=DdsConfig(domain_id=domain)))
-        runner = NodeRunner(node, bridge_bus)
-        runner.open()
-        node.start()
-        runner.start_thread()
-        end = time.monotonic() + timeout_s + 30
-        while launch.poll() is None and time.monotonic() < end:
-            if loss_s > 0 and res.loss_at is None and first_suggestion.is_set() and bridge_bus.heartbeats_heard:
-                res.loss_at, res.loss_wall = time.monotonic(), time.time()
-                bridge_bus.simulate_session_loss(loss_s)
-            if res.loss_at is not None:
-                now = time.monotonic()
-                if res.detected_at is None and not bridge_bus.session_ok:
-                    res.detected_at = now
-                if res.detected_at is not None and res.recovered_at is None and bridge_bus.session_ok:
-                    res.recovered_at = now
-            time.sleep(0.02)
-        res.launch_rc = launch.poll()
-        settle = time.monotonic() + 15  # the last suggestion through the bridge to DDS
-        while time.monotonic() < settle and res.forwarded_pct() < 100:
-            if res.loss_at is not None and res.recovered_at is None and bridge_bus.session_ok:
-                res.recovered_at = time.monotonic()
-            time.sleep(0.1)
-    finally:
-        if runner is not None:
-            runner.request_stop()
-            runner.join()
-            node.stop()
-            runner.close()
-        for bus in (bridge_bus, raw_bus):
-            if bus is not None:
-                bus.close()
-        for p in procs:
-            if p.poll() is None:
-                p.terminate()
-        for p in procs:
-            try:
-                p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
-    return res
+    threads = [threading.Thread(target=send_frames, daemon=True), threading.Thread(target=send_garbage, daemon=True)]
+    runner.start_thread()
+    t0 = time.time()
+    for t in threads:
+        t.start()
+    rss_samples = []
+    # warm-up: until the first suggestion is out (kernels loaded, allocator primed), at most half the run
+    warm_until = t0 + duration_s / 2
+    while time.time() < warm_until and not (seen["suggestions"] and time.time() - t0 > 2.0):
+        time.sleep(0.1)
+    rss_start = rss_mb()
+    while time.time() - t0 < duration_s:
+        time.sleep(0.25)
+        rss_samples.append(rss_mb())
+        field_max[0] = max(field_max[0], planner.proposer.size)
+    stop.set()
+    for t in threads:
+        t.join(5)
+    runner.request_stop()
+    runner.join(60.0)  # a suggestion may be under way
+    rss_end = rss_mb()
+    c = planner.counters
+    sub_stats = {name: s.stats() for name, s in runner.subs.items()}
+    runner.close()
+    for s in subs:
+        s.close()
+    planner.stop()
+    bus.close()
+    return SoakResult(
+        duration_s=time.time() - t0,
+        frames_sent=sent["frames"],
+        frames_in=c["frames_in"],
+        frames_dropped=c["frames_dropped"] + sub_stats["camera/frame"]["dropped"],
+        frames_used=c["frames_used"],
+        suggestions=seen["suggestions"],
+        garbage_sent=sent["garbage"],
+        rejected={name: st["rejected"] for name, st in sub_stats.items()},
+        rss_start_mb=rss_start,
+        rss_end_mb=rss_end,
+        latency_p50_s=percentile(planner.latencies_s, 50),
+        latency_p95_s=percentile(planner.latencies_s, 95),
+        field_frames_max=field_max[0],
+        nonfinite=seen["nonfinite"],
+        step_errors=runner.step_errors,
+        rss_samples_mb=rss_samples,
+    )
 
 
-def run(rec: Recorder, quick: bool) -> None:
-    try:
-        import cyclonedds  # noqa: F401
-    except ImportError:
-        log.warning("soak: skipped (needs the ros2 extra: pip install 'aes-planner[ros2]')")
-        return
-    runs = 2 if quick else 10
-    for case, loss_s in (("closed_loop", 0.0), ("loss_5s", 5.0)):
-        results = []
-        for i in range(runs):
-            r = soak_run(loss_s)
-            results.append(r)
-            log.info("soak %s run %d: %s", case, i + 1, json.dumps(r.summary()))
-        key = f"soak.{case}"
-        rec.record(f"{key}.runs_completed", sum(r.launch_rc == 0 for r in results), "runs", runs)
-        rec.record(f"{key}.suggestions_published", sum(len(r.published) for r in results), "msgs", runs)
-        rec.record(f"{key}.suggestions_delivered_pct", min(r.delivered_pct() for r in results), "%", runs)
-        rec.record(f"{key}.suggestions_forwarded_pct", min(r.forwarded_pct() for r in results), "%", runs)
-        rec.record(
-            f"{key}.runs_all_forwarded",
-            sum(bool(r.published) and r.forwarded_pct() == 100 for r in results),
-            "runs",
-            runs,
-        )
-        silences = [
-            max(
-                r.max_silence_s(None if r.loss_at is None else (r.loss_wall - 0.5, r.loss_wall + loss_s + 10)).values(),
-                default=0.0,
-            )
-            for r in results
-        ]
-        rec.record(f"{key}.max_silence_s", max(silences), "s", runs)
-        lat: dict[str, list[float]] = {}
-        for r in results:
-            for t, v in r.latency_s.items():
-                lat.setdefault(t, []).extend(v)
-        for t, v in sorted(lat.items()):
-            rec.record(f"{key}.{t}.latency_p50_ms", percentile(v, 50) * 1e3, "ms", runs)
-            rec.record(f"{key}.{t}.latency_p99_ms", percentile(v, 99) * 1e3, "ms", runs)
-        if loss_s:
-            reported = [r for r in results if r.detected_at is not None]
-            rec.record(f"{key}.loss_reported_pct", 100.0 * len(reported) / runs, "%", runs)
-            if reported:
-                rec.record(f"{key}.detect_s", statistics.median(r.detected_at - r.loss_at for r in reported), "s", runs)
-            recovered = [r for r in reported if r.recovered_at is not None]
-            rec.record(f"{key}.recovered_pct", 100.0 * len(recovered) / runs, "%", runs)
-            if recovered:
-                rec.record(
-                    f"{key}.recover_s", statistics.median(r.recovered_at - r.loss_at for r in recovered), "s", runs
-                )
+def _gs():
+    from aes_planner.messages import GimbalState
+
+    return GimbalState
+
+
+def _context(scene: str):
+    from aes_planner.graph.base import LaunchContext
+
+    return LaunchContext(scene=scene)

@@ -93,7 +93,7 @@ def commands_markdown() -> str:
     try:
         parser = build_parser()
         parser.prog = "aes-planner"
-        out = ["## `aes-planner`", "", "```text", parser.format_help().rstrip(), "```", ""]
+        out = ["## `aes-planner`", "", "```text", _help(parser), "```", ""]
         for name, sub in _subparsers(parser):
             out += _command(f"aes-planner {name}", sub, 2)
     finally:
@@ -111,8 +111,13 @@ def _subparsers(parser: argparse.ArgumentParser) -> list[tuple[str, argparse.Arg
     return []
 
 
+def _help(parser: argparse.ArgumentParser) -> str:
+    # Python 3.10's argparse titles the options "optional arguments:"; later ones "options:"
+    return parser.format_help().rstrip().replace("\noptional arguments:\n", "\noptions:\n")
+
+
 def _command(name: str, parser: argparse.ArgumentParser, depth: int) -> list[str]:
-    lines = [f"{'#' * min(depth + 1, 4)} `{name}`", "", "```text", parser.format_help().rstrip(), "```", ""]
+    lines = [f"{'#' * min(depth + 1, 4)} `{name}`", "", "```text", _help(parser), "```", ""]
     for sub_name, sub in _subparsers(parser):
         lines += _command(f"{name} {sub_name}", sub, depth + 1)
     return lines

@@ -58,7 +58,7 @@ class GimbalConfig:
 
 @dataclass
 class MavlinkDroneConfig:
-    """How the node talks to the vehicle and what it may do (README, "Flying a drone").
+    """How the node talks to the vehicle and what it may do (docs/guides/drone.md).
 
     * ``connection``: a pymavlink connection string (``udpin:127.0.0.1:14540``: PX4 SITL's
       offboard port; ``serial:/dev/ttyUSB0:921600``, ``tcp:HOST:PORT``...).

@@ -735,7 +735,7 @@ class ZenohBus(Bus):
         threading.Thread(target=_close_quietly, args=(old,), name="aes-zenoh-close-old", daemon=True).start()
 
     def simulate_session_loss(self, duration_s: float = 0.0) -> None:
-        """Testing hook (tests, ``aes-planner bench soak``): close the current session under the
+        """Testing hook (tests, ``aes-planner bench transport``): close the current session under the
         bus, as a link lost for good leaves it (nothing delivered, no error), and let no new one
         open for ``duration_s`` (the network is away that long); the liveness watch has to notice
         the loss and recover."""
