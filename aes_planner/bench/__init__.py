@@ -42,6 +42,7 @@ GROUPS: dict[str, str] = {
     "node": "aes_planner.bench.node",
     "field": "aes_planner.bench.field",
     "ros2": "aes_planner.bench.ros2",
+    "memory": "aes_planner.bench.memory",
 }
 
 __all__ = ["GROUPS", "Recorder", "run_groups", "time_ms", "machine_info"]
