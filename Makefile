@@ -25,10 +25,12 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
-# Format and lint check (CI runs it beside the tests); `make format` rewrites the tree.
+# Format, lint and import-contract checks (CI runs them beside the tests); `make format` rewrites the tree.
 lint: $(STAMP)
 	$(BIN)/ruff format --check .
 	$(BIN)/ruff check .
+	# the floors of docs/architecture.md (import-linter contracts in pyproject.toml)
+	$(BIN)/python .ci/lint_imports.py
 
 format: $(STAMP)
 	$(BIN)/ruff format .

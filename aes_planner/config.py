@@ -112,6 +112,19 @@ def require_numbers(obj: Any, names: tuple[str, ...], *, minimum: float = 0.0, s
         )
 
 
+def require_within(obj: Any, names: tuple[str, ...], low: float, high: float) -> None:
+    """Raise for the first attribute of ``obj`` in ``names`` (a number, or a flat sequence of them)
+    holding anything but finite numbers within ``[low, high]``, naming that attribute."""
+    for name in names:
+        v = getattr(obj, name)
+        values = v if isinstance(v, (tuple, list)) else (v,)
+        ok = all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and low <= x <= high
+            for x in values
+        )
+        require(ok, name, f"must be finite numbers within [{low:g}, {high:g}], got {short_repr(v)}")
+
+
 def tag_of(item: Any, key: str, known: typing.Iterable[str], tag: str = "type") -> str:
     """The type word of a tagged mapping ``{type: WORD, ...}`` (a launch file's node, a scene's
     object or light, a device), checked: ``item`` is a mapping and ``WORD`` a string among

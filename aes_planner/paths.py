@@ -45,6 +45,22 @@ def output_folder(path: str | Path, flag: str = "--out") -> Path:
     return folder
 
 
+def new_output_folder(path: str | Path, flag: str = "OUT_DIR") -> Path:
+    """``path`` as a folder a command creates itself (it must not exist: a bag, a dataset),
+    checked before the work: raises :class:`OutputPathError` naming ``flag`` for anything already
+    there, a symlink (dangling or not: the write would go wherever it points) included, or a
+    parent that cannot be written."""
+    folder = Path(path)
+    if folder.is_symlink():
+        raise OutputPathError(
+            f"{flag} {folder}: is a symlink; give a new folder name (a link is never written through)"
+        )
+    if folder.exists():
+        raise OutputPathError(f"{flag} {folder}: exists; this writes a new folder: give a new name or remove it")
+    output_folder(folder.parent if str(folder.parent) else ".", f"{flag} {folder}: its parent")
+    return folder
+
+
 def output_in(folder: str | Path, name: str | Path) -> Path:
     """``folder / name``, a file a command names and writes inside its output folder; raises
     :class:`OutputPathError` when it, or a folder between, is a symlink: a link left in the

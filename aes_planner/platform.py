@@ -1,13 +1,15 @@
 """Platforms: where the camera can go, and how it gets there.
 
-A platform is a :class:`RigPlatform` (a camera on a pan-tilt rig: its kinematics and joint limits)
-or a :class:`DronePlatform` (a camera that flies inside an axis-aligned box). The platform owns
+A platform is a :class:`RigPlatform` (a camera on a pan-tilt rig: its kinematics and joint limits),
+a :class:`DronePlatform` (a camera that flies inside an axis-aligned box) or a
+:class:`HandHeldPlatform` (a photographer's camera: the region they walked, around the photos'
+cameras with a margin; ``aes-planner pose`` writes it). The platform owns
 everything that differs between the two, so code above it asks the platform instead of testing
 its kind:
 
-* its search space (:meth:`Platform.search_space`: joints or 5-DoF views, with the bounds the
-  search projects onto) and its random poses (:meth:`Platform.random_poses`: the one sampler
-  behind every "mean random" baseline, the oracle's included);
+* what the search moves (the search owns its spaces: :func:`aes_planner.search.space.space_for`
+  opens a rig's joints, a drone's or a hand-held camera's 5-DoF views; this module is a leaf that
+  imports no search);
 * the clamp a command passes (:meth:`RigPlatform.clamp`: the joint limits, NaN/Inf refused;
   :meth:`DronePlatform.clamp`: the box);
 * the box free flight takes around it (:meth:`Platform.free_box`: a rig's is
@@ -15,7 +17,8 @@ its kind:
 * the arrival test (:meth:`RigPlatform.arrived`: the gimbal at its goal, the goal ours;
   :meth:`DronePlatform.arrived`: a frame's pose close to the target's).
 
-**One word for the kind**: ``rig`` or ``drone`` (:attr:`Platform.kind`). ``free`` -- the word the
+**One word for the kind**: ``rig``, ``drone`` or ``handheld`` (:attr:`Platform.kind`; ``handheld``
+only where photos are read: the search and ``suggest``, not a launch file's node). ``free`` -- the word the
 search, the launch files and the command line used for a drone before -- is still accepted
 wherever a kind is read (:func:`parse_kind`), so no launch file or command breaks.
 """
@@ -33,7 +36,7 @@ import numpy as np
 from aes_planner.config import ConfigError, require, require_finite, short_repr, to_dict
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.pantilt import PanTilt
-from aes_planner.geometry.poses import view_to_cam2world
+from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
 from aes_planner.geometry.rig import PanTiltConfig
 
 __all__ = [
@@ -41,6 +44,7 @@ __all__ = [
     "RIG_FREE_BOX_HALF_M",
     "DroneBox",
     "DronePlatform",
+    "HandHeldPlatform",
     "Platform",
     "RigPlatform",
     "free_box_around",
@@ -53,6 +57,10 @@ __all__ = [
 #: The platform kinds, and the older words read as one of them (``free`` flew a drone).
 KINDS = ("rig", "drone")
 _ALIASES = {"rig": "rig", "drone": "drone", "free": "drone"}
+#: The hand-held photographer's kind (:class:`HandHeldPlatform`): searched, never driven by a node.
+HANDHELD = "handheld"
+#: How far beyond the photos' own pitches a hand-held search looks, degrees.
+HANDHELD_PITCH_MARGIN_DEG = 10.0
 
 #: Half-size of the box free flight takes around a rig's base, metres: ``eval search``'s drone mode
 #: on a rig scene, the field's ``survey`` training inputs, and the simulated drone of ``demo --mode
@@ -68,14 +76,17 @@ MIN_BOX_SIDE_M = 0.1
 MAX_COORDINATE_M = 1e9
 
 
-def parse_kind(word, key: str = "kind", allow_auto: bool = False) -> str:
+def parse_kind(word, key: str = "kind", allow_auto: bool = False, allow_handheld: bool = False) -> str:
     """``rig`` or ``drone`` from what a user wrote (``free`` means ``drone``; ``auto`` passes through
-    when ``allow_auto``); anything else is a :class:`~aes_planner.config.ConfigError` on ``key``."""
+    when ``allow_auto``, ``handheld`` when ``allow_handheld``); anything else is a
+    :class:`~aes_planner.config.ConfigError` on ``key``."""
     if allow_auto and word == "auto":
         return "auto"
+    if allow_handheld and word == HANDHELD:
+        return HANDHELD
     if isinstance(word, str) and word in _ALIASES:
         return _ALIASES[word]
-    choices = "auto, rig or drone" if allow_auto else "rig or drone"
+    choices = ("auto, " if allow_auto else "") + ("rig, drone or handheld" if allow_handheld else "rig or drone")
     raise ConfigError(key, f"must be {choices} ('free' is read as drone), got {short_repr(word)}")
 
 
@@ -182,24 +193,6 @@ class Platform(ABC):
     rig = None
     drone = None
 
-    def search_space(self, cfg=None):
-        """The search space of this platform under a :class:`~aes_planner.search.SearchConfig`
-        (default settings when None)."""
-        from aes_planner.search.config import SearchConfig
-
-        return self._space(cfg if cfg is not None else SearchConfig())
-
-    def random_poses(self, n: int, rng: np.random.Generator, cfg=None) -> np.ndarray:  # -> [n, 4, 4]
-        """``n`` feasible poses drawn uniformly over the search space's bounds (rig: the joint
-        ranges; drone: the box, any yaw, the searched pitch range): the chance level of every
-        oracle-normalised score."""
-        space = self.search_space(cfg)
-        return space.to_poses(space.random(n, rng)).detach().numpy()
-
-    @abstractmethod
-    def _space(self, cfg):
-        """The search space (the search package's class for this kind)."""
-
     @abstractmethod
     def free_box(self, half_m=RIG_FREE_BOX_HALF_M) -> DroneBox:
         """The box a drone flies in here: a rig's ``half_m`` around its base, a drone's own."""
@@ -226,12 +219,6 @@ class RigPlatform(Platform):
     @functools.cached_property
     def kinematics(self) -> PanTilt:
         return PanTilt(self.rig)
-
-    def _space(self, cfg):
-        from aes_planner.search.space import RigSpace
-
-        hfov = self.intrinsics.hfov_rad
-        return RigSpace(self, cfg.jitter_fov * hfov, cfg.dedup_fov * hfov)
 
     def clamp(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
         """The joints inside the limits (:meth:`JointLimits.clamp`; NaN/Inf raise
@@ -271,19 +258,6 @@ class DronePlatform(Platform):
     def box(self) -> DroneBox:
         return self.drone
 
-    def _space(self, cfg):
-        from aes_planner.search.space import FreeSpace
-
-        hfov, diag = self.intrinsics.hfov_rad, self.drone.diagonal_m
-        return FreeSpace(
-            self,
-            cfg.jitter_fov * hfov,
-            cfg.dedup_fov * hfov,
-            cfg.shift_frac * diag,
-            cfg.dedup_frac * diag,
-            cfg.pitch_limits_rad,
-        )
-
     def clamp(self, cam2world: np.ndarray) -> np.ndarray:  # [4, 4] -> [4, 4], the position inside the box
         """The pose with its position moved into the box (the same pose when it is inside)."""
         if bool(self.drone.contains(cam2world[:3, 3])):
@@ -312,6 +286,118 @@ class DronePlatform(Platform):
         }
 
 
+def walked_edges(centres_m: np.ndarray) -> np.ndarray:  # [N, 3] -> [max(N - 1, 1), 2] indices
+    """The edges of the minimum spanning tree of the camera centres (Prim's, O(N^2)): the paths
+    between neighbouring photos, whatever order the files are in. One camera: a single (0, 0) edge."""
+    n = len(centres_m)
+    if n < 2:
+        return np.zeros((1, 2), dtype=np.int64)
+    d = np.linalg.norm(centres_m[:, None] - centres_m[None], axis=-1)  # [N, N]
+    inside = np.zeros(n, bool)
+    inside[0] = True
+    best, parent = d[0].copy(), np.zeros(n, np.int64)
+    edges = []
+    for _ in range(n - 1):
+        j = int(np.argmin(np.where(inside, np.inf, best)))
+        edges.append((int(parent[j]), j))
+        inside[j] = True
+        closer = d[j] < best
+        best = np.where(closer, d[j], best)
+        parent = np.where(closer, j, parent)
+    return np.asarray(edges, dtype=np.int64)
+
+
+def nearest_on_walk(xyz_m: np.ndarray, centres_m: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For points ``xyz_m [..., 3]``: the nearest point of the walked path (the segments ``edges``
+    between ``centres_m``) ``[..., 3]`` and the distance to it ``[...]``."""
+    p = np.asarray(xyz_m, dtype=np.float64)[..., None, :]  # [..., 1, 3]
+    a, b = centres_m[edges[:, 0]], centres_m[edges[:, 1]]  # [E, 3]
+    ab = b - a
+    t = np.clip(((p - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-18), 0.0, 1.0)  # [..., E]
+    q = a + t[..., None] * ab  # [..., E, 3]
+    d = np.linalg.norm(p - q, axis=-1)  # [..., E]
+    k = np.argmin(d, axis=-1)[..., None]
+    return np.take_along_axis(q, k[..., None], axis=-2)[..., 0, :], np.take_along_axis(d, k, axis=-1)[..., 0]
+
+
+@dataclass(frozen=True)
+class HandHeldPlatform(Platform):
+    """A photographer's camera: 5 DoF like a drone, but inside the region they walked: within
+    ``margin_m`` of the paths between neighbouring photos' cameras (``centres_m``, the minimum
+    spanning tree's edges: a chain of capsules), not a box. ``margin_m`` is in the frame's unit
+    (metres when the poses are metric)."""
+
+    centres_m: tuple[tuple[float, float, float], ...]
+    margin_m: float
+    #: The pitch range searched, degrees: the photos' own pitches widened by ``HANDHELD_PITCH_MARGIN_DEG``
+    #: (:meth:`around_photos`); a photographer who never aimed at the floor is not sent to.
+    pitch_limits_deg: tuple[float, float] = (-90.0, 90.0)
+    kind: ClassVar[str] = HANDHELD
+
+    def __post_init__(self):
+        c = np.asarray(self.centres_m, dtype=np.float64)
+        require(c.ndim == 2 and c.shape[1] == 3 and len(c) >= 1, "centres_m", "needs camera centres [[x, y, z], ...]")
+        require_finite(c.ravel().tolist() + [self.margin_m], "handheld")
+        require(self.margin_m > 0, "margin_m", f"must be > 0, got {self.margin_m!r}")
+        far = float(np.abs(c).max())
+        require(far <= MAX_COORDINATE_M, "centres_m", f"a coordinate of {far:.3g} is beyond {MAX_COORDINATE_M:.0e}")
+        lo, hi = self.pitch_limits_deg
+        require_finite([lo, hi], "pitch_limits_deg")
+        require(-90.0 <= lo < hi <= 90.0, "pitch_limits_deg", f"need -90 <= low < high <= 90, got {[lo, hi]}")
+
+    @classmethod
+    def around_photos(
+        cls, intrinsics: Intrinsics, cam2world: np.ndarray, margin_m: float | None = None
+    ) -> HandHeldPlatform:
+        """The region walked by the photos at ``cam2world [N, 4, 4]``: within ``margin_m`` (default a
+        quarter of the cameras' spread, at least 0.1) of the paths between them, pitched within
+        ``HANDHELD_PITCH_MARGIN_DEG`` of the photos' own pitches."""
+        poses = np.asarray(cam2world, dtype=np.float64)
+        pos = poses[:, :3, 3]
+        spread = float(np.max(np.linalg.norm(pos[:, None] - pos[None], axis=-1)))
+        pitch = np.degrees(cam2world_to_view(poses)[:, 4])
+        lo = max(-90.0, float(pitch.min()) - HANDHELD_PITCH_MARGIN_DEG)
+        hi = min(90.0, float(pitch.max()) + HANDHELD_PITCH_MARGIN_DEG)
+        margin = margin_m if margin_m is not None else max(0.25 * spread, 0.1)
+        return cls(intrinsics, tuple(map(tuple, pos.tolist())), float(margin), (lo, hi))
+
+    @functools.cached_property
+    def centres(self) -> np.ndarray:  # [N, 3]
+        return np.asarray(self.centres_m, dtype=np.float64)
+
+    @functools.cached_property
+    def edges(self) -> np.ndarray:  # [E, 2]
+        return walked_edges(self.centres)
+
+    def contains(self, xyz_m) -> np.ndarray:  # [..., 3] -> [...] bool
+        return nearest_on_walk(xyz_m, self.centres, self.edges)[1] <= self.margin_m * (1 + 1e-9)
+
+    def clamp(self, cam2world: np.ndarray) -> np.ndarray:  # [4, 4] -> [4, 4], the position inside the region
+        """The pose with its position moved to the nearest point of the region (itself when inside)."""
+        q, d = nearest_on_walk(cam2world[:3, 3], self.centres, self.edges)
+        if d <= self.margin_m:
+            return cam2world
+        out = np.array(cam2world, dtype=np.float64)
+        out[:3, 3] = q + (out[:3, 3] - q) * (self.margin_m / d)
+        return out
+
+    def free_box(self, half_m=RIG_FREE_BOX_HALF_M) -> DroneBox:
+        """The region's bounding box (the cameras' grown by the margin; at least ``MIN_BOX_SIDE_M`` a side)."""
+        lo, hi = self.centres.min(0) - self.margin_m, self.centres.max(0) + self.margin_m
+        grow = np.maximum(MIN_BOX_SIDE_M - (hi - lo), 0.0) / 2
+        return DroneBox(tuple((lo - grow).tolist()), tuple((hi + grow).tolist()))
+
+    def to_meta(self) -> dict:
+        return {
+            "platform": HANDHELD,
+            HANDHELD: {
+                "centres_m": [list(c) for c in self.centres_m],
+                "margin_m": self.margin_m,
+                "pitch_limits_deg": list(self.pitch_limits_deg),
+            },
+        }
+
+
 def platform_to_meta(platform: Platform) -> dict:
     """The JSON-ready description a dataset folder's ``meta`` carries: ``{"platform": "rig",
     "rig": {PanTiltConfig fields}}`` or ``{"platform": "drone", "drone": {"bounds_min_m", "bounds_max_m"}}``."""
@@ -327,13 +413,48 @@ def platform_from_meta(meta: dict, intrinsics: Intrinsics) -> Platform | None:
     kind = meta.get("platform")
     if kind is None:
         return None
-    if kind not in KINDS:
-        raise ConfigError("meta.platform", f"must be 'rig' or 'drone', got {short_repr(kind)}")
+    if kind not in (*KINDS, HANDHELD):
+        raise ConfigError("meta.platform", f"must be 'rig', 'drone' or 'handheld', got {short_repr(kind)}")
     section = meta.get(kind)
     if section is None:
         return None
     if not isinstance(section, dict):
         raise ConfigError(f"meta.{kind}", f"expected a mapping, got {short_repr(section)}")
+    if kind == HANDHELD:
+        require(
+            set(section) == {"centres_m", "margin_m", "pitch_limits_deg"},
+            "meta.handheld",
+            "needs centres_m, margin_m and pitch_limits_deg only",
+        )
+        centres, margin, pitch = section["centres_m"], section["margin_m"], section["pitch_limits_deg"]
+        require(
+            isinstance(pitch, list) and len(pitch) == 2 and all(isinstance(v, (int, float)) for v in pitch),
+            "meta.handheld.pitch_limits_deg",
+            "must be [low, high] degrees",
+        )
+        require(
+            isinstance(centres, list)
+            and all(isinstance(c, list) and len(c) == 3 for c in centres)
+            and len(centres) >= 1,
+            "meta.handheld.centres_m",
+            "must be a list of [x, y, z] camera centres",
+        )
+        require(
+            all(isinstance(v, (int, float)) and not isinstance(v, bool) for c in centres for v in c)
+            and isinstance(margin, (int, float))
+            and not isinstance(margin, bool),
+            "meta.handheld",
+            "centres_m and margin_m must be numbers",
+        )
+        try:
+            return HandHeldPlatform(
+                intrinsics,
+                tuple(tuple(float(v) for v in c) for c in centres),
+                float(margin),
+                (float(pitch[0]), float(pitch[1])),
+            )
+        except ConfigError as exc:
+            raise ConfigError(f"meta.handheld.{exc.key}", exc.message) from None
     if kind == "rig":
         rig = from_dict(
             PanTiltConfig, {k: tuple(v) if isinstance(v, list) else v for k, v in section.items()}, "meta.rig"

@@ -702,12 +702,3 @@ def scan(port: str, baud: int = 1_000_000, latency_timer_ms: float = 16.0) -> li
         model = model_by_number(number)
         out.append(ScanResult(dxl_id, number, model.name if model else "unknown model", firmware))
     return out
-
-
-def __getattr__(name: str):
-    # EmulatedPanTilt lives in .emulated (it imports this module); the old import path still works
-    if name == "EmulatedPanTilt":
-        from aes_planner.drivers.emulated import EmulatedPanTilt
-
-        return EmulatedPanTilt
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -48,6 +48,11 @@ class EmulatedPanTilt(DynamixelPanTilt):
         self._link = config.port or None
         self._link_dir: str | None = None
         self.emulator = None
+        self._clock = None  # the servos' time (None: the machine's); see use_clock
+
+    def use_clock(self, clock) -> None:
+        """Run the servos' motion on ``clock`` (a graph's simulated time), from the next connect."""
+        self._clock = clock
 
     def connect(self) -> None:
         from aes_planner.drivers.emulator import ServoEmulator
@@ -60,7 +65,8 @@ class EmulatedPanTilt(DynamixelPanTilt):
                 self._link_dir = tempfile.mkdtemp(prefix="aes-planner-servos-")
                 link = str(Path(self._link_dir) / "ttyDXL")
             try:
-                self.emulator = ServoEmulator(self.config.models, baud=self.config.baud, link=link).start()
+                clock = {} if self._clock is None else {"clock": self._clock}
+                self.emulator = ServoEmulator(self.config.models, baud=self.config.baud, link=link, **clock).start()
                 self.config = dataclasses.replace(self.config, port=self.emulator.port)
                 super().connect()
             except BaseException:

@@ -20,6 +20,11 @@ the master side as a chain of servos would:
   :meth:`ServoEmulator.vanish`): dropped, corrupted, truncated and delayed replies, hardware
   errors (overload, overheating, ...), a port that disappears and comes back.
 
+Time: the servos' motion runs on ``clock`` (``time.monotonic`` by default); a graph on a simulated
+clock gives them its time through a :class:`FileClock` (``--clock-file``), so a move takes the same
+simulated time however slowly the machine runs. The serial line (reply timing, a reboot's deaf
+moment) stays in real time: it is the link, not the world.
+
 Run it in a background thread (``with ServoEmulator() as emu: emu.port``), in the foreground
 (``aes-planner gimbal emulate``), or in a child process (:class:`EmulatorProcess`, which shares no
 GIL with the driver, as real servos would not). State is guarded by ``emu.lock``; tests may inspect
@@ -80,6 +85,7 @@ __all__ = [
     "ServoBus",
     "ServoEmulator",
     "EmulatorProcess",
+    "FileClock",
 ]
 
 _FAULT_BITS = {name: bit for bit, name in HARDWARE_ERROR_BITS.items()}
@@ -313,7 +319,7 @@ class EmulatedServo:
         self.load_percent = 0.0
         self.velocity_ticks_s = 0.0
         self.pending = None
-        self.boot_until = self.clock() + _BOOT_TIME_S
+        self.boot_until = time.monotonic() + _BOOT_TIME_S  # the line's real time (module docstring)
         self._publish()
 
     def inject_fault(self, fault: str) -> None:
@@ -553,6 +559,7 @@ class ServoEmulator:
         link: str | os.PathLike | None = None,
         faults: FaultPlan | None = None,
         wire_timing: bool = True,
+        clock: Callable[[], float] = time.monotonic,
     ):
         if not models:
             raise ValueError("the emulator needs at least one servo model")
@@ -564,7 +571,7 @@ class ServoEmulator:
         bad = [i for i in ids if not (isinstance(i, int) and 0 <= i <= MAX_ID)]
         if bad:
             raise ValueError(f"servo ids must be 0..{MAX_ID}, got {bad[:3]}")
-        self.bus = ServoBus(EmulatedServo(model_by_name(name), i, baud) for name, i in zip(models, ids))
+        self.bus = ServoBus(EmulatedServo(model_by_name(name), i, baud, clock) for name, i in zip(models, ids))
         self.faults = faults or FaultPlan()
         self.link = Path(link) if link is not None else None
         if self.link is not None:
@@ -837,6 +844,54 @@ def _truncated(raw: bytes) -> bytes:
     (pkt,) = PacketParser().feed(raw)
     data = pkt.params[1:]
     return build_status(pkt.dxl_id, pkt.error, data[: len(data) // 2])
+
+
+class FileClock:
+    """A time shared between processes through a small file: one float64 (seconds) that the
+    owner :meth:`set` s and any process reads by calling the instance (a clock for
+    :class:`EmulatedServo`). :meth:`create` makes the file (at 0.0); :meth:`close` by its creator
+    removes it. Reads and writes are whole 8-byte aligned words of a shared mapping."""
+
+    _FMT = "<d"
+
+    def __init__(self, path: str | os.PathLike, *, owner: bool = False):
+        import mmap
+
+        self.path = Path(path)
+        self.owner = owner
+        try:
+            with open(self.path, "r+b") as f:
+                self._map = mmap.mmap(f.fileno(), 8)
+        except (OSError, ValueError) as exc:
+            raise DeviceError(f"clock file {self.path}: {exc}; it is made by the node that owns the time") from None
+
+    @classmethod
+    def create(cls, start_s: float = 0.0) -> FileClock:
+        import struct
+        import tempfile
+
+        fd, path = tempfile.mkstemp(prefix="aes-planner-clock-")
+        with os.fdopen(fd, "wb") as f:
+            f.write(struct.pack(cls._FMT, float(start_s)))
+        return cls(path, owner=True)
+
+    def __call__(self) -> float:
+        import struct
+
+        return struct.unpack_from(self._FMT, self._map, 0)[0]
+
+    def set(self, now_s: float) -> None:
+        import struct
+
+        struct.pack_into(self._FMT, self._map, 0, float(now_s))
+
+    def close(self) -> None:
+        try:
+            self._map.close()
+        except (BufferError, ValueError):
+            pass
+        if self.owner:
+            self.path.unlink(missing_ok=True)
 
 
 class EmulatorProcess:

@@ -13,7 +13,7 @@ The ``sim_pan_tilt`` launch type, for fast node tests and simulated closed loops
   is wall-clock time as on the real driver) and waits go through ``sleep``. Pass a
   :class:`SimClock` to run faster than real time: its ``sleep`` advances it instantly.
 
-Fault injection (the same method names as :class:`~aes_planner.drivers.dynamixel.EmulatedPanTilt`,
+Fault injection (the same method names as :class:`~aes_planner.drivers.emulated.EmulatedPanTilt`,
 so that a test can drive either):
 
 * :meth:`SimPanTilt.inject_hardware_error` -- a servo alert (``"overload"``, ...): torque off on
@@ -143,9 +143,12 @@ class SimClock:
 
 
 class _Joint:
-    """One joint's motion: position and velocity in radians, stepped toward ``goal``."""
+    """One joint's motion: position and velocity in radians, stepped toward ``goal``, stopped at
+    ``limits`` (a goal reversed mid-move brakes, and the braking never carries the joint past its
+    limit: a servo's position limit stops it there)."""
 
-    def __init__(self, position_rad: float):
+    def __init__(self, position_rad: float, limits: tuple[float, float]):
+        self.limits = limits
         self.position = position_rad
         self.velocity = 0.0
         self.goal = position_rad
@@ -161,6 +164,9 @@ class _Joint:
             self.position, self.velocity, settled = trapezoid_step(
                 self.position, self.velocity, self.goal, v_max, a_max, step
             )
+            lo, hi = self.limits
+            if not lo <= self.position <= hi:
+                self.position, self.velocity = min(max(self.position, lo), hi), 0.0
             if settled:
                 return
 
@@ -190,7 +196,7 @@ class SimPanTilt(Gimbal):
         self._lock = threading.RLock()
         self._limits = config.limits()
         pan, tilt = self._limits.clamp(math.radians(config.initial_pan_deg), math.radians(config.initial_tilt_deg))
-        self._joints = {"pan": _Joint(pan), "tilt": _Joint(tilt)}
+        self._joints = {"pan": _Joint(pan, self._limits.pan_rad), "tilt": _Joint(tilt, self._limits.tilt_rad)}
         self._t_last = clock()
         self._connected = False
         self._torque = False
@@ -255,6 +261,12 @@ class SimPanTilt(Gimbal):
                 hardware_error=tuple(f"{j}: {f}" for j in JOINTS for f in self._faults.get(j, ())),
                 stamp_s=self._t_last,
             )
+
+    def use_clock(self, clock: Callable[[], float]) -> None:
+        """Take time from ``clock`` from now on (a graph's simulated time); the joints stand
+        where they are at its present time."""
+        self.clock = clock
+        self._t_last = clock()
 
     def wait_until_reached(self, timeout_s: float | None = None) -> GimbalReading:
         return wait_for_arrival(

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from aes_planner.calibrate.board import BOARD_TEXTURE_PREFIX, BoardError, board_texture
 from aes_planner.config import ConfigError, from_dict, load_yaml, short_repr
 from aes_planner.errors import AesPlannerError
+from aes_planner.geometry.board import BOARD_TEXTURE_PREFIX, BoardError, board_texture
 from aes_planner.paths import PathOutsideError, resolve_inside
 from aes_planner.sim.shapes import SHAPES, shape_of
 from aes_planner.sim.spec import SceneSpec, spec_to_dict

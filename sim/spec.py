@@ -160,7 +160,7 @@ class MaterialSpec:
     * ``pattern``: optional :class:`PatternSpec` mixing ``albedo`` and ``pattern.colour2``.
     * ``image``: optional image file (PNG, JPEG: anything cv2 reads), relative to the scene
       file; its texels replace ``albedo``. ``board:SPEC`` (``board:chessboard:9x6:0.06``) draws
-      a calibration board instead (:func:`aes_planner.calibrate.board.board_texture`: the pattern
+      a calibration board instead (:func:`aes_planner.geometry.board.board_texture`: the pattern
       with one white square of margin; size the quad to match, 0.72 x 0.54 m for that one). Stretched over a quad; tiled in squares of
       ``tile_m`` metres on other primitives (default 1 m) and on quads that set ``tile_m``.
     * ``emission``: light the surface gives off, as a multiple of its own colour, added to

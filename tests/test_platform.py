@@ -17,7 +17,7 @@ from aes_planner.platform import (
     parse_kind,
     platform_from_meta,
 )
-from aes_planner.search.space import FreeSpace, RigSpace
+from aes_planner.search.space import FreeSpace, RigSpace, random_poses, space_for
 
 K = Intrinsics.from_fov(32, 24, 60.0)
 RIG = PanTiltConfig(base_xyz_m=(0.5, -0.2, 1.4), pan_limits_deg=(-90.0, 90.0), tilt_limits_deg=(-30.0, 30.0))
@@ -79,17 +79,17 @@ def test_one_free_box_around_a_rig_and_a_drone_flies_its_own():
     assert drone.free_box() == BOX and drone.as_drone() is drone
 
 
-def test_search_space_and_random_poses_are_the_platforms():
+def test_search_space_and_random_poses_follow_the_platform():
     rig, drone = RigPlatform(K, RIG), DronePlatform(K, BOX)
-    assert isinstance(rig.search_space(), RigSpace) and isinstance(drone.search_space(), FreeSpace)
+    assert isinstance(space_for(rig), RigSpace) and isinstance(space_for(drone), FreeSpace)
     for platform in (rig, drone):
-        space = platform.search_space()
+        space = space_for(platform)
         want = space.to_poses(space.random(32, np.random.default_rng(4))).numpy()
-        got = platform.random_poses(32, np.random.default_rng(4))
+        got = random_poses(platform, 32, np.random.default_rng(4))
         np.testing.assert_array_equal(got, want)  # the oracle's chance level draws exactly these
-    joints = rig.search_space().from_poses(rig.random_poses(64, np.random.default_rng(1)))
+    joints = space_for(rig).from_poses(random_poses(rig, 64, np.random.default_rng(1)))
     assert all(rig.kinematics.within_limits(float(p), float(t), tol_rad=1e-6) for p, t in joints)
-    pos = drone.random_poses(64, np.random.default_rng(1))[:, :3, 3]
+    pos = random_poses(drone, 64, np.random.default_rng(1))[:, :3, 3]
     assert drone.drone.contains(pos).all()
 
 

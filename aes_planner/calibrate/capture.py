@@ -68,38 +68,30 @@ def sim_camera_size(scene, min_width: int = MIN_SIM_WIDTH_PX) -> tuple[int, int]
     """The size the calibration renders a sim scene's camera at: its own, or ``min_width`` wide
     (same field of view and aspect) when it is narrower, since a board needs ~8 px squares to be
     found and the rig's kinematics do not depend on the resolution."""
+    if scene.rig is None:
+        raise RigCalibrationError(f"scene {scene.name!r} has a drone, not a pan-tilt rig")
     cam = scene.rig.camera
     if cam.width >= min_width:
         return cam.width, cam.height
     return min_width, max(1, round(min_width * cam.height / cam.width))
 
 
+def _opencv_model(intrinsics) -> CameraModel:
+    """The distortion-free :class:`CameraModel` of the package's :class:`Intrinsics` (pixel centres moved to OpenCV's)."""
+    k = intrinsics
+    K = np.array([[k.fx, 0, k.cx - 0.5], [0, k.fy, k.cy - 0.5], [0, 0, 1.0]])
+    return CameraModel(K, np.zeros(5), k.width, k.height)
+
+
 class SimViewSource(ViewSource):
-    """The sim scene's camera on its true rig (at :func:`sim_camera_size`); ``joint_noise_deg``
-    adds reading noise to the angles reported (what an encoder would), the image stays at the
-    commanded pose."""
+    """A simulated camera on the sim scene's true rig: ``camera`` is an :class:`aes_planner.sim.SimCamera`
+    the caller built (at :func:`sim_camera_size`; the calibration does not import the simulator).
+    ``joint_noise_deg`` adds reading noise to the angles reported (what an encoder would), the image
+    stays at the commanded pose."""
 
-    def __init__(
-        self,
-        scene,
-        supersample: int = 2,
-        pixel_noise_sigma: float = 0.0,
-        joint_noise_deg: float = 0.0,
-        seed: int = 0,
-        min_width: int = MIN_SIM_WIDTH_PX,
-    ):
-        from aes_planner.sim import SimCamera, SimCameraConfig
-
-        if scene.rig is None:
-            raise RigCalibrationError(f"scene {scene.name!r} has a drone, not a pan-tilt rig")
-        w, h = sim_camera_size(scene, min_width)
-        config = SimCameraConfig(
-            width=w, height=h, supersample=supersample, pixel_noise_sigma=pixel_noise_sigma, seed=seed
-        )
-        self.sim = SimCamera(scene, config)
-        k = self.sim.intrinsics
-        K = np.array([[k.fx, 0, k.cx - 0.5], [0, k.fy, k.cy - 0.5], [0, 0, 1.0]])  # to OpenCV's pixel centres
-        self.camera = CameraModel(K, np.zeros(5), k.width, k.height)
+    def __init__(self, camera, joint_noise_deg: float = 0.0, seed: int = 0):
+        self.sim = camera
+        self.camera = _opencv_model(camera.intrinsics)
         self.rng = np.random.default_rng(seed + 1)
         self.joint_noise_rad = math.radians(joint_noise_deg)
         self.frames = 0
@@ -261,28 +253,13 @@ def collect(source: ViewSource, board: BoardSpec, joints: np.ndarray, keep_image
 
 class SimStream:
     """A continuous sweep in the simulator, for the latency: joint states every ``state_period_s``
-    (what the gimbal node publishes), frames every ``frame_period_s`` stamped on arrival by a sim
-    camera whose ``latency_s`` makes them show the pose that long before. The sim camera holds each
+    (what the gimbal node publishes), frames every ``frame_period_s`` stamped on arrival by the sim
+    ``camera`` (built by the caller) whose ``latency_s`` makes them show the pose that long before. The sim camera holds each
     pose it is given, so the motion is fed to it every millisecond (a servo moves continuously)."""
 
-    def __init__(
-        self,
-        scene,
-        latency_s: float,
-        supersample: int = 1,
-        frame_period_s: float = 1 / 15,
-        state_period_s: float = 0.01,
-        seed: int = 0,
-        min_width: int = MIN_SIM_WIDTH_PX,
-    ):
-        from aes_planner.sim import SimCamera, SimCameraConfig
-
-        w, h = sim_camera_size(scene, min_width)
-        config = SimCameraConfig(width=w, height=h, supersample=supersample, latency_s=latency_s, seed=seed)
-        self.sim = SimCamera(scene, config)
-        k = self.sim.intrinsics
-        K = np.array([[k.fx, 0, k.cx - 0.5], [0, k.fy, k.cy - 0.5], [0, 0, 1.0]])
-        self.camera = CameraModel(K, np.zeros(5), k.width, k.height)
+    def __init__(self, camera, frame_period_s: float = 1 / 15, state_period_s: float = 0.01):
+        self.sim = camera  # an aes_planner.sim.SimCamera with the latency to find (SimCameraConfig.latency_s)
+        self.camera = _opencv_model(camera.intrinsics)
         self.frame_period_s = frame_period_s
         self.state_period_s = state_period_s
 

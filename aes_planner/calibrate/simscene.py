@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from aes_planner.calibrate.board import BoardSpec
+from aes_planner.geometry.board import BoardSpec
 from aes_planner.geometry.rig import PanTiltConfig, rig_dict
 
 __all__ = ["board_scene", "perturbed_rig"]

@@ -10,6 +10,8 @@ its traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import importlib
 import logging
 import os
@@ -23,6 +25,7 @@ COMMANDS = [
     "aes_planner.cli.launch",
     "aes_planner.cli.sim",
     "aes_planner.cli.dataset",
+    "aes_planner.cli.pose",
     "aes_planner.cli.suggest",
     "aes_planner.cli.eval",
     "aes_planner.cli.bench",
@@ -36,6 +39,7 @@ COMMANDS = [
     "aes_planner.cli.ros2",
     "aes_planner.cli.export",
     "aes_planner.cli.train",
+    "aes_planner.cli.docs",
 ]
 
 
@@ -44,7 +48,7 @@ class _Parser(argparse.ArgumentParser):
     parsers are of this class too (argparse makes them of their parent's class)."""
 
     def error(self, message: str):
-        self.exit(2, terminal_safe(f"error: {self.prog}: {message} (see {self.prog} --help)") + "\n")
+        self.exit(2, error_line(f"error: {self.prog}: {message} (see {self.prog} --help)") + "\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -60,6 +64,31 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def drives_servos(run):
+    """Run a subcommand that opens a servo device (a :class:`~aes_planner.devices.Gimbal`) under
+    the one :func:`~aes_planner.graph.signals.stop_on_signals`: the first SIGTERM or SIGINT
+    interrupts it like Ctrl-C (its ``with gimbal:`` blocks turn torque off on the way out), later
+    ones wait for that clean-up, and the command exits with 128 + the first signal's number.
+
+    Every subcommand that opens a gimbal carries this (or runs a graph under
+    :func:`~aes_planner.graph.runner.run_graph`, which does the same for a loop);
+    ``tests/cli/test_servo_signals_sweep.py`` finds them from the code and sends them signals."""
+
+    @functools.wraps(run)
+    def wrapped(args: argparse.Namespace) -> int:
+        from aes_planner.graph.signals import SignalShutdown, stop_on_signals
+
+        try:
+            with stop_on_signals(interrupt=True):
+                return run(args)
+        except SignalShutdown as exc:
+            print(f"{exc}: stopped, torque off", file=sys.stderr, flush=True)
+            return exc.exit_code
+
+    wrapped.drives_servos = True
+    return wrapped
+
+
 def terminal_safe(text: str) -> str:
     """``text`` with every non-printable character but newlines escaped (``\\x1b``): what arrives
     from the bus or a file (topic names, error messages quoting them) must not write control
@@ -67,6 +96,21 @@ def terminal_safe(text: str) -> str:
     if text.isprintable():
         return text
     return "".join(c if c.isprintable() or c == "\n" else repr(c)[1:-1] for c in text)
+
+
+#: The longest error line the CLI prints: what an error echoes (a 10,000-character frame id, a
+#: file's garbage) is cut here, once, for every command.
+MAX_ERROR_CHARS = 600
+
+
+def error_line(text: str, limit: int = MAX_ERROR_CHARS) -> str:
+    """``text`` as the one line the CLI prints for an error: newlines and runs of spaces folded,
+    control characters escaped (:func:`terminal_safe`), and cut at ``limit`` characters with a
+    note of how much was left out."""
+    text = terminal_safe(" ".join(str(text).split()))
+    if len(text) <= limit:
+        return text
+    return f"{text[: limit - 40]} ... [{len(text) - limit + 40} characters cut]"
 
 
 def _empty_value(argv: list[str]) -> str | None:
@@ -77,6 +121,27 @@ def _empty_value(argv: list[str]) -> str | None:
         if not token.strip():
             return argv[i - 1] if i and argv[i - 1].startswith("-") else f"argument {i + 1}"
     return None
+
+
+@contextlib.contextmanager
+def _graph_domain(domain: int | None):
+    """``--domain N`` as ``AES_PLANNER_DOMAIN=N`` while the command runs: the library's bus
+    configuration and every process the command starts read it (docs/guides/graphs.md)."""
+    if domain is None:
+        yield
+        return
+    from aes_planner.transport.config import DOMAIN_ENV, graph_domain
+
+    graph_domain(domain, "--domain")
+    before = os.environ.get(DOMAIN_ENV)
+    os.environ[DOMAIN_ENV] = str(domain)
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(DOMAIN_ENV, None)
+        else:
+            os.environ[DOMAIN_ENV] = before
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -92,9 +157,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
+        with _graph_domain(getattr(args, "domain", None)):
+            return int(args.func(args) or 0)
     except AesPlannerError as exc:
-        print(terminal_safe(f"error: {exc}"), file=sys.stderr)
+        print(error_line(f"error: {exc}"), file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:  # Ctrl-C, or a signal stop that ended a command (SignalShutdown)
         return getattr(exc, "exit_code", 130)
@@ -107,11 +173,11 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
             # a file the command reads or writes (disk full, permissions, a folder where a file
             # was expected): the user's to fix, not a bug
-            print(terminal_safe(f"error: {str(exc.filename)[:300]}: {exc.strerror}"), file=sys.stderr)
+            print(error_line(f"error: {exc.filename}: {exc.strerror}"), file=sys.stderr)
             return 2
-        text = terminal_safe(" ".join(str(exc).split()))
+        text = error_line(str(exc), 300)
         print(
-            f"error: unexpected {type(exc).__name__}: {text[:300]} (this is a bug in aes-planner; please report it "
+            f"error: unexpected {type(exc).__name__}: {text} (this is a bug in aes-planner; please report it "
             "with the command line; rerun with -v for the traceback)",
             file=sys.stderr,
         )

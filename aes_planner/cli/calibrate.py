@@ -16,6 +16,7 @@ import math
 import time
 from pathlib import Path
 
+from aes_planner.cli import drives_servos
 from aes_planner.errors import AesPlannerError
 
 log = logging.getLogger(__name__)
@@ -239,6 +240,27 @@ def _load_rig(path: str):
     return from_dict(PanTiltConfig, doc, "rig")
 
 
+def sim_calibration_camera(
+    scene,
+    supersample: int,
+    seed: int,
+    pixel_noise_sigma: float = 0.0,
+    latency_s: float = 0.0,
+    min_width: int | None = None,
+):
+    """The simulated camera a ``--scene`` calibration images the board with: the scene's camera on
+    its true rig, at :func:`~aes_planner.calibrate.capture.sim_camera_size` (the calibration takes it
+    built, and never imports the simulator itself)."""
+    from aes_planner.calibrate.capture import MIN_SIM_WIDTH_PX, sim_camera_size
+    from aes_planner.sim import SimCamera, SimCameraConfig
+
+    w, h = sim_camera_size(scene, MIN_SIM_WIDTH_PX if min_width is None else min_width)
+    config = SimCameraConfig(
+        width=w, height=h, supersample=supersample, pixel_noise_sigma=pixel_noise_sigma, latency_s=latency_s, seed=seed
+    )
+    return SimCamera(scene, config)
+
+
 class _Session:
     """The view source (and for hardware the devices to release) of a ``--scene``/``--launch`` run."""
 
@@ -264,7 +286,8 @@ class _Session:
             supersample = a.supersample or (2 if w * h <= 640 * 540 else 1)
             if not 1 <= supersample <= 8:
                 raise CalibrateUsageError(f"--supersample must be 1..8, got {supersample}")
-            self.source = SimViewSource(self.scene, supersample, a.pixel_noise, a.joint_noise_deg, a.seed)
+            camera = sim_calibration_camera(self.scene, supersample, a.seed, pixel_noise_sigma=a.pixel_noise)
+            self.source = SimViewSource(camera, a.joint_noise_deg, a.seed)
             if a.camera_info:
                 log.warning("--camera-info is not used with --scene: the scene's camera is exact")
             return self
@@ -319,7 +342,7 @@ class _Session:
         from aes_planner.calibrate.capture import SimStream
 
         if self.scene is not None:
-            return SimStream(self.scene, self.args.sim_latency, supersample=1, seed=self.args.seed)
+            return SimStream(sim_calibration_camera(self.scene, 1, self.args.seed, latency_s=self.args.sim_latency))
         return self.source.stream
 
     def __exit__(self, *exc):
@@ -329,6 +352,7 @@ class _Session:
             self.gimbal.disconnect()
 
 
+@drives_servos
 def run_rig(args) -> int:
     from dataclasses import replace
 
@@ -395,6 +419,7 @@ def run_rig(args) -> int:
     return 0
 
 
+@drives_servos
 def run_verify(args) -> int:
     from aes_planner.calibrate.board import parse_board
     from aes_planner.calibrate.pipeline import verify_rig

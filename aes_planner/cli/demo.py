@@ -8,10 +8,15 @@ and writes a run folder:
 
 * ``summary.json``: ``initial``, ``final``, ``oracle``, ``normalized`` (``(s - mean random) /
   (oracle - mean random)``), ``moves``, ``time_s``, ``scene``, ``mode``, ``initial_cam2world``,
-  ``final_cam2world`` (and for the rig ``final_pan_deg``, ``final_tilt_deg``);
+  ``final_cam2world`` (and for the rig ``final_pan_deg``, ``final_tilt_deg``), ``clock`` (``sim``
+  or ``wall``) and on a simulated clock ``sim_time_s`` (when the loop ended, simulated seconds);
 * ``suggestions.json``: every suggestion the planner published; ``captures.json``: every capture;
 * ``report.png``: the input views, each move's view with its true score, the rig's pan x tilt
   ground-truth score map with the path taken, and the final view beside the oracle's best.
+
+The graph runs on a simulated clock in lockstep by default (``--clock sim``): the same scene gives
+the same views, moves and scores idle or loaded, in one process or with ``--processes``;
+``--clock wall`` runs it in real time (docs/guides/clock.md). A MAVLink vehicle runs in real time.
 
 The last line printed is the path of ``summary.json``.
 """
@@ -28,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aes_planner.errors import AesPlannerError
 from aes_planner.paths import output_in
 
 DEFAULT_SCENE = "indoor:3"
@@ -58,13 +64,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         "unless --set drone.emulate=false --set drone.connection=...)",
     )
     p.add_argument("--out", default=None, metavar="DIR", help="run folder (default runs/demo-<time>)")
-    p.add_argument("--moves", type=int, default=6, help="suggestion-driven moves at most (default 6)")
+    p.add_argument("--moves", type=int, default=4, help="suggestion-driven moves at most (default 4)")
     p.add_argument(
         "--set", action="append", default=[], metavar="ID.KEY=VALUE", help="override a launch-file value (repeatable)"
     )
     p.add_argument("--timeout", type=float, default=600.0, help="give up after this many seconds (default 600)")
-    from aes_planner.cli.processes import add_transport_flags
+    from aes_planner.cli.processes import add_clock_flag, add_transport_flags
 
+    add_clock_flag(p, "sim (wall with --drone mavlink)")
     add_transport_flags(p, "run the gimbal and the camera each in its own process over Zenoh (the planner stays here)")
     p.set_defaults(func=run)
 
@@ -92,7 +99,16 @@ def run(args: argparse.Namespace) -> int:
             output_in(output_folder(args.out, "--out"), name)
     out = Path(args.out) if args.out else Path("runs") / f"demo-{dt.datetime.now().strftime('%Y%m%d-%H%M%S')}"
     result = run_demo(
-        args.scene, args.mode, out, args.moves, args.set, args.timeout, progress=print, transport=args, drone=args.drone
+        args.scene,
+        args.mode,
+        out,
+        args.moves,
+        args.set,
+        args.timeout,
+        progress=print,
+        transport=args,
+        drone=args.drone,
+        clock=args.clock,
     )
     print_summary(result)
     print(out.resolve() / "summary.json")
@@ -103,18 +119,21 @@ def run_demo(
     scene: str,
     mode: str | None,
     out: Path,
-    moves: int = 6,
+    moves: int = 4,
     overrides=(),
     timeout_s: float = 600.0,
     progress=None,
     planner_overrides: dict | None = None,
     transport: argparse.Namespace | None = None,
     drone: str = "sim",
+    hook=None,
+    clock: str | None = None,
 ) -> dict:
     """Run the closed loop and write the run folder; returns the summary dict (plus ``state``).
 
     ``mode``: the platform kind, ``rig`` or ``drone`` (``free`` read as drone); ``None`` takes what
-    the scene has (a rig, else its drone box).
+    the scene has (a rig, else its drone box). ``clock``: ``sim`` (default) or ``wall``. ``hook(nodes)``:
+    called with the built nodes before they run (``eval loop``'s perturbations).
 
     ``transport``: the ``--processes/--listen/--foxglove/--record`` flags (see
     :mod:`aes_planner.cli.processes`); every topic is recorded to ``out/recording.mcap``."""
@@ -138,12 +157,20 @@ def run_demo(
         from aes_planner.drone import demo as mavlink_demo
 
         kind, launch_file, sets = DronePlatform.kind, mavlink_demo.LAUNCH_FILE, ["planner.mode=drone"]
-    sets = [f"scene={scene}", f"planner.max_moves={moves}", *sets]
+    if drone == "mavlink" and clock == "sim":
+        raise ConfigError("--clock", "a MAVLink vehicle (and its emulator) flies in real time: use --clock wall")
+    clock = clock or ("wall" if drone == "mavlink" else "sim")
+    sets = [f"scene={scene}", f"planner.max_moves={moves}", f"clock={clock}", *sets]
     sets += [f"planner.{k}={json.dumps(v)}" for k, v in (planner_overrides or {}).items()]
     spec = load_launch(launch_file, [*sets, *overrides])
     nodes = build_nodes(spec)
     planner = next(n for n, _ in nodes if n.node_id == "planner")
-    say(f"demo: {kind} on {scene}: {', '.join(f'{n.node_id} ({type(n).__name__})' for n, _ in nodes)}")
+    if hook is not None:
+        hook(nodes)
+    say(
+        f"demo: {kind} on {scene}, {spec.clock.source} clock: "
+        + ", ".join(f"{n.node_id} ({type(n).__name__})" for n, _ in nodes)
+    )
     from aes_planner.gaussians.warmup import warm_kernels
 
     warm_kernels()  # a fresh install compiles them here (and says so), not in the loop's first plan
@@ -164,7 +191,8 @@ def run_demo(
                 )
             )
             pred = f" (predicted {c.predicted:.3f})" if c.predicted is not None and c.kind == "move" else ""
-            say(f"  [{time.time() - t0:5.1f} s] {c.kind:8s} {where}  score {c.score:.3f}{pred}")
+            when = f"sim {c.stamp_s:6.2f} s" if spec.clock.sim else f"{time.time() - t0:5.1f} s"
+            say(f"  [{when}] {c.kind:8s} {where}  score {c.score:.3f}{pred}")
             shown += 1
         return planner.finished
 
@@ -183,7 +211,7 @@ def run_demo(
             out=sys.stdout,
         )
     else:
-        launch = Launch(nodes)
+        launch = Launch(nodes, clock=spec.clock)
     out.mkdir(parents=True, exist_ok=True)
     recording = output_in(out, "recording.mcap")
     viewers = argparse.Namespace(foxglove=transport.foxglove, record=transport.record or str(recording))
@@ -201,7 +229,10 @@ def run_demo(
     report_progress()
     loop_s = time.time() - t0
     if drone == "mavlink" and mavlink_demo.aborted(nodes):
-        say(f"demo: {mavlink_demo.abort_reason(nodes)}")
+        reason = mavlink_demo.abort_reason(nodes)
+        say(f"demo: {reason}")
+        if not planner.captures:  # nothing to score: the reason is the error, not "captured nothing"
+            raise AesPlannerError(f"demo: the vehicle was not flown: {reason}")
     elif not ok and not planner.finished:
         say(f"demo: the loop did not finish within {timeout_s:g} s (state {planner.state})")
     say(f"demo: loop {planner.state} after {loop_s:.1f} s; scoring against the oracle ...")
@@ -209,6 +240,9 @@ def run_demo(
 
     summary = evaluate_run(planner, scene, kind, out, loop_s)
     summary["time_s"] = round(time.time() - t0, 2)
+    summary["clock"] = spec.clock.source
+    if spec.clock.sim and planner.finished_s is not None:
+        summary["sim_time_s"] = round(planner.finished_s, 6)
     if drone == "mavlink":
         summary["drone"] = mavlink_demo.drone_summary(nodes)
     output_in(out, "summary.json").write_text(json.dumps(summary, indent=2))

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import signal
 import sys
 import threading
@@ -70,7 +71,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     e.add_argument("--offboard-refused", action="store_true", help="deny every mode switch")
     e.add_argument("--wind", type=_triple, default=(0.0, 0.0, 0.0), metavar="N,E,D", help="drift, m/s NED")
-    e.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: until Ctrl-C)")
+    e.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: until Ctrl-C)")
     e.add_argument("--seed", type=int, default=0)
     e.set_defaults(func=run_emulate)
 
@@ -84,8 +85,13 @@ def run_emulate(args: argparse.Namespace) -> int:
         from aes_planner.drone.emulator import EmulatorConfig, VehicleEmulator
     except ImportError:
         raise AesPlannerError("the drone emulator needs pymavlink: pip install 'aes-planner[drone]'") from None
-    if args.duration < 0:
-        raise AesPlannerError(f"--duration must be >= 0, got {args.duration}")
+    from aes_planner.drone.emulator import MAX_RUN_S
+
+    if args.duration is not None and not (math.isfinite(args.duration) and 0 < args.duration <= MAX_RUN_S):
+        raise AesPlannerError(
+            f"--duration must be a number of seconds in (0, {MAX_RUN_S:g}], got {args.duration}; "
+            "leave it out to run until Ctrl-C"
+        )
     cfg = from_dict(
         EmulatorConfig,
         {
@@ -113,7 +119,7 @@ def run_emulate(args: argparse.Namespace) -> int:
         emu.start()
         print(f"emulating a {cfg.autopilot} vehicle (system {cfg.system_id}) sending to {cfg.connection}", flush=True)
         try:
-            done.wait(args.duration or None)
+            done.wait(args.duration)
         except KeyboardInterrupt:
             pass
     finally:

@@ -1,4 +1,4 @@
-"""``aes-planner eval field|search``: the paper's experiments on held-out simulated scenes."""
+"""``aes-planner eval field|search|loop``: the paper's experiments and the closed loop on held-out simulated scenes."""
 
 from __future__ import annotations
 
@@ -15,6 +15,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     esub = p.add_subparsers(dest="eval_command", metavar="EXPERIMENT", required=True)
     register_field(esub)
     register_search(esub)
+    register_loop(esub)
+    register_framing(esub)
 
 
 def _int_list(text: str) -> list[int]:
@@ -63,7 +65,127 @@ def register_search(esub: argparse._SubParsersAction) -> None:
     s.add_argument("--oracle-step-deg", type=float, default=5.0, help="rig oracle grid step (default 5)")
     s.add_argument("--json", metavar="OUT", help="write the results as JSON")
     s.add_argument("--out", metavar="DIR", help="write markdown tables and plots into DIR")
+    s.add_argument(
+        "--from-json",
+        metavar="FILE",
+        help="run nothing: print the tables (and the preset front) of an earlier --json result, plots into --out",
+    )
     s.set_defaults(func=run_search)
+
+
+def register_loop(esub: argparse._SubParsersAction) -> None:
+    from aes_planner.eval.loop import DEFAULT_PERTURBATIONS
+
+    lp = esub.add_parser(
+        "loop",
+        help="the closed loop on many scenes under small perturbations (backend, threads, noise, seeds): "
+        "oracle-normalised score, moves and spread per scene",
+    )
+    lp.add_argument(
+        "--scene",
+        action="append",
+        metavar="FILE_OR_FAMILY:SEED[@drone]",
+        help="a scene (repeatable; default the held-out loop set)",
+    )
+    lp.add_argument(
+        "--set-name",
+        choices=("heldout", "dev"),
+        default="heldout",
+        help="the scene set when no --scene: heldout (never tuned on) or dev (for tuning); default heldout",
+    )
+    lp.add_argument(
+        "--perturb",
+        action="append",
+        metavar="P",
+        help="a perturbation: base, torch, numba, threads:N, noise:R, seed:N, joined with + (repeatable; default "
+        + " ".join(DEFAULT_PERTURBATIONS)
+        + ")",
+    )
+    lp.add_argument("--moves", type=int, default=4, help="suggestion-driven moves at most (default 4)")
+    lp.add_argument(
+        "--set", action="append", default=[], metavar="ID.KEY=VALUE", help="launch-file override for every run"
+    )
+    lp.add_argument("--timeout", type=float, default=900.0, help="per run, seconds (default 900)")
+    lp.add_argument(
+        "--out",
+        default="runs/eval_loop",
+        metavar="DIR",
+        help="results.json (resumed) and report.md (default runs/eval_loop)",
+    )
+    lp.set_defaults(func=run_loop)
+
+
+def run_loop(args: argparse.Namespace) -> int:
+    from aes_planner.eval.loop import (
+        DEFAULT_PERTURBATIONS,
+        DEV_LOOP_SCENES,
+        HELD_OUT_LOOP_SCENES,
+        LoopEvalConfig,
+        run_loop_eval,
+        split_scene,
+    )
+    from aes_planner.paths import output_folder
+
+    scenes = args.scene or (HELD_OUT_LOOP_SCENES if args.set_name == "heldout" else DEV_LOOP_SCENES)
+    _check_scenes([split_scene(s)[0] for s in scenes])
+    out = output_folder(args.out, "--out")
+    cfg = LoopEvalConfig(
+        scenes=list(scenes),
+        perturbations=args.perturb or list(DEFAULT_PERTURBATIONS),
+        moves=args.moves,
+        timeout_s=args.timeout,
+        sets=args.set,
+    )
+    from aes_planner.cli.demo import run_demo
+
+    results = run_loop_eval(cfg, Path(out), run_demo, progress=print)
+    print((Path(out) / "report.md").read_text())
+    s = results["summary"]
+    return 0 if s.get("errors", 1) == 0 else 1
+
+
+def register_framing(esub: argparse._SubParsersAction) -> None:
+    f = esub.add_parser(
+        "framing",
+        help="suggest --keep: how often the suggestion holds a scene object whole, and its score against the best "
+        "view that holds it (a constrained oracle)",
+    )
+    f.add_argument("--scene", action="append", metavar="FILE_OR_FAMILY:SEED", help="a scene (repeatable)")
+    f.add_argument("--scenes", type=int, default=4, help="number of held-out scenes when no --scene (default 4)")
+    f.add_argument("--seeds", type=_int_list, default=[0, 1], help="subjects per scene: 0,1 = the two largest")
+    f.add_argument("--mode", default="rig", choices=["rig", "drone", "free"], help="platform (default rig)")
+    f.add_argument("--preset", default="balanced", choices=["fast", "balanced"], help="search preset")
+    f.add_argument("--keep-margin", type=float, default=0.05, metavar="FRAC", help="as suggest --keep-margin")
+    f.add_argument("--json", metavar="OUT", help="write the results as JSON")
+    f.add_argument("--figure", metavar="PNG", help="write a figure: input box, suggestion, constrained oracle per case")
+    f.set_defaults(func=run_framing)
+
+
+def run_framing(args: argparse.Namespace) -> int:
+    from aes_planner.config import ConfigError
+    from aes_planner.eval.framing import FramingEvalConfig, markdown, run_framing_eval
+    from aes_planner.eval.search import HELD_OUT_SCENES
+    from aes_planner.paths import output_file
+
+    if not args.scene and not 1 <= args.scenes <= len(HELD_OUT_SCENES):
+        raise ConfigError(
+            "--scenes", f"must be in [1, {len(HELD_OUT_SCENES)}] (the held-out scenes), got {args.scenes}"
+        )
+    scenes = args.scene or HELD_OUT_SCENES[: args.scenes]
+    _check_scenes(scenes)
+    if args.json:
+        output_file(args.json, "--json")
+    if args.figure:
+        output_file(args.figure, "--figure")
+    cfg = FramingEvalConfig(
+        scenes=scenes, seeds=args.seeds, mode=args.mode, preset=args.preset, keep_margin=args.keep_margin
+    )
+    doc = run_framing_eval(cfg, progress=lambda text: log.info("eval framing: %s", text), figure=args.figure)
+    print(markdown(doc))
+    if args.json:
+        Path(args.json).write_text(json.dumps(doc, indent=1, default=float) + "\n")
+        print(f"wrote {args.json}")
+    return 0
 
 
 def run_search(args: argparse.Namespace) -> int:
@@ -77,6 +199,15 @@ def run_search(args: argparse.Namespace) -> int:
         raise ConfigError(
             "--scenes", f"must be in [1, {len(HELD_OUT_SCENES)}] (the held-out scenes), got {args.scenes}"
         )
+    if args.from_json:
+        from aes_planner.eval.search import write_front_plots
+
+        doc = _read_json(args.from_json, "--from-json")
+        print(markdown(doc))
+        if args.out:
+            for path in write_front_plots(doc, output_folder(args.out, "--out")):
+                print(f"wrote {path}")
+        return 0
     scenes = args.scene or HELD_OUT_SCENES[: args.scenes]
     _check_scenes(scenes)
     if args.json:  # bad destinations fail before the evaluation, not after it
@@ -148,6 +279,18 @@ def run_field(args: argparse.Namespace) -> int:
         print(f"{views} views: " + ", ".join(f"{m} PLCC {r['plcc']:.3f}" for m, r in methods.items()))
     print("wrote " + ", ".join(str(p) for p in paths))
     return 0
+
+
+def _read_json(path: str, flag: str) -> dict:
+    from aes_planner.config import ConfigError
+
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise ConfigError(flag, f"cannot read {path} as a JSON result of eval search --json ({exc})") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("views"), dict) or "scenes" not in doc:
+        raise ConfigError(flag, f"{path} is not a result of eval search --json (no 'views' and 'scenes')")
+    return doc
 
 
 def _check_scenes(scenes: list[str]) -> None:

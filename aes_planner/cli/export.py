@@ -57,7 +57,13 @@ def run_rosbag2(args: argparse.Namespace) -> int:
         ) from None
     cfg = from_dict(Ros2BridgeConfig, load_yaml(args.config) or {}, "--config") if args.config else None
     scene = args.scene if args.scene is not None else _demo_scene(Path(args.recording))
-    counts = export_rosbag2(args.recording, args.out_dir, cfg, scene=scene)
+    rig = None
+    if scene is not None and (cfg is None or cfg.rig is None):
+        from aes_planner.sim import load_scene
+
+        sim_rig = load_scene(scene).rig
+        rig = sim_rig.pan_tilt if sim_rig is not None else None
+    counts = export_rosbag2(args.recording, args.out_dir, cfg, rig=rig)
     for topic, n in sorted(counts.items()):
         print(f"{topic:32} {n:6d}")
     print(f"wrote {args.out_dir} ({sum(v for k, v in counts.items() if k.startswith('/'))} messages)")

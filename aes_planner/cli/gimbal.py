@@ -16,6 +16,7 @@ import threading
 import time
 from typing import Any
 
+from aes_planner.cli import drives_servos
 from aes_planner.config import from_dict, load_yaml
 from aes_planner.errors import AesPlannerError
 
@@ -44,6 +45,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--drop-rate", type=float, default=0.0, help="fraction of replies to drop (fault injection)")
     e.add_argument("--corrupt-rate", type=float, default=0.0, help="fraction of replies with a broken CRC")
     e.add_argument("--seed", type=int, default=0, help="seed of the fault injection")
+    e.add_argument(
+        "--clock-file",
+        metavar="PATH",
+        help="take the servos' time from this file (a simulated clock's, written by the gimbal node) "
+        "instead of the machine's",
+    )
     e.add_argument(
         "--exit-with-parent",
         action="store_true",
@@ -119,34 +126,18 @@ def _gimbal(args: argparse.Namespace):
     return DynamixelPanTilt(_driver_config(args))
 
 
-def _driving(run):
-    """Run a command that talks to the servos under
-    :func:`~aes_planner.graph.signals.stop_on_signals`: the first SIGTERM or SIGINT interrupts it
-    like Ctrl-C (the ``with gimbal`` block turns torque off on the way out), later ones wait for
-    that clean-up, and the command exits with 128 + the first signal's number."""
-
-    def wrapped(args: argparse.Namespace) -> int:
-        from aes_planner.graph.signals import SignalShutdown, stop_on_signals
-
-        try:
-            with stop_on_signals(interrupt=True):
-                return run(args)
-        except SignalShutdown as exc:
-            print(f"{exc}: stopped, torque off", file=sys.stderr, flush=True)
-            return exc.exit_code
-
-    wrapped.__name__ = run.__name__
-    wrapped.__doc__ = run.__doc__
-    return wrapped
-
-
 def run_emulate(args: argparse.Namespace) -> int:
     from aes_planner.drivers.emulator import FaultPlan, ServoEmulator
 
     models = [m.strip() for m in args.models.split(",") if m.strip()]
     try:
         faults = FaultPlan(drop_rate=args.drop_rate, corrupt_rate=args.corrupt_rate, seed=args.seed)
-        emu = ServoEmulator(models, baud=args.baud, link=args.link, faults=faults)
+        clock = {}
+        if args.clock_file:
+            from aes_planner.drivers.emulator import FileClock
+
+            clock = {"clock": FileClock(args.clock_file)}
+        emu = ServoEmulator(models, baud=args.baud, link=args.link, faults=faults, **clock)
     except (KeyError, ValueError) as exc:
         raise AesPlannerError(f"cannot emulate: {exc.args[0] if exc.args else exc}") from None
 
@@ -181,7 +172,7 @@ def run_emulate(args: argparse.Namespace) -> int:
     return 0
 
 
-@_driving
+@drives_servos
 def run_scan(args: argparse.Namespace) -> int:
     from aes_planner.drivers.dynamixel import scan
 
@@ -214,7 +205,7 @@ def _joint_args(args: argparse.Namespace) -> tuple[float, float]:
     return out[0], out[1]
 
 
-@_driving
+@drives_servos
 def run_move(args: argparse.Namespace) -> int:
     from aes_planner.drivers.dynamixel import MAX_MOVE_TIMEOUT_S
 
@@ -238,7 +229,7 @@ def run_move(args: argparse.Namespace) -> int:
     return 0
 
 
-@_driving
+@drives_servos
 def run_state(args: argparse.Namespace) -> int:
     with _gimbal(args) as gimbal:
         state = gimbal.state()
@@ -248,7 +239,7 @@ def run_state(args: argparse.Namespace) -> int:
     return 0
 
 
-@_driving
+@drives_servos
 def run_reboot(args: argparse.Namespace) -> int:
     with _gimbal(args) as gimbal:
         before = gimbal.faults

@@ -27,24 +27,26 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--set", action="append", default=[], metavar="ID.KEY=VALUE", help="override a value (repeatable)")
     p.add_argument("--timeout", type=float, default=None, help="stop after this many seconds")
-    from aes_planner.cli.processes import add_transport_flags
+    from aes_planner.cli.processes import add_clock_flag, add_transport_flags
 
+    add_clock_flag(p, "the launch file's clock: (sim_closed_loop: sim; the others: wall)")
     add_transport_flags(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from aes_planner.cli.processes import attach_viewers, check_timeout, run_processes
+    from aes_planner.cli.processes import attach_viewers, check_timeout, clock_overrides, run_processes
     from aes_planner.graph import Launch, build_nodes, load_launch
     from aes_planner.graph.runner import run_graph
 
     check_timeout(args.timeout)
+    args.set = [*args.set, *clock_overrides(args)]
     if args.processes:  # one process per node over Zenoh (aes_planner.graph.supervisor)
         return run_processes(args)
     spec = load_launch(args.file, args.set)
     nodes = build_nodes(spec)
     print(f"launch {spec.path}: " + ", ".join(f"{n.node_id} ({type(n).__name__})" for n, _ in nodes), flush=True)
-    launch = Launch(nodes)
+    launch = Launch(nodes, clock=spec.clock)
     finished, stop = run_graph(launch, timeout_s=args.timeout, open_sinks=lambda bus: attach_viewers(bus, args, spec))
     if stop.exit_code is not None:
         print(f"[launch] stopped by {stop.name}: every node stopped, servos left with torque off", flush=True)

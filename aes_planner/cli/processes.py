@@ -17,6 +17,18 @@ from aes_planner.errors import AesPlannerError
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7390"  # aes_planner.transport.config.DEFAULT_ENDPOINT (why 7390: there)
 
 
+def add_domain_flag(g) -> None:
+    """``--domain N``: the graph's domain (docs/guides/graphs.md); read by every tool on the bus."""
+    g.add_argument(
+        "--domain",
+        type=int,
+        default=None,
+        metavar="N",
+        help="the graph's domain, 0-232 (default: AES_PLANNER_DOMAIN, else 0): graphs in different domains "
+        "never see each other; hub port 7390 - N, key prefix aes<N> (docs/guides/graphs.md)",
+    )
+
+
 def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None = None) -> None:
     g = p.add_argument_group("transport")
     g.add_argument(
@@ -24,12 +36,13 @@ def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None =
         action="store_true",
         help=processes_help or "run each node in its own process over Zenoh (supervised; respawn: true restarts)",
     )
+    add_domain_flag(g)
     g.add_argument(
         "--listen",
         default=None,
         metavar="ENDPOINT",
-        help=f"with --processes: where the graph's hub listens (default: the launch file's bus.listen, else "
-        f"{DEFAULT_ENDPOINT}); echo/record/replay and other machines connect here",
+        help=f"with --processes: where the graph's hub listens (default: the launch file's bus.listen, else the "
+        f"domain's hub, {DEFAULT_ENDPOINT} in domain 0); echo/record/replay and other machines connect here",
     )
     g.add_argument(
         "--connect",
@@ -49,6 +62,22 @@ def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None =
         help="serve every topic live to the Foxglove app on ws://127.0.0.1:PORT (default 8765)",
     )
     g.add_argument("--record", default=None, metavar="FILE.mcap", help="record every topic to an MCAP file")
+
+
+def add_clock_flag(p: argparse.ArgumentParser, default_help: str) -> None:
+    """``--clock sim|wall``: the graph's time (docs/guides/clock.md)."""
+    p.add_argument(
+        "--clock",
+        choices=("sim", "wall"),
+        default=None,
+        help="sim: simulated time in lockstep (a result depends on the scene and the code, not on the load); "
+        f"wall: real time; default: {default_help}",
+    )
+
+
+def clock_overrides(args: argparse.Namespace) -> list[str]:
+    """The ``--set`` a ``--clock`` flag stands for."""
+    return [f"clock={args.clock}"] if getattr(args, "clock", None) else []
 
 
 def declared_outputs(spec) -> list[tuple[str, type, bool]]:
@@ -72,7 +101,11 @@ def attach_viewers(bus, args: argparse.Namespace, spec=None) -> list:
     sinks = []
     try:
         if getattr(args, "record", None):
-            sinks.append(Recorder(args.record).attach(bus))
+            rec = Recorder(args.record)
+            sinks.append(rec)
+            if spec is not None:  # which clock ran (a simulated run's stamps are simulated seconds)
+                rec.add_metadata("run", {"clock": spec.clock.source, "clock_step_s": spec.clock.step_s})
+            rec.attach(bus)
         port = getattr(args, "foxglove", None)
         if port is not None:
             if not 0 <= port <= 65535:
@@ -93,16 +126,18 @@ def supervisor_from_args(args: argparse.Namespace, in_process=(), out=None):
     """A :class:`~aes_planner.graph.supervisor.Supervisor` for ``args.file`` / ``args.set``."""
     from aes_planner.config import ConfigError
     from aes_planner.graph.supervisor import Supervisor
-    from aes_planner.transport.config import ZenohConfig
+    from aes_planner.transport.config import ZenohConfig, graph_domain, hub_endpoint
 
     try:
         ZenohConfig(
-            listen=(args.listen or DEFAULT_ENDPOINT,), connect=tuple(args.connect), allow_remote=args.allow_remote
+            listen=(args.listen or hub_endpoint(graph_domain()),),
+            connect=tuple(args.connect),
+            allow_remote=args.allow_remote,
         )
     except ConfigError as exc:
         raise ConfigError("--listen" if exc.key.startswith("listen") else "--connect", exc.message) from None
     level = logging.getLogger().getEffectiveLevel()
-    return Supervisor(
+    supervisor = Supervisor(
         args.file,
         args.set,
         endpoint=args.listen,
@@ -112,6 +147,11 @@ def supervisor_from_args(args: argparse.Namespace, in_process=(), out=None):
         out=out,
         log_level=level,
     )
+    if supervisor.spec.scene is not None:  # a bad scene fails here, not in every child
+        from aes_planner.sim import load_scene
+
+        load_scene(supervisor.spec.scene)
+    return supervisor
 
 
 def run_processes(args: argparse.Namespace) -> int:
@@ -119,10 +159,11 @@ def run_processes(args: argparse.Namespace) -> int:
     is lost or ``--timeout`` (1), or SIGINT / SIGTERM (128 + the first signal, after every child
     stopped)."""
     from aes_planner.graph.runner import run_graph
+    from aes_planner.transport.config import graph_domain
 
     sup = supervisor_from_args(args)
     print(
-        f"launch {sup.spec.path} (one process per node, hub {sup.endpoint}): "
+        f"launch {sup.spec.path} (one process per node, domain {graph_domain()}, hub {sup.endpoint}): "
         + ", ".join(c.node_id for c in sup.children),
         flush=True,
     )

@@ -1,4 +1,5 @@
-"""``aes-planner suggest DATASET_DIR``: suggest better views from a posed-frame folder."""
+"""``aes-planner suggest DATASET_DIR``: suggest better views from a posed-frame folder (or from a folder of
+photos without poses: the pose step runs first, :mod:`aes_planner.photos`)."""
 
 from __future__ import annotations
 
@@ -20,15 +21,21 @@ def register(sub: argparse._SubParsersAction) -> None:
             "Build the aesthetic field (or RGB scoring) from the folder's frames and run the two-stage view "
             "search: rig mode searches the gimbal's pan/tilt inside its limits (kinematics from the folder's "
             "metadata, as `sim render` writes it, or --rig FILE); free mode searches 5-DoF views inside the "
-            "drone's box."
+            "drone's box; handheld mode (a folder of photos without poses: `aes-planner pose` runs first) "
+            "searches the region the photographer walked and says each suggestion from the nearest photo."
         ),
     )
-    p.add_argument("dataset", metavar="DATASET_DIR", help="folder with cameras.json and images/")
-    p.add_argument("--preset", default="balanced", choices=["fast", "balanced", "accurate"], help="speed/accuracy")
+    p.add_argument(
+        "dataset",
+        metavar="DATASET_DIR",
+        help="folder with cameras.json and images/, or a folder of photos without poses (posed first)",
+    )
+    p.add_argument("--preset", default="balanced", choices=["fast", "balanced"], help="speed/accuracy")
     p.add_argument(
         "--mode",
-        choices=["rig", "drone", "free"],
-        help="platform: rig or drone (free: the older word for drone); default: the folder's platform (rig if it has none)",
+        choices=["rig", "drone", "free", "handheld"],
+        help="platform: rig, drone (free: the older word for drone) or handheld (photos); default: the folder's "
+        "platform (rig if it has none)",
     )
     p.add_argument("--rig", metavar="FILE", help="rig kinematics and joint limits as YAML (PanTiltConfig fields)")
     p.add_argument("--top", type=int, metavar="K", help="number of suggestions (default: the preset's K)")
@@ -43,6 +50,31 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="render the report's ground-truth row from this scene (default: the folder's scene when `sim render` "
         "wrote it from FAMILY:SEED; a scene file named inside a folder is never opened)",
     )
+    p.add_argument(
+        "--keep",
+        action="append",
+        default=[],
+        metavar="FRAME:X0,Y0,X1,Y1",
+        help="keep this subject whole in the suggested view: a box in pixels of the input image FRAME (its file "
+        "name as in cameras.json, e.g. 00003.png:21,0,61,36); repeatable (docs/guides/framing.md)",
+    )
+    p.add_argument(
+        "--avoid",
+        action="append",
+        default=[],
+        metavar="FRAME:X0,Y0,X1,Y1",
+        help="steer away from views that show what this box shows (same form as --keep); repeatable",
+    )
+    p.add_argument(
+        "--keep-at", choices=["centre", "thirds"], help="also prefer the kept subject at the centre or on the thirds"
+    )
+    p.add_argument(
+        "--keep-margin",
+        type=float,
+        default=0.05,
+        metavar="FRAC",
+        help="the kept subject stays this fraction of the frame's width/height inside every edge (default 0.05)",
+    )
     p.add_argument("--json", metavar="OUT", help="write the suggestions as JSON")
     p.add_argument("--out", metavar="DIR", help="write the report image (report.png) into DIR")
     p.add_argument(
@@ -52,7 +84,52 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="CPU threads for torch and the rasterizer (default: the cores idle when it starts, so one beside "
         "a busy process on two cores; the count used is printed)",
     )
+    photos = p.add_argument_group("photos without poses (DATASET_DIR holds only photos: `aes-planner pose` runs first)")
+    photos.add_argument(
+        "--posed",
+        metavar="DIR",
+        help="where the pose step writes the posed folder (default: OUT/posed with --out, else DATASET_DIR-posed "
+        "beside the photos)",
+    )
+    photos.add_argument(
+        "--scale-from",
+        metavar="IMG_A,IMG_B,METRES",
+        help="metric scale: the distance in metres between the cameras of two photos (file names)",
+    )
+    photos.add_argument(
+        "--board", metavar="SPEC", help="metric scale from a calibration board in view (e.g. chessboard:9x6:0.025)"
+    )
+    photos.add_argument(
+        "--margin",
+        type=float,
+        metavar="LENGTH",
+        help="the hand-held search region's margin around the walked path (default: a quarter of the cameras' spread)",
+    )
     p.set_defaults(func=run)
+
+
+def _pose_first(args: argparse.Namespace) -> str:
+    """The posed-frame folder to read: DATASET_DIR itself when it has a cameras.json (or is not a folder of
+    photos); otherwise the folder the pose step writes from its photos, said so on the way."""
+    from aes_planner.photos.sfm import IMAGE_SUFFIXES
+
+    src = Path(args.dataset)
+    if not src.is_dir() or (src / "cameras.json").exists():
+        return args.dataset
+    if not any(f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES for f in src.iterdir()):
+        return args.dataset  # the folder reader says what is missing
+    from aes_planner.cli.pose import pose_config, run_pose
+
+    cfg = pose_config(args)
+    if args.posed:
+        posed = Path(args.posed)
+    elif args.out:
+        posed = Path(args.out) / "posed"
+    else:
+        posed = src.resolve().parent / f"{src.resolve().name}-posed"  # "." names its folder
+    print(f"{src}: photos without poses: running the pose step first (aes-planner pose {src} --out {posed})")
+    run_pose(src, posed, cfg)
+    return str(posed)
 
 
 def _platform(meta: dict, frames, mode: str | None, rig_file: str | None):
@@ -60,12 +137,24 @@ def _platform(meta: dict, frames, mode: str | None, rig_file: str | None):
 
     from aes_planner.config import from_dict, load_yaml
     from aes_planner.geometry.rig import PanTiltConfig
-    from aes_planner.platform import DroneBox, DronePlatform, RigPlatform, parse_kind, platform_from_meta
+    from aes_planner.platform import (
+        HANDHELD,
+        DroneBox,
+        DronePlatform,
+        HandHeldPlatform,
+        RigPlatform,
+        parse_kind,
+        platform_from_meta,
+    )
     from aes_planner.search import SearchError
 
     k = frames[0].intrinsics
     stored = platform_from_meta(meta, k)
-    kind = parse_kind(mode, "--mode") if mode else (stored.kind if stored is not None else RigPlatform.kind)
+    kind = (
+        parse_kind(mode, "--mode", allow_handheld=True)
+        if mode
+        else (stored.kind if stored is not None else RigPlatform.kind)
+    )
     if stored is not None and stored.kind == kind and not rig_file:
         if stored.rig is not None and not meta.get("rig"):
             raise SearchError("meta.rig: empty; give the rig's PanTiltConfig fields or pass --rig FILE")
@@ -81,7 +170,9 @@ def _platform(meta: dict, frames, mode: str | None, rig_file: str | None):
             "section; pass --rig FILE (YAML with PanTiltConfig fields) or use --mode drone"
         )
     if rig_file:
-        log.warning("--rig %s is not used for a drone (it flies the folder's box)", rig_file)
+        log.warning("--rig %s is not used for a %s", rig_file, kind)
+    if kind == HANDHELD:  # the region walked: within a margin of the paths between the inputs' cameras
+        return HandHeldPlatform.around_photos(k, np.stack([f.cam2world for f in frames]))
     if stored is not None and stored.drone is not None:
         return stored
     pos = np.stack([f.cam2world[:3, 3] for f in frames])
@@ -134,6 +225,8 @@ def run(args: argparse.Namespace) -> int:
         raise SearchError("--truth-scene renders the report's ground-truth row: give --out DIR for the report too")
     from aes_planner.images import MAX_WORKING_SIDE_PX
 
+    framing_cfg, keep, avoid = _framing_args(args)  # a malformed box fails before the pose step and the search
+    args.dataset = _pose_first(args)
     data = load_dataset(args.dataset, load_depth=True, max_side_px=MAX_WORKING_SIDE_PX)
     for (w, h), n in data.downscaled.items():  # say so: the report shows the downscaled views
         print(
@@ -158,12 +251,31 @@ def run(args: argparse.Namespace) -> int:
             kind = "rgb"
             scorer = build_search_scorer(kind, data.frames, cfg)
         args.scorer = kind
-        result = search_views(scorer, data.cam2worlds(), platform, cfg)
+        framing = None
+        if keep or avoid:
+            from aes_planner.search.framing import build_framing, dataset_frames
+
+            frames = dataset_frames(data.frames)
+            framing = build_framing(scorer, frames, keep, avoid, platform.intrinsics, framing_cfg)
+            for line in framing.describe():
+                print(f"framing: {line}")
+        result = search_views(scorer, data.cam2worlds(), platform, cfg, framing=framing)
     latency_ms = (time.perf_counter() - t0) * 1e3
     top = args.top or cfg.top_k
     print(f"{len(result.suggestions[:top])} suggestion(s), {result.mode} mode, preset {args.preset}, "
           f"scorer {args.scorer}, {latency_ms:.0f} ms, {job.threads} thread(s)")  # fmt: skip
     print_table(result, top)
+    moves = _hand_held_moves(platform, data, result.suggestions[:top])
+    if moves:
+        unit = data.meta.get("unit", "m")
+        if unit != "m":
+            print(f"positions in units of {unit}")
+        print(
+            f"search space: hand-held, within {platform.margin_m:.2f} {'m' if unit == 'm' else 'units'} of the path "
+            f"walked between the {len(platform.centres)} photos' cameras"
+        )
+        for i, move in enumerate(moves):
+            print(f"#{i + 1} {move.text()}")
     if len(result.suggestions) < top:  # say what the search left out
         if result.dropped_uncovered:
             print(
@@ -182,11 +294,26 @@ def run(args: argparse.Namespace) -> int:
             "latency_ms": latency_ms,
             "suggestions": [s.to_json() for s in result.suggestions[:top]],
         }
+        if moves:  # the frame of the poses the pose step wrote, and each view from its nearest photo
+            doc["posed_folder"] = str(data.root)
+            doc["unit"] = data.meta.get("unit", "m")
+            doc["frame"] = data.meta.get("frame", "the posed folder's frame")
+            doc["search_space"] = {"kind": "handheld", "margin": platform.margin_m, "cameras": len(platform.centres)}
+            for entry, move in zip(doc["suggestions"], moves):
+                entry["from_photo"] = move.to_json()
+        if framing is not None:
+            doc["keep"] = [s.to_json() for s in framing.keep]
+            doc["avoid"] = [s.to_json() for s in framing.avoid]
+            doc["keep_margin"] = framing.cfg.margin_frac
         Path(args.json).write_text(json.dumps(doc, indent=1) + "\n")
         print(f"wrote {args.json}")
     if args.out:
-        renderers, scores = {}, {}
+        renderers, scores, row_labels = {}, {}, {}
         poses = np.stack([s.cam2world for s in result.suggestions])  # [K, 4, 4] world
+        if moves:  # the photo each suggestion is said from, beside the suggested view
+            every = _hand_held_moves(platform, data, result.suggestions)
+            renderers["from photo"] = lambda _poses: [data.frames[m.photo_index].image for m in every]
+            row_labels["from photo"] = [f"#{i + 1} {m.photo}" for i, m in enumerate(every)]
         own = render_with(scorer)
         if own is not None:
             renderers[args.scorer] = own
@@ -205,10 +332,66 @@ def run(args: argparse.Namespace) -> int:
                 + ", ".join(f"#{i + 1} {v:.3f}" for i, v in enumerate(scores["truth"][:top]))
             )
         report = write_report(
-            output_in(args.out, "report.png"), [f.image for f in data.frames], result, renderers, scores=scores
+            output_in(args.out, "report.png"),
+            [f.image for f in data.frames],
+            result,
+            renderers,
+            scores=scores,
+            outlines=_outlines(framing, data.frames) if framing is not None else None,
+            labels=row_labels,
         )
         print(f"wrote {report}")
     return 0
+
+
+def _hand_held_moves(platform, data, suggestions) -> list:
+    """Each suggestion as a move from the nearest input photo (a hand-held platform only; else [])."""
+    from aes_planner.photos import moves_from_photos
+    from aes_planner.platform import HANDHELD
+
+    if platform.kind != HANDHELD or not suggestions:
+        return []
+    import numpy as np
+
+    names = data.meta.get("photos")
+    if not (isinstance(names, list) and len(names) == len(data.frames) and all(isinstance(n, str) for n in names)):
+        names = [f.frame_id or f"input {i + 1}" for i, f in enumerate(data.frames)]
+    unit = data.meta.get("unit", "m")
+    targets = np.stack([s.cam2world for s in suggestions])  # [K, 4, 4]
+    return moves_from_photos(targets, data.cam2worlds(), names, "m" if unit == "m" else str(unit))
+
+
+def _framing_args(args):
+    """``--keep``/``--avoid``/``--keep-at``/``--keep-margin`` -> (FramingConfig, keep, avoid), checked
+    before anything is loaded."""
+    from aes_planner.config import ConfigError
+    from aes_planner.search.framing import FramingConfig, FramingError, Region
+
+    keep = [Region.parse(t, "--keep") for t in args.keep]
+    avoid = [Region.parse(t, "--avoid") for t in args.avoid]
+    if args.keep_at and not keep:
+        raise FramingError("--keep-at places the kept subject: give the subject with --keep FRAME:X0,Y0,X1,Y1")
+    try:
+        cfg = FramingConfig(margin_frac=args.keep_margin, keep_at=args.keep_at)
+    except ConfigError as exc:
+        raise FramingError(f"--keep-margin: {exc}") from None
+    return cfg, keep, avoid
+
+
+def _outlines(framing, frames) -> dict:
+    """What the report outlines: each region's box in its input image, each subject's 3D box."""
+    from aes_planner.search.framing import frame_index
+
+    index = frame_index(frames)
+    boxes = []
+    for kind, subjects in (("keep", framing.keep), ("avoid", framing.avoid)):
+        for s in subjects:
+            f = frames[index[s.region.frame]]
+            w, h = f.extras.get("stored_size", (f.intrinsics.width, f.intrinsics.height))
+            sx, sy = f.image.shape[1] / w, f.image.shape[0] / h
+            r = s.region.scaled(sx, sy)
+            boxes.append((index[s.region.frame], kind, (r.x0, r.y0, r.x1, r.y1)))
+    return {"input_boxes": boxes, "framing": framing}
 
 
 def _scores(scorer, poses) -> list[float]:

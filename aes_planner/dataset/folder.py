@@ -399,6 +399,8 @@ def load_dataset(
             downscaled[size] = downscaled.get(size, 0) + 1
             image, depth, k = downscale_parts(image, depth, k, max_side_px)
         frames.append(frame_from_parts(key, image, k, c2w, stamp, depth, str(e.get("frame_id", i))))
+        frames[-1].extras["image_name"] = e["image"]  # as cameras.json names it (suggest --keep FRAME:...)
+        frames[-1].extras["stored_size"] = (width, height)  # before any downscale: the pixels boxes are given in
         frame_meta.append(e.get("meta", {}))
     for f, m in zip(frames, frame_meta):
         f.extras["meta"] = m

@@ -50,7 +50,7 @@ from aes_planner.geometry.poses import PoseError, rigid_inverse, validate_cam2wo
 
 log = logging.getLogger(__name__)
 
-__all__ = ["import_nerfstudio", "import_re10k", "align_up_to_cameras", "OPENGL_TO_OPENCV"]
+__all__ = ["import_nerfstudio", "import_re10k", "align_up_to_cameras", "rotation_to_z", "OPENGL_TO_OPENCV"]
 
 # Right-multiplying an OpenGL-axes cam2world by this flips the camera's y and z axes.
 OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -67,12 +67,16 @@ def align_up_to_cameras(cam2worlds: np.ndarray) -> np.ndarray:
     """
     ups = -np.asarray(cam2worlds)[:, :3, 1]  # [N, 3]
     mean = ups.mean(axis=0)
-    n = np.linalg.norm(mean)
-    out = np.eye(4)
-    if n < 1e-6:
+    if np.linalg.norm(mean) < 1e-6:
         log.warning("camera up axes cancel out; keeping the world orientation")
-        return out
-    a = mean / n
+        return np.eye(4)
+    return rotation_to_z(mean)
+
+
+def rotation_to_z(up: np.ndarray) -> np.ndarray:
+    """The smallest world rotation ``[4, 4]`` taking the direction ``up [3]`` (non-zero) to +z."""
+    out = np.eye(4)
+    a = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
     z = np.array([0.0, 0.0, 1.0])
     v = np.cross(a, z)
     s, c = np.linalg.norm(v), float(np.dot(a, z))

@@ -30,18 +30,11 @@ def aborted(nodes) -> bool:
 
 
 def abort_reason(nodes) -> str:
-    """One line: why the run ended early (no vehicle heard, or its link lost for too long)."""
+    """One line: why the run ended early (no vehicle heard, no position from it, its link lost)."""
     for d in _drones(nodes):
-        if d.aborted:
-            c = d.config
-            if d.link.sysid is None:
-                return (
-                    f"no MAVLink vehicle heard on {c.connection} within {c.link_loss_abort_s:g} s (link_loss_abort_s); "
-                    "is it sending there (PX4 SITL: udp 14540)?"
-                )
-            return (
-                f"the vehicle's link was lost for more than {c.link_loss_abort_s:g} s; the run ends (the vehicle holds)"
-            )
+        reason = d.abort_reason()
+        if reason is not None:
+            return reason
     return ""
 
 

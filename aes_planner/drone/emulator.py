@@ -15,7 +15,12 @@ hovering in hold** (PX4 ``AUTO.LOITER``; ArduPilot ``LOITER``) and follows these
   within its limits at up to ``gimbal_rate_deg_s``; wind adds a drift velocity.
 * telemetry: ``HEARTBEAT`` at ``heartbeat_hz``, ``LOCAL_POSITION_NED``, ``ATTITUDE`` and
   ``ATTITUDE_QUATERNION`` at ``telemetry_hz``, ``GIMBAL_DEVICE_ATTITUDE_STATUS`` at ``gimbal_hz``
-  (yaw in the vehicle frame).
+  (yaw in the vehicle frame), from the start with ``streams: always`` (PX4 on its offboard port).
+  ``streams: on_request`` is ArduPilot with its default ``SRn_*`` rates on a companion's port:
+  only a 1 Hz heartbeat until a message is asked for, by ``MAV_CMD_SET_MESSAGE_INTERVAL`` (per
+  message; -1 stops it) or ``REQUEST_DATA_STREAM`` (``POSITION``, ``EXTRA1``, ``ALL``);
+  ``streams: data_stream_only`` honours only the latter (older firmware), answering the former
+  ``MAV_RESULT_UNSUPPORTED``. The default is ``always`` for PX4 and ``on_request`` for ArduPilot.
 * faults: ``packet_loss`` (each packet either way dropped with this probability), ``link_loss``
   (``[[start_s, duration_s], ...]`` after start: nothing in or out), ``offboard_refused`` (every
   mode switch denied), ``wind_m_s`` (NED drift velocity).
@@ -35,15 +40,35 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from aes_planner.config import require, require_numbers
+from aes_planner.config import require, require_numbers, require_within, short_repr
 from aes_planner.drone import frames as fr
-from aes_planner.drone.modes import ARDUPILOT_MODES, connect, mode_name, px4_custom_mode
+from aes_planner.drone.connection import connect, parse_connection
+from aes_planner.drone.modes import ARDUPILOT_MODES, mavlink, mode_name, px4_custom_mode
 
 log = logging.getLogger(__name__)
 
 __all__ = ["EmulatorConfig", "VehicleEmulator"]
 
-FORBIDDEN_COMMANDS = {400: "arm_disarm", 22: "takeoff", 21: "land", 20: "return_to_launch", 84: "vtol_takeoff"}
+mav = mavlink()
+FORBIDDEN_COMMANDS = {
+    mav.MAV_CMD_COMPONENT_ARM_DISARM: "arm_disarm",
+    mav.MAV_CMD_NAV_TAKEOFF: "takeoff",
+    mav.MAV_CMD_NAV_LAND: "land",
+    mav.MAV_CMD_NAV_RETURN_TO_LAUNCH: "return_to_launch",
+    mav.MAV_CMD_NAV_VTOL_TAKEOFF: "vtol_takeoff",
+}
+STREAM_POLICIES = ("always", "on_request", "data_stream_only")
+#: How far from its local origin an emulated vehicle may start or fence itself, metres.
+MAX_LOCAL_M = 1e4
+#: The longest emulated run (a week), seconds: link-loss windows and ``drone emulate --duration``.
+MAX_RUN_S = 7 * 86400.0
+#: The telemetry the emulator sends: message -> (its id, the REQUEST_DATA_STREAM group holding it).
+TELEMETRY = {
+    "LOCAL_POSITION_NED": (mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mav.MAV_DATA_STREAM_POSITION),
+    "ATTITUDE": (mav.MAVLINK_MSG_ID_ATTITUDE, mav.MAV_DATA_STREAM_EXTRA1),
+    "ATTITUDE_QUATERNION": (mav.MAVLINK_MSG_ID_ATTITUDE_QUATERNION, mav.MAV_DATA_STREAM_EXTRA1),
+    "GIMBAL_DEVICE_ATTITUDE_STATUS": (mav.MAVLINK_MSG_ID_GIMBAL_DEVICE_ATTITUDE_STATUS, None),
+}
 
 
 @dataclass
@@ -66,7 +91,8 @@ class EmulatorConfig:
     gimbal_yaw_limits_deg: tuple[float, float] = (-170.0, 170.0)
     gimbal_rate_deg_s: float = 90.0
     start_gimbal_pitch_deg: float = 0.0
-    heartbeat_hz: float = 2.0
+    heartbeat_hz: float | None = None  # PX4 2 Hz, ArduPilot 1 Hz
+    streams: str | None = None
     telemetry_hz: float = 30.0
     gimbal_hz: float = 10.0
     offboard_loss_s: float = 0.5
@@ -84,21 +110,69 @@ class EmulatorConfig:
         for name in ("system_id", "component_id"):
             v = getattr(self, name)
             require(isinstance(v, int) and 1 <= v <= 255, name, f"must be an integer in 1-255, got {v!r}")
+        parse_connection(self.connection, "connection")
         require_numbers(
             self,
             ("max_speed_m_s", "position_gain_1_s", "max_yaw_rate_deg_s", "gimbal_rate_deg_s"),
             minimum=0.0,
         )
+        require_within(self, ("start_ned_m",), -MAX_LOCAL_M, MAX_LOCAL_M)
+        require_within(self, ("start_heading_deg",), -360.0, 360.0)
+        require_within(self, ("max_speed_m_s",), 0.0, 30.0)  # a camera drone's top speed, and then some
+        require_within(self, ("position_gain_1_s",), 0.0, 100.0)
+        require_within(self, ("max_yaw_rate_deg_s", "gimbal_rate_deg_s"), 0.0, 1000.0)
+        require_within(self, ("wind_m_s",), -30.0, 30.0)
+        require_within(self, ("offboard_loss_s",), 0.0, 60.0)
+        require(len(self.start_ned_m) == 3, "start_ned_m", f"expected (north, east, down), got {self.start_ned_m!r}")
+        require(len(self.wind_m_s) == 3, "wind_m_s", f"expected (north, east, down), got {self.wind_m_s!r}")
+        for name in ("gimbal_pitch_limits_deg", "gimbal_yaw_limits_deg"):
+            require_within(self, (name,), -180.0, 180.0)
+            lo, hi = getattr(self, name)
+            require(lo < hi, name, f"must be (min, max) with min < max, got {(lo, hi)}")
+        lo, hi = self.gimbal_pitch_limits_deg
+        require_within(self, ("start_gimbal_pitch_deg",), lo, hi)
+        require(
+            isinstance(self.seed, int) and not isinstance(self.seed, bool) and 0 <= self.seed < 2**63,
+            "seed",
+            f"must be an integer in [0, 2**63), got {self.seed!r}",
+        )
+        if self.heartbeat_hz is None:
+            self.heartbeat_hz = 2.0 if self.autopilot == "px4" else 1.0
+        if self.streams is None:
+            self.streams = "always" if self.autopilot == "px4" else "on_request"
+        require(
+            self.streams in STREAM_POLICIES,
+            "streams",
+            f"must be one of {', '.join(STREAM_POLICIES)}, got {self.streams!r}",
+        )
         require_numbers(self, ("heartbeat_hz", "telemetry_hz", "gimbal_hz", "offboard_loss_s"))
+        for name in ("heartbeat_hz", "telemetry_hz", "gimbal_hz"):
+            require(getattr(self, name) <= 1000, name, f"must be at most 1000 Hz, got {getattr(self, name)}")
         require(0.0 <= self.packet_loss < 1.0, "packet_loss", f"must be in [0, 1), got {self.packet_loss}")
         require(
             (self.fence_min_ned_m is None) == (self.fence_max_ned_m is None), "fence_max_ned_m", "give both or neither"
         )
-        for w in self.link_loss:
+        if self.fence_min_ned_m is not None:
+            require_within(self, ("fence_min_ned_m", "fence_max_ned_m"), -MAX_LOCAL_M, MAX_LOCAL_M)
+            lo, hi = self.fence_min_ned_m, self.fence_max_ned_m
             require(
-                isinstance(w, (list, tuple)) and len(w) == 2 and all(math.isfinite(float(x)) for x in w),
+                len(lo) == len(hi) == 3 and all(a < b for a, b in zip(lo, hi)),
+                "fence_max_ned_m",
+                f"the fence must be larger than fence_min_ned_m on every axis (not reversed, not empty), got {lo} .. {hi}",
+            )
+        require(
+            isinstance(self.link_loss, list) and len(self.link_loss) <= 100,
+            "link_loss",
+            f"expected at most 100 [start_s, duration_s] windows, got {short_repr(self.link_loss)}",
+        )
+        for w in self.link_loss:
+            ok = isinstance(w, (list, tuple)) and len(w) == 2
+            ok = ok and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in w)
+            require(
+                ok and 0 <= w[0] <= MAX_RUN_S and 0 < w[1] <= MAX_RUN_S,
                 "link_loss",
-                f"expected [[start_s, duration_s], ...], got {self.link_loss!r}",
+                f"expected [[start_s, duration_s], ...] with 0 <= start_s <= {MAX_RUN_S:g} and 0 < duration_s <= "
+                f"{MAX_RUN_S:g}, got {short_repr(self.link_loss)}",
             )
 
 
@@ -130,6 +204,12 @@ class VehicleEmulator:
         self.setpoints_flown = 0
         self.gimbal_commands = 0
         self.max_outside_fence_m = 0.0
+        always = c.streams == "always"
+        self.rates_hz = {  # what is sent, and how often (0: not sent)
+            name: (c.gimbal_hz if name.startswith("GIMBAL") else c.telemetry_hz) if always else 0.0
+            for name in TELEMETRY
+        }
+        self.stream_requests: list[str] = []
         self._rng = random.Random(c.seed)
         self._conn = None
         self._thread: threading.Thread | None = None
@@ -168,7 +248,13 @@ class VehicleEmulator:
 
     def _run(self) -> None:
         c = self.config
-        due = {"hb": 0.0, "tel": 0.0, "gim": 0.0}
+        due = {"hb": 0.0, **dict.fromkeys(TELEMETRY, 0.0)}
+        senders = {
+            "LOCAL_POSITION_NED": self._send_position,
+            "ATTITUDE": self._send_attitude,
+            "ATTITUDE_QUATERNION": self._send_attitude_quaternion,
+            "GIMBAL_DEVICE_ATTITUDE_STATUS": self._send_gimbal,
+        }
         last = time.time()
         while not self._stop.is_set():
             now = time.time()
@@ -188,11 +274,10 @@ class VehicleEmulator:
                 self._physics(now, now - last)
             last = now
             if not down:
-                for key, hz, send in (
-                    ("hb", c.heartbeat_hz, self._send_heartbeat),
-                    ("tel", c.telemetry_hz, self._send_telemetry),
-                    ("gim", c.gimbal_hz, self._send_gimbal),
-                ):
+                with self._lock:
+                    rates = [("hb", c.heartbeat_hz, self._send_heartbeat)]
+                    rates += [(k, self.rates_hz[k], senders[k]) for k in TELEMETRY if self.rates_hz[k] > 0]
+                for key, hz, send in rates:
                     if now >= due[key]:
                         due[key] = max(due[key] + 1.0 / hz, now)
                         if self._rng.random() >= c.packet_loss:
@@ -242,6 +327,9 @@ class VehicleEmulator:
             if msg.target_system not in (0, c.system_id):
                 return
             self._on_command(msg, now)
+        elif kind == "REQUEST_DATA_STREAM":
+            if msg.target_system in (0, c.system_id):
+                self._on_data_stream(int(msg.req_stream_id), int(msg.req_message_rate), int(msg.start_stop))
         elif kind == "SET_MODE":
             self.mode_requests.append(f"SET_MODE {msg.custom_mode}")
             self._try_mode(int(msg.custom_mode), now)
@@ -251,7 +339,7 @@ class VehicleEmulator:
         if msg.target_system != c.system_id:
             self.rejected["wrong_target"] += 1
             return
-        if msg.coordinate_frame != 1:  # MAV_FRAME_LOCAL_NED
+        if msg.coordinate_frame != mav.MAV_FRAME_LOCAL_NED:
             self.rejected["wrong_frame"] += 1
             return
         mask = int(msg.type_mask)
@@ -286,10 +374,10 @@ class VehicleEmulator:
         if cmd in FORBIDDEN_COMMANDS:
             self.forbidden.append(FORBIDDEN_COMMANDS[cmd])
             self.events.append((now, f"forbidden request {FORBIDDEN_COMMANDS[cmd]}"))
-            result = 2  # DENIED: the emulator stays armed and in the air
-        elif cmd == 176:  # MAV_CMD_DO_SET_MODE
-            if not int(msg.param1) & 1:
-                result = 2
+            result = mav.MAV_RESULT_DENIED  # the emulator stays armed and in the air
+        elif cmd == mav.MAV_CMD_DO_SET_MODE:
+            if not int(msg.param1) & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+                result = mav.MAV_RESULT_DENIED
             else:
                 custom = (
                     px4_custom_mode(int(msg.param2), int(msg.param3))
@@ -298,31 +386,57 @@ class VehicleEmulator:
                 )
                 self.mode_requests.append(mode_name(self.config.autopilot, 1, custom))
                 result = self._try_mode(custom, now)
-        elif cmd == 1000:  # MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW
+        elif cmd == mav.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW:
             result = self._on_gimbal(msg)
+        elif cmd == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
+            result = self._on_message_interval(int(msg.param1), float(msg.param2))
         else:
-            result = 3  # UNSUPPORTED
+            result = mav.MAV_RESULT_UNSUPPORTED
         try:
             self._conn.mav.command_ack_send(cmd, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
         except OSError:
             pass
+
+    def _on_message_interval(self, msg_id: int, interval_us: float) -> int:
+        """``MAV_CMD_SET_MESSAGE_INTERVAL``: -1 stops the message, 0 its default, else one every
+        ``interval_us``; refused (UNSUPPORTED) by a ``data_stream_only`` vehicle."""
+        if self.config.streams == "data_stream_only":
+            return mav.MAV_RESULT_UNSUPPORTED
+        name = next((k for k, (i, _) in TELEMETRY.items() if i == msg_id), None)
+        if name is None or not math.isfinite(interval_us):
+            return mav.MAV_RESULT_DENIED
+        default = self.config.gimbal_hz if name.startswith("GIMBAL") else self.config.telemetry_hz
+        self.rates_hz[name] = (
+            0.0 if interval_us < 0 else default if interval_us == 0 else min(1e6 / interval_us, 1000.0)
+        )
+        self.stream_requests.append(f"SET_MESSAGE_INTERVAL {name} {self.rates_hz[name]:g} Hz")
+        return mav.MAV_RESULT_ACCEPTED
+
+    def _on_data_stream(self, stream_id: int, rate_hz: int, start: int) -> None:
+        """``REQUEST_DATA_STREAM``: a group of messages (ArduPilot's ``SRn_*``) at ``rate_hz`` (0 or stop: off)."""
+        if self.config.streams == "always":
+            return  # PX4 ignores it
+        for name, (_, group) in TELEMETRY.items():
+            if group is not None and stream_id in (group, mav.MAV_DATA_STREAM_ALL):
+                self.rates_hz[name] = float(min(max(rate_hz, 0), 50)) if start else 0.0
+        self.stream_requests.append(f"REQUEST_DATA_STREAM {stream_id} {rate_hz} Hz {'start' if start else 'stop'}")
 
     def _try_mode(self, custom: int, now: float) -> int:
         c = self.config
         name = mode_name(c.autopilot, 1, custom)
         if c.offboard_refused or name.startswith("UNKNOWN"):
             self.events.append((now, f"mode {name} refused"))
-            return 2
+            return mav.MAV_RESULT_DENIED
         if name == "OFFBOARD":
             recent = [t for t in self.setpoint_times if now - t <= 1.0]
             if len(recent) <= 2 or now - recent[-1] > c.offboard_loss_s:
                 self.events.append((now, "OFFBOARD refused: no setpoint stream"))
-                return 1  # TEMPORARILY_REJECTED
+                return mav.MAV_RESULT_TEMPORARILY_REJECTED
         if name in ("OFFBOARD", "GUIDED"):
             self.target_ned = self.position_ned.copy()
             self.target_heading = self.heading_rad
         self._set_mode(name, now, "requested")
-        return 0
+        return mav.MAV_RESULT_ACCEPTED
 
     def _on_gimbal(self, msg) -> int:
         c = self.config
@@ -336,7 +450,7 @@ class VehicleEmulator:
             goal_y = math.radians(min(max(yaw, lo), hi))
         self.gimbal_goal = (goal_p, goal_y)
         self.gimbal_commands += 1
-        return 0
+        return mav.MAV_RESULT_ACCEPTED
 
     def _set_mode(self, name: str, now: float, why: str) -> None:
         if name != self.mode:
@@ -355,23 +469,32 @@ class VehicleEmulator:
         return int((time.monotonic() - self._boot) * 1000) & 0xFFFFFFFF
 
     def _send_heartbeat(self, now: float) -> None:
-        base = 1 | (128 if self.armed else 0)  # custom mode enabled, armed
-        autopilot = 12 if self.config.autopilot == "px4" else 3
-        self._conn.mav.heartbeat_send(2, autopilot, base, self._custom_mode(), 4)
+        base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mav.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
+        autopilot = mav.MAV_AUTOPILOT_PX4 if self.config.autopilot == "px4" else mav.MAV_AUTOPILOT_ARDUPILOTMEGA
+        self._conn.mav.heartbeat_send(
+            mav.MAV_TYPE_QUADROTOR, autopilot, base, self._custom_mode(), mav.MAV_STATE_ACTIVE
+        )
 
-    def _send_telemetry(self, now: float) -> None:
+    def _send_position(self, now: float) -> None:
         with self._lock:
-            p, v, heading = self.position_ned.copy(), getattr(self, "velocity_ned", np.zeros(3)), self.heading_rad
-        t = self._ms()
-        self._conn.mav.local_position_ned_send(t, *p.tolist(), *v.tolist())
-        self._conn.mav.attitude_send(t, 0.0, 0.0, heading, 0.0, 0.0, 0.0)
-        q = fr.matrix_to_quat(fr.euler_to_matrix(0.0, 0.0, heading))
-        self._conn.mav.attitude_quaternion_send(t, *q.tolist(), 0.0, 0.0, 0.0)
+            p, v = self.position_ned.copy(), getattr(self, "velocity_ned", np.zeros(3))
+        self._conn.mav.local_position_ned_send(self._ms(), *p.tolist(), *v.tolist())
+
+    def _send_attitude(self, now: float) -> None:
+        self._conn.mav.attitude_send(self._ms(), 0.0, 0.0, self.heading_rad, 0.0, 0.0, 0.0)
+
+    def _send_attitude_quaternion(self, now: float) -> None:
+        q = fr.matrix_to_quat(fr.euler_to_matrix(0.0, 0.0, self.heading_rad))
+        self._conn.mav.attitude_quaternion_send(self._ms(), *q.tolist(), 0.0, 0.0, 0.0)
 
     def _send_gimbal(self, now: float) -> None:
         with self._lock:
             q = fr.matrix_to_quat(fr.euler_to_matrix(0.0, self.gimbal_pitch_rad, self.gimbal_yaw_rad))
-        flags = 4 | 8 | 32  # roll lock, pitch lock, yaw in the vehicle frame
+        flags = (
+            mav.GIMBAL_DEVICE_FLAGS_ROLL_LOCK
+            | mav.GIMBAL_DEVICE_FLAGS_PITCH_LOCK
+            | mav.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME
+        )
         nan = float("nan")
         self._conn.mav.gimbal_device_attitude_status_send(
             0, 0, self._ms(), flags, q.tolist(), nan, nan, nan, 0, nan, nan, 0
@@ -388,6 +511,7 @@ class VehicleEmulator:
                 "gimbal_pitch_deg": round(math.degrees(self.gimbal_pitch_rad), 3),
                 "gimbal_yaw_deg": round(math.degrees(self.gimbal_yaw_rad), 3),
                 "mode_requests": list(self.mode_requests),
+                "stream_requests": list(self.stream_requests[-32:]),
                 "rejected": dict(self.rejected),
                 "forbidden_requests": list(self.forbidden),
                 "setpoints_flown": self.setpoints_flown,

@@ -1,16 +1,26 @@
 """``MavlinkLink``: the companion's side of the MAVLink link, in its own thread.
 
 It reads the vehicle's telemetry and, ``stream_rate_hz`` times a second, decides what to do with
-one readable rule (:meth:`MavlinkLink._decide`)::
+one readable rule (:meth:`MavlinkLink._decide`, a :class:`LinkStatus`)::
 
     waiting_for_vehicle  no autopilot heartbeat yet                     -> nothing sent
+    waiting_for_telemetry the vehicle's heartbeat but no position yet:  -> the telemetry is
+                         its streams are asked for (ArduPilot sends        requested (again every
+                         only a 1 Hz heartbeat to a companion until        stream_request_retry_s)
+                         asked); after telemetry_wait_s the run ends
+                         naming the missing message
     link_lost            no heartbeat for heartbeat_timeout_s, or no
                          position for pose_timeout_s (paused; resumes
                          only on fresh telemetry: a new heartbeat and
                          a new position)                                -> nothing sent
+    implausible_telemetry a position no vehicle reaches (beyond the      -> nothing sent (paused
+                         plausibility bound, or a jump faster than         for telemetry_hold_s of
+                         max_vehicle_speed_m_s): garbage, not flown on     sane telemetry, reported)
     planner_stopped      the planner is done or failed                  -> nothing sent (the vehicle
                                                                            runs its offboard-loss failsafe)
     disarmed             the vehicle is not armed (never armed here)    -> nothing sent
+    outside_box          more than max_entry_m outside the box, in any  -> nothing sent (said once
+                         mode (OFFBOARD/GUIDED included)                   per visit)
     flying               the vehicle is in OFFBOARD (PX4) / GUIDED      -> setpoints toward the
                          (ArduPilot)                                       planner's view, gimbal
     waiting_for_offboard in a mode from which control may begin         -> hold-here setpoints (PX4
@@ -19,9 +29,8 @@ one readable rule (:meth:`MavlinkLink._decide`)::
                                                                            requested only with
                                                                            request_offboard
     pilot_control        the pilot left OFFBOARD while the link was up  -> as above, but never requested
-    unexpected_mode      any other mode (manual, RTL, land...), the     -> nothing sent
-                         wrong autopilot, or outside the box by more
-                         than max_entry_m
+    unexpected_mode      any other mode (manual, RTL, land...), or the  -> nothing sent
+                         wrong autopilot
 
 Every setpoint passes :class:`~aes_planner.drone.safety.SetpointGate` (box, speed, finiteness).
 Nothing here arms, disarms, takes off or lands.
@@ -29,6 +38,7 @@ Nothing here arms, disarms, takes off or lands.
 
 from __future__ import annotations
 
+import enum
 import logging
 import math
 import threading
@@ -37,19 +47,71 @@ import time
 import numpy as np
 
 from aes_planner.drone import frames as fr
-from aes_planner.drone.modes import connect, control_mode, mode_name, set_mode_params
+from aes_planner.drone.connection import connect
+from aes_planner.drone.modes import control_mode, mavlink, mode_name, set_mode_params
 from aes_planner.drone.safety import GateLimits, SetpointGate
+from aes_planner.geometry.plausible import MAX_COORDINATE_M
 
 log = logging.getLogger(__name__)
 
-__all__ = ["MavlinkLink", "TYPE_MASK_POSITION_YAW"]
+__all__ = ["LinkStatus", "MavlinkLink", "TYPE_MASK_POSITION_YAW", "TELEMETRY_NEEDED"]
 
-#: SET_POSITION_TARGET_LOCAL_NED.type_mask: use x, y, z and yaw; ignore velocity (8|16|32),
-#: acceleration (64|128|256) and yaw rate (2048). FORCE_SET (512) is not set.
-TYPE_MASK_POSITION_YAW = 8 | 16 | 32 | 64 | 128 | 256 | 2048
-MAV_FRAME_LOCAL_NED = 1
-NOT_A_VEHICLE = {6, 18, 26, 27, 30}  # GCS, onboard controller, gimbal, ADS-B, camera
-AUTOPILOTS = {12: "px4", 3: "ardupilot"}
+mav = mavlink()  # pymavlink's common dialect: the named constants of common.xml
+
+#: SET_POSITION_TARGET_LOCAL_NED.type_mask: use x, y, z and yaw; ignore velocity, acceleration
+#: and yaw rate. FORCE_SET is not set.
+TYPE_MASK_POSITION_YAW = (
+    mav.POSITION_TARGET_TYPEMASK_VX_IGNORE
+    | mav.POSITION_TARGET_TYPEMASK_VY_IGNORE
+    | mav.POSITION_TARGET_TYPEMASK_VZ_IGNORE
+    | mav.POSITION_TARGET_TYPEMASK_AX_IGNORE
+    | mav.POSITION_TARGET_TYPEMASK_AY_IGNORE
+    | mav.POSITION_TARGET_TYPEMASK_AZ_IGNORE
+    | mav.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
+)
+NOT_A_VEHICLE = {
+    mav.MAV_TYPE_GCS,
+    mav.MAV_TYPE_ONBOARD_CONTROLLER,
+    mav.MAV_TYPE_GIMBAL,
+    mav.MAV_TYPE_ADSB,
+    mav.MAV_TYPE_CAMERA,
+}
+AUTOPILOTS = {mav.MAV_AUTOPILOT_PX4: "px4", mav.MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot"}
+
+#: What the bridge needs from the vehicle, and how it is asked for: the message (its id for
+#: ``MAV_CMD_SET_MESSAGE_INTERVAL``, which PX4 and ArduPilot 4 honour) and ArduPilot's
+#: ``REQUEST_DATA_STREAM`` group holding it (``SRn_POSITION``, ``SRn_EXTRA1``: what older firmware
+#: honours), as MAVROS and MAVSDK ask.
+TELEMETRY_NEEDED = {
+    "LOCAL_POSITION_NED": (mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mav.MAV_DATA_STREAM_POSITION),
+    "ATTITUDE": (mav.MAVLINK_MSG_ID_ATTITUDE, mav.MAV_DATA_STREAM_EXTRA1),
+}
+#: Asked for too, never waited for (a vehicle without a gimbal manager has none).
+TELEMETRY_WANTED = {"GIMBAL_DEVICE_ATTITUDE_STATUS": (mav.MAVLINK_MSG_ID_GIMBAL_DEVICE_ATTITUDE_STATUS, None)}
+
+
+class LinkStatus(str, enum.Enum):
+    """What the link does this tick (the module docstring's table); a ``str`` (its value) on the wire."""
+
+    WAITING_FOR_VEHICLE = "waiting_for_vehicle"
+    WAITING_FOR_TELEMETRY = "waiting_for_telemetry"
+    LINK_LOST = "link_lost"
+    IMPLAUSIBLE_TELEMETRY = "implausible_telemetry"
+    PLANNER_STOPPED = "planner_stopped"
+    DISARMED = "disarmed"
+    OUTSIDE_BOX = "outside_box"
+    FLYING = "flying"
+    WAITING_FOR_OFFBOARD = "waiting_for_offboard"
+    PILOT_CONTROL = "pilot_control"
+    UNEXPECTED_MODE = "unexpected_mode"
+
+    __str__ = str.__str__
+    __format__ = str.__format__
+
+
+S = LinkStatus
+#: A position may jump this much beyond what max_vehicle_speed_m_s allows (an estimator's small reset).
+JUMP_SLACK_M = 2.0
 
 
 class MavlinkLink:
@@ -77,11 +139,20 @@ class MavlinkLink:
                 "link_losses",
                 "pilot_takeovers",
                 "goals_in",
+                "stream_requests_sent",
+                "telemetry_implausible",
+                "outside_box_refusals",
             ),
             0,
         )
-        self.status = "waiting_for_vehicle"
+        self.status = S.WAITING_FOR_VEHICLE
         self.sysid: int | None = None
+        self.first_heartbeat_s: float | None = None
+        self.last_seen_s: dict[str, float] = {}  # message name -> arrival of the newest
+        self.last_stream_request_s = -math.inf
+        self.implausible_s = -math.inf  # arrival of the newest garbage position
+        self._position_ref: tuple[np.ndarray, float] | None = None  # newest position heard (any), its time
+        self._outside_said = False
         self.compid = 1
         self.autopilot_seen: str | None = None
         self.mode = ""
@@ -181,10 +252,11 @@ class MavlinkLink:
         self.counters["messages_in"] += 1
         src = msg.get_srcSystem()
         if kind == "HEARTBEAT":
-            if msg.type in NOT_A_VEHICLE or msg.autopilot == 8:
+            if msg.type in NOT_A_VEHICLE or msg.autopilot == mav.MAV_AUTOPILOT_INVALID:
                 return
             if self.sysid is None and self.config.vehicle_system_id in (0, src):
                 self.sysid, self.compid = src, msg.get_srcComponent()
+                self.first_heartbeat_s = now
                 if not self.config.source_system:
                     self._conn.mav.srcSystem = src  # a companion shares its vehicle's system id
                 log.info("vehicle: system %d component %d (autopilot %s)", src, self.compid, msg.autopilot)
@@ -192,12 +264,13 @@ class MavlinkLink:
             if self.sysid is not None or self.config.vehicle_system_id not in (0, src):  # never followed
                 self.counters["foreign_messages"] += 1
             return
+        self.last_seen_s[kind] = now
         if kind == "HEARTBEAT":
             self.counters["heartbeats_in"] += 1
             self.last_heartbeat_s = now
             self.fresh_since_loss["heartbeat"] = True
             self.autopilot_seen = AUTOPILOTS.get(int(msg.autopilot), f"autopilot {msg.autopilot}")
-            self.armed = bool(msg.base_mode & 128)
+            self.armed = bool(msg.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
             new_mode = mode_name(self.config.autopilot, int(msg.base_mode), int(msg.custom_mode))
             if self.mode_known and new_mode != self.mode:
                 log.warning("vehicle mode %s -> %s", self.mode, new_mode)
@@ -207,6 +280,13 @@ class MavlinkLink:
             v = np.array([msg.vx, msg.vy, msg.vz], dtype=np.float64)
             if not np.all(np.isfinite(p)):
                 self.counters["telemetry_rejected"] += 1
+                return
+            problem = self._implausible(p, now)
+            if problem is not None:
+                self.counters["telemetry_implausible"] += 1
+                if now - self.implausible_s > self.config.telemetry_hold_s:
+                    log.warning("implausible telemetry (%s): setpoints paused, nothing flown on it", problem)
+                self.implausible_s = now
                 return
             self.counters["positions_in"] += 1
             self.position_ned, self.velocity_ned = p, np.where(np.isfinite(v), v, 0.0)
@@ -232,19 +312,53 @@ class MavlinkLink:
                 return
             flags = int(msg.flags)
             self.gimbal_q = q / np.linalg.norm(q)
-            self.gimbal_earth = bool(flags & 64) or (not flags & 32 and bool(flags & 16))
+            self.gimbal_earth = bool(flags & mav.GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME) or (
+                not flags & mav.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME
+                and bool(flags & mav.GIMBAL_DEVICE_FLAGS_YAW_LOCK)
+            )
             self.last_gimbal_s = now
-        elif kind == "COMMAND_ACK" and msg.command == 176:
-            ok = msg.result == 0
+        elif kind == "COMMAND_ACK" and msg.command == mav.MAV_CMD_DO_SET_MODE:
+            ok = msg.result == mav.MAV_RESULT_ACCEPTED
             self.counters["mode_requests_accepted" if ok else "mode_requests_denied"] += 1
             if not ok:
                 log.warning("vehicle refused the mode switch (MAV_RESULT %d)", msg.result)
 
     # ---------------------------------------------------------------------------- control
-    def _decide(self, now: float) -> str:
+    def _implausible(self, p_ned: np.ndarray, now: float) -> str | None:
+        """What no vehicle does about position ``p_ned`` arriving at ``now`` (None: plausible). A jump
+        is measured from the newest position heard, garbage or not, so a vehicle whose estimate
+        really moved (an EKF reset) is flown again after ``telemetry_hold_s`` of steady telemetry."""
+        far = float(np.abs(p_ned).max())
+        if not far <= MAX_COORDINATE_M:
+            return f"LOCAL_POSITION_NED {far:.3g} m from the origin (beyond {MAX_COORDINATE_M:.0e} m)"
+        ref, self._position_ref = self._position_ref, (p_ned, now)
+        if ref is None:
+            return None
+        jump = float(np.linalg.norm(p_ned - ref[0]))
+        dt = max(now - ref[1], 0.0)
+        allowed = self.config.max_vehicle_speed_m_s * dt + JUMP_SLACK_M
+        if jump > allowed:
+            return f"LOCAL_POSITION_NED jumped {jump:.3g} m in {dt:.3f} s (faster than max_vehicle_speed_m_s {self.config.max_vehicle_speed_m_s:g})"
+        return None
+
+    @property
+    def missing(self) -> list[str]:
+        return self.missing_telemetry(self.clock())
+
+    def missing_telemetry(self, now: float) -> list[str]:
+        """The needed messages (:data:`TELEMETRY_NEEDED`) not heard within ``pose_timeout_s``."""
+        return [k for k in TELEMETRY_NEEDED if now - self.last_seen_s.get(k, -math.inf) > self.config.pose_timeout_s]
+
+    def _decide(self, now: float) -> LinkStatus:
         c = self.config
-        if self.sysid is None or self.last_position_s == -math.inf:
-            return "waiting_for_vehicle"
+        if self.sysid is None:
+            return S.WAITING_FOR_VEHICLE
+        if now - self.implausible_s <= c.telemetry_hold_s:
+            self.in_control = False  # resumes, from where the vehicle then is, on sane telemetry
+            self.primed_since = None
+            return S.IMPLAUSIBLE_TELEMETRY
+        if self.last_position_s == -math.inf:
+            return S.WAITING_FOR_TELEMETRY
         stale = now - self.last_heartbeat_s > c.heartbeat_timeout_s or now - self.last_position_s > c.pose_timeout_s
         if stale or not all(self.fresh_since_loss.values()):
             if self.lost_since is None:
@@ -254,54 +368,95 @@ class MavlinkLink:
                 self.in_control = self.mode_known = False
                 self.primed_since = None
                 log.warning("link lost: no telemetry; setpoints paused until fresh telemetry arrives")
-            return "link_lost"
+            return S.LINK_LOST
         if self.lost_since is not None:
             log.warning("link back after %.1f s", now - self.lost_since)
             self.lost_since = None
         if self.planner_stopped:
             self.in_control = False
-            return "planner_stopped"
+            return S.PLANNER_STOPPED
         if not self.armed:
             self.in_control = False
-            return "disarmed"
+            return S.DISARMED
         if self.autopilot_seen in AUTOPILOTS.values() and self.autopilot_seen != c.autopilot:
-            return "unexpected_mode"  # a PX4 read as ArduPilot (or back): its modes would be misread
+            return S.UNEXPECTED_MODE  # a PX4 read as ArduPilot (or back): its modes would be misread
+        outside = self.gate.outside_m(self.position_ned)
+        if outside > c.max_entry_m:  # in every mode: a vehicle out there is not flown to the box
+            if not self._outside_said:
+                self._outside_said = True
+                log.warning(
+                    "vehicle %.3g m outside the box (more than max_entry_m %g) in %s: no setpoints are sent; "
+                    "fly it into the box",
+                    outside,
+                    c.max_entry_m,
+                    self.mode or "an unknown mode",
+                )
+            self.counters["outside_box_refusals"] += 1
+            self.in_control = False
+            self.primed_since = None
+            return S.OUTSIDE_BOX
+        self._outside_said = False
         if self.mode == control_mode(c.autopilot):
             if not self.in_control:
                 self.in_control, self.pilot_took_over = True, False
-                if self.gate.carrot is None:
-                    self.gate.reset(self.position_ned, self.heading)
+                self.gate.reset(self.position_ned, self.heading)  # (re)gains control where the vehicle is
                 log.warning("vehicle in %s: flying the planner's views", self.mode)
-            return "flying"
+            return S.FLYING
         if self.in_control:  # it left control while the link was up: the pilot (or a failsafe)
             self.in_control, self.pilot_took_over = False, True
             self.counters["pilot_takeovers"] += 1
             log.warning("vehicle left %s for %s: the pilot has control", control_mode(c.autopilot), self.mode)
-        if self.mode not in c.engage_mode_list or self.gate.outside_m(self.position_ned) > c.max_entry_m:
+        if self.mode not in c.engage_mode_list:
             self.primed_since = None
-            return "unexpected_mode"
-        return "pilot_control" if self.pilot_took_over else "waiting_for_offboard"
+            return S.UNEXPECTED_MODE
+        return S.PILOT_CONTROL if self.pilot_took_over else S.WAITING_FOR_OFFBOARD
 
     def _tick(self, now: float) -> None:
         dt = 0.0 if self._last_tick is None else now - self._last_tick
         self._last_tick = now
         if self.sysid is not None and now - self._last_hb_out >= 1.0:
             self._last_hb_out = now
-            kind = 18 if self.config.heartbeat_type == "onboard_controller" else 6
-            self._conn.mav.heartbeat_send(kind, 8, 0, 0, 4)  # MAV_AUTOPILOT_INVALID, MAV_STATE_ACTIVE
+            kind = (
+                mav.MAV_TYPE_ONBOARD_CONTROLLER
+                if self.config.heartbeat_type == "onboard_controller"
+                else mav.MAV_TYPE_GCS
+            )
+            self._conn.mav.heartbeat_send(kind, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE)
+        if self.sysid is not None and self.missing_telemetry(now):
+            self._request_streams(now)
         self.status = status = self._decide(now)
-        if status in ("waiting_for_offboard", "pilot_control"):
+        if status in (S.WAITING_FOR_OFFBOARD, S.PILOT_CONTROL):
             self.gate.reset(self.position_ned, self.heading)  # hold here
             self.primed_since = self.primed_since or now
             self._send_setpoint(now, 0.0)
             if self._may_request(now):
                 self._request_control(now)
-        elif status == "flying":
+        elif status == S.FLYING:
             self._steer()
             self._send_setpoint(now, dt)
             self._point_gimbal(now)
         else:
             self.gate.carrot = None
+
+    def _request_streams(self, now: float) -> None:
+        """Ask for the telemetry not arriving, as MAVSDK and MAVROS do: ``MAV_CMD_SET_MESSAGE_INTERVAL``
+        per message, and for ArduPilot also ``REQUEST_DATA_STREAM`` per group (what its older
+        firmware honours; the group's ``SRn_*`` rate). Again every ``stream_request_retry_s``
+        while something is missing."""
+        c = self.config
+        if now - self.last_stream_request_s < c.stream_request_retry_s:
+            return
+        self.last_stream_request_s = now
+        interval_us = 1e6 / c.telemetry_rate_hz
+        for msg_id, _ in {**TELEMETRY_NEEDED, **TELEMETRY_WANTED}.values():
+            self._conn.mav.command_long_send(
+                self.sysid, self.compid, mav.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, interval_us, 0, 0, 0, 0, 0
+            )
+        if c.autopilot == "ardupilot":
+            for stream in sorted({g for _, g in TELEMETRY_NEEDED.values()}):
+                self._conn.mav.request_data_stream_send(self.sysid, self.compid, stream, round(c.telemetry_rate_hz), 1)
+        self.counters["stream_requests_sent"] += 1
+        log.info("asked the vehicle for %s at %g Hz", ", ".join(self.missing_telemetry(now)), c.telemetry_rate_hz)
 
     def _may_request(self, now: float) -> bool:
         c = self.config
@@ -317,7 +472,7 @@ class MavlinkLink:
         c = self.config
         self.last_mode_request_s = now
         p1, p2, p3 = set_mode_params(c.autopilot, control_mode(c.autopilot))
-        self._conn.mav.command_long_send(self.sysid, self.compid, 176, 0, p1, p2, p3, 0, 0, 0, 0)
+        self._conn.mav.command_long_send(self.sysid, self.compid, mav.MAV_CMD_DO_SET_MODE, 0, p1, p2, p3, 0, 0, 0, 0)
         self.counters["mode_requests_sent"] += 1
         log.warning("requested %s (request_offboard is on)", control_mode(c.autopilot))
 
@@ -338,11 +493,11 @@ class MavlinkLink:
         p, heading = sp
         ms = int((now - self.started_s) * 1000) & 0xFFFFFFFF
         self._conn.mav.set_position_target_local_ned_send(
-            ms, self.sysid, self.compid, MAV_FRAME_LOCAL_NED, TYPE_MASK_POSITION_YAW, *map(float, p),
+            ms, self.sysid, self.compid, mav.MAV_FRAME_LOCAL_NED, TYPE_MASK_POSITION_YAW, *map(float, p),
             0.0, 0.0, 0.0, 0.0, 0.0, 0.0, float(heading), 0.0,
         )  # fmt: skip
         self.counters["setpoints_sent"] += 1
-        if self.status == "flying" and self.goal_s is not None and self.first_setpoint_after_goal_s is None:
+        if self.status == S.FLYING and self.goal_s is not None and self.first_setpoint_after_goal_s is None:
             self.first_setpoint_after_goal_s = now
             self.goal_latencies_s = [*self.goal_latencies_s[-255:], now - self.goal_s]
 
@@ -363,9 +518,23 @@ class MavlinkLink:
         unconfirmed = now - self.last_gimbal_s < 2.0 and self._gimbal_error(pitch, yaw) > math.radians(0.5)
         if not changed and not (unconfirmed and now - self.gimbal_sent_s >= 1.0):
             return
-        flags = 4 | 8 | 32  # roll and pitch relative to the horizon, yaw relative to the vehicle
+        flags = (  # roll and pitch relative to the horizon, yaw relative to the vehicle
+            mav.GIMBAL_MANAGER_FLAGS_ROLL_LOCK
+            | mav.GIMBAL_MANAGER_FLAGS_PITCH_LOCK
+            | mav.GIMBAL_MANAGER_FLAGS_YAW_IN_VEHICLE_FRAME
+        )
         self._conn.mav.command_long_send(
-            self.sysid, self.compid, 1000, 0, math.degrees(pitch), math.degrees(yaw), math.nan, math.nan, flags, 0, 0
+            self.sysid,
+            self.compid,
+            mav.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW,
+            0,
+            math.degrees(pitch),
+            math.degrees(yaw),
+            math.nan,
+            math.nan,
+            flags,
+            0,
+            0,
         )
         self.gimbal_sent, self.gimbal_sent_s = (pitch, yaw), now
         self.counters["gimbal_commands_sent"] += 1

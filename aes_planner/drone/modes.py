@@ -9,11 +9,14 @@ that flag, param2 = custom (main) mode, param3 = PX4 sub mode).
 
 from __future__ import annotations
 
+import os
+
 __all__ = [
     "ARDUPILOT_MODES",
     "PX4_MAIN_MODES",
     "PX4_AUTO_SUB_MODES",
     "control_mode",
+    "mavlink",
     "mode_name",
     "px4_custom_mode",
     "set_mode_params",
@@ -57,7 +60,16 @@ ARDUPILOT_MODES = {
     20: "GUIDED_NOGPS",
     21: "SMART_RTL",
 }
-CUSTOM_MODE_ENABLED = 1  # MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+CUSTOM_MODE_ENABLED = 1  # MAV_MODE_FLAG_CUSTOM_MODE_ENABLED (checked against pymavlink in the tests)
+
+
+def mavlink():
+    """pymavlink's MAVLink 2 ``common`` dialect module: the messages and the named constants
+    (``MAV_CMD_DO_SET_MODE``, ``MAV_MODE_FLAG_SAFETY_ARMED``...) every MAVLink file here uses."""
+    os.environ.setdefault("MAVLINK20", "1")  # read by pymavlink when it loads a dialect
+    from pymavlink.dialects.v20 import common
+
+    return common
 
 
 def px4_custom_mode(main: int, sub: int = 0) -> int:
@@ -91,16 +103,3 @@ def set_mode_params(autopilot: str, name: str) -> tuple[float, float, float]:
         return float(CUSTOM_MODE_ENABLED), float(main), float(sub)
     number = next(k for k, v in ARDUPILOT_MODES.items() if v == name)
     return float(CUSTOM_MODE_ENABLED), float(number), 0.0
-
-
-def connect(connection: str, source_system: int, source_component: int):
-    """A pymavlink connection speaking MAVLink 2 with the common dialect (gimbal protocol v2 and
-    the ids above 255 exist only there)."""
-    import os
-
-    os.environ.setdefault("MAVLINK20", "1")  # read by pymavlink when it loads a dialect
-    from pymavlink import mavutil
-
-    return mavutil.mavlink_connection(
-        connection, source_system=source_system, source_component=source_component, dialect="common"
-    )

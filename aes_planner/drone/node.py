@@ -22,6 +22,7 @@ from aes_planner.config import ConfigError, from_dict, require, require_numbers
 from aes_planner.drone import frames as fr
 from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs, percentile
 from aes_planner.messages import Diagnostics, DroneState, ViewSuggestion
+from aes_planner.node.scene import launch_scene
 from aes_planner.platform import DroneBox
 
 log = logging.getLogger(__name__)
@@ -57,7 +58,7 @@ class GimbalConfig:
 
 @dataclass
 class MavlinkDroneConfig:
-    """How the node talks to the vehicle and what it may do (README, "Flying a drone").
+    """How the node talks to the vehicle and what it may do (docs/guides/drone.md).
 
     * ``connection``: a pymavlink connection string (``udpin:127.0.0.1:14540``: PX4 SITL's
       offboard port; ``serial:/dev/ttyUSB0:921600``, ``tcp:HOST:PORT``...).
@@ -72,6 +73,14 @@ class MavlinkDroneConfig:
     * ``stream_rate_hz``: setpoints per second (PX4 needs > 2; 30 by default: a stall of 70 ms still leaves 10 Hz).
     * ``heartbeat_timeout_s``, ``pose_timeout_s``: link loss; ``link_loss_abort_s``: a loss (or no
       vehicle at all) this long ends the run (``aborted``).
+    * ``telemetry_rate_hz``: the rate asked for the telemetry the bridge needs (``LOCAL_POSITION_NED``,
+      ``ATTITUDE``; with ``MAV_CMD_SET_MESSAGE_INTERVAL``, and for ArduPilot ``REQUEST_DATA_STREAM``),
+      asked again every ``stream_request_retry_s`` while missing; ``telemetry_wait_s``: a vehicle
+      heard whose position has not arrived this long after its first heartbeat ends the run,
+      naming the missing message.
+    * ``max_vehicle_speed_m_s``: a position jumping faster than this is garbage (as is one beyond
+      the plausibility bound): nothing is flown on it, and setpoints pause until
+      ``telemetry_hold_s`` of sane telemetry has arrived.
     * ``prime_s``: setpoints streamed before the switch is requested; ``offboard_retry_s``.
     * ``max_speed_m_s``, ``max_yaw_rate_deg_s``: the streamed setpoint's speed limits;
       ``lead_m``: how far it may run ahead of the vehicle.
@@ -97,6 +106,11 @@ class MavlinkDroneConfig:
     heartbeat_timeout_s: float = 2.5
     pose_timeout_s: float = 1.0
     link_loss_abort_s: float = 20.0
+    telemetry_rate_hz: float = 30.0
+    stream_request_retry_s: float = 2.0
+    telemetry_wait_s: float = 15.0
+    max_vehicle_speed_m_s: float = 40.0
+    telemetry_hold_s: float = 2.0
     prime_s: float = 1.0
     offboard_retry_s: float = 1.5
     max_speed_m_s: float = 1.0
@@ -114,11 +128,9 @@ class MavlinkDroneConfig:
     emulator: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        require(
-            isinstance(self.connection, str) and 0 < len(self.connection) <= 300,
-            "connection",
-            "give a pymavlink connection string such as udpin:127.0.0.1:14540",
-        )
+        from aes_planner.drone.connection import parse_connection
+
+        self.connection_parsed = parse_connection(self.connection, "connection")
         require(
             self.autopilot in ("px4", "ardupilot"), "autopilot", f"must be px4 or ardupilot, got {self.autopilot!r}"
         )
@@ -137,6 +149,11 @@ class MavlinkDroneConfig:
                 "heartbeat_timeout_s",
                 "pose_timeout_s",
                 "link_loss_abort_s",
+                "telemetry_rate_hz",
+                "stream_request_retry_s",
+                "telemetry_wait_s",
+                "max_vehicle_speed_m_s",
+                "telemetry_hold_s",
                 "offboard_retry_s",
                 "max_speed_m_s",
                 "max_yaw_rate_deg_s",
@@ -152,6 +169,24 @@ class MavlinkDroneConfig:
             f"must be in [2.5, 100] (PX4 needs > 2), got {self.stream_rate_hz}",
         )
         require(self.max_speed_m_s <= 20, "max_speed_m_s", f"must be <= 20, got {self.max_speed_m_s}")
+        require(
+            0.5 <= self.telemetry_rate_hz <= 100,
+            "telemetry_rate_hz",
+            f"must be in [0.5, 100], got {self.telemetry_rate_hz}",
+        )
+        require(
+            self.max_speed_m_s <= self.max_vehicle_speed_m_s <= 1000,
+            "max_vehicle_speed_m_s",
+            f"must be in [max_speed_m_s, 1000], got {self.max_vehicle_speed_m_s}",
+        )
+        for name in (
+            "heartbeat_timeout_s",
+            "pose_timeout_s",
+            "link_loss_abort_s",
+            "telemetry_wait_s",
+            "telemetry_hold_s",
+        ):
+            require(getattr(self, name) <= 3600, name, f"must be at most 3600 s, got {getattr(self, name)}")
         modes = self.engage_modes if self.engage_modes is not None else DEFAULT_ENGAGE_MODES[self.autopilot]
         require(
             isinstance(modes, list) and all(isinstance(m, str) for m in modes),
@@ -171,7 +206,7 @@ class MavlinkDroneConfig:
 
             from_dict(EmulatorConfig, self.emulator, "emulator")  # a bad key fails here, named
             require(
-                self.connection.startswith("udpin:"),
+                self.connection_parsed.scheme == "udpin",
                 "emulate",
                 f"the emulator sends to a udpin connection; got {self.connection!r}",
             )
@@ -184,6 +219,10 @@ class MavlinkDroneNode(Node):
     inputs = {"planner/suggestion": (ViewSuggestion, 8), "planner/diagnostics": (Diagnostics, 8)}
     outputs = {"drone/state": (DroneState, False), "drone/diagnostics": (Diagnostics, False)}
 
+    @classmethod
+    def sim_clock_problem(cls, config) -> str | None:
+        return "talks MAVLink to a vehicle (or its emulator), which flies in real time"
+
     def __init__(
         self, config: MavlinkDroneConfig | None = None, node_id: str = "drone", context: LaunchContext | None = None
     ):
@@ -194,7 +233,7 @@ class MavlinkDroneNode(Node):
         elif self.context.scene is not None:
             from aes_planner.sim.source import platform_of
 
-            self.box = platform_of(self.context.load_scene()).free_box()  # a rig scene: around its base
+            self.box = platform_of(launch_scene(self.context)).free_box()  # a rig scene: around its base
         else:
             raise ConfigError(
                 f"{node_id}.bounds_min_m", "give the flight box (bounds_min_m, bounds_max_m; world ENU) or a scene"
@@ -206,7 +245,7 @@ class MavlinkDroneNode(Node):
         self._last_state_s = -math.inf
         self._last_position_s = -math.inf
         self._last_diag = -math.inf
-        self._seq = 0
+        self._seq = {"state": 0, "diagnostics": 0}  # per topic: each counts its own messages from 1
         self.planner_state = ""
 
     @property
@@ -215,13 +254,45 @@ class MavlinkDroneNode(Node):
 
     @property
     def aborted(self) -> bool:
-        """The link has been lost (or never came up) for ``link_loss_abort_s``: the run should end."""
-        link = self.link
+        """The link has been lost (or never came up) for ``link_loss_abort_s``, or the vehicle was
+        heard but its position never arrived within ``telemetry_wait_s``: the run should end."""
+        return self.abort_reason() is not None
+
+    def abort_reason(self) -> str | None:
+        """Why the run should end (one line naming what is missing), or None."""
+        link, c = self.link, self.config
         if link is None:
-            return False
+            return None
         now = link.clock()
-        since = link.lost_since if link.lost_since is not None else (link.started_s if link.sysid is None else None)
-        return since is not None and now - since > self.config.link_loss_abort_s
+        if link.sysid is None:
+            if now - link.started_s > c.link_loss_abort_s:
+                return (
+                    f"no MAVLink vehicle heard on {c.connection} within {c.link_loss_abort_s:g} s (link_loss_abort_s); "
+                    "is it sending there (PX4 SITL: udp 14540)?"
+                )
+            return None
+        if link.last_position_s == -math.inf and link.first_heartbeat_s is not None:
+            if now - link.first_heartbeat_s > c.telemetry_wait_s:
+                missing = ", ".join(link.missing) or "LOCAL_POSITION_NED"
+                garbage = link.counters.get("telemetry_implausible", 0)
+                if garbage:
+                    return (
+                        f"the vehicle (system {link.sysid}) sent only implausible positions ({garbage} LOCAL_POSITION_NED "
+                        f"refused) within {c.telemetry_wait_s:g} s (telemetry_wait_s); check its position estimate"
+                    )
+                return (
+                    f"the vehicle (system {link.sysid}) sends heartbeats but no {missing} within {c.telemetry_wait_s:g} s "
+                    f"(telemetry_wait_s) after {link.counters.get('stream_requests_sent', 0)} requests "
+                    "(MAV_CMD_SET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM); give the port those streams (ArduPilot: "
+                    "SRn_POSITION and SRn_EXTRA1 of its serial port, or MAVn_OPTIONS on a network port) and check "
+                    "that it has a position estimate"
+                )
+            return None
+        if link.lost_since is not None and now - link.lost_since > c.link_loss_abort_s:
+            return (
+                f"the vehicle's link was lost for more than {c.link_loss_abort_s:g} s; the run ends (the vehicle holds)"
+            )
+        return None
 
     def start(self) -> None:
         from aes_planner.drone.process import EmulatorProcess, LinkProxy
@@ -247,10 +318,10 @@ class MavlinkDroneNode(Node):
         from aes_planner.node.sim_drone import _survey_start
 
         c = self.config
-        host_port = c.connection.split(":", 1)[1]
+        conn = c.connection_parsed
         start = _survey_start(self.box)  # the sim drone's start: the box's centre, looking east
         defaults = {
-            "connection": f"udpout:{host_port}",
+            "connection": f"udpout:{'127.0.0.1' if conn.host in ('0.0.0.0', 'localhost') else conn.host}:{conn.port}",
             "autopilot": c.autopilot,
             "start_ned_m": tuple(fr.enu_to_ned(start[:3, 3] - np.asarray(c.origin_m)).tolist()),
             "start_heading_deg": 90.0,
@@ -291,7 +362,7 @@ class MavlinkDroneNode(Node):
         r_cam, pitch, yaw = link.camera_rotation_ned(now)
         c2w = fr.pose_to_cam2world(link.position_ned, r_cam, link.r_ned_frd, c.gimbal_config.mount_frd_m, c.origin_m)
         att = fr.matrix_to_quat(fr.body_flu_in_enu(link.r_ned_frd))
-        self._seq += 1
+        self._seq["state"] += 1
         try:
             return DroneState(
                 link.last_position_s,
@@ -306,7 +377,7 @@ class MavlinkDroneNode(Node):
                 link.sysid,
                 "lost" if link.status == "link_lost" else "ok",
                 link.status,
-                self._seq,
+                self._seq["state"],
             )
         except Exception as exc:  # non-finite telemetry that slipped through: counted, not published
             link.counters["telemetry_rejected"] += 1
@@ -326,8 +397,8 @@ class MavlinkDroneNode(Node):
             if link.lost_since is not None:
                 values["link_lost_s"] = now - link.lost_since
             status = f"{link.status} mode={link.mode or '?'} armed={link.armed}"
-        return Diagnostics(now, self.node_id, status[:256], counters, values, self._next())
+        return Diagnostics(now, self.node_id, status[:256], counters, values, self._next("diagnostics"))
 
-    def _next(self) -> int:
-        self._seq += 1
-        return self._seq
+    def _next(self, topic: str) -> int:
+        self._seq[topic] += 1
+        return self._seq[topic]

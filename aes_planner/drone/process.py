@@ -21,9 +21,16 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from aes_planner.errors import AesPlannerError
+
 log = logging.getLogger(__name__)
 
-__all__ = ["EmulatorProcess", "LinkProxy"]
+__all__ = ["DroneProcessError", "EmulatorProcess", "LinkProxy"]
+
+
+class DroneProcessError(AesPlannerError):
+    """The link's (or the emulator's) process did not start: its reason, and what to check."""
+
 
 _SNAPSHOT = (
     "status",
@@ -39,6 +46,7 @@ _SNAPSHOT = (
     "r_ned_frd",
     "heading",
     "goal_latencies_s",
+    "first_heartbeat_s",
 )
 
 
@@ -87,6 +95,7 @@ def _link_main(config: dict, lo, hi, pipe, log_level: int) -> None:  # the child
                 snap["goal_latencies_s"] = list(link.goal_latencies_s[-64:])
                 snap["counters"] = {**link.counters, **link.gate.counters}
                 snap["camera"] = link.camera_rotation_ned(now)
+                snap["missing"] = link.missing_telemetry(now)
             pipe.send(("state", snap))
     except (EOFError, BrokenPipeError, OSError):
         pass
@@ -110,6 +119,8 @@ class LinkProxy:
         self.status, self.sysid, self.mode, self.armed = "waiting_for_vehicle", None, "", False
         self.last_position_s = self.last_heartbeat_s = -math.inf
         self.lost_since = None
+        self.first_heartbeat_s: float | None = None
+        self.missing: list[str] = []
         self.started_s = time.time()
         self.position_ned, self.velocity_ned, self.r_ned_frd, self.heading = np.zeros(3), np.zeros(3), np.eye(3), 0.0
         self.goal_latencies_s: list[float] = []
@@ -131,10 +142,14 @@ class LinkProxy:
         child.close()
         self._pipe = parent
         if not parent.poll(timeout_s):
-            raise TimeoutError(f"the link process did not start within {timeout_s:g} s")
+            self.stop()
+            raise DroneProcessError(
+                f"the MAVLink link's process did not start within {timeout_s:g} s; is the machine overloaded?"
+            )
         kind, value = parent.recv()
         if kind == "error":
-            raise OSError(value)
+            self.stop()
+            raise DroneProcessError(f"the MAVLink link did not open: {value}; check the connection string")
         self.started_s = value
         self._reader = threading.Thread(target=self._read, name="mavlink-link-reader", daemon=True)
         self._reader.start()
@@ -147,6 +162,7 @@ class LinkProxy:
                     for k in _SNAPSHOT:
                         setattr(self, k, snap[k])
                     self.counters = snap["counters"]
+                    self.missing = snap["missing"]
                     self._camera = snap["camera"]
         except (EOFError, OSError):
             return
@@ -188,7 +204,12 @@ def _emulator_main(config, pipe, log_level: int) -> None:
 
     logging.basicConfig(level=log_level, format="%(levelname)s %(name)s: %(message)s")
     _raise_priority("the vehicle emulator")  # a vehicle's own clock does not stall
-    with VehicleEmulator(config) as emu:
+    try:
+        emu = VehicleEmulator(config).start()
+    except Exception as exc:
+        pipe.send(("error", f"{type(exc).__name__}: {exc}"))
+        return
+    try:
         pipe.send(("started", None))
         while True:
             try:
@@ -198,6 +219,8 @@ def _emulator_main(config, pipe, log_level: int) -> None:
             pipe.send(("report", emu.report()))
             if kind == "stop":
                 return
+    finally:
+        emu.stop()
 
 
 class EmulatorProcess:
@@ -223,8 +246,14 @@ class EmulatorProcess:
         child.close()
         self._pipe = parent
         if not parent.poll(60.0):
-            raise TimeoutError("the vehicle emulator did not start within 60 s")
-        parent.recv()
+            self.stop()
+            raise DroneProcessError(
+                "the vehicle emulator's process did not start within 60 s; is the machine overloaded?"
+            )
+        kind, value = parent.recv()
+        if kind == "error":
+            self.stop()
+            raise DroneProcessError(f"the vehicle emulator did not start: {value}")
         return self
 
     def report(self) -> dict:

@@ -7,7 +7,7 @@ where ground truth exists at every pose (``aes-planner demo``'s ``summary.json``
   (:func:`aes_planner.search.oracle_search`, exhaustive on ground truth) and normalised by
   :func:`aes_planner.search.normalized`: ``(s - mean random) / (oracle - mean random)``, the mean
   over the oracle's random poses (the platform's sampler,
-  :meth:`~aes_planner.platform.Platform.random_poses`), as ``eval search`` does.
+  :func:`~aes_planner.search.space.random_poses`), as ``eval search`` does.
 """
 
 from __future__ import annotations

@@ -13,8 +13,7 @@ spread: ``normalized_se`` (standard error over the scenes) and, for each method 
 ``field_balanced`` on the same scenes, the paired difference with its standard error and how
 many scenes it did better, the same (within ``SAME_TOL``) or worse.
 
-Methods: ``field_fast``/``field_balanced``/``field_accurate`` (the two-stage search on the field
-at each preset), ``rgb`` (the same pipeline on RGB scoring, balanced), ``best_input``,
+Methods: ``field_fast``/``field_balanced`` (the two-stage search on the field at each preset), ``rgb`` (the same pipeline on RGB scoring, balanced), ``best_input``,
 ``inplane`` and ``rotation`` (exhaustive local sampling around each input, scored on ground
 truth: the paper's starred upper bounds of single-view methods), ``random`` (feasible random
 views: its mean) and ``oracle`` (:func:`aes_planner.search.oracle_search`).
@@ -53,7 +52,7 @@ from aes_planner.search import (
     search_views,
 )
 from aes_planner.search.pipeline import SearchError, refine_params
-from aes_planner.search.space import RigSpace, SearchSpace, space_for
+from aes_planner.search.space import RigSpace, SearchSpace, random_poses, space_for
 from aes_planner.teachers import get_teacher
 from aes_planner.teachers.evaluator import CompositionEvaluator
 
@@ -78,7 +77,6 @@ HELD_OUT_SCENES = [f"{HELD_OUT_FAMILIES[i % 4]}:{HELD_OUT_SEED_START + i}" for i
 METHODS = [
     "field_fast",
     "field_balanced",
-    "field_accurate",
     "rgb",
     "best_input",
     "inplane",
@@ -86,7 +84,7 @@ METHODS = [
     "random",
     "oracle",
 ]
-FIELD_PRESETS = {"field_fast": "fast", "field_balanced": "balanced", "field_accurate": "accurate"}
+FIELD_PRESETS = {"field_fast": "fast", "field_balanced": "balanced"}
 #: The method every other one is compared with, scene by scene (``vs_field_balanced``).
 REFERENCE_METHOD = "field_balanced"
 #: Paired differences of normalized score within this count as the same (1 % of oracle - random).
@@ -293,7 +291,7 @@ def run_search_eval(
             judge = Judge(source, teacher, evaluator)
             mean_random = o_extra["mean_random"]
             # the oracle's own random poses (same space, seed and count), so 'random' normalises to 0
-            _, rand_e = judge.measure(platform.random_poses(cfg.random_samples, np.random.default_rng(cfg.seed)))
+            _, rand_e = judge.measure(random_poses(platform, cfg.random_samples, np.random.default_rng(cfg.seed)))
             for n in cfg.views:
                 inputs = _inputs(source, platform, n)
                 frames = [source.capture(p) for p in inputs]
@@ -330,7 +328,69 @@ def run_search_eval(
     if out:
         output_in(out, "search_eval.json").write_text(json.dumps(doc, indent=1) + "\n")
         output_in(out, "search_eval.md").write_text(markdown(doc))
+        write_front_plots(doc, out)
     return doc
+
+
+#: A slower preset is on the front only when it beats the next faster one by this much (oracle-normalised).
+FRONT_MIN_GAIN = 0.03
+#: The presets in order of cost, and the reference points drawn beside them.
+FRONT_PRESETS = ("field_fast", "field_balanced", "field_accurate")  # accurate: in results from before its removal
+FRONT_REFERENCES = ("rgb", "best_input")
+
+
+def preset_front(table: dict[str, Any], latency_ms: dict[str, float]) -> list[dict[str, Any]]:
+    """The presets of one (views, mode) table, fastest first: latency, normalised score, the gain
+    over the next faster preset on the front and whether the preset is on the front (it beats every
+    faster one on it by at least ``FRONT_MIN_GAIN``; otherwise a faster preset is as good)."""
+    rows, best = [], None
+    for method in sorted((m for m in FRONT_PRESETS if m in table), key=lambda m: latency_ms.get(m, math.inf)):
+        norm = float(table[method]["normalized"])
+        gain = None if best is None else norm - best
+        on = best is None or gain >= FRONT_MIN_GAIN
+        rows.append({"method": method, "latency_ms": latency_ms.get(method), "normalized": norm,
+                     "normalized_se": table[method].get("normalized_se"), "gain": gain, "on_front": on})  # fmt: skip
+        if on:
+            best = norm
+    return rows
+
+
+def _front_lines(table: dict[str, Any], latency_ms: dict[str, float]) -> list[str]:
+    rows = preset_front(table, latency_ms)
+    if len(rows) < 2:
+        return []
+    lines = [f"Preset front (a slower preset must beat the faster ones by >= {FRONT_MIN_GAIN}):", ""]
+    for r in rows:
+        ms = "?" if r["latency_ms"] is None else f"{r['latency_ms']:.0f} ms"
+        gain = "" if r["gain"] is None else f", {r['gain']:+.3f} over the front so far"
+        verdict = "on the front" if r["on_front"] else "NOT on the front (a faster preset is as good)"
+        lines.append(f"- {r['method']}: {_pm(r['normalized'], r['normalized_se'])} in {ms}{gain}: {verdict}")
+    for ref in FRONT_REFERENCES:
+        if ref in table:
+            ms = f"{latency_ms[ref]:.0f} ms" if ref in latency_ms else "?"
+            lines.append(f"- reference {ref}: {_pm(table[ref]['normalized'], table[ref].get('normalized_se'))} in {ms}")
+    return [*lines, ""]
+
+
+def write_front_plots(doc: dict[str, Any], out: Path) -> list[Path]:
+    """``preset_front_<views>v_<mode>.png`` per table: latency against oracle-normalised score, the
+    presets joined, RGB scoring and best-input as reference points (:func:`write_pareto`)."""
+    paths = []
+    for n, modes in doc["views"].items():
+        for mode, table in modes.items():
+            if mode == "latency_ms":
+                continue
+            lat = modes.get("latency_ms", {}).get(mode, {})
+            names = {"field_fast": "fast", "field_balanced": "balanced", "field_accurate": "accurate"}
+            names["best_input"] = "input (best)"  # its own initial on the plot
+            points = {
+                names.get(m, m): (lat[m], table[m]["normalized"], table[m].get("normalized_se"))
+                for m in (*FRONT_PRESETS, *FRONT_REFERENCES)
+                if m in table and m in lat
+            }
+            if points:
+                paths.append(write_pareto(points, output_in(out, f"preset_front_{n}v_{mode}.png")))
+    return paths
 
 
 def _oracle_kw(cfg: SearchEvalConfig) -> dict[str, Any]:
@@ -530,7 +590,8 @@ def markdown(doc: dict[str, Any]) -> str:
                         if d is None else f"{_pm(d['diff'], d['diff_se'], '+')} ({d['better']} / {d['same']} / {d['worse']})"
                     )  # fmt: skip
                 lines.append("| " + " | ".join([*cells, ms]) + " |")
-            lines += ["", *_per_scene_table(doc.get("per_scene", []), n, mode, list(table))]
+            lines += ["", *_front_lines(table, lat)]
+            lines += [*_per_scene_table(doc.get("per_scene", []), n, mode, list(table))]
     ab = doc.get("ablations")
     if ab:
         se = {name: ab.get(f"{name}_se", {}) for name in ("gradient_gain", "top_k", "steps", "samples_x_neighbours")}
@@ -657,3 +718,50 @@ def _top_view(out: Path, spec: str, platform, frames, inputs, teacher, cfg: Sear
         cv2.drawMarker(img, px(s.position_m), (0, 0, 255), cv2.MARKER_CROSS, 14, 2)
     cv2.putText(img, f"{spec}: candidates by score (top view)", (4, 16), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1)
     cv2.imwrite(str(output_in(out, f"top_view_{spec.replace(':', '_').replace('/', '_')}.png")), img)
+
+
+def write_pareto(points: dict[str, tuple], path: Path) -> Path:
+    """Latency (log x) against normalised score (y); the presets joined, rgb apart. ``points``:
+    ``{name: (latency_ms, normalized)}`` or ``(latency_ms, normalized, standard_error | None)``,
+    the error drawn as a bar of +-1 standard error over the scenes (``bench search`` and
+    ``eval search --out`` draw it)."""
+    points = {name: (p[0], p[1], p[2] if len(p) > 2 else None) for name, p in points.items()}
+    w, h, m = 520, 360, 50
+    img = np.full((h, w, 3), 255, np.uint8)
+    lats = [p[0] for p in points.values()]
+    lo, hi = np.log10(max(min(min(lats) / 2, 500.0), 1.0)), np.log10(max(max(lats) * 2, 2000.0))  # the 1 s goal in view
+
+    def px(lat: float, norm: float) -> tuple[int, int]:
+        x = m + (np.log10(max(lat, 1.0)) - lo) / max(hi - lo, 1e-9) * (w - 2 * m)
+        y = h - m - np.clip(norm, -0.2, 1.1) / 1.1 * (h - 2 * m)
+        return int(x), int(y)
+
+    cv2.rectangle(img, (m, m), (w - m, h - m), (0, 0, 0), 1)
+    for goal, colour in ((0.8, (0, 160, 0)), (0.9, (0, 100, 0))):
+        cv2.line(img, px(10**lo, goal), px(10**hi, goal), colour, 1)
+    cv2.line(img, px(1000, -0.2), px(1000, 1.1), (0, 0, 200), 1)  # the 1 s goal
+    chain = [points[c][:2] for c in ("fast", "balanced", "accurate") if c in points]
+    for a, b in zip(chain, chain[1:]):
+        cv2.line(img, px(*a), px(*b), (200, 120, 0), 2)
+    for i, (name, (lat, norm, se)) in enumerate(points.items()):
+        colour = (0, 0, 200) if name == "rgb" else (200, 120, 0)
+        if se is not None:  # +-1 standard error over the scenes, with caps
+            (x, y0), (_, y1) = px(lat, norm - se), px(lat, norm + se)
+            cv2.line(img, (x, y0), (x, y1), colour, 1)
+            for y in (y0, y1):
+                cv2.line(img, (x - 4, y), (x + 4, y), colour, 1)
+        cv2.circle(img, px(lat, norm), 5, colour, -1)
+        cv2.putText(
+            img, name[0].upper(), (px(lat, norm)[0] - 4, px(lat, norm)[1] - 8), cv2.FONT_HERSHEY_PLAIN, 1.0, colour, 1
+        )
+        spread = "" if se is None else f" +- {se:.2f}"
+        cv2.putText(img, f"{name[0].upper()} {name}: {lat:.0f} ms, {norm:.2f}{spread}", (m + 6, m + 16 + 14 * i),
+                    cv2.FONT_HERSHEY_PLAIN, 0.9, (0, 0, 0), 1, cv2.LINE_AA)  # fmt: skip
+    cv2.putText(
+        img, "latency (ms, log) vs oracle-normalised score", (m, m - 12), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1
+    )
+    from aes_planner.images import write_image
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+
+    return write_image(path, img, "the trade-off plot")

@@ -4,11 +4,16 @@ Stage 1 of the paper's search joins the input views into a continuous trajectory
 it; :func:`interpolate_poses` does that for full 6-DoF poses (rotations by quaternion slerp
 along the shortest arc), :func:`interpolate_views` for 5-DoF views (yaw along the shortest arc,
 pitch linearly, roll stays 0 — the form a pan-tilt rig or a drone gimbal can reach).
+:class:`JointHistory` keeps a pan-tilt's joint angles over time and gives them at a stamp: where a
+rig's camera was when an image was exposed.
 """
 
 from __future__ import annotations
 
+import bisect
 import math
+from collections import deque
+from collections.abc import Iterable
 
 import numpy as np
 
@@ -20,7 +25,7 @@ from aes_planner.geometry.poses import (
     wrap_angle,
 )
 
-__all__ = ["slerp", "interpolate_poses", "interpolate_views"]
+__all__ = ["JointHistory", "slerp", "interpolate_poses", "interpolate_views"]
 
 
 def slerp(q0: np.ndarray, q1: np.ndarray, t: np.ndarray | float) -> np.ndarray:
@@ -108,3 +113,59 @@ def interpolate_views(views: np.ndarray, samples_per_segment: int, include_end: 
 def views_of(cam2worlds: np.ndarray) -> np.ndarray:
     """Convenience: ``[N, 4, 4]`` -> ``[N, 5]`` (roll discarded)."""
     return cam2world_to_view(np.asarray(cam2worlds, dtype=np.float64))
+
+
+class JointHistory:
+    """A pan-tilt's joint angles over the last ``history_s`` seconds (of the readings' own stamps),
+    linearly interpolated at a stamp and held at the ends: where a rig's camera was at a stamp.
+    The one history of the camera nodes and the ROS 2 bridge."""
+
+    def __init__(self, history_s: float):
+        self.history_s = float(history_s)
+        self._stamps: deque[float] = deque()
+        self._joints: deque[tuple[float, float]] = deque()
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    def add(self, stamp_s: float, pan_rad: float, tilt_rad: float) -> None:
+        """Keep a reading newer than the newest kept (an older or equal stamp is ignored); forget
+        those more than ``history_s`` older than it (keeping two at least)."""
+        if self._stamps and stamp_s <= self._stamps[-1]:
+            return
+        self._stamps.append(float(stamp_s))
+        self._joints.append((float(pan_rad), float(tilt_rad)))
+        while len(self._stamps) > 2 and self._stamps[0] < stamp_s - self.history_s:
+            self._stamps.popleft()
+            self._joints.popleft()
+
+    def extend(self, states: Iterable) -> None:
+        """:meth:`add` each of ``states`` (anything with ``stamp_s``, ``pan_rad``, ``tilt_rad``: a
+        :class:`~aes_planner.messages.GimbalState`)."""
+        for s in states:
+            self.add(s.stamp_s, s.pan_rad, s.tilt_rad)
+
+    def joints_at(self, stamp_s: float) -> tuple[float, float] | None:
+        """(pan, tilt) at ``stamp_s``, linearly interpolated between the two readings around it
+        (held at the ends); None before any reading, or before the history."""
+        if not self._stamps or stamp_s < self._stamps[0] - self.history_s:
+            return None
+        stamps = list(self._stamps)
+        i = bisect.bisect_right(stamps, stamp_s)
+        if i == 0:
+            return self._joints[0]
+        if i == len(stamps):
+            return self._joints[-1]
+        t0, t1 = stamps[i - 1], stamps[i]
+        (p0, q0), (p1, q1) = self._joints[i - 1], self._joints[i]
+        w = (stamp_s - t0) / (t1 - t0) if t1 > t0 else 1.0
+        return p0 + w * (p1 - p0), q0 + w * (q1 - q0)
+
+    @property
+    def newest_stamp_s(self) -> float | None:
+        """The newest reading's stamp; None before any."""
+        return self._stamps[-1] if self._stamps else None
+
+    def latest(self) -> tuple[float, float] | None:
+        """The newest reading's (pan, tilt); None before any."""
+        return self._joints[-1] if self._joints else None

@@ -14,8 +14,8 @@
   wait for the clean-up (torque off), the exit status is 128 + the first.
 
 Layers: this package imports :mod:`aes_planner.transport` and the messages, names the node types
-only by import path (a launch file's ``type:`` word), and loads a launch's simulated scene only
-when a node asks for it (:meth:`LaunchContext.load_scene`); the node types
+only by import path (a launch file's ``type:`` word), and never loads the simulator (the node
+types that take a scene load it: :func:`aes_planner.node.scene.launch_scene`); the node types
 (:mod:`aes_planner.node`) import this package; the transport imports neither. Names are imported
 lazily, so ``import aes_planner.graph`` costs nothing.
 """

@@ -75,24 +75,17 @@ class LaunchContext:
     """What a launch file shares with every node it builds.
 
     ``scene``: the simulated scene spec (``"indoor:3"`` or a YAML path) of a sim launch, else None;
-    ``values``: free-form extras (the run folder...).
+    ``loaded_scene``: that scene once loaded (the graph never loads the simulator: the node types
+    that take a scene load it through :func:`aes_planner.node.scene.launch_scene`, once per launch,
+    or a caller that has it already puts it here); ``clock``: ``wall`` or ``sim`` (the launch's
+    :class:`~aes_planner.graph.clock.ClockConfig` source: on ``sim`` a node's devices take their
+    time from ``now``); ``values``: free-form extras (the run folder...).
     """
 
     scene: str | None = None
+    clock: str = "wall"
     values: dict[str, Any] = field(default_factory=dict)
-    _scene_obj: Any = None
-
-    def load_scene(self):
-        """The :class:`aes_planner.sim.Scene` (loaded once)."""
-        if self.scene is None:
-            raise NodeError(
-                "this node needs a simulated scene: add 'scene: FAMILY:SEED' (or a scene file) to the launch file"
-            )
-        if self._scene_obj is None:
-            from aes_planner.sim import load_scene
-
-            self._scene_obj = load_scene(self.scene)
-        return self._scene_obj
+    loaded_scene: Any = None
 
 
 class Node(ABC):
@@ -127,6 +120,13 @@ class Node(ABC):
         """Whether this node type can ever be :attr:`finished` (it overrides the property): a
         launch ends when every node that can finish has."""
         return cls.finished is not Node.finished
+
+    @classmethod
+    def sim_clock_problem(cls, config: Any) -> str | None:
+        """Why a node of this type with ``config`` cannot run on a simulated clock (it talks to
+        something that lives in real time: a camera, a servo bus, a flight stack), or None when it
+        can (:mod:`aes_planner.graph.clock`)."""
+        return None
 
     def start(self) -> None:
         """Open devices and resources (called once, in the process that runs the node)."""

@@ -4,6 +4,8 @@
 
     scene: indoor:3                  # optional: the simulated scene every sim node (and the
                                      # planner's platform) uses; a family:seed or a scene file
+    clock: sim                       # optional: wall (default, real time) or sim (simulated,
+                                     # lockstep: docs/guides/clock.md); or {source: sim, step_s: 0.01}
     nodes:
       - id: gimbal                   # unique; the node's name on the bus and in --set
         type: gimbal                 # planner | gimbal | sim_camera | sim_drone | camera | external
@@ -16,7 +18,7 @@ Files are read with ``yaml.safe_load``; every unknown key, unknown type, bad val
 a :class:`~aes_planner.config.ConfigError` naming the key (``nodes[2].config.rate_hz``).
 ``--set ID.KEY=VALUE`` overrides (VALUE parsed as YAML): ``ID.type``, ``ID.respawn``, any
 config key (dotted for nested ones: ``gimbal.device.type=dynamixel_pan_tilt``), and the top-level
-``scene=FAMILY:SEED``.
+``scene=FAMILY:SEED`` and ``clock=sim|wall``.
 """
 
 from __future__ import annotations
@@ -30,7 +32,8 @@ from pathlib import Path
 from typing import Any
 
 from aes_planner.config import ConfigError, from_dict, load_yaml, load_yaml_text, short_repr, tag_of
-from aes_planner.graph.base import NODE_TYPES, LaunchContext, Node, make_node
+from aes_planner.graph.base import NODE_TYPES, LaunchContext, Node, make_node, node_class
+from aes_planner.graph.clock import ClockConfig, parse_clock
 
 __all__ = [
     "LaunchEntry",
@@ -43,7 +46,7 @@ __all__ = [
 ]
 
 _ENTRY_KEYS = ("id", "type", "config", "remap", "respawn")
-_TOP_KEYS = ("scene", "nodes", "bus")
+_TOP_KEYS = ("scene", "clock", "nodes", "bus")
 
 
 @dataclass
@@ -61,6 +64,7 @@ class LaunchSpec:
     scene: str | None = None
     path: str = ""
     bus: Any = None  # aes_planner.transport.ZenohConfig of a multi-process launch (the ``bus:`` block)
+    clock: ClockConfig = field(default_factory=ClockConfig)  # wall, or sim (lockstep)
 
     def entry(self, node_id: str) -> LaunchEntry:
         for e in self.nodes:
@@ -119,7 +123,26 @@ def parse_launch(data: Any, path: str = "") -> LaunchSpec:
         from aes_planner.transport.config import ZenohConfig
 
         bus = from_dict(ZenohConfig, data["bus"], "bus")
-    return LaunchSpec(entries, scene, path, bus)
+    clock = parse_clock(data.get("clock"), "clock")
+    if clock.sim:
+        check_sim_clock(entries)
+    return LaunchSpec(entries, scene, path, bus, clock)
+
+
+def check_sim_clock(entries: Sequence[LaunchEntry]) -> None:
+    """Every node can run on a simulated clock (else a ConfigError naming the node and why)."""
+    for i, e in enumerate(entries):
+        if e.type == "external":
+            raise ConfigError(
+                f"nodes[{i}]",
+                f"{e.id!r} runs elsewhere, in real time: a simulated clock cannot step it; use clock: wall (--clock wall)",
+            )
+        cls = node_class(e.type, f"nodes[{i}].type")
+        problem = cls.sim_clock_problem(from_dict(cls.config_class, e.config, f"nodes[{i}].config"))
+        if problem:
+            raise ConfigError(
+                f"nodes[{i}]", f"{e.id!r} {problem}: it cannot run on a simulated clock; use clock: wall (--clock wall)"
+            )
 
 
 def _node_list(data: Mapping[str, Any]) -> list:
@@ -150,6 +173,9 @@ def apply_overrides(data: Mapping[str, Any], overrides: Sequence[str]) -> dict:
             raise ConfigError(f"--set {short_repr(path, 80)}", exc.message) from None
         if path == "scene":
             out["scene"] = str(value)
+            continue
+        if path == "clock":
+            out["clock"] = value
             continue
         node_id, _, key = path.partition(".")
         if not key:
@@ -184,9 +210,10 @@ def load_launch(path: str | Path, overrides: Sequence[str] = ()) -> LaunchSpec:
 
 def build_nodes(spec: LaunchSpec, context: LaunchContext | None = None) -> list[tuple[Node, dict[str, str]]]:
     """Unstarted nodes of every non-external entry, with their remaps."""
-    context = context or LaunchContext(scene=spec.scene)
+    context = context or LaunchContext(scene=spec.scene, clock=spec.clock.source)
     if context.scene is None:
         context.scene = spec.scene
+    context.clock = spec.clock.source
     out = []
     for i, e in enumerate(spec.nodes):
         if e.type == "external":

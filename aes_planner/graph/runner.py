@@ -30,12 +30,18 @@ __all__ = ["Launch", "NodeRunner", "close_sinks", "run_graph"]
 
 
 class NodeRunner:
-    """Moves messages between ``bus`` and ``node.step``; ``remap`` maps default topic -> actual."""
+    """Moves messages between ``bus`` and ``node.step``; ``remap`` maps default topic -> actual.
 
-    def __init__(self, node: Node, bus, remap: Mapping[str, str] | None = None):
+    ``clock``: a :class:`~aes_planner.graph.clock.ClockConfig`; on ``sim`` the node steps on the
+    graph's simulated clock in lockstep (:class:`~aes_planner.graph.clock.Lockstep`), every output
+    reliable (lockstep counts every message), else on the wall clock."""
+
+    def __init__(self, node: Node, bus, remap: Mapping[str, str] | None = None, clock=None):
         self.node = node
         self.bus = bus
         self.remap = dict(remap or {})
+        self.sim = bool(clock is not None and clock.sim)
+        self.lockstep = None
         self.subs: dict = {}
         self.pubs: dict = {}
         self.step_errors = 0
@@ -53,24 +59,35 @@ class NodeRunner:
             self.subs[name] = self.bus.subscribe(self.topic(name), spec.msg_type, depth=spec.depth)
         for name, spec in output_specs(self.node).items():
             self.pubs[name] = self.bus.publisher(
-                self.topic(name), spec.msg_type, latched=spec.latched, reliable=spec.reliable
+                self.topic(name), spec.msg_type, latched=spec.latched, reliable=spec.reliable or self.sim
             )
+        if self.sim:
+            from aes_planner.graph.clock import Lockstep
+
+            topics = {name: self.topic(name) for name in self.subs}
+            self.lockstep = Lockstep(self.bus, self.node.node_id, self.subs, topics)
 
     def close(self) -> None:
         for s in self.subs.values():
             s.close()
         for p in self.pubs.values():
             p.close()
+        if self.lockstep is not None:
+            self.lockstep.close()
 
-    def run_once(self, now: float | None = None) -> None:
+    def run_once(self, now: float | None = None, inputs: dict[str, list] | None = None) -> dict[str, int]:
+        """One step with ``inputs`` (default: whatever arrived); returns how many messages it
+        published per actual topic."""
         now = time.time() if now is None else now
-        inputs = {name: sub.take() for name, sub in self.subs.items()}
+        if inputs is None:
+            inputs = {name: sub.take() for name, sub in self.subs.items()}
+        sent: dict[str, int] = {}
         try:
             outputs = self.node.step(inputs, now)
         except Exception:
             self.step_errors += 1
             log.exception("%s: step failed (%d so far); the node keeps running", self.node.node_id, self.step_errors)
-            return
+            return sent
         self.steps += 1
         for name, msgs in outputs.items():
             pub = self.pubs.get(name)
@@ -80,6 +97,8 @@ class NodeRunner:
                 if isinstance(msg, Diagnostics):
                     self._add_transport_counters(msg)
                 pub.publish(msg)
+                sent[pub.topic] = sent.get(pub.topic, 0) + 1
+        return sent
 
     def _add_transport_counters(self, msg: Diagnostics) -> None:
         counters = dict(msg.counters)
@@ -88,26 +107,54 @@ class NodeRunner:
                 if key != "callback_errors":
                     counters[f"{name}.{key}"] = int(value)
         counters["step_errors"] = self.step_errors
+        counters.update({f"bus.{k}": int(v) for k, v in self.bus.health().items()})  # a lost session shows here
+        if self.lockstep is not None:
+            counters["clock_stalls"] = self.lockstep.stalls
         msg.counters = dict(list(counters.items())[:128])
 
     def loop(self) -> None:
-        """Step until :meth:`request_stop` (or the node finishes and ``stop_when_finished``)."""
+        """Step until :meth:`request_stop`: on the simulated clock, or on the wall clock."""
+        if self.lockstep is not None:
+            self.lockstep_loop()
+        else:
+            self.wall_loop()
+
+    def lockstep_loop(self) -> None:
+        """Each tick of the simulated clock: the inputs published before it, a step when one
+        arrived or the node's period is due, then "done up to this tick"."""
+        ls = self.lockstep
+        period_ns = max(1, int(round(self.node.period_s * 1e9)))
+        next_ns = 0
+        while ls.next_tick(self._stop) is not None:
+            inputs = ls.inputs(self._stop)
+            if inputs is None:
+                return
+            sent: dict[str, int] = {}
+            if ls.now_ns >= next_ns or any(inputs.values()):
+                sent = self.run_once(ls.now_ns / 1e9, inputs)
+                next_ns = ls.now_ns + period_ns
+            ls.ack(sent, next_ns)
+
+    def wall_loop(self) -> None:
+        """Step at the node's period on the wall clock, and as soon as an input arrives."""
         from aes_planner.transport.bus import wait_any
 
         next_s = time.time()
         subs = list(self.subs.values())
         while not self._stop.is_set():
             self.run_once()
-            next_s = max(next_s + self.node.period_s, time.time() - self.node.period_s)
-            timeout = max(0.0, next_s - time.time())
-            if subs and not any(s.pending for s in subs):
-                # in slices, so a stop request is seen however long the node's period is
-                end = time.time() + timeout
-                while not self._stop.is_set() and not wait_any(subs, min(0.1, max(0.0, end - time.time()))):
-                    if time.time() >= end:
-                        break
-            elif timeout > 0:
-                self._stop.wait(timeout)
+            # The period's schedule moves on only when its time has come. A step woken by an input
+            # does not push it: it once did, by a period per input, so a node fed faster than its
+            # period (the ROS 2 bridge: 40 inputs/s, 0.2 s) ran tens of seconds ahead of the clock
+            # and then slept there with its inputs queued (issue 42).
+            now = time.time()
+            if now >= next_s:
+                next_s = next_s + self.node.period_s if next_s + self.node.period_s > now else now + self.node.period_s
+            # until an input is pending (one that came during the step included) or the period is
+            # due; in slices, so a stop request is seen however long the node's period is
+            while not self._stop.is_set() and not wait_any(subs, min(0.1, max(0.0, next_s - time.time()))):
+                if time.time() >= next_s:
+                    break
 
     def start_thread(self) -> None:
         def target():
@@ -131,16 +178,23 @@ class NodeRunner:
 
 
 class Launch:
-    """Nodes (``[(node, remap)]``) on one bus, each in a thread; use as a context manager."""
+    """Nodes (``[(node, remap)]``) on one bus, each in a thread; use as a context manager.
 
-    def __init__(self, nodes: list[tuple[Node, Mapping[str, str]]], bus=None):
+    ``clock``: a :class:`~aes_planner.graph.clock.ClockConfig` (default: the wall clock). On a
+    simulated clock the launch also runs the graph's :class:`~aes_planner.graph.clock.ClockMaster`
+    for its nodes, unless ``clock_master`` is False (a supervisor runs it for the whole graph)."""
+
+    def __init__(self, nodes: list[tuple[Node, Mapping[str, str]]], bus=None, clock=None, clock_master: bool = True):
         if bus is None:
             from aes_planner.transport import InProcessBus
 
             bus = InProcessBus()
         self.bus = bus
-        self.runners = [NodeRunner(node, bus, remap) for node, remap in nodes]
+        self.clock = clock
+        self.runners = [NodeRunner(node, bus, remap, clock) for node, remap in nodes]
         self._started: list[NodeRunner] = []
+        self.master = None
+        self._own_master = bool(clock is not None and clock.sim and clock_master)
 
     def node(self, node_id: str) -> Node:
         for r in self.runners:
@@ -157,9 +211,19 @@ class Launch:
                 self._started.append(r)
             for r in self.runners:
                 r.start_thread()
+            if self._own_master:
+                from aes_planner.graph.clock import ClockMaster
+
+                self.master = ClockMaster(self.bus, [r.node.node_id for r in self.runners], self.clock).start()
         except BaseException:
             self.stop()
             raise
+
+    @property
+    def sim_time_s(self) -> float | None:
+        """Where the simulated clock this launch runs stands (None on the wall clock or when a
+        supervisor runs the clock)."""
+        return self.master.now_s if self.master is not None else None
 
     @property
     def finished(self) -> bool:
@@ -169,8 +233,10 @@ class Launch:
 
     @property
     def failed(self) -> bool:
-        """True when a node's loop died."""
-        return any(r.error is not None for r in self.runners)
+        """True when a node's loop (or the simulated clock) died."""
+        return any(r.error is not None for r in self.runners) or (
+            self.master is not None and self.master.error is not None
+        )
 
     def run(self, timeout_s: float | None = None, until=None, poll_s: float = 0.05) -> bool:
         """Wait until every node that can finish has finished (or ``until()`` is true); False on
@@ -189,6 +255,8 @@ class Launch:
             time.sleep(poll_s)
 
     def stop(self) -> None:
+        if self.master is not None:
+            self.master.stop()
         for r in self.runners:
             r.request_stop()
         for r in self.runners:

@@ -17,6 +17,9 @@ node of a launch file (``python -m aes_planner.graph.supervisor --child ...``), 
 A child runs its single node with the node package's own runner on a :class:`ZenohBus` and exits
 0 when its node finishes, 128 + the signal on SIGTERM/SIGINT after stopping it cleanly, 1 when
 its loop fails, 2 on a configuration error.
+On a simulated clock (the launch's ``clock: sim``) the supervisor runs the graph's
+:class:`~aes_planner.graph.clock.ClockMaster` on its hub: every node, in a child or here, steps in
+lockstep on it, so the run reproduces the in-process one (:mod:`aes_planner.graph.clock`).
 Nodes can also stay in the supervising process (``in_process``: e.g. the demo keeps the planner
 to read its result, or ``local_nodes`` built by the caller); they share :attr:`Supervisor.bus`.
 """
@@ -35,7 +38,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from aes_planner.errors import AesPlannerError
-from aes_planner.transport.config import DEFAULT_ENDPOINT, ZenohConfig
+from aes_planner.transport.config import ZenohConfig, domain_prefix, graph_domain, hub_endpoint
 
 __all__ = ["Supervisor", "ChildSpec", "main_child"]
 
@@ -85,11 +88,11 @@ class Supervisor:
         # Arguments win over the launch file's ``bus:`` block, which wins over the defaults.
         file_bus = getattr(self.spec, "bus", None)
         if endpoint is None:
-            endpoint = file_bus.listen[0] if file_bus is not None and file_bus.listen else DEFAULT_ENDPOINT
+            endpoint = file_bus.listen[0] if file_bus is not None and file_bus.listen else hub_endpoint(graph_domain())
         if not connect and file_bus is not None and file_bus.connect != ZenohConfig().connect:
             connect = file_bus.connect
         allow_remote = allow_remote or bool(file_bus is not None and file_bus.allow_remote)
-        self.prefix = file_bus.prefix if file_bus is not None else "aes"
+        self.prefix = file_bus.prefix if file_bus is not None else domain_prefix(graph_domain())
         self.endpoint = endpoint
         self.hub_config = ZenohConfig(  # a router: it carries the graph to the hubs of other machines
             listen=(endpoint,), connect=tuple(connect), allow_remote=allow_remote, prefix=self.prefix, mode="router"
@@ -114,6 +117,7 @@ class Supervisor:
             ChildSpec(e.id, e.respawn) for e in self.spec.nodes if e.type != "external" and e.id not in self.in_process
         ]
         self.bus = None
+        self.master = None  # the ClockMaster of a simulated clock
         self.local = None  # the Launch of the in-process nodes
         self.local_nodes: dict = {}
         self.events: list[str] = []
@@ -123,7 +127,7 @@ class Supervisor:
     def _check_configs(self) -> None:
         """Every node's config parses here, so a typo fails once, naming the key, not in a child."""
         from aes_planner.config import ConfigError, from_dict
-        from aes_planner.graph.base import LaunchContext, node_class
+        from aes_planner.graph.base import node_class
         from aes_planner.graph.launch_file import check_remap
 
         for i, e in enumerate(self.spec.nodes):
@@ -133,8 +137,6 @@ class Supervisor:
                 check_remap(e, cls, f"nodes[{i}].remap")
                 if cls.needs_scene and self.spec.scene is None:
                     raise ConfigError(f"nodes[{i}]", f"a {e.type} node needs a scene: add 'scene: FAMILY:SEED'")
-        if self.spec.scene is not None:  # a bad scene fails here, not in every child
-            LaunchContext(scene=self.spec.scene).load_scene()
 
     # -- children ----------------------------------------------------------------------------------
 
@@ -183,6 +185,11 @@ class Supervisor:
             self.bus = ZenohBus(self.hub_config)
         except AesPlannerError as exc:
             raise AesPlannerError(f"the graph's hub ({self.endpoint}): {exc}") from None  # says what holds the port
+        if self.spec.clock.sim:  # time starts once every node, here and in the children, is ready
+            from aes_planner.graph.clock import ClockMaster
+
+            ids = [c.node_id for c in self.children] + sorted(self.in_process)
+            self.master = ClockMaster(self.bus, ids, self.spec.clock).start()
         for child in self.children:
             self._spawn(child)
         if self.in_process:
@@ -193,9 +200,14 @@ class Supervisor:
             if missing:
                 nodes += [(n, r) for n, r in build_nodes(self.spec) if n.node_id in missing]
             self.local_nodes = {n.node_id: n for n, _ in nodes}
-            self.local = Launch(nodes, bus=self.bus)
+            self.local = Launch(nodes, bus=self.bus, clock=self.spec.clock, clock_master=False)
             self.local.start()
         return self
+
+    @property
+    def sim_time_s(self) -> float | None:
+        """Where the graph's simulated clock stands (None on the wall clock)."""
+        return self.master.now_s if self.master is not None else None
 
     def node(self, node_id: str):
         """An in-process node (see ``in_process``); still readable after :meth:`shutdown`."""
@@ -254,6 +266,9 @@ class Supervisor:
             if self.lost is not None:
                 self._say(f"ending the launch: {self.lost} is gone and does not respawn")
                 return False
+            if self.master is not None and self.master.error is not None:
+                self._say("ending the launch: the simulated clock stopped")
+                return False
             if until is not None and until():
                 return True
             if deadline is not None and time.monotonic() > deadline:
@@ -272,6 +287,8 @@ class Supervisor:
         """Stop the in-process nodes, then SIGTERM every child in reverse launch order and SIGKILL
         what is left after ``grace_s``."""
         self._stop.set()
+        if self.master is not None:
+            self.master.stop()  # time stands still while the nodes stop
         if self.local is not None:
             try:
                 self.local.stop()
@@ -384,7 +401,7 @@ def _run_child(args: argparse.Namespace, parent: int, stop, outcome: logging.Log
         log.error("%s", exc)
         return 2
     try:
-        launch = Launch(nodes, bus=bus)
+        launch = Launch(nodes, bus=bus, clock=spec.clock, clock_master=False)  # the supervisor runs the clock
         node = nodes[0][0]
         try:
             launch.start()

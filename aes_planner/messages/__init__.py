@@ -12,6 +12,8 @@ type               usual topic                 what
 ``Diagnostics``    ``<node>/diagnostics``      named counters and values, a state word
 ``PlannerRequest`` ``planner/request``         ask for a suggestion now, reset, stop
 ``DroneState``     ``drone/state``             a vehicle's pose, camera pose, mode, link (ENU)
+``Clock``          ``clock``                   a simulated graph's time (lockstep, ``--clock sim``)
+``ClockAck``       ``clock/ack``               a node has handled a tick of the simulated clock
 =================  ==========================  ================================================
 
 Encoding: :func:`encode` / :func:`decode` (specified in ``docs/wire.md``; each type's fields are
@@ -26,6 +28,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from aes_planner.messages.clock import Clock, ClockAck
 from aes_planner.messages.codec import (
     MESSAGE_TYPES,
     Header,
@@ -48,6 +51,8 @@ from aes_planner.messages.suggestion import Candidate, ViewSuggestion
 __all__ = [
     "MESSAGE_TYPES",
     "Candidate",
+    "Clock",
+    "ClockAck",
     "Diagnostics",
     "DroneState",
     "GimbalCommand",

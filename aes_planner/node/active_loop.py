@@ -12,13 +12,22 @@
                ``planner/suggestion``), wait for arrival (``gimbal/state``, or frames at the pose),
                capture there and score the real capture with the teacher (it verifies the
                prediction and feeds the field) -> planning
-    polishing  climb around the best captured view with real captures: its four neighbours
-               ``polish_step_deg`` away (pan/tilt; a drone: yaw/pitch), then those of a better one,
-               up to ``polish_captures`` (composition peaks are a few degrees wide, narrower than
-               the field sees: docs/journal/benchmarks.md, "The rasterizer in place")
+    polishing  (first the coarsest neighbours of up to ``polish_starts - 1`` other captured hills
+               nearly as good as the best, then) a coarse-to-fine compass search around the best
+               captured view with real captures:
+               its four neighbours ``polish_step_deg * 2**k`` away (pan/tilt; a drone: yaw/pitch;
+               k from ``polish_scales - 1`` down to 0), moving to a better one, halving the step
+               when none is better, up to ``polish_captures`` (composition peaks are a few degrees
+               wide, narrower than the field sees: docs/journal/benchmarks.md, "The rasterizer in
+               place"; the field finds the hill, real captures climb it)
     settling   go back to the best captured view, capture it once more -> done
     done / failed   the end (failed: a camera gone silent, a fault that outlasted
                ``fault_timeout_s``, or a settle target not reached; the captures are kept)
+
+Decisions do not hinge on rounding: candidates are ranked by their hope rounded to
+``hope_quantum`` and then by where they look (:func:`~aes_planner.node.captures.decision_order`),
+and a capture displaces the best one only by more than ``tie_tolerance``; what the field predicts
+is only trusted after a real capture verified it (moves and polish are scored on the real image).
 
 A capture is the first frame stamped at least ``settle_s`` after arrival. A gimbal that reports a
 hardware fault pauses the loop in its state (counter ``faults``) until the fault clears (a reboot
@@ -40,7 +49,8 @@ import torch
 
 from aes_planner.graph.base import Outputs
 from aes_planner.messages import Candidate, PosedFrame
-from aes_planner.node.captures import Capture, Target, hopes, near_captured
+from aes_planner.node.captures import Capture, Target, decision_order, hopes, near_captured
+from aes_planner.platform import view_angle_deg
 
 log = logging.getLogger(__name__)
 
@@ -127,7 +137,8 @@ class ActiveLoop:
             return None
         captured = np.stack([cap.cam2world for cap in self.captures])  # [M, 4, 4]
         try:
-            best = int(np.argmax([cap.score for cap in self.captures]))
+            top = self._best_capture()
+            best = next(i for i, cap in enumerate(self.captures) if cap is top)
             proposal = self._propose(captured, max(c.top_k, 4), keep_near=best)
         except Exception:
             log.exception("%s: planning failed; settling on the best captured view", self.node_id)
@@ -135,15 +146,24 @@ class ActiveLoop:
         cands = [cd for cd in proposal.candidates if self._safe_candidate(cd)]
         out["planner/suggestion"].append(self._suggestion(cands[: c.top_k], proposal.field_version, now))
         hope = hopes(cands, self.captures, proposal.captured_pred, c.optimism, c.min_sigma, c.residual_length_deg)
-        best_true = max(cap.score for cap in self.captures)
-        for i in np.argsort(-hope, kind="stable"):
-            cd = cands[int(i)]
+        best_true = self._best_capture().score
+        for i in decision_order(hope, cands, c.hope_quantum):
+            cd = cands[i]
             if hope[i] - best_true < c.margin:
-                break  # sorted by hope: no later one promises more
+                break  # in order of hope: no later one promises more
             if near_captured(self.captures, cd.cam2world, c.min_move_deg, c.min_move_m):
                 continue
             return Target("move", cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=float(hope[i]))
         return None
+
+    def _best_capture(self) -> Capture:
+        """The best captured view; a later capture displaces an earlier one only by more than
+        ``tie_tolerance`` (a tie is not decided by the last bits of two scores)."""
+        best = self.captures[0]
+        for cap in self.captures[1:]:
+            if cap.score > best.score + self.config.tie_tolerance:
+                best = cap
+        return best
 
     def _safe_candidate(self, cd: Candidate) -> bool:
         """A finite candidate, clamped into the platform's range (refusals counted)."""
@@ -156,33 +176,75 @@ class ActiveLoop:
 
     # --------------------------------------------------------------------- polish and settle
     def _begin_polish(self, now: float) -> None:
-        self._polish_left = self.config.polish_captures
+        c = self.config
+        self._polish_left = c.polish_captures
         self._polish_centre = None
+        self._polish_scale = c.polish_scales - 1
         self.state = LoopState.POLISHING
-        self._polish_step(now)
+        # the runners-up first: the coarsest neighbours of other hills nearly as good as the best
+        # one, so the climb does not polish a local optimum it happened to capture first
+        step_deg = c.polish_step_deg * 2.0**self._polish_scale
+        for start in self._polish_starts(2.0 * step_deg)[1:]:
+            for t in self.motion.polish(start, math.radians(step_deg)):
+                if self._polish_left > 0 and not near_captured(
+                    [*self.captures, *(Capture("queued", q.cam2world, 0.0, 0.0) for q in self._queue)],
+                    t.cam2world,
+                    0.5 * step_deg,
+                    c.min_move_m,
+                ):
+                    self._queue.append(t)
+                    self._polish_left -= 1
+        if not self._queue:
+            self._polish_step(now)
+
+    def _polish_starts(self, apart_deg: float) -> list[Capture]:
+        """The best capture, then up to ``polish_starts - 1`` others scoring within
+        ``polish_start_gap`` of it, each at least ``apart_deg`` from those before (other hills)."""
+        c = self.config
+        best = self._best_capture()
+        ranked = sorted(self.captures, key=lambda cap: -cap.score)  # stable: earlier first on a tie
+        starts = [best]
+        for cap in ranked:
+            if len(starts) >= c.polish_starts or cap.score < best.score - c.polish_start_gap:
+                break
+            if all(view_angle_deg(cap.cam2world, s.cam2world) >= apart_deg for s in starts):
+                starts.append(cap)
+        return starts
 
     def _polish_step(self, now: float) -> None:
-        """Queue the unvisited neighbours of the best capture when it is new (the climb moved), or
-        settle: the budget is spent, or no neighbour beat the centre."""
-        best = max(self.captures, key=lambda cap: cap.score) if self.captures else None
-        if best is None or best is self._polish_centre or self._polish_left <= 0:
-            self._begin_settle(now)
-            return
-        self._polish_centre = best
+        """One round of a coarse-to-fine compass search on real captures around the best captured
+        view: its four neighbours ``polish_step_deg * 2**scale`` away (scales ``polish_scales - 1``
+        down to 0); the centre moves to a neighbour that beat it by more than ``tie_tolerance``
+        (the same step again), else the step halves; settle when the finest step found nothing or
+        the budget is spent."""
         c = self.config
-        neighbours = self.motion.polish(best, math.radians(c.polish_step_deg))
-        half_step_deg = 0.5 * c.polish_step_deg
-        targets = [t for t in neighbours if not near_captured(self.captures, t.cam2world, half_step_deg, c.min_move_m)]
-        self._queue = targets[: self._polish_left]
-        self._polish_left -= len(self._queue)
-        if not self._queue:
-            self._begin_settle(now)
+        while self._polish_left > 0 and self.captures:
+            best = self._best_capture()
+            if best is self._polish_centre:  # the last round beat nothing: a finer step
+                self._polish_scale -= 1
+                if self._polish_scale < 0:
+                    break
+            previous, self._polish_centre = self._polish_centre, best
+            step_deg = c.polish_step_deg * 2.0**self._polish_scale
+            neighbours = self.motion.polish(best, math.radians(step_deg))
+            if previous is not None and previous is not best:  # keep going the way the last step went
+                neighbours.sort(key=lambda t: -view_angle_deg(t.cam2world, previous.cam2world))
+            half_step_deg = 0.5 * step_deg
+            targets = [
+                t for t in neighbours if not near_captured(self.captures, t.cam2world, half_step_deg, c.min_move_m)
+            ]
+            if targets:
+                self._queue = targets[: self._polish_left]
+                self._polish_left -= len(self._queue)
+                return
+            # every neighbour at this step was captured already: as if the round beat nothing
+        self._begin_settle(now)
 
     def _begin_settle(self, now: float) -> None:
         if not self.captures:
             self._finish(now, LoopState.FAILED)
             return
-        best = max(self.captures, key=lambda cap: cap.score)
+        best = self._best_capture()
         self._queue = [Target("settle", best.cam2world.copy(), best.pan_rad, best.tilt_rad, predicted=best.score)]
         self.state = LoopState.SETTLING
 

@@ -19,9 +19,11 @@ from dataclasses import dataclass
 from aes_planner.config import from_dict, require, require_numbers
 from aes_planner.devices import Camera, CameraImage, device_class
 from aes_planner.geometry.pantilt import PanTilt, PanTiltConfig
+from aes_planner.geometry.trajectory import JointHistory
 from aes_planner.graph.base import Input, LaunchContext, NodeError
 from aes_planner.messages import GimbalState
-from aes_planner.node.frames import FrameNode, JointHistory, check_frame_source
+from aes_planner.node.frames import FrameNode, check_frame_source
+from aes_planner.node.scene import launch_scene
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +64,10 @@ class CameraNode(FrameNode):
     config_class = CameraNodeConfig
     inputs = {"gimbal/state": Input(GimbalState, 64)}
 
+    @classmethod
+    def sim_clock_problem(cls, config) -> str | None:
+        return "reads a real camera, which takes pictures in real time"
+
     def __init__(
         self,
         config: CameraNodeConfig | None = None,
@@ -74,8 +80,8 @@ class CameraNode(FrameNode):
         super().__init__(config or CameraNodeConfig(), node_id, context)
         c = self.config
         rig = c.rig
-        if rig is None and self.context.scene is not None and self.context.load_scene().rig is not None:
-            rig = self.context.load_scene().rig.pan_tilt
+        if rig is None and self.context.scene is not None and launch_scene(self.context).rig is not None:
+            rig = launch_scene(self.context).rig.pan_tilt
         if rig is None:
             raise NodeError(f"{node_id}: the camera node needs the rig's kinematics: set config.rig")
         self.kinematics = PanTilt(rig)
@@ -99,7 +105,7 @@ class CameraNode(FrameNode):
         return self.history.joints_at(stamp_s)
 
     def observe(self, inputs: Mapping[str, list], now: float) -> None:
-        self.history.add(inputs.get("gimbal/state", ()), now)
+        self.history.extend(inputs.get("gimbal/state", ()))
 
     def pose(self, image: CameraImage):
         joints = self.history.joints_at(image.stamp_s - self.kinematics.config.camera_latency_s)  # when exposed

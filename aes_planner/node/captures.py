@@ -10,10 +10,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from aes_planner.geometry.poses import cam2world_to_view
 from aes_planner.messages import Candidate
 from aes_planner.platform import view_angle_deg
 
-__all__ = ["Capture", "Target", "hopes", "near_captured"]
+__all__ = ["Capture", "Target", "decision_order", "hopes", "near_captured"]
 
 
 @dataclass
@@ -84,3 +85,22 @@ def hopes(
         local = float(np.sum(w * (resid - offset)) / (1.0 + np.sum(w)))
         out[j] = cd.score + offset + local + optimism * sigma / math.sqrt(1.0 + float(np.sum(w)))
     return out
+
+
+def decision_order(hope: np.ndarray, cands: list[Candidate], quantum: float) -> list[int]:
+    """Candidate indices best first, by hope rounded to ``quantum`` (teacher units), ties by where
+    they look (pan, then tilt, in whole degrees; a drone's yaw and pitch) -- never by the last
+    bits of two nearly equal predictions, which differ between processors."""
+
+    def key(i: int) -> tuple:
+        h = float(hope[i])
+        level = math.floor(h / quantum + 0.5) if quantum > 0 and math.isfinite(h) else h
+        cd = cands[i]
+        if cd.pan_rad is not None and cd.tilt_rad is not None:
+            where = (round(math.degrees(cd.pan_rad)), round(math.degrees(cd.tilt_rad)))
+        else:
+            view = cam2world_to_view(cd.cam2world)
+            where = tuple(round(float(v), 1) for v in view[:3]) + tuple(round(math.degrees(float(v))) for v in view[3:])
+        return (-level if math.isfinite(h) else math.inf, where)
+
+    return sorted(range(len(cands)), key=key)

@@ -6,7 +6,7 @@ at the node's rate, pose the image at its stamp, number it, publish it best-effo
 (:meth:`FrameNode.pose`). The three that exist:
 
 * :class:`~aes_planner.node.camera.CameraNode`: an OpenCV camera on a rig, posed by the rig's
-  kinematics at the gimbal's joints interpolated at the image's stamp (:class:`JointHistory`);
+  kinematics at the gimbal's joints interpolated at the image's stamp (:class:`~aes_planner.geometry.trajectory.JointHistory`);
 * :class:`~aes_planner.node.sim_camera.SimCameraNode`: the simulator's camera on a rig, which
   knows (and reports, with its pose noise) where it was;
 * :class:`~aes_planner.node.sim_drone.SimDroneNode`: the same camera on a simulated drone;
@@ -20,16 +20,15 @@ calibration), ``withheld`` (due while the camera's pose was stale, :meth:`FrameN
 
 from __future__ import annotations
 
-import bisect
 import logging
-from collections import deque
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from aes_planner.config import require, short_repr
 from aes_planner.devices import Camera, CameraError, CameraImage
+from aes_planner.geometry.trajectory import JointHistory
 from aes_planner.graph.base import Node, Output, Outputs
 from aes_planner.messages import PosedFrame
 
@@ -51,44 +50,6 @@ def check_frame_source(frame_id: Any, rate_hz: float) -> None:
         f"must be 1-200 printable characters (each frame's id is FRAME_ID/NUMBER), got {short_repr(frame_id)}",
     )
     require(0.01 <= rate_hz <= 240, "rate_hz", f"must be in [0.01, 240] Hz, got {rate_hz}")
-
-
-class JointHistory:
-    """The gimbal's joint angles over the last ``history_s`` seconds, from ``gimbal/state``: where
-    a rig's camera was at a stamp."""
-
-    def __init__(self, history_s: float):
-        self.history_s = float(history_s)
-        self._stamps: deque[float] = deque()
-        self._joints: deque[tuple[float, float]] = deque()
-
-    def add(self, states: Iterable, now: float) -> None:
-        """Keep the states newer than the newest kept; forget those older than ``history_s``
-        (keeping two at least)."""
-        for s in states:
-            if self._stamps and s.stamp_s <= self._stamps[-1]:
-                continue
-            self._stamps.append(s.stamp_s)
-            self._joints.append((s.pan_rad, s.tilt_rad))
-        while self._stamps and self._stamps[0] < now - self.history_s and len(self._stamps) > 2:
-            self._stamps.popleft()
-            self._joints.popleft()
-
-    def joints_at(self, stamp_s: float) -> tuple[float, float] | None:
-        """(pan, tilt) at ``stamp_s``, linearly interpolated between the two states around it
-        (held at the ends); None before any state, or before the history."""
-        if not self._stamps or stamp_s < self._stamps[0] - self.history_s:
-            return None
-        stamps = list(self._stamps)
-        i = bisect.bisect_right(stamps, stamp_s)
-        if i == 0:
-            return self._joints[0]
-        if i == len(stamps):
-            return self._joints[-1]
-        t0, t1 = stamps[i - 1], stamps[i]
-        (p0, q0), (p1, q1) = self._joints[i - 1], self._joints[i]
-        w = (stamp_s - t0) / (t1 - t0) if t1 > t0 else 1.0
-        return p0 + w * (p1 - p0), q0 + w * (q1 - q0)
 
 
 class FrameNode(Node):
@@ -146,7 +107,7 @@ class FrameNode(Node):
         return {"camera/frame": [self._frame(image, *posed)]}
 
     def _frame(self, image: CameraImage, cam2world: np.ndarray, joints: tuple[float, float] | None) -> PosedFrame:
-        n = self.counters["frames"]
+        n = self.counters["frames"] + 1  # the first frame is number 1, as every topic's messages
         frame = PosedFrame(
             image=image.image,
             intrinsics=self.camera.intrinsics,

@@ -13,6 +13,12 @@ request. Communication errors are counted and reported (``status: comm_error``, 
 while the serial port is gone); the driver reopens a port that comes back, takes control again
 and holds its last goal (its ``port_losses`` and ``reconnects`` are in the diagnostics). :meth:`GimbalNode.stop` disconnects the device, which leaves
 the motors unpowered.
+
+On a simulated clock (``clock: sim``, :mod:`aes_planner.graph.clock`) the device takes its time
+from the node's ``now``: the servo emulator in its own process reads it from a shared
+:class:`~aes_planner.drivers.emulator.FileClock` the node sets at each step, an in-process
+emulated or simulated gimbal from the same clock, and states are stamped ``now``; a real gimbal
+cannot run on it.
 """
 
 from __future__ import annotations
@@ -30,13 +36,18 @@ from aes_planner.devices import (
     GimbalCommError,
     GimbalHardwareError,
     GimbalPortLostError,
+    joint_command,
     make_device,
 )
 from aes_planner.geometry.rig import JointCommandError, JointLimits
 from aes_planner.graph.base import LaunchContext, Node, Outputs
 from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState
+from aes_planner.node.scene import launch_scene
 
 log = logging.getLogger(__name__)
+
+#: No limits of the launch's own: only the finiteness check (the device's limits still apply).
+_UNLIMITED = JointLimits((-math.inf, math.inf), (-math.inf, math.inf))
 
 __all__ = ["GimbalNode", "GimbalNodeConfig"]
 
@@ -133,16 +144,28 @@ class GimbalNode(Node):
             0,
         )
         self._pending_move: tuple[float, float] | None = None  # clamped joints the device has yet to take
-        self._seq = 0
+        self._seq = 0  # gimbal/state's counter
+        self._diag_seq = 0  # gimbal/diagnostics' own
         self._last_state_s = -math.inf
         self._last_diag_s = -math.inf
         self.last_state: GimbalState | None = None
+        self.sim_clock = None  # a FileClock the device reads its time from (simulated clock)
+
+    #: device types whose time a simulated clock can drive (``dynamixel_pan_tilt`` only emulated)
+    SIM_DEVICES = ("emulated_pan_tilt", "sim_pan_tilt")
+
+    @classmethod
+    def sim_clock_problem(cls, config: GimbalNodeConfig) -> str | None:
+        kind = config.device.get("type")
+        if config.emulate or kind in cls.SIM_DEVICES:
+            return None
+        return f"drives a real gimbal (device type {kind!r}; emulate: false), which moves in real time"
 
     def _limits(self, context: LaunchContext | None):
         c = self.config
         pan, tilt = c.pan_limits_deg, c.tilt_limits_deg
         if (pan is None or tilt is None) and context is not None and context.scene is not None:
-            scene = context.load_scene()
+            scene = launch_scene(context)
             if scene.rig is not None:
                 pan = pan or scene.rig.pan_tilt.pan_limits_deg
                 tilt = tilt or scene.rig.pan_tilt.tilt_limits_deg
@@ -157,6 +180,22 @@ class GimbalNode(Node):
         return 1.0 / self.config.rate_hz
 
     def start(self) -> None:
+        clock_args: list[str] = []
+        if self.context.clock == "sim":
+            from aes_planner.drivers.emulator import FileClock
+
+            problem = self.sim_clock_problem(self.config)
+            if problem is None and not self.config.emulate and not hasattr(self.device, "use_clock"):
+                problem = f"has a device ({type(self.device).__name__}) that keeps its own time"
+            if problem:
+                from aes_planner.graph.base import NodeError
+
+                raise NodeError(f"{self.node_id} {problem}: it cannot run on a simulated clock; use --clock wall")
+            self.sim_clock = FileClock.create()
+            if self.config.emulate:
+                clock_args = ["--clock-file", str(self.sim_clock.path)]
+            else:
+                self.device.use_clock(self.sim_clock)
         if self.config.emulate:
             import dataclasses
 
@@ -166,7 +205,7 @@ class GimbalNode(Node):
             self.emulator = EmulatorProcess(
                 tuple(getattr(dev.config, "models", ("xm430-w350", "xm430-w350"))),
                 baud=dev.config.baud,
-                args=self.config.emulator_args,
+                args=[*self.config.emulator_args, *clock_args],
             ).__enter__()
             dev.config = dataclasses.replace(dev.config, port=self.emulator.port)
         try:
@@ -184,10 +223,15 @@ class GimbalNode(Node):
             if self.emulator is not None:
                 self.emulator.stop()
                 self.emulator = None
+            if self.sim_clock is not None:
+                self.sim_clock.close()
+                self.sim_clock = None
 
     # ----------------------------------------------------------------------------------- step
     def step(self, inputs: Mapping[str, list], now: float) -> Outputs:
         out: Outputs = {"gimbal/state": [], "gimbal/diagnostics": []}
+        if self.sim_clock is not None:
+            self.sim_clock.set(now)  # before any exchange: the servos move to this time
         commands = inputs.get("gimbal/command", ())
         for cmd in commands:
             self.counters["commands_in"] += 1
@@ -198,11 +242,14 @@ class GimbalNode(Node):
             self._last_state_s = now
             state = self._read_state()
             if state is not None:
+                if self.sim_clock is not None:
+                    state.stamp_s = now  # read at ``now`` on the graph's clock, not the machine's
                 out["gimbal/state"].append(state)
         if now - self._last_diag_s >= self.config.diagnostics_period_s:
             self._last_diag_s = now
+            self._diag_seq += 1
             out["gimbal/diagnostics"].append(
-                Diagnostics(now, self.node_id, self.status, self._counters(), {}, self._seq)
+                Diagnostics(now, self.node_id, self.status, self._counters(), {}, self._diag_seq)
             )
         return out
 
@@ -217,14 +264,12 @@ class GimbalNode(Node):
         return out
 
     def clamp(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
-        """Finite joints clamped to the node's limits; :class:`JointCommandError` otherwise."""
-        if not (isinstance(pan_rad, (int, float)) and isinstance(tilt_rad, (int, float))):
-            raise JointCommandError(f"joint command must be numbers, got {pan_rad!r}, {tilt_rad!r}")
-        if not (math.isfinite(pan_rad) and math.isfinite(tilt_rad)):
-            raise JointCommandError(f"joint command must be finite, got pan {pan_rad!r}, tilt {tilt_rad!r}")
-        if self.limits_rad is not None:
-            pan_rad, tilt_rad = JointLimits(*self.limits_rad).clamp(pan_rad, tilt_rad)
-        return float(pan_rad), float(tilt_rad)
+        """The joints inside the launch's limits when it sets some (the shared check of the values,
+        then :meth:`JointLimits.clamp`); the device clamps to its own after. :class:`JointCommandError`
+        for anything but two finite numbers."""
+        pan_rad, tilt_rad = joint_command(pan_rad, tilt_rad)
+        limits = JointLimits(*self.limits_rad) if self.limits_rad is not None else _UNLIMITED
+        return limits.clamp(pan_rad, tilt_rad)
 
     def _execute(self, cmd) -> None:
         kind = getattr(cmd, "kind", None)

@@ -26,6 +26,7 @@ from aes_planner.graph.base import Outputs
 from aes_planner.messages import Candidate, GimbalCommand, GimbalState, MessageError, PosedFrame
 from aes_planner.node.captures import Capture, Target
 from aes_planner.platform import DroneBox, DronePlatform, Platform, RigPlatform
+from aes_planner.search.space import space_for
 
 log = logging.getLogger(__name__)
 
@@ -167,7 +168,7 @@ class DroneMotion(Motion):
     def bind(self, intrinsics) -> DronePlatform:
         if self.platform is None:
             self.platform = DronePlatform(intrinsics, self.box)
-            self.space = self.platform.search_space(self.search_config)
+            self.space = space_for(self.platform, self.search_config)
         return self.platform
 
     def ready(self, frame, gimbal):

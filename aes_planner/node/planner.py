@@ -27,6 +27,7 @@ from collections.abc import Mapping
 import numpy as np
 import torch
 
+from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.plausible import distance_problem
 from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs, percentile
 from aes_planner.images import downscale_frame
@@ -44,6 +45,7 @@ from aes_planner.node.captures import Capture, Target
 from aes_planner.node.motion import DroneMotion, Motion, RigMotion
 from aes_planner.node.planner_config import PlannerConfig
 from aes_planner.node.proposer import FieldProposer, Proposer
+from aes_planner.node.scene import launch_scene
 from aes_planner.platform import DronePlatform, Platform, RigPlatform
 from aes_planner.runtime import ThreadGovernor, set_threads, suggestion_threads
 
@@ -77,7 +79,7 @@ class PlannerNode(ActiveLoop, Node):
     ):
         config = config or PlannerConfig()
         if config.rig is None and config.drone is None and context is not None and context.scene is not None:
-            config = _platform_from_scene(config, context.load_scene())
+            config = _platform_from_scene(config, launch_scene(context))
         super().__init__(config, node_id, context)
         c = self.config
         self.motion: Motion | None = _motion(c)
@@ -106,6 +108,8 @@ class PlannerNode(ActiveLoop, Node):
                 "move_timeouts",
                 "capture_timeouts",
                 "faults",
+                "framing_rejected",
+                "framing_failed",
             ),
             0,
         )
@@ -121,6 +125,7 @@ class PlannerNode(ActiveLoop, Node):
         self._queue: list[Target] = []
         self._target: Target | None = None
         self._polish_left = 0
+        self._polish_scale = 0
         self._polish_centre: Capture | None = None
         self._fault_since: float | None = None
         self._last_diag = -math.inf
@@ -262,6 +267,8 @@ class PlannerNode(ActiveLoop, Node):
 
     def _on_request(self, req, now: float) -> None:
         kind = getattr(req, "kind", "suggest")
+        if getattr(req, "set_framing", False) and not self._set_framing(req):
+            return  # refused: counted, the framing in force stays
         if kind == "suggest":
             self._suggest_requested = True
             self._dirty = self._dirty or not self.config.active
@@ -277,6 +284,24 @@ class PlannerNode(ActiveLoop, Node):
             self._queue.clear()
             self._target = None
             self._begin_settle(now)
+
+    def _set_framing(self, req) -> bool:
+        """Apply a request's keep/avoid regions to the next searches (both empty: none); False, counted
+        and logged, when a region names no held frame or lies outside its image."""
+        from aes_planner.search.framing import FramingConfig, Region
+
+        try:
+            keep = [Region(r.frame, r.x0, r.y0, r.x1, r.y1) for r in req.keep]
+            avoid = [Region(r.frame, r.x0, r.y0, r.x1, r.y1) for r in req.avoid]
+            self.proposer.set_framing(keep, avoid, FramingConfig(margin_frac=req.keep_margin))
+        except AesPlannerError as exc:
+            self.counters["framing_rejected"] += 1
+            log.warning("%s: framing request refused: %s", self.node_id, exc)
+            return False
+        self._dirty = True  # the next search applies it
+        regions = [f"keep {r.text()}" for r in keep] + [f"avoid {r.text()}" for r in avoid]
+        log.info("%s: framing %s", self.node_id, ", ".join(regions) or "off")
+        return True
 
     # ---------------------------------------------------------------------------- passive
     def _passive(self, now: float, out: Outputs) -> None:
@@ -303,8 +328,14 @@ class PlannerNode(ActiveLoop, Node):
     def _propose(self, captured: np.ndarray, k: int, **kw):
         """The proposer's search, timed: its latency, and its CPU efficiency for the governor."""
         # the governor's count, learnt from here (threads: N pinned it; adapt_threads: false leaves it)
-        with suggestion_threads(self.governor, self.cpu_clock, adapt=self.config.adapt_threads) as job:
-            proposal = self.proposer.propose(self.platform, captured, k, **kw)
+        from aes_planner.search.framing import FramingError
+
+        try:
+            with suggestion_threads(self.governor, self.cpu_clock, adapt=self.config.adapt_threads) as job:
+                proposal = self.proposer.propose(self.platform, captured, k, **kw)
+        except FramingError:  # e.g. no reachable view holds the kept subject: counted, the caller goes on
+            self.counters["framing_failed"] += 1
+            raise
         self.latencies_s.append(job.wall_s)
         return proposal
 
@@ -335,6 +366,16 @@ class PlannerNode(ActiveLoop, Node):
         if self.governor is not None and math.isfinite(self.governor.last_efficiency):
             values["cpu_efficiency"] = self.governor.last_efficiency
             values["thread_changes"] = float(self.governor.changes)
+        framing = getattr(self.proposer, "framing", None)
+        if framing is not None:  # which regions are active, and how much of each kept subject the last view held
+            keep, avoid = framing[0], framing[1]
+            held = getattr(self.proposer, "framing_held", [])
+            for i, r in enumerate(keep):
+                values[diag_name(f"framing.keep.{r.text()}")] = held[i] if i < len(held) else -1.0
+            for r in avoid:
+                values[diag_name(f"framing.avoid.{r.text()}")] = 1.0
+            for i, (kind, sub) in enumerate(getattr(self.proposer, "framing_boxes", [])[:8]):
+                values.update(box_values(f"framing.box{i}.{kind}", sub))  # drawn by the Foxglove view
         scored = [cap for cap in self.captures if math.isfinite(cap.score)]
         if scored:
             values["initial_score"] = scored[0].score
@@ -368,6 +409,23 @@ class PlannerNode(ActiveLoop, Node):
             f"{self.node_id}: {res['state']} after {moves} move{'' if moves == 1 else 's'}; "
             f"best captured score {res['best'].score:.3f}"
         )
+
+
+def box_values(prefix: str, subject) -> dict[str, float]:
+    """A lifted subject's 3D box as diagnostics values ``<prefix>.cx/cy/cz`` (centre, m),
+    ``.sx/sy/sz`` (size along its axes, m) and ``.yaw_rad`` (its first axis from world x, about z):
+    what :func:`aes_planner.transport.foxglove_view.framing_boxes` reads back."""
+    c, size, ax = subject.centre_m, subject.size_m, subject.axes[0]
+    out = {"cx": c[0], "cy": c[1], "cz": c[2], "sx": size[0], "sy": size[1], "sz": size[2]}
+    out["yaw_rad"] = math.atan2(ax[1], ax[0])
+    return {f"{prefix}.{k}": float(v) for k, v in out.items()}
+
+
+def diag_name(text: str) -> str:
+    """``text`` as a diagnostics name (1-64 chars of ``[A-Za-z0-9_.:/-]``; others become ``_``)."""
+    import re
+
+    return re.sub(r"[^A-Za-z0-9_.:/-]", "_", text)[:64] or "_"
 
 
 def _motion(config: PlannerConfig) -> Motion | None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from aes_planner.config import require, require_numbers
+from aes_planner.geometry.plausible import MAX_STAMP_AHEAD_S
 from aes_planner.geometry.rig import PanTiltConfig
 from aes_planner.platform import DroneBox, parse_kind
 from aes_planner.runtime import MAX_THREADS
@@ -19,7 +20,7 @@ class PlannerConfig:
     * ``scorer``: ``"field"`` (the trained aesthetic field, the default: better and faster in the
       closed loop on held-out scenes, docs/benchmarks.md) or ``"rgb"`` (RGB scoring of the
       reconstruction).
-    * ``preset``: search preset (``fast``, ``balanced``, ``accurate``); ``teacher``: the teacher name.
+    * ``preset``: search preset (``fast``, ``balanced``); ``teacher``: the teacher name.
     * ``active``: run the active loop (commands the gimbal / flies the drone); false = suggest only.
     * ``explore_views``: captures spread over the range before the first suggestion.
     * ``max_moves``: suggestion-driven moves at most; ``margin``: the gain (teacher units) a
@@ -30,10 +31,20 @@ class PlannerConfig:
       within about ``residual_length_deg`` of a candidate correct it most (and shrink its spread).
     * ``min_move_deg``: a candidate closer than this (view direction) to a captured view, with
       no more than ``min_move_m`` of translation, is not a new view.
-    * ``polish_captures``: captures spent, after the last move, on a hill climb around the best
-      captured view (neighbours ``polish_step_deg`` away in pan and tilt, or yaw and pitch for a
-      drone; the climb moves to a better neighbour and stops when none is better); 0 = settle
-      at once. ``polish_step_deg`` should exceed ``arrival_tolerance_deg``.
+    * ``polish_captures``: captures spent, after the last move, on a coarse-to-fine compass search
+      around the best captured view (neighbours ``polish_step_deg * 2**k`` away in pan and tilt,
+      or yaw and pitch for a drone, k from ``polish_scales - 1`` down to 0; the search moves to a
+      better neighbour, halves the step when none is better and stops after the finest step);
+      0 = settle at once. ``polish_step_deg`` should exceed ``arrival_tolerance_deg``.
+    * ``polish_starts``: hills the polish probes before it climbs: the best captured view and up
+      to ``polish_starts - 1`` others within ``polish_start_gap`` (teacher units) of it, at least
+      two coarsest steps apart; each gets its four coarsest neighbours captured, then the climb
+      starts from whichever view is best (a hill captured second is not lost to one captured first).
+    * ``tie_tolerance``: a capture displaces the best captured view (the polish's centre, the
+      view settled on) only when it scored more than this higher (teacher units).
+    * ``hope_quantum``: candidates are ranked by their hope rounded to this (teacher units), ties
+      by where they look, so that near-equal predictions do not pick the move by their last bits
+      (which differ between processors, backends and thread counts).
     * ``top_k``: candidates per published suggestion.
     * ``max_frames``: frames the field holds (memory bound); captures are kept before passive frames.
     * ``arrival_tolerance_deg`` / ``arrival_tolerance_m``: how close counts as arrived;
@@ -67,22 +78,27 @@ class PlannerConfig:
     teacher: str = "composition"
     active: bool = True
     explore_views: int = 6
-    max_moves: int = 6
+    max_moves: int = 4
     margin: float = 0.01
     optimism: float = 1.0
     min_sigma: float = 0.02
     residual_length_deg: float = 15.0
     min_move_deg: float = 3.0
     min_move_m: float = 0.1
-    polish_captures: int = 8
+    polish_captures: int = 16
     polish_step_deg: float = 2.5
+    polish_scales: int = 3
+    polish_starts: int = 2
+    polish_start_gap: float = 0.1
+    tie_tolerance: float = 0.002
+    hope_quantum: float = 0.005
     top_k: int = 3
     max_frames: int = 24
     arrival_tolerance_deg: float = 1.5
     arrival_tolerance_m: float = 0.05
     settle_s: float = 0.05
     move_timeout_s: float = 20.0
-    max_stamp_ahead_s: float = 5.0
+    max_stamp_ahead_s: float = MAX_STAMP_AHEAD_S
     fault_timeout_s: float = 10.0
     min_suggest_period_s: float = 0.5
     diagnostics_period_s: float = 1.0
@@ -95,12 +111,24 @@ class PlannerConfig:
 
     def __post_init__(self):
         require(self.scorer in ("field", "rgb"), "scorer", f"must be 'field' or 'rgb', got {self.scorer!r}")
+        from aes_planner.search.config import PRESETS, REMOVED_PRESETS
+
         require(
-            self.preset in ("fast", "balanced", "accurate"),
+            self.preset not in REMOVED_PRESETS,
             "preset",
-            f"must be fast, balanced or accurate, got {self.preset!r}",
+            f"{self.preset!r} was removed: {REMOVED_PRESETS.get(self.preset)}",
         )
-        for name in ("explore_views", "max_moves", "top_k", "max_frames", "threads", "polish_captures"):
+        require(self.preset in PRESETS, "preset", f"must be {' or '.join(PRESETS)}, got {self.preset!r}")
+        for name in (
+            "explore_views",
+            "max_moves",
+            "top_k",
+            "max_frames",
+            "threads",
+            "polish_captures",
+            "polish_scales",
+            "polish_starts",
+        ):
             v = getattr(self, name)
             require(
                 isinstance(v, int) and not isinstance(v, bool) and v >= 0, name, f"must be an integer >= 0, got {v!r}"
@@ -113,6 +141,8 @@ class PlannerConfig:
         for name, most in (
             ("explore_views", 64),
             ("polish_captures", 64),
+            ("polish_scales", 6),
+            ("polish_starts", 8),
             ("max_moves", 10_000),
             ("max_frames", 1024),
             ("threads", MAX_THREADS),
@@ -125,6 +155,15 @@ class PlannerConfig:
         )
         require_numbers(self, ("residual_length_deg", "polish_step_deg"))
         require(self.polish_step_deg <= 30.0, "polish_step_deg", f"must be <= 30, got {self.polish_step_deg}")
+        require(self.polish_scales >= 1, "polish_scales", f"must be >= 1, got {self.polish_scales}")
+        require(self.polish_starts >= 1, "polish_starts", f"must be >= 1, got {self.polish_starts}")
+        require_numbers(self, ("tie_tolerance", "hope_quantum", "polish_start_gap"), strict=False)
+        require(
+            self.tie_tolerance <= 0.1, "tie_tolerance", f"must be in [0, 0.1] (teacher units), got {self.tie_tolerance}"
+        )
+        require(
+            self.hope_quantum <= 0.1, "hope_quantum", f"must be in [0, 0.1] (teacher units), got {self.hope_quantum}"
+        )
         require_numbers(
             self,
             (

@@ -41,6 +41,18 @@ class Proposer(ABC):
 
     #: bumped whenever the frames behind the proposals change
     version: int = 0
+    #: the keep/avoid regions its searches apply (``set_framing``), and how much of each kept subject
+    #: the last best suggestion held
+    framing = None
+    framing_held: list[float] = []
+    framing_boxes: list = []  # [(keep|avoid, Subject)] of the last search: their 3D boxes
+
+    def set_framing(self, keep, avoid, cfg) -> None:
+        """Apply keep/avoid regions to the next searches (a proposer without a reconstruction cannot)."""
+        from aes_planner.search.framing import FramingError
+
+        if keep or avoid:
+            raise FramingError(f"{type(self).__name__} has no reconstruction to lift keep/avoid regions from")
 
     @abstractmethod
     def add_frame(self, frame: PosedFrame, keep: bool = False) -> None:
@@ -82,6 +94,8 @@ class FieldProposer(Proposer):
         self._scorer = None
         self._scorer_version = -1
         self.version = 0
+        self.framing = None  # (keep, avoid, FramingConfig, {frame: view}) the searches apply: set_framing
+        self.framing_held: list[float] = []  # how much of each kept subject the last best suggestion held
 
     @property
     def size(self) -> int:
@@ -98,6 +112,40 @@ class FieldProposer(Proposer):
             passive = next((i for i, (_, k) in enumerate(self._frames) if not k), None)
             del self._frames[passive if passive is not None else 0]
         self.version += 1
+
+    def set_framing(self, keep, avoid, cfg) -> None:
+        """Apply keep/avoid regions (:class:`~aes_planner.search.framing.Region`) to the next
+        searches; none of either: no framing. Each region's view (pose, camera, image size) is
+        resolved now, so a frame evicted later, or ``latest`` (the newest frame held), keeps meaning
+        the image the box was drawn on. A :class:`~aes_planner.search.framing.FramingError` (nothing
+        changed) when a region names no held frame or lies outside its image."""
+        from aes_planner.search.framing import FramingError, frame_index
+
+        if not keep and not avoid:
+            self.framing, self.framing_held, self.framing_boxes = None, [], []
+            return
+        frames = [f for f, _ in self._frames]
+        index = frame_index(frames)
+        if frames:
+            index["latest"] = len(frames) - 1
+        views = {}
+        for key, regions in (("keep", keep), ("avoid", avoid)):
+            for r in regions:
+                if r.frame not in index:
+                    raise FramingError(f"{key} {r.text()}: the planner holds no frame named {r.frame!r}")
+                k = frames[index[r.frame]].intrinsics
+                r.checked(key, k.width, k.height)
+                views[r.frame] = (frames[index[r.frame]].cam2world.copy(), k, (k.width, k.height))
+        self.framing, self.framing_held, self.framing_boxes = (list(keep), list(avoid), cfg, views), [], []
+
+    def _framing(self, scorer, platform):
+        """The framing lifted from the present reconstruction (it changes as frames come), or None."""
+        if self.framing is None:
+            return None
+        from aes_planner.search.framing import build_framing
+
+        keep, avoid, cfg, views = self.framing
+        return build_framing(scorer, views, keep, avoid, platform.intrinsics, cfg)
 
     def scorer(self):
         """The scorer of the present frames (rebuilt only when they changed)."""
@@ -121,7 +169,15 @@ class FieldProposer(Proposer):
         captured = np.asarray(captured_cam2world, dtype=np.float64).reshape(-1, 4, 4)
         config = SearchConfig.preset(self.preset, mode=platform.kind, top_k=max(top_k, 1), seed=self.seed)
         avoid = captured if keep_near is None else np.delete(captured, keep_near, axis=0)
-        result = search_views(scorer, inputs, platform, config, avoid=avoid if len(avoid) else None)
+        framing = self._framing(scorer, platform)
+        result = search_views(scorer, inputs, platform, config, avoid=avoid if len(avoid) else None, framing=framing)
+        if framing is not None:
+            self.framing_boxes = [
+                (kind, sub) for kind, subs in (("keep", framing.keep), ("avoid", framing.avoid)) for sub in subs
+            ]
+        if framing is not None and result.suggestions:
+            pose = torch.as_tensor(result.best.cam2world[None])
+            self.framing_held = [float(framing.held_each(pose)[0, i]) for i in range(len(framing.keep))]
         candidates = []
         for s in result.suggestions:
             pan = getattr(s, "pan_rad", None)

@@ -17,10 +17,12 @@ from dataclasses import dataclass, field
 
 from aes_planner.config import ConfigError, require_numbers
 from aes_planner.devices import CameraImage
+from aes_planner.geometry.trajectory import JointHistory
 from aes_planner.graph.base import Input, LaunchContext, NodeError
 from aes_planner.messages import GimbalState
 from aes_planner.messages.posed_frame import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE_PX
-from aes_planner.node.frames import FrameNode, JointHistory, check_frame_source
+from aes_planner.node.frames import FrameNode, check_frame_source
+from aes_planner.node.scene import launch_scene
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +75,7 @@ class SimCameraNode(FrameNode):
         super().__init__(config or SimCameraNodeConfig(), node_id, context)
         from aes_planner.sim import SimCamera
 
-        self.scene = scene if scene is not None else self.context.load_scene()
+        self.scene = scene if scene is not None else launch_scene(self.context)
         self.camera = SimCamera(self.scene, self.config._camera)
         self._check_frame_size()
         self.history = JointHistory(history_s=1.0)
@@ -103,7 +105,7 @@ class SimCameraNode(FrameNode):
         states = inputs.get("gimbal/state", ())
         for s in states:  # the camera is where the gimbal put it, from each state's stamp on
             self.camera.move_joints(s.pan_rad, s.tilt_rad, min(s.stamp_s, now))
-        self.history.add(states, now)
+        self.history.extend(states)
 
     def pose(self, image: CameraImage):
         """The pose the sim camera reports (with its pose noise; at the exposure when the rig has a

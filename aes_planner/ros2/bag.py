@@ -2,7 +2,7 @@
 
 The package's own channels of the recording (:func:`aes_planner.transport.record.read_recording`)
 go through the bridge's mapping (:class:`~aes_planner.ros2.outbound.OutboundMapper`) into the
-ROS 2 topics and types of the bridge (README, "ROS 2"), serialised as ROS 2 CDR by the same IDL
+ROS 2 topics and types of the bridge (docs/guides/ros2.md), serialised as ROS 2 CDR by the same IDL
 structs the bridge puts on the wire. Each message is logged at its header stamp (its capture or
 planning time), or the recording's log time where it has none.
 
@@ -21,7 +21,9 @@ import logging
 from pathlib import Path
 
 from aes_planner.errors import AesPlannerError
+from aes_planner.geometry.plausible import MAX_STAMP_S
 from aes_planner.messages import MessageError, decode
+from aes_planner.paths import new_output_folder
 
 log = logging.getLogger(__name__)
 
@@ -55,31 +57,27 @@ def _qos(profile: str, depth: int):
     return Qos(QosHistory.KEEP_LAST, depth, reliability, durability, zero, zero, QosLiveliness.AUTOMATIC, zero, False)
 
 
-def export_rosbag2(recording: str | Path, out_dir: str | Path, config=None, scene: str | None = None) -> dict[str, int]:
+def export_rosbag2(recording: str | Path, out_dir: str | Path, config=None, rig=None) -> dict[str, int]:
     """Write the rosbag2 folder ``out_dir`` (which must not exist); returns messages per ROS 2 topic.
 
     ``config``: a :class:`~aes_planner.ros2.bridge.Ros2BridgeConfig` (topics, frames, rig);
-    ``scene``: take the rig's kinematics from a simulated scene (for the rig's tf links)."""
+    ``rig``: the rig's kinematics (a :class:`~aes_planner.geometry.PanTiltConfig`) for the rig's tf
+    links when ``config`` names none (the command line takes it from the run's simulated scene)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     from aes_planner.ros2 import idl
     from aes_planner.ros2.bridge import DEPTHS, OUTBOUND, Ros2BridgeConfig
+    from aes_planner.ros2.convert import Ros2InputError
     from aes_planner.ros2.outbound import OutboundMapper
     from aes_planner.transport.record import read_recording
 
     recording, out_dir = Path(recording), Path(out_dir)
     if not recording.is_file():
         raise BagExportError(f"{recording}: no such recording; give the .mcap a run wrote (aes-planner demo --out RUN)")
-    if out_dir.exists():
-        raise BagExportError(f"{out_dir} exists; rosbag2 writes a new folder: give a new name or remove it")
+    new_output_folder(out_dir, "OUT_DIR")
     next(iter(read_recording(recording)), None)  # a clear error for a bad file before the folder exists
     config = config or Ros2BridgeConfig()
-    rig = config.rig
-    if rig is None and scene is not None:
-        from aes_planner.sim import load_scene
-
-        sc = load_scene(scene)
-        rig = sc.rig.pan_tilt if sc.rig is not None else None
+    rig = config.rig if config.rig is not None else rig
     links = None
     if rig is not None:
         from aes_planner.ros2.links import RigLinks
@@ -89,6 +87,8 @@ def export_rosbag2(recording: str | Path, out_dir: str | Path, config=None, scen
     ts = ros2_typestore()
     counts: dict[str, int] = {}
     rejected = 0
+    refused: list[str] = []  # messages with stamps no bag holds (why, the first few)
+    mapped = 0
     writer = Writer(out_dir, version=8, storage_plugin=StoragePlugin.MCAP)
     connections: dict[str, object] = {}
 
@@ -122,12 +122,29 @@ def export_rosbag2(recording: str | Path, out_dir: str | Path, config=None, scen
                     logging.WARNING if rejected <= 3 else logging.DEBUG, "%s: skipped a message: %s", recording, exc
                 )
                 continue
-            if first:
-                for key, sample in mapper.static(log_ns * 1e-9):
-                    write(key, sample, log_ns)
-                first = False
-            for key, sample in mapper.map(msg):
-                write(key, sample, _stamp_ns(sample, log_ns, idl))
+            try:
+                if not 0 <= log_ns <= MAX_STAMP_S * 1e9:
+                    raise Ros2InputError(f"log time {log_ns * 1e-9:.6g} s is not a time (0 to {MAX_STAMP_S:.0f} s)")
+                samples = [(key, sample, _stamp_ns(sample, log_ns, idl)) for key, sample in mapper.map(msg)]
+                if first and samples:
+                    for key, sample in mapper.static(log_ns * 1e-9):
+                        write(key, sample, log_ns)
+                    first = False
+            except Ros2InputError as exc:
+                refused.append(str(exc))
+                log.log(
+                    logging.WARNING if len(refused) <= 3 else logging.DEBUG, "%s: refused a message: %s", recording, exc
+                )
+                continue
+            for key, sample, t_ns in samples:
+                write(key, sample, t_ns)
+                mapped += 1
+        if not mapped:
+            said = f"; {len(refused)} refused, e.g. {refused[0]}" if refused else ""
+            raise BagExportError(
+                f"{recording}: holds no message a ROS 2 bag can carry ({rejected} undecodable{said}); "
+                "give a recording a run wrote (aes-planner demo --out RUN: RUN/recording.mcap)"
+            )
         ok = True
     finally:
         writer.close()
@@ -135,6 +152,10 @@ def export_rosbag2(recording: str | Path, out_dir: str | Path, config=None, scen
             import shutil
 
             shutil.rmtree(out_dir, ignore_errors=True)
+    if refused:
+        log.warning(
+            "%s: %d message(s) refused for their stamps (not written), e.g. %s", recording, len(refused), refused[0]
+        )
     if rejected:
         log.warning(
             "%s: %d message(s) of types without a ROS 2 mapping or undecodable were skipped", recording, rejected

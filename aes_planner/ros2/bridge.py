@@ -29,6 +29,12 @@ the rig's kinematics at the joint angles interpolated to the image's stamp from
 ``/joint_states``; joint states become ``gimbal/state``; ``gimbal/command`` goes out as a
 ``trajectory_msgs/JointTrajectory`` (joint_trajectory_controller) or a
 ``std_msgs/Float64MultiArray`` (forward_position_controller), clamped to the rig's limits.
+Framing (``framing_in: true``, the default, also without ``inbound``): a
+``sensor_msgs/RegionOfInterest`` on ``/planner/keep`` (``/planner/avoid``) becomes a
+``PlannerRequest`` that sets the planner's kept subject (avoided region) to that box, in pixels of
+the frame ``framing_frame`` names (RegionOfInterest has no header: by default ``latest``, the
+newest frame the planner holds when the request arrives); the other list stays as it was. A
+RegionOfInterest of zero width or height clears that list (docs/guides/framing.md).
 Anything unusable is counted in ``ros2/diagnostics`` (``rejected.<key>``) and dropped. The
 diagnostics also count what was sent (``sent.<key>``) and, as values, the DDS subscribers matched
 on each outbound topic (``subscribers.<key>``).
@@ -40,21 +46,20 @@ import logging
 import math
 import re
 import time
-from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from aes_planner.config import ConfigError, require
+from aes_planner.geometry.plausible import MAX_STAMP_AHEAD_S
 from aes_planner.geometry.rig import PanTiltConfig
 from aes_planner.graph.base import LaunchContext, Node, NodeError, Output, Outputs
-from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState, PosedFrame, ViewSuggestion
+from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState, PlannerRequest, PosedFrame, ViewSuggestion
+from aes_planner.node.scene import launch_scene
 from aes_planner.ros2.dds import QOS_PROFILES, DdsConfig
 
 log = logging.getLogger(__name__)
 
-__all__ = ["OUTBOUND", "INBOUND", "Ros2BridgeConfig", "Ros2BridgeNode", "JointHistory"]
+__all__ = ["OUTBOUND", "INBOUND", "Ros2BridgeConfig", "Ros2BridgeNode"]
 
 #: key -> (default ROS 2 topic, "pkg/msg/Type", QoS profile)
 OUTBOUND = {
@@ -79,6 +84,8 @@ INBOUND = {
         "reliable",
     ),
     "forward_out": ("/forward_position_controller/commands", "std_msgs/msg/Float64MultiArray", "reliable"),
+    "keep_in": ("/planner/keep", "sensor_msgs/msg/RegionOfInterest", "reliable"),
+    "avoid_in": ("/planner/avoid", "sensor_msgs/msg/RegionOfInterest", "reliable"),
 }
 DEPTHS = {"tf": 100}
 
@@ -103,7 +110,12 @@ class Ros2BridgeConfig:
     * ``command_interface``: ``joint_trajectory`` or ``forward_position``; ``move_speed_rad_s``
       sets a trajectory point's ``time_from_start``; ``goal_tolerance_rad``: when a move is done.
     * ``rig``: the pan-tilt kinematics (else the launch's scene's); ``state_history_s``: joint
-      states kept to pose images; ``poll_hz``: how often DDS readers are polled (inbound).
+      states kept to pose images; ``poll_hz``: how often DDS readers are polled (inbound);
+      ``max_stamp_ahead_s``: an inbound image or joint state stamped further ahead of the node's
+      clock is rejected and counted (the planner's guard, where ROS 2 messages enter).
+    * ``framing_in``: read ``/planner/keep`` and ``/planner/avoid`` (RegionOfInterest) into
+      ``planner/request``; ``framing_frame``: the frame their boxes are drawn on (``latest``: the
+      newest the planner holds), ``keep_margin``: the margin those requests ask for.
     * ``ros_graph``: ``jazzy`` (also Iron, Kilted) or ``humble``: announce the bridge as ROS 2 node
       ``ros_node_name`` on ``ros_discovery_info`` (``ros2 node list``); empty = not announced
       (the message's GID differs between Humble and later releases, and a node of the other kind
@@ -126,9 +138,13 @@ class Ros2BridgeConfig:
     goal_tolerance_rad: float = 0.02
     rig: PanTiltConfig | None = None
     state_history_s: float = 2.0
+    max_stamp_ahead_s: float = MAX_STAMP_AHEAD_S
     poll_hz: float = 50.0
     ros_graph: str = ""
     ros_node_name: str = "aes_planner_bridge"
+    framing_in: bool = True
+    framing_frame: str = "latest"
+    keep_margin: float = 0.05
 
     def __post_init__(self):
         self.outbound = tuple(self.outbound)
@@ -151,6 +167,18 @@ class Ros2BridgeConfig:
                 name,
                 f"must be a tf frame id (1-128 printable characters, no spaces), got {value!r}",
             )
+        require(
+            isinstance(self.framing_frame, str)
+            and 0 < len(self.framing_frame) <= 256
+            and self.framing_frame.isprintable(),
+            "framing_frame",
+            f"must name a frame (1-256 printable characters, or 'latest'), got {self.framing_frame!r}",
+        )
+        require(
+            isinstance(self.keep_margin, (int, float)) and 0 <= self.keep_margin < 0.4,
+            "keep_margin",
+            f"must be in [0, 0.4), got {self.keep_margin!r}",
+        )
         require(len(set(self.joint_names)) == 2 and all(self.joint_names), "joint_names", "must be two distinct names")
         require(1 <= self.jpeg_quality <= 100, "jpeg_quality", f"must be in 1..100, got {self.jpeg_quality}")
         require(self.image_transport in ("raw", "compressed"), "image_transport", "must be 'raw' or 'compressed'")
@@ -171,6 +199,7 @@ class Ros2BridgeConfig:
             ("move_speed_rad_s", 1e-3, 100),
             ("goal_tolerance_rad", 1e-4, 1),
             ("state_history_s", 0.1, 60),
+            ("max_stamp_ahead_s", 0.0, 3600),
             ("poll_hz", 1, 1000),
         ):
             v = getattr(self, name)
@@ -181,31 +210,6 @@ class Ros2BridgeConfig:
 
     def profile(self, key: str) -> str:
         return self.qos.get(key) or {**OUTBOUND, **INBOUND}[key][2]
-
-
-class JointHistory:
-    """Joint angles over time, linearly interpolated at a stamp (held at the ends)."""
-
-    def __init__(self, history_s: float):
-        self.history_s = history_s
-        self.stamps: deque[float] = deque()
-        self.joints: deque[tuple[float, float]] = deque()
-
-    def add(self, stamp_s: float, pan: float, tilt: float) -> None:
-        if self.stamps and stamp_s <= self.stamps[-1]:
-            return
-        self.stamps.append(stamp_s)
-        self.joints.append((pan, tilt))
-        while len(self.stamps) > 2 and self.stamps[0] < stamp_s - self.history_s:
-            self.stamps.popleft()
-            self.joints.popleft()
-
-    def at(self, stamp_s: float) -> tuple[float, float] | None:
-        if not self.stamps or stamp_s < self.stamps[0] - self.history_s:
-            return None
-        j = np.asarray(self.joints)  # [N, 2]
-        t = np.asarray(self.stamps)  # [N]
-        return float(np.interp(stamp_s, t, j[:, 0])), float(np.interp(stamp_s, t, j[:, 1]))
 
 
 class Ros2BridgeNode(Node):
@@ -225,7 +229,12 @@ class Ros2BridgeNode(Node):
         "camera/frame": Output(PosedFrame, latched=False, reliable=False),  # frames: best-effort, as a camera's
         "gimbal/state": (GimbalState, False),
         "ros2/diagnostics": (Diagnostics, False),
+        "planner/request": (PlannerRequest, False),
     }
+
+    @classmethod
+    def sim_clock_problem(cls, config) -> str | None:
+        return "bridges to a ROS 2 graph, which runs on its own clock"
 
     def __init__(
         self, config: Ros2BridgeConfig | None = None, node_id: str = "ros2", context: LaunchContext | None = None
@@ -239,8 +248,8 @@ class Ros2BridgeNode(Node):
             ) from None
         c = self.config
         rig = c.rig
-        if rig is None and self.context.scene is not None and self.context.load_scene().rig is not None:
-            rig = self.context.load_scene().rig.pan_tilt
+        if rig is None and self.context.scene is not None and launch_scene(self.context).rig is not None:
+            rig = launch_scene(self.context).rig.pan_tilt
         from aes_planner.ros2.links import RigLinks
 
         self.links = RigLinks(rig) if rig is not None else None
@@ -253,6 +262,10 @@ class Ros2BridgeNode(Node):
         else:
             self.inputs = {k: v for k, v in type(self).inputs.items() if k != "gimbal/command"}
             self.outputs = {"ros2/diagnostics": type(self).outputs["ros2/diagnostics"]}
+        if not c.framing_in:
+            self.outputs = {k: v for k, v in self.outputs.items() if k != "planner/request"}
+        else:
+            self.outputs["planner/request"] = type(self).outputs["planner/request"]
         self.counters: dict[str, int] = {}
         self.dds = None
         self._writers: dict = {}
@@ -260,12 +273,16 @@ class Ros2BridgeNode(Node):
 
         self.mapper = OutboundMapper(c, self.links)
         self._last_diag_s = -math.inf
+        self._diag_seq = 0  # ros2/diagnostics: 1 for the first report
         self._inbound = None
+        self._framing_readers: dict = {}
+        self._framing: dict[str, list] = {"keep": [], "avoid": []}  # what the last request set
+        self._requests = 0
 
     @property
     def period_s(self) -> float:
         # outbound work is woken by the bus; only DDS readers (inbound) need polling
-        return 1.0 / self.config.poll_hz if self.config.inbound else 0.2
+        return 1.0 / self.config.poll_hz if self.config.inbound else 0.2  # framing boxes: at 5 Hz
 
     def count(self, key: str, n: int = 1) -> None:
         self.counters[key] = self.counters.get(key, 0) + n
@@ -289,6 +306,9 @@ class Ros2BridgeNode(Node):
             from aes_planner.ros2.inbound import Inbound
 
             self._inbound = Inbound(self, self.dds)
+        if c.framing_in:
+            for key in ("keep_in", "avoid_in"):
+                self._framing_readers[key] = self.dds.reader(c.topic(key), idl.RegionOfInterest, c.profile(key))
         for key, sample in self.mapper.static(time.time()):
             self._write(key, sample)
         if c.ros_graph:
@@ -306,6 +326,7 @@ class Ros2BridgeNode(Node):
         dds, self.dds = self.dds, None
         self._writers.clear()
         self._inbound = None
+        self._framing_readers = {}
         if dds is not None:
             dds.close()
 
@@ -322,12 +343,49 @@ class Ros2BridgeNode(Node):
                     log.warning("%s: %s not bridged: %s", self.node_id, topic, exc)
         if self._inbound is not None:
             self._inbound.poll(inputs.get("gimbal/command", ()), out, now)
+        if self._framing_readers:
+            self._poll_framing(out, now)
         if now - self._last_diag_s >= 1.0:
             self._last_diag_s = now
             diag = self.diagnostics(now)
             out["ros2/diagnostics"].append(diag)
             self._outbound("ros2/diagnostics", diag)
         return out
+
+    def _poll_framing(self, out: Outputs, now: float) -> None:
+        """RegionOfInterest on /planner/keep or /planner/avoid -> a PlannerRequest setting that list."""
+        from aes_planner.messages.diagnostics import FramingRegion
+        from aes_planner.ros2 import idl
+        from aes_planner.ros2.dds import take_checked
+
+        for key, reader in self._framing_readers.items():
+            samples, errors = take_checked(reader, idl.RegionOfInterest)
+            for e in errors:
+                self.count(f"rejected.{key}")
+                log.warning("%s: %s: %s", self.node_id, key, e)
+            self.count(f"received.{key}", len(samples) + len(errors))
+            if not samples:
+                continue
+            roi = samples[-1]  # the newest box wins
+            which = key.removesuffix("_in")
+            if roi.width == 0 or roi.height == 0:
+                self._framing[which] = []
+            else:
+                x0, y0 = float(roi.x_offset), float(roi.y_offset)
+                region = FramingRegion(self.config.framing_frame, x0, y0, x0 + roi.width, y0 + roi.height)
+                self._framing[which] = [region]
+            self._requests += 1
+            out["planner/request"].append(
+                PlannerRequest(
+                    "suggest",
+                    stamp_s=now,
+                    sequence=self._requests,
+                    set_framing=True,
+                    keep=list(self._framing["keep"]),
+                    avoid=list(self._framing["avoid"]),
+                    keep_margin=self.config.keep_margin,
+                )
+            )
 
     def _write(self, key: str, sample) -> None:
         w = self._writers.get(key)
@@ -342,11 +400,12 @@ class Ros2BridgeNode(Node):
     def diagnostics(self, now: float) -> Diagnostics:
         counters = dict(sorted(self.counters.items())[:120])
         rejected = sum(v for k, v in self.counters.items() if k.startswith("rejected."))
-        state = "rejecting input" if rejected and self._inbound and self._inbound.recent_rejections() else "bridging"
+        state = "rejecting input" if rejected and self._inbound and self._inbound.recent_rejections(now) else "bridging"
         values = {"search_latency_s": self.mapper.search_latency_s}
         for key, w in self._writers.items():  # who listens: the first question when a topic seems silent
             try:
                 values[f"subscribers.{key}"] = float(len(w.get_matched_subscriptions()))
             except Exception:  # a writer deleted under us (stopping): no figure
                 continue
-        return Diagnostics(now, self.node_id, state, counters, values)
+        self._diag_seq += 1
+        return Diagnostics(now, self.node_id, state, counters, values, self._diag_seq)

@@ -26,6 +26,7 @@ import numpy as np
 
 from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.camera import Intrinsics
+from aes_planner.geometry.plausible import distortion_problem, intrinsics_problem, joint_problem, stamp_problem
 from aes_planner.messages import Diagnostics, GimbalState, PosedFrame, ViewSuggestion
 from aes_planner.messages.posed_frame import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE_PX
 from aes_planner.ros2 import idl
@@ -72,19 +73,23 @@ class Ros2InputError(AesPlannerError, ValueError):
 
 
 def stamp(t_s: float) -> idl.Time:
-    """Seconds -> ``builtin_interfaces/Time`` (sec floored, 0 <= nanosec < 1e9; int32 range)."""
-    if not math.isfinite(t_s):
-        raise Ros2InputError(f"stamp must be finite, got {t_s}")
-    ns = round(t_s * 1e9)
-    sec, nsec = divmod(ns, 1_000_000_000)
-    sec = max(-(1 << 31), min((1 << 31) - 1, sec))
+    """Seconds -> ``builtin_interfaces/Time`` (sec floored, 0 <= nanosec < 1e9); a stamp the
+    plausibility bounds refuse (negative, beyond 2038: int32 seconds) raises, never clamped."""
+    problem = stamp_problem(t_s)
+    if problem is not None:
+        raise Ros2InputError(problem)
+    sec, nsec = divmod(round(t_s * 1e9), 1_000_000_000)
     return idl.Time(int(sec), int(nsec))
 
 
 def stamp_s(t: idl.Time, what: str = "header.stamp") -> float:
     if not 0 <= t.nanosec < 1_000_000_000:
         raise Ros2InputError(f"{what}.nanosec must be < 1e9, got {t.nanosec}")
-    return t.sec + t.nanosec * 1e-9
+    t_s = t.sec + t.nanosec * 1e-9
+    problem = stamp_problem(t_s, what)
+    if problem is not None:
+        raise Ros2InputError(problem)
+    return t_s
 
 
 def quaternion_xyzw(rotation: np.ndarray) -> tuple[float, float, float, float]:
@@ -187,6 +192,11 @@ def joint_positions(msg: idl.JointState, names: tuple[str, str]) -> tuple[float,
     pan, tilt = (float(msg.position[i]) for i in idx)
     if not (math.isfinite(pan) and math.isfinite(tilt)):
         raise Ros2InputError(f"JointState.position of {names} must be finite, got ({pan}, {tilt})")
+    problem = joint_problem(f"JointState.position[{names[0]}]", pan) or joint_problem(
+        f"JointState.position[{names[1]}]", tilt
+    )
+    if problem is not None:
+        raise Ros2InputError(problem)
     return pan, tilt
 
 
@@ -249,13 +259,16 @@ def decode_camera_info(msg: idl.CameraInfo) -> tuple[Intrinsics, np.ndarray]:
     D = np.asarray(msg.d, dtype=np.float64)
     if K.shape != (9,) or not np.all(np.isfinite(K)) or K[0] <= 0 or K[4] <= 0:
         raise Ros2InputError("CameraInfo.k must be 9 finite numbers with positive focal lengths (k[0], k[4])")
-    if D.size > MAX_DISTORTION or not np.all(np.isfinite(D)):
-        raise Ros2InputError(f"CameraInfo.d must be at most {MAX_DISTORTION} finite numbers, got {D.size}")
-    if np.any(D) and msg.distortion_model not in ("plumb_bob", "rational_polynomial"):
-        raise Ros2InputError(
-            f"CameraInfo.distortion_model {msg.distortion_model!r} is not supported; use plumb_bob or rational_polynomial"
-        )
-    return Intrinsics(float(K[0]), float(K[4]), float(K[2]) + 0.5, float(K[5]) + 0.5, w, h), D
+    if D.size > MAX_DISTORTION:
+        raise Ros2InputError(f"CameraInfo.d must be at most {MAX_DISTORTION} numbers, got {D.size}")
+    problem = distortion_problem(str(msg.distortion_model), D)
+    if problem is not None:
+        raise Ros2InputError(f"CameraInfo.{problem}")
+    k = Intrinsics(float(K[0]), float(K[4]), float(K[2]) + 0.5, float(K[5]) + 0.5, w, h)
+    problem = intrinsics_problem(k)
+    if problem is not None:
+        raise Ros2InputError(f"CameraInfo.k: {problem}")
+    return k, D
 
 
 def _check_size(w: int, h: int, what: str) -> None:

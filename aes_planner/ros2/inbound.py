@@ -9,6 +9,13 @@ Polled from :meth:`aes_planner.ros2.bridge.Ros2BridgeNode.step`:
 * ``Image`` / ``CompressedImage`` -> ``camera/frame`` posed at the joints interpolated to the
   image's stamp. No camera info yet, a size that differs from it, or no joint state near the
   stamp: dropped and counted (``no_camera_info``, ``size_mismatch``, ``unposed``).
+* Every entry is held to the package's plausibility bounds (``aes_planner.geometry.plausible``):
+  stamps within 0..2038 and at most ``max_stamp_ahead_s`` ahead of the node's clock (the
+  planner's guard, applied where the messages enter), joint angles, intrinsics and distortion
+  (an unknown ``distortion_model`` is refused, never read as plumb_bob); what fails is rejected
+  and counted (``rejected.<input>``). Joint states that jump back in time by more than
+  ``state_history_s`` (a publisher's clock corrected, a bag replayed from its start) reset the
+  joint history (``joint_history_resets``), so no stale or far-future state poisons it for good.
 * ``gimbal/command`` (move, stop) -> one trajectory point or a forward command, clamped to the
   rig's limits; ``reboot`` has no ROS 2 counterpart here and is counted (``ignored_commands``).
 """
@@ -17,10 +24,11 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 
 import numpy as np
 
+from aes_planner.geometry.plausible import stamp_problem
+from aes_planner.geometry.trajectory import JointHistory
 from aes_planner.messages import GimbalCommand, GimbalState, MessageError, PosedFrame
 from aes_planner.ros2 import convert, idl
 from aes_planner.ros2.convert import Ros2InputError
@@ -38,8 +46,6 @@ class Inbound:
     """Readers and the command writer of an inbound bridge (``node``: the bridge node)."""
 
     def __init__(self, node, dds):
-        from aes_planner.ros2.bridge import JointHistory
-
         self.node = node
         c = node.config
         self.image_key = "image_in" if c.image_transport == "raw" else "compressed_in"
@@ -67,15 +73,16 @@ class Inbound:
         self.states = 0
         self._rejections: list[float] = []
         self._last_joint: tuple[float, float, float] | None = None
+        self._now = -math.inf  # the time of the step being polled
 
-    def recent_rejections(self, window_s: float = 10.0) -> int:
-        now = time.monotonic()
+    def recent_rejections(self, now: float, window_s: float = 10.0) -> int:
+        """Inputs refused in the ``window_s`` seconds before ``now`` (the node's step time)."""
         self._rejections = [t for t in self._rejections if now - t < window_s]
         return len(self._rejections)
 
     def _reject(self, key: str, reason: str) -> None:
         self.node.count(f"rejected.{key}")
-        self._rejections.append(time.monotonic())
+        self._rejections.append(self._now)
         n = self.node.counters[f"rejected.{key}"]
         log.log(
             logging.WARNING if n <= 3 else logging.DEBUG, "ros2 bridge: rejected %s (%d so far): %s", key, n, reason
@@ -92,6 +99,7 @@ class Inbound:
     # -- the poll --------------------------------------------------------------------------------
 
     def poll(self, commands, out: dict, now: float) -> None:
+        self._now = now  # the step's time: every decision below takes its time from it
         for cmd in commands:
             self._command(cmd, now)
         for msg in self._take("camera_info_in"):
@@ -101,7 +109,7 @@ class Inbound:
                 self._reject("camera_info_in", str(exc))
         for msg in self._take("joint_states_in"):
             try:
-                state = self._joint_state(msg)
+                state = self._joint_state(msg, now)
             except (Ros2InputError, MessageError) as exc:
                 self._reject("joint_states_in", str(exc))
                 continue
@@ -109,20 +117,37 @@ class Inbound:
                 out["gimbal/state"].append(state)
         for msg in self._take(self.image_key):
             try:
-                frame = self._frame(msg)
+                frame = self._frame(msg, now)
             except (Ros2InputError, MessageError) as exc:
                 self._reject(self.image_key, str(exc))
                 continue
             if frame is not None:
                 out["camera/frame"].append(frame)
 
-    def _joint_state(self, msg: idl.JointState) -> GimbalState | None:
+    def _stamp(self, msg, what: str, now: float) -> float:
+        """The message's stamp, held to the plausibility bounds and the stamp-ahead guard."""
+        t = convert.stamp_s(msg.header.stamp, what)
+        problem = stamp_problem(t, what, now, self.node.config.max_stamp_ahead_s)
+        if problem is not None:
+            raise Ros2InputError(f"{problem}; synchronise the clocks (e.g. chrony)")
+        return t
+
+    def _joint_state(self, msg: idl.JointState, now: float) -> GimbalState | None:
         c = self.node.config
         joints = convert.joint_positions(msg, c.joint_names)
         if joints is None:
             self.node.count("ignored_joint_states")
             return None
-        t = convert.stamp_s(msg.header.stamp, "JointState.header.stamp")
+        t = self._stamp(msg, "JointState.header.stamp", now)
+        newest_s = self.history.newest_stamp_s
+        if newest_s is not None and t < newest_s - c.state_history_s:
+            log.warning(
+                "ros2 bridge: joint states jumped back %.3g s in time: the joint history starts again",
+                newest_s - t,
+            )
+            self.node.count("joint_history_resets")
+            self.history = JointHistory(c.state_history_s)
+            self._last_joint = None
         pan, tilt = joints
         speed = 0.0
         if len(msg.velocity) == len(msg.name):
@@ -135,11 +160,11 @@ class Inbound:
         self.history.add(t, pan, tilt)
         goal = self.goal or (pan, tilt)
         far = max(abs(goal[0] - pan), abs(goal[1] - tilt)) > c.goal_tolerance_rad
-        moving = speed > MOVING_RAD_S or (far and time.time() - self.goal_s < SETTLE_TIMEOUT_S)
+        moving = speed > MOVING_RAD_S or (far and self._now - self.goal_s < SETTLE_TIMEOUT_S)
         self.states += 1
         return GimbalState(pan, tilt, goal[0], goal[1], moving=bool(moving), stamp_s=t, sequence=self.states)
 
-    def _frame(self, msg) -> PosedFrame | None:
+    def _frame(self, msg, now: float) -> PosedFrame | None:
         import cv2
 
         if isinstance(msg, idl.Image):
@@ -153,8 +178,8 @@ class Inbound:
         if rgb.shape[:2] != (k.height, k.width):
             self.node.count("size_mismatch")
             raise Ros2InputError(f"image is {rgb.shape[1]}x{rgb.shape[0]} but CameraInfo says {k.width}x{k.height}")
-        t = convert.stamp_s(msg.header.stamp, "image header.stamp")
-        joints = self.history.at(t)
+        t = self._stamp(msg, "image header.stamp", now)
+        joints = self.history.joints_at(t)
         if joints is None:
             self.node.count("unposed")
             return None
@@ -168,7 +193,7 @@ class Inbound:
             cam2world=self.node.links.kinematics.forward(pan, tilt),
             stamp_s=t,
             frame_id=(msg.header.frame_id or "camera")[:200],
-            sequence=self.frames,
+            sequence=self.frames + 1,
             pan_rad=pan,
             tilt_rad=tilt,
         )
@@ -181,7 +206,7 @@ class Inbound:
         if cmd.kind == "reboot":
             self.node.count("ignored_commands")
             return
-        present = self.history.at(math.inf) if self.history.stamps else None
+        present = self.history.latest()
         if cmd.kind == "stop":
             if present is None:
                 self.node.count("ignored_commands")
@@ -198,4 +223,4 @@ class Inbound:
         self.command_writer.write(sample)
         self.node.count(f"sent.{self.cmd_key}")
         self.goal = (pan, tilt)
-        self.goal_s = time.time()
+        self.goal_s = now

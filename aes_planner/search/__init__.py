@@ -4,7 +4,7 @@
 
     from aes_planner.search import SearchConfig, search_views
 
-    cfg = SearchConfig.preset("balanced", mode=platform.kind, steps=30)  # fast | balanced | accurate; rig | drone
+    cfg = SearchConfig.preset("balanced", mode=platform.kind, steps=30)  # fast | balanced; rig | drone
     result = search_views(scorer, inputs_cam2world, platform, cfg)   # [N, 4, 4] world poses
     best = result.suggestions[0]   # cam2world, pan_rad/tilt_rad (rig), position_m, yaw/pitch, score...
 

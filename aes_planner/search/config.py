@@ -1,6 +1,6 @@
 """``SearchConfig``: every knob of the two-stage viewpoint search, with presets.
 
-Presets (``fast``, ``balanced``, ``accurate``) fix the speed/accuracy knobs; any field can be
+Presets (``fast``, ``balanced``) fix the speed/accuracy knobs; any field can be
 overridden (``SearchConfig.preset("balanced", steps=30)``); ``mode="drone"`` gives a preset's
 values for a drone's 5 DoF (``FREE_MODE_PRESETS``). Their place on the speed/accuracy
 curve is measured by ``aes-planner bench search`` and written to ``docs/benchmarks.md``.
@@ -15,7 +15,7 @@ from typing import Any
 
 from aes_planner.config import ConfigError, require, require_finite
 
-__all__ = ["FREE_MODE_PRESETS", "PRESETS", "SearchConfig"]
+__all__ = ["FREE_MODE_PRESETS", "PRESETS", "REMOVED_PRESETS", "SearchConfig"]
 
 from aes_planner.messages.suggestion import MAX_CANDIDATES
 
@@ -178,14 +178,16 @@ class SearchConfig:
         unknown names or keys are errors."""
         from aes_planner.platform import parse_kind
 
+        if name in REMOVED_PRESETS:
+            raise ConfigError("preset", f"{name!r} was removed: {REMOVED_PRESETS[name]}")
         if name not in PRESETS:
             raise ConfigError("preset", f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
-        kind = parse_kind(mode, "mode")
+        kind = parse_kind(mode, "mode", allow_handheld=True)
         known = {f.name for f in dataclasses.fields(cls)}
         for key in overrides:
             if key not in known:
                 raise ConfigError(key, f"unknown search setting; expected one of: {', '.join(sorted(known))}")
-        drone = FREE_MODE_PRESETS.get(name, {}) if kind == "drone" else {}
+        drone = FREE_MODE_PRESETS.get(name, {}) if kind in ("drone", "handheld") else {}  # both 5 DoF
         values = {**PRESETS[name], **drone, "preset_name": name, **overrides}
         return cls(**values)
 
@@ -194,7 +196,13 @@ class SearchConfig:
 PRESETS: dict[str, dict[str, Any]] = {
     "fast": dict(samples_per_segment=4, neighbours=4, top_k=1, steps=10, render_width_px=32),
     "balanced": dict(samples_per_segment=16, neighbours=8, top_k=2, steps=25, render_width_px=48),
-    "accurate": dict(samples_per_segment=32, neighbours=16, top_k=3, steps=30, render_width_px=64),
+}
+
+#: Presets no longer offered, and why (docs/decisions.md): each slower preset must beat the faster
+#: ones by >= 0.03 of the oracle on held-out scenes (``eval search`` prints the front).
+REMOVED_PRESETS: dict[str, str] = {
+    "accurate": "it was not better than balanced on held-out scenes (rig 0.68 vs 0.71 of the oracle, "
+    "3x the time; docs/decisions.md); use balanced, or override its fields, e.g. samples_per_segment",
 }
 
 #: What a preset changes for a drone (5 DoF, "free mode"). There a denser stage 1 finds better views; in rig

@@ -6,7 +6,7 @@
   same pattern search in 5-DoF (positions step a fraction of the box).
 
 It also scores ``random_samples`` uniformly random feasible poses (the platform's sampler,
-:meth:`~aes_planner.platform.Platform.random_poses`): their mean is the "chance" level of the oracle-normalised score ``(s - mean random) / (oracle - mean random)``.
+:func:`~aes_planner.search.space.random_poses`): their mean is the "chance" level of the oracle-normalised score ``(s - mean random) / (oracle - mean random)``.
 
 Results are cached as ``.npz`` (arrays) + ``.json`` (settings) under ``cache_dir`` (default
 ``$AES_PLANNER_CACHE/oracle`` or ``~/.cache/aes-planner/oracle``), keyed by a hash of the scene key,
@@ -31,12 +31,12 @@ from aes_planner.geometry.rig import rig_dict
 from aes_planner.platform import Platform
 from aes_planner.search.config import SearchConfig
 from aes_planner.search.ground_truth import GroundTruthScorer
-from aes_planner.search.space import SearchSpace
+from aes_planner.search.space import SearchSpace, random_poses, space_for
 from aes_planner.sources import SceneSource
 
 log = logging.getLogger(__name__)
 
-__all__ = ["default_cache_dir", "normalized", "oracle_search"]
+__all__ = ["default_cache_dir", "normalized", "oracle_search", "pattern_search"]
 
 ORACLE_VERSION = 1
 
@@ -62,15 +62,17 @@ def _platform_dict(platform: Platform) -> dict[str, Any]:
     return d
 
 
-def _pattern_search(
+def pattern_search(
     scorer: GroundTruthScorer,
     space: SearchSpace,
     start: torch.Tensor,
     score0: float,
     steps: np.ndarray,
     min_scale: float,
+    feasible=None,
 ) -> tuple[torch.Tensor, float]:
-    """Compass search from ``start [D]``: try +-step on each axis, move to the best, else halve."""
+    """Compass search from ``start [D]``: try +-step on each axis, move to the best, else halve.
+    ``feasible``: poses ``[M, 4, 4]`` -> ``[M]`` bool; probes it refuses are never scored."""
     p, best, scale = start.clone(), score0, 1.0
     while scale >= min_scale:
         probes = []
@@ -80,6 +82,11 @@ def _pattern_search(
                 q[d] += sign * scale * steps[d]
                 probes.append(q)
         probes_t = space.project(torch.stack(probes))
+        if feasible is not None:
+            probes_t = probes_t[torch.as_tensor(feasible(space.to_poses(probes_t).detach()))]
+            if not len(probes_t):
+                scale /= 2
+                continue
         out = scorer.score_batched(space.to_poses(probes_t))
         i = int(torch.argmax(out.score))
         if float(out.score[i]) > best + 1e-9:
@@ -114,7 +121,7 @@ def oracle_search(
     """
     platform = platform or source.platform
     space_cfg = SearchConfig(pitch_limits_deg=pitch_limits_deg)
-    space = platform.search_space(space_cfg)
+    space = space_for(platform, space_cfg)
     settings = {
         "version": ORACLE_VERSION,
         "scene": scene_key or source.name,
@@ -142,12 +149,12 @@ def oracle_search(
     grid, step, steps = space.exhaustive_grid(step_deg, free_step_deg, free_positions)
     log.info("oracle: scoring %d grid poses of %s", len(grid), settings["scene"])
     grid_scores = scorer.score_batched(space.to_poses(grid)).score.double()
-    rand = platform.random_poses(random_samples, np.random.default_rng(seed), space_cfg)  # [R, 4, 4]
+    rand = random_poses(platform, random_samples, np.random.default_rng(seed), space_cfg)  # [R, 4, 4]
     random_scores = scorer.score_batched(torch.as_tensor(rand)).score.double()
 
     best_p, best_s = grid[int(torch.argmax(grid_scores))], float(grid_scores.max())
     for i in torch.argsort(grid_scores, descending=True)[:refine_starts].tolist():
-        p, s = _pattern_search(
+        p, s = pattern_search(
             scorer, space, grid[i], float(grid_scores[i]), steps, math.radians(min_step_deg) / step * 2
         )
         if s > best_s:

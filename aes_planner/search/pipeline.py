@@ -65,6 +65,7 @@ class Suggestion:
     tilt_rad: float | None = None
     objective: float = 0.0
     stage1_score: float = 0.0
+    held: float | None = None  # with --keep: how much of the kept subject the view holds (1 = whole)
 
     def to_json(self) -> dict:
         """The ``suggest --json`` entry (degrees at the edge)."""
@@ -77,6 +78,8 @@ class Suggestion:
             "coverage": self.coverage,
             "terms": dict(self.terms),
         }
+        if self.held is not None:
+            out["held"] = self.held
         if self.pan_rad is not None:
             out = {"cam2world": out.pop("cam2world"), "pan_deg": math.degrees(self.pan_rad),
                    "tilt_deg": math.degrees(self.tilt_rad), **out}  # fmt: skip
@@ -187,13 +190,17 @@ def samples_per_segment(cfg: SearchConfig, n_inputs: int) -> int:
     return max(1, cfg.samples_per_segment * cfg.segment_budget // segments)
 
 
-def refine_params(scorer: Scorer, space: SearchSpace, start: Tensor, start_obj: Tensor, cfg: SearchConfig):
+def refine_params(
+    scorer: Scorer, space: SearchSpace, start: Tensor, start_obj: Tensor, cfg: SearchConfig, framing=None
+):
     """Stage 2: ``cfg.steps`` Adam steps (lr ``cfg.lr``) of gradient ascent on the objective from
     ``start [K, D]`` (objective ``start_obj [K]``), projected into the bounds after every step.
 
     Returns ``(last [K, D], best [K, D], best_obj [K])``: the last iterate (never scored) and the
     best scored iterate of each start. Autograd when the scorer is differentiable, else central
     finite differences (``cfg.nondiff_refine = "fd"``) or no steps at all (``"skip"``).
+    With a ``framing`` (:class:`~aes_planner.search.framing.Framing`) every step is backtracked
+    (halved) until it stays feasible, so feasible starts stay feasible.
     """
     differentiable = bool(scorer.differentiable)
     params = start.detach().clone()
@@ -205,8 +212,22 @@ def refine_params(scorer: Scorer, space: SearchSpace, start: Tensor, start_obj: 
         obj, _, grad = _gradient(scorer, space, params, cfg, differentiable)
         better = obj.double() > best_obj
         best_params[better], best_obj[better] = params[better], obj.double()[better]
-        params = space.project(adam.step(params, -grad))  # ascent
+        step = space.project(adam.step(params, -grad))  # ascent
+        params = step if framing is None else _feasible_step(space, framing, params, step)
     return params, best_params, best_obj
+
+
+def _feasible_step(space: SearchSpace, framing, params: Tensor, step: Tensor) -> Tensor:  # [K, D] -> [K, D]
+    """``step``, each row halved back towards ``params`` until its view holds the kept subjects
+    (``framing.cfg.backtrack_steps`` times at most; then the row stays where it was)."""
+    ok = framing.feasible(space.to_poses(step))
+    for _ in range(framing.cfg.backtrack_steps):
+        if bool(ok.all()):
+            break
+        bad = ~ok
+        step[bad] = space.project(params[bad] + 0.5 * (step[bad] - params[bad]))
+        ok = framing.feasible(space.to_poses(step))
+    return torch.where(ok[:, None], step, params)
 
 
 class Adam:
@@ -238,20 +259,24 @@ def search_views(
     platform: Platform,
     cfg: SearchConfig | None = None,
     avoid=None,
+    framing=None,
 ) -> SearchResult:
     """Suggest views from input poses ``[N, 4, 4]`` (world, float64) on ``platform``.
 
     ``avoid``: poses ``[M, 4, 4]`` already captured or suggested; stage 1 skips candidates that
     duplicate them (same distance test as between candidates), so an active loop gets new views.
+    ``framing``: a :class:`~aes_planner.search.framing.Framing` (kept subjects, avoided regions):
+    only views that hold every kept subject are candidates and suggestions, and its soft terms join
+    the objective; a :class:`~aes_planner.search.framing.FramingError` when no view holds them.
     Returns at most ``cfg.top_k`` suggestions, best first. Runs on the thread count
     :func:`aes_planner.runtime.suggestion_threads` picks (fewer threads beside busy processes).
     """
     with suggestion_threads():
-        return _search_views(scorer, inputs_cam2world, platform, cfg, avoid)
+        return _search_views(scorer, inputs_cam2world, platform, cfg, avoid, framing)
 
 
 def _search_views(
-    scorer: Scorer, inputs_cam2world, platform: Platform, cfg: SearchConfig | None, avoid
+    scorer: Scorer, inputs_cam2world, platform: Platform, cfg: SearchConfig | None, avoid, framing=None
 ) -> SearchResult:
     if not isinstance(platform, Platform):
         raise SearchError(f"platform must be a Platform (a rig or a drone box), got {type(platform).__name__}")
@@ -266,6 +291,9 @@ def _search_views(
     rng = np.random.default_rng(cfg.seed)
     avoid_poses = None if avoid is None else _check_inputs(avoid, "avoid", allow_empty=True)
     avoid_params = space.from_poses(avoid_poses) if avoid_poses is not None and len(avoid_poses) else None
+    framing = framing if framing is not None and framing.active else None
+    if framing is not None:
+        scorer = framing.wrap(scorer)  # the avoided regions and the placement join the score
 
     # ---- stage 1: trajectory samples + neighbours, scored in batches
     trajectory = interpolate_poses(inputs, samples_per_segment(cfg, len(inputs)))  # [T, 4, 4]
@@ -273,6 +301,10 @@ def _search_views(
     candidates = torch.cat(
         [anchors, space.neighbours(anchors, cfg.neighbours, rng), space.grid(cfg.grid_points)]
     )  # [T * (1 + N) + G, D]
+    if framing is not None:  # stage 1 keeps the views that hold the subject, aimed ones among them
+        from aes_planner.search.framing import feasible_candidates
+
+        candidates = feasible_candidates(framing, space, candidates, trajectory, cfg, rng)
     cand_poses = space.to_poses(candidates)  # [C, 4, 4]
     t_sampled = time.perf_counter()
     out1 = scorer.score_batched(cand_poses, cfg.batch_size)
@@ -283,7 +315,7 @@ def _search_views(
     # ---- stage 2: Adam on the parameters, projected into the bounds after every step
     differentiable = bool(scorer.differentiable)
     refine = cfg.steps > 0 and (differentiable or cfg.nondiff_refine == "fd")
-    params, best_params, best_obj = refine_params(scorer, space, candidates[keep], obj1[keep], cfg)
+    params, best_params, best_obj = refine_params(scorer, space, candidates[keep], obj1[keep], cfg, framing)
     t_stage2 = time.perf_counter()
 
     # ---- final scores of the refined poses, ranked
@@ -321,6 +353,9 @@ def _search_views(
     for i in distinct.tolist():
         sug = _suggestion(space, final_params[i], final_poses[i], out2, i, float(obj2[i]))
         sug.stage1_score = float(out1.score[keep[i % len(keep)]])
+        if framing is not None:  # the aesthetic score, and how much of the subject the view holds
+            sug.score = sug.terms.get("aesthetic", sug.score)
+            sug.held = float(framing.held(final_poses[i : i + 1])[0])
         suggestions.append(sug)
     t_end = time.perf_counter()
     timings = {

@@ -70,6 +70,42 @@ def _tile(image: np.ndarray, size: tuple[int, int], label: str) -> np.ndarray:  
     return tile
 
 
+#: Outline colours (RGB): the kept subject green, an avoided region red.
+COLOURS = {"keep": (40, 200, 60), "avoid": (220, 40, 40)}
+#: The 12 edges of a box whose corners are numbered as :attr:`Subject.corners_m` (bit 2: x, 1: y, 0: z).
+BOX_EDGES = [(a, a | b) for a in range(8) for b in (1, 2, 4) if not a & b]
+
+
+def _outline_box(image: np.ndarray, box, colour) -> np.ndarray:  # [H, W, 3] uint8 -> a copy, outlined
+    out = np.ascontiguousarray(image).copy()
+    t = max(1, round(max(out.shape[:2]) / 160))
+    x0, y0, x1, y1 = (int(round(v)) for v in box)
+    cv2.rectangle(out, (x0, y0), (max(x0, x1 - 1), max(y0, y1 - 1)), colour, t, cv2.LINE_AA)
+    return out
+
+
+def _outline_subjects(image: np.ndarray, framing, cam2world: np.ndarray) -> np.ndarray:
+    """``image`` of the view at ``cam2world`` with the kept subjects' (and avoided regions') 3D
+    boxes drawn as wireframes, projected with the framing's camera (scaled to the image)."""
+    from aes_planner.search.framing import NEAR_M, project_corners
+
+    out = np.ascontiguousarray(image).copy()
+    h, w = out.shape[:2]
+    t = max(1, round(max(h, w) / 160))
+    pose = torch.as_tensor(np.asarray(cam2world, dtype=np.float64)[None])
+    for kind, subjects in (("keep", framing.keep), ("avoid", framing.avoid)):
+        for s in subjects:
+            corners = torch.as_tensor(s.corners_m[None])  # [1, 8, 3]
+            u, v, z = (a[0, 0].numpy() for a in project_corners(corners, pose, framing.intrinsics))
+            px = np.stack([u * w, v * h], -1)
+            for a, b in BOX_EDGES:
+                if z[a] > NEAR_M and z[b] > NEAR_M and np.isfinite(px[[a, b]]).all():
+                    pa = tuple(int(round(c)) for c in np.clip(px[a], -4 * w, 5 * w))
+                    pb = tuple(int(round(c)) for c in np.clip(px[b], -4 * w, 5 * w))
+                    cv2.line(out, pa, pb, COLOURS[kind], t, cv2.LINE_AA)
+    return out
+
+
 def _row(tiles: list[np.ndarray], width: int) -> np.ndarray:
     row = np.hstack([np.pad(t, ((PAD, PAD), (PAD, PAD), (0, 0)), constant_values=255) for t in tiles])
     if row.shape[1] < width:
@@ -84,11 +120,24 @@ def write_report(
     renderers: dict[str, Callable[[np.ndarray], np.ndarray]],
     tile_width: int = 192,
     scores: dict[str, Sequence[float]] | None = None,
+    outlines: dict | None = None,
+    labels: dict[str, Sequence[str]] | None = None,
 ) -> Path:
     """Write the report PNG; ``renderers`` maps a row name to poses -> ``[B, H, W, 3]`` uint8;
     ``scores`` a row name to that row's own score of each suggestion (e.g. the teacher's on the
-    ground truth), shown in its labels instead of the search's score."""
+    ground truth), shown in its labels instead of the search's score. ``outlines``
+    (``suggest --keep/--avoid``): ``input_boxes`` [(input index, "keep"|"avoid", (x0, y0, x1, y1)
+    in that image's pixels)] drawn on the inputs, and ``framing`` (a
+    :class:`~aes_planner.search.framing.Framing`) whose subjects' 3D boxes are drawn on every
+    suggested view (keep green, avoid red). ``labels``: a row name to its tiles' own labels, for a row
+    that does not show the suggested views themselves (``suggest`` on photos: the photo each
+    suggestion is said from); such a row gets no subject outlines."""
     scores = scores or {}
+    labels = labels or {}
+    outlines = outlines or {}
+    input_images = list(input_images)
+    for i, kind, box in outlines.get("input_boxes", []):
+        input_images[i] = _outline_box(input_images[i], box, COLOURS[kind])
     h0, w0 = input_images[0].shape[:2]
     size = (tile_width, max(8, int(round(tile_width * h0 / w0))))
     poses = np.stack([s.cam2world for s in result.suggestions])
@@ -98,6 +147,13 @@ def write_report(
             images = fn(poses)
         except (TypeError, ValueError, RuntimeError):
             continue
+        if name in labels:
+            rows.append([_tile(img, size, f"{name}: {text}") for img, text in zip(images, labels[name])])
+            continue
+        if outlines.get("framing") is not None:
+            images = [
+                _outline_subjects(img, outlines["framing"], s.cam2world) for img, s in zip(images, result.suggestions)
+            ]
         rows.append(
             [
                 _tile(img, size, f"{name} {suggestion_label(i, s, scores[name][i] if name in scores else None)}")

@@ -6,6 +6,9 @@
 * :class:`FreeSpace` — a drone: ``params = (x, y, z, yaw, pitch)`` (the 5-DoF view of
   :mod:`aes_planner.geometry`), position inside the flight box, pitch inside the gimbal's range,
   yaw free (wrapped on output).
+* :class:`HandHeldSpace` — a photographer's camera: the same 5 DoF, the position inside the region
+  they walked (within the margin of the paths between the photos' cameras,
+  :class:`~aes_planner.platform.HandHeldPlatform`), not a box.
 
 Both keep the search inside the feasible set by **projection**: every candidate and every stage-2
 step is clamped to the bounds (the Adam state is kept; the clamp is the projection onto the box).
@@ -20,9 +23,9 @@ import torch
 from torch import Tensor
 
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world, wrap_angle
-from aes_planner.platform import DroneBox, Platform
+from aes_planner.platform import DroneBox, DronePlatform, HandHeldPlatform, Platform, RigPlatform
 
-__all__ = ["FreeSpace", "RigSpace", "SearchSpace", "space_for"]
+__all__ = ["FreeSpace", "HandHeldSpace", "RigSpace", "SearchSpace", "random_poses", "space_for"]
 
 
 def _forward_dirs(cam2world: Tensor) -> Tensor:  # [M, 4, 4] -> [M, 3]
@@ -162,7 +165,7 @@ class FreeSpace(SearchSpace):
         pitch_limits_rad: tuple[float, float],
     ):
         super().__init__(platform, jitter_rad, dedup_rad)
-        box: DroneBox = platform.drone
+        box: DroneBox = platform.free_box()
         self.box = box
         self.shift_m = shift_m
         self.dedup_m = dedup_m
@@ -213,7 +216,93 @@ class FreeSpace(SearchSpace):
         return torch.as_tensor(rng.uniform(lo, hi, size=(n, 5)))
 
 
-def space_for(platform: Platform, cfg) -> SearchSpace:
-    """The search space of a platform under a :class:`~aes_planner.search.SearchConfig`
-    (:meth:`Platform.search_space <aes_planner.platform.Platform.search_space>`)."""
-    return platform.search_space(cfg)
+class HandHeldSpace(FreeSpace):
+    """5-DoF views whose position stays in the region a photographer walked: within the platform's
+    margin of the segments between neighbouring photos' cameras (a chain of capsules). The
+    projection moves a position outside to the nearest point of the nearest capsule (the exact
+    projection onto the union); pitch and yaw as in :class:`FreeSpace`."""
+
+    kind = "handheld"
+
+    def __init__(self, platform: Platform, *args, **kwargs):
+        super().__init__(platform, *args, **kwargs)
+        centres = torch.as_tensor(platform.centres, dtype=torch.float64)  # [N, 3]
+        edges = torch.as_tensor(platform.edges)  # [E, 2]
+        self.seg_a, self.seg_b = centres[edges[:, 0]], centres[edges[:, 1]]  # [E, 3]
+        self.margin = float(platform.margin_m)
+
+    def _nearest(self, xyz: Tensor) -> tuple[Tensor, Tensor]:  # [M, 3] -> nearest path point [M, 3], distance [M]
+        ab = self.seg_b - self.seg_a  # [E, 3]
+        t = (((xyz[:, None] - self.seg_a) * ab).sum(-1) / (ab * ab).sum(-1).clamp_min(1e-18)).clamp(0, 1)  # [M, E]
+        q = self.seg_a + t[..., None] * ab  # [M, E, 3]
+        d = (xyz[:, None] - q).norm(dim=-1)  # [M, E]
+        k = d.argmin(dim=-1)  # [M]
+        rows = torch.arange(len(xyz))
+        return q[rows, k], d[rows, k]
+
+    def project(self, params: Tensor) -> Tensor:  # [M, 5] -> [M, 5], the position in the walked region
+        p = super().project(params)
+        q, d = self._nearest(p[:, :3])
+        factor = torch.where(d > self.margin, self.margin / d.clamp_min(1e-18), torch.ones_like(d))[:, None]
+        return torch.cat([q + (p[:, :3] - q) * factor, p[:, 3:]], dim=-1)
+
+    def random(self, n: int, rng: np.random.Generator) -> Tensor:  # [n, 5], positions spread over the region
+        e = rng.integers(0, len(self.seg_a), n)
+        t = torch.as_tensor(rng.uniform(0, 1, n))[:, None]
+        on_path = self.seg_a[e] + t * (self.seg_b[e] - self.seg_a[e])  # [n, 3]
+        offset = torch.as_tensor(rng.normal(size=(n, 3)))
+        offset = (
+            offset
+            / offset.norm(dim=-1, keepdim=True)
+            * self.margin
+            * torch.as_tensor(rng.uniform(0, 1, n))[:, None] ** (1 / 3)
+        )
+        lo, hi = self.lower.numpy(), self.upper.numpy()
+        angles = torch.as_tensor(np.stack([rng.uniform(-math.pi, math.pi, n), rng.uniform(lo[4], hi[4], n)], -1))
+        return self.project(torch.cat([on_path + offset, angles], dim=-1))
+
+
+def space_for(platform: Platform, cfg=None) -> SearchSpace:
+    """The search space of a platform under a :class:`~aes_planner.search.SearchConfig` (default
+    settings when None): a rig's joints (:class:`RigSpace`), a drone's 5-DoF views
+    (:class:`FreeSpace`) or a hand-held camera's (:class:`HandHeldSpace`), with the bounds the search
+    projects onto."""
+    if cfg is None:
+        from aes_planner.search.config import SearchConfig
+
+        cfg = SearchConfig()
+    hfov = platform.intrinsics.hfov_rad
+    if isinstance(platform, RigPlatform):
+        return RigSpace(platform, cfg.jitter_fov * hfov, cfg.dedup_fov * hfov)
+    if isinstance(platform, HandHeldPlatform):  # the region walked: its bounding box sizes the shifts
+        diag = platform.free_box().diagonal_m
+        lo_deg, hi_deg = platform.pitch_limits_deg
+        return HandHeldSpace(
+            platform,
+            cfg.jitter_fov * hfov,
+            cfg.dedup_fov * hfov,
+            cfg.shift_frac * diag,
+            cfg.dedup_frac * diag,
+            (max(cfg.pitch_limits_rad[0], math.radians(lo_deg)), min(cfg.pitch_limits_rad[1], math.radians(hi_deg))),
+        )
+    if isinstance(platform, DronePlatform):
+        diag = platform.drone.diagonal_m
+        return FreeSpace(
+            platform,
+            cfg.jitter_fov * hfov,
+            cfg.dedup_fov * hfov,
+            cfg.shift_frac * diag,
+            cfg.dedup_frac * diag,
+            cfg.pitch_limits_rad,
+        )
+    raise TypeError(
+        f"no search space for a {type(platform).__name__}; expected a RigPlatform, a DronePlatform or a HandHeldPlatform"
+    )
+
+
+def random_poses(platform: Platform, n: int, rng: np.random.Generator, cfg=None) -> np.ndarray:  # -> [n, 4, 4]
+    """``n`` feasible poses drawn uniformly over the search space's bounds (rig: the joint ranges;
+    drone: the box, any yaw, the searched pitch range): the chance level of every oracle-normalised
+    score, the one sampler behind every "mean random" baseline."""
+    space = space_for(platform, cfg)
+    return space.to_poses(space.random(n, rng)).detach().numpy()

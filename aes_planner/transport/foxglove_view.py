@@ -12,6 +12,9 @@ For a message on topic ``T`` (shown as ``/T``), :func:`foxglove_view` returns:
   by score, red = worst to green = best, with its rank and score as text), ``/tf`` (world ->
   ``suggestion``, the best candidate), ``/T/scores`` (JSON: best score, coverage, each term,
   the best view in degrees, all scores: plottable).
+* ``Diagnostics`` of the planner (``planner/diagnostics``): also ``/T/framing``
+  (``foxglove.SceneUpdate``: the lifted 3D box of each kept subject, green, and avoided region,
+  red, as a ``CubePrimitive``; empty when no framing is active; docs/guides/framing.md).
 * every other type: ``/T/json`` (JSON of :func:`aes_planner.messages.to_jsonable`, plottable).
 
 Our own channel ``/T`` carries the message's bytes unchanged (message encoding
@@ -33,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from aes_planner.messages import (
+    Diagnostics,
     Message,
     PosedFrame,
     ViewSuggestion,
@@ -224,6 +228,60 @@ def score_color(score: float, lo: float, hi: float) -> tuple[float, float, float
     return (1.0 - t, t, 0.15, 1.0)
 
 
+#: Colours (RGBA) of the framing boxes: the kept subject green, an avoided region red; see-through.
+FRAMING_COLORS = {"keep": (0.15, 0.85, 0.25, 0.35), "avoid": (0.9, 0.15, 0.15, 0.35)}
+
+
+def framing_boxes(values: dict[str, float]) -> list[tuple[str, np.ndarray, np.ndarray, float]]:
+    """The planner's lifted framing boxes from its diagnostics values (``framing.box<i>.<keep|avoid>``
+    ``.cx .cy .cz .sx .sy .sz .yaw_rad``, :func:`aes_planner.node.planner.box_values`):
+    ``[(kind, centre [3], size [3], yaw_rad)]``; incomplete or non-finite boxes are left out."""
+    found: dict[tuple[str, str], dict[str, float]] = {}
+    for name, v in values.items():
+        parts = name.split(".")
+        if len(parts) == 4 and parts[0] == "framing" and parts[1].startswith("box") and parts[2] in FRAMING_COLORS:
+            found.setdefault((parts[1], parts[2]), {})[parts[3]] = v
+    out = []
+    for (_, kind), d in sorted(found.items()):
+        keys = ("cx", "cy", "cz", "sx", "sy", "sz", "yaw_rad")
+        if all(k in d and math.isfinite(d[k]) for k in keys):
+            out.append(
+                (kind, np.array([d["cx"], d["cy"], d["cz"]]), np.array([d["sx"], d["sy"], d["sz"]]), d["yaw_rad"])
+            )
+    return out
+
+
+def _framing_scene(boxes, log_time_ns: int):
+    """A SceneUpdate that replaces every framing box with ``boxes`` (a CubePrimitive each, in world)."""
+    from foxglove.messages import (
+        Color,
+        CubePrimitive,
+        Pose,
+        Quaternion,
+        SceneEntity,
+        SceneEntityDeletion,
+        SceneEntityDeletionType,
+        SceneUpdate,
+        Vector3,
+    )
+
+    entities = []
+    for i, (kind, centre, size, yaw) in enumerate(boxes):
+        r, g, b, a = FRAMING_COLORS[kind]
+        pose = Pose(
+            position=Vector3(x=float(centre[0]), y=float(centre[1]), z=float(centre[2])),
+            orientation=Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)),
+        )
+        cube = CubePrimitive(
+            pose=pose,
+            size=Vector3(x=float(size[0]), y=float(size[1]), z=float(size[2])),
+            color=Color(r=r, g=g, b=b, a=a),
+        )
+        entities.append(SceneEntity(timestamp=_stamp(log_time_ns), frame_id="world", id=f"{kind}_{i}", cubes=[cube]))
+    deletions = [SceneEntityDeletion(timestamp=_stamp(log_time_ns), type=SceneEntityDeletionType.All, id="")]
+    return SceneUpdate(deletions=deletions, entities=entities)
+
+
 def view_channels(topic: str, msg_type: type[Message]) -> list[tuple[str, tuple[str, str, bytes], str]]:
     """``[(channel topic, (schema name, schema encoding, schema data), message encoding)]`` that
     :func:`foxglove_view` writes for messages of ``msg_type`` on ``topic`` (our own channel not
@@ -243,7 +301,10 @@ def view_channels(topic: str, msg_type: type[Message]) -> list[tuple[str, tuple[
             ("/tf", _proto_schema(FrameTransform), "protobuf"),
             (f"{base}/scores", ("aes_planner.SuggestionScores", "jsonschema", _JSON_SCHEMA), "json"),
         ]
-    return [(f"{base}/json", (f"aes_planner.{msg_type.TYPE_NAME}Json", "jsonschema", _JSON_SCHEMA), "json")]
+    out = [(f"{base}/json", (f"aes_planner.{msg_type.TYPE_NAME}Json", "jsonschema", _JSON_SCHEMA), "json")]
+    if issubclass(msg_type, Diagnostics) and base.endswith("planner/diagnostics"):
+        out.append((f"{base}/framing", _proto_schema(SceneUpdate), "protobuf"))
+    return out
 
 
 class _ViewState:
@@ -331,6 +392,10 @@ def foxglove_view(
         summary["scores"] = scores
         out.append(_json(f"{base}/scores", "aes_planner.SuggestionScores", summary))
         return out
+    if isinstance(msg, Diagnostics):
+        boxes = framing_boxes(msg.values)
+        if boxes or any(k.startswith("framing.") for k in msg.values) or topic.endswith("planner/diagnostics"):
+            out.append(_proto(f"{base}/framing", _framing_scene(boxes, log_time_ns)))
     obj = to_jsonable(msg)
     for key in ("pan_rad", "tilt_rad", "goal_pan_rad", "goal_tilt_rad"):
         if isinstance(obj.get(key), float):

@@ -35,7 +35,15 @@ from aes_planner.transport.foxglove_view import (
     view_channels,
 )
 
-__all__ = ["Recorder", "FoxgloveLive", "RecordingError", "read_recording", "replay", "recording_summary"]
+__all__ = [
+    "Recorder",
+    "FoxgloveLive",
+    "RecordingError",
+    "read_recording",
+    "replay",
+    "recording_metadata",
+    "recording_summary",
+]
 
 log = logging.getLogger(__name__)
 
@@ -159,6 +167,12 @@ class Recorder(_Sink):
             cid = self._channels[key] = self._writer.register_channel(topic, encoding, sid)
         self._sequence += 1
         self._writer.add_message(cid, log_time=t, data=data, publish_time=stamp, sequence=self._sequence)
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """An MCAP metadata record (``name``: string -> string), e.g. which clock the run used."""
+        with self._lock:
+            if not self.closed:
+                self._writer.add_metadata(name, {str(k): str(v) for k, v in data.items()})
 
     def _close(self) -> None:
         self._writer.finish()
@@ -363,6 +377,17 @@ def _read_cut_short(f, path, wanted: set[str] | None) -> Iterator[tuple[str, byt
         )
     else:
         log.warning("%s: the recording has no summary (cut short?); read all %d messages in file order", path, n)
+
+
+def recording_metadata(path: str | Path) -> dict[str, dict[str, str]]:
+    """``{name: {key: value}}`` of a recording's MCAP metadata records (``run``: its clock...)."""
+    from mcap.reader import make_reader
+
+    try:
+        with open(path, "rb") as f:
+            return {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
+    except OSError as exc:
+        raise RecordingError(f"cannot read {path}: {exc.strerror}") from None
 
 
 def recording_summary(path: str | Path) -> dict[str, dict]:

@@ -14,6 +14,7 @@ from aes_planner.calibrate.capture import HardwareViewSource, SimViewSource
 from aes_planner.calibrate.pipeline import calibrate_rig
 from aes_planner.calibrate.rig import compare_kinematics
 from aes_planner.calibrate.simscene import board_scene, perturbed_rig
+from aes_planner.cli.calibrate import sim_calibration_camera
 from aes_planner.devices import make_device
 from aes_planner.geometry import PanTiltConfig
 from aes_planner.sim import load_scene
@@ -59,7 +60,7 @@ def test_rig_calibrated_through_the_dynamixel_driver_on_the_emulator(tmp_path, f
     path.write_text(
         yaml.safe_dump(board_scene(truth, BOARD, distance_m=1.4, bearing_deg=-10.0, camera=(320, 240, 60.0)))
     )
-    sim = SimViewSource(load_scene(path), supersample=1, min_width=320)
+    sim = SimViewSource(sim_calibration_camera(load_scene(path), 1, 0, min_width=320))
     gimbal = make_device(
         {
             "type": "emulated_pan_tilt",

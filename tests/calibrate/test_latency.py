@@ -10,6 +10,7 @@ from aes_planner.calibrate.board import parse_board
 from aes_planner.calibrate.capture import SimStream, SimViewSource, board_in_world, find_board
 from aes_planner.calibrate.pipeline import estimate_latency, latency_sweep_centre
 from aes_planner.calibrate.simscene import board_scene, perturbed_rig
+from aes_planner.cli.calibrate import sim_calibration_camera
 from aes_planner.geometry import PanTilt, PanTiltConfig
 from aes_planner.node.camera import CameraNode, CameraNodeConfig
 from aes_planner.sim import load_scene
@@ -27,11 +28,11 @@ def test_latency_of_the_sim_camera_recovered_within_10_ms(tmp_path, latency_s):
     path = tmp_path / "scene.yaml"
     path.write_text(yaml.safe_dump(board_scene(truth, BOARD, distance_m=1.6, camera=(320, 240, 60.0))))
     scene = load_scene(path)
-    source = SimViewSource(scene, supersample=1, min_width=320)
+    source = SimViewSource(sim_calibration_camera(scene, 1, 0, min_width=320))
     pan, tilt, found = find_board(source, truth, BOARD)
     b2w = board_in_world(source.camera, truth, pan, tilt, found)
     centre, amplitude = latency_sweep_centre(source.camera, truth, BOARD, b2w)
-    stream = SimStream(scene, latency_s, supersample=1, min_width=320)
+    stream = SimStream(sim_calibration_camera(scene, 1, 0, latency_s=latency_s, min_width=320))
     out = estimate_latency(stream, source.camera, truth, BOARD, b2w, centre, amplitude, duration_s=2.0)
     assert abs(out["camera_latency_s"] - latency_s) < 0.010, out
     assert out["frames_used"] >= 20

@@ -16,6 +16,7 @@ from aes_planner.calibrate.capture import CameraModel, SimViewSource
 from aes_planner.calibrate.pipeline import calibrate_rig
 from aes_planner.calibrate.rig import RigCalibrationError, compare_kinematics, rezero_tilt, solve_rig
 from aes_planner.calibrate.simscene import board_scene, perturbed_rig
+from aes_planner.cli.calibrate import sim_calibration_camera
 from aes_planner.config import from_dict
 from aes_planner.geometry import PanTilt, PanTiltConfig
 from aes_planner.geometry.rig import rig_dict
@@ -110,7 +111,7 @@ def test_sim_rig_recovered_end_to_end(tmp_path):
     """A sim scene (board texture) whose rig differs from the drawing: rendered, detected, solved."""
     truth = perturbed_rig(NOMINAL, np.random.default_rng(11))
     scene = load_scene(_scene_file(tmp_path, truth))
-    source = SimViewSource(scene, supersample=1, pixel_noise_sigma=1.0, min_width=320)
+    source = SimViewSource(sim_calibration_camera(scene, 1, 0, pixel_noise_sigma=1.0, min_width=320))
     config, report = calibrate_rig(source, NOMINAL, BOARD, n_views=16)
     after = compare_kinematics(config, truth)
     assert after["position_rms_mm"] < 4.0 and after["angle_rms_deg"] < 0.2, after
@@ -122,7 +123,7 @@ def test_board_never_found_and_wrong_spec_say_what_to_do(tmp_path):
     truth = perturbed_rig(NOMINAL, np.random.default_rng(3))
     narrow = replace(NOMINAL, pan_limits_deg=(-20.0, 20.0), tilt_limits_deg=(-10.0, 10.0))
     scene = load_scene(_scene_file(tmp_path, truth))
-    source = SimViewSource(scene, supersample=1, min_width=320)
+    source = SimViewSource(sim_calibration_camera(scene, 1, 0, min_width=320))
     with pytest.raises(RigCalibrationError, match="matches the printed board"):
         calibrate_rig(source, narrow, parse_board("chessboard:7x6:0.06"))
     away = replace(NOMINAL, pan_limits_deg=(120.0, 150.0), tilt_limits_deg=(-10.0, 10.0))
@@ -163,7 +164,7 @@ def test_verify_tells_a_calibrated_rig_from_its_drawing(tmp_path):
 
     truth = perturbed_rig(NOMINAL, np.random.default_rng(8))
     scene = load_scene(_scene_file(tmp_path, truth))
-    source = SimViewSource(scene, supersample=1, min_width=320)
+    source = SimViewSource(sim_calibration_camera(scene, 1, 0, min_width=320))
     good = verify_rig(source, truth, BOARD, n_views=8)
     bad = verify_rig(source, NOMINAL, BOARD, n_views=8)
     assert good["held_out_rms_px"] < 0.5 < bad["held_out_rms_px"], (good["held_out_rms_px"], bad["held_out_rms_px"])

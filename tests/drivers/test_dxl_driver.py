@@ -9,7 +9,8 @@ import pytest
 from aes_planner.config import ConfigError
 from aes_planner.devices import DeviceError, GimbalCommError, GimbalTimeoutError, make_device
 from aes_planner.drivers import dynamixel_models as dm
-from aes_planner.drivers.dynamixel import DynamixelPanTilt, DynamixelPanTiltConfig, EmulatedPanTilt, scan
+from aes_planner.drivers.dynamixel import DynamixelPanTilt, DynamixelPanTiltConfig, scan
+from aes_planner.drivers.emulated import EmulatedPanTilt
 from aes_planner.drivers.emulator import ServoEmulator
 from aes_planner.geometry.pantilt import JointCommandError
 

@@ -174,10 +174,9 @@ def test_a_new_model_is_data_only():
     assert new.by_addr[116][0] == "goal_position"  # the address index is rebuilt from the table
 
 
-def test_servo_facts_live_in_one_place_and_old_import_paths_work():
-    from aes_planner.drivers import dynamixel, dynamixel_config, emulated, emulator
+def test_servo_facts_live_in_one_place():
+    from aes_planner.drivers import dynamixel, dynamixel_config, emulator
 
-    assert dynamixel.EmulatedPanTilt is emulated.EmulatedPanTilt  # the pre-split import paths
     assert dynamixel.EmulatedPanTiltConfig is dynamixel_config.EmulatedPanTiltConfig
     assert dynamixel.SDK_BAUD_RATES is dm.SDK_BAUD_RATES and emulator.BAUD_RATES is dm.BAUD_RATES
     assert set(dm.SDK_BAUD_RATES) <= set(dm.BAUD_RATES.values())

@@ -20,6 +20,8 @@ every_type = [
     m.GimbalState(0.1, 0.2, 0.3, 0.4, True, (30.0, 31.0), ("pan: overload",)),
     m.Diagnostics(1.0, "planner", "exploring", {"frames_in": 3}, {"latency_s": 0.1}),
     m.PlannerRequest("suggest"),
+    m.Clock(10_000_000, 1, {"gimbal/state": 1}),
+    m.ClockAck("gimbal", 1, 20_000_000, {"gimbal/state": 1}),
     m.DroneState(3.0, np.eye(4), mode="OFFBOARD", armed=True, system_id=1),
 ]
 assert {type(x).TYPE_NAME for x in every_type} == set(m.MESSAGE_TYPES)

@@ -36,8 +36,11 @@ def test_short_closed_loop_improves_the_view(tmp_path):
         "final_cam2world",
         "final_pan_deg",
         "final_tilt_deg",
+        "clock",
+        "sim_time_s",
     ):
         assert key in on_disk, key
+    assert on_disk["clock"] == "sim"  # the demo's default: the same views whatever the load
     assert (out / "report.png").stat().st_size > 1000 and (out / "suggestions.json").is_file()
     assert summary["state"] == "done" and summary["moves"] <= 3
     assert summary["final"] > summary["initial"]

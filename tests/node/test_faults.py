@@ -11,6 +11,7 @@ from aes_planner.drivers.dynamixel_models import CENTER_TICKS, TICKS_PER_REV
 from aes_planner.graph import Launch, LaunchContext
 from aes_planner.node.gimbal import GimbalNode, GimbalNodeConfig
 from aes_planner.node.planner import PlannerConfig, PlannerNode
+from aes_planner.node.scene import launch_scene
 from aes_planner.node.sim_camera import SimCameraNode, SimCameraNodeConfig
 
 from .nodekit import FakeTeacher, ScriptedProposer
@@ -23,7 +24,7 @@ def build(tmp_path, **planner_kw):
     from aes_planner.geometry.pantilt import PanTiltConfig
 
     ctx = LaunchContext(SCENE)
-    scene_rig = ctx.load_scene().rig.pan_tilt
+    scene_rig = launch_scene(ctx).rig.pan_tilt
     rig = PanTiltConfig(
         scene_rig.base_xyz_m, scene_rig.base_rpy_deg, scene_rig.tilt_offset_m, scene_rig.lever_arm_m, PAN_LIM, TILT_LIM
     )

@@ -8,7 +8,7 @@ import pytest
 
 from aes_planner.config import ConfigError
 from aes_planner.messages import Candidate, PlannerRequest
-from aes_planner.node.planner import PlannerConfig, PlannerNode
+from aes_planner.node.planner import Capture, PlannerConfig, PlannerNode
 
 from .nodekit import RIG, FakeTeacher, ScriptedProposer, SimRig, frame_at
 
@@ -262,7 +262,7 @@ def _one_candidate(prop, pan, tilt):
 def test_polish_climbs_from_the_move_towards_the_peak():
     prop = ScriptedProposer(peak=(0.6, 0.2))
     _one_candidate(prop, 0.6 + math.radians(6.0), 0.2 - math.radians(3.0))  # near the peak, not on it
-    node = make(prop, explore_views=2, max_moves=1, polish_captures=8, polish_step_deg=2.5)
+    node = make(prop, explore_views=2, max_moves=1, polish_captures=8, polish_step_deg=2.5, polish_scales=1)
     sim = SimRig(prop)
     drive(node, sim)
     assert node.state == "done" and node.moves == 1
@@ -281,6 +281,40 @@ def test_polish_climbs_from_the_move_towards_the_peak():
     assert len(poses) == len(set(poses))
 
 
+def test_coarse_to_fine_polish_reaches_a_peak_a_fine_climb_cannot():
+    """The field's move lands 15 deg off the peak: steps of 2.5 deg alone spend 8 captures and stop
+    short; the coarse-to-fine search (10, 5, 2.5 deg) gets there with the same budget (12)."""
+    peak = (0.6, 0.2)
+    finals = {}
+    for scales in (1, 3):
+        prop = ScriptedProposer(peak=peak)
+        _one_candidate(prop, peak[0] + math.radians(15.0), peak[1])
+        node = make(prop, explore_views=2, max_moves=1, polish_captures=12, polish_step_deg=2.5, polish_scales=scales)
+        drive(node, SimRig(prop))
+        assert node.state == "done" and node.captures[-1].kind == "settle"
+        assert sum(c.kind == "polish" for c in node.captures) <= 12
+        finals[scales] = math.degrees(abs(node.captures[-1].pan_rad - peak[0]))
+    assert finals[3] < 1.0 < finals[1]
+
+
+def test_decisions_do_not_hinge_on_the_last_bits():
+    """Two candidates whose hopes differ by 1e-9 either way are taken in the same order; a
+    capture better by less than tie_tolerance does not displace the best one."""
+    from aes_planner.node.captures import decision_order
+
+    rig = ScriptedProposer().rig
+    a = Candidate(rig.forward(0.3, 0.0), 0.5, 1.0, 0.3, 0.0)
+    b = Candidate(rig.forward(-0.4, 0.1), 0.5, 1.0, -0.4, 0.1)
+    for eps in (1e-9, -1e-9):
+        assert decision_order(np.array([0.5 + eps, 0.5]), [a, b], 0.005) == [1, 0]  # pan -23 before +17
+    assert decision_order(np.array([0.52, 0.5]), [a, b], 0.005) == [0, 1]  # a real difference wins
+    node = make(ScriptedProposer(), tie_tolerance=0.002)
+    node.captures = [Capture("initial", np.eye(4), 0.5, 0.0), Capture("explore", np.eye(4), 0.5015, 1.0)]
+    assert node._best_capture() is node.captures[0]
+    node.captures.append(Capture("move", np.eye(4), 0.51, 2.0))
+    assert node._best_capture() is node.captures[2]
+
+
 def test_polish_off_settles_after_the_last_move():
     prop = ScriptedProposer(peak=(0.6, 0.2))
     _one_candidate(prop, 0.65, 0.15)
@@ -293,12 +327,12 @@ def test_polish_at_a_joint_limit_stays_inside_and_ends():
     prop = ScriptedProposer(peak=(2.0, 0.6))  # beyond pan 90 deg and tilt 30 deg: the corner is best
     corner = (math.radians(90.0), math.radians(30.0))
     _one_candidate(prop, *corner)
-    node = make(prop, explore_views=2, max_moves=1, polish_captures=8, polish_step_deg=2.5)
+    node = make(prop, explore_views=2, max_moves=1, polish_captures=8, polish_step_deg=2.5, polish_scales=3)
     sim = SimRig(prop)
     drive(node, sim)
     assert node.state == "done"
     polish = [c for c in node.captures if c.kind == "polish"]
-    assert len(polish) == 2  # the two neighbours inside the limits; no better one, so the climb ends
+    assert len(polish) == 6  # at each of the 3 steps the two neighbours inside the limits; none better: ends
     lo, hi = math.radians(-90), math.radians(90)
     assert all(lo <= c.pan_rad <= hi and math.radians(-30) <= c.tilt_rad <= math.radians(30) for c in sim.commands)
     assert node.captures[-1].pan_rad == pytest.approx(corner[0])
@@ -423,3 +457,28 @@ def test_step_takes_time_only_from_now(monkeypatch):
     assert {c.stamp_s for c in sim.commands} <= nows
     assert {s.stamp_s for s in suggestions} <= nows
     assert node.diagnostics(now).state == "done"  # the state word on the wire is the enum's value
+
+
+class _TwoHills(ScriptedProposer):
+    """A narrow hill of 0.75 at (0.6, 0.2) and a wide one of 1.0 at (-0.35, 0)."""
+
+    def value(self, pan, tilt):
+        a = 0.75 * math.exp(-((pan - 0.6) ** 2 + (tilt - 0.2) ** 2) / 0.01)
+        b = math.exp(-((pan + 0.35) ** 2 + tilt**2) / 0.4)
+        return float(max(a, b))
+
+
+def test_polish_probes_a_second_hill_before_it_climbs():
+    """The move lands on the narrow hill's top (0.75), the start view sits on the wide hill's flank
+    (0.74): climbing around the best capture alone ends at 0.75; probing the runner-up's coarse
+    neighbours first finds the higher hill."""
+    finals = {}
+    for starts in (1, 2):
+        prop = _TwoHills()
+        _one_candidate(prop, 0.6, 0.2)
+        node = make(prop, explore_views=2, max_moves=1, polish_captures=16, polish_starts=starts)
+        drive(node, SimRig(prop))
+        assert node.state == "done" and node.moves == 1
+        finals[starts] = node.captures[-1].score
+    assert finals[1] == pytest.approx(0.75, abs=0.01)
+    assert finals[2] > 0.9

@@ -1,0 +1,633 @@
+"""User-guided framing: "keep this subject in frame, avoid that" as a constraint on the search.
+
+A user names a box in pixels of one input image (``00003.png:21,0,61,36``). :func:`lift_region`
+lifts it into 3D from the reconstruction's Gaussians behind the box, and :class:`Framing` turns
+the lifted subjects into what the two-stage search needs:
+
+* **the lift** (robust to background pixels inside the box). The reconstruction's depth is
+  rendered at the box's view; the box's pixels (or, where nothing renders, the Gaussians whose
+  centres project into the box) are binned by log depth (bins ``depth_bin`` wide), each weighted
+  by a centre weight (1 at the box centre, ``edge_weight`` at its edge: a box is drawn around its
+  subject, background shows at its rim; a Gaussian also by its opacity). The heaviest bin (after
+  a [1, 2, 1] smoothing) is the subject's depth mode; the slab grows from it over neighbouring
+  bins while they hold at least ``grow_frac`` of the peak's weight (one empty bin is bridged),
+  never further than ``depth_cap`` times the box's larger side at the mode's depth from the mode
+  (a floor running through the box does not drag the subject to the horizon). The subject is what
+  lies in that slab: the box's pixels there (unprojected), the Gaussians behind the box there
+  (sides other views saw) and the box's own rectangle at the mode's depth (what the user drew is
+  held whole, also where this view hides part of it). Its 3D box is their extent (min/max) in an
+  oriented box whose vertical axis is world z and whose horizontal axes are the principal axes of
+  their x-y spread.
+* **the constraint** (:meth:`Framing.violation`, differentiable): 0 exactly when every corner of
+  every kept subject's box lies in front of the camera and projects inside the frame shrunk by
+  ``margin_frac`` of its width and height on every side; above 0 it grows with how far they are
+  out. Stage 1 keeps only feasible candidates (and adds views aimed at the subject from every
+  trajectory sample, so a feasible start exists wherever one is reachable); stage 2 backtracks
+  each Adam step (halving it) until it stays feasible, so the refinement never leaves the set.
+* **the soft terms**, added to the score the search maximises (:class:`FramedScorer`): minus
+  ``avoid_weight`` times the visible fraction of each avoided box's projection (the part of its
+  projected bounding rectangle inside the frame; not occlusion-aware), plus ``placement_weight``
+  times the placement term of ``keep_at`` (``centre``: 1 at the image centre, 0 at a corner;
+  ``thirds``: the same towards the nearest third-lines crossing).
+
+:class:`FramingError` says when it cannot be done: no reachable view holds the subject (with the
+closest view and how much of the subject it holds), a box outside its image, of zero size, or in
+a frame the inputs do not have.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from aes_planner.config import require
+from aes_planner.errors import AesPlannerError
+from aes_planner.field.scorer import ScoreOutput, Scorer
+from aes_planner.geometry.camera import Intrinsics
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "KEEP_AT",
+    "Framing",
+    "FramedScorer",
+    "FramingConfig",
+    "FramingError",
+    "Region",
+    "Subject",
+    "build_framing",
+    "dataset_frames",
+    "feasible_candidates",
+    "frame_index",
+    "lift_region",
+    "render_depth",
+    "world_gaussians",
+]
+
+#: Placement terms ``--keep-at`` takes.
+KEEP_AT = ("centre", "thirds")
+#: Nearest camera depth a subject's corner may have (metres): behind it a corner is "not in view".
+NEAR_M = 0.05
+
+
+class FramingError(AesPlannerError, ValueError):
+    """A keep/avoid region that cannot be used, or a subject no reachable view holds."""
+
+
+@dataclass(frozen=True)
+class Region:
+    """A box ``[x0, x1] x [y0, y1]`` in pixels of the input image named ``frame`` (x right, y down)."""
+
+    frame: str
+    x0: float
+    y0: float
+    x1: float
+    y1: float
+
+    @classmethod
+    def parse(cls, text: str, key: str = "--keep") -> Region:
+        """``FRAME:X0,Y0,X1,Y1`` (``00003.png:21,0,61,36``) -> a Region; errors name ``key``."""
+        m = re.fullmatch(r"\s*(.+?):\s*([^,:]+),([^,:]+),([^,:]+),([^,:]+)\s*", str(text))
+        if not m:
+            raise FramingError(f"{key} {text!r}: expected FRAME:X0,Y0,X1,Y1 (e.g. 00003.png:21,0,61,36)")
+        try:
+            x0, y0, x1, y1 = (float(v) for v in m.groups()[1:])
+        except ValueError:
+            raise FramingError(f"{key} {text!r}: X0,Y0,X1,Y1 must be numbers (pixels)") from None
+        return cls(m.group(1).strip(), x0, y0, x1, y1).checked(key)
+
+    def checked(self, key: str, width: int | None = None, height: int | None = None) -> Region:
+        """This region, or a :class:`FramingError` naming ``key`` when it is not finite, of zero
+        size or (when the image size is given) outside the image."""
+        vals = (self.x0, self.y0, self.x1, self.y1)
+        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in vals):
+            raise FramingError(f"{key}: the box {vals} must be four finite numbers (pixels)")
+        if not self.frame:
+            raise FramingError(f"{key}: the frame name is empty; give an image file name as in cameras.json")
+        if self.x1 <= self.x0 or self.y1 <= self.y0:
+            raise FramingError(
+                f"{key} {self.frame}: the box {self.x0:g},{self.y0:g},{self.x1:g},{self.y1:g} has zero size; "
+                "give X0,Y0,X1,Y1 with X1 > X0 and Y1 > Y0"
+            )
+        if width is not None and height is not None:
+            if self.x0 < 0 or self.y0 < 0 or self.x1 > width or self.y1 > height:
+                raise FramingError(
+                    f"{key} {self.frame}: the box {self.x0:g},{self.y0:g},{self.x1:g},{self.y1:g} is outside the "
+                    f"{width}x{height} image; give pixels inside [0, {width}] x [0, {height}]"
+                )
+        return self
+
+    def scaled(self, sx: float, sy: float) -> Region:
+        return Region(self.frame, self.x0 * sx, self.y0 * sy, self.x1 * sx, self.y1 * sy)
+
+    def text(self) -> str:
+        return f"{self.frame}:{self.x0:g},{self.y0:g},{self.x1:g},{self.y1:g}"
+
+
+@dataclass
+class FramingConfig:
+    """Knobs of the framing constraint (see the module docstring).
+
+    ``margin_frac``: the subject must project inside the frame shrunk by this fraction of the
+    width/height on every side (0.05: 5 %). ``keep_at``: None, ``centre`` or ``thirds``.
+    ``placement_weight`` / ``avoid_weight``: weights of the soft terms, in units of the score.
+    ``depth_bin``, ``edge_weight``, ``grow_frac``, ``depth_cap``: the lift's robust rule.
+    ``feasibility_samples``: extra random views tried (geometry only, cheap) before saying that
+    no reachable view holds the subject. ``explore_samples``: random views (and the same turned to
+    the subject) checked every search; at most ``explore_keep`` of those that hold the subject join
+    stage 1's candidates, so the whole feasible set competes, not only the trajectory's part.
+    """
+
+    margin_frac: float = 0.05
+    keep_at: str | None = None
+    placement_weight: float = 0.05
+    avoid_weight: float = 0.2
+    depth_bin: float = 0.04
+    edge_weight: float = 0.2
+    grow_frac: float = 0.08
+    depth_cap: float = 0.75
+    feasibility_samples: int = 4096
+    backtrack_steps: int = 6
+    explore_samples: int = 512
+    explore_keep: int = 64
+
+    def __post_init__(self):
+        require(
+            isinstance(self.margin_frac, (int, float)) and 0.0 <= self.margin_frac < 0.4,
+            "keep_margin",
+            f"must be a fraction of the frame in [0, 0.4), got {self.margin_frac!r}",
+        )
+        require(
+            self.keep_at in (None, *KEEP_AT), "keep_at", f"must be one of {list(KEEP_AT)} or none, got {self.keep_at!r}"
+        )
+        for name in ("placement_weight", "avoid_weight", "edge_weight", "grow_frac"):
+            v = getattr(self, name)
+            require(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0, name, f"must be >= 0, got {v!r}")
+        for name in ("explore_samples", "explore_keep"):
+            v = getattr(self, name)
+            require(isinstance(v, int) and 0 <= v <= 100_000, name, f"must be an integer in [0, 100000], got {v!r}")
+        for name in ("depth_bin", "depth_cap"):
+            v = getattr(self, name)
+            require(isinstance(v, (int, float)) and math.isfinite(v) and v > 0, name, f"must be > 0, got {v!r}")
+        require(
+            isinstance(self.feasibility_samples, int) and 0 <= self.feasibility_samples <= 1_000_000,
+            "feasibility_samples",
+            f"must be an integer in [0, 1000000], got {self.feasibility_samples!r}",
+        )
+        require(
+            isinstance(self.backtrack_steps, int) and 0 <= self.backtrack_steps <= 30,
+            "backtrack_steps",
+            f"must be an integer in [0, 30], got {self.backtrack_steps!r}",
+        )
+
+
+@dataclass
+class Subject:
+    """A region lifted into 3D: an oriented box (world frame, metres)."""
+
+    region: Region
+    centre_m: np.ndarray  # [3]
+    axes: np.ndarray  # [3, 3] rows: the box's unit axes in the world (the last is world z)
+    half_extent_m: np.ndarray  # [3] half sizes along the axes
+    gaussians: int = 0  # Gaussians the box was fitted to
+    depth_range_m: tuple[float, float] = (0.0, 0.0)  # the slab, camera depth in the region's frame
+
+    @property
+    def corners_m(self) -> np.ndarray:  # -> [8, 3] world
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
+        return self.centre_m + (signs * self.half_extent_m) @ self.axes
+
+    @property
+    def size_m(self) -> np.ndarray:
+        return 2.0 * self.half_extent_m
+
+    def to_json(self) -> dict:
+        return {
+            "region": self.region.text(),
+            "centre_m": self.centre_m.tolist(),
+            "size_m": self.size_m.tolist(),
+            "axes": self.axes.tolist(),
+            "gaussians": self.gaussians,
+        }
+
+
+def _centre_weight(u: np.ndarray, v: np.ndarray, region: Region, edge: float) -> np.ndarray:
+    cx, cy = 0.5 * (region.x0 + region.x1), 0.5 * (region.y0 + region.y1)
+    hx, hy = 0.5 * (region.x1 - region.x0), 0.5 * (region.y1 - region.y0)
+    r = np.maximum(np.abs(u - cx) / hx, np.abs(v - cy) / hy).clip(0.0, 1.0)  # 0 centre, 1 edge
+    return 1.0 - (1.0 - edge) * r
+
+
+def lift_region(
+    means_m: np.ndarray,
+    opacities: np.ndarray,
+    cam2world: np.ndarray,
+    intrinsics: Intrinsics,
+    region: Region,
+    cfg: FramingConfig | None = None,
+    key: str = "--keep",
+    depth_map: np.ndarray | None = None,
+) -> Subject:
+    """Lift ``region`` (pixels of an image seen by ``intrinsics`` at ``cam2world``) into a
+    :class:`Subject` from Gaussian centres ``means_m [N, 3]`` (world) and ``opacities [N]``;
+    ``depth_map [H, W]`` (the reconstruction's depth rendered at that view, 0 where nothing was
+    drawn) gives the depth mode per pixel, else the Gaussians behind the box do."""
+    cfg = cfg or FramingConfig()
+    means = np.asarray(means_m, dtype=np.float64).reshape(-1, 3)
+    alpha = np.asarray(opacities, dtype=np.float64).reshape(-1)
+    c2w = np.asarray(cam2world, dtype=np.float64)
+    w2c = np.linalg.inv(c2w)
+    pc = means @ w2c[:3, :3].T + w2c[:3, 3]  # [N, 3] camera
+    z = pc[:, 2]
+    front = z > NEAR_M
+    zs = np.where(front, z, 1.0)
+    u = intrinsics.fx * pc[:, 0] / zs + intrinsics.cx
+    v = intrinsics.fy * pc[:, 1] / zs + intrinsics.cy
+    inside = front & (u >= region.x0) & (u <= region.x1) & (v >= region.y0) & (v <= region.y1)
+    inside &= np.isfinite(u) & np.isfinite(v) & (alpha > 0.01)
+    # the samples the depth mode is found from: the box's pixels (rendered depth) or its Gaussians
+    pix_uv = np.zeros((0, 2))
+    if depth_map is not None:
+        h, w = depth_map.shape
+        cols = np.arange(max(0, int(math.floor(region.x0))), min(w, int(math.ceil(region.x1))))
+        rows = np.arange(max(0, int(math.floor(region.y0))), min(h, int(math.ceil(region.y1))))
+        uu, vv = np.meshgrid(cols + 0.5, rows + 0.5)
+        dd = depth_map[np.ix_(rows, cols)]
+        ok = np.isfinite(dd) & (dd > NEAR_M)
+        pix_uv, pix_z = np.stack([uu[ok], vv[ok]], -1), dd[ok].astype(np.float64)
+    if len(pix_uv) >= 4:
+        sample_z, sample_w = pix_z, _centre_weight(pix_uv[:, 0], pix_uv[:, 1], region, cfg.edge_weight)
+    elif int(inside.sum()) >= 4:
+        sample_z = z[inside]
+        sample_w = alpha[inside] * _centre_weight(u[inside], v[inside], region, cfg.edge_weight)
+    else:
+        raise FramingError(
+            f"{key} {region.text()}: the reconstruction has nothing behind this box; the subject is not "
+            "reconstructed there: draw the box over something the inputs saw (or add views)"
+        )
+    logz = np.log(sample_z)
+    lo, hi = float(logz.min()), float(logz.max())
+    n_bins = max(1, int(math.ceil((hi - lo) / cfg.depth_bin)) + 1)
+    idx = np.clip(((logz - lo) / cfg.depth_bin).astype(np.int64), 0, n_bins - 1)
+    hist = np.bincount(idx, weights=sample_w, minlength=n_bins)
+    smooth = np.convolve(np.pad(hist, 1), [1.0, 2.0, 1.0], mode="valid")
+    peak = int(np.argmax(smooth))
+    z_mode = math.exp(lo + (peak + 0.5) * cfg.depth_bin)
+    side_m = max(region.x1 - region.x0, region.y1 - region.y0) / intrinsics.fx * z_mode  # the box's side there
+    cap = max(cfg.depth_cap * side_m, z_mode * cfg.depth_bin)
+    floor = cfg.grow_frac * smooth[peak]
+
+    def grow(step: int) -> int:
+        i, gap = peak, 0
+        while 0 <= i + step < n_bins:
+            j = i + step
+            if abs(math.exp(lo + (j + 0.5) * cfg.depth_bin) - z_mode) > cap:
+                break
+            if smooth[j] < floor:
+                if gap >= 1:
+                    break
+                gap += 1
+            else:
+                gap = 0
+            i = j
+        return i
+
+    first, last = grow(-1), grow(+1)
+    z_lo, z_hi = math.exp(lo + first * cfg.depth_bin), math.exp(lo + (last + 1) * cfg.depth_bin)
+    parts = [means[inside & (z >= z_lo) & (z <= z_hi)]]  # the Gaussians in the slab (sides other views saw)
+    if len(pix_uv):  # the visible surface: the box's pixels in the slab, unprojected
+        sel = (pix_z >= z_lo) & (pix_z <= z_hi)
+        cam = np.stack(
+            [(pix_uv[sel, 0] - intrinsics.cx) / intrinsics.fx, (pix_uv[sel, 1] - intrinsics.cy) / intrinsics.fy,
+             np.ones(int(sel.sum()))], -1,
+        ) * pix_z[sel, None]  # fmt: skip
+        parts.append(cam @ c2w[:3, :3].T + c2w[:3, 3])
+    # the box itself at the mode's depth: what the user drew is held whole even where the view hides it
+    bu = np.array([region.x0, region.x1, region.x0, region.x1])
+    bv = np.array([region.y0, region.y0, region.y1, region.y1])
+    cam = np.stack([(bu - intrinsics.cx) / intrinsics.fx, (bv - intrinsics.cy) / intrinsics.fy, np.ones(4)], -1)
+    parts.append((cam * z_mode) @ c2w[:3, :3].T + c2w[:3, 3])
+    pts = np.concatenate(parts)  # [M, 3] world
+    if len(pts) < 4:
+        raise FramingError(
+            f"{key} {region.text()}: too little at the subject's depth ({len(pts)} points); draw the box tighter"
+        )
+    xy = pts[:, :2] - pts[:, :2].mean(0)
+    _, vecs = np.linalg.eigh(xy.T @ xy / len(xy))  # ascending: columns are the principal axes
+    a0, a1 = vecs[:, 1], vecs[:, 0]
+    axes = np.array([[a0[0], a0[1], 0.0], [a1[0], a1[1], 0.0], [0.0, 0.0, 1.0]])
+    local = pts @ axes.T  # [M, 3] in the box's axes
+    mn, mx = local.min(0), local.max(0)
+    half = np.maximum(0.5 * (mx - mn), 1e-3)
+    centre = (0.5 * (mn + mx)) @ axes
+    n_gauss = len(parts[0])
+    log.info(
+        "%s %s: %d Gaussians and %d pixels at %.2f-%.2f m (mode %.2f m) -> a box %s m",
+        key, region.text(), n_gauss, len(pts) - n_gauss, z_lo, z_hi, z_mode, np.round(2 * half, 2).tolist(),
+    )  # fmt: skip
+    return Subject(region, centre, axes, half, int(n_gauss), (z_lo, z_hi))
+
+
+def render_depth(scorer: Scorer, cam2world: np.ndarray, intrinsics: Intrinsics) -> np.ndarray | None:
+    """The reconstruction's depth ``[H, W]`` (metres, 0 where alpha < 0.5) at a world pose, at
+    ``intrinsics``' resolution; None when the scorer has no Gaussians to render."""
+    from aes_planner.field.common import local_world2cam
+    from aes_planner.gaussians import Gaussians, rasterize
+
+    g, local = _reconstruction(scorer)
+    if g is None or len(g) == 0:
+        return None
+    bare = Gaussians(g.means.detach(), g.quats.detach(), g.log_scales.detach(), g.opacities.detach(),
+                     g.colors.detach())  # fmt: skip
+    w2c = local_world2cam(torch.as_tensor(np.asarray(cam2world, dtype=np.float64)[None]), local)
+    with torch.no_grad():
+        out = rasterize(bare, w2c, torch.from_numpy(intrinsics.K), intrinsics.width, intrinsics.height, validate=False)
+    depth = out.depth[0].double().numpy()
+    return np.where(out.alpha[0].numpy() >= 0.5, depth, 0.0)
+
+
+def project_corners(corners: Tensor, cam2world: Tensor, intrinsics: Intrinsics) -> tuple[Tensor, Tensor, Tensor]:
+    """Corners ``[S, 8, 3]`` seen from poses ``[B, 4, 4]`` -> normalised image coordinates u, v
+    ``[B, S, 8]`` (0..1 across the frame) and camera depth z ``[B, S, 8]`` (z clamped at NEAR_M
+    for u, v: a corner behind the camera lands far outside)."""
+    rot = cam2world[:, :3, :3]  # [B, 3, 3]
+    t = cam2world[:, :3, 3]  # [B, 3]
+    rel = corners[None] - t[:, None, None, :]  # [B, S, 8, 3]
+    pc = torch.einsum("bji,bskj->bski", rot, rel)  # R^T (p - t): [B, S, 8, 3]
+    z = pc[..., 2]
+    zc = z.clamp_min(NEAR_M)
+    u = (intrinsics.fx * pc[..., 0] / zc + intrinsics.cx) / intrinsics.width
+    v = (intrinsics.fy * pc[..., 1] / zc + intrinsics.cy) / intrinsics.height
+    return u, v, z
+
+
+class Framing:
+    """Kept subjects and avoided regions, lifted, as the search's constraint and soft terms.
+
+    ``intrinsics``: the camera the suggestion will be taken with (the platform's)."""
+
+    def __init__(self, keep: list[Subject], avoid: list[Subject], intrinsics: Intrinsics, cfg: FramingConfig):
+        self.keep, self.avoid, self.intrinsics, self.cfg = list(keep), list(avoid), intrinsics, cfg
+        self._keep = torch.as_tensor(np.stack([s.corners_m for s in keep]) if keep else np.zeros((0, 8, 3)))
+        self._avoid = torch.as_tensor(np.stack([s.corners_m for s in avoid]) if avoid else np.zeros((0, 8, 3)))
+
+    @property
+    def active(self) -> bool:
+        return bool(self.keep or self.avoid)
+
+    def describe(self) -> list[str]:
+        """One line per region: what the search keeps and avoids (diagnostics, the CLI)."""
+        out = [
+            f"keep {s.region.text()} ({s.gaussians} Gaussians, box {np.round(s.size_m, 2).tolist()} m)"
+            for s in self.keep
+        ]
+        out += [f"avoid {s.region.text()}" for s in self.avoid]
+        return out
+
+    # ---------------------------------------------------------------- the hard constraint
+    def violation(self, cam2world: Tensor) -> Tensor:  # [B, 4, 4] -> [B], 0 = feasible
+        """How far the kept subjects' corners are outside the shrunk frame (differentiable)."""
+        if not self.keep:
+            return torch.zeros(cam2world.shape[0], dtype=torch.float64)
+        u, v, z = project_corners(self._keep, cam2world.to(torch.float64), self.intrinsics)
+        m = self.cfg.margin_frac
+        out = (m - u).clamp_min(0) + (u - (1 - m)).clamp_min(0) + (m - v).clamp_min(0) + (v - (1 - m)).clamp_min(0)
+        out = out + (NEAR_M - z).clamp_min(0) * 10.0
+        return out.sum((1, 2))
+
+    def feasible(self, cam2world: Tensor) -> Tensor:  # [B, 4, 4] -> [B] bool
+        with torch.no_grad():
+            return self.violation(cam2world) <= 0.0
+
+    def held(self, cam2world: Tensor) -> Tensor:  # [B, 4, 4] -> [B] in [0, 1]
+        """How much of the (least-held) kept subject a view holds: the fraction of its projected
+        box's bounding rectangle inside the frame (0 when a corner is behind the camera)."""
+        if not self.keep:
+            return torch.ones(cam2world.shape[0], dtype=torch.float64)
+        return self.held_each(cam2world).min(-1).values
+
+    def held_each(self, cam2world: Tensor) -> Tensor:  # [B, 4, 4] -> [B, S] in [0, 1]
+        """:meth:`held` per kept subject."""
+        with torch.no_grad():
+            u, v, z = project_corners(self._keep, cam2world.to(torch.float64), self.intrinsics)
+            frac = _inside_fraction(u, v)
+            return torch.where((z > NEAR_M).all(-1), frac, torch.zeros_like(frac))
+
+    # ---------------------------------------------------------------- the soft terms
+    def avoid_visible(self, cam2world: Tensor) -> Tensor:  # [B, 4, 4] -> [B] (sum over avoided regions)
+        if not self.avoid:
+            return torch.zeros(cam2world.shape[0], dtype=torch.float64)
+        u, v, z = project_corners(self._avoid, cam2world.to(torch.float64), self.intrinsics)
+        frac = _inside_fraction(u, v)  # [B, S]
+        front = (z > NEAR_M).to(frac.dtype).mean(-1)  # a box behind the camera is not in view
+        return (frac * front).sum(-1)
+
+    def placement(self, cam2world: Tensor) -> Tensor:  # [B, 4, 4] -> [B] in [0, 1]
+        if not self.keep or self.cfg.keep_at is None:
+            return torch.zeros(cam2world.shape[0], dtype=torch.float64)
+        centres = self._keep.mean(1, keepdim=True)  # [S, 1, 3]
+        u, v, _ = project_corners(centres, cam2world.to(torch.float64), self.intrinsics)  # [B, S, 1]
+        if self.cfg.keep_at == "centre":
+            d = torch.sqrt((u - 0.5) ** 2 + (v - 0.5) ** 2 + 1e-12)
+        else:
+            pts = torch.tensor([1 / 3, 2 / 3], dtype=torch.float64)
+            du = (u[..., None] - pts).abs().amin(-1)
+            dv = (v[..., None] - pts).abs().amin(-1)
+            d = torch.sqrt(du**2 + dv**2 + 1e-12)
+        return (1.0 - d[..., 0] / math.sqrt(0.5)).clamp(0.0, 1.0).mean(-1)
+
+    def soft_terms(self, cam2world: Tensor) -> Tensor:  # [B, 4, 4] -> [B] added to the score
+        return self.cfg.placement_weight * self.placement(cam2world) - self.cfg.avoid_weight * self.avoid_visible(
+            cam2world
+        )
+
+    # ---------------------------------------------------------------- search hooks
+    def aimed(self, cam2world: np.ndarray) -> np.ndarray:  # [T, 4, 4] -> [T, 4, 4]
+        """Views from the same camera centres turned to look at the kept subjects' centre."""
+        from aes_planner.geometry.poses import look_at
+
+        if not self.keep or len(cam2world) == 0:
+            return np.zeros((0, 4, 4))
+        target = np.mean([s.centre_m for s in self.keep], axis=0)
+        eyes = np.asarray(cam2world, dtype=np.float64)[:, :3, 3]
+        far = np.linalg.norm(eyes - target, axis=1) > 1e-6
+        if not far.any():
+            return np.zeros((0, 4, 4))
+        return np.asarray(look_at(eyes[far], np.broadcast_to(target, eyes[far].shape).copy()), dtype=np.float64)
+
+    def wrap(self, scorer: Scorer) -> Scorer:
+        return FramedScorer(scorer, self) if self.avoid or self.cfg.keep_at else scorer
+
+    def no_view_error(self, best_pose: np.ndarray, best_held: float, platform_kind: str) -> FramingError:
+        pos = ", ".join(f"{x:.2f}" for x in best_pose[:3, 3])
+        fwd = ", ".join(f"{x:.2f}" for x in best_pose[:3, 2])
+        where = "the rig's joint limits" if platform_kind == "rig" else "the drone's box and pitch limits"
+        names = ", ".join(s.region.text() for s in self.keep)
+        return FramingError(
+            f"--keep {names}: no reachable view holds the whole subject inside the frame with a "
+            f"{self.cfg.margin_frac:.0%} margin ({where}); the closest view (camera at [{pos}] m, looking along "
+            f"[{fwd}]) holds {best_held:.0%} of it: widen the limits, lower --keep-margin or draw a smaller box"
+        )
+
+
+def _inside_fraction(u: Tensor, v: Tensor) -> Tensor:  # [B, S, 8] normalised -> [B, S]
+    """Area fraction of the corners' bounding rectangle that lies inside the unit frame."""
+    u0, u1 = u.amin(-1), u.amax(-1)
+    v0, v1 = v.amin(-1), v.amax(-1)
+    area = (u1 - u0).clamp_min(1e-9) * (v1 - v0).clamp_min(1e-9)
+    iu = (u1.clamp(0, 1) - u0.clamp(0, 1)).clamp_min(0)
+    iv = (v1.clamp(0, 1) - v0.clamp(0, 1)).clamp_min(0)
+    return (iu * iv / area).clamp(0.0, 1.0)
+
+
+class FramedScorer(Scorer):
+    """A scorer whose score carries the framing's soft terms (avoided regions, placement); the
+    aesthetic score stays in ``terms["aesthetic"]``."""
+
+    def __init__(self, inner: Scorer, framing: Framing):
+        self.inner, self.framing = inner, framing
+        self.name = inner.name
+        self.differentiable = inner.differentiable
+        self.intrinsics = inner.intrinsics
+
+    def __getattr__(self, name):  # teacher, gaussians, render... of the scorer it wraps
+        if name in ("inner", "framing"):
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+    def score(self, cam2world: Tensor) -> ScoreOutput:  # [B, 4, 4] -> ScoreOutput [B]
+        out = self.inner.score(cam2world)
+        extra = self.framing.soft_terms(cam2world.to(torch.float64))
+        terms = dict(out.terms)
+        terms["aesthetic"] = out.score.detach()
+        if self.framing.avoid:
+            terms["avoid_visible"] = self.framing.avoid_visible(cam2world.detach().to(torch.float64)).float()
+        return ScoreOutput(out.score + extra.to(out.score.dtype), out.coverage, terms)
+
+
+def _reconstruction(scorer: Scorer):
+    """The Gaussians behind a field or RGB scorer (or one wrapping it) and their local frame."""
+    inner = getattr(scorer, "inner", scorer)
+    local = getattr(inner, "local_frame", None)
+    if local is None and getattr(inner, "reconstruction", None) is not None:
+        local = inner.reconstruction.local_frame
+    return getattr(inner, "gaussians", None), local
+
+
+def world_gaussians(scorer: Scorer) -> tuple[np.ndarray, np.ndarray]:
+    """The Gaussian centres ``[N, 3]`` (world frame) and opacities ``[N]`` behind a field or RGB scorer."""
+    g, local = _reconstruction(scorer)
+    if g is None or len(g) == 0:
+        raise FramingError(
+            f"the {getattr(scorer, 'name', 'scorer')!r} scorer has no reconstruction to lift a region from; "
+            "--keep/--avoid need the field or RGB scoring of posed frames"
+        )
+    means = g.means.detach().double().cpu().numpy()
+    if local is not None:
+        means = means + local.origin
+    return means, g.opacities.detach().double().cpu().numpy()
+
+
+def build_framing(
+    scorer: Scorer,
+    frames: dict,
+    keep: list[Region],
+    avoid: list[Region],
+    intrinsics: Intrinsics,
+    cfg: FramingConfig | None = None,
+) -> Framing:
+    """Lift ``keep`` and ``avoid`` regions into a :class:`Framing` for cameras of ``intrinsics``.
+
+    ``frames``: ``{name: (cam2world [4, 4], intrinsics of the frame as the scorer saw it,
+    (width, height) of the image the boxes are drawn on)}``; a region naming another frame, a
+    box outside its image or of zero size is a :class:`FramingError` naming the field.
+    """
+    cfg = cfg or FramingConfig()
+    means = opac = None
+    subjects: dict[str, list[Subject]] = {"keep": [], "avoid": []}
+    for key, regions in (("keep", keep), ("avoid", avoid)):
+        for region in regions:
+            flag = f"--{key}"
+            if region.frame not in frames:
+                known = sorted(frames)
+                shown = ", ".join(known[:6]) + (", ..." if len(known) > 6 else "")
+                raise FramingError(f"{flag} {region.text()}: no input frame is named {region.frame!r}; known: {shown}")
+            cam2world, k, (w, h) = frames[region.frame]
+            region.checked(flag, w, h)
+            if means is None:
+                means, opac = world_gaussians(scorer)
+            scaled = region.scaled(k.width / w, k.height / h)
+            depth = render_depth(scorer, cam2world, k)
+            subjects[key].append(lift_region(means, opac, cam2world, k, scaled, cfg, flag, depth))
+            subjects[key][-1].region = region
+    return Framing(subjects["keep"], subjects["avoid"], intrinsics, cfg)
+
+
+def feasible_candidates(framing: Framing, space, candidates: Tensor, trajectory: np.ndarray, cfg, rng) -> Tensor:
+    """Stage 1's candidates ``[C, D]`` that hold every kept subject, with views aimed at the
+    subject from every trajectory sample (and their neighbours) among them; when none holds it,
+    ``framing.cfg.feasibility_samples`` random views (and those aimed from their camera centres)
+    are tried, geometry only. A :class:`FramingError` with the closest view when nothing holds it."""
+    aimed = framing.aimed(trajectory)
+    pool = candidates
+    if len(aimed):
+        a = space.from_poses(aimed)  # [T, D]
+        pool = torch.cat([candidates, a, space.neighbours(a, cfg.neighbours, rng)])
+    if framing.cfg.explore_samples:  # the feasible set away from the trajectory competes too
+        spread = space.random(framing.cfg.explore_samples, rng)
+        turned = framing.aimed(space.to_poses(spread).detach().numpy())
+        if len(turned):
+            spread = torch.cat([spread, space.from_poses(turned)])
+        fine = framing.feasible(space.to_poses(spread))
+        spread = spread[fine]
+        if len(spread) > framing.cfg.explore_keep:
+            spread = spread[torch.as_tensor(rng.choice(len(spread), framing.cfg.explore_keep, replace=False))]
+        pool = torch.cat([pool, spread])
+    ok = framing.feasible(space.to_poses(pool))
+    if bool(ok.any()):
+        return pool[ok]
+    extra = space.random(framing.cfg.feasibility_samples, rng) if framing.cfg.feasibility_samples else pool[:0]
+    if len(extra):
+        turned = framing.aimed(space.to_poses(extra).detach().numpy())
+        extra = torch.cat([extra, space.from_poses(turned)]) if len(turned) else extra
+        ok = framing.feasible(space.to_poses(extra))
+        if bool(ok.any()):
+            found = extra[ok][: max(len(candidates), 1)]
+            log.info("framing: no trajectory view holds the subject; %d random view(s) do", int(ok.sum()))
+            return found
+    tried = torch.cat([pool, extra])
+    poses = space.to_poses(tried).detach()
+    held = framing.held(poses)
+    i = int(torch.argmax(held))
+    raise framing.no_view_error(poses[i].numpy(), float(held[i]), space.kind)
+
+
+def frame_index(frames) -> dict[str, int]:
+    """``{name: index}`` of posed frames by the names a region may give: the image file name as
+    ``cameras.json`` has it (``images/00003.png``), its base name (``00003.png``) and the frame id."""
+    out: dict[str, int] = {}
+    for i, f in enumerate(frames):
+        name = f.extras.get("image_name")
+        if isinstance(name, str) and name:
+            out.setdefault(name, i)
+            out.setdefault(name.replace("\\", "/").rsplit("/", 1)[-1], i)
+        if f.frame_id:
+            out.setdefault(str(f.frame_id), i)
+    return out
+
+
+def dataset_frames(frames) -> dict:
+    """:func:`build_framing`'s ``frames`` from posed frames (names: :func:`frame_index`); boxes are in
+    pixels of the image as stored (``extras["stored_size"]``, before any downscale)."""
+    out = {}
+    for name, i in frame_index(frames).items():
+        f = frames[i]
+        size = f.extras.get("stored_size", (f.intrinsics.width, f.intrinsics.height))
+        out[name] = (f.cam2world, f.intrinsics, tuple(int(v) for v in size))
+    return out

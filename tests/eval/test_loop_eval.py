@@ -1,0 +1,74 @@
+"""``eval loop``: perturbation specs, scene specs, the summary's spread and the report (no loop run here:
+the closed loop itself is tested in tests/node and by ``make demo``)."""
+
+from __future__ import annotations
+
+import pytest
+
+from aes_planner.config import ConfigError
+from aes_planner.eval.loop import (
+    DEV_LOOP_SCENES,
+    HELD_OUT_LOOP_SCENES,
+    LoopEvalConfig,
+    markdown,
+    parse_perturbation,
+    split_scene,
+    summarise,
+)
+from aes_planner.sim import load_scene
+
+
+def test_perturbations_parse_and_combine():
+    p = parse_perturbation("torch+threads:1+noise:1e-6+seed:2")
+    assert (p.backend, p.threads, p.noise_rel, p.seed) == ("torch", 1, 1e-6, 2)
+    assert parse_perturbation("base") == parse_perturbation("base")
+    assert parse_perturbation("base").backend is None
+
+
+@pytest.mark.parametrize("bad", ["fast", "threads:0", "threads:x", "noise:1", "noise:nan", "seed:-1", "torch:1"])
+def test_bad_perturbations_name_the_flag(bad):
+    with pytest.raises(ConfigError, match="--perturb"):
+        parse_perturbation(bad)
+
+
+def test_scene_specs_carry_the_platform():
+    assert split_scene("indoor:3@drone") == ("indoor:3", "drone")
+    assert split_scene("indoor:3") == ("indoor:3", None)
+    with pytest.raises(ConfigError, match="rig or drone"):
+        split_scene("indoor:3@boat")
+    with pytest.raises(ConfigError, match="scene"):
+        LoopEvalConfig(scenes=[])
+
+
+def test_held_out_and_dev_sets_load_and_do_not_overlap():
+    held = {split_scene(s)[0] for s in HELD_OUT_LOOP_SCENES}
+    dev = {split_scene(s)[0] for s in DEV_LOOP_SCENES}
+    assert not held & dev
+    seeds = {int(s.split(":")[1]) for s in held | dev if ":" in s and "/" not in s}
+    assert all(200 <= s < 400 for s in seeds)  # none of the field's (0.., 100.., 500.., >= 1000) seeds
+    for s in sorted(held | dev):
+        if "/" in s:  # the files (the procedural ones load as fast, but are many)
+            assert load_scene(s).spec.objects
+
+
+def _run(norm, moves=2):
+    return {"state": "done", "normalized": norm, "moves": moves}
+
+
+def test_summary_reports_spread_worst_and_moves():
+    runs = {
+        "a|base": _run(0.95),
+        "a|torch": _run(0.80, 5),
+        "b|base": _run(1.0),
+        "b|torch": {"state": "error", "error": "boom"},
+    }
+    s = summarise(runs, ["a", "b"], ["base", "torch"])
+    assert s["per_scene"]["a"]["spread"] == pytest.approx(0.15)
+    assert s["per_scene"]["b"]["n"] == 1
+    assert s["min"] == pytest.approx(0.80)
+    assert s["runs_below_0_9"] == 1
+    assert s["max_moves"] == 5
+    assert s["errors"] == 1
+    text = markdown({"runs": runs, "moves": 4}, ["a", "b"], ["base", "torch"])
+    assert "| a | 0.950 (2) | 0.800 (5) | 0.875 | 0.800 | 0.150 |" in text
+    assert "| b | 1.000 (2) | error |" in text

@@ -1,0 +1,159 @@
+"""Framing (``suggest --keep/--avoid``): regions, the lift, the constrained search, the request."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from aes_planner.geometry import Intrinsics
+from aes_planner.geometry.poses import look_at
+from aes_planner.messages import PlannerRequest
+from aes_planner.messages.codec import HEADER_SIZE, decode
+from aes_planner.messages.diagnostics import FramingRegion
+from aes_planner.search import SearchConfig, search_views
+from aes_planner.search.framing import Framing, FramingConfig, FramingError, Region, Subject, lift_region
+from tests.search.test_search import AimScorer, rig_inputs, rig_platform
+
+K = Intrinsics.from_fov(32, 24, 60.0)
+
+
+def subject_at(centre, half=(0.2, 0.2, 0.2)) -> Subject:
+    return Subject(Region("a.png", 0, 0, 1, 1), np.asarray(centre, float), np.eye(3), np.asarray(half, float))
+
+
+# ---------------------------------------------------------------- regions
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ("a.png:1,2,3", "FRAME:X0,Y0,X1,Y1"),
+        ("a.png:5,5,5,9", "zero size"),
+        ("a.png:9,5,3,9", "zero size"),
+        ("a.png:x,5,3,9", "numbers"),
+        ("a.png:0,0,nan,9", "finite"),
+    ],
+)
+def test_a_bad_region_names_the_flag(text, words):
+    with pytest.raises(FramingError, match=words) as exc:
+        Region.parse(text, "--keep")
+    assert "--keep" in str(exc.value)
+
+
+def test_a_region_outside_its_image_is_refused():
+    r = Region.parse("00003.png:21,0,61,36")
+    assert (r.frame, r.x1) == ("00003.png", 61.0)
+    r.checked("--keep", 64, 48)
+    with pytest.raises(FramingError, match="outside the 32x24 image"):
+        r.checked("--keep", 32, 24)
+
+
+# ---------------------------------------------------------------- the lift
+def test_the_lift_keeps_the_subject_not_the_wall_behind_it():
+    """A box around a subject 2 m away with a wall at 5 m filling the rest of the box: the 3D box
+    is the subject's (and the box's frustum at the subject's depth), never reaches the wall."""
+    cam = look_at(np.zeros(3), np.array([1.0, 0.0, 0.0]))  # looking along +x
+    rng = np.random.default_rng(0)
+    subject = np.c_[rng.uniform(1.9, 2.1, 300), rng.uniform(-0.2, 0.2, 300), rng.uniform(-0.2, 0.2, 300)]
+    wall = np.c_[np.full(900, 5.0), rng.uniform(-2, 2, 900), rng.uniform(-2, 2, 900)]
+    means = np.concatenate([subject, wall])
+    k = Intrinsics.from_fov(64, 48, 60.0)
+    region = Region("a.png", 20, 12, 44, 36)  # wider than the subject: the wall fills its rim
+    s = lift_region(means, np.full(len(means), 0.9), np.asarray(cam), k, region)
+    lo, hi = s.corners_m.min(0), s.corners_m.max(0)
+    assert hi[0] < 2.6 and lo[0] > 1.5  # the depth slab stays at the subject
+    assert s.gaussians >= 250
+    framing = Framing([s], [], k, FramingConfig(margin_frac=0.0))
+    assert bool(framing.feasible(torch.as_tensor(np.asarray(cam))[None])[0])
+
+
+def test_nothing_behind_the_box_is_an_error():
+    cam = look_at(np.zeros(3), np.array([1.0, 0.0, 0.0]))
+    with pytest.raises(FramingError, match="nothing behind this box"):
+        lift_region(np.zeros((0, 3)), np.zeros(0), np.asarray(cam), K, Region("a.png", 1, 1, 5, 5))
+
+
+# ---------------------------------------------------------------- the constraint
+@settings(max_examples=30, deadline=None)
+@given(st.floats(-50, 50), st.floats(-50, 50), st.floats(-50, 50))
+def test_violation_is_finite_and_zero_only_when_held(x, y, z):
+    framing = Framing([subject_at((x, y, z))], [subject_at((1.0, 1.0, 1.0))], K, FramingConfig(keep_at="thirds"))
+    poses = torch.as_tensor(np.asarray(look_at(np.zeros((3, 3)), np.eye(3)))).double()
+    for f in (framing.violation, framing.held, framing.avoid_visible, framing.placement):
+        assert torch.isfinite(f(poses)).all()
+    held = framing.held(poses)
+    assert torch.all((framing.violation(poses) > 0) | (held >= 1.0 - 1e-9))
+
+
+def test_the_search_keeps_the_subject_whole_in_every_suggestion():
+    """The scorer wants the view straight ahead; the subject stands off to the side: every
+    suggestion holds it (stage 2 never leaves the feasible set) and turns towards it."""
+    platform = rig_platform(pan_limits_deg=(-120.0, 120.0), tilt_limits_deg=(-40.0, 40.0))
+    subject = subject_at((3.0, 3.0, 1.3), (0.1, 0.1, 0.1))
+    framing = Framing([subject], [], platform.intrinsics, FramingConfig())
+    scorer = AimScorer([1.0, 0.0, 0.0])
+    cfg = SearchConfig.preset("fast", top_k=2, steps=15, lr=0.05)
+    result = search_views(scorer, rig_inputs(platform), platform, cfg, framing=framing)
+    assert result.suggestions
+    for s in result.suggestions:
+        assert s.held == pytest.approx(1.0)
+        assert float(framing.violation(torch.as_tensor(s.cam2world[None]))[0]) == 0.0
+    free = search_views(scorer, rig_inputs(platform), platform, cfg)
+    assert free.best.score > result.best.score  # the constraint costs something here: it is active
+    assert math.degrees(result.best.pan_rad) > 10.0
+
+
+def test_no_reachable_view_is_a_clear_error():
+    platform = rig_platform(pan_limits_deg=(-30.0, 30.0), tilt_limits_deg=(-20.0, 20.0))
+    framing = Framing([subject_at((-4.0, 0.0, 1.3))], [], platform.intrinsics, FramingConfig())  # behind the rig
+    with pytest.raises(FramingError, match=r"no reachable view holds the whole subject.*holds \d+%"):
+        search_views(
+            AimScorer([1.0, 0.0, 0.0]), rig_inputs(platform), platform, SearchConfig.preset("fast"), framing=framing
+        )
+
+
+def test_an_avoided_region_pushes_the_view_away():
+    platform = rig_platform(pan_limits_deg=(-90.0, 90.0), tilt_limits_deg=(-30.0, 30.0))
+    ahead = subject_at((4.0, 0.0, 1.3), (0.5, 0.5, 0.5))
+    scorer = AimScorer([1.0, 0.0, 0.0])
+    cfg = SearchConfig.preset("fast", steps=10, lr=0.05)
+    plain = search_views(scorer, rig_inputs(platform), platform, cfg)
+    framing = Framing([], [ahead], platform.intrinsics, FramingConfig(avoid_weight=5.0))
+    steered = search_views(scorer, rig_inputs(platform), platform, cfg, framing=framing)
+    pose = lambda s: torch.as_tensor(s.cam2world[None])  # noqa: E731
+    assert float(framing.avoid_visible(pose(steered.best))[0]) < float(framing.avoid_visible(pose(plain.best))[0])
+    assert steered.best.terms["aesthetic"] == pytest.approx(steered.best.score)
+
+
+# ---------------------------------------------------------------- the request
+def test_planner_request_carries_regions_and_old_versions_decode():
+    req = PlannerRequest("suggest", set_framing=True, keep=[FramingRegion("00003.png", 21, 0, 61, 36)], keep_margin=0.1)
+    back = decode(req.encode(), PlannerRequest)
+    assert back.keep == req.keep and back.set_framing and back.keep_margin == 0.1
+    v1 = PlannerRequest("reset", 3, 1.5, 7).encode()
+    head = bytearray(v1)
+    # a version-1 writer: schema version 1 and only the first four fields (kind, count, stamp, sequence)
+    payload_len = 1 + 4 + 8 + 8
+    name_len = head[5]
+    head[6:8] = (1).to_bytes(2, "little")
+    head[8:12] = payload_len.to_bytes(4, "little")
+    old = bytes(head[: HEADER_SIZE + name_len + payload_len])
+    got = decode(old, PlannerRequest)
+    assert (got.kind, got.max_candidates, got.sequence, got.set_framing, got.keep) == ("reset", 3, 7, False, [])
+
+
+@pytest.mark.parametrize(
+    "kw, words",
+    [
+        ({"keep": [FramingRegion("a", 0, 0, 1, 1)] * 9}, "at most 8"),
+        ({"keep_margin": 0.5}, "keep_margin"),
+    ],
+)
+def test_bad_requests_are_refused(kw, words):
+    with pytest.raises(Exception, match=words):
+        PlannerRequest("suggest", set_framing=True, **kw)
+    with pytest.raises(Exception, match="zero size"):
+        FramingRegion("a.png", 3, 3, 3, 9)
