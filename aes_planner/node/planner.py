@@ -29,7 +29,7 @@ import torch
 
 from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.plausible import distance_problem
-from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs, percentile
+from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs
 from aes_planner.images import downscale_frame
 from aes_planner.messages import (
     Candidate,
@@ -357,8 +357,8 @@ class PlannerNode(ActiveLoop, Node):
         values = {
             "field_frames": float(self.proposer.size if self.proposer else 0),
             "field_version": float(self.proposer.version if self.proposer else 0),
-            "latency_p50_s": percentile(lat, 50),
-            "latency_p95_s": percentile(lat, 95),
+            "latency_p50_s": (float(np.percentile(lat, 50)) if len(lat) else 0.0),
+            "latency_p95_s": (float(np.percentile(lat, 95)) if len(lat) else 0.0),
             "threads": float(
                 self.governor.threads if self.governor else self.config.threads or torch.get_num_threads()
             ),
