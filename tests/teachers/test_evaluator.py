@@ -1,7 +1,6 @@
 """Independent evaluator: sane judgements, correct correlation statistics, a positive but partial
 agreement with the composition teacher."""
 
-
 import numpy as np
 import pytest
 import torch
