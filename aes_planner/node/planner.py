@@ -348,6 +348,17 @@ class PlannerNode(ActiveLoop, Node):
         self.counters["suggestions"] += 1
         return msg
 
+    # -- what a motion adapter may ask (aes_planner.node.motion.Sender) ------------------------
+    def next_command_sequence(self) -> int:
+        return self._next("cmd")
+
+    def waypoint(self, candidate: Candidate, now: float) -> ViewSuggestion:
+        version = self.proposer.version if self.proposer else 0
+        return self._suggestion([candidate], version, now, "waypoint")
+
+    def count(self, name: str) -> None:
+        self.counters[name] = self.counters.get(name, 0) + 1
+
     def _next(self, key: str) -> int:
         self._seq[key] += 1
         return self._seq[key]
