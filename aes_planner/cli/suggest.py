@@ -129,7 +129,7 @@ def _pose_first(args: argparse.Namespace) -> str:
     elif args.out:
         posed = Path(args.out) / "posed"
     else:
-        posed = src.parent / f"{src.name}-posed"
+        posed = src.resolve().parent / f"{src.resolve().name}-posed"  # "." names its folder
     print(f"{src}: photos without poses: running the pose step first (aes-planner pose {src} --out {posed})")
     run_pose(src, posed, cfg)
     return str(posed)
@@ -228,6 +228,7 @@ def run(args: argparse.Namespace) -> int:
         raise SearchError("--truth-scene renders the report's ground-truth row: give --out DIR for the report too")
     from aes_planner.images import MAX_WORKING_SIDE_PX
 
+    framing_cfg, keep, avoid = _framing_args(args)  # a malformed box fails before the pose step and the search
     args.dataset = _pose_first(args)
     data = load_dataset(args.dataset, load_depth=True, max_side_px=MAX_WORKING_SIDE_PX)
     for (w, h), n in data.downscaled.items():  # say so: the report shows the downscaled views
@@ -239,7 +240,6 @@ def run(args: argparse.Namespace) -> int:
     # the ground truth is set up before the search, so a bad --truth-scene fails first
     gt = _ground_truth(data.meta, data.frames[0].intrinsics, args.truth_scene) if args.out else None
     platform = _platform(data.meta, data.frames, args.mode, args.rig)
-    framing_cfg, keep, avoid = _framing_args(args)
     overrides = {"top_k": args.top} if args.top else {}
     cfg = SearchConfig.preset(args.preset, mode=platform.kind, **overrides)
     t0 = time.perf_counter()

@@ -92,3 +92,16 @@ def test_meta_round_trip_and_refusals():
     del meta["handheld"]["pitch_limits_deg"]
     with pytest.raises(ConfigError, match="pitch_limits_deg"):
         platform_from_meta(meta, K)
+
+
+def test_importing_the_package_and_the_commands_loads_no_pycolmap():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, aes_planner, aes_planner.photos, aes_planner.cli, aes_planner.bench.photos;"
+        "from aes_planner.cli import build_parser; build_parser();"
+        "print('pycolmap' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
+    assert out.stdout.strip() == "False"
