@@ -110,7 +110,9 @@ class PlannerConfig:
     adapt_threads: bool = True
 
     def __post_init__(self):
-        require(self.scorer in ("field", "rgb"), "scorer", f"must be 'field' or 'rgb', got {self.scorer!r}")
+        from aes_planner.search.scorers import SCORERS
+
+        require(self.scorer in SCORERS, "scorer", f"must be {' or '.join(SCORERS)}, got {self.scorer!r}")
         from aes_planner.search.config import PRESETS, REMOVED_PRESETS
 
         require(
