@@ -79,7 +79,7 @@ class DynamixelPanTiltConfig:
     * ``retries``/``backoff_s``: retries of a failed exchange (0..20), the first wait (doubling
       after, each wait at most :data:`MAX_BACKOFF_S`).
     * ``latency_timer_ms``: the USB adapter's latency timer; the SDK waits ``2 x`` this plus
-      transmission time for a reply. 16 is the FTDI default; 1 after the udev rule of the README.
+      transmission time for a reply. 16 is the FTDI default; 1 after the udev rule of docs/guides/hardware.md.
     * ``move_timeout_s``: default of :meth:`DynamixelPanTilt.wait_until_reached`;
       ``arrival_tolerance_deg``: how close counts as arrived; ``poll_interval_s``: its poll rate.
     * ``reboot_timeout_s``: how long a rebooted servo may take to answer again.

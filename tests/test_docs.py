@@ -47,3 +47,62 @@ def test_the_floor_table_is_the_layers_contract():
     tops -= {"__init__", "__main__", "__pycache__"}
     placed = {m.split(".")[1] for floor in page.values() for m in floor}
     assert not sorted(tops - placed), f"not on any floor of docs/architecture.md: {sorted(tops - placed)}"
+
+
+def test_docs_wire_check_and_update_as_a_user_runs_them(tmp_path):
+    """``aes-planner docs wire --check`` passes on the committed page, fails (1) on a stale copy
+    and names the part; ``--update`` makes the copy current; a page without the markers is an
+    error naming them (2)."""
+    import subprocess
+
+    cli = [sys.executable, "-m", "aes_planner", "docs", "wire"]
+    page = ROOT / "docs" / "wire.md"
+    ok = subprocess.run([*cli, "--check", str(page)], capture_output=True, text=True, timeout=300)
+    assert ok.returncode == 0, ok.stdout + ok.stderr
+    stale = tmp_path / "wire.md"
+    stale.write_text(page.read_text(encoding="utf-8").replace("| `stamp_s` | f64 |", "| `stamp_s` | f32 |", 1))
+    out = subprocess.run([*cli, "--check", str(stale)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 1 and "wire-types" in out.stdout
+    subprocess.run([*cli, "--update", str(stale)], check=True, capture_output=True, timeout=300)
+    assert stale.read_text(encoding="utf-8") == page.read_text(encoding="utf-8")
+    bare = tmp_path / "bare.md"
+    bare.write_text("# nothing generated here\n")
+    out = subprocess.run([*cli, "--check", str(bare)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 2 and "<!-- generated: wire-topics -->" in out.stderr
+
+
+def test_the_command_reference_is_the_argument_parsers():
+    """docs/guides/commands.md's reference is what ``--help`` prints for every command today
+    (an option added to a parser but not to the page fails here; fix with ``aes-planner docs
+    commands --update docs/guides/commands.md``)."""
+    from aes_planner.cli import build_parser
+    from aes_planner.cli.docs import _subparsers, regions, replace_regions
+
+    page = (ROOT / "docs" / "guides" / "commands.md").read_text(encoding="utf-8")
+    assert replace_regions(page, regions("commands")) == page, "run: aes-planner docs commands --update ..."
+    names = [name for name, _ in _subparsers(build_parser())]
+    assert len(names) > 15 and all(f"### `aes-planner {n}`" in page for n in names)
+
+
+def test_every_relative_link_of_the_docs_resolves():
+    """README.md and every page of docs/ (the work logs aside) link only to files that exist."""
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    broken = []
+    for page in pages:
+        if "journal" in page.parts:
+            continue
+        text = re.sub(r"```.*?```", "", page.read_text(encoding="utf-8"), flags=re.S)
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if re.match(r"^(https?:|#|mailto:)", target):
+                continue
+            if not (page.parent / target.partition("#")[0]).exists():
+                broken.append(f"{page.relative_to(ROOT)} -> {target}")
+    assert len(pages) > 10 and not broken, broken
+
+
+def test_the_readme_maps_every_guide():
+    """Every page of docs/guides/ is on the README's map (a guide nobody can find is not read)."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    guides = sorted(p.name for p in (ROOT / "docs" / "guides").glob("*.md"))
+    assert len(guides) > 10
+    assert not [g for g in guides if f"(docs/guides/{g})" not in readme], "add the guide to the README's map"

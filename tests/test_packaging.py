@@ -61,3 +61,11 @@ def test_hardware_bridge_imports_without_torch():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"
+
+
+def test_the_interface_package_has_one_source_of_its_msg_files():
+    """ros2/aes_planner_msgs/msg (what colcon builds) is the package's own aes_planner/ros2/msg
+    (what a rosbag2 export's schemas read), not a copy that can drift."""
+    msg = ROOT / "ros2" / "aes_planner_msgs" / "msg"
+    assert msg.is_symlink() and msg.resolve() == (ROOT / "aes_planner" / "ros2" / "msg").resolve()
+    assert sorted(p.name for p in msg.iterdir()) == ["ViewCandidate.msg", "ViewSuggestion.msg"]

@@ -1,4 +1,4 @@
-"""Benchmark group ``node``: the soak (:func:`aes_planner.node.soak.run_soak`), long form.
+"""Benchmark group ``node``: the soak (:func:`aes_planner.bench.soak.run_soak`), long form.
 
 Frames of a simulated rig scene at 30 Hz into a passive planner (RGB scoring, ``fast`` search)
 for 60 s (``--quick``: 10 s) with malformed and oversized payloads on every topic. Figures:
@@ -17,7 +17,7 @@ from aes_planner.bench import Recorder
 
 
 def run(rec: Recorder, quick: bool) -> None:
-    from aes_planner.node.soak import run_soak
+    from aes_planner.bench.soak import run_soak
 
     r = run_soak(duration_s=10.0 if quick else 60.0)
     rec.meta["backends"]["node"] = "in-process bus; planner passive, rgb scorer, fast search, 64x48 frames at 30 Hz"

@@ -35,12 +35,11 @@ import sys
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 
 from aes_planner.bench import Recorder
-from aes_planner.eval.search import HELD_OUT_SCENES, standard_error
+from aes_planner.eval.search import HELD_OUT_SCENES, standard_error, write_pareto
 from aes_planner.gaussians import resolve_backend
 from aes_planner.runtime import reset_suggestion_governor, suggestion_threads
 from aes_planner.search import GroundTruthScorer, SearchConfig, SearchError, build_search_scorer
@@ -162,48 +161,3 @@ def busy_case(rec: Recorder, spec: str, teacher, kind: str, repeats: int) -> Non
     rec.record("search.balanced.busy_all_threads_latency_ms", full, "ms", len(lat["all"]))
     rec.record("search.balanced.busy_speedup", full / picked, "ratio", len(lat["picked"]))
     rec.record("search.balanced.busy_threads", statistics.median(threads), "threads", len(threads))
-
-
-def write_pareto(points: dict[str, tuple], path: Path) -> Path:
-    """Latency (log x) against normalised score (y); the presets joined, rgb apart. ``points``:
-    ``{name: (latency_ms, normalized)}`` or ``(latency_ms, normalized, standard_error | None)``,
-    the error drawn as a bar of +-1 standard error over the scenes."""
-    points = {name: (p[0], p[1], p[2] if len(p) > 2 else None) for name, p in points.items()}
-    w, h, m = 520, 360, 50
-    img = np.full((h, w, 3), 255, np.uint8)
-    lats = [p[0] for p in points.values()]
-    lo, hi = np.log10(max(min(min(lats) / 2, 500.0), 1.0)), np.log10(max(max(lats) * 2, 2000.0))  # the 1 s goal in view
-
-    def px(lat: float, norm: float) -> tuple[int, int]:
-        x = m + (np.log10(max(lat, 1.0)) - lo) / max(hi - lo, 1e-9) * (w - 2 * m)
-        y = h - m - np.clip(norm, -0.2, 1.1) / 1.1 * (h - 2 * m)
-        return int(x), int(y)
-
-    cv2.rectangle(img, (m, m), (w - m, h - m), (0, 0, 0), 1)
-    for goal, colour in ((0.8, (0, 160, 0)), (0.9, (0, 100, 0))):
-        cv2.line(img, px(10**lo, goal), px(10**hi, goal), colour, 1)
-    cv2.line(img, px(1000, -0.2), px(1000, 1.1), (0, 0, 200), 1)  # the 1 s goal
-    chain = [points[c][:2] for c in ("fast", "balanced", "accurate") if c in points]
-    for a, b in zip(chain, chain[1:]):
-        cv2.line(img, px(*a), px(*b), (200, 120, 0), 2)
-    for i, (name, (lat, norm, se)) in enumerate(points.items()):
-        colour = (0, 0, 200) if name == "rgb" else (200, 120, 0)
-        if se is not None:  # +-1 standard error over the scenes, with caps
-            (x, y0), (_, y1) = px(lat, norm - se), px(lat, norm + se)
-            cv2.line(img, (x, y0), (x, y1), colour, 1)
-            for y in (y0, y1):
-                cv2.line(img, (x - 4, y), (x + 4, y), colour, 1)
-        cv2.circle(img, px(lat, norm), 5, colour, -1)
-        cv2.putText(
-            img, name[0].upper(), (px(lat, norm)[0] - 4, px(lat, norm)[1] - 8), cv2.FONT_HERSHEY_PLAIN, 1.0, colour, 1
-        )
-        spread = "" if se is None else f" +- {se:.2f}"
-        cv2.putText(img, f"{name[0].upper()} {name}: {lat:.0f} ms, {norm:.2f}{spread}", (m + 6, m + 16 + 14 * i),
-                    cv2.FONT_HERSHEY_PLAIN, 0.9, (0, 0, 0), 1, cv2.LINE_AA)  # fmt: skip
-    cv2.putText(
-        img, "latency (ms, log) vs oracle-normalised score", (m, m - 12), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1
-    )
-    path.parent.mkdir(parents=True, exist_ok=True)
-    from aes_planner.images import write_image
-
-    return write_image(path, img, "the trade-off plot")

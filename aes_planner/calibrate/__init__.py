@@ -1,6 +1,6 @@
 """Calibration of a real rig: camera intrinsics from a printed board, the pan-tilt's kinematic
 parameters from the gimbal's own sweep, and the camera's time offset (``aes-planner calibrate``;
-README, "Calibrating a real rig").
+docs/guides/calibration.md).
 
 * :mod:`.board`: board specs, the printable pattern (and the sim's ``board:`` texture), corner
   detection in one canonical order.

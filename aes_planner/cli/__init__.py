@@ -10,6 +10,7 @@ its traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import importlib
 import logging
@@ -38,6 +39,7 @@ COMMANDS = [
     "aes_planner.cli.ros2",
     "aes_planner.cli.export",
     "aes_planner.cli.train",
+    "aes_planner.cli.docs",
 ]
 
 
@@ -121,6 +123,27 @@ def _empty_value(argv: list[str]) -> str | None:
     return None
 
 
+@contextlib.contextmanager
+def _graph_domain(domain: int | None):
+    """``--domain N`` as ``AES_PLANNER_DOMAIN=N`` while the command runs: the library's bus
+    configuration and every process the command starts read it (docs/guides/graphs.md)."""
+    if domain is None:
+        yield
+        return
+    from aes_planner.transport.config import DOMAIN_ENV, graph_domain
+
+    graph_domain(domain, "--domain")
+    before = os.environ.get(DOMAIN_ENV)
+    os.environ[DOMAIN_ENV] = str(domain)
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(DOMAIN_ENV, None)
+        else:
+            os.environ[DOMAIN_ENV] = before
+
+
 def main(argv: list[str] | None = None) -> int:
     empty = _empty_value([str(a) for a in (sys.argv[1:] if argv is None else argv)])
     if empty is not None:  # `--teacher ''` would otherwise mean "the default" to `args.x or DEFAULT`
@@ -134,7 +157,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
+        with _graph_domain(getattr(args, "domain", None)):
+            return int(args.func(args) or 0)
     except AesPlannerError as exc:
         print(error_line(f"error: {exc}"), file=sys.stderr)
         return 2

@@ -11,8 +11,8 @@ has its non-printable characters escaped: a peer cannot write control sequences 
   recording again (once, N times, or until Ctrl-C or S seconds).
 * ``aes-planner foxglove [--port P]``: serve the bus live to the Foxglove app (loopback).
 
-Each joins the network of ``aes-planner launch --processes`` at ``tcp/127.0.0.1:7390`` unless
-``--connect`` says otherwise.
+Each joins the network of ``aes-planner launch --processes`` of its domain (``--domain N`` or
+``AES_PLANNER_DOMAIN``, default 0: ``tcp/127.0.0.1:7390``) unless ``--connect`` says otherwise.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import threading
 import time
 
 from aes_planner.cli import terminal_safe
-from aes_planner.cli.processes import DEFAULT_ENDPOINT
+from aes_planner.cli.processes import DEFAULT_ENDPOINT, add_domain_flag
 from aes_planner.errors import AesPlannerError
 from aes_planner.graph.signals import stop_on_signals
 
@@ -37,12 +37,13 @@ def _bus_flags(p: argparse.ArgumentParser) -> None:
         "--connect",
         action="append",
         metavar="ENDPOINT",
-        help=f"Zenoh endpoint to connect to (repeatable; default {DEFAULT_ENDPOINT})",
+        help=f"Zenoh endpoint to connect to (repeatable; default: the domain's hub, {DEFAULT_ENDPOINT} in domain 0)",
     )
     g.add_argument(
         "--listen", action="append", metavar="ENDPOINT", help="endpoint to listen on (default: a free loopback port)"
     )
-    g.add_argument("--prefix", default="aes", help="key prefix of the topics (default aes)")
+    add_domain_flag(g)
+    g.add_argument("--prefix", default=None, help="key prefix of the topics (default: the domain's, aes in domain 0)")
     g.add_argument("--allow-remote", action="store_true", help="allow listening beyond loopback")
 
 
@@ -52,7 +53,9 @@ def open_cli_bus(args: argparse.Namespace):
     from aes_planner.transport import ZenohConfig
     from aes_planner.transport.zenoh_bus import ZenohBus
 
-    kw = {"prefix": args.prefix, "allow_remote": args.allow_remote}
+    kw = {"allow_remote": args.allow_remote}
+    if args.prefix:
+        kw["prefix"] = args.prefix
     if args.connect:
         kw["connect"] = tuple(args.connect)
     if args.listen:
@@ -60,7 +63,9 @@ def open_cli_bus(args: argparse.Namespace):
     try:
         cfg = ZenohConfig(**kw)
     except ConfigError as exc:
-        raise ConfigError(f"--{exc.key.split('[')[0]}" if exc.key else "", exc.message) from None
+        if not exc.key or exc.key.isupper():  # AES_PLANNER_DOMAIN: named as it is
+            raise
+        raise ConfigError(f"--{exc.key.split('[')[0]}", exc.message) from None
     return ZenohBus(cfg)
 
 

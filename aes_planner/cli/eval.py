@@ -136,7 +136,9 @@ def run_loop(args: argparse.Namespace) -> int:
         timeout_s=args.timeout,
         sets=args.set,
     )
-    results = run_loop_eval(cfg, Path(out), progress=print)
+    from aes_planner.cli.demo import run_demo
+
+    results = run_loop_eval(cfg, Path(out), run_demo, progress=print)
     print((Path(out) / "report.md").read_text())
     s = results["summary"]
     return 0 if s.get("errors", 1) == 0 else 1

@@ -17,6 +17,18 @@ from aes_planner.errors import AesPlannerError
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7390"  # aes_planner.transport.config.DEFAULT_ENDPOINT (why 7390: there)
 
 
+def add_domain_flag(g) -> None:
+    """``--domain N``: the graph's domain (docs/guides/graphs.md); read by every tool on the bus."""
+    g.add_argument(
+        "--domain",
+        type=int,
+        default=None,
+        metavar="N",
+        help="the graph's domain, 0-232 (default: AES_PLANNER_DOMAIN, else 0): graphs in different domains "
+        "never see each other; hub port 7390 - N, key prefix aes<N> (docs/guides/graphs.md)",
+    )
+
+
 def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None = None) -> None:
     g = p.add_argument_group("transport")
     g.add_argument(
@@ -24,12 +36,13 @@ def add_transport_flags(p: argparse.ArgumentParser, processes_help: str | None =
         action="store_true",
         help=processes_help or "run each node in its own process over Zenoh (supervised; respawn: true restarts)",
     )
+    add_domain_flag(g)
     g.add_argument(
         "--listen",
         default=None,
         metavar="ENDPOINT",
-        help=f"with --processes: where the graph's hub listens (default: the launch file's bus.listen, else "
-        f"{DEFAULT_ENDPOINT}); echo/record/replay and other machines connect here",
+        help=f"with --processes: where the graph's hub listens (default: the launch file's bus.listen, else the "
+        f"domain's hub, {DEFAULT_ENDPOINT} in domain 0); echo/record/replay and other machines connect here",
     )
     g.add_argument(
         "--connect",
@@ -113,11 +126,13 @@ def supervisor_from_args(args: argparse.Namespace, in_process=(), out=None):
     """A :class:`~aes_planner.graph.supervisor.Supervisor` for ``args.file`` / ``args.set``."""
     from aes_planner.config import ConfigError
     from aes_planner.graph.supervisor import Supervisor
-    from aes_planner.transport.config import ZenohConfig
+    from aes_planner.transport.config import ZenohConfig, graph_domain, hub_endpoint
 
     try:
         ZenohConfig(
-            listen=(args.listen or DEFAULT_ENDPOINT,), connect=tuple(args.connect), allow_remote=args.allow_remote
+            listen=(args.listen or hub_endpoint(graph_domain()),),
+            connect=tuple(args.connect),
+            allow_remote=args.allow_remote,
         )
     except ConfigError as exc:
         raise ConfigError("--listen" if exc.key.startswith("listen") else "--connect", exc.message) from None
@@ -144,10 +159,11 @@ def run_processes(args: argparse.Namespace) -> int:
     is lost or ``--timeout`` (1), or SIGINT / SIGTERM (128 + the first signal, after every child
     stopped)."""
     from aes_planner.graph.runner import run_graph
+    from aes_planner.transport.config import graph_domain
 
     sup = supervisor_from_args(args)
     print(
-        f"launch {sup.spec.path} (one process per node, hub {sup.endpoint}): "
+        f"launch {sup.spec.path} (one process per node, domain {graph_domain()}, hub {sup.endpoint}): "
         + ", ".join(c.node_id for c in sup.children),
         flush=True,
     )

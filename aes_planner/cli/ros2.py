@@ -1,7 +1,8 @@
 """``aes-planner ros2 bridge``: the package's bus on a ROS 2 DDS domain, as a process of its own.
 
-Joins the Zenoh bus as ``echo`` does (``tcp/127.0.0.1:7390`` unless ``--connect``) and runs the
-``ros2_bridge`` node (:mod:`aes_planner.ros2.bridge`) on it until Ctrl-C. ``ROS_DOMAIN_ID``,
+Joins the Zenoh bus as ``echo`` does (the hub of its ``--domain``, ``tcp/127.0.0.1:7390`` in domain
+0, unless ``--connect``) and runs the ``ros2_bridge`` node (:mod:`aes_planner.ros2.bridge`) on it
+until Ctrl-C. Its DDS domain is the graph's unless ``--domain-id`` or ``ROS_DOMAIN_ID`` says. ``ROS_DOMAIN_ID``,
 ``ROS_AUTOMATIC_DISCOVERY_RANGE``, ``ROS_STATIC_PEERS`` and ``CYCLONEDDS_URI`` are honoured as
 rmw_cyclonedds does; discovery stays on this machine unless ``--discovery-range`` (with
 ``--allow-remote-dds``) says otherwise.
@@ -31,7 +32,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "states, images, camera info, tf and diagnostics out (README, 'ROS 2').",
     )
     b.add_argument("--config", metavar="FILE.yaml", help="a ros2_bridge config (topics, qos, frames, rig...)")
-    b.add_argument("--domain-id", type=int, default=None, help="DDS domain (default: ROS_DOMAIN_ID, else 0)")
+    b.add_argument(
+        "--domain-id",
+        type=int,
+        default=None,
+        help="DDS domain (default: ROS_DOMAIN_ID, else the graph's --domain, else 0)",
+    )
     b.add_argument(
         "--discovery-range",
         choices=("loopback", "localhost", "subnet", "off", "system_default"),

@@ -225,6 +225,7 @@ def run(args: argparse.Namespace) -> int:
         raise SearchError("--truth-scene renders the report's ground-truth row: give --out DIR for the report too")
     from aes_planner.images import MAX_WORKING_SIDE_PX
 
+    framing_cfg, keep, avoid = _framing_args(args)  # a malformed box fails before the pose step and the search
     args.dataset = _pose_first(args)
     data = load_dataset(args.dataset, load_depth=True, max_side_px=MAX_WORKING_SIDE_PX)
     for (w, h), n in data.downscaled.items():  # say so: the report shows the downscaled views
@@ -236,7 +237,6 @@ def run(args: argparse.Namespace) -> int:
     # the ground truth is set up before the search, so a bad --truth-scene fails first
     gt = _ground_truth(data.meta, data.frames[0].intrinsics, args.truth_scene) if args.out else None
     platform = _platform(data.meta, data.frames, args.mode, args.rig)
-    framing_cfg, keep, avoid = _framing_args(args)
     overrides = {"top_k": args.top} if args.top else {}
     cfg = SearchConfig.preset(args.preset, mode=platform.kind, **overrides)
     t0 = time.perf_counter()
@@ -308,11 +308,12 @@ def run(args: argparse.Namespace) -> int:
         Path(args.json).write_text(json.dumps(doc, indent=1) + "\n")
         print(f"wrote {args.json}")
     if args.out:
-        renderers, scores = {}, {}
+        renderers, scores, row_labels = {}, {}, {}
         poses = np.stack([s.cam2world for s in result.suggestions])  # [K, 4, 4] world
         if moves:  # the photo each suggestion is said from, beside the suggested view
             every = _hand_held_moves(platform, data, result.suggestions)
             renderers["from photo"] = lambda _poses: [data.frames[m.photo_index].image for m in every]
+            row_labels["from photo"] = [f"#{i + 1} {m.photo}" for i, m in enumerate(every)]
         own = render_with(scorer)
         if own is not None:
             renderers[args.scorer] = own
@@ -337,6 +338,7 @@ def run(args: argparse.Namespace) -> int:
             renderers,
             scores=scores,
             outlines=_outlines(framing, data.frames) if framing is not None else None,
+            labels=row_labels,
         )
         print(f"wrote {report}")
     return 0

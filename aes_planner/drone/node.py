@@ -58,7 +58,7 @@ class GimbalConfig:
 
 @dataclass
 class MavlinkDroneConfig:
-    """How the node talks to the vehicle and what it may do (README, "Flying a drone").
+    """How the node talks to the vehicle and what it may do (docs/guides/drone.md).
 
     * ``connection``: a pymavlink connection string (``udpin:127.0.0.1:14540``: PX4 SITL's
       offboard port; ``serial:/dev/ttyUSB0:921600``, ``tcp:HOST:PORT``...).
@@ -245,7 +245,7 @@ class MavlinkDroneNode(Node):
         self._last_state_s = -math.inf
         self._last_position_s = -math.inf
         self._last_diag = -math.inf
-        self._seq = 0
+        self._seq = {"state": 0, "diagnostics": 0}  # per topic: each counts its own messages from 1
         self.planner_state = ""
 
     @property
@@ -362,7 +362,7 @@ class MavlinkDroneNode(Node):
         r_cam, pitch, yaw = link.camera_rotation_ned(now)
         c2w = fr.pose_to_cam2world(link.position_ned, r_cam, link.r_ned_frd, c.gimbal_config.mount_frd_m, c.origin_m)
         att = fr.matrix_to_quat(fr.body_flu_in_enu(link.r_ned_frd))
-        self._seq += 1
+        self._seq["state"] += 1
         try:
             return DroneState(
                 link.last_position_s,
@@ -377,7 +377,7 @@ class MavlinkDroneNode(Node):
                 link.sysid,
                 "lost" if link.status == "link_lost" else "ok",
                 link.status,
-                self._seq,
+                self._seq["state"],
             )
         except Exception as exc:  # non-finite telemetry that slipped through: counted, not published
             link.counters["telemetry_rejected"] += 1
@@ -397,8 +397,8 @@ class MavlinkDroneNode(Node):
             if link.lost_since is not None:
                 values["link_lost_s"] = now - link.lost_since
             status = f"{link.status} mode={link.mode or '?'} armed={link.armed}"
-        return Diagnostics(now, self.node_id, status[:256], counters, values, self._next())
+        return Diagnostics(now, self.node_id, status[:256], counters, values, self._next("diagnostics"))
 
-    def _next(self) -> int:
-        self._seq += 1
-        return self._seq
+    def _next(self, topic: str) -> int:
+        self._seq[topic] += 1
+        return self._seq[topic]

@@ -205,10 +205,12 @@ def _noisy_teacher(planner, rel: float, seed: int) -> None:
     teacher.features = features
 
 
-def run_one(scene_spec: str, p: Perturbation, moves: int, out: Path, sets=(), timeout_s: float = 900.0) -> dict:
-    """One closed loop of ``scene_spec`` under ``p``; the summary's figures (and the path taken)."""
-    from aes_planner.cli.demo import run_demo
-
+def run_one(
+    run_demo, scene_spec: str, p: Perturbation, moves: int, out: Path, sets=(), timeout_s: float = 900.0
+) -> dict:
+    """One closed loop of ``scene_spec`` under ``p``, run by ``run_demo`` (the command line's
+    :func:`aes_planner.cli.demo.run_demo`, handed down: the evaluation sits below the CLI); the
+    summary's figures (and the path taken)."""
     scene, mode = split_scene(scene_spec)
     overrides = list(sets)
     planner_overrides: dict = {"seed": p.seed}
@@ -255,9 +257,9 @@ def run_one(scene_spec: str, p: Perturbation, moves: int, out: Path, sets=(), ti
     return row
 
 
-def run_loop_eval(config: LoopEvalConfig, out: Path, progress=None) -> dict:
-    """Every scene x perturbation not in ``out/results.json`` yet; returns (and writes) the results
-    and ``report.md``."""
+def run_loop_eval(config: LoopEvalConfig, out: Path, run_demo, progress=None) -> dict:
+    """Every scene x perturbation not in ``out/results.json`` yet, each run by ``run_demo`` (see
+    :func:`run_one`); returns (and writes) the results and ``report.md``."""
     say = progress or (lambda *_: None)
     out.mkdir(parents=True, exist_ok=True)
     results_path = out / "results.json"
@@ -276,7 +278,7 @@ def run_loop_eval(config: LoopEvalConfig, out: Path, progress=None) -> dict:
                 shutil.rmtree(run_dir)
             say(f"eval loop: {scene} [{ptext}] ...")
             try:
-                runs[key] = run_one(scene, p, config.moves, run_dir, config.sets, config.timeout_s)
+                runs[key] = run_one(run_demo, scene, p, config.moves, run_dir, config.sets, config.timeout_s)
             except Exception as exc:  # one scene's failure is a result, not the end of the evaluation
                 log.exception("eval loop: %s failed", key)
                 runs[key] = {"state": "error", "error": f"{type(exc).__name__}: {exc}"}

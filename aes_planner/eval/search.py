@@ -374,9 +374,7 @@ def _front_lines(table: dict[str, Any], latency_ms: dict[str, float]) -> list[st
 
 def write_front_plots(doc: dict[str, Any], out: Path) -> list[Path]:
     """``preset_front_<views>v_<mode>.png`` per table: latency against oracle-normalised score, the
-    presets joined, RGB scoring and best-input as reference points (:func:`~aes_planner.bench.search.write_pareto`)."""
-    from aes_planner.bench.search import write_pareto
-
+    presets joined, RGB scoring and best-input as reference points (:func:`write_pareto`)."""
     paths = []
     for n, modes in doc["views"].items():
         for mode, table in modes.items():
@@ -720,3 +718,50 @@ def _top_view(out: Path, spec: str, platform, frames, inputs, teacher, cfg: Sear
         cv2.drawMarker(img, px(s.position_m), (0, 0, 255), cv2.MARKER_CROSS, 14, 2)
     cv2.putText(img, f"{spec}: candidates by score (top view)", (4, 16), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1)
     cv2.imwrite(str(output_in(out, f"top_view_{spec.replace(':', '_').replace('/', '_')}.png")), img)
+
+
+def write_pareto(points: dict[str, tuple], path: Path) -> Path:
+    """Latency (log x) against normalised score (y); the presets joined, rgb apart. ``points``:
+    ``{name: (latency_ms, normalized)}`` or ``(latency_ms, normalized, standard_error | None)``,
+    the error drawn as a bar of +-1 standard error over the scenes (``bench search`` and
+    ``eval search --out`` draw it)."""
+    points = {name: (p[0], p[1], p[2] if len(p) > 2 else None) for name, p in points.items()}
+    w, h, m = 520, 360, 50
+    img = np.full((h, w, 3), 255, np.uint8)
+    lats = [p[0] for p in points.values()]
+    lo, hi = np.log10(max(min(min(lats) / 2, 500.0), 1.0)), np.log10(max(max(lats) * 2, 2000.0))  # the 1 s goal in view
+
+    def px(lat: float, norm: float) -> tuple[int, int]:
+        x = m + (np.log10(max(lat, 1.0)) - lo) / max(hi - lo, 1e-9) * (w - 2 * m)
+        y = h - m - np.clip(norm, -0.2, 1.1) / 1.1 * (h - 2 * m)
+        return int(x), int(y)
+
+    cv2.rectangle(img, (m, m), (w - m, h - m), (0, 0, 0), 1)
+    for goal, colour in ((0.8, (0, 160, 0)), (0.9, (0, 100, 0))):
+        cv2.line(img, px(10**lo, goal), px(10**hi, goal), colour, 1)
+    cv2.line(img, px(1000, -0.2), px(1000, 1.1), (0, 0, 200), 1)  # the 1 s goal
+    chain = [points[c][:2] for c in ("fast", "balanced", "accurate") if c in points]
+    for a, b in zip(chain, chain[1:]):
+        cv2.line(img, px(*a), px(*b), (200, 120, 0), 2)
+    for i, (name, (lat, norm, se)) in enumerate(points.items()):
+        colour = (0, 0, 200) if name == "rgb" else (200, 120, 0)
+        if se is not None:  # +-1 standard error over the scenes, with caps
+            (x, y0), (_, y1) = px(lat, norm - se), px(lat, norm + se)
+            cv2.line(img, (x, y0), (x, y1), colour, 1)
+            for y in (y0, y1):
+                cv2.line(img, (x - 4, y), (x + 4, y), colour, 1)
+        cv2.circle(img, px(lat, norm), 5, colour, -1)
+        cv2.putText(
+            img, name[0].upper(), (px(lat, norm)[0] - 4, px(lat, norm)[1] - 8), cv2.FONT_HERSHEY_PLAIN, 1.0, colour, 1
+        )
+        spread = "" if se is None else f" +- {se:.2f}"
+        cv2.putText(img, f"{name[0].upper()} {name}: {lat:.0f} ms, {norm:.2f}{spread}", (m + 6, m + 16 + 14 * i),
+                    cv2.FONT_HERSHEY_PLAIN, 0.9, (0, 0, 0), 1, cv2.LINE_AA)  # fmt: skip
+    cv2.putText(
+        img, "latency (ms, log) vs oracle-normalised score", (m, m - 12), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1
+    )
+    from aes_planner.images import write_image
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+
+    return write_image(path, img, "the trade-off plot")

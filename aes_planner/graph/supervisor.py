@@ -38,7 +38,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from aes_planner.errors import AesPlannerError
-from aes_planner.transport.config import DEFAULT_ENDPOINT, ZenohConfig
+from aes_planner.transport.config import ZenohConfig, domain_prefix, graph_domain, hub_endpoint
 
 __all__ = ["Supervisor", "ChildSpec", "main_child"]
 
@@ -88,11 +88,11 @@ class Supervisor:
         # Arguments win over the launch file's ``bus:`` block, which wins over the defaults.
         file_bus = getattr(self.spec, "bus", None)
         if endpoint is None:
-            endpoint = file_bus.listen[0] if file_bus is not None and file_bus.listen else DEFAULT_ENDPOINT
+            endpoint = file_bus.listen[0] if file_bus is not None and file_bus.listen else hub_endpoint(graph_domain())
         if not connect and file_bus is not None and file_bus.connect != ZenohConfig().connect:
             connect = file_bus.connect
         allow_remote = allow_remote or bool(file_bus is not None and file_bus.allow_remote)
-        self.prefix = file_bus.prefix if file_bus is not None else "aes"
+        self.prefix = file_bus.prefix if file_bus is not None else domain_prefix(graph_domain())
         self.endpoint = endpoint
         self.hub_config = ZenohConfig(  # a router: it carries the graph to the hubs of other machines
             listen=(endpoint,), connect=tuple(connect), allow_remote=allow_remote, prefix=self.prefix, mode="router"

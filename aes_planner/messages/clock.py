@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import ClassVar
 
-from aes_planner.messages.codec import Map, Message, MessageError, Scalar, Str, register_message
+from aes_planner.messages.codec import Map, Message, MessageError, Scalar, Str, register_message, text_cap
 from aes_planner.messages.fields import check_name_map, check_sequence, check_text
 
 __all__ = ["MAX_CLOCK_TOPICS", "NEVER_NS", "Clock", "ClockAck"]
@@ -37,10 +37,16 @@ class Clock(Message):
     SCHEMA_VERSION: ClassVar[int] = 1
     MAX_BYTES: ClassVar[int] = 16 << 10
     FIELDS = (
-        Scalar("stamp_ns", "u64"),
-        Scalar("tick", "u64"),
-        Map("sent", Scalar("count", "u64"), MAX_CLOCK_TOPICS),
+        Scalar("stamp_ns", "u64", doc="the simulated time, integer nanoseconds from the start of the run (0)"),
+        Scalar("tick", "u64", doc="its number (1, 2, ...; every node acknowledges each one)"),
+        Map(
+            "sent",
+            Scalar("count", "u64"),
+            MAX_CLOCK_TOPICS,
+            doc="per topic, how many messages the graph's nodes published during the previous tick",
+        ),
     )
+    WIRE_RULES: ClassVar[tuple[str, ...]] = ("a `sent` key that is not 1-64 characters of `A-Z a-z 0-9 _ . : / -`",)
 
     stamp_ns: int
     tick: int
@@ -70,10 +76,15 @@ class ClockAck(Message):
     SCHEMA_VERSION: ClassVar[int] = 1
     MAX_BYTES: ClassVar[int] = 16 << 10
     FIELDS = (
-        Str("node", 256),
-        Scalar("tick", "u64"),
-        Scalar("next_ns", "u64"),
-        Map("sent", Scalar("count", "u64"), MAX_CLOCK_TOPICS),
+        Str("node", 256, doc="the node's id"),
+        Scalar("tick", "u64", doc="the tick it has handled everything up to; 0 = ready, waiting for the first"),
+        Scalar("next_ns", "u64", doc=f"when it next wants to step; {NEVER_NS} = only when a message arrives"),
+        Map(
+            "sent", Scalar("count", "u64"), MAX_CLOCK_TOPICS, doc="per topic, how many messages it published that tick"
+        ),
+    )
+    WIRE_RULES: ClassVar[tuple[str, ...]] = (
+        "an empty `node`, or a `sent` key that is not 1-64 characters of `A-Z a-z 0-9 _ . : / -`",
     )
 
     node: str
@@ -82,7 +93,7 @@ class ClockAck(Message):
     sent: dict[str, int] = field(default_factory=dict)
 
     def __post_init__(self):
-        self.node = check_text(self.node, "ClockAck.node", 64)
+        self.node = check_text(self.node, "ClockAck.node", text_cap(self.FIELDS, "node"))
         if not self.node:
             raise MessageError("ClockAck.node must name the node")
         self.tick = check_sequence(self.tick, "ClockAck.tick")

@@ -53,6 +53,7 @@ __all__ = [
     "decode",
     "peek_header",
     "describe",
+    "text_cap",
     "Field",
     "Scalar",
     "Str",
@@ -276,13 +277,15 @@ class Field:
     """One field of a message on the wire: its ``name``, how it is written and read, and its
     description (:meth:`describe`). ``since``: the schema version that added it (older messages
     lack it and decode to ``default``). ``attr``: the attribute it is read from when encoding,
-    dotted for a nested one (``intrinsics.fx``); the name by default."""
+    dotted for a nested one (``intrinsics.fx``); the name by default. ``doc``: what it means, the
+    note docs/wire.md shows beside it."""
 
-    def __init__(self, name: str, *, since: int = 1, default=None, attr: str | None = None) -> None:
+    def __init__(self, name: str, *, since: int = 1, default=None, attr: str | None = None, doc: str = "") -> None:
         self.name = name
         self.since = since
         self.default = default
         self.attr = attr or name
+        self.doc = doc  # what the field means: docs/wire.md's note, rendered by aes_planner.messages.spec
 
     def value_of(self, msg, options: dict):
         v = msg
@@ -347,6 +350,8 @@ class Str(Field):
         self.max_bytes = max_bytes
 
     def write(self, w, value, options) -> None:
+        if len(value.encode("utf-8")) > self.max_bytes:  # never write what a reader refuses
+            raise MessageError(f"{self.name}: {len(value.encode('utf-8'))} bytes of UTF-8; the cap is {self.max_bytes}")
         w.str(value)
 
     def read(self, r, what):
@@ -396,21 +401,33 @@ class Enum(Field):
 
 class Array(Field):
     """A numpy array: dtype code byte, ndim byte, each dimension as uint32 (at most
-    ``max_shape``), then the raw little-endian C-order data. Floats must be finite."""
+    ``max_shape``), then the raw little-endian C-order data. Floats must be finite. ``exact``: the
+    dimensions that must equal ``max_shape`` rather than stay under it (True: all of them, for a
+    ``[4, 4]`` pose; a tuple of flags per dimension, for an image's 3 channels)."""
 
-    def __init__(self, name: str, dtype: str, max_shape: tuple[int, ...], **kw) -> None:
+    def __init__(self, name: str, dtype: str, max_shape: tuple[int, ...], exact: bool | tuple[bool, ...] = False, **kw):
         super().__init__(name, **kw)
         self.dtype = dtype
         self.max_shape = tuple(max_shape)
+        self.exact = tuple(exact) if isinstance(exact, tuple) else (bool(exact),) * len(self.max_shape)
+        if len(self.exact) != len(self.max_shape):
+            raise ValueError(f"{name}: exact needs one flag per dimension of {self.max_shape}")
 
     def write(self, w, value, options) -> None:
         w.array(value, self.dtype)
 
     def read(self, r, what):
-        return r.array(what, self.dtype, len(self.max_shape), self.max_shape)
+        a = r.array(what, self.dtype, len(self.max_shape), self.max_shape)
+        if any(e and n != cap for n, cap, e in zip(a.shape, self.max_shape, self.exact)):
+            want = ", ".join(str(c) if e else f"<= {c}" for c, e in zip(self.max_shape, self.exact))
+            raise MessageError(f"{r._type}.{what}: shape {a.shape}, expected [{want}]")
+        return a
 
     def kind(self) -> dict:
-        return {"type": "array", "dtype": self.dtype, "ndim": len(self.max_shape), "max_shape": list(self.max_shape)}
+        out = {"type": "array", "dtype": self.dtype, "ndim": len(self.max_shape), "max_shape": list(self.max_shape)}
+        if any(self.exact):
+            out["exact"] = list(self.exact)
+        return out
 
     def json(self, value):
         if value.size <= 64:
@@ -427,6 +444,7 @@ class Optional(Field):
     """A flag byte (0 absent, 1 present), then the value when present. Absent is ``None``."""
 
     def __init__(self, inner: Field, **kw) -> None:
+        kw.setdefault("doc", inner.doc)
         super().__init__(inner.name, attr=inner.attr, **kw)
         self.inner = inner
 
@@ -581,6 +599,17 @@ class Union(Field):
                 for tag, (name, fields) in sorted(self.variants.items())
             },
         }
+
+
+def text_cap(fields: tuple[Field, ...], name: str) -> int:
+    """The ``max_bytes`` of the text field ``name`` of a field table (a list's or an optional's
+    text item too): the one cap the wire and the message's own validation apply."""
+    for f in fields:
+        if f.name == name:
+            inner = getattr(f, "inner", None) or getattr(f, "item", None) or f
+            if isinstance(inner, Str):
+                return inner.max_bytes
+    raise KeyError(f"no text field {name!r} in the table")
 
 
 def write_fields(w: Writer, obj, fields: tuple[Field, ...], options: dict) -> None:

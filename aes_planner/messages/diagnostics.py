@@ -7,7 +7,18 @@ import math
 from dataclasses import dataclass, field
 from typing import ClassVar
 
-from aes_planner.messages.codec import Enum, List, Map, Message, MessageError, Scalar, Str, Struct, register_message
+from aes_planner.messages.codec import (
+    Enum,
+    List,
+    Map,
+    Message,
+    MessageError,
+    Scalar,
+    Str,
+    Struct,
+    register_message,
+    text_cap,
+)
 from aes_planner.messages.fields import check_finite, check_name_map, check_sequence, check_text
 
 __all__ = ["Diagnostics", "FramingRegion", "PlannerRequest", "REQUEST_KINDS", "MAX_DIAG_ENTRIES", "MAX_REGIONS"]
@@ -24,11 +35,14 @@ class FramingRegion:
     or the image file name as ``cameras.json`` has it): ``suggest --keep FRAME:X0,Y0,X1,Y1``."""
 
     FIELDS: ClassVar[tuple] = (
-        Str("frame", 256),
-        Scalar("x0", "f64"),
-        Scalar("y0", "f64"),
-        Scalar("x1", "f64"),
-        Scalar("y1", "f64"),
+        Str("frame", 256, doc="the input frame the box is drawn on: its frame id, or its image file name"),
+        Scalar("x0", "f64", doc="the box's left edge, pixels of that frame (x right, y down)"),
+        Scalar("y0", "f64", doc="its top edge"),
+        Scalar("x1", "f64", doc="its right edge, > x0"),
+        Scalar("y1", "f64", doc="its bottom edge, > y0"),
+    )
+    WIRE_RULES: ClassVar[tuple[str, ...]] = (
+        "a region with an empty `frame`, `x1 <= x0` or `y1 <= y0`, or `x0` or `y0` below 0",
     )
 
     frame: str
@@ -38,7 +52,7 @@ class FramingRegion:
     y1: float
 
     def __post_init__(self):
-        self.frame = check_text(self.frame, "FramingRegion.frame", 256)
+        self.frame = check_text(self.frame, "FramingRegion.frame", text_cap(self.FIELDS, "frame"))
         if not self.frame:
             raise MessageError("FramingRegion.frame is empty; name the input frame the box is drawn on")
         for name in ("x0", "y0", "x1", "y1"):
@@ -72,12 +86,15 @@ class Diagnostics(Message):
     SCHEMA_VERSION: ClassVar[int] = 1
     MAX_BYTES: ClassVar[int] = 64 << 10
     FIELDS = (
-        Scalar("stamp_s", "f64"),
-        Scalar("sequence", "u64"),
-        Str("node", 256),
-        Str("state", 1024),
-        Map("counters", Scalar("value", "u64"), MAX_DIAG_ENTRIES),
-        Map("values", Scalar("value", "f64"), MAX_DIAG_ENTRIES),
+        Scalar("stamp_s", "f64", doc="the node's step time when it reported"),
+        Scalar("sequence", "u64", doc="the node's diagnostics counter: 1 for its first report, +1 for each"),
+        Str("node", 256, doc="the node's id"),
+        Str("state", 1024, doc="its state word"),
+        Map("counters", Scalar("value", "u64"), MAX_DIAG_ENTRIES, doc="named counts since the node started"),
+        Map("values", Scalar("value", "f64"), MAX_DIAG_ENTRIES, doc="named figures (`latency_p50_s`, ...)"),
+    )
+    WIRE_RULES: ClassVar[tuple[str, ...]] = (
+        "a `counters` or `values` key that is not 1-64 characters of `A-Z a-z 0-9 _ . : / -`",
     )
 
     stamp_s: float
@@ -89,8 +106,8 @@ class Diagnostics(Message):
 
     def __post_init__(self):
         self.stamp_s = check_finite(self.stamp_s, "Diagnostics.stamp_s")
-        self.node = check_text(self.node, "Diagnostics.node", 64)
-        self.state = check_text(self.state, "Diagnostics.state", 256)
+        self.node = check_text(self.node, "Diagnostics.node", text_cap(self.FIELDS, "node"))
+        self.state = check_text(self.state, "Diagnostics.state", text_cap(self.FIELDS, "state"))
         self.counters = check_name_map(self.counters, "Diagnostics.counters", int, MAX_DIAG_ENTRIES)
         self.values = check_name_map(self.values, "Diagnostics.values", float, MAX_DIAG_ENTRIES)
         self.sequence = check_sequence(self.sequence, "Diagnostics.sequence")
@@ -101,7 +118,8 @@ class Diagnostics(Message):
 class PlannerRequest(Message):
     """What ``planner/request`` carries.
 
-    * ``kind``: ``"suggest"`` (publish a suggestion now, and reply with it), ``"reset"``
+    * ``kind``: ``"suggest"`` (a suggestion now: a passive planner searches at once, the active
+      loop re-publishes its newest), ``"reset"``
       (forget the field and start over), ``"stop"`` (end the active loop and settle).
     * ``max_candidates``: how many candidates to return; 0 = the planner's default.
     * ``set_framing`` (schema 2): when true, ``keep`` and ``avoid`` replace the framing the planner
@@ -118,15 +136,54 @@ class PlannerRequest(Message):
     SCHEMA_VERSION: ClassVar[int] = 2
     MAX_BYTES: ClassVar[int] = 16 << 10
     FIELDS = (
-        Enum("kind", REQUEST_KINDS),
-        Scalar("max_candidates", "u32"),
-        Scalar("stamp_s", "f64"),
-        Scalar("sequence", "u64"),
-        Scalar("set_framing", "bool", since=2, default=False),
-        List("keep", Struct("region", FramingRegion), "u8", MAX_REGIONS, since=2, default=[]),
-        List("avoid", Struct("region", FramingRegion), "u8", MAX_REGIONS, since=2, default=[]),
-        Scalar("keep_margin", "f64", since=2, default=0.05),
+        Enum(
+            "kind",
+            REQUEST_KINDS,
+            doc="`suggest`: a suggestion on `planner/suggestion` now. A passive planner (`active: false`) searches "
+            "its newest field at once; the active loop's planner does not start a search (it searches on its own "
+            "schedule) and publishes its newest suggestion again, the same message with the same `sequence` (nothing "
+            "before its first). `reset`: forget the field and start over; `stop`: end the active loop and settle",
+        ),
+        Scalar(
+            "max_candidates", "u32", doc="at most 64; 0 = the planner's default (the planner node does not use it yet)"
+        ),
+        Scalar("stamp_s", "f64", doc="when it was sent"),
+        Scalar("sequence", "u64", doc="the sender's request counter"),
+        Scalar(
+            "set_framing",
+            "bool",
+            since=2,
+            default=False,
+            doc="true: `keep` and `avoid` replace the framing the planner applies to its searches (both empty: no "
+            "framing); false: they are ignored",
+        ),
+        List(
+            "keep",
+            Struct("region", FramingRegion),
+            "u8",
+            MAX_REGIONS,
+            since=2,
+            default=[],
+            doc="subjects every suggestion holds whole",
+        ),
+        List(
+            "avoid",
+            Struct("region", FramingRegion),
+            "u8",
+            MAX_REGIONS,
+            since=2,
+            default=[],
+            doc="regions suggestions steer away from",
+        ),
+        Scalar(
+            "keep_margin",
+            "f64",
+            since=2,
+            default=0.05,
+            doc="the kept subjects stay this fraction of the frame inside every edge, in [0, 0.4)",
+        ),
     )
+    WIRE_RULES: ClassVar[tuple[str, ...]] = ("`max_candidates` above 64, or `keep_margin` outside [0, 0.4)",)
 
     kind: str = "suggest"
     max_candidates: int = 0

@@ -7,7 +7,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from aes_planner.messages.codec import Array, Message, MessageError, Scalar, Str, register_message
+from aes_planner.messages.codec import Array, Message, MessageError, Scalar, Str, register_message, text_cap
 from aes_planner.messages.fields import check_finite, check_pose, check_sequence, check_text
 
 __all__ = ["DroneState"]
@@ -39,19 +39,23 @@ class DroneState(Message):
     SCHEMA_VERSION: ClassVar[int] = 1
     MAX_BYTES: ClassVar[int] = 4096
     FIELDS = (
-        Scalar("stamp_s", "f64"),
-        Scalar("sequence", "u64"),
-        Array("cam2world", "f8", (4, 4)),
-        Array("position_m", "f8", (3,)),
-        Array("velocity_m_s", "f8", (3,)),
-        Array("attitude_wxyz", "f8", (4,)),
-        Scalar("gimbal_pitch_rad", "f64"),
-        Scalar("gimbal_yaw_rad", "f64"),
-        Str("mode", 256),
+        Scalar("stamp_s", "f64", doc="when the telemetry it comes from arrived"),
+        Scalar("sequence", "u64", doc="the bridge's state counter: 1 for its first, +1 for each published"),
+        Array("cam2world", "f8", (4, 4), exact=True, doc="the camera's pose (vehicle, gimbal, mount), OpenCV axes"),
+        Array("position_m", "f8", (3,), exact=True, doc="the vehicle's position, ENU"),
+        Array("velocity_m_s", "f8", (3,), exact=True, doc="ENU"),
+        Array("attitude_wxyz", "f8", (4,), exact=True, doc="body (FLU) in ENU, quaternion w x y z"),
+        Scalar("gimbal_pitch_rad", "f64", doc="positive up, from the horizon"),
+        Scalar("gimbal_yaw_rad", "f64", doc="from the vehicle's heading, positive left"),
+        Str("mode", 256, doc="flight mode (`OFFBOARD`, `AUTO.LOITER`, `GUIDED`, ...)"),
         Scalar("armed", "bool"),
-        Scalar("system_id", "u32"),
-        Str("link", 16),
-        Str("status", 1024),
+        Scalar("system_id", "u32", doc="the vehicle's MAVLink system id, 0-255"),
+        Str("link", 16, doc="`ok` or `lost`"),
+        Str("status", 1024, doc="the bridge's state word (`flying`, `waiting_for_offboard`, `link_lost`, ...)"),
+    )
+    WIRE_RULES: ClassVar[tuple[str, ...]] = (
+        "a `cam2world` that is not rigid (as `PosedFrame.cam2world`)",
+        "a `system_id` above 255, or a `link` other than `ok` and `lost`",
     )
 
     stamp_s: float
@@ -84,6 +88,6 @@ class DroneState(Message):
             raise MessageError(f"DroneState.system_id must be 0-255, got {self.system_id}")
         if self.link not in ("ok", "lost"):
             raise MessageError(f"DroneState.link must be 'ok' or 'lost', got {self.link!r}")
-        self.mode = check_text(self.mode, "DroneState.mode", 64)
-        self.status = check_text(self.status, "DroneState.status", 256)
+        self.mode = check_text(self.mode, "DroneState.mode", text_cap(self.FIELDS, "mode"))
+        self.status = check_text(self.status, "DroneState.status", text_cap(self.FIELDS, "status"))
         self.sequence = check_sequence(self.sequence, "DroneState.sequence")

@@ -14,7 +14,6 @@ from aes_planner.messages.codec import MessageError
 __all__ = ["check_finite", "check_optional_finite", "check_sequence", "check_text", "check_name_map"]
 
 MAX_SEQUENCE = (1 << 63) - 1
-MAX_TEXT = 256
 _NAME = re.compile(r"^[A-Za-z0-9_.:/\-]{1,64}$")
 
 
@@ -53,12 +52,15 @@ def check_sequence(value, name: str) -> int:
     return v
 
 
-def check_text(value, name: str, max_len: int = MAX_TEXT) -> str:
-    """A printable string (no control characters: echo prints it to terminals) of bounded length."""
+def check_text(value, name: str, max_bytes: int) -> str:
+    """Printable text (no control or separator characters but the space: Python's
+    ``str.isprintable``; echo prints it to terminals) of at most ``max_bytes`` bytes of UTF-8, the
+    cap of the field's :class:`~aes_planner.messages.codec.Str` (:func:`~aes_planner.messages.codec.text_cap`)."""
     if not isinstance(value, str):
         raise MessageError(f"{name} must be a string, got {type(value).__name__}")
-    if len(value) > max_len:
-        raise MessageError(f"{name} is {len(value)} characters; the cap is {max_len}")
+    size = len(value.encode("utf-8", "surrogatepass"))
+    if size > max_bytes:
+        raise MessageError(f"{name} is {size} bytes of UTF-8; the cap is {max_bytes}")
     if value and not value.isprintable():
         raise MessageError(f"{name} contains control characters; use printable text")
     return value

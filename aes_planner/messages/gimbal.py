@@ -9,7 +9,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
-from aes_planner.messages.codec import Enum, Fixed, List, Message, MessageError, Optional, Scalar, Str, register_message
+from aes_planner.geometry.plausible import MAX_JOINT_RAD
+from aes_planner.messages.codec import (
+    Enum,
+    Fixed,
+    List,
+    Message,
+    MessageError,
+    Optional,
+    Scalar,
+    Str,
+    register_message,
+    text_cap,
+)
 from aes_planner.messages.fields import check_finite, check_joint, check_optional_finite, check_sequence, check_text
 
 __all__ = ["GimbalCommand", "GimbalState", "COMMAND_KINDS"]
@@ -35,13 +47,19 @@ class GimbalCommand(Message):
     SCHEMA_VERSION: ClassVar[int] = 1
     MAX_BYTES: ClassVar[int] = 4096
     FIELDS = (
-        Enum("kind", COMMAND_KINDS),
-        Scalar("pan_rad", "f64"),
+        Enum(
+            "kind",
+            COMMAND_KINDS,
+            doc="`move`: to pan/tilt; `stop`: hold where it is now; `reboot`: reboot the servos to clear a latched "
+            "hardware error",
+        ),
+        Scalar("pan_rad", "f64", doc="goal; 0 for stop and reboot; the gimbal clamps it to its joint limits"),
         Scalar("tilt_rad", "f64"),
-        Optional(Scalar("speed_rad_s", "f64")),
-        Scalar("stamp_s", "f64"),
-        Scalar("sequence", "u64"),
+        Optional(Scalar("speed_rad_s", "f64", doc="> 0; absent = the gimbal's configured profile")),
+        Scalar("stamp_s", "f64", doc="when it was sent"),
+        Scalar("sequence", "u64", doc="the sender's command counter (the planner's: 1 for its first, +1 for each)"),
     )
+    WIRE_RULES: ClassVar[tuple[str, ...]] = ("`speed_rad_s` present and <= 0",)
 
     kind: str = "move"
     pan_rad: float = 0.0
@@ -81,17 +99,24 @@ class GimbalState(Message):
     SCHEMA_VERSION: ClassVar[int] = 1
     MAX_BYTES: ClassVar[int] = 16384
     FIELDS = (
-        Scalar("pan_rad", "f64"),
+        Scalar("pan_rad", "f64", doc="present joints"),
         Scalar("tilt_rad", "f64"),
-        Scalar("goal_pan_rad", "f64"),
+        Scalar("goal_pan_rad", "f64", doc="the goal the servos move to"),
         Scalar("goal_tilt_rad", "f64"),
-        Scalar("moving", "bool"),
-        Fixed("temperature_c", Scalar("value", "f64"), 2),
-        List("hardware_error", Str("fault", 1024), "u8", MAX_FAULTS),
-        Scalar("stamp_s", "f64"),
-        Scalar("sequence", "u64"),
-        Str("status", 256),
+        Scalar("moving", "bool", doc="either joint moves or has not reached its goal"),
+        Fixed("temperature_c", Scalar("value", "f64"), 2, doc="pan, tilt motor temperatures"),
+        List(
+            "hardware_error",
+            Str("fault", 1024),
+            "u8",
+            MAX_FAULTS,
+            doc='active faults, `"joint: fault"`; the only `u8` count',
+        ),
+        Scalar("stamp_s", "f64", doc="when the servos were read"),
+        Scalar("sequence", "u64", doc="the gimbal node's state counter: 1 for its first, +1 for each published"),
+        Str("status", 256, doc="the gimbal node's state word: `ok`, `fault`, `comm_error`, `stopped`, ..."),
     )
+    WIRE_RULES: ClassVar[tuple[str, ...]] = (f"a joint or goal beyond 4 pi = {MAX_JOINT_RAD!r} rad (two turns)",)
 
     pan_rad: float
     tilt_rad: float
@@ -116,9 +141,10 @@ class GimbalState(Message):
         self.temperature_c = tuple(check_finite(t, "GimbalState.temperature_c") for t in temps)
         if not isinstance(self.hardware_error, (tuple, list)) or len(self.hardware_error) > MAX_FAULTS:
             raise MessageError(f"GimbalState.hardware_error must be a tuple of at most {MAX_FAULTS} strings")
-        self.hardware_error = tuple(check_text(f, "GimbalState.hardware_error") for f in self.hardware_error)
+        cap = text_cap(self.FIELDS, "hardware_error")
+        self.hardware_error = tuple(check_text(f, "GimbalState.hardware_error", cap) for f in self.hardware_error)
         self.sequence = check_sequence(self.sequence, "GimbalState.sequence")
-        self.status = check_text(self.status, "GimbalState.status", 64)
+        self.status = check_text(self.status, "GimbalState.status", text_cap(self.FIELDS, "status"))
 
     @classmethod
     def from_device(cls, state, *, sequence: int = 0, status: str | None = None) -> GimbalState:

@@ -9,7 +9,14 @@ from typing import ClassVar
 import numpy as np
 
 from aes_planner.geometry.camera import Intrinsics
-from aes_planner.geometry.plausible import intrinsics_problem, joint_problem, position_problem
+from aes_planner.geometry.plausible import (
+    FOV_RANGE_DEG,
+    MAX_COORDINATE_M,
+    MAX_JOINT_RAD,
+    intrinsics_problem,
+    joint_problem,
+    position_problem,
+)
 from aes_planner.messages.codec import (
     Array,
     Bytes,
@@ -20,6 +27,7 @@ from aes_planner.messages.codec import (
     Str,
     Union,
     register_message,
+    text_cap,
 )
 from aes_planner.messages.fields import check_optional_finite, check_pose, check_sequence, check_text
 
@@ -41,9 +49,13 @@ class ImageField(Union):
         super().__init__(
             "image",
             {
-                0: ("raw", (Array("pixels", "u1", (*_SIDE, 3)),)),
+                0: ("raw", (Array("pixels", "u1", (*_SIDE, 3), exact=(False, False, True)),)),
                 1: ("png", (Scalar("width", "u32"), Scalar("height", "u32"), Bytes("png", 96 << 20))),
             },
+            doc="RGB rows top to bottom. **raw**: the pixels. **png**: a PNG stream (writers write 8-bit RGB, "
+            "colour type 2; a reader converts any PNG colour type OpenCV reads to 8-bit RGB) of exactly "
+            "`width` x `height`, checked against its IHDR before it is decompressed. The bus carries raw "
+            "images; recordings carry PNG",
         )
 
     def value_of(self, msg, options: dict):
@@ -83,7 +95,7 @@ class PosedFrame(Message):
     * ``depth_m``: optional ``[H, W]`` float32 z-depth in metres; ``0`` marks pixels without a
       measurement (sky, holes). Never NaN or Inf.
     * ``stamp_s``: capture time in seconds (the sensor's clock; sim time in the simulator).
-    * ``frame_id``: a name for the frame (file stem, camera name), printable, <= 256 chars.
+    * ``frame_id``: a name for the frame (file stem, camera name), printable, at most 4096 bytes of UTF-8.
     * ``extras``: in-process side data (the simulator's instance ids); never serialised.
     * ``sequence``: the camera's frame counter (>= 0).
     * ``pan_rad``, ``tilt_rad``: the gimbal joint angles the frame was taken at, when on a rig
@@ -99,20 +111,40 @@ class PosedFrame(Message):
     MAX_BYTES: ClassVar[int] = 96 << 20
     OPTIONS: ClassVar[tuple[str, ...]] = ("image_format",)
     FIELDS = (
-        Scalar("stamp_s", "f64"),
-        Scalar("sequence", "u64"),
-        Str("frame_id"),
-        Scalar("intrinsics.fx", "f64"),
-        Scalar("intrinsics.fy", "f64"),
-        Scalar("intrinsics.cx", "f64"),
+        Scalar(
+            "stamp_s",
+            "f64",
+            doc="capture time (when the image was taken: the sensor's clock; sim time in the simulator)",
+        ),
+        Scalar("sequence", "u64", doc="the camera's frame counter: 1 for its first frame, +1 for each published"),
+        Str("frame_id", 4096, doc="a name for this image (`sim_camera/000012`), not a tf frame"),
+        Scalar("intrinsics.fx", "f64", doc="pinhole focal length in pixels, > 0"),
+        Scalar("intrinsics.fy", "f64", doc="> 0"),
+        Scalar(
+            "intrinsics.cx",
+            "f64",
+            doc="principal point in pixels, pixel centres at +0.5; the image size is the image's",
+        ),
         Scalar("intrinsics.cy", "f64"),
-        Array("cam2world", "f8", (4, 4)),
-        Optional(Scalar("pan_rad", "f64")),
+        Array("cam2world", "f8", (4, 4), exact=True, doc="the camera's pose"),
+        Optional(Scalar("pan_rad", "f64", doc="the gimbal's joints at capture, on a rig (both or neither)")),
         Optional(Scalar("tilt_rad", "f64")),
         ImageField(),
-        Optional(Array("depth_m", "f4", _SIDE)),
+        Optional(Array("depth_m", "f4", _SIDE, doc="z-depth in metres, the image's `[H, W]`; `0` = no measurement")),
     )
-
+    WIRE_RULES: ClassVar[tuple[str, ...]] = (
+        f"an image with no rows or columns, more than {MAX_IMAGE_SIDE_PX:,} pixels a side or more than "
+        f"{MAX_IMAGE_PIXELS:,} pixels in all (raw or PNG)",
+        "a PNG stream that is not one (no PNG signature, or no IHDR chunk first), whose IHDR size is not "
+        "`width` x `height`, or that does not decode",
+        "`depth_m` of another size than the image, or with a negative value",
+        "`fx` or `fy` <= 0, or giving a field of view (2 atan(W / 2 fx), 2 atan(H / 2 fy)) outside "
+        f"{FOV_RANGE_DEG[0]} to {FOV_RANGE_DEG[1]} degrees; `cx` outside [-0.5 W, 1.5 W] or `cy` outside [-0.5 H, 1.5 H]",
+        "a `cam2world` that is not rigid (the last row not `0 0 0 1` within 1e-4, the rotation not orthonormal "
+        "within 1e-4 or with determinant -1) or places the camera more than "
+        f"{MAX_COORDINATE_M:,.0f} m from the world origin along an axis",
+        f"`pan_rad` without `tilt_rad` (or the reverse), or a joint beyond 4 pi = {MAX_JOINT_RAD!r} rad (two turns)",
+    )
     image: np.ndarray
     intrinsics: Intrinsics
     cam2world: np.ndarray
@@ -163,7 +195,7 @@ class PosedFrame(Message):
             if not np.all(np.isfinite(d)) or (d < 0).any():
                 raise MessageError("PosedFrame.depth_m must be finite and >= 0 (0 = no measurement)")
             self.depth_m = d
-        self.frame_id = check_text(self.frame_id, "PosedFrame.frame_id")
+        self.frame_id = check_text(self.frame_id, "PosedFrame.frame_id", text_cap(self.FIELDS, "frame_id"))
         self.sequence = check_sequence(self.sequence, "PosedFrame.sequence")
         self.pan_rad = check_optional_finite(self.pan_rad, "PosedFrame.pan_rad")
         self.tilt_rad = check_optional_finite(self.tilt_rad, "PosedFrame.tilt_rad")

@@ -20,6 +20,7 @@ from aes_planner.messages import (
     PosedFrame,
     ViewSuggestion,
 )
+from aes_planner.messages.diagnostics import FramingRegion
 
 
 def sample_messages() -> dict:
@@ -53,7 +54,9 @@ def sample_messages() -> dict:
         "GimbalCommand": GimbalCommand("move", 0.25, -0.5, 1.5, stamp_s=1.0, sequence=9),
         "GimbalState": GimbalState(0.1, 0.2, 0.3, 0.4, True, (35.0, 36.5), ("pan: overload",), 4.0, 11, "fault"),
         "Diagnostics": Diagnostics(5.0, "planner", "exploring", {"frames_in": 10}, {"latency_p50_s": 0.12}),
-        "PlannerRequest": PlannerRequest("suggest", 3, 6.0, 1),
+        "PlannerRequest": PlannerRequest(
+            "suggest", 3, 6.0, 1, set_framing=True, keep=[FramingRegion("00003.png", 21.0, 0.0, 61.0, 36.0)]
+        ),
         "Clock": Clock(1_250_000_000, 126, {"gimbal/state": 1, "camera/frame": 1}),
         "ClockAck": ClockAck("camera", 126, 1_320_000_000, {"camera/frame": 1}),
         "DroneState": DroneState(

@@ -20,6 +20,7 @@ from aes_planner.messages.codec import (
     Str,
     Struct,
     register_message,
+    text_cap,
 )
 from aes_planner.messages.fields import (
     check_finite,
@@ -66,12 +67,17 @@ class Candidate:
     """
 
     FIELDS: ClassVar[tuple] = (
-        Array("cam2world", "f8", (4, 4)),
-        Scalar("score", "f64"),
-        Scalar("coverage", "f64"),
-        Optional(Scalar("pan_rad", "f64")),
+        Array("cam2world", "f8", (4, 4), exact=True, doc="the suggested camera pose"),
+        Scalar("score", "f64", doc="predicted aesthetic score, higher is better"),
+        Scalar("coverage", "f64", doc="fraction of the view the field covers, [0, 1]"),
+        Optional(Scalar("pan_rad", "f64", doc="the joints that reach it on a rig (both or neither)")),
         Optional(Scalar("tilt_rad", "f64")),
-        Map("terms", Scalar("value", "f64"), MAX_TERMS),
+        Map("terms", Scalar("value", "f64"), MAX_TERMS, doc="named parts of the score (`thirds`, ...)"),
+    )
+    WIRE_RULES: ClassVar[tuple[str, ...]] = (
+        "a candidate's `cam2world` that is not rigid (as `PosedFrame.cam2world`)",
+        "a candidate's `coverage` outside [0, 1], or `pan_rad` without `tilt_rad` (or the reverse)",
+        "a `terms` key that is not 1-64 characters of `A-Z a-z 0-9 _ . : / -`",
     )
 
     cam2world: np.ndarray
@@ -126,8 +132,9 @@ class Candidate:
 class ViewSuggestion(Message):
     """What ``planner/suggestion`` carries: ranked candidates, best first.
 
-    * ``stamp_s``: when the suggestion was made (the planner's clock).
-    * ``sequence``: the planner's suggestion counter.
+    * ``stamp_s``: when the search that made it began (the planner's step time; it is published
+      when the search ends, seconds later).
+    * ``sequence``: the planner's suggestion counter (1 for its first).
     * ``field_version``: the version of the aesthetic field the candidates were scored on
       (bumped on every update; two suggestions with the same version come from the same field).
     * ``candidates``: at most ``MAX_CANDIDATES`` :class:`Candidate`, best first; may be empty
@@ -143,13 +150,30 @@ class ViewSuggestion(Message):
     SCHEMA_VERSION: ClassVar[int] = 2
     MAX_BYTES: ClassVar[int] = 1 << 20
     FIELDS = (
-        Scalar("stamp_s", "f64"),
-        Scalar("sequence", "u64"),
-        Scalar("field_version", "u64"),
-        Str("frame_id"),
-        Enum("mode", MODES),
-        List("candidates", Struct("candidate", Candidate), "u32", MAX_CANDIDATES),
-        Enum("kind", SUGGESTION_KINDS, since=2, default="search"),
+        Scalar(
+            "stamp_s",
+            "f64",
+            doc="when the search that made it **began** (the planner's step time); it is published when the "
+            "search ends, seconds later (`latency_p50_s` in `planner/diagnostics`): judge a suggestion's age "
+            "by `sequence` and arrival, not by this stamp",
+        ),
+        Scalar(
+            "sequence",
+            "u64",
+            doc="the planner's suggestion counter: 1 for its first, +1 for each new one (one re-published on request keeps its number)",
+        ),
+        Scalar("field_version", "u64", doc="version of the aesthetic field that scored the candidates"),
+        Str("frame_id", 4096, doc="frame of the poses: `world`"),
+        Enum("mode", MODES, doc="`rig`: pan/tilt given; `free`: 5-DoF views for a drone"),
+        List("candidates", Struct("candidate", Candidate), "u32", MAX_CANDIDATES, doc="best first; may be empty"),
+        Enum(
+            "kind",
+            SUGGESTION_KINDS,
+            since=2,
+            default="search",
+            doc="`search`: the ranked result of a search; `waypoint`: one candidate, the pose a drone is being "
+            "sent to now, scored by the field's prediction (0 when none), free mode only",
+        ),
     )
 
     stamp_s: float
@@ -172,7 +196,7 @@ class ViewSuggestion(Message):
         self.candidates = list(self.candidates)
         self.field_version = check_sequence(self.field_version, "ViewSuggestion.field_version")
         self.sequence = check_sequence(self.sequence, "ViewSuggestion.sequence")
-        self.frame_id = check_text(self.frame_id, "ViewSuggestion.frame_id")
+        self.frame_id = check_text(self.frame_id, "ViewSuggestion.frame_id", text_cap(self.FIELDS, "frame_id"))
         if self.mode not in MODES:
             raise MessageError(f"ViewSuggestion.mode must be 'rig' or 'free', got {self.mode!r}")
         if self.kind not in SUGGESTION_KINDS:

@@ -107,7 +107,7 @@ class FrameNode(Node):
         return {"camera/frame": [self._frame(image, *posed)]}
 
     def _frame(self, image: CameraImage, cam2world: np.ndarray, joints: tuple[float, float] | None) -> PosedFrame:
-        n = self.counters["frames"]
+        n = self.counters["frames"] + 1  # the first frame is number 1, as every topic's messages
         frame = PosedFrame(
             image=image.image,
             intrinsics=self.camera.intrinsics,

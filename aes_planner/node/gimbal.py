@@ -144,7 +144,8 @@ class GimbalNode(Node):
             0,
         )
         self._pending_move: tuple[float, float] | None = None  # clamped joints the device has yet to take
-        self._seq = 0
+        self._seq = 0  # gimbal/state's counter
+        self._diag_seq = 0  # gimbal/diagnostics' own
         self._last_state_s = -math.inf
         self._last_diag_s = -math.inf
         self.last_state: GimbalState | None = None
@@ -246,8 +247,9 @@ class GimbalNode(Node):
                 out["gimbal/state"].append(state)
         if now - self._last_diag_s >= self.config.diagnostics_period_s:
             self._last_diag_s = now
+            self._diag_seq += 1
             out["gimbal/diagnostics"].append(
-                Diagnostics(now, self.node_id, self.status, self._counters(), {}, self._seq)
+                Diagnostics(now, self.node_id, self.status, self._counters(), {}, self._diag_seq)
             )
         return out
 

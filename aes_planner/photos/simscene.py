@@ -66,10 +66,13 @@ def photo_scene(
     seed: int = 0,
     camera: tuple[int, int, float] = (640, 480, 60.0),
     name: str = "photos",
+    board: str | None = None,
 ) -> dict:
     """A scene mapping: photographs (``textures``, image files; noise patterns without them) on a
     back wall, on boxes and on standing panels around :data:`SUBJECT_M`, a textured floor, soft
-    light; a drone section only to carry the camera (``width``, ``height``, ``hfov_deg``)."""
+    light; a drone section only to carry the camera (``width``, ``height``, ``hfov_deg``). ``board``
+    (a ``--board`` spec, e.g. ``chessboard:9x6:0.06``) stands a printed board on an easel in front of
+    the subject, facing the arc's middle: the metric scale for ``pose --board``."""
     rng = np.random.default_rng(seed)
     tex = [str(Path(t).resolve()) for t in textures]
     sx, sy, _ = SUBJECT_M
@@ -103,6 +106,14 @@ def photo_scene(
              "yaw_deg": 180.0 + (25.0 if j == 0 else -25.0), "material": _material(tex, k, rng)}
         )  # fmt: skip
         k += 1
+    if board is not None:
+        from aes_planner.geometry.board import parse_board
+
+        bw, bh = parse_board(board).size_m(1)
+        objects.append(
+            {"type": "quad", "name": "board", "centre_m": [sx - 1.3, sy, 0.25 + bh / 2], "size_m": [bw, bh],
+             "rpy_deg": [0.0, -15.0, 180.0], "material": {"image": f"board:{board}"}}
+        )  # fmt: skip
     w, h, hfov = camera
     return {
         "name": name,

@@ -2,7 +2,7 @@
 
 The package's own channels of the recording (:func:`aes_planner.transport.record.read_recording`)
 go through the bridge's mapping (:class:`~aes_planner.ros2.outbound.OutboundMapper`) into the
-ROS 2 topics and types of the bridge (README, "ROS 2"), serialised as ROS 2 CDR by the same IDL
+ROS 2 topics and types of the bridge (docs/guides/ros2.md), serialised as ROS 2 CDR by the same IDL
 structs the bridge puts on the wire. Each message is logged at its header stamp (its capture or
 planning time), or the recording's log time where it has none.
 

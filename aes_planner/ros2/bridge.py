@@ -273,6 +273,7 @@ class Ros2BridgeNode(Node):
 
         self.mapper = OutboundMapper(c, self.links)
         self._last_diag_s = -math.inf
+        self._diag_seq = 0  # ros2/diagnostics: 1 for the first report
         self._inbound = None
         self._framing_readers: dict = {}
         self._framing: dict[str, list] = {"keep": [], "avoid": []}  # what the last request set
@@ -406,4 +407,5 @@ class Ros2BridgeNode(Node):
                 values[f"subscribers.{key}"] = float(len(w.get_matched_subscriptions()))
             except Exception:  # a writer deleted under us (stopping): no figure
                 continue
-        return Diagnostics(now, self.node_id, state, counters, values)
+        self._diag_seq += 1
+        return Diagnostics(now, self.node_id, state, counters, values, self._diag_seq)

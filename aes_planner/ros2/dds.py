@@ -1,6 +1,7 @@
 """Joining a ROS 2 DDS domain as rmw_cyclonedds_cpp does: domain id, discovery range, QoS.
 
-* Domain: ``domain_id`` in the config, else ``ROS_DOMAIN_ID``, else 0 (0-232, as ROS 2 allows).
+* Domain: ``domain_id`` in the config, else ``ROS_DOMAIN_ID``, else the graph's domain
+  (``AES_PLANNER_DOMAIN``, ``--domain``), else 0 (0-232, as ROS 2 allows).
 * Discovery range: ``discovery_range`` in the config, else ``ROS_AUTOMATIC_DISCOVERY_RANGE``
   (``LOCALHOST``, ``SUBNET``, ``OFF``, ``SYSTEM_DEFAULT``; ``ROS_LOCALHOST_ONLY=1`` of Humble
   means ``LOCALHOST``), else **loopback**: this package's default, stricter than ROS 2's (which
@@ -96,8 +97,8 @@ def resolve_domain_id(config: DdsConfig, env: dict | None = None) -> int:
     if config.domain_id >= 0:
         return config.domain_id
     text = env.get("ROS_DOMAIN_ID", "").strip()
-    if not text:
-        return 0
+    if not text:  # the graph's domain (docs/guides/graphs.md): a bridge of graph N meets DDS domain N
+        text = env.get("AES_PLANNER_DOMAIN", "").strip() or "0"
     if not text.isdigit() or int(text) > MAX_DOMAIN_ID:
         raise DdsError(f"ROS_DOMAIN_ID must be an integer in 0..{MAX_DOMAIN_ID}, got {text!r}")
     return int(text)

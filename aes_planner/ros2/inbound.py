@@ -193,7 +193,7 @@ class Inbound:
             cam2world=self.node.links.kinematics.forward(pan, tilt),
             stamp_s=t,
             frame_id=(msg.header.frame_id or "camera")[:200],
-            sequence=self.frames,
+            sequence=self.frames + 1,
             pan_rad=pan,
             tilt_rad=tilt,
         )

@@ -340,13 +340,9 @@ def render_depth(scorer: Scorer, cam2world: np.ndarray, intrinsics: Intrinsics) 
     from aes_planner.field.common import local_world2cam
     from aes_planner.gaussians import Gaussians, rasterize
 
-    inner = getattr(scorer, "inner", scorer)
-    g = getattr(inner, "gaussians", None)
+    g, local = _reconstruction(scorer)
     if g is None or len(g) == 0:
         return None
-    local = getattr(inner, "local_frame", None)
-    if local is None and getattr(inner, "reconstruction", None) is not None:
-        local = inner.reconstruction.local_frame
     bare = Gaussians(g.means.detach(), g.quats.detach(), g.log_scales.detach(), g.opacities.detach(),
                      g.colors.detach())  # fmt: skip
     w2c = local_world2cam(torch.as_tensor(np.asarray(cam2world, dtype=np.float64)[None]), local)
@@ -414,11 +410,7 @@ class Framing:
         box's bounding rectangle inside the frame (0 when a corner is behind the camera)."""
         if not self.keep:
             return torch.ones(cam2world.shape[0], dtype=torch.float64)
-        with torch.no_grad():
-            u, v, z = project_corners(self._keep, cam2world.to(torch.float64), self.intrinsics)
-            frac = _inside_fraction(u, v)  # [B, S]
-            frac = torch.where((z > NEAR_M).all(-1), frac, torch.zeros_like(frac))
-            return frac.min(-1).values
+        return self.held_each(cam2world).min(-1).values
 
     def held_each(self, cam2world: Tensor) -> Tensor:  # [B, 4, 4] -> [B, S] in [0, 1]
         """:meth:`held` per kept subject."""
@@ -519,18 +511,23 @@ class FramedScorer(Scorer):
         return ScoreOutput(out.score + extra.to(out.score.dtype), out.coverage, terms)
 
 
-def world_gaussians(scorer: Scorer) -> tuple[np.ndarray, np.ndarray]:
-    """The Gaussian centres ``[N, 3]`` (world frame) and opacities ``[N]`` behind a field or RGB scorer."""
+def _reconstruction(scorer: Scorer):
+    """The Gaussians behind a field or RGB scorer (or one wrapping it) and their local frame."""
     inner = getattr(scorer, "inner", scorer)
-    g = getattr(inner, "gaussians", None)
-    if g is None or len(g) == 0:
-        raise FramingError(
-            f"the {getattr(inner, 'name', 'scorer')!r} scorer has no reconstruction to lift a region from; "
-            "--keep/--avoid need the field or RGB scoring of posed frames"
-        )
     local = getattr(inner, "local_frame", None)
     if local is None and getattr(inner, "reconstruction", None) is not None:
         local = inner.reconstruction.local_frame
+    return getattr(inner, "gaussians", None), local
+
+
+def world_gaussians(scorer: Scorer) -> tuple[np.ndarray, np.ndarray]:
+    """The Gaussian centres ``[N, 3]`` (world frame) and opacities ``[N]`` behind a field or RGB scorer."""
+    g, local = _reconstruction(scorer)
+    if g is None or len(g) == 0:
+        raise FramingError(
+            f"the {getattr(scorer, 'name', 'scorer')!r} scorer has no reconstruction to lift a region from; "
+            "--keep/--avoid need the field or RGB scoring of posed frames"
+        )
     means = g.means.detach().double().cpu().numpy()
     if local is not None:
         means = means + local.origin

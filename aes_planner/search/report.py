@@ -121,6 +121,7 @@ def write_report(
     tile_width: int = 192,
     scores: dict[str, Sequence[float]] | None = None,
     outlines: dict | None = None,
+    labels: dict[str, Sequence[str]] | None = None,
 ) -> Path:
     """Write the report PNG; ``renderers`` maps a row name to poses -> ``[B, H, W, 3]`` uint8;
     ``scores`` a row name to that row's own score of each suggestion (e.g. the teacher's on the
@@ -128,8 +129,11 @@ def write_report(
     (``suggest --keep/--avoid``): ``input_boxes`` [(input index, "keep"|"avoid", (x0, y0, x1, y1)
     in that image's pixels)] drawn on the inputs, and ``framing`` (a
     :class:`~aes_planner.search.framing.Framing`) whose subjects' 3D boxes are drawn on every
-    suggested view (keep green, avoid red)."""
+    suggested view (keep green, avoid red). ``labels``: a row name to its tiles' own labels, for a row
+    that does not show the suggested views themselves (``suggest`` on photos: the photo each
+    suggestion is said from); such a row gets no subject outlines."""
     scores = scores or {}
+    labels = labels or {}
     outlines = outlines or {}
     input_images = list(input_images)
     for i, kind, box in outlines.get("input_boxes", []):
@@ -142,6 +146,9 @@ def write_report(
         try:
             images = fn(poses)
         except (TypeError, ValueError, RuntimeError):
+            continue
+        if name in labels:
+            rows.append([_tile(img, size, f"{name}: {text}") for img, text in zip(images, labels[name])])
             continue
         if outlines.get("framing") is not None:
             images = [

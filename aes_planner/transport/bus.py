@@ -526,6 +526,11 @@ class Bus(ABC):
         """Send ``msg`` to the server of ``topic`` and return its reply; :class:`RequestTimeout`
         when none answers in time, :class:`RemoteError` when it answers with an error."""
 
+    def health(self) -> dict[str, int]:
+        """The backend's session state for diagnostics (the Zenoh bus: ``session_ok``,
+        ``session_losses``, ``last_outage_ms``); nothing for a bus that cannot lose one."""
+        return {}
+
     @abstractmethod
     def topics(self) -> list[TopicInfo]:
         """The topics this bus knows of (declared publishers and subscribers)."""

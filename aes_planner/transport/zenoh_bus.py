@@ -5,19 +5,38 @@ Key space (``P`` = the configured prefix, ``aes`` by default)::
     P/<topic>                         data samples (attachment: "<publisher id>:<sequence>")
     P/@latched/<topic>                queryable of each latched publisher: its last sample
     P/@srv/<topic>                    queryable of a request/reply server
-    P/@meta/pub/<Type>/<L>/<id>/<topic>   liveliness token per publisher (L = 1 if latched)
+    P/@meta/pub/<Type>/<L>/<id>.g<N>/<topic>   liveliness token per publisher (L = 1 if latched;
+                                      N: the bus's session generation, see Liveness)
     P/@meta/sub/<id>/<topic>          liveliness token per subscription
+    P/@hub/<id>                       heartbeat of a hub (a bus listening on a fixed port)
 
 ``@`` chunks are verbatim in Zenoh: ``P/**`` (echo, record) sees data only.
 
 Latched topics: a subscription watches the liveliness tokens of latched publishers of its topic
-(with history, so ones that exist already count); each time one appears it asks
-``P/@latched/<topic>`` for the last sample. That query can be answered before the new
-subscription's route reaches the publisher, and a sample put in between would be lost to it, so a
-latched publisher also watches the subscription tokens of its topic and puts its last sample again
-when one appears (the token follows the subscriber's declaration, so the route exists by then). A
-sample is delivered once: the subscription keeps the last sequence seen per publisher id and drops
-repeats. A publisher that restarts has a new id.
+(with history, so ones that exist already count); for each one that appears it asks
+``P/@latched/<topic>`` for the last sample, and asks again (0.05 s, doubling to 1 s) until that
+publisher answers or its token goes: a query sent before the queryable's route reaches the asking
+session goes unanswered (a fresh peer session answered 3 of 10 such queries), so the catch-up is
+a mechanism, not a matter of timing. A latched publisher answers every query, with an empty
+sample when it has published nothing yet ("reached, nothing to catch up"). A sample put between
+the answer and the new subscription's route would be lost to it, so a latched publisher also
+watches the subscription tokens of its topic and puts its last sample again when one appears
+(the token follows the subscriber's declaration, so the route exists by then). A sample is
+delivered once: the subscription keeps the last sequence seen per publisher id and drops repeats.
+A publisher that restarts has a new id.
+
+Liveness: a bus listening on a fixed port (a graph's hub) puts a heartbeat on ``P/@hub/<id>``
+every :data:`HEARTBEAT_PERIOD_S`; a bus that connects to one watches them (in a ring buffer Zenoh
+fills on its own threads, so a busy interpreter does not look like a dead link). After
+:data:`STALL_AFTER_S` without one, the bus reports the session stalled (a warning,
+``session_ok: 0`` and ``session_losses`` in :meth:`ZenohBus.health`, which the node runner adds to
+every node's diagnostics) and says when heartbeats are back and after how long. A link that is
+only stalled is left to Zenoh, which delivers what was queued once it resumes. A session that is
+wedged (closed under the bus, its link to the hub gone and not connected again within
+:data:`REOPEN_AFTER_S`, or silent past its lease) is replaced: a new session, every publisher,
+subscription, server and token declared again (publisher ids and sequences kept, so nothing is
+delivered twice) and the latched topics caught up; retried, backing off to
+:data:`MAX_REOPEN_PERIOD_S`, until heartbeats come back.
 
 Threads: Zenoh calls our callbacks on its own threads; they only append bytes to a bounded
 per-subscription inbox (keep-last: the oldest are dropped and counted) and wake the dispatcher
@@ -30,11 +49,13 @@ buses left open).
 from __future__ import annotations
 
 import atexit
+import heapq
 import itertools
 import json
 import logging
 import os
 import threading
+import time
 import uuid
 import weakref
 from collections import deque
@@ -53,9 +74,9 @@ from aes_planner.transport.bus import (
     TransportError,
     validate_topic,
 )
-from aes_planner.transport.config import DEFAULT_PORT, ZENOH_ROUTER_PORT, ZenohConfig
+from aes_planner.transport.config import DEFAULT_PORT, MAX_DOMAIN, ZENOH_ROUTER_PORT, ZenohConfig
 
-__all__ = ["ZenohBus", "zenoh_config"]
+__all__ = ["ZenohBus", "port_holder", "zenoh_config"]
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +86,15 @@ _OPEN_BUSES: weakref.WeakSet = weakref.WeakSet()
 # network cut hits; with 30 s, 100 % of a 25 Hz reliable stream crossed a 15 s cut (with 10 s,
 # everything from the cut's start was lost). A machine that vanishes is noticed 30 s late.
 HUB_LEASE_MS = 30_000
+#: A hub's heartbeat period, and how long a connected bus waits without one before it reports the
+#: session stalled, then opens a new one (see the module docstring, Liveness).
+HEARTBEAT_PERIOD_S = 0.2
+STALL_AFTER_S = 1.5
+REOPEN_AFTER_S = 3.0
+PEER_LEASE_MS = 10_000  # Zenoh's default link lease, which node processes and tools keep
+MAX_REOPEN_PERIOD_S = 8.0
+#: A latched catch-up query is repeated after this long, doubling up to the second figure.
+CATCH_UP_RETRY_S = (0.05, 1.0)
 
 
 def zenoh_config(cfg: ZenohConfig) -> zenoh.Config:
@@ -108,17 +138,63 @@ def _port_taken(endpoint: str) -> bool:
     return False
 
 
+def port_holder(port: int) -> str:
+    """``"pid N (command line)"`` of the process listening on TCP ``port`` on this machine, or ``""``
+    when that cannot be told (another user's process, no /proc): read from /proc/net/tcp{,6} and
+    the processes' open sockets, as ``ss -ltnp`` does."""
+    inodes = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        try:
+            with open(table) as f:
+                next(f, None)
+                for line in f:
+                    cols = line.split()
+                    if len(cols) > 9 and cols[3] == "0A" and int(cols[1].rpartition(":")[2], 16) == port:
+                        inodes.add(f"socket:[{cols[9]}]")
+        except (OSError, ValueError):
+            continue
+    if not inodes:
+        return ""
+
+    def holds(pid: str) -> bool:
+        try:
+            fds = os.listdir(f"/proc/{pid}/fd")
+        except OSError:  # gone, or another user's
+            return False
+        for fd in fds:
+            try:
+                if os.readlink(f"/proc/{pid}/fd/{fd}") in inodes:
+                    return True
+            except OSError:  # closed meanwhile
+                continue
+        return False
+
+    for pid in sorted((p for p in os.listdir("/proc") if p.isdigit()), key=int):
+        if holds(pid):
+            try:
+                with open(f"/proc/{pid}/cmdline", "rb") as f:
+                    cmd = f.read().replace(b"\0", b" ").decode("utf-8", "replace")
+            except OSError:
+                cmd = "?"
+            return f"pid {pid} ({' '.join(cmd.split())[:160]})"
+    return ""
+
+
 def _taken_hint(endpoints: list[str]) -> str:
     ports = {_split_endpoint(ep)[2] for ep in endpoints}
-    who = "another program holds the port (another `aes-planner launch --processes`?"
+    holders = [h for h in (port_holder(p) for p in sorted(ports)) if h]
+    who = f"held by {', '.join(holders)}" if holders else "another program holds the port"
+    who += " (the hub of another graph: an `aes-planner launch --processes` in this domain?"
     if ZENOH_ROUTER_PORT in ports:
         who += (
             f" {ZENOH_ROUTER_PORT} is also the port of a Zenoh router: zenohd, ROS 2's rmw_zenohd "
             "(`ros2 run rmw_zenoh_cpp rmw_zenohd`) or a zenoh-bridge"
         )
+    domains = [DEFAULT_PORT - p for p in ports if 0 <= DEFAULT_PORT - p <= MAX_DOMAIN]
+    where = f"domain {domains[0]}'s hub port" if domains else "that port"
     return (
-        f"{who}); stop it, or choose another port with --listen tcp/HOST:PORT "
-        f"(the default is {DEFAULT_PORT}); `ss -ltnp` shows which process holds it"
+        f"{who}); stop it, or run this graph in another domain with --domain N (or AES_PLANNER_DOMAIN=N: "
+        f"{where} is taken; hub port = {DEFAULT_PORT} - N), or choose a port with --listen tcp/HOST:PORT"
     )
 
 
@@ -145,6 +221,7 @@ class _Inbox:
         self.sub = sub
         self.items: deque = deque()
         self.seen: dict[str, int] = {}  # publisher id -> last sequence delivered
+        self.latched_pubs: set[str] = set()  # ids of the latched publishers whose token is alive
 
 
 def _zenoh_timeout(err) -> bool:
@@ -155,6 +232,20 @@ def _zenoh_timeout(err) -> bool:
     return err.payload.to_bytes() == b"Timeout"
 
 
+def _pub_id(token_key: str, prefix: str) -> str:
+    """The publisher id in a publisher token's key (``P/@meta/pub/<Type>/<L>/<id>.g<N>/<topic>``)."""
+    parts = token_key[len(prefix) + len("/@meta/pub/") :].split("/")
+    return parts[2].partition(".g")[0] if len(parts) > 2 else ""
+
+
+def _split_attachment(att: bytes) -> tuple[str, int | None]:
+    pub_id, _, seq_text = att.decode("ascii", "replace").rpartition(":")
+    try:
+        return pub_id, int(seq_text)
+    except ValueError:
+        return pub_id, None
+
+
 class ZenohBus(Bus):
     """One Zenoh session; one per process is plenty (nodes of a process may share it)."""
 
@@ -162,15 +253,7 @@ class ZenohBus(Bus):
         super().__init__()
         self.config = config or ZenohConfig()
         self.prefix = self.config.prefix
-        try:
-            self.session = zenoh.open(zenoh_config(self.config))
-        except zenoh.ZError as exc:
-            taken = [ep for ep in self.config.listen if _port_taken(ep)]
-            if taken:
-                raise TransportError(f"cannot listen on {', '.join(taken)}: {_taken_hint(taken)}") from None
-            raise TransportError(
-                f"could not open a Zenoh session ({_first_line(exc)}); check the listen/connect endpoints"
-            ) from None
+        self.session = self._open_session()
         _warn_router_port(self.config)
         self.id = f"{os.getpid()}-{uuid.uuid4().hex[:8]}"
         self._lock = threading.RLock()
@@ -186,12 +269,53 @@ class ZenohBus(Bus):
         self._seq: dict[int, int] = {}
         self._stop = False
         self._counter = itertools.count(1)
+        # liveness (module docstring): a hub beats, a bus that connects to one watches
+        self.generation = 0  # bumped by each new session
+        self.session_losses = 0
+        self.session_ok = True
+        self.last_outage_s = 0.0
+        self.heartbeats_heard = 0
+        self._beats = any(_split_endpoint(ep)[2] != 0 for ep in self.config.listen)
+        self._watches = bool(self.config.connect)
+        self._own: list = []  # the heartbeat's publisher and subscriber of the current session
+        self._hub_zids: set[str] = set()  # Zenoh ids of the hubs heard
+        self._heard = None  # RingChannel handler of the hubs' heartbeats
+        self._declare_liveness()
+        self._catch_ups: list = []  # heap of (due_s, n, inbox, pub_id, attempt)
+        self._catch_up_wake = threading.Condition()
         self._thread = threading.Thread(target=self._dispatch, name="aes-zenoh-dispatch", daemon=True)
         self._thread.start()
+        self._catch_up_thread = threading.Thread(target=self._catch_up_loop, name="aes-zenoh-catch-up", daemon=True)
+        self._catch_up_thread.start()
+        self._watch_thread = None
+        if self._beats or self._watches:
+            self._watch_thread = threading.Thread(target=self._watch, name="aes-zenoh-watch", daemon=True)
+            self._watch_thread.start()
         _OPEN_BUSES.add(self)
+
+    def _open_session(self):
+        try:
+            return zenoh.open(zenoh_config(self.config))
+        except zenoh.ZError as exc:
+            taken = [ep for ep in self.config.listen if _port_taken(ep)]
+            if taken:
+                raise TransportError(f"cannot listen on {', '.join(taken)}: {_taken_hint(taken)}") from None
+            raise TransportError(
+                f"could not open a Zenoh session ({_first_line(exc)}); check the listen/connect endpoints"
+            ) from None
 
     def _key(self, topic: str, space: str = "") -> str:
         return f"{self.prefix}/{space}/{topic}" if space else f"{self.prefix}/{topic}"
+
+    def health(self) -> dict[str, int]:
+        """The session's state for diagnostics: ``session_ok`` (0 while stalled or lost),
+        ``session_losses`` (so far) and ``last_outage_ms`` (the last loss, from the last heartbeat
+        heard to the first one heard again)."""
+        return {
+            "session_ok": int(self.session_ok),
+            "session_losses": self.session_losses,
+            "last_outage_ms": int(round(self.last_outage_s * 1000)),
+        }
 
     # -- declarations ----------------------------------------------------------------------------
 
@@ -199,7 +323,7 @@ class ZenohBus(Bus):
         congestion = zenoh.CongestionControl.BLOCK if pub.reliable else zenoh.CongestionControl.DROP
         z_pub = self.session.declare_publisher(self._key(pub.topic), congestion_control=congestion)
         handles: list = [z_pub]
-        pub_id = f"{self.id}-{next(self._counter)}"
+        pub_id = getattr(pub, "_zenoh_id", None) or f"{self.id}-{next(self._counter)}"
         pub._zenoh_id = pub_id  # type: ignore[attr-defined]
         if pub.latched:
             handles.append(
@@ -214,18 +338,19 @@ class ZenohBus(Bus):
                 )
             )
         token_key = self._key(
-            f"{pub.msg_type.TYPE_NAME}/{int(pub.latched)}/{pub_id}/{pub.topic}",
+            f"{pub.msg_type.TYPE_NAME}/{int(pub.latched)}/{pub_id}.g{self.generation}/{pub.topic}",
             "@meta/pub",
         )
         handles.append(self.session.liveliness().declare_token(token_key))
         with self._lock:
             self._pubs[id(pub)] = pub
             self._handles[id(pub)] = handles
-            self._seq[id(pub)] = 0
+            self._seq.setdefault(id(pub), 0)
         pub._z_pub = z_pub  # type: ignore[attr-defined]
 
     def _declare_subscription(self, sub: Subscription) -> None:
-        inbox = _Inbox(sub)
+        with self._lock:
+            inbox = self._inboxes.get(id(sub)) or _Inbox(sub)
         key = self._key(sub.topic)
         prefix_len = len(self.prefix) + 1
 
@@ -240,16 +365,14 @@ class ZenohBus(Bus):
         if sub.catch_up:
             handles.append(
                 self.session.liveliness().declare_subscriber(
-                    watch,
-                    lambda s, inbox=inbox: (
-                        self._post(self._catch_up, inbox) if s.kind == zenoh.SampleKind.PUT else None
-                    ),
-                    history=True,
+                    watch, lambda s, inbox=inbox: self._latched_token(inbox, s), history=True
                 )
             )
         if not sub.raw:
             handles.append(
-                self.session.liveliness().declare_token(self._key(f"{self.id}-{id(sub)}/{sub.topic}", "@meta/sub"))
+                self.session.liveliness().declare_token(
+                    self._key(f"{self.id}-{id(sub)}.g{self.generation}/{sub.topic}", "@meta/sub")
+                )
             )
         with self._lock:
             self._subs[id(sub)] = sub
@@ -292,10 +415,13 @@ class ZenohBus(Bus):
             att = f"{pub._zenoh_id}:{seq}".encode()  # type: ignore[attr-defined]
             if pub.latched:
                 self._latched[id(pub)] = (data, att)
+            z_pub = pub._z_pub  # type: ignore[attr-defined]
         try:
-            pub._z_pub.put(data, attachment=att)  # type: ignore[attr-defined]
+            z_pub.put(data, attachment=att)
         except zenoh.ZError as exc:
-            raise TransportError(f"{pub.topic}: publish failed: {exc}") from None
+            # the session is gone under us (its link lost for good): the liveness watch replaces it;
+            # the node goes on, and a latched value is kept for the catch-up
+            log.log(logging.WARNING if self.session_ok else logging.DEBUG, "%s: not published: %s", pub.topic, exc)
 
     def _repeat_latched(self, pub: Publisher) -> None:
         with self._lock:
@@ -309,10 +435,12 @@ class ZenohBus(Bus):
             log.debug("%s: repeating the latched sample failed: %s", pub.topic, exc)
 
     def _answer_latched(self, pub: Publisher, query) -> None:
+        """Every query gets an answer: the last sample, or an empty one ("reached, nothing yet")."""
         try:
-            last = self._latched.get(id(pub))
-            if last is not None:
-                query.reply(self._key(pub.topic, "@latched"), last[0], attachment=last[1])
+            last = self._latched.get(id(pub)) or (b"", f"{pub._zenoh_id}:0".encode())  # type: ignore[attr-defined]
+            query.reply(self._key(pub.topic, "@latched"), last[0], attachment=last[1])
+        except zenoh.ZError as exc:
+            log.debug("%s: answering a catch-up failed: %s", pub.topic, exc)
         finally:
             query.drop()
 
@@ -335,21 +463,74 @@ class ZenohBus(Bus):
             self._tasks.append((fn, args))
             self._work.notify()
 
-    def _catch_up(self, inbox: _Inbox) -> None:
+    def _latched_token(self, inbox: _Inbox, sample) -> None:
+        """Zenoh's thread: a latched publisher of the subscription's topic appeared (ask it for its
+        last sample) or went (stop asking)."""
+        pub_id = _pub_id(str(sample.key_expr), self.prefix)
+        with self._catch_up_wake:
+            if sample.kind == zenoh.SampleKind.PUT:
+                inbox.latched_pubs.add(pub_id)
+                self._schedule_catch_up(inbox, pub_id, 0, 0.0)
+            else:
+                inbox.latched_pubs.discard(pub_id)
+
+    def _schedule_catch_up(self, inbox: _Inbox, pub_id: str, attempt: int, delay_s: float) -> None:
+        with self._catch_up_wake:
+            heapq.heappush(self._catch_ups, (time.monotonic() + delay_s, next(self._counter), inbox, pub_id, attempt))
+            self._catch_up_wake.notify()
+
+    def _catch_up_loop(self) -> None:
+        """Its own thread, so that a query never holds up deliveries: ask, and ask again until the
+        publisher answered or its token went (module docstring)."""
+        while True:
+            with self._catch_up_wake:
+                while not self._stop and (not self._catch_ups or self._catch_ups[0][0] > time.monotonic()):
+                    wait = self._catch_ups[0][0] - time.monotonic() if self._catch_ups else None
+                    self._catch_up_wake.wait(wait)
+                if self._stop:
+                    return
+                _, _, inbox, pub_id, attempt = heapq.heappop(self._catch_ups)
+                if inbox.sub.closed or pub_id not in inbox.latched_pubs:
+                    continue
+            try:
+                answered = self._catch_up(inbox)
+            except Exception:
+                log.exception("latched catch-up failed")
+                answered = set()
+            if pub_id not in answered:
+                lo, hi = CATCH_UP_RETRY_S
+                self._schedule_catch_up(inbox, pub_id, attempt + 1, min(hi, lo * 2**attempt))
+                if attempt == 10:
+                    log.info(
+                        "%s: latched publisher %s has not answered after 10 queries; still asking",
+                        inbox.sub.topic,
+                        pub_id,
+                    )
+
+    def _catch_up(self, inbox: _Inbox) -> set[str]:
+        """Ask the topic's latched publishers for their last samples; the ids that answered."""
         sub = inbox.sub
-        if sub.closed:
-            return
+        answered: set[str] = set()
         prefix_len = len(self.prefix) + len("/@latched/")
         try:
-            replies = self.session.get(self._key(sub.topic, "@latched"), timeout=self.config.open_timeout_s)
+            replies = self.session.get(
+                self._key(sub.topic, "@latched"),
+                timeout=min(1.0, self.config.open_timeout_s),
+                consolidation=zenoh.ConsolidationMode.NONE,  # every publisher's answer, not the newest alone
+            )
             for reply in replies:
                 if reply.ok is None:
                     continue
                 s = reply.ok
                 att = s.attachment.to_bytes() if s.attachment is not None else b""
-                self._enqueue(inbox, str(s.key_expr)[prefix_len:], s.payload.to_bytes(), att)
+                pub_id, _ = _split_attachment(att)
+                answered.add(pub_id)
+                data = s.payload.to_bytes()
+                if data:
+                    self._enqueue(inbox, str(s.key_expr)[prefix_len:], data, att)
         except zenoh.ZError as exc:
             log.debug("%s: latched catch-up failed: %s", sub.topic, exc)
+        return answered
 
     def _deliver_inbox(self, inbox: _Inbox) -> None:
         sub = inbox.sub
@@ -359,11 +540,7 @@ class ZenohBus(Bus):
                     return
                 topic, data, att = inbox.items.popleft()
             if att:
-                pub_id, _, seq_text = att.decode("ascii", "replace").rpartition(":")
-                try:
-                    seq = int(seq_text)
-                except ValueError:
-                    seq = None
+                pub_id, seq = _split_attachment(att)
                 if seq is not None and pub_id:
                     if seq <= inbox.seen.get(pub_id, 0):
                         continue  # already delivered (a latched catch-up of a sample we had)
@@ -410,6 +587,152 @@ class ZenohBus(Bus):
                         self._deliver_inbox(inbox)
                     except Exception:
                         log.exception("zenoh bus delivery failed")
+
+    # -- liveness (module docstring) ----------------------------------------------------------------
+
+    def _declare_liveness(self) -> None:
+        """The heartbeat's publisher (a hub) and subscriber (a bus that connects) on the session."""
+        self._own = []
+        if self._beats:
+            self._own.append(
+                self.session.declare_publisher(
+                    self._key(self.id, "@hub"), congestion_control=zenoh.CongestionControl.DROP, express=True
+                )
+            )
+        if self._watches:
+            sub = self.session.declare_subscriber(self._key("*", "@hub"), zenoh.handlers.RingChannel(16))
+            self._own.append(sub)
+            self._heard = sub.handler
+
+    def _heartbeat_heard(self) -> bool:
+        """Whether a hub's heartbeat (not our own) arrived since the last call; notes the hubs' ids."""
+        heard = False
+        handler = self._heard
+        while handler is not None:
+            try:
+                sample = handler.try_recv()
+            except zenoh.ZError:
+                return heard
+            if sample is None:
+                return heard
+            if not str(sample.key_expr).endswith("/" + self.id):
+                heard = True
+                self.heartbeats_heard += 1
+                self._hub_zids.add(sample.payload.to_bytes().decode("ascii", "replace"))
+
+    def _hub_linked(self) -> bool:
+        """Whether the session still has a link to a hub whose heartbeat it heard."""
+        try:
+            info = self.session.info
+            zids = {str(z) for z in info.routers_zid()} | {str(z) for z in info.peers_zid()}
+        except Exception:  # a closed session
+            return False
+        return bool(zids & self._hub_zids)
+
+    def _wedged(self, silent_s: float) -> bool:
+        """Whether a session whose hub is silent for ``silent_s`` needs a new session: when it is
+        closed, when its link to the hub is gone and Zenoh has not connected again (it retries
+        every second), or when the link stays silent past its lease (Zenoh should have closed it).
+        A link that is only stalled is left to Zenoh: it delivers what was queued when it
+        resumes, which a new session would lose."""
+        if self.session.is_closed():
+            return True
+        if silent_s > REOPEN_AFTER_S and not self._hub_linked():
+            return True
+        lease_s = (HUB_LEASE_MS if self.config.mode == "router" else PEER_LEASE_MS) / 1000
+        return silent_s > lease_s + REOPEN_AFTER_S
+
+    def _watch(self) -> None:
+        """Beat (a hub) and watch the hubs' beats (a bus that connects): report a stalled session
+        after STALL_AFTER_S, open a new one when it is wedged (:meth:`_wedged`), say when it is back."""
+        next_beat = last_tick = time.monotonic()
+        last_heard = None  # when a heartbeat was last heard (None: none yet)
+        lost_at = None
+        next_reopen = 0.0
+        reopen_period = 1.0
+        reopened = 0
+        while not self._stop:
+            time.sleep(0.05)
+            now = time.monotonic()
+            if self._beats and now >= next_beat:
+                next_beat = now + HEARTBEAT_PERIOD_S
+                try:
+                    self._own[0].put(str(self.session.zid()).encode())
+                except (zenoh.ZError, IndexError):
+                    pass
+            if not self._watches:
+                continue
+            starved = now - last_tick > STALL_AFTER_S / 2  # this thread ran late: judge nothing on it
+            last_tick = now
+            if self._heartbeat_heard():
+                if lost_at is not None:
+                    self.last_outage_s = now - lost_at
+                    log.warning(
+                        "bus session is back after %.1f s (%s)",
+                        now - lost_at,
+                        f"{reopened} new session(s)" if reopened else "the same session: nothing queued was lost",
+                    )
+                    lost_at = None
+                    reopened = 0
+                    reopen_period = 1.0
+                self.session_ok = True
+                last_heard = now
+                continue
+            if last_heard is None:
+                continue
+            if starved:
+                last_heard = max(last_heard, now - STALL_AFTER_S / 2)
+            if lost_at is None and now - last_heard > STALL_AFTER_S:
+                lost_at = last_heard
+                self.session_ok = False
+                self.session_losses += 1
+                log.warning(
+                    "bus session stalled: no heartbeat from the graph's hub (%s) for %.1f s",
+                    ", ".join(self.config.connect),
+                    now - last_heard,
+                )
+            if lost_at is not None and now >= next_reopen and self._wedged(now - lost_at):
+                self._reopen()
+                reopened += 1
+                next_reopen = time.monotonic() + reopen_period
+                reopen_period = min(MAX_REOPEN_PERIOD_S, reopen_period * 2)
+
+    def _reopen(self) -> None:
+        """A new session with everything declared again; the old one is closed in the background
+        (closing may wait on a stalled link)."""
+        try:
+            session = self._open_session()
+        except TransportError as exc:
+            log.warning("bus session: could not open a new one (%s); trying again", exc)
+            return
+        old = self.session
+        with self._lock:
+            self.generation += 1
+            self.session = session
+            entities = list(self._pubs.values()) + list(self._subs.values()) + list(self._servers.values())
+            self._handles.clear()
+        self._declare_liveness()
+        for e in entities:
+            if e.closed:
+                continue
+            try:
+                if isinstance(e, Publisher):
+                    self._declare_publisher(e)
+                elif isinstance(e, Subscription):
+                    self._declare_subscription(e)
+                else:
+                    self._declare_server(e)
+            except zenoh.ZError as exc:
+                log.warning("bus session: declaring %s again failed: %s", e.topic, exc)
+        log.warning(
+            "bus session: opened a new one (generation %d), %d declarations renewed", self.generation, len(entities)
+        )
+        threading.Thread(target=_close_quietly, args=(old,), name="aes-zenoh-close-old", daemon=True).start()
+
+    def simulate_session_loss(self) -> None:
+        """Testing hook: close the current session under the bus, as a link lost for good would
+        leave it (nothing is delivered, no error); the liveness watch has to notice and recover."""
+        _close_quietly(self.session)
 
     # -- request/reply, topics, close ---------------------------------------------------------
 
@@ -467,14 +790,29 @@ class ZenohBus(Bus):
         with self._work:
             self._stop = True
             self._work.notify_all()
-        if threading.current_thread() is not self._thread:
-            self._thread.join(timeout=5.0)
+        with self._catch_up_wake:
+            self._catch_up_wake.notify_all()
+        for t in (self._thread, self._catch_up_thread, self._watch_thread):
+            if t is not None and threading.current_thread() is not t:
+                t.join(timeout=5.0)
+        for h in self._own:
+            try:
+                h.undeclare()
+            except Exception as exc:
+                log.debug("undeclare failed: %s", exc)
         try:
             self.session.close()
         except zenoh.ZError as exc:
             log.debug("session close: %s", exc)
         _OPEN_BUSES.discard(self)
         super().close()
+
+
+def _close_quietly(session) -> None:
+    try:
+        session.close()
+    except Exception as exc:  # already closed, or its links gone
+        log.debug("closing a session: %s", exc)
 
 
 def _close_all() -> None:

@@ -3,7 +3,8 @@
 import pytest
 import torch
 
-from aes_planner.bench.search import CASES, write_pareto
+from aes_planner.bench.search import CASES
+from aes_planner.eval.search import write_pareto
 
 
 def test_pareto_plot(tmp_path):

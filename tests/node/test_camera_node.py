@@ -127,7 +127,7 @@ def test_any_camera_device_drives_the_camera_node():
     assert cam.reads == 0  # not connected: not read
     node.start()
     (frame,) = node.step({}, 1.0)["camera/frame"]
-    assert frame.frame_id == "toy/000000" and frame.sequence == 0 and frame.intrinsics == K
+    assert frame.frame_id == "toy/000001" and frame.sequence == 1 and frame.intrinsics == K
     assert frame.cam2world == pytest.approx(PanTilt(RIG).forward(0.1, 0.0))
     assert node.step({}, 1.01)["camera/frame"] == [] and cam.reads == 1  # the node's rate, not the loop's
     node.stop()
@@ -177,4 +177,4 @@ def test_sim_camera_node_publishes_through_the_device_without_extras():
     assert (frame.pan_rad, frame.tilt_rad) == pytest.approx((0.2, -0.1)) and frame.depth_m is not None
     assert frame.cam2world == pytest.approx(node.camera.kinematics.forward(0.2, -0.1))
     assert not frame.extras  # the simulator's ground truth is not part of a published frame
-    assert frame.frame_id == "sim_camera/000000" and node.counters["frames"] == 1
+    assert frame.frame_id == "sim_camera/000001" and node.counters["frames"] == 1

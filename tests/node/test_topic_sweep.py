@@ -1,7 +1,7 @@
 """Bad-input sweep of the node topics: every input topic of the gimbal, sim camera and
 sim drone nodes gets noise, a truncated message, a message of another type, an oversized one and
 extreme-but-valid values. The node keeps stepping, counts each rejection, never fails a step, and
-publishes only finite values. (The planner's topics are soaked in test_soak.py.)"""
+publishes only finite values. (The planner's topics are soaked in tests/bench/test_soak.py.)"""
 
 import time
 

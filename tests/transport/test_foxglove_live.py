@@ -218,7 +218,7 @@ def test_messages_carry_their_own_stamp_and_a_stable_camera_frame(live):
 
 
 def test_the_sdk_subprotocol_is_required():
-    """What the README tells client authors: ``foxglove.sdk.v1``; the older name gets HTTP 400."""
+    """What docs/guides/topics.md tells client authors: ``foxglove.sdk.v1``; the older name gets HTTP 400."""
     server = FoxgloveLive(port=0)
     try:
         with pytest.raises(InvalidStatus) as exc:

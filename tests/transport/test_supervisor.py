@@ -110,7 +110,10 @@ def test_a_busy_hub_port_is_a_clear_error(endpoint, capsys):
         assert main(["launch", "sim_closed_loop", "--processes", "--listen", endpoint, "--timeout", "5"]) == 2
     err = capsys.readouterr().err
     assert (
-        "another program holds the port" in err and "aes-planner launch" in err and len(err.strip().splitlines()) == 1
+        "held by pid" in err
+        and "--domain" in err
+        and "aes-planner launch" in err
+        and len(err.strip().splitlines()) == 1
     )
 
 

@@ -1,5 +1,5 @@
 """Two hosts for real: two network namespaces joined by a veth pair, each with
-its own loopback, as two machines on a cable. The graph splits as the README's multi-machine
+its own loopback, as two machines on a cable. The graph splits as docs/guides/topics.md's multi-machine
 set-up says: the rig's launch (gimbal on the servo emulator, camera) on one host joins the
 planner's launch on the other through their hubs.
 
@@ -189,7 +189,7 @@ def _launch(h: TwoHosts, ns: str, *args: str) -> subprocess.Popen:
 @pytest.mark.slow
 @pytest.mark.parametrize("cut", [False, True], ids=["steady", "cut_5s"])
 def test_the_split_graph_closes_its_loop_across_two_hosts(two_hosts, cut):
-    """The README's two-machine set-up: the planner's launch listens on its host's address, the
+    """docs/guides/topics.md's two-machine set-up: the planner's launch listens on its host's address, the
     rig's (gimbal on the servo emulator + sim camera) connects to it. The loop completes; with the
     link cut for 5 s once the gimbal has moved, it pauses and completes, the gimbal holds, every
     command the planner sent arrives once and in order, and none lies outside the joint limits."""

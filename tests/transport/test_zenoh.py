@@ -198,3 +198,65 @@ def test_a_burst_of_undecodable_samples_is_rejected_whole_and_pushes_nothing_out
     assert wait_for(lambda: sub.rejected == 10)
     assert sub.received == 1 and sub.dropped == 0 and "payload" in sub.last_error
     assert (sub.poll().image == frame.image).all()  # the accepted frame is still there
+
+
+def test_a_lost_session_is_reported_and_recovered_with_its_latched_values(zenoh_pair):
+    """The peer's session dies under it (the hook closes it, as a link lost for good): its
+    heartbeat watch reports it (``session_ok`` 0, a loss counted), opens a new session, declares
+    everything again and catches up the latched value published meanwhile; its publishers work."""
+    hub, peer = zenoh_pair
+    pub = hub.publisher("planner/suggestion", ViewSuggestion, latched=True)
+    pub.publish(ViewSuggestion(1.0, sequence=1))
+    sub = peer.subscribe("planner/suggestion", ViewSuggestion)
+    states = hub.subscribe("gimbal/state", GimbalState)
+    out = peer.publisher("gimbal/state", GimbalState)
+    assert wait_for(lambda: sub.received == 1 and peer.heartbeats_heard > 0)
+    assert peer.health() == {"session_ok": 1, "session_losses": 0, "last_outage_ms": 0}
+
+    peer.simulate_session_loss()
+    pub.publish(ViewSuggestion(2.0, sequence=2))  # while the peer is away: latched, so not lost to it
+    assert wait_for(lambda: peer.health()["session_ok"] == 0)
+    assert peer.health()["session_losses"] == 1
+    assert wait_for(lambda: peer.health()["session_ok"] == 1)
+    assert peer.health()["last_outage_ms"] > 0 and peer.generation == 1
+    assert wait_for(lambda: sub.received == 2)
+    assert [m.sequence for m in sub.take()] == [1, 2]  # each once
+
+    def crossed() -> bool:  # not latched: published until the new session's route exists
+        out.publish(GimbalState(0.25, 0, 0, 0))
+        return states.wait(0.1)
+
+    assert wait_for(crossed) and states.poll().pan_rad == 0.25
+    pub.publish(ViewSuggestion(3.0, sequence=3))
+    assert wait_for(lambda: sub.received == 3) and sub.poll().sequence == 3
+
+
+def test_a_late_joiner_gets_the_latched_value_however_loaded_the_machine(zenoh_pair, endpoint):
+    """Fresh sessions beside two busy processes: each one's catch-up query is asked again until
+    the publisher answers (a query sent before the route exists goes unanswered), never left to
+    timing. Also a latched publisher with nothing published yet answers, and stays silent."""
+    import subprocess
+    import sys
+
+    from aes_planner.transport.zenoh_bus import ZenohBus
+
+    hub, _ = zenoh_pair
+    empty = hub.publisher("t/nothing_yet", ViewSuggestion, latched=True)
+    pub = hub.publisher("planner/suggestion", ViewSuggestion, latched=True)
+    pub.publish(ViewSuggestion(1.0, sequence=7))
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
+    try:
+        for _ in range(6):
+            late = ZenohBus(ZenohConfig(connect=(endpoint,)))
+            try:
+                sub = late.subscribe("planner/suggestion", ViewSuggestion)
+                none = late.subscribe("t/nothing_yet", ViewSuggestion)
+                assert wait_for(lambda s=sub: s.received == 1), "the late joiner got nothing"
+                assert sub.poll().sequence == 7 and none.received == 0
+            finally:
+                late.close()
+    finally:
+        for p in busy:
+            p.kill()
+            p.wait()
+    assert empty.published == 0

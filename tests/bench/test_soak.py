@@ -3,7 +3,7 @@ the long form is marked slow and runs in make bench)."""
 
 import pytest
 
-from aes_planner.node.soak import OVERSIZED_MB, run_soak
+from aes_planner.bench.soak import OVERSIZED_MB, run_soak
 
 
 def check(r, duration_s):
@@ -38,7 +38,7 @@ def test_soak_long():
 
 def test_bench_node_records_the_soak_figures(wiring_recorder, monkeypatch):
     """Wiring only: which keys ``aes-planner bench node`` writes (the soak itself is tested above)."""
-    import aes_planner.node.soak as soak
+    import aes_planner.bench.soak as soak
     from aes_planner.bench import node as bench_node
 
     fake = soak.SoakResult(10.0, 300, 290, 250, 12, 6, 40, {"camera/frame": 10}, 400.0, 410.0, 0.5, 0.9, 8, 0, 0)
