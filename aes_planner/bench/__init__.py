@@ -42,6 +42,7 @@ GROUPS: dict[str, str] = {
     "node": "aes_planner.bench.node",
     "field": "aes_planner.bench.field",
     "ros2": "aes_planner.bench.ros2",
+    "transport": "aes_planner.bench.transport",
     "photos": "aes_planner.bench.photos",
     "memory": "aes_planner.bench.memory",
 }
