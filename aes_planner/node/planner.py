@@ -126,6 +126,11 @@ class PlannerNode(ActiveLoop, Node):
         self._target: Target | None = None
         self._polish_left = 0
         self._polish_scale = 0
+        self._polish_previous: Capture | None = None
+        self._climbs: list[Capture] = []
+        self._climb_budget = 0
+        self._climb_left = 0
+        self._round_from: int | None = None
         self._polish_centre: Capture | None = None
         self._fault_since: float | None = None
         self._last_diag = -math.inf

@@ -221,7 +221,7 @@ class _Inbox:
         self.sub = sub
         self.items: deque = deque()
         self.seen: dict[str, int] = {}  # publisher id -> last sequence delivered
-        self.latched_pubs: set[str] = set()  # ids of the latched publishers whose token is alive
+        self.latched_pubs: set[str] = set()  # tokens (<id>.g<N>) of the latched publishers alive
 
 
 def _zenoh_timeout(err) -> bool:
@@ -232,10 +232,11 @@ def _zenoh_timeout(err) -> bool:
     return err.payload.to_bytes() == b"Timeout"
 
 
-def _pub_id(token_key: str, prefix: str) -> str:
-    """The publisher id in a publisher token's key (``P/@meta/pub/<Type>/<L>/<id>.g<N>/<topic>``)."""
+def _pub_token(token_key: str, prefix: str) -> str:
+    """``<id>.g<N>`` of a publisher token's key (``P/@meta/pub/<Type>/<L>/<id>.g<N>/<topic>``): the
+    publisher's id and the generation of the session that declared it."""
     parts = token_key[len(prefix) + len("/@meta/pub/") :].split("/")
-    return parts[2].partition(".g")[0] if len(parts) > 2 else ""
+    return parts[2] if len(parts) > 2 else ""
 
 
 def _split_attachment(att: bytes) -> tuple[str, int | None]:
@@ -279,6 +280,7 @@ class ZenohBus(Bus):
         self._watches = bool(self.config.connect)
         self._own: list = []  # the heartbeat's publisher and subscriber of the current session
         self._hub_zids: set[str] = set()  # Zenoh ids of the hubs heard
+        self._reopen_blocked_until = 0.0  # simulate_session_loss
         self._heard = None  # RingChannel handler of the hubs' heartbeats
         self._declare_liveness()
         self._catch_ups: list = []  # heap of (due_s, n, inbox, pub_id, attempt)
@@ -466,17 +468,17 @@ class ZenohBus(Bus):
     def _latched_token(self, inbox: _Inbox, sample) -> None:
         """Zenoh's thread: a latched publisher of the subscription's topic appeared (ask it for its
         last sample) or went (stop asking)."""
-        pub_id = _pub_id(str(sample.key_expr), self.prefix)
+        token = _pub_token(str(sample.key_expr), self.prefix)
         with self._catch_up_wake:
             if sample.kind == zenoh.SampleKind.PUT:
-                inbox.latched_pubs.add(pub_id)
-                self._schedule_catch_up(inbox, pub_id, 0, 0.0)
-            else:
-                inbox.latched_pubs.discard(pub_id)
+                inbox.latched_pubs.add(token)
+                self._schedule_catch_up(inbox, token, 0, 0.0)
+            else:  # (a publisher's token of an older session may go after its new one came)
+                inbox.latched_pubs.discard(token)
 
-    def _schedule_catch_up(self, inbox: _Inbox, pub_id: str, attempt: int, delay_s: float) -> None:
+    def _schedule_catch_up(self, inbox: _Inbox, token: str, attempt: int, delay_s: float) -> None:
         with self._catch_up_wake:
-            heapq.heappush(self._catch_ups, (time.monotonic() + delay_s, next(self._counter), inbox, pub_id, attempt))
+            heapq.heappush(self._catch_ups, (time.monotonic() + delay_s, next(self._counter), inbox, token, attempt))
             self._catch_up_wake.notify()
 
     def _catch_up_loop(self) -> None:
@@ -489,17 +491,18 @@ class ZenohBus(Bus):
                     self._catch_up_wake.wait(wait)
                 if self._stop:
                     return
-                _, _, inbox, pub_id, attempt = heapq.heappop(self._catch_ups)
-                if inbox.sub.closed or pub_id not in inbox.latched_pubs:
+                _, _, inbox, token, attempt = heapq.heappop(self._catch_ups)
+                if inbox.sub.closed or token not in inbox.latched_pubs:
                     continue
             try:
                 answered = self._catch_up(inbox)
             except Exception:
                 log.exception("latched catch-up failed")
                 answered = set()
+            pub_id = token.partition(".g")[0]
             if pub_id not in answered:
                 lo, hi = CATCH_UP_RETRY_S
-                self._schedule_catch_up(inbox, pub_id, attempt + 1, min(hi, lo * 2**attempt))
+                self._schedule_catch_up(inbox, token, attempt + 1, min(hi, lo * 2**attempt))
                 if attempt == 10:
                     log.info(
                         "%s: latched publisher %s has not answered after 10 queries; still asking",
@@ -691,6 +694,8 @@ class ZenohBus(Bus):
                     ", ".join(self.config.connect),
                     now - last_heard,
                 )
+            if now < self._reopen_blocked_until:  # simulate_session_loss: the network is still away
+                continue
             if lost_at is not None and now >= next_reopen and self._wedged(now - lost_at):
                 self._reopen()
                 reopened += 1
@@ -729,9 +734,12 @@ class ZenohBus(Bus):
         )
         threading.Thread(target=_close_quietly, args=(old,), name="aes-zenoh-close-old", daemon=True).start()
 
-    def simulate_session_loss(self) -> None:
-        """Testing hook: close the current session under the bus, as a link lost for good would
-        leave it (nothing is delivered, no error); the liveness watch has to notice and recover."""
+    def simulate_session_loss(self, duration_s: float = 0.0) -> None:
+        """Testing hook (tests, ``aes-planner bench transport``): close the current session under the
+        bus, as a link lost for good leaves it (nothing delivered, no error), and let no new one
+        open for ``duration_s`` (the network is away that long); the liveness watch has to notice
+        the loss and recover."""
+        self._reopen_blocked_until = time.monotonic() + duration_s
         _close_quietly(self.session)
 
     # -- request/reply, topics, close ---------------------------------------------------------

@@ -95,3 +95,13 @@ def test_the_tools_take_the_domain(monkeypatch, capsys):
         assert "--domain: must be an integer in 0..232" in capsys.readouterr().err
     finally:
         hub.close()
+
+
+def test_the_bridge_meets_dds_in_the_graphs_domain_unless_told_otherwise():
+    pytest.importorskip("cyclonedds")
+    from aes_planner.ros2.dds import DdsConfig, resolve_domain_id
+
+    assert resolve_domain_id(DdsConfig(), {DOMAIN_ENV: "5"}) == 5
+    assert resolve_domain_id(DdsConfig(), {DOMAIN_ENV: "5", "ROS_DOMAIN_ID": "9"}) == 9  # ROS 2's own setting wins
+    assert resolve_domain_id(DdsConfig(domain_id=2), {DOMAIN_ENV: "5"}) == 2  # and the bridge's config
+    assert resolve_domain_id(DdsConfig(), {}) == 0
