@@ -3,7 +3,7 @@
 
 Decoding a small compressed file can allocate gigabytes (a "decompression bomb": a 40 kB PNG
 of 100000 x 100000 pixels). :func:`imread_bounded` reads the image size from the file header
-before decoding and refuses images above :data:`MAX_IMAGE_PIXELS`; formats whose header it does
+before decoding and refuses images above :data:`MAX_CAMERA_PIXELS`; formats whose header it does
 not read are refused too (OpenCV's own ``CV_IO_MAX_IMAGE_PIXELS`` check allows 2^30 pixels, and
 not for every codec).
 """
@@ -18,12 +18,12 @@ import cv2
 import numpy as np
 
 from aes_planner.errors import AesPlannerError
-from aes_planner.geometry.camera import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, Intrinsics
+from aes_planner.geometry.camera import MAX_CAMERA_PIXELS, MAX_CAMERA_SIDE_PX, Intrinsics
 from aes_planner.messages import PosedFrame
 
 __all__ = [
-    "MAX_IMAGE_PIXELS",
-    "MAX_IMAGE_SIDE",
+    "MAX_CAMERA_PIXELS",
+    "MAX_CAMERA_SIDE_PX",
     "ImageError",
     "check_image_size",
     "image_size",
@@ -42,11 +42,11 @@ class ImageError(AesPlannerError, ValueError):
 
 
 def check_image_size(width: int, height: int, what: str) -> None:
-    """Raise :class:`ImageError` unless ``width x height`` is within :data:`MAX_IMAGE_PIXELS` and
-    :data:`MAX_IMAGE_SIDE` (checked before anything of that size is allocated)."""
-    if width > MAX_IMAGE_SIDE or height > MAX_IMAGE_SIDE or width * height > MAX_IMAGE_PIXELS:
+    """Raise :class:`ImageError` unless ``width x height`` is within :data:`MAX_CAMERA_PIXELS` and
+    :data:`MAX_CAMERA_SIDE_PX` (checked before anything of that size is allocated)."""
+    if width > MAX_CAMERA_SIDE_PX or height > MAX_CAMERA_SIDE_PX or width * height > MAX_CAMERA_PIXELS:
         raise ImageError(
-            f"{what} is {width}x{height} pixels; at most {MAX_IMAGE_SIDE} per side and {MAX_IMAGE_PIXELS} "
+            f"{what} is {width}x{height} pixels; at most {MAX_CAMERA_SIDE_PX} per side and {MAX_CAMERA_PIXELS} "
             "in all are supported; downscale it"
         )
 
@@ -138,7 +138,7 @@ def image_size(path: Path) -> tuple[int, int] | None:
 
 def imread_bounded(path: str | Path, flags: int, what: str, error: type[AesPlannerError] = ImageError) -> np.ndarray:
     """``cv2.imread(path, flags)`` after checking that the file exists, is a format whose size can be
-    read from its header (PNG, JPEG, BMP, TIFF, WebP, PNM, GIF) and is within :data:`MAX_IMAGE_PIXELS`.
+    read from its header (PNG, JPEG, BMP, TIFF, WebP, PNM, GIF) and is within :data:`MAX_CAMERA_PIXELS`.
     Errors are ``error`` (an :class:`AesPlannerError` subclass) and start with ``what``."""
     path = Path(path)
     if not path.is_file():

@@ -46,6 +46,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 __all__ = [
+    "apply_pending_numba_threads",
     "GOMP_SPINCOUNT",
     "MAX_THREADS",
     "SuggestionJob",
@@ -99,21 +100,41 @@ def set_threads(n: int) -> None:
 def _apply_threads(n: int) -> None:
     import torch  # here, not at the top: the package imports this module before torch
 
-    if torch.get_num_threads() != n:
+    numba = _numba()
+    if numba is not None:
+        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+    else:  # the kernels are not loaded yet: they take this count when they are (apply_pending_numba_threads)
+        _local.pending_numba = n
+    if torch.get_num_threads() != n:  # after numba: starting numba's OpenMP pool resets the shared count
         torch.set_num_threads(n)
-    try:
-        import numba
-    except ImportError:  # the torch backend needs no numba
-        return
-    numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+
+
+def _numba():
+    """numba once the rasterizer's kernels are loaded, else None. Until then numba is not touched:
+    ``numba.set_num_threads`` starts numba's thread pool, and started before the kernels chose
+    their threading layer (``tbb``) it fell back to ``omp``, whose start reset torch's shared
+    OpenMP count: a count of 1 (beside a busy process) ran torch on 2 threads and numba on the
+    layer that loses most beside a busy process (docs/benchmarks.md, perf-2)."""
+    if "aes_planner.gaussians.kernels" not in sys.modules:
+        return None
+    import numba
+
+    return numba
+
+
+def apply_pending_numba_threads() -> None:
+    """Give numba the count this thread asked for before the kernels loaded (called by the
+    numba backend once they are)."""
+    n = getattr(_local, "pending_numba", None)
+    numba = _numba()
+    if n is not None and numba is not None:
+        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+        _local.pending_numba = None
 
 
 def _numba_threads() -> int | None:
-    try:
-        import numba
-    except ImportError:
-        return None
-    return numba.get_num_threads()
+    numba = _numba()
+    return None if numba is None else numba.get_num_threads()
 
 
 def available_cores() -> int:
@@ -370,10 +391,13 @@ def _restore_threads(torch_threads: int, numba_threads: int | None) -> None:
 
     if torch.get_num_threads() != torch_threads:
         torch.set_num_threads(torch_threads)
-    if numba_threads is not None:
-        import numba
-
+    numba = _numba()
+    if numba_threads is not None and numba is not None:
         numba.set_num_threads(numba_threads)
+    elif numba is not None:  # the kernels loaded during the job: back to numba's default count
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    else:
+        _local.pending_numba = None  # nothing to restore yet: the kernels keep numba's default
 
 
 def _median(values) -> float:

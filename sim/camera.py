@@ -34,7 +34,7 @@ from aes_planner.config import require, require_numbers
 from aes_planner.devices import Camera, CameraImage
 from aes_planner.errors import AesPlannerError
 from aes_planner.geometry import Intrinsics, validate_cam2world
-from aes_planner.geometry.camera import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE
+from aes_planner.geometry.camera import MAX_CAMERA_PIXELS, MAX_CAMERA_SIDE_PX
 from aes_planner.messages import PosedFrame
 from aes_planner.sim.raycast import MAX_SUPERSAMPLE, render
 from aes_planner.sim.scene import Scene
@@ -76,14 +76,14 @@ class SimCameraConfig:
         for name in ("width", "height"):
             v = getattr(self, name)
             require(
-                v is None or (isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= MAX_IMAGE_SIDE),
+                v is None or (isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= MAX_CAMERA_SIDE_PX),
                 name,
-                f"must be a number of pixels in [1, {MAX_IMAGE_SIDE}], got {v!r}",
+                f"must be a number of pixels in [1, {MAX_CAMERA_SIDE_PX}], got {v!r}",
             )
         require(
-            self.width is None or self.height is None or self.width * self.height <= MAX_IMAGE_PIXELS,
+            self.width is None or self.height is None or self.width * self.height <= MAX_CAMERA_PIXELS,
             "width",
-            f"a {self.width}x{self.height} camera is too large: at most {MAX_IMAGE_PIXELS} pixels in all",
+            f"a {self.width}x{self.height} camera is too large: at most {MAX_CAMERA_PIXELS} pixels in all",
         )
         require(
             self.hfov_deg is None or 0.0 < self.hfov_deg < 180.0,

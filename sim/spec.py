@@ -23,7 +23,7 @@ import numpy as np
 
 from aes_planner.config import from_dict, require, require_finite, tag_of, to_dict
 from aes_planner.geometry import Intrinsics, PanTilt, PanTiltConfig, rot_x, rot_y, rot_z
-from aes_planner.geometry.camera import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE
+from aes_planner.geometry.camera import MAX_CAMERA_PIXELS, MAX_CAMERA_SIDE_PX
 from aes_planner.geometry.plausible import intrinsics_problem
 from aes_planner.geometry.rig import rig_dict
 from aes_planner.platform import DroneBox
@@ -69,12 +69,12 @@ def _require_positive(values: Any, key: str) -> None:
 
 
 def _require_camera_size(width: int | None, height: int | None, base: tuple[int, int] = (1, 1)) -> None:
-    """Refuse cameras beyond :data:`~aes_planner.geometry.camera.MAX_IMAGE_PIXELS` before they allocate."""
+    """Refuse cameras beyond :data:`~aes_planner.geometry.camera.MAX_CAMERA_PIXELS` before they allocate."""
     w, h = width or base[0], height or base[1]
     require(
-        max(w, h) <= MAX_IMAGE_SIDE and w * h <= MAX_IMAGE_PIXELS,
+        max(w, h) <= MAX_CAMERA_SIDE_PX and w * h <= MAX_CAMERA_PIXELS,
         "width" if w >= h else "height",
-        f"a {w}x{h} camera is too large: at most {MAX_IMAGE_SIDE} pixels per side and {MAX_IMAGE_PIXELS} in all",
+        f"a {w}x{h} camera is too large: at most {MAX_CAMERA_SIDE_PX} pixels per side and {MAX_CAMERA_PIXELS} in all",
     )
 
 

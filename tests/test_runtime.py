@@ -115,3 +115,27 @@ def test_governor_refuses_nonsense(kw):
 
 def test_available_cores_is_positive():
     assert 1 <= available_cores() <= (os.cpu_count() or 1)
+
+
+def _fresh_threads(pin_first: bool) -> tuple[str, str, str]:
+    code = (
+        "import torch\n"
+        "from aes_planner.runtime import set_threads\n"
+        "from aes_planner.gaussians import numba_backend\n"
+        + ("set_threads(1)\nnumba_backend.warmup()\n" if pin_first else "numba_backend.warmup()\nset_threads(1)\n")
+        + "import numba\n"
+        "print(torch.get_num_threads(), numba.get_num_threads(), numba.threading_layer())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, check=True)
+    torch_threads, numba_threads, layer = out.stdout.split()
+    return torch_threads, numba_threads, layer
+
+
+def test_one_thread_set_before_the_kernels_load_holds_for_torch_and_numba_keeps_its_layer():
+    """A count set before the rasterizer's kernels load (``suggest --threads 1``, a fresh process's
+    first suggestion beside a busy one) must not start numba's pool early: that picked the ``omp``
+    layer, whose start put torch back on all cores (perf-2). Fresh processes, as a user's."""
+    early = _fresh_threads(pin_first=True)
+    late = _fresh_threads(pin_first=False)  # the kernels loaded first: the package's own layer choice
+    assert early[:2] == ("1", "1")
+    assert early[2] == late[2]

@@ -44,6 +44,7 @@ GROUPS: dict[str, str] = {
     "ros2": "aes_planner.bench.ros2",
     "transport": "aes_planner.bench.transport",
     "photos": "aes_planner.bench.photos",
+    "memory": "aes_planner.bench.memory",
 }
 
 __all__ = ["GROUPS", "Recorder", "run_groups", "time_ms", "machine_info"]
@@ -73,6 +74,18 @@ class Recorder:
             raise ValueError(f"benchmark key {key!r} must read group.case.figure")
         self.results[key] = {"value": float(value), "unit": unit, "runs": int(runs)}
         log.debug("%s = %.4g %s (runs=%d)", key, value, unit, runs)
+
+    def record_spread(self, key: str, samples: list[float], unit: str) -> float:
+        """The median of ``samples`` under ``key`` and their spread beside it (``key`` + ``_min``
+        and ``_max``: the machine is shared, a median alone hides how far runs wander); returns
+        the median."""
+        if not samples:
+            raise ValueError(f"benchmark {key!r}: no samples")
+        median = statistics.median(samples)
+        self.record(key, median, unit, len(samples))
+        self.record(f"{key}_min", min(samples), unit, len(samples))
+        self.record(f"{key}_max", max(samples), unit, len(samples))
+        return median
 
     def time(self, key: str, fn: Callable[[], Any], runs: int = 7, warmup: int = 1) -> float:
         """Time ``fn`` and record the median in ms under ``key``; returns the median."""
@@ -109,6 +122,14 @@ def _git_commit() -> str | None:
         return None
 
 
+def _load_average() -> list[float] | None:
+    """The 1, 5 and 15 minute load averages (None where the OS has none)."""
+    try:
+        return [round(v, 2) for v in os.getloadavg()]
+    except OSError:
+        return None
+
+
 def machine_info() -> dict[str, Any]:
     import torch
 
@@ -139,7 +160,10 @@ def run_groups(groups: list[str] | None, quick: bool = False) -> Recorder:
     for name in names:
         log.info("bench group %s%s", name, " (quick)" if quick else "")
         t0 = time.perf_counter()
+        load = rec.meta.setdefault("group_load_average", {})  # the machine is shared: say how busy it was
+        load[name] = {"start": _load_average()}
         importlib.import_module(GROUPS[name]).run(rec, quick)
+        load[name]["end"] = _load_average()
         rec.meta.setdefault("group_seconds", {})[name] = round(time.perf_counter() - t0, 2)
     return rec
 

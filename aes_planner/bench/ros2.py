@@ -24,7 +24,6 @@ import sys
 import time
 
 from aes_planner.bench import Recorder
-from aes_planner.graph.base import percentile
 
 _SUBSCRIBER = r"""
 import json, sys, time, threading
@@ -166,11 +165,15 @@ def run(rec: Recorder, quick: bool) -> None:
     n = 20 if quick else 100
     rec.meta["backends"]["ros2"] = "cyclonedds, loopback, subscriber in another process; in-process bus"
     lat = _measure(domain, "suggestion", suggestion, "planner/suggestion", n, 20.0)
-    rec.record("ros2.suggestion.latency_p50_ms", percentile(lat, 50), "ms", len(lat))
-    rec.record("ros2.suggestion.latency_p95_ms", percentile(lat, 95), "ms", len(lat))
+    rec.record("ros2.suggestion.latency_p50_ms", (float(np.percentile(lat, 50)) if len(lat) else 0.0), "ms", len(lat))
+    rec.record("ros2.suggestion.latency_p95_ms", (float(np.percentile(lat, 95)) if len(lat) else 0.0), "ms", len(lat))
     lat = _measure(domain, "image", frame, "camera/frame", n, 30.0)
-    rec.record("ros2.frame_640x480.latency_p50_ms", percentile(lat, 50), "ms", len(lat))
-    rec.record("ros2.frame_640x480.latency_p95_ms", percentile(lat, 95), "ms", len(lat))
+    rec.record(
+        "ros2.frame_640x480.latency_p50_ms", (float(np.percentile(lat, 50)) if len(lat) else 0.0), "ms", len(lat)
+    )
+    rec.record(
+        "ros2.frame_640x480.latency_p95_ms", (float(np.percentile(lat, 95)) if len(lat) else 0.0), "ms", len(lat)
+    )
     rec.record("ros2.frame_640x480.received", len(lat), "frames", n)
     share = _frame_cpu(domain, frame, 3.0 if quick else 10.0)
     rec.record("ros2.frames_30hz.cpu_share_pct", share if math.isfinite(share) else 0.0, "%")

@@ -19,6 +19,16 @@ balanced search on RGB scoring), on held-out scenes with 4 input frames of 128x9
   spinning on one core), as a fresh process computes it (:func:`aes_planner.runtime.suggestion_threads`
   picks the threads; ``.busy_threads`` says how many); ``.busy_all_threads_latency_ms`` the same
   on all cores, the count used before; ``.busy_speedup`` their ratio, measured in the same run.
+* ``search.cold_suggest.process_ms``: a whole ``aes-planner suggest DIR --preset balanced``
+  process (4 views of ``indoor:3``, 128 x 96), start to exit; ``.imports_ms``: a process that
+  only imports what that command imports (torch, cv2, the field, the search, numba and the
+  rasterizer's kernel module); ``.after_imports_ms``: their difference, the suggestion's own
+  cost in a cold process (numba's cached kernels loaded, the model read, the frames read, the
+  field built, the search run); ``_cpu_ms`` the same in CPU time (user + system) of the children.
+
+``latency_ms`` and ``build_ms`` also carry their spread (``_min``, ``_max``). Each run builds its
+field from scratch (the cache of teacher maps emptied first); ``_meta.group_load_average``
+says how busy the shared machine was.
 
 ``search_pareto.png`` (latency against normalised score, with bars of +-1 standard error over the
 scenes) is written into ``bench/`` under the working directory. When the field is not available in
@@ -40,6 +50,7 @@ import torch
 
 from aes_planner.bench import Recorder
 from aes_planner.eval.search import HELD_OUT_SCENES, standard_error, write_pareto
+from aes_planner.field.model import clear_feature_cache
 from aes_planner.gaussians import resolve_backend
 from aes_planner.runtime import reset_suggestion_governor, suggestion_threads
 from aes_planner.search import GroundTruthScorer, SearchConfig, SearchError, build_search_scorer
@@ -77,6 +88,8 @@ def run(rec: Recorder, quick: bool) -> None:
             cfg = SearchConfig.preset("balanced" if case == "rgb" else case)
             use = kind if field_ok else "rgb"
             for r in range(repeats + 1):  # the first run warms up (numba caches, allocations)
+                if kind == "field":
+                    clear_feature_cache()  # a build from scratch, not from the previous run's maps
                 with (
                     numba_backend.profile_stages() if numba else contextlib.nullcontext({}) as stages,
                     suggestion_threads(),  # as `suggest` computes it
@@ -106,9 +119,9 @@ def run(rec: Recorder, quick: bool) -> None:
             span = o_score - extras["mean_random"]
             norm.append((s - extras["mean_random"]) / span if span > 1e-9 else 0.0)
         key = f"search.{case}"
-        rec.record(f"{key}.latency_ms", statistics.median(lat), "ms", len(lat))
+        rec.record_spread(f"{key}.latency_ms", lat, "ms")
         rec.record(f"{key}.latency_cpu_ms", statistics.median(cpu), "ms", len(cpu))
-        rec.record(f"{key}.build_ms", statistics.median(build), "ms", len(build))
+        rec.record_spread(f"{key}.build_ms", build, "ms")
         rec.record(f"{key}.stage1_ms", statistics.median(st1), "ms", len(st1))
         rec.record(f"{key}.stage2_ms", statistics.median(st2), "ms", len(st2))
         rec.record(f"{key}.scored", statistics.median(scored), "poses", len(scored))
@@ -120,6 +133,7 @@ def run(rec: Recorder, quick: bool) -> None:
             rec.record(f"{key}.normalized_se", se, "ratio", len(norm))
         points[case] = (statistics.median(lat), float(np.mean(norm)), se)
     busy_case(rec, SCENES[0], teacher, "field" if field_ok else "rgb", repeats)
+    cold_case(rec, repeats)
     rec.meta.setdefault("backends", {})["search_scorer"] = "field" if field_ok else "rgb (field not available)"
     rec.meta["search_scenes"] = scenes
     write_pareto(points, Path("bench") / "search_pareto.png")
@@ -161,3 +175,57 @@ def busy_case(rec: Recorder, spec: str, teacher, kind: str, repeats: int) -> Non
     rec.record("search.balanced.busy_all_threads_latency_ms", full, "ms", len(lat["all"]))
     rec.record("search.balanced.busy_speedup", full / picked, "ratio", len(lat["picked"]))
     rec.record("search.balanced.busy_threads", statistics.median(threads), "threads", len(threads))
+
+
+#: What ``aes-planner suggest`` imports before it computes (aes_planner.cli.suggest.run and the
+#: modules it calls import these); the numba kernels' module imports numba and defines the kernels.
+_SUGGEST_IMPORTS = (
+    "import aes_planner.cli, aes_planner.cli.suggest, aes_planner.dataset, aes_planner.search, "
+    "aes_planner.search.report, aes_planner.field.model, aes_planner.teachers, aes_planner.gaussians.kernels"
+)
+
+
+def _child_ms(argv: list[str]) -> tuple[float, float]:
+    """Wall and CPU (user + system) milliseconds of a child process, start to exit."""
+    import resource
+
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    subprocess.run(argv, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=1800)
+    wall = (time.perf_counter() - t0) * 1e3
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime) * 1e3
+    return wall, cpu
+
+
+def cold_case(rec: Recorder, repeats: int) -> None:
+    """A cold ``suggest`` process against one that only imports (module docstring), alternated."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="aes-bench-cold-") as tmp:
+        data = str(Path(tmp) / "ds")
+        subprocess.run(
+            [sys.executable, "-m", "aes_planner", "sim", "render", "--scene", "indoor:3", "--out", data],
+            check=True,
+            stdout=subprocess.DEVNULL,
+            timeout=600,
+        )
+        cases = {
+            "process": [sys.executable, "-m", "aes_planner", "suggest", data, "--preset", "balanced"],
+            "imports": [sys.executable, "-c", _SUGGEST_IMPORTS],
+        }
+        wall: dict[str, list[float]] = {k: [] for k in cases}
+        cpu: dict[str, list[float]] = {k: [] for k in cases}
+        for r in range(repeats + 1):  # the first pair warms the page cache
+            for name, argv in cases.items():
+                w, c = _child_ms(argv)
+                if r:
+                    wall[name].append(w)
+                    cpu[name].append(c)
+    for name in cases:
+        rec.record_spread(f"search.cold_suggest.{name}_ms", wall[name], "ms")
+        rec.record(f"search.cold_suggest.{name}_cpu_ms", statistics.median(cpu[name]), "ms", len(cpu[name]))
+    after = [p - i for p, i in zip(wall["process"], wall["imports"])]
+    rec.record_spread("search.cold_suggest.after_imports_ms", after, "ms")
+    after_cpu = [p - i for p, i in zip(cpu["process"], cpu["imports"])]
+    rec.record("search.cold_suggest.after_imports_cpu_ms", statistics.median(after_cpu), "ms", len(after_cpu))

@@ -88,7 +88,6 @@ def run_soak(
     views: int = 12,
     min_suggest_period_s: float = 0.2,
 ) -> SoakResult:
-    from aes_planner.graph.base import percentile
     from aes_planner.transport import InProcessBus
 
     frames = _frames(scene, views, width)
@@ -198,8 +197,8 @@ def run_soak(
         rejected={name: st["rejected"] for name, st in sub_stats.items()},
         rss_start_mb=rss_start,
         rss_end_mb=rss_end,
-        latency_p50_s=percentile(planner.latencies_s, 50),
-        latency_p95_s=percentile(planner.latencies_s, 95),
+        latency_p50_s=(float(np.percentile(planner.latencies_s, 50)) if len(planner.latencies_s) else 0.0),
+        latency_p95_s=(float(np.percentile(planner.latencies_s, 95)) if len(planner.latencies_s) else 0.0),
         field_frames_max=field_max[0],
         nonfinite=seen["nonfinite"],
         step_errors=runner.step_errors,

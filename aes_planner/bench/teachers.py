@@ -41,8 +41,9 @@ import numpy as np
 import torch
 
 from aes_planner.bench import Recorder, time_ms
+from aes_planner.metrics import srcc
 from aes_planner.teachers import CompositionTeacher, Teacher
-from aes_planner.teachers.evaluator import CompositionEvaluator, correlation, srcc
+from aes_planner.teachers.evaluator import CompositionEvaluator, correlation
 from aes_planner.teachers.synthetic import random_composition
 from aes_planner.teachers.ven import VENTeacher
 

@@ -38,8 +38,9 @@ import sys
 import threading
 import time
 
+import numpy as np
+
 from aes_planner.bench import Recorder
-from aes_planner.graph.base import percentile
 
 log = logging.getLogger(__name__)
 
@@ -273,8 +274,8 @@ def run(rec: Recorder, quick: bool) -> None:
             for t, v in r.latency_s.items():
                 lat.setdefault(t, []).extend(v)
         for t, v in sorted(lat.items()):
-            rec.record(f"{key}.{t}.latency_p50_ms", percentile(v, 50) * 1e3, "ms", runs)
-            rec.record(f"{key}.{t}.latency_p99_ms", percentile(v, 99) * 1e3, "ms", runs)
+            rec.record(f"{key}.{t}.latency_p50_ms", (float(np.percentile(v, 50)) if len(v) else 0.0) * 1e3, "ms", runs)
+            rec.record(f"{key}.{t}.latency_p99_ms", (float(np.percentile(v, 99)) if len(v) else 0.0) * 1e3, "ms", runs)
         if loss_s:
             reported = [r for r in results if r.detected_at is not None]
             rec.record(f"{key}.loss_reported_pct", 100.0 * len(reported) / runs, "%", runs)

@@ -40,6 +40,7 @@ from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.pantilt import PanTilt, chain_forward, rpy_matrix_torch
 from aes_planner.geometry.poses import BODY_TO_OPTICAL
 from aes_planner.geometry.rig import PanTiltConfig
+from aes_planner.geometry.rotations import matrix_to_rpy, rot_y
 
 log = logging.getLogger(__name__)
 
@@ -412,24 +413,15 @@ def rezero_tilt(config: PanTiltConfig, tilt_direction: int = 1) -> tuple[PanTilt
     e = tilt_level_offset_rad(config)
     ticks = -tilt_direction * round(e * TICKS_PER_RAD)
     e_whole = -tilt_direction * ticks / TICKS_PER_RAD
-    c, s = math.cos(e_whole), math.sin(e_whole)
-    ry = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    ry = rot_y(e_whole)
     lever = ry @ np.asarray(config.lever_arm_m)
     mount = (
         ry
         @ PanTilt(config).body_to_camera
         @ np.linalg.inv(PanTilt(replace(config, camera_mount_rpy_deg=(0, 0, 0))).body_to_camera)
     )
-    rpy = _rpy_from_matrix(mount)
+    rpy = tuple(math.degrees(a) for a in matrix_to_rpy(mount))
     return replace(config, lever_arm_m=tuple(float(v) for v in lever), camera_mount_rpy_deg=rpy), ticks
-
-
-def _rpy_from_matrix(r: np.ndarray) -> tuple[float, float, float]:
-    """(roll, pitch, yaw) degrees with ``R = Rz(yaw) Ry(pitch) Rx(roll)``."""
-    pitch = math.asin(max(-1.0, min(1.0, -r[2, 0])))
-    roll = math.atan2(r[2, 1], r[2, 2])
-    yaw = math.atan2(r[1, 0], r[0, 0])
-    return (math.degrees(roll), math.degrees(pitch), math.degrees(yaw))
 
 
 def compare_kinematics(estimate: PanTiltConfig, truth: PanTiltConfig, n: int = 15) -> dict:

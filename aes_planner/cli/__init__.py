@@ -105,12 +105,15 @@ MAX_ERROR_CHARS = 600
 
 def error_line(text: str, limit: int = MAX_ERROR_CHARS) -> str:
     """``text`` as the one line the CLI prints for an error: newlines and runs of spaces folded,
-    control characters escaped (:func:`terminal_safe`), and cut at ``limit`` characters with a
-    note of how much was left out."""
+    control characters escaped (:func:`terminal_safe`), and cut to ``limit`` characters in the
+    middle with a note of how much was left out: the start names the field, the end says what to
+    do, and both stay."""
     text = terminal_safe(" ".join(str(text).split()))
     if len(text) <= limit:
         return text
-    return f"{text[: limit - 40]} ... [{len(text) - limit + 40} characters cut]"
+    cut = len(text) - (limit - 40)
+    head = (limit - 40) * 2 // 3
+    return f"{text[:head]} ... [{cut} characters cut] ... {text[len(text) - (limit - 40 - head) :]}"
 
 
 def _empty_value(argv: list[str]) -> str | None:

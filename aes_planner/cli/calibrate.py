@@ -311,13 +311,21 @@ class _Session:
             raise CalibrateUsageError(
                 f"--launch {a.launch}: needs a gimbal node with a device and a camera node (as pan_tilt_rig.yaml)"
             )
-        from aes_planner.drivers.camera import check_capture_source
+        from aes_planner.config import from_dict
+        from aes_planner.node.camera import CameraNodeConfig
 
-        check_capture_source(camera_entry.config.get("device", 0))  # before OpenCV: VideoCapture(-1) kills the process
+        # the camera node's own config: camera: {type: ...} or its device/calibration short form, checked
+        # (a bad index fails here, before OpenCV: VideoCapture(-1) kills the process)
+        camera_spec = from_dict(CameraNodeConfig, camera_entry.config, "camera.config")._spec
+        if camera_spec["type"] != "opencv_camera":
+            raise CalibrateUsageError(
+                f"--launch {a.launch}: calibrating the rig reads raw frames from an opencv_camera; the launch's camera "
+                f"is a {camera_spec['type']}"
+            )
         device_spec = dict(gimbal_entry.config["device"])
         self.tilt_direction = int(device_spec.get("tilt_direction", 1))
         self.tilt_zero_offset_ticks = int(device_spec.get("tilt_zero_offset_ticks", 0))
-        calibration_file = a.camera_info or camera_entry.config.get("calibration")
+        calibration_file = a.camera_info or camera_spec.get("calibration")
         if not calibration_file:
             raise CalibrateUsageError(
                 "the camera's intrinsics are needed: run `calibrate camera` first and pass --camera-info"
@@ -329,7 +337,7 @@ class _Session:
         camera = CameraModel(cal.K_opencv, dist, k.width, k.height)
         self.gimbal = make_device(device_spec, "gimbal.device")
         self.gimbal.connect()
-        device = camera_entry.config.get("device", 0)
+        device = camera_spec.get("device", 0)
         self.capture = cv2.VideoCapture(device)
         if not self.capture.isOpened():
             raise CalibrateUsageError(f"cannot open camera {device!r}; check the launch file's camera.device")

@@ -14,6 +14,9 @@ log = logging.getLogger(__name__)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from aes_planner.search.config import PRESETS
+    from aes_planner.search.scorers import SCORERS
+
     p = sub.add_parser(
         "suggest",
         help="suggest camera views with better composition from a posed-frame folder",
@@ -30,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="DATASET_DIR",
         help="folder with cameras.json and images/, or a folder of photos without poses (posed first)",
     )
-    p.add_argument("--preset", default="balanced", choices=["fast", "balanced"], help="speed/accuracy")
+    p.add_argument("--preset", default="balanced", choices=list(PRESETS), help="speed/accuracy")
     p.add_argument(
         "--mode",
         choices=["rig", "drone", "free", "handheld"],
@@ -41,7 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--top", type=int, metavar="K", help="number of suggestions (default: the preset's K)")
     p.add_argument(
         "--scorer",
-        choices=["field", "rgb"],
+        choices=list(SCORERS),
         help="what scores views (default: the field; RGB scoring, with a warning, when this build has no field)",
     )
     p.add_argument(

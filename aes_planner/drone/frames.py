@@ -41,6 +41,8 @@ import math
 
 import numpy as np
 
+from aes_planner.geometry.rotations import matrix_to_quat, matrix_to_rpy, quat_to_matrix, rot_y, rot_z, rpy_to_matrix
+
 __all__ = [
     "FRD_TO_FLU",
     "NED_TO_ENU",
@@ -92,67 +94,10 @@ def heading_enu_to_ned(yaw_enu_rad: float) -> float:
     return wrap(math.pi / 2 - yaw_enu_rad)
 
 
-def _rz(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _ry(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def _rx(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def euler_to_matrix(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndarray:  # -> [3, 3]
-    """``R_ned_frd = Rz(yaw) Ry(pitch) Rx(roll)`` (MAVLink ``ATTITUDE``; aerospace Z-Y-X)."""
-    return _rz(yaw_rad) @ _ry(pitch_rad) @ _rx(roll_rad)
-
-
-def matrix_to_euler(r: np.ndarray) -> tuple[float, float, float]:
-    """(roll, pitch, yaw) of ``R_ned_frd``; pitch in [-pi/2, pi/2]."""
-    r = np.asarray(r, dtype=np.float64)
-    pitch = math.asin(max(-1.0, min(1.0, -r[2, 0])))
-    if abs(r[2, 0]) < 1.0 - 1e-9:
-        return math.atan2(r[2, 1], r[2, 2]), pitch, math.atan2(r[1, 0], r[0, 0])
-    return 0.0, pitch, math.atan2(-r[0, 1], r[1, 1])  # gimbal lock: roll folded into yaw
-
-
-def quat_to_matrix(q_wxyz) -> np.ndarray:  # [4] -> [3, 3]
-    """A unit quaternion (w, x, y, z; normalised here) as a rotation matrix."""
-    w, x, y, z = np.asarray(q_wxyz, dtype=np.float64) / np.linalg.norm(q_wxyz)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def matrix_to_quat(r: np.ndarray) -> np.ndarray:  # [3, 3] -> [4] (w >= 0)
-    """A rotation matrix as a unit quaternion (w, x, y, z), w >= 0 (Shepperd's method; numpy
-    only, so that the link's process does not load torch)."""
-    m = np.asarray(r, dtype=np.float64)
-    t = np.trace(m)
-    i = int(np.argmax([t, m[0, 0], m[1, 1], m[2, 2]]))
-    if i == 0:
-        s = 2.0 * math.sqrt(1.0 + t)
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    elif i == 1:
-        s = 2.0 * math.sqrt(max(1.0 + m[0, 0] - m[1, 1] - m[2, 2], 1e-300))
-        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-    elif i == 2:
-        s = 2.0 * math.sqrt(max(1.0 + m[1, 1] - m[0, 0] - m[2, 2], 1e-300))
-        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
-    else:
-        s = 2.0 * math.sqrt(max(1.0 + m[2, 2] - m[0, 0] - m[1, 1], 1e-300))
-        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    q = np.asarray(q) / np.linalg.norm(q)
-    return q if q[0] >= 0 else -q
+# The rotations are geometry's (aes_planner.geometry.rotations, on transforms3d), under the names the
+# MAVLink side reads them by: R_ned_frd = Rz(yaw) Ry(pitch) Rx(roll) (ATTITUDE; aerospace Z-Y-X).
+euler_to_matrix = rpy_to_matrix
+matrix_to_euler = matrix_to_rpy
 
 
 def body_flu_in_enu(r_ned_frd: np.ndarray) -> np.ndarray:  # [3, 3] -> [3, 3]
@@ -171,8 +116,8 @@ def camera_rotation_ned(
     body's heading, levelled)."""
     if gimbal_q_wxyz is not None:
         r = quat_to_matrix(gimbal_q_wxyz)
-        return r if yaw_in_earth_frame else _rz(vehicle_yaw_ned_rad) @ r
-    return _rz(vehicle_yaw_ned_rad) @ _ry(pitch_rad or 0.0)
+        return r if yaw_in_earth_frame else rot_z(vehicle_yaw_ned_rad) @ r
+    return rot_z(vehicle_yaw_ned_rad) @ rot_y(pitch_rad or 0.0)
 
 
 def pose_to_cam2world(

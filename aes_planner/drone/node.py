@@ -20,7 +20,7 @@ import numpy as np
 
 from aes_planner.config import ConfigError, from_dict, require, require_numbers
 from aes_planner.drone import frames as fr
-from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs, percentile
+from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs
 from aes_planner.messages import Diagnostics, DroneState, ViewSuggestion
 from aes_planner.node.scene import launch_scene
 from aes_planner.platform import DroneBox
@@ -390,7 +390,7 @@ class MavlinkDroneNode(Node):
             counters = {**link.counters, **link.gate.counters}
             lat = list(link.goal_latencies_s)
             values = {
-                "setpoint_latency_p50_s": percentile(lat, 50),
+                "setpoint_latency_p50_s": (float(np.percentile(lat, 50)) if len(lat) else 0.0),
                 "telemetry_age_s": min(now - link.last_position_s, 1e6),
                 "heartbeat_age_s": min(now - link.last_heartbeat_s, 1e6),
             }

@@ -29,12 +29,12 @@ import torch
 
 from aes_planner.config import distinct, require
 from aes_planner.field.common import ScorerConfig
-from aes_planner.field.metrics import plcc, srcc, tv_ratio
 from aes_planner.field.model import AestheticField, FieldInputs, FieldModel
 from aes_planner.field.protocol import SOURCES, plan_views
 from aes_planner.field.rgb import RGBScorer
 from aes_planner.field.splat import SplatScorer
 from aes_planner.field.train import EVAL_SEED_START, FAMILIES
+from aes_planner.metrics import plcc, srcc, tv_ratio
 from aes_planner.paths import output_in
 from aes_planner.reconstruct import Reconstruction
 from aes_planner.sources import SceneSource

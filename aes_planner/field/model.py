@@ -32,8 +32,11 @@ them; :class:`AestheticField` is the :class:`~aes_planner.field.scorer.Scorer`.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
+import threading
+from collections import OrderedDict
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, replace
 from importlib import resources
@@ -67,8 +70,10 @@ __all__ = [
     "FieldModelConfig",
     "ModelError",
     "load_model",
+    "shared_model",
     "opponent",
     "read_checkpoint",
+    "shared_model",
     "write_checkpoint",
 ]
 
@@ -124,16 +129,21 @@ def opponent(images: Tensor) -> Tensor:  # [B, 3, H, W] in [0, 1] -> [B, 3, H, W
 def pointwise(layers: nn.Sequential, x: Tensor) -> Tensor:  # [B, Cin, H, W] -> [B, Cout, H, W]
     """``layers(x)`` for a stack of 1x1 ``Conv2d`` and ``ReLU``, computed as matrix products over
     channels-last pixels: the same values (and gradients) as the convolutions, about 3x faster on
-    CPU for the downsampler's per-cell MLP (docs/benchmarks.md, figures behind code comments)."""
-    y = x.permute(0, 2, 3, 1)  # [B, H, W, Cin]
+    CPU for the downsampler's per-cell MLP (docs/benchmarks.md, figures behind code comments).
+    Each product is ``mm`` then the bias added in place: ``addmm`` first copies the broadcast bias
+    into its output, a pass over memory as long as the product itself at these widths."""
+    b, _, h, w = x.shape
+    y = x.permute(0, 2, 3, 1).reshape(b * h * w, -1)  # [BHW, Cin]: a view when x is channels-last
     for layer in layers:
         if isinstance(layer, nn.Conv2d):
-            y = F.linear(y, layer.weight[:, :, 0, 0], layer.bias)
+            y = torch.mm(y, layer.weight[:, :, 0, 0].t())
+            if layer.bias is not None:
+                y = y.add_(layer.bias)  # in place: mm's backward does not need its output
         elif isinstance(layer, nn.ReLU):
             y = torch.relu_(y)  # in place: the product before it is not needed by its backward
         else:
             y = layer(y)
-    return y.permute(0, 3, 1, 2)
+    return y.reshape(b, h, w, -1).permute(0, 3, 1, 2)  # channels-last [B, Cout, H, W]
 
 
 class FieldModel(nn.Module):
@@ -190,12 +200,18 @@ class FieldModel(nn.Module):
         base = F.avg_pool2d(x[:, : self.feature_channels], 2)  # [B, C, fh, fw] splatted map, channel units
         x = F.avg_pool2d(pointwise(self.pixel, x), 2)  # [B, h, fh, fw]
         x = torch.relu_(self.cell(torch.cat([x, base], 1))) + x
-        tokens = x.flatten(2).transpose(1, 2)  # [B, n, h]
-        att = torch.softmax(
-            self.query(tokens) @ self.key(tokens).transpose(1, 2) / math.sqrt(self.query.out_features), -1
+        b, h = x.shape[:2]
+        tokens = x.permute(0, 2, 3, 1).reshape(b, fh * fw, h)  # [B, n, h]: a view of channels-last x
+        scores = torch.bmm(self.query(tokens), self.key(tokens).transpose(1, 2))  # [B, n, n]
+        scale = 1.0 / math.sqrt(self.query.out_features)
+        scores = scores.mul_(scale) if not torch.is_grad_enabled() else scores * scale  # in place without autograd
+        ctx = torch.bmm(torch.softmax(scores, -1), self.value(tokens))  # [B, n, h]
+        # the 1x1 projection of [x, ctx] as one product over the tokens (no [B, 2h, fh, fw] concatenation)
+        out = torch.addmm(
+            self.out.bias, torch.cat([tokens, ctx], 2).reshape(b * fh * fw, 2 * h), self.out.weight[:, :, 0, 0].t()
         )
-        ctx = (att @ self.value(tokens)).transpose(1, 2).reshape_as(x)  # [B, h, fh, fw]
-        return (base + self.out(torch.cat([x, ctx], 1))) * self.map_scale[None, :, None, None]
+        out = out.reshape(b, fh, fw, -1).permute(0, 3, 1, 2)  # [B, C, fh, fw] channels-last
+        return (base + out) * self.map_scale[None, :, None, None]
 
     # ------------------------------------------------------------------ checkpoints
     def checkpoint(self, extra: dict | None = None) -> dict:
@@ -329,6 +345,23 @@ def load_model(path: str | Path | None = None) -> FieldModel:
         raise ModelError(f"{path}: {exc}") from None
 
 
+_shared_models: dict[str, FieldModel] = {}
+
+
+def shared_model(name: str | None = None) -> FieldModel:
+    """The packaged checkpoint ``name`` (default :data:`DEFAULT_CHECKPOINT`) loaded once per
+    process, in eval mode with its weights frozen: what every field built without a model of its
+    own scores with, so a planner's rebuilds and a loop's suggestions do not read, check and
+    rebuild the same weights each time (docs/benchmarks.md, "perf-2"). Read-only: to train or
+    change a model, :func:`load_model` gives a fresh one."""
+    key = name or DEFAULT_CHECKPOINT
+    model = _shared_models.get(key)
+    if model is None:
+        model = load_model(key).eval().requires_grad_(False)
+        _shared_models[key] = model
+    return model
+
+
 # ---------------------------------------------------------------------------------- inputs
 @dataclass
 class FieldInputs:
@@ -355,8 +388,7 @@ class FieldInputs:
                 )
         rec = reconstruct(frames, config)
         images = torch.from_numpy(np.stack([f.image for f in frames])).permute(0, 3, 1, 2).float() / 255.0
-        with torch.no_grad():
-            fmaps = teacher.features(images)
+        fmaps = _features(teacher, frames, images)
         poses = np.stack([rec.local_frame.pose_to_local(f.cam2world) for f in frames])
         return cls(
             rec.splats,
@@ -396,6 +428,45 @@ class FieldInputs:
     def grid(self) -> tuple[int, int]:
         h, w = self.images.shape[-2:]
         return max(1, h // self.stride), max(1, w // self.stride)
+
+
+#: Teacher maps of recent input images, keyed by teacher and image content: a planner rebuilds its
+#: field from the same frames plus a new one, and only the new one needs the teacher.
+_FEATURE_CACHE_SIZE = 64
+_feature_cache: OrderedDict[tuple[str, tuple, bytes], Tensor] = OrderedDict()
+_feature_lock = threading.Lock()
+
+
+def _image_key(teacher: Teacher, image: np.ndarray) -> tuple[str, tuple, bytes]:
+    return teacher.name, image.shape, hashlib.blake2b(np.ascontiguousarray(image).data, digest_size=16).digest()
+
+
+def _features(teacher: Teacher, frames: list[PosedFrame], images: Tensor) -> Tensor:  # -> [V, C, fh, fw]
+    """``teacher.features(images)``, each image's map computed once per process (while it stays
+    among the last ``_FEATURE_CACHE_SIZE``; a blake2b of a 128 x 96 image costs ~10 us, the map
+    ~3 ms). Maps are computed one image at a time, so a map is the same whichever batch asked."""
+    keys = [_image_key(teacher, f.image) for f in frames]
+    with _feature_lock:
+        maps = [_feature_cache.get(k) for k in keys]
+    with torch.no_grad():
+        for i, key in enumerate(keys):
+            if maps[i] is None:
+                maps[i] = teacher.features(images[i : i + 1])[0]
+                with _feature_lock:
+                    _feature_cache[key] = maps[i]
+                    while len(_feature_cache) > _FEATURE_CACHE_SIZE:
+                        _feature_cache.popitem(last=False)
+    with _feature_lock:
+        for key in keys:
+            if key in _feature_cache:
+                _feature_cache.move_to_end(key)
+    return torch.stack(maps)
+
+
+def clear_feature_cache() -> None:
+    """Forget the cached teacher maps (benchmarks timing a build from scratch)."""
+    with _feature_lock:
+        _feature_cache.clear()
 
 
 def embed_inputs(model: FieldModel, inputs: FieldInputs) -> Gaussians:
@@ -501,7 +572,7 @@ class AestheticField(Scorer):
     @classmethod
     def load_default(cls, teacher: Teacher | None = None, config: ScorerConfig | None = None) -> AestheticField:
         """An empty field with the shipped model (add frames with :meth:`add_frame`)."""
-        model = load_model()
+        model = shared_model()
         with autograd_on():  # the teacher's tensors normal, also under a caller's inference_mode
             return cls(model, teacher or get_teacher(model.teacher_name), None, config)
 
@@ -514,7 +585,9 @@ class AestheticField(Scorer):
         teacher: Teacher | None = None,
     ) -> AestheticField:
         """A field of ``frames`` (may be empty) with ``model`` (default: the shipped checkpoint)."""
-        if not isinstance(model, FieldModel):
+        if model is None or model in (DEFAULT_CHECKPOINT, NOCOND_CHECKPOINT):
+            model = shared_model(model)  # the packaged weights, loaded once per process
+        elif not isinstance(model, FieldModel):
             model = load_model(model)
         frames = list(frames)
         for i, f in enumerate(frames):

@@ -618,7 +618,7 @@ def _resume(model: FieldModel, opt, last: Path, steps: int) -> int:
 def validate(model: FieldModel, teacher: Teacher, val: list[tuple[dict, FieldInputs]], width_px: int) -> dict:
     """Agreement with the teacher on validation samples: PLCC and SRCC of the scores over all
     their targets pooled, the mean per-sample PLCC, and the feature-map MSE (channel units)."""
-    from aes_planner.field.metrics import plcc, srcc
+    from aes_planner.metrics import plcc, srcc
 
     model.eval()
     pred, true, per, per_search, top, mse = [], [], [], [], [], []

@@ -75,10 +75,11 @@ def _load():
     if _kernels is None and _import_error is None:
         try:
             from aes_planner.gaussians import kernels as k
-            from aes_planner.runtime import tune_malloc
+            from aes_planner.runtime import apply_pending_numba_threads, tune_malloc
 
             tune_malloc()  # before the first kernel's buffers (aes_planner.runtime says why)
             _kernels = k
+            apply_pending_numba_threads()  # a count set before the kernels chose their threading layer
         except ImportError as exc:  # numba missing or broken
             _import_error = f"{type(exc).__name__}: {exc}"
             log.info("numba backend unavailable: %s", _import_error)

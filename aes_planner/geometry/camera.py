@@ -14,13 +14,15 @@ if TYPE_CHECKING:  # torch is imported where a tensor is asked for: messages and
     import torch
     from torch import Tensor
 
-__all__ = ["MAX_IMAGE_PIXELS", "MAX_IMAGE_SIDE", "Intrinsics", "IntrinsicsError"]
+__all__ = ["MAX_CAMERA_PIXELS", "MAX_CAMERA_SIDE_PX", "Intrinsics", "IntrinsicsError"]
 
-#: Largest camera (and image read from a file): 2^26 pixels, e.g. 8192 x 8192 or a 64 MP photo.
+#: Largest camera, and largest image file read (:func:`aes_planner.images.imread_bounded`): 2^26
+#: pixels, e.g. 8192 x 8192 or a 64 MP photo. A frame on the bus is smaller still
+#: (:data:`aes_planner.messages.posed_frame.MAX_FRAME_PIXELS`: it is downscaled at the boundary).
 #: Checked before anything of that size is allocated (a 100000 x 100000 camera would ask for 300 GB).
-MAX_IMAGE_PIXELS = 1 << 26
-#: Longest image side, in pixels.
-MAX_IMAGE_SIDE = 1 << 15
+MAX_CAMERA_PIXELS = 1 << 26
+#: Longest side of a camera or an image file, in pixels.
+MAX_CAMERA_SIDE_PX = 1 << 15
 
 
 class IntrinsicsError(AesPlannerError, ValueError):
@@ -54,10 +56,10 @@ class Intrinsics:
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
                 raise IntrinsicsError(f"intrinsics.{name} must be a positive integer, got {v!r}")
-        if max(self.width, self.height) > MAX_IMAGE_SIDE or self.width * self.height > MAX_IMAGE_PIXELS:
+        if max(self.width, self.height) > MAX_CAMERA_SIDE_PX or self.width * self.height > MAX_CAMERA_PIXELS:
             raise IntrinsicsError(
-                f"a {self.width}x{self.height} camera is too large: at most {MAX_IMAGE_SIDE} pixels per side "
-                f"and {MAX_IMAGE_PIXELS} in all"
+                f"a {self.width}x{self.height} camera is too large: at most {MAX_CAMERA_SIDE_PX} pixels per side "
+                f"and {MAX_CAMERA_PIXELS} in all"
             )
 
     @classmethod

@@ -29,6 +29,7 @@ from torch import Tensor
 
 from aes_planner.geometry.poses import BODY_TO_OPTICAL, cam2world_to_view, direction_to_yaw_pitch
 from aes_planner.geometry.rig import JointCommandError, JointLimits, PanTiltConfig
+from aes_planner.geometry.rotations import rot_z, rpy_to_matrix
 
 __all__ = ["PanTiltConfig", "PanTilt", "JointSolution", "JointCommandError", "chain_forward", "rpy_matrix_torch"]
 
@@ -47,17 +48,8 @@ class JointSolution:
     error_rad: float
 
 
-def _rpy_matrix(rpy_rad: Sequence[float]) -> np.ndarray:
-    r, p, y = rpy_rad
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
-    return rz @ ry @ rx
-
-
 def rpy_matrix_torch(rpy_rad: Tensor) -> Tensor:
-    """``Rz(yaw) Ry(pitch) Rx(roll)`` ``[3, 3]`` from ``rpy_rad [3]``, differentiable (``_rpy_matrix`` in torch)."""
+    """``Rz(yaw) Ry(pitch) Rx(roll)`` ``[3, 3]`` from ``rpy_rad [3]``, differentiable (:func:`~aes_planner.geometry.rotations.rpy_to_matrix` in torch)."""
     r, p, y = rpy_rad.unbind(-1)
     one, zero = torch.ones_like(r), torch.zeros_like(r)
     rx = torch.stack([one, zero, zero, zero, r.cos(), -r.sin(), zero, r.sin(), r.cos()]).reshape(3, 3)
@@ -101,14 +93,14 @@ class PanTilt:
         self.config = config or PanTiltConfig()
         c = self.config
         self.base2world = np.eye(4)
-        self.base2world[:3, :3] = _rpy_matrix([math.radians(a) for a in c.base_rpy_deg])
+        self.base2world[:3, :3] = rpy_to_matrix(*(math.radians(a) for a in c.base_rpy_deg))
         self.base2world[:3, 3] = c.base_xyz_m
         self.tilt_offset = np.asarray(c.tilt_offset_m, dtype=np.float64)
         self.lever_arm = np.asarray(c.lever_arm_m, dtype=np.float64)
         roll = math.radians(c.camera_roll_deg)
-        mount = _rpy_matrix([math.radians(a) for a in c.camera_mount_rpy_deg])
+        mount = rpy_to_matrix(*(math.radians(a) for a in c.camera_mount_rpy_deg))
         # tilt frame -> camera axes: the mount's error, then OpenCV optical axes turned about the optical (z) axis by the roll
-        self.body_to_camera = mount @ BODY_TO_OPTICAL @ _rpy_matrix([0.0, 0.0, roll])
+        self.body_to_camera = mount @ BODY_TO_OPTICAL @ rot_z(roll)
         self.limits = JointLimits.from_config(c)
         self.pan_limits_rad = self.limits.pan_rad
         self.tilt_limits_rad = self.limits.tilt_rad

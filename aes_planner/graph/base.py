@@ -22,7 +22,6 @@ through the type's config dataclass (unknown keys are errors naming the key).
 from __future__ import annotations
 
 import importlib
-import math
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -43,7 +42,6 @@ __all__ = [
     "make_node",
     "node_class",
     "output_specs",
-    "percentile",
 ]
 
 Outputs = dict[str, list]
@@ -170,17 +168,6 @@ def make_node(
     cls = node_class(type_name, f"{key}.type" if key else "type")
     cfg = from_dict(cls.config_class, config or {}, f"{key}.config" if key else "config")
     return cls(cfg, node_id=node_id, context=context)
-
-
-def percentile(values, q: float) -> float:
-    """The ``q``-th percentile (0-100) of ``values`` by linear interpolation; 0.0 when empty."""
-    xs = sorted(float(v) for v in values if math.isfinite(v))
-    if not xs:
-        return 0.0
-    pos = (len(xs) - 1) * q / 100.0
-    lo = int(math.floor(pos))
-    hi = min(lo + 1, len(xs) - 1)
-    return xs[lo] + (xs[hi] - xs[lo]) * (pos - lo)
 
 
 def input_specs(node: Node | type[Node]) -> dict[str, Input]:

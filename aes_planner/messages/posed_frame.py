@@ -31,12 +31,14 @@ from aes_planner.messages.codec import (
 )
 from aes_planner.messages.fields import check_optional_finite, check_pose, check_sequence, check_text
 
-__all__ = ["MessageError", "PosedFrame", "MAX_IMAGE_SIDE_PX", "MAX_IMAGE_PIXELS"]
+__all__ = ["MessageError", "PosedFrame", "MAX_FRAME_SIDE_PX", "MAX_FRAME_PIXELS"]
 
-MAX_IMAGE_SIDE_PX = 8192
-MAX_IMAGE_PIXELS = 4096 * 3072  # 12.6 MP: 38 MB of RGB + 50 MB of depth
+MAX_FRAME_SIDE_PX = 8192
+#: Largest image a PosedFrame carries (12.6 MP: 38 MB of RGB + 50 MB of depth fit one message);
+#: cameras and image files may be larger (:data:`aes_planner.geometry.camera.MAX_CAMERA_PIXELS`).
+MAX_FRAME_PIXELS = 4096 * 3072
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_SIDE = (MAX_IMAGE_SIDE_PX, MAX_IMAGE_SIDE_PX)
+_SIDE = (MAX_FRAME_SIDE_PX, MAX_FRAME_SIDE_PX)
 IMAGE_FORMATS = ("raw", "png")
 
 
@@ -88,8 +90,8 @@ class ImageField(Union):
 class PosedFrame(Message):
     """An RGB image taken from a known pose.
 
-    * ``image``: ``[H, W, 3]`` uint8 RGB, at most ``MAX_IMAGE_SIDE_PX`` a side and
-      ``MAX_IMAGE_PIXELS`` in all.
+    * ``image``: ``[H, W, 3]`` uint8 RGB, at most ``MAX_FRAME_SIDE_PX`` a side and
+      ``MAX_FRAME_PIXELS`` in all.
     * ``intrinsics``: pinhole intrinsics in pixels; its size must be the image's.
     * ``cam2world``: ``[4, 4]`` float64, OpenCV camera axes (see :mod:`aes_planner.geometry`).
     * ``depth_m``: optional ``[H, W]`` float32 z-depth in metres; ``0`` marks pixels without a
@@ -133,8 +135,8 @@ class PosedFrame(Message):
         Optional(Array("depth_m", "f4", _SIDE, doc="z-depth in metres, the image's `[H, W]`; `0` = no measurement")),
     )
     WIRE_RULES: ClassVar[tuple[str, ...]] = (
-        f"an image with no rows or columns, more than {MAX_IMAGE_SIDE_PX:,} pixels a side or more than "
-        f"{MAX_IMAGE_PIXELS:,} pixels in all (raw or PNG)",
+        f"an image with no rows or columns, more than {MAX_FRAME_SIDE_PX:,} pixels a side or more than "
+        f"{MAX_FRAME_PIXELS:,} pixels in all (raw or PNG)",
         "a PNG stream that is not one (no PNG signature, or no IHDR chunk first), whose IHDR size is not "
         "`width` x `height`, or that does not decode",
         "`depth_m` of another size than the image, or with a negative value",
@@ -165,10 +167,10 @@ class PosedFrame(Message):
                 f"PosedFrame.image must be uint8 RGB, got {img.dtype}; convert with (img * 255).round().astype(np.uint8)"
             )
         h, w = img.shape[:2]
-        if h < 1 or w < 1 or max(h, w) > MAX_IMAGE_SIDE_PX or h * w > MAX_IMAGE_PIXELS:
+        if h < 1 or w < 1 or max(h, w) > MAX_FRAME_SIDE_PX or h * w > MAX_FRAME_PIXELS:
             raise MessageError(
-                f"PosedFrame.image is {w}x{h}; images must be non-empty, at most {MAX_IMAGE_SIDE_PX} px a side "
-                f"and {MAX_IMAGE_PIXELS} px in all; downscale it"
+                f"PosedFrame.image is {w}x{h}; images must be non-empty, at most {MAX_FRAME_SIDE_PX} px a side "
+                f"and {MAX_FRAME_PIXELS} px in all; downscale it"
             )
         if not isinstance(self.intrinsics, Intrinsics):
             raise MessageError(f"PosedFrame.intrinsics must be an Intrinsics, got {type(self.intrinsics).__name__}")
@@ -224,8 +226,8 @@ class PosedFrame(Message):
     def _from_wire(cls, values: dict, version: int) -> PosedFrame:
         image = values["image"]
         h, w = image.shape[:2]
-        if h * w > MAX_IMAGE_PIXELS:
-            raise MessageError(f"PosedFrame.image {w}x{h} exceeds the cap of {MAX_IMAGE_PIXELS} pixels")
+        if h * w > MAX_FRAME_PIXELS:
+            raise MessageError(f"PosedFrame.image {w}x{h} exceeds the cap of {MAX_FRAME_PIXELS} pixels")
         k = [values[f"intrinsics.{n}"] for n in ("fx", "fy", "cx", "cy")]
         return cls(
             image=image,
@@ -248,7 +250,7 @@ def _decode_png(png: bytes, width: int, height: int) -> np.ndarray:
     pw, ph = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
     if (pw, ph) != (width, height):
         raise MessageError(f"PosedFrame.image: PNG is {pw}x{ph} but the message says {width}x{height}")
-    if not (1 <= pw <= MAX_IMAGE_SIDE_PX and 1 <= ph <= MAX_IMAGE_SIDE_PX) or pw * ph > MAX_IMAGE_PIXELS:
+    if not (1 <= pw <= MAX_FRAME_SIDE_PX and 1 <= ph <= MAX_FRAME_SIDE_PX) or pw * ph > MAX_FRAME_PIXELS:
         raise MessageError(f"PosedFrame.image: PNG of {pw}x{ph} exceeds the image caps")
     import cv2
 

@@ -12,9 +12,8 @@
                ``planner/suggestion``), wait for arrival (``gimbal/state``, or frames at the pose),
                capture there and score the real capture with the teacher (it verifies the
                prediction and feeds the field) -> planning
-    polishing  (first the coarsest neighbours of up to ``polish_starts - 1`` other captured hills
-               nearly as good as the best, then) a coarse-to-fine compass search around the best
-               captured view with real captures:
+    polishing  a coarse-to-fine compass search with real captures around the best captured view,
+               then around up to ``polish_starts - 1`` other captured hills nearly as good:
                its four neighbours ``polish_step_deg * 2**k`` away (pan/tilt; a drone: yaw/pitch;
                k from ``polish_scales - 1`` down to 0), moving to a better one, halving the step
                when none is better, up to ``polish_captures`` (composition peaks are a few degrees
@@ -178,24 +177,14 @@ class ActiveLoop:
     def _begin_polish(self, now: float) -> None:
         c = self.config
         self._polish_left = c.polish_captures
-        self._polish_centre = None
-        self._polish_scale = c.polish_scales - 1
         self.state = LoopState.POLISHING
-        # the runners-up first: the coarsest neighbours of other hills nearly as good as the best
-        # one, so the climb does not polish a local optimum it happened to capture first
-        step_deg = c.polish_step_deg * 2.0**self._polish_scale
-        for start in self._polish_starts(2.0 * step_deg)[1:]:
-            for t in self.motion.polish(start, math.radians(step_deg)):
-                if self._polish_left > 0 and not near_captured(
-                    [*self.captures, *(Capture("queued", q.cam2world, 0.0, 0.0) for q in self._queue)],
-                    t.cam2world,
-                    0.5 * step_deg,
-                    c.min_move_m,
-                ):
-                    self._queue.append(t)
-                    self._polish_left -= 1
-        if not self._queue:
-            self._polish_step(now)
+        # the best hill and the runners-up nearly as good, each climbed in turn: a hill captured
+        # second (or on its flank) is not lost to the local optimum captured first
+        step_deg = c.polish_step_deg * 2.0 ** (c.polish_scales - 1)
+        self._climbs = self._polish_starts(2.0 * step_deg)
+        self._climb_budget = max(c.polish_captures // max(len(self._climbs), 1), 1)
+        self._polish_centre = None
+        self._polish_step(now)
 
     def _polish_starts(self, apart_deg: float) -> list[Capture]:
         """The best capture, then up to ``polish_starts - 1`` others scoring within
@@ -212,32 +201,56 @@ class ActiveLoop:
         return starts
 
     def _polish_step(self, now: float) -> None:
-        """One round of a coarse-to-fine compass search on real captures around the best captured
-        view: its four neighbours ``polish_step_deg * 2**scale`` away (scales ``polish_scales - 1``
-        down to 0); the centre moves to a neighbour that beat it by more than ``tie_tolerance``
-        (the same step again), else the step halves; settle when the finest step found nothing or
-        the budget is spent."""
+        """One round of a coarse-to-fine compass search on real captures around the current hill's
+        centre: its four neighbours ``polish_step_deg * 2**scale`` away (scales ``polish_scales - 1``
+        down to 0); the centre moves to a neighbour of the round that beat it by more than
+        ``tie_tolerance`` (the same step again), else the step halves; the climb ends after the
+        finest step or its share of the budget, and the next hill's climb begins; settle when
+        every climb ended."""
         c = self.config
-        while self._polish_left > 0 and self.captures:
-            best = self._best_capture()
-            if best is self._polish_centre:  # the last round beat nothing: a finer step
-                self._polish_scale -= 1
-                if self._polish_scale < 0:
+        while self._polish_left > 0:
+            if self._polish_centre is None:  # the next climb
+                if not self._climbs:
                     break
-            previous, self._polish_centre = self._polish_centre, best
+                self._polish_centre = self._climbs.pop(0)
+                self._polish_scale = c.polish_scales - 1
+                self._climb_left = self._climb_budget
+                self._round_from = None
+                self._polish_previous = None
+            elif self._round_from is not None:  # the round just captured
+                top = self._polish_centre
+                for cap in self.captures[self._round_from :]:
+                    if cap.score > top.score + c.tie_tolerance:
+                        top = cap
+                self._round_from = None
+                if top is not self._polish_centre:
+                    previous, self._polish_centre = self._polish_centre, top
+                    self._polish_previous = previous
+                else:
+                    self._polish_scale -= 1
+                if self._polish_scale < 0 or self._climb_left <= 0:
+                    self._polish_centre = None
+                    continue
+            centre = self._polish_centre
             step_deg = c.polish_step_deg * 2.0**self._polish_scale
-            neighbours = self.motion.polish(best, math.radians(step_deg))
-            if previous is not None and previous is not best:  # keep going the way the last step went
+            neighbours = self.motion.polish(centre, math.radians(step_deg))
+            previous = self._polish_previous
+            if previous is not None and previous is not centre:  # keep going the way the last step went
                 neighbours.sort(key=lambda t: -view_angle_deg(t.cam2world, previous.cam2world))
             half_step_deg = 0.5 * step_deg
             targets = [
                 t for t in neighbours if not near_captured(self.captures, t.cam2world, half_step_deg, c.min_move_m)
             ]
-            if targets:
-                self._queue = targets[: self._polish_left]
-                self._polish_left -= len(self._queue)
-                return
-            # every neighbour at this step was captured already: as if the round beat nothing
+            if not targets:  # every neighbour at this step was captured already: a finer step
+                self._polish_scale -= 1
+                if self._polish_scale < 0:
+                    self._polish_centre = None
+                continue
+            self._queue = targets[: min(self._polish_left, self._climb_left)]
+            self._polish_left -= len(self._queue)
+            self._climb_left -= len(self._queue)
+            self._round_from = len(self.captures)
+            return
         self._begin_settle(now)
 
     def _begin_settle(self, now: float) -> None:

@@ -1,6 +1,8 @@
-"""``CameraNode``: a real camera on a pan-tilt rig, read through the ``opencv_camera`` device.
+"""``CameraNode``: a real camera on a pan-tilt rig, read through a :class:`~aes_planner.devices.Camera`
+device picked by its ``type:`` word, as a gimbal node picks its gimbal (``camera:`` in the config;
+``opencv_camera`` by default, whose short form is ``device:`` + ``calibration:``).
 
-The device (:class:`aes_planner.drivers.camera.OpenCVCamera`) reads each image, checks it
+The OpenCV device (:class:`aes_planner.drivers.camera.OpenCVCamera`) reads each image, checks it
 against the calibration (an OpenCV ``FileStorage`` or ROS ``camera_info`` YAML) and undistorts
 it; this node stamps it with the host clock when it is read, and poses it by the rig's kinematics
 at the gimbal's joint angles **at that stamp** less the rig's ``camera_latency_s`` (when it was
@@ -16,8 +18,8 @@ import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from aes_planner.config import from_dict, require, require_numbers
-from aes_planner.devices import Camera, CameraImage, device_class
+from aes_planner.config import from_dict, require, require_numbers, tag_of
+from aes_planner.devices import DEVICE_TYPES, Camera, CameraImage, device_class, make_device
 from aes_planner.geometry.pantilt import PanTilt, PanTiltConfig
 from aes_planner.geometry.trajectory import JointHistory
 from aes_planner.graph.base import Input, LaunchContext, NodeError
@@ -32,13 +34,18 @@ __all__ = ["CameraNode", "CameraNodeConfig"]
 
 @dataclass
 class CameraNodeConfig:
-    """* ``device``: ``cv2.VideoCapture`` source (an index or a path/URL).
-    * ``calibration``: the camera-info YAML (required for a real camera).
+    """* ``camera``: the camera device, a mapping ``{type: WORD, <its config keys>}`` like a gimbal
+      node's ``device:`` (``aes_planner.devices.DEVICE_TYPES``: ``opencv_camera``, or one a plugin
+      registers); unknown keys are errors naming the key.
+    * ``device``, ``calibration``: the short form of ``camera: {type: opencv_camera, device:
+      DEVICE, calibration: FILE}`` (a ``cv2.VideoCapture`` index or path/URL, and the camera-info
+      YAML); not together with ``camera``.
     * ``rate_hz``: frames read per second; ``state_history_s``: gimbal states kept for posing.
     * ``rig``: the pan-tilt kinematics the camera sits on (a sim launch takes the scene's).
     * ``frame_id``: the frames' name prefix.
     """
 
+    camera: dict | None = None
     device: int | str = 0
     calibration: str = ""
     rate_hz: float = 10.0
@@ -47,10 +54,25 @@ class CameraNodeConfig:
     frame_id: str = "camera"
 
     def __post_init__(self):
+        if self.camera is not None:
+            require(
+                self.device == 0 and self.calibration == "",
+                "camera",
+                "give the camera either as camera: {type: ..., ...} or as device: / calibration:, not both",
+            )
+            key = "camera"
+            tag_of(self.camera, key, DEVICE_TYPES)  # a mapping with a known type word, or the error naming it
+            spec = dict(self.camera)
+        else:
+            spec = {"type": "opencv_camera", "device": self.device, "calibration": self.calibration}
+            key = ""
         # the device's settings, checked now (a bad index must fail before OpenCV sees it)
-        self._device = from_dict(
-            device_class("opencv_camera").config_class, {"device": self.device, "calibration": self.calibration}, ""
-        )
+        word = tag_of(spec, key, DEVICE_TYPES)
+        cls = device_class(word, f"{key}.type" if key else "type")
+        require(issubclass(cls, Camera), f"{key}.type" if key else "type", f"{word!r} is not a camera device")
+        fields = {k: v for k, v in spec.items() if k != "type"}
+        self._spec = spec
+        self._device = from_dict(cls.config_class, fields, key) if cls.config_class is not None else None
         require_numbers(self, ("rate_hz", "state_history_s"))
         check_frame_source(self.frame_id, self.rate_hz)
         require(self.state_history_s <= 60, "state_history_s", f"must be <= 60 s (memory), got {self.state_history_s}")
@@ -85,8 +107,10 @@ class CameraNode(FrameNode):
         if rig is None:
             raise NodeError(f"{node_id}: the camera node needs the rig's kinematics: set config.rig")
         self.kinematics = PanTilt(rig)
-        if camera is None:
+        if camera is None and (capture is not None or calibration is not None):  # test hooks of the OpenCV device
             camera = device_class("opencv_camera")(c._device, capture=capture, calibration=calibration)
+        elif camera is None:
+            camera = make_device(c._spec, "camera", kind=Camera)
         self.camera = camera
         self.history = JointHistory(c.state_history_s)
         self._init_frames()

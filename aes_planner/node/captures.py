@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from enum import Enum
 
 import numpy as np
 
@@ -14,14 +15,33 @@ from aes_planner.geometry.poses import cam2world_to_view
 from aes_planner.messages import Candidate
 from aes_planner.platform import view_angle_deg
 
-__all__ = ["Capture", "Target", "decision_order", "hopes", "near_captured"]
+__all__ = ["Capture", "CaptureKind", "Target", "decision_order", "hopes", "near_captured"]
+
+
+class CaptureKind(str, Enum):
+    """Why the loop took (or goes to take) a view. A ``str`` enum: it compares equal to, prints
+    and serialises as its word (``"move"``), so summaries and reports keep their text."""
+
+    INITIAL = "initial"  # the view the camera showed when the loop started
+    EXPLORE = "explore"  # spread over the range before the field can be trusted
+    MOVE = "move"  # a suggestion the field expects to beat the best capture
+    POLISH = "polish"  # a compass step around the best capture
+    SETTLE = "settle"  # back to the best capture, the loop's result
+    PASSIVE = "passive"  # a passive planner's last pose seen (no capture of its own)
+    QUEUED = "queued"  # a target not captured yet, counted as taken when ranking candidates
+
+    def __str__(self) -> str:
+        return self.value
+
+    def __format__(self, spec: str) -> str:
+        return format(self.value, spec)
 
 
 @dataclass
 class Capture:
     """A view the active loop captured and scored with the teacher (the real image)."""
 
-    kind: str  # initial | explore | move | polish | settle (| passive: the last pose seen)
+    kind: CaptureKind  # a word is read as its CaptureKind; an unknown one is refused
     cam2world: np.ndarray  # [4, 4]
     score: float
     stamp_s: float
@@ -30,12 +50,15 @@ class Capture:
     predicted: float | None = None
     image: np.ndarray | None = field(default=None, repr=False)  # [H, W, 3] uint8
 
+    def __post_init__(self):
+        self.kind = CaptureKind(self.kind)
+
 
 @dataclass
 class Target:
     """A view the loop commands and then captures (joints on a rig; the pose always)."""
 
-    kind: str  # what its capture will be: initial | explore | move | polish | settle
+    kind: CaptureKind  # what its capture will be
     cam2world: np.ndarray  # [4, 4]
     pan_rad: float | None = None
     tilt_rad: float | None = None
@@ -43,6 +66,9 @@ class Target:
     sent_s: float = -1.0
     arrived_s: float | None = None
     resent: bool = False
+
+    def __post_init__(self):
+        self.kind = CaptureKind(self.kind)
 
 
 def near_captured(captures: list[Capture], cam2world: np.ndarray, limit_deg: float, limit_m: float) -> bool:

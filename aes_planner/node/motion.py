@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import math
 from abc import ABC, abstractmethod
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -23,14 +24,30 @@ import torch
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
 from aes_planner.geometry.rig import PanTiltConfig
 from aes_planner.graph.base import Outputs
-from aes_planner.messages import Candidate, GimbalCommand, GimbalState, MessageError, PosedFrame
-from aes_planner.node.captures import Capture, Target
+from aes_planner.messages import Candidate, GimbalCommand, GimbalState, MessageError, PosedFrame, ViewSuggestion
+from aes_planner.node.captures import Capture, CaptureKind, Target
 from aes_planner.platform import DroneBox, DronePlatform, Platform, RigPlatform
 from aes_planner.search.space import space_for
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DroneMotion", "Motion", "RigMotion"]
+__all__ = ["DroneMotion", "Motion", "RigMotion", "Sender"]
+
+
+class Sender(Protocol):
+    """What a motion adapter may ask of the planner that sends its targets, and nothing more (the
+    planner node implements it; an adapter never reaches into the node's own state)."""
+
+    node_id: str
+
+    def next_command_sequence(self) -> int:
+        """The next ``gimbal/command`` sequence number (1 for the first)."""
+
+    def waypoint(self, candidate: Candidate, now: float) -> ViewSuggestion:
+        """A ``waypoint`` suggestion of ``candidate``, numbered and kept as the planner's own."""
+
+    def count(self, name: str) -> None:
+        """Add one to the planner's counter ``name``."""
 
 
 class Motion(ABC):
@@ -69,8 +86,8 @@ class Motion(ABC):
         """Clamp a finite candidate into the platform's range (in place); False to drop it."""
 
     @abstractmethod
-    def send(self, node, target: Target, now: float, out: Outputs) -> bool:
-        """Command the move to ``target`` (stamped ``now``); False when the command was refused."""
+    def send(self, node: Sender, target: Target, now: float, out: Outputs) -> bool:
+        """Command the move to ``target`` (stamped ``now``) through ``node`` (its :class:`Sender` side only); False when the command was refused."""
 
     @abstractmethod
     def arrived(self, target: Target, now: float, frame, gimbal, config) -> bool:
@@ -112,7 +129,7 @@ class RigMotion(Motion):
         start = captures[-1].pan_rad if captures else 0.0
         if start is not None and abs(joints[-1, 0] - start) < abs(joints[0, 0] - start):
             joints = joints[::-1]
-        return [Target("explore", kin.forward(p, t), float(p), float(t)) for p, t in joints]
+        return [Target(CaptureKind.EXPLORE, kin.forward(p, t), float(p), float(t)) for p, t in joints]
 
     def polish(self, cap, step_rad):
         if cap.pan_rad is None or cap.tilt_rad is None:
@@ -120,7 +137,7 @@ class RigMotion(Motion):
         out = []
         for dp, dt in ((step_rad, 0.0), (-step_rad, 0.0), (0.0, step_rad), (0.0, -step_rad)):
             pan, tilt = self.platform.clamp(cap.pan_rad + dp, cap.tilt_rad + dt)
-            out.append(Target("polish", self.platform.kinematics.forward(pan, tilt), pan, tilt))
+            out.append(Target(CaptureKind.POLISH, self.platform.kinematics.forward(pan, tilt), pan, tilt))
         return out
 
     def safe(self, cd):
@@ -130,17 +147,17 @@ class RigMotion(Motion):
         cd.cam2world = self.platform.kinematics.forward(cd.pan_rad, cd.tilt_rad)
         return True
 
-    def send(self, node, target, now, out):
+    def send(self, node: Sender, target, now, out):
         try:
             pan, tilt = self.platform.clamp(target.pan_rad, target.tilt_rad)
-            cmd = GimbalCommand("move", pan, tilt, stamp_s=now, sequence=node._next("cmd"))
+            cmd = GimbalCommand("move", pan, tilt, stamp_s=now, sequence=node.next_command_sequence())
         except (MessageError, ValueError) as exc:  # JointCommandError: NaN/Inf
             log.warning("%s: refused to command %s: %s", node.node_id, target, exc)
             return False
         target.pan_rad, target.tilt_rad = pan, tilt
         target.cam2world = self.platform.kinematics.forward(pan, tilt)
         out["gimbal/command"].append(cmd)
-        node.counters["commands_sent"] += 1
+        node.count("commands_sent")
         return True
 
     def arrived(self, target, now, frame, gimbal, config):
@@ -186,7 +203,9 @@ class DroneMotion(Motion):
         for i in range(1, n + 1):
             yaw = yaw0 + 2 * math.pi * i / (n + 1)
             pitch = math.radians(-10.0) if i % 2 else math.radians(5.0)
-            targets.append(Target("explore", self._pose(x, y, z, math.atan2(math.sin(yaw), math.cos(yaw)), pitch)))
+            targets.append(
+                Target(CaptureKind.EXPLORE, self._pose(x, y, z, math.atan2(math.sin(yaw), math.cos(yaw)), pitch))
+            )
         return targets
 
     def polish(self, cap, step_rad):
@@ -194,16 +213,18 @@ class DroneMotion(Motion):
         lo, hi = float(self.space.lower[4]), float(self.space.upper[4])
         x, y, z, yaw, pitch = (float(v) for v in cam2world_to_view(cap.cam2world))
         offsets = ((step_rad, 0.0), (-step_rad, 0.0), (0.0, step_rad), (0.0, -step_rad))
-        return [Target("polish", self._pose(x, y, z, yaw + dy, min(max(pitch + dp, lo), hi))) for dy, dp in offsets]
+        return [
+            Target(CaptureKind.POLISH, self._pose(x, y, z, yaw + dy, min(max(pitch + dp, lo), hi)))
+            for dy, dp in offsets
+        ]
 
     def safe(self, cd):
         cd.cam2world = self.platform.clamp(cd.cam2world)
         return True
 
-    def send(self, node, target, now, out):
+    def send(self, node: Sender, target, now, out):
         cand = Candidate(target.cam2world, target.predicted if target.predicted is not None else 0.0)
-        version = node.proposer.version if node.proposer else 0
-        out["planner/suggestion"].append(node._suggestion([cand], version, now, "waypoint"))
+        out["planner/suggestion"].append(node.waypoint(cand, now))
         return True
 
     def arrived(self, target, now, frame, gimbal, config):

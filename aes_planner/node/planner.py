@@ -29,7 +29,7 @@ import torch
 
 from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.plausible import distance_problem
-from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs, percentile
+from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs
 from aes_planner.images import downscale_frame
 from aes_planner.messages import (
     Candidate,
@@ -126,6 +126,11 @@ class PlannerNode(ActiveLoop, Node):
         self._target: Target | None = None
         self._polish_left = 0
         self._polish_scale = 0
+        self._polish_previous: Capture | None = None
+        self._climbs: list[Capture] = []
+        self._climb_budget = 0
+        self._climb_left = 0
+        self._round_from: int | None = None
         self._polish_centre: Capture | None = None
         self._fault_since: float | None = None
         self._last_diag = -math.inf
@@ -348,6 +353,17 @@ class PlannerNode(ActiveLoop, Node):
         self.counters["suggestions"] += 1
         return msg
 
+    # -- what a motion adapter may ask (aes_planner.node.motion.Sender) ------------------------
+    def next_command_sequence(self) -> int:
+        return self._next("cmd")
+
+    def waypoint(self, candidate: Candidate, now: float) -> ViewSuggestion:
+        version = self.proposer.version if self.proposer else 0
+        return self._suggestion([candidate], version, now, "waypoint")
+
+    def count(self, name: str) -> None:
+        self.counters[name] = self.counters.get(name, 0) + 1
+
     def _next(self, key: str) -> int:
         self._seq[key] += 1
         return self._seq[key]
@@ -357,8 +373,8 @@ class PlannerNode(ActiveLoop, Node):
         values = {
             "field_frames": float(self.proposer.size if self.proposer else 0),
             "field_version": float(self.proposer.version if self.proposer else 0),
-            "latency_p50_s": percentile(lat, 50),
-            "latency_p95_s": percentile(lat, 95),
+            "latency_p50_s": (float(np.percentile(lat, 50)) if len(lat) else 0.0),
+            "latency_p95_s": (float(np.percentile(lat, 95)) if len(lat) else 0.0),
             "threads": float(
                 self.governor.threads if self.governor else self.config.threads or torch.get_num_threads()
             ),

@@ -36,10 +36,11 @@ class PlannerConfig:
       or yaw and pitch for a drone, k from ``polish_scales - 1`` down to 0; the search moves to a
       better neighbour, halves the step when none is better and stops after the finest step);
       0 = settle at once. ``polish_step_deg`` should exceed ``arrival_tolerance_deg``.
-    * ``polish_starts``: hills the polish probes before it climbs: the best captured view and up
-      to ``polish_starts - 1`` others within ``polish_start_gap`` (teacher units) of it, at least
-      two coarsest steps apart; each gets its four coarsest neighbours captured, then the climb
-      starts from whichever view is best (a hill captured second is not lost to one captured first).
+    * ``polish_starts``: hills the polish climbs, one after the other, each with an equal share of
+      ``polish_captures``: the best captured view and up to ``polish_starts - 1`` others within
+      ``polish_start_gap`` (teacher units) of it, at least two coarsest steps apart (a hill
+      captured second is not lost to the local optimum captured first); the loop settles on the
+      best view of all.
     * ``tie_tolerance``: a capture displaces the best captured view (the polish's centre, the
       view settled on) only when it scored more than this higher (teacher units).
     * ``hope_quantum``: candidates are ranked by their hope rounded to this (teacher units), ties
@@ -85,16 +86,16 @@ class PlannerConfig:
     residual_length_deg: float = 15.0
     min_move_deg: float = 3.0
     min_move_m: float = 0.1
-    polish_captures: int = 16
-    polish_step_deg: float = 2.5
-    polish_scales: int = 3
+    polish_captures: int = 32
+    polish_step_deg: float = 1.25
+    polish_scales: int = 4
     polish_starts: int = 2
     polish_start_gap: float = 0.1
     tie_tolerance: float = 0.002
     hope_quantum: float = 0.005
     top_k: int = 3
     max_frames: int = 24
-    arrival_tolerance_deg: float = 1.5
+    arrival_tolerance_deg: float = 0.6
     arrival_tolerance_m: float = 0.05
     settle_s: float = 0.05
     move_timeout_s: float = 20.0
@@ -110,7 +111,9 @@ class PlannerConfig:
     adapt_threads: bool = True
 
     def __post_init__(self):
-        require(self.scorer in ("field", "rgb"), "scorer", f"must be 'field' or 'rgb', got {self.scorer!r}")
+        from aes_planner.search.scorers import SCORERS
+
+        require(self.scorer in SCORERS, "scorer", f"must be {' or '.join(SCORERS)}, got {self.scorer!r}")
         from aes_planner.search.config import PRESETS, REMOVED_PRESETS
 
         require(

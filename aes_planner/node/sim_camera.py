@@ -20,7 +20,7 @@ from aes_planner.devices import CameraImage
 from aes_planner.geometry.trajectory import JointHistory
 from aes_planner.graph.base import Input, LaunchContext, NodeError
 from aes_planner.messages import GimbalState
-from aes_planner.messages.posed_frame import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE_PX
+from aes_planner.messages.posed_frame import MAX_FRAME_PIXELS, MAX_FRAME_SIDE_PX
 from aes_planner.node.frames import FrameNode, check_frame_source
 from aes_planner.node.scene import launch_scene
 
@@ -87,11 +87,11 @@ class SimCameraNode(FrameNode):
         not on every step (the scene's camera and ``camera.width``/``height`` allow more, for
         ``sim render``)."""
         k = self.camera.intrinsics
-        if max(k.width, k.height) > MAX_IMAGE_SIDE_PX or k.width * k.height > MAX_IMAGE_PIXELS:
+        if max(k.width, k.height) > MAX_FRAME_SIDE_PX or k.width * k.height > MAX_FRAME_PIXELS:
             raise ConfigError(
                 f"{self.node_id}.camera.width",
                 f"a {k.width}x{k.height} camera is larger than a camera/frame message carries (at most "
-                f"{MAX_IMAGE_SIDE_PX} px a side and {MAX_IMAGE_PIXELS} pixels); set camera.width / camera.height "
+                f"{MAX_FRAME_SIDE_PX} px a side and {MAX_FRAME_PIXELS} pixels); set camera.width / camera.height "
                 "smaller (the scene's camera is the default)",
             )
 

@@ -28,7 +28,7 @@ from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.plausible import distortion_problem, intrinsics_problem, joint_problem, stamp_problem
 from aes_planner.messages import Diagnostics, GimbalState, PosedFrame, ViewSuggestion
-from aes_planner.messages.posed_frame import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE_PX
+from aes_planner.messages.posed_frame import MAX_FRAME_PIXELS, MAX_FRAME_SIDE_PX
 from aes_planner.ros2 import idl
 
 __all__ = [
@@ -253,7 +253,7 @@ def camera_info(
 def decode_camera_info(msg: idl.CameraInfo) -> tuple[Intrinsics, np.ndarray]:
     """(intrinsics in the package's convention, distortion coefficients) of a ``CameraInfo``."""
     w, h = int(msg.width), int(msg.height)
-    if not (1 <= w <= MAX_IMAGE_SIDE_PX and 1 <= h <= MAX_IMAGE_SIDE_PX) or w * h > MAX_IMAGE_PIXELS:
+    if not (1 <= w <= MAX_FRAME_SIDE_PX and 1 <= h <= MAX_FRAME_SIDE_PX) or w * h > MAX_FRAME_PIXELS:
         raise Ros2InputError(f"CameraInfo is {w}x{h}; the size must be non-zero and within the image caps")
     K = np.asarray(msg.k, dtype=np.float64)
     D = np.asarray(msg.d, dtype=np.float64)
@@ -272,10 +272,10 @@ def decode_camera_info(msg: idl.CameraInfo) -> tuple[Intrinsics, np.ndarray]:
 
 
 def _check_size(w: int, h: int, what: str) -> None:
-    if not (1 <= w <= MAX_IMAGE_SIDE_PX and 1 <= h <= MAX_IMAGE_SIDE_PX) or w * h > MAX_IMAGE_PIXELS:
+    if not (1 <= w <= MAX_FRAME_SIDE_PX and 1 <= h <= MAX_FRAME_SIDE_PX) or w * h > MAX_FRAME_PIXELS:
         raise Ros2InputError(
-            f"{what} is {w}x{h}; images must be non-empty, at most {MAX_IMAGE_SIDE_PX} px a side and "
-            f"{MAX_IMAGE_PIXELS} px in all"
+            f"{what} is {w}x{h}; images must be non-empty, at most {MAX_FRAME_SIDE_PX} px a side and "
+            f"{MAX_FRAME_PIXELS} px in all"
         )
 
 

@@ -10,26 +10,17 @@ OpenCV frame the package's poses use.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from aes_planner.geometry.rig import PanTiltConfig
+from aes_planner.geometry.rotations import rot_y, rot_z
 
 __all__ = ["RigLinks"]
 
 
-def _rz(a: float) -> np.ndarray:
+def _rotation(r: np.ndarray) -> np.ndarray:  # [3, 3] -> [4, 4]
     m = np.eye(4)
-    c, s = math.cos(a), math.sin(a)
-    m[:2, :2] = [[c, -s], [s, c]]
-    return m
-
-
-def _ry(a: float) -> np.ndarray:
-    m = np.eye(4)
-    c, s = math.cos(a), math.sin(a)
-    m[0, 0], m[0, 2], m[2, 0], m[2, 2] = c, s, -s, c
+    m[:3, :3] = r
     return m
 
 
@@ -53,10 +44,10 @@ class RigLinks:
         self.optical2link[:3, :3] = k.body_to_camera
 
     def pan2base(self, pan_rad: float) -> np.ndarray:
-        return _rz(pan_rad)
+        return _rotation(rot_z(pan_rad))
 
     def tilt2pan(self, tilt_rad: float) -> np.ndarray:
-        return _t(self.kinematics.tilt_offset) @ _ry(-tilt_rad)
+        return _t(self.kinematics.tilt_offset) @ _rotation(rot_y(-tilt_rad))
 
     def cam2world(self, pan_rad: float, tilt_rad: float) -> np.ndarray:
         """The composed chain (equals ``PanTilt.forward``; a test checks it)."""

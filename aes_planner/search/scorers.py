@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 from aes_planner.errors import AesPlannerError
+from aes_planner.field import SCORER_KINDS
 from aes_planner.field.scorer import Scorer
 from aes_planner.search.config import SearchConfig
 from aes_planner.search.pipeline import SearchError
 
 __all__ = ["SCORERS", "build_search_scorer"]
 
-#: Scorer kinds a search can build from frames (ground truth needs a scene source instead).
-SCORERS = ("field", "rgb")
+#: Scorer kinds a search can build from frames (ground truth needs a scene source instead): the
+#: field's table (:data:`aes_planner.field.SCORER_KINDS`), read everywhere a kind is offered.
+SCORERS = SCORER_KINDS
 
 
 def build_search_scorer(kind: str, frames: list, cfg: SearchConfig, teacher=None) -> Scorer:

@@ -30,9 +30,10 @@ import torch
 from torch import Tensor
 
 from aes_planner.config import require
+from aes_planner.metrics import plcc, srcc
 from aes_planner.teachers.base import Teacher, TeacherError
 
-__all__ = ["EvaluatorConfig", "CompositionEvaluator", "correlation", "plcc", "srcc", "PATTERNS"]
+__all__ = ["EvaluatorConfig", "CompositionEvaluator", "correlation", "PATTERNS"]
 
 PATTERNS = ("thirds", "centre_symmetry", "horizontal", "vertical", "diagonal")
 
@@ -202,39 +203,6 @@ class CompositionEvaluator:
     def evaluate(self, images: Tensor | Sequence[Tensor | np.ndarray]) -> np.ndarray:  # [N, 3, H, W] -> [N]
         """Scores in ``[0, 1]``, higher is better."""
         return self.explain(images)["score"]
-
-
-def plcc(a: Sequence[float], b: Sequence[float]) -> float:
-    """Pearson linear correlation coefficient (nan when either side is constant)."""
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    if a.shape != b.shape or a.size < 2:
-        raise TeacherError(f"plcc needs two equal-length sequences of >= 2 values, got {a.shape} and {b.shape}")
-    a, b = a - a.mean(), b - b.mean()
-    den = math.sqrt(float((a * a).sum() * (b * b).sum()))
-    return float((a * b).sum() / den) if den > 0 else float("nan")
-
-
-def _ranks(x: np.ndarray) -> np.ndarray:
-    """Ranks from 1, ties sharing their average rank."""
-    order = np.argsort(x, kind="mergesort")
-    ranks = np.empty(len(x), np.float64)
-    sorted_x = x[order]
-    i = 0
-    while i < len(x):
-        j = i
-        while j + 1 < len(x) and sorted_x[j + 1] == sorted_x[i]:
-            j += 1
-        ranks[order[i : j + 1]] = 0.5 * (i + j) + 1.0
-        i = j + 1
-    return ranks
-
-
-def srcc(a: Sequence[float], b: Sequence[float]) -> float:
-    """Spearman rank correlation coefficient (ties get average ranks)."""
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    if a.shape != b.shape or a.size < 2:
-        raise TeacherError(f"srcc needs two equal-length sequences of >= 2 values, got {a.shape} and {b.shape}")
-    return plcc(_ranks(a), _ranks(b))
 
 
 def correlation(

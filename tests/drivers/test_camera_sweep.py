@@ -31,6 +31,14 @@ def test_calibrate_rig_checks_the_launch_files_camera_device_before_opencv(tmp_p
     rig = write_file(tmp_path, "rig.yaml", "base_xyz_m: [0, 0, 1.3]\n")
     argv = ["calibrate", "rig", "--board", "chessboard:9x6:0.025", "--rig", rig, "--launch", launch]
     cli_error([*argv, "--set", "camera.device=-1", "--out", tmp_path / "o.yaml"], "device", seconds=30)
+    launch = write_file(  # the camera picked by type:, as a gimbal's device
+        tmp_path,
+        "l2.yaml",
+        "nodes:\n  - {id: gimbal, type: gimbal, config: {device: {type: emulated_pan_tilt}}}\n"
+        f"  - {{id: camera, type: camera, config: {{camera: {{type: opencv_camera, device: 0, calibration: c.yaml}}, rig: {RIG}}}}}\n",
+    )
+    argv = ["calibrate", "rig", "--board", "chessboard:9x6:0.025", "--rig", rig, "--launch", launch]
+    cli_error([*argv, "--set", "camera.camera.device=-1", "--out", tmp_path / "o.yaml"], "camera.device", seconds=30)
 
 
 @pytest.mark.parametrize(

@@ -8,8 +8,8 @@ import pytest
 
 from aes_planner.eval.field import FieldEvalConfig, default_scenes, evaluate_field, write_report
 from aes_planner.field import ScorerConfig
-from aes_planner.field.metrics import plcc, srcc, tv_ratio
 from aes_planner.field.model import FieldModel, FieldModelConfig
+from aes_planner.metrics import plcc, srcc, tv_ratio
 from aes_planner.sim import SimCameraConfig, SimSource
 from aes_planner.teachers import get_teacher
 

@@ -1,6 +1,8 @@
 """The camera nodes' one frame path: calibration files, any Camera device, pose interpolated at the
 stamp, best-effort frames, the sim camera behind the same seam."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -178,3 +180,42 @@ def test_sim_camera_node_publishes_through_the_device_without_extras():
     assert frame.cam2world == pytest.approx(node.camera.kinematics.forward(0.2, -0.1))
     assert not frame.extras  # the simulator's ground truth is not part of a published frame
     assert frame.frame_id == "sim_camera/000001" and node.counters["frames"] == 1
+
+
+@dataclasses.dataclass
+class ToyCameraConfig:
+    level: int = 7
+
+
+class RegisteredToyCamera(ToyCamera):
+    config_class = ToyCameraConfig
+
+    def __init__(self, config: ToyCameraConfig):
+        super().__init__()
+        self.config = config
+
+
+def test_a_camera_is_picked_by_its_type_word_like_a_gimbal(monkeypatch, tmp_path):
+    """``camera: {type: WORD, ...}`` builds the registered device (a user adds a camera the way
+    they add a servo); ``device``/``calibration`` stay the short form of ``opencv_camera``."""
+    from aes_planner import devices
+
+    monkeypatch.setitem(devices.DEVICE_TYPES, "toy_camera", RegisteredToyCamera)
+    node = CameraNode(CameraNodeConfig(camera={"type": "toy_camera", "level": 3}, rig=RIG, frame_id="toy"))
+    assert isinstance(node.camera, RegisteredToyCamera) and node.camera.config.level == 3
+    node.start()
+    (frame,) = node.step({"gimbal/state": [state(0.1, 0.0, stamp=0.0)]}, 0.5)["camera/frame"]
+    assert frame.frame_id == "toy/000001" and frame.image[0, 0, 0] == 7  # the registered device's image
+    node.stop()
+    p = tmp_path / "cam.yaml"
+    p.write_text(ROS)
+    short = CameraNode(CameraNodeConfig(device=2, calibration=str(p), rig=RIG))
+    assert type(short.camera).__name__ == "OpenCVCamera" and short.camera.config.device == 2
+    with pytest.raises(ConfigError, match="camera.level"):
+        CameraNodeConfig(camera={"type": "toy_camera", "level": "x"}, rig=RIG)
+    with pytest.raises(ConfigError, match="camera.type"):
+        CameraNodeConfig(camera={"type": "no_such_camera"}, rig=RIG)
+    with pytest.raises(ConfigError, match="not a camera"):
+        CameraNodeConfig(camera={"type": "sim_pan_tilt"}, rig=RIG)
+    with pytest.raises(ConfigError, match="not both"):
+        CameraNodeConfig(camera={"type": "toy_camera"}, device=1, rig=RIG)
