@@ -177,7 +177,7 @@ class PlannerNode(ActiveLoop, Node):
         if self.config.threads and self._threads_set_in != threading.get_ident():
             set_threads(self.config.threads)  # numba's count is per thread: set where the steps run
             self._threads_set_in = threading.get_ident()
-        elif not self.config.threads and self.config.adapt_threads and self.governor is None:
+        elif not self.config.threads and self._adapt_threads and self.governor is None:
             self.governor = ThreadGovernor(torch.get_num_threads())  # torch's default: all cores
         if self.started_s is None:
             self.started_s = now
@@ -330,13 +330,19 @@ class PlannerNode(ActiveLoop, Node):
             out["planner/suggestion"].append(self._suggestion(cands[: self.config.top_k], proposal.field_version, now))
             self.state = LoopState.SUGGESTING
 
+    @property
+    def _adapt_threads(self) -> bool:
+        """Whether the thread count follows measured CPU efficiency: not on a simulated clock,
+        where nothing may depend on how busy the machine is (the count could change the numerics)."""
+        return self.config.adapt_threads and self.context.clock != "sim"
+
     def _propose(self, captured: np.ndarray, k: int, **kw):
         """The proposer's search, timed: its latency, and its CPU efficiency for the governor."""
         # the governor's count, learnt from here (threads: N pinned it; adapt_threads: false leaves it)
         from aes_planner.search.framing import FramingError
 
         try:
-            with suggestion_threads(self.governor, self.cpu_clock, adapt=self.config.adapt_threads) as job:
+            with suggestion_threads(self.governor, self.cpu_clock, adapt=self._adapt_threads) as job:
                 proposal = self.proposer.propose(self.platform, captured, k, **kw)
         except FramingError:  # e.g. no reachable view holds the kept subject: counted, the caller goes on
             self.counters["framing_failed"] += 1

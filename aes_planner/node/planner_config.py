@@ -71,7 +71,8 @@ class PlannerConfig:
     * ``adapt_threads``: with ``threads: 0``, let a :class:`~aes_planner.runtime.ThreadGovernor`
       try one thread when the suggestions do not get the cores (a busy neighbour), keep whichever
       count runs them faster, and probe all cores again now and then; diagnostics report
-      ``threads``, ``cpu_efficiency`` and ``thread_changes``.
+      ``threads``, ``cpu_efficiency`` and ``thread_changes``. Not on a simulated clock, where
+      nothing may follow the load (docs/guides/clock.md).
     """
 
     scorer: str = "field"
