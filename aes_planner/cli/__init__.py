@@ -97,17 +97,20 @@ def terminal_safe(text: str) -> str:
 
 #: The longest error line the CLI prints: what an error echoes (a 10,000-character frame id, a
 #: file's garbage) is cut here, once, for every command.
-MAX_ERROR_CHARS = 600
+MAX_ERROR_CHARS = 1000
 
 
 def error_line(text: str, limit: int = MAX_ERROR_CHARS) -> str:
     """``text`` as the one line the CLI prints for an error: newlines and runs of spaces folded,
-    control characters escaped (:func:`terminal_safe`), and cut at ``limit`` characters with a
-    note of how much was left out."""
+    control characters escaped (:func:`terminal_safe`), and at most ``limit`` characters: the
+    middle is cut (with a note of how much), so the start (what is wrong) and the end (what to do)
+    stay."""
     text = terminal_safe(" ".join(str(text).split()))
     if len(text) <= limit:
         return text
-    return f"{text[: limit - 40]} ... [{len(text) - limit + 40} characters cut]"
+    tail = limit // 4
+    head = limit - tail - 40
+    return f"{text[:head]} ... [{len(text) - head - tail} characters cut] ... {text[-tail:]}"
 
 
 def _empty_value(argv: list[str]) -> str | None:
