@@ -199,7 +199,10 @@ def _convert(tp: Any, value: Any, key: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(key, f"expected a number, got {short_repr(value)}")
-        value = float(value)
+        try:
+            value = float(value)
+        except OverflowError:  # an integer of hundreds of digits
+            raise ConfigError(key, f"expected a finite number, got an integer of {len(str(value))} digits") from None
         if not math.isfinite(value):
             raise ConfigError(key, f"expected a finite number, got {short_repr(value)}")
         return value

@@ -20,8 +20,7 @@ import numpy as np
 
 from aes_planner.config import ConfigError, require, short_repr
 from aes_planner.devices import Camera, CameraError, CameraImage, DeviceError
-from aes_planner.geometry.camera import Intrinsics
-from aes_planner.geometry.plausible import intrinsics_problem
+from aes_planner.geometry.camera import Intrinsics, IntrinsicsError
 
 log = logging.getLogger(__name__)
 
@@ -46,16 +45,30 @@ class Calibration:
         return self.intrinsics.K - np.array([[0, 0, 0.5], [0, 0, 0.5], [0, 0, 0]])
 
 
+def _numbers(values: Any, key: str) -> np.ndarray:
+    """``values`` as float64 when it is a flat list of at most 64 numbers (not strings, booleans, nested lists)."""
+    ok = isinstance(values, list) and len(values) <= 64
+    ok = ok and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+    if not ok:
+        raise ConfigError(key, f"expected a list of at most 64 numbers, got {short_repr(values)}")
+    try:
+        return np.asarray(values, dtype=np.float64)
+    except OverflowError:  # an integer of thousands of digits
+        raise ConfigError(key, f"a number is too large for a float, got {short_repr(values)}") from None
+
+
 def _matrix(node: Any, key: str, rows: int | None = None, cols: int | None = None) -> np.ndarray:
     if isinstance(node, Mapping) and "data" in node:
-        data = np.asarray(node["data"], dtype=np.float64)
-        r, c = int(node.get("rows", rows or 1)), int(node.get("cols", cols or data.size))
+        data = _numbers(node["data"], f"{key}.data")
+        r, c = node.get("rows", rows or 1), node.get("cols", cols or data.size)
+        if not all(isinstance(v, int) and not isinstance(v, bool) and 0 < v <= 64 for v in (r, c)):
+            raise ConfigError(key, f"rows and cols must be integers 1-64, got {short_repr(r)} and {short_repr(c)}")
         if data.size != r * c:
             raise ConfigError(key, f"{r}x{c} matrix needs {r * c} numbers, got {data.size}")
         return data.reshape(r, c)
     if isinstance(node, list):
-        return np.asarray(node, dtype=np.float64)
-    raise ConfigError(key, f"expected a matrix ({{rows, cols, data}} or a list), got {node!r}")
+        return _numbers(node, key)
+    raise ConfigError(key, f"expected a matrix ({{rows, cols, data}} or a list), got {short_repr(node)}")
 
 
 def load_calibration(path: str | Path) -> Calibration:
@@ -89,10 +102,10 @@ def load_calibration(path: str | Path) -> Calibration:
         )
     # OpenCV and ROS put pixel centres at integers, the package at +0.5 (aes_planner.geometry)
     cx, cy = float(K[0, 2]) + 0.5, float(K[1, 2]) + 0.5
-    k = Intrinsics(float(K[0, 0]), float(K[1, 1]), cx, cy, data["image_width"], data["image_height"])
-    problem = intrinsics_problem(k)  # every frame would be refused: say so now
-    if problem is not None:
-        raise ConfigError("calibration.camera_matrix", f"{path}: {problem}")
+    try:  # Intrinsics hold the plausibility bounds themselves: every frame would be refused
+        k = Intrinsics(float(K[0, 0]), float(K[1, 1]), cx, cy, data["image_width"], data["image_height"])
+    except IntrinsicsError as exc:
+        raise ConfigError("calibration.camera_matrix", f"{path}: {exc}") from None
     return Calibration(k, dist)
 
 

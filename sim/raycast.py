@@ -417,6 +417,7 @@ def render(scene: Scene, cam2world: np.ndarray, intrinsics: Intrinsics, supersam
             depth, ids = depth[s // 2 :: s, s // 2 :: s], ids[s // 2 :: s, s // 2 :: s]
         else:
             depth, ids = _cast(scene, placed, *_ray_grid(intrinsics, 1))
+    rgb = np.nan_to_num(rgb, nan=0.0, posinf=1.0, neginf=0.0)  # no NaN is ever cast to uint8
     rgb8 = np.ascontiguousarray(np.rint(np.clip(rgb, 0.0, 1.0) * 255.0).astype(np.uint8).transpose(1, 2, 0))
     depth32 = np.where(ids > 0, depth, 0.0).astype(np.float32)
     return RenderOutput(rgb=rgb8, depth_m=depth32, instance_id=np.ascontiguousarray(ids, dtype=np.int32))

@@ -54,6 +54,16 @@ RGB = tuple[float, float, float]
 PATTERN_KINDS = ("checker", "stripes", "noise", "gradient")
 
 
+#: Brightest light (and emission) a scene may have, as a multiple of a white surface's full
+#: brightness: past a few the image is white anyway; 1e308 would overflow to inf and NaN.
+MAX_LIGHT_INTENSITY = 100.0
+
+
+def _require_intensity(value: float, key: str) -> None:
+    require_finite(value, key)
+    require(0.0 <= value <= MAX_LIGHT_INTENSITY, key, f"must be within [0, {MAX_LIGHT_INTENSITY:g}], got {value:g}")
+
+
 def _require_rgb(value: RGB, key: str) -> None:
     require_finite(list(value), key)
     require(all(0.0 <= v <= 1.0 for v in value), key, f"colour components must be in [0, 1], got {list(value)}")
@@ -179,7 +189,7 @@ class MaterialSpec:
         require(self.image is None or bool(self.image.strip()), "image", "must be a file path, got an empty string")
         if self.tile_m is not None:
             _require_feature_size(self.tile_m, "tile_m")
-        require(self.emission >= 0.0, "emission", f"must be >= 0, got {self.emission}")
+        _require_intensity(self.emission, "emission")
 
 
 # -------------------------------------------------------------------------------- objects
@@ -288,7 +298,7 @@ class AmbientLightSpec:
 
     def __post_init__(self):
         _require_rgb(self.colour, "colour")
-        require(self.intensity >= 0.0, "intensity", f"must be >= 0, got {self.intensity}")
+        _require_intensity(self.intensity, "intensity")
 
 
 @dataclass
@@ -305,7 +315,7 @@ class DirectionalLightSpec:
     def __post_init__(self):
         _require_direction(self.direction, "direction")
         _require_rgb(self.colour, "colour")
-        require(self.intensity >= 0.0, "intensity", f"must be >= 0, got {self.intensity}")
+        _require_intensity(self.intensity, "intensity")
 
 
 LIGHT_TYPES: dict[str, type] = {c.type: c for c in (AmbientLightSpec, DirectionalLightSpec)}

@@ -107,6 +107,10 @@ _CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH + cv2.CALIB_CB_NORMALIZE_IMAGE
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
 
 
+#: Shortest image side in which a board is looked for, pixels (a board's squares need a few pixels each).
+MIN_IMAGE_SIDE_PX = 16
+
+
 def detect(gray: np.ndarray, spec: BoardSpec) -> Detection | None:
     """The board's corners in ``gray [H, W]`` uint8, or None when it is not (wholly) there.
 
@@ -117,6 +121,8 @@ def detect(gray: np.ndarray, spec: BoardSpec) -> Detection | None:
     counts as not found by that detector. Corners are put in the board's canonical order (see the
     module docstring) so that every view labels them alike. ChArUco: ``CharucoDetector``, by id.
     """
+    if gray.ndim != 2 or min(gray.shape) < MIN_IMAGE_SIDE_PX:  # OpenCV's detectors assert on tiny images
+        return None
     if spec.kind == "charuco":
         return _detect_charuco(gray, spec)
     cols, rows = spec.corners_grid

@@ -14,6 +14,7 @@ The camera_info YAML is camera_calibration_parsers' format (what ROS ``camera_ca
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 from dataclasses import dataclass, field
@@ -182,6 +183,16 @@ def _row(values) -> str:
     return "[" + ", ".join(repr(float(v)) for v in values) + "]"
 
 
+def check_camera_name(name: str) -> str:
+    """``name`` when it is a camera name (1-128 printable characters; camera_calibration_parsers'
+    ``camera_name``); :class:`CalibrationFailed` naming ``--camera-name`` otherwise."""
+    if not (isinstance(name, str) and 1 <= len(name) <= 128 and name.isprintable()):
+        raise CalibrationFailed(
+            f"--camera-name must be 1-128 printable characters (no newlines or control characters), got {name[:64]!r}"
+        )
+    return name
+
+
 def camera_info_yaml(
     K: np.ndarray, distortion: np.ndarray, width: int, height: int, camera_name: str = "camera"
 ) -> str:
@@ -194,7 +205,7 @@ def camera_info_yaml(
     return (
         f"image_width: {int(width)}\n"
         f"image_height: {int(height)}\n"
-        f"camera_name: {camera_name}\n"
+        f"camera_name: {json.dumps(check_camera_name(camera_name))}\n"  # a quoted YAML scalar
         "camera_matrix:\n  rows: 3\n  cols: 3\n"
         f"  data: {_row(K.reshape(-1))}\n"
         "distortion_model: plumb_bob\n"

@@ -100,7 +100,7 @@ def terminal_safe(text: str) -> str:
 
 #: The longest error line the CLI prints: what an error echoes (a 10,000-character frame id, a
 #: file's garbage) is cut here, once, for every command.
-MAX_ERROR_CHARS = 600
+MAX_ERROR_CHARS = 1000
 
 
 def error_line(text: str, limit: int = MAX_ERROR_CHARS) -> str:

@@ -127,13 +127,48 @@ def _source_args(p: argparse.ArgumentParser, board_help: str) -> None:
     p.add_argument("--seed", type=int, default=0, help="sim noise seed")
 
 
+#: Bounds of the numeric flags, checked before any work: (flag, attribute, low, high).
+NUMBER_FLAGS = (
+    ("--pixel-noise", "pixel_noise", 0.0, 255.0),
+    ("--joint-noise-deg", "joint_noise_deg", 0.0, 10.0),
+    ("--sim-latency", "sim_latency", 0.0, 5.0),
+    ("--settle-s", "settle_s", 0.0, 60.0),
+    ("--supersample", "supersample", 1, 8),
+    ("--seed", "seed", 0, 2**32 - 1),
+    ("--margin-squares", "margin_squares", 0, 5),
+    ("--px-per-square", "px_per_square", 8, 1000),
+    ("--frames", "frames", 3, 500),
+)
+
+
+def _check_flags(args) -> None:
+    """Every numeric flag of the step within its bounds (a NaN, a 1e9 noise, a seed of 2**70 or
+    -1, --supersample 0): refused at once, before minutes of work, naming the flag."""
+    for flag, name, lo, hi in NUMBER_FLAGS:
+        v = getattr(args, name, None)
+        if v is None:
+            continue
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi):
+            raise CalibrateUsageError(f"{flag} must be within [{lo:g}, {hi:g}], got {v}")
+
+
+def _check_outputs(args, flags: tuple[str, ...]) -> None:
+    """The output files (``--out``, ``--json``) writable and not symlinks, before any work."""
+    from aes_planner.paths import output_file
+
+    for flag in flags:
+        value = getattr(args, flag.lstrip("-").replace("-", "_"), None)
+        if value is not None:
+            output_file(value, flag)
+
+
 # ---------------------------------------------------------------------------------- board
 def run_board(args) -> int:
     from aes_planner.calibrate.board import parse_board, write_board
 
+    _check_flags(args)
+    _check_outputs(args, ("--out",))
     spec = parse_board(args.board)
-    if not 0 <= args.margin_squares <= 5:
-        raise CalibrateUsageError(f"--margin-squares must be 0..5, got {args.margin_squares}")
     info = write_board(spec, args.out, args.px_per_square, args.margin_squares)
     size = f"{info['width_mm']:.1f} x {info['height_mm']:.1f} mm"
     pixels = f", {info['width_px']}x{info['height_px']} px" if "width_px" in info else ""
@@ -147,8 +182,17 @@ def run_board(args) -> int:
 # --------------------------------------------------------------------------------- camera
 def run_camera(args) -> int:
     from aes_planner.calibrate.board import parse_board
-    from aes_planner.calibrate.intrinsics import CalibrationFailed, calibrate_views, camera_info_yaml, load_views
+    from aes_planner.calibrate.intrinsics import (
+        CalibrationFailed,
+        calibrate_views,
+        camera_info_yaml,
+        check_camera_name,
+        load_views,
+    )
 
+    _check_flags(args)
+    check_camera_name(args.camera_name)
+    _check_outputs(args, ("--out", "--json"))
     spec = parse_board(args.board)
     t0 = time.monotonic()
     if args.device is not None:
@@ -283,7 +327,7 @@ class _Session:
             if self.scene.rig is None:
                 raise CalibrateUsageError(f"--scene {a.scene}: the scene has a drone; calibration needs a rig scene")
             w, h = sim_camera_size(self.scene)
-            supersample = a.supersample or (2 if w * h <= 640 * 540 else 1)
+            supersample = a.supersample if a.supersample is not None else (2 if w * h <= 640 * 540 else 1)
             if not 1 <= supersample <= 8:
                 raise CalibrateUsageError(f"--supersample must be 1..8, got {supersample}")
             camera = sim_calibration_camera(self.scene, supersample, a.seed, pixel_noise_sigma=a.pixel_noise)
@@ -370,6 +414,8 @@ def run_rig(args) -> int:
     from aes_planner.calibrate.pipeline import calibrate_rig, estimate_latency, latency_sweep_centre, rig_yaml
     from aes_planner.config import to_dict
 
+    _check_flags(args)
+    _check_outputs(args, ("--out", "--json"))  # before the calibration, not after it
     board = parse_board(args.board)
     nominal = _load_rig(args.rig)
     if not 8 <= args.views <= 200:
@@ -432,8 +478,12 @@ def run_verify(args) -> int:
     from aes_planner.calibrate.board import parse_board
     from aes_planner.calibrate.pipeline import verify_rig
 
+    _check_flags(args)
+    _check_outputs(args, ("--json",))
     board = parse_board(args.board)
     config = _load_rig(args.rig)
+    if not 4 <= args.views <= 200:
+        raise CalibrateUsageError(f"--views must be in [4, 200], got {args.views}")
     t0 = time.monotonic()
     with _Session(args) as session:
         report = verify_rig(session.source, config, board, args.views, seed=args.seed + 101)

@@ -382,7 +382,7 @@ def load_dataset(
             fx, fy, cx, cy = (finite_number(e, name, key) for name in ("fx", "fy", "cx", "cy"))
             k = check_intrinsics(Intrinsics(fx, fy, cx, cy, image.shape[1], image.shape[0]), key)
         except IntrinsicsError as exc:
-            raise DatasetError(f"{key}: {exc}") from None
+            raise DatasetError(f"{key}.{exc.problem}" if exc.problem else f"{key}: {exc}") from None
         if "cam2world" not in e:
             raise DatasetError(f"{key}.cam2world: missing (a 4x4 camera-to-world matrix, OpenCV axes)")
         c2w = _matrix(e["cam2world"], f"{key}.cam2world")

@@ -178,7 +178,7 @@ def import_nerfstudio(
         try:
             k = check_intrinsics(Intrinsics(fx, fy, cx, cy, w, h), key)
         except IntrinsicsError as exc:
-            raise DatasetError(f"{key}: {exc}") from None
+            raise DatasetError(f"{key}.{exc.problem}" if exc.problem else f"{key}: {exc}") from None
         if "transform_matrix" not in fr:
             raise DatasetError(f"{key}.transform_matrix: missing")
         try:
@@ -271,7 +271,7 @@ def import_re10k(
         try:
             k = check_intrinsics(Intrinsics.from_normalized(fx_n, fy_n, cx_n, cy_n, w, h), key)
         except IntrinsicsError as exc:
-            raise DatasetError(f"{key}: {exc}") from None
+            raise DatasetError(f"{key}.{exc.problem}" if exc.problem else f"{key}: {exc}") from None
         w2c = np.vstack([values[6:].reshape(3, 4), [0.0, 0.0, 0.0, 1.0]])
         try:
             w2c = validate_cam2world(w2c, f"{key} world-to-camera")

@@ -284,7 +284,7 @@ class MavlinkDroneNode(Node):
                     f"the vehicle (system {link.sysid}) sends heartbeats but no {missing} within {c.telemetry_wait_s:g} s "
                     f"(telemetry_wait_s) after {link.counters.get('stream_requests_sent', 0)} requests "
                     "(MAV_CMD_SET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM); give the port those streams (ArduPilot: "
-                    "SRn_POSITION and SRn_EXTRA1 of its serial port, or MAVn_OPTIONS on a network port) and check "
+                    "SRn_POSITION and SRn_EXTRA1 of its port, the MAVn_* stream rates on newer firmware) and check "
                     "that it has a position estimate"
                 )
             return None

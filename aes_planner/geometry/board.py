@@ -105,6 +105,8 @@ class BoardSpec:
 def parse_board(text: str) -> BoardSpec:
     """A :class:`BoardSpec` from a ``--board`` string; :class:`BoardError` saying the form otherwise."""
     text = str(text).strip()
+    if not text.isascii() or not text.isprintable():  # \d also matches full-width and other digits
+        raise BoardError(f"--board {text[:80]!r}: use ASCII letters and digits; {_HELP}")
     m = _CHESS.match(text)
     if m:
         cols, rows, square = int(m.group(1)), int(m.group(2)), _length(m.group(3), "SQUARE_M", text)

@@ -26,7 +26,12 @@ MAX_CAMERA_SIDE_PX = 1 << 15
 
 
 class IntrinsicsError(AesPlannerError, ValueError):
-    """Intrinsics that no pinhole camera has (non-positive focal length, empty image...)."""
+    """Intrinsics that no pinhole camera has (non-positive focal length, empty image...);
+    ``problem``: what is wrong, starting with the field (``fx: ...``), when a bound refused it."""
+
+    def __init__(self, message: str, problem: str | None = None):
+        super().__init__(message)
+        self.problem = problem
 
 
 @dataclass(frozen=True)
@@ -61,6 +66,14 @@ class Intrinsics:
                 f"a {self.width}x{self.height} camera is too large: at most {MAX_CAMERA_SIDE_PX} pixels per side "
                 f"and {MAX_CAMERA_PIXELS} in all"
             )
+        # the bounds of any camera (field of view 0.01-179.5 deg over the longer side, principal point
+        # within ten image sizes), here where every camera enters: a focal length of 1e30 px is a
+        # broken file, and the compiled and the torch rasterizer (float32) part ways out there
+        from aes_planner.geometry.plausible import camera_problem
+
+        problem = camera_problem(self)
+        if problem is not None:
+            raise IntrinsicsError(f"intrinsics.{problem}", problem)
 
     @classmethod
     def from_fov(cls, width: int, height: int, hfov_deg: float) -> Intrinsics:
@@ -73,7 +86,14 @@ class Intrinsics:
             raise IntrinsicsError(
                 f"hfov_deg = {hfov_deg:g} is too narrow for a finite focal length at {width} px; use a wider field of view"
             )
-        return cls(f, f, width / 2.0, height / 2.0, int(width), int(height))
+        try:
+            return cls(f, f, width / 2.0, height / 2.0, int(width), int(height))
+        except IntrinsicsError as exc:
+            if exc.problem is None:
+                raise
+            raise IntrinsicsError(
+                f"hfov_deg = {hfov_deg:g} at {width}x{height} px: {exc.problem}", exc.problem
+            ) from None
 
     @classmethod
     def from_matrix(cls, K: np.ndarray, width: int, height: int) -> Intrinsics:

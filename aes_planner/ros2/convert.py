@@ -25,7 +25,7 @@ import math
 import numpy as np
 
 from aes_planner.errors import AesPlannerError
-from aes_planner.geometry.camera import Intrinsics
+from aes_planner.geometry.camera import Intrinsics, IntrinsicsError
 from aes_planner.geometry.plausible import distortion_problem, intrinsics_problem, joint_problem, stamp_problem
 from aes_planner.messages import Diagnostics, GimbalState, PosedFrame, ViewSuggestion
 from aes_planner.messages.posed_frame import MAX_FRAME_PIXELS, MAX_FRAME_SIDE_PX
@@ -264,7 +264,10 @@ def decode_camera_info(msg: idl.CameraInfo) -> tuple[Intrinsics, np.ndarray]:
     problem = distortion_problem(str(msg.distortion_model), D)
     if problem is not None:
         raise Ros2InputError(f"CameraInfo.{problem}")
-    k = Intrinsics(float(K[0]), float(K[4]), float(K[2]) + 0.5, float(K[5]) + 0.5, w, h)
+    try:
+        k = Intrinsics(float(K[0]), float(K[4]), float(K[2]) + 0.5, float(K[5]) + 0.5, w, h)
+    except IntrinsicsError as exc:
+        raise Ros2InputError(f"CameraInfo.k: {exc.problem or exc}") from None
     problem = intrinsics_problem(k)
     if problem is not None:
         raise Ros2InputError(f"CameraInfo.k: {problem}")

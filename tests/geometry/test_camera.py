@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from aes_planner.geometry import Intrinsics
@@ -25,7 +25,11 @@ def test_pixel_centres_are_at_half_pixels():
 
 @given(st.floats(1.0, 1e5), st.integers(1, 4096), st.integers(1, 4096), st.floats(0.01, 1e4))
 def test_project_unproject_round_trip(f, w, h, depth):
-    k = Intrinsics(f, f, w / 2, h / 2, w, h)
+    try:
+        k = Intrinsics(f, f, w / 2, h / 2, w, h)
+    except IntrinsicsError as exc:  # a 1 px image at f = 1e5 px: 0.0006 deg, no camera (tested there)
+        assert exc.problem is not None
+        assume(False)
     uv = np.array([[0.5, 0.5], [w - 0.5, h - 0.5], [w / 3, h / 5]])
     p = k.unproject(uv, np.full(3, depth))
     np.testing.assert_allclose(p[:, 2], depth)

@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from aes_planner.dataset.folder import DatasetError, check_intrinsics
-from aes_planner.geometry.camera import Intrinsics
-from aes_planner.geometry.plausible import MAX_JOINT_RAD, MAX_LOCAL_DISTANCE_M
+from aes_planner.geometry.camera import Intrinsics, IntrinsicsError
+from aes_planner.geometry.plausible import MAX_JOINT_RAD, MAX_LOCAL_DISTANCE_M, camera_problem
 from aes_planner.messages import GimbalState, MessageError, PosedFrame, decode
 from aes_planner.transport import InProcessBus
+from tests.helpers import raw_intrinsics
 
 H, W = 8, 12
 
@@ -37,18 +38,27 @@ def far_pose(distance_m: float) -> np.ndarray:
 
 
 BAD = {
-    "fx_tiny": dict(intrinsics=Intrinsics(1e-300, 10.0, 6.0, 4.0, W, H)),
-    "fy_tiny": dict(intrinsics=Intrinsics(10.0, 1e-300, 6.0, 4.0, W, H)),
-    "all_huge": dict(intrinsics=Intrinsics(1e300, 1e300, 1e300, 1e300, W, H)),
-    "fx_huge": dict(intrinsics=Intrinsics(1e300, 10.0, 6.0, 4.0, W, H)),
-    "cx_far": dict(intrinsics=Intrinsics(10.0, 10.0, 1e6, 4.0, W, H)),
-    "cy_negative": dict(intrinsics=Intrinsics(10.0, 10.0, 6.0, -50.0, W, H)),
+    "fx_tiny": dict(intrinsics=raw_intrinsics(1e-300, 10.0, 6.0, 4.0, W, H)),
+    "fy_tiny": dict(intrinsics=raw_intrinsics(10.0, 1e-300, 6.0, 4.0, W, H)),
+    "all_huge": dict(intrinsics=raw_intrinsics(1e300, 1e300, 1e300, 1e300, W, H)),
+    "fx_huge": dict(intrinsics=raw_intrinsics(1e300, 10.0, 6.0, 4.0, W, H)),
+    "cx_far": dict(intrinsics=raw_intrinsics(10.0, 10.0, 1e6, 4.0, W, H)),
+    "cy_negative": dict(intrinsics=raw_intrinsics(10.0, 10.0, 6.0, -50.0, W, H)),
     "pan_huge": dict(pan_rad=1e300),
     "tilt_huge": dict(tilt_rad=-1e300),
     "pan_three_turns": dict(pan_rad=3 * 2 * math.pi),
     "pose_far": dict(cam2world=far_pose(1e11)),
     "pose_far_negative": dict(cam2world=far_pose(-5e9)),
 }
+
+
+@pytest.mark.parametrize(
+    "name", sorted(k for k in BAD if "intrinsics" in BAD[k] and camera_problem(BAD[k]["intrinsics"]))
+)
+def test_intrinsics_refuse_what_no_camera_has_where_they_are_built(name):
+    k = BAD[name]["intrinsics"]
+    with pytest.raises(IntrinsicsError, match="intrinsics"):
+        Intrinsics(k.fx, k.fy, k.cx, k.cy, k.width, k.height)
 
 
 @pytest.mark.parametrize("name", sorted(BAD))

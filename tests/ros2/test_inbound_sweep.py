@@ -15,11 +15,10 @@ import pytest
 pytest.importorskip("cyclonedds", reason="the ros2 extra (cyclonedds) is not installed")
 pytest.importorskip("rosbags", reason="the ros2 extra (rosbags) is not installed")
 
-from aes_planner.geometry.camera import Intrinsics
 from aes_planner.ros2.bridge import Ros2BridgeConfig, Ros2BridgeNode
 from aes_planner.ros2.dds import DdsConfig
 from aes_planner.sim import load_scene
-from tests.helpers import wait_for
+from tests.helpers import raw_intrinsics, wait_for
 from tests.ros2.stock import domain_for_tests
 from tests.ros2.test_inbound import K, _camera_info, _image, _joint_state, peer  # noqa: F401
 
@@ -104,9 +103,9 @@ def test_an_image_stamped_days_ahead_is_not_forwarded(rig):
         dict(model="fisheye9000", d=(0.1, 0, 0, 0, 0)),
         dict(model="fisheye9000", d=(0.0,) * 5),
         dict(model="plumb_bob", d=(0.1,) * 9),
-        dict(k=Intrinsics(1e30, 1e30, 16.0, 12.0, 32, 24)),
-        dict(k=Intrinsics(1e-30, 1e-30, 16.0, 12.0, 32, 24)),
-        dict(k=Intrinsics(30.0, 30.0, 1e9, 12.0, 32, 24)),
+        dict(k=raw_intrinsics(1e30, 1e30, 16.0, 12.0, 32, 24)),
+        dict(k=raw_intrinsics(1e-30, 1e-30, 16.0, 12.0, 32, 24)),
+        dict(k=raw_intrinsics(30.0, 30.0, 1e9, 12.0, 32, 24)),
     ],
     ids=["d-1e300", "d-minus-1e9", "fisheye9000", "fisheye9000-zero-d", "plumb-bob-9", "fx-1e30", "fx-1e-30", "cx-1e9"],
 )

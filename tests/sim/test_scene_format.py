@@ -68,7 +68,7 @@ def _overview_pose(scene):
         (lambda d: d["objects"][6]["material"].update(image="missing.png"), "objects[6].material.image", "not found"),
         (lambda d: d["objects"][4].update(axis=[0, 0, 0]), "objects[4].axis", "non-zero"),
         (lambda d: d["objects"][2].update(radius_m="big"), "objects[2].radius_m", "expected a number"),
-        (lambda d: d["lights"][1].update(intensity=-1), "lights[1].intensity", ">= 0"),
+        (lambda d: d["lights"][1].update(intensity=-1), "lights[1].intensity", "must be within"),
         (lambda d: d["lights"].append({"type": "spot"}), "lights[2].type", "must be one of"),
         (
             lambda d: d["rig"]["pan_tilt"].update(pan_limits_deg=[10, -10]),

@@ -95,6 +95,13 @@ SCENE_CASES = [
     (lambda d: _mat(d, image="junk.png"), "material.image", "not an image"),
     (lambda d: _mat(d, image=""), "material.image", "empty"),
     (lambda d: _mat(d, image=["a"]), "material.image", "expected a string"),
+    # lights of absurd intensity (a third sweep): refused at load, never rendered as NaN
+    (lambda d: d["lights"][0].update(intensity=1e308), "lights[0].intensity", "within [0, 100]"),
+    (lambda d: d["lights"][1].update(intensity=1e30), "lights[1].intensity", "within [0, 100]"),
+    (lambda d: d["lights"][1].update(intensity=float("inf")), "lights[1].intensity", "finite"),
+    (lambda d: d["lights"][0].update(intensity=float("nan")), "lights[0].intensity", "finite"),
+    (lambda d: d["lights"][0].update(intensity=-1), "lights[0].intensity", "within [0, 100]"),
+    (lambda d: _mat(d, emission=1e300), "material.emission", "within [0, 100]"),
 ]
 
 
@@ -238,3 +245,21 @@ def test_scene_file_of_the_wrong_shape_names_the_key(tmp_path, cli_error, name):
     argv = ["sim", "render", "--scene", scene, "--views", "1", "--out", tmp_path / "out", "--allow-outside-paths"]
     cli_error([*argv, "--width", "32", "--height", "24"], key, seconds=60)
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("intensity", [0.0, 1.0, 100.0])
+def test_the_brightest_allowed_lights_render_without_nan(scene_dir, intensity):
+    import warnings
+
+    folder, write = scene_dir
+
+    def bright(d):
+        for light in d["lights"]:
+            light["intensity"] = intensity
+        d["objects"][0]["material"]["emission"] = intensity
+
+    scene = load_scene(write(bright))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a NaN cast to uint8 warns
+        out = render(scene, scene.rig.kinematics().forward(0.0, 0.0), scene.rig.intrinsics())
+    assert out.rgb.dtype == np.uint8 and out.rgb.max() <= 255
