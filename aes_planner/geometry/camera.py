@@ -69,8 +69,6 @@ class Intrinsics:
         # the bounds of any camera (field of view 0.01-179.5 deg over the longer side, principal point
         # within ten image sizes), here where every camera enters: a focal length of 1e30 px is a
         # broken file, and the compiled and the torch rasterizer (float32) part ways out there
-        from aes_planner.geometry.plausible import camera_problem
-
         problem = camera_problem(self)
         if problem is not None:
             raise IntrinsicsError(f"intrinsics.{problem}", problem)
@@ -165,3 +163,30 @@ class Intrinsics:
         x = (uv[..., 0] - self.cx) / self.fx * d
         y = (uv[..., 1] - self.cy) / self.fy * d
         return np.stack([x, y, d], axis=-1)
+
+
+#: Fields of view any camera the package is given may have (over the image's longer side), and
+#: how far its principal point may lie from the image (in image sizes): the range over which the
+#: rasterizers (compiled, torch) are tested to agree. Checked by every Intrinsics when built; a
+#: focal length of 1e30 px (where the two part ways in float32) is refused there.
+CAMERA_FOV_RANGE_DEG = (0.01, 179.5)
+MAX_PRINCIPAL_OFFSET = 10.0
+
+
+def camera_problem(k: Intrinsics) -> str | None:
+    """What no camera at all has about ``k`` (looser than :func:`intrinsics_problem`, which is
+    what a real frame has): None when its focal lengths give 0.01-179.5 deg over the image's longer
+    side and its principal point is within 10 image sizes of the image."""
+    lo, hi = CAMERA_FOV_RANGE_DEG
+    side = max(k.width, k.height)
+    for name, f in (("fx", k.fx), ("fy", k.fy)):
+        fov = math.degrees(2 * math.atan(side / (2 * f)))
+        if not lo <= fov <= hi:
+            return (
+                f"{name}: a focal length of {f:g} px gives a {fov:.3g} deg field of view over {side} px; "
+                f"expected {lo} to {hi} deg (are the intrinsics in pixels?)"
+            )
+    for name, c, size in (("cx", k.cx, k.width), ("cy", k.cy, k.height)):
+        if not -MAX_PRINCIPAL_OFFSET * size <= c <= (1 + MAX_PRINCIPAL_OFFSET) * size:
+            return f"{name}: principal point {c:g} px is far outside the {size} px image; expected about {size / 2:g}"
+    return None

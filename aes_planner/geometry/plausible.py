@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from aes_planner.geometry.camera import Intrinsics
+from aes_planner.geometry.camera import CAMERA_FOV_RANGE_DEG, MAX_PRINCIPAL_OFFSET, Intrinsics, camera_problem
 
 __all__ = [
     "FOV_RANGE_DEG",
@@ -39,6 +39,7 @@ __all__ = [
     "MAX_DISTORTION_ABS",
     "distortion_problem",
     "CAMERA_FOV_RANGE_DEG",
+    "MAX_PRINCIPAL_OFFSET",
     "camera_problem",
     "intrinsics_problem",
     "stamp_problem",
@@ -77,33 +78,6 @@ def stamp_problem(
         return f"{what}: {t_s:.6g} s is not a time (expected 0 to {MAX_STAMP_S:.0f} s, 2038-01-19)"
     if now_s is not None and t_s - now_s > max_ahead_s:
         return f"{what}: {t_s - now_s:.3g} s ahead of this clock (more than {max_ahead_s:g} s: a clock is wrong)"
-    return None
-
-
-#: Fields of view any camera the package is given may have (over the image's longer side), and
-#: how far its principal point may lie from the image (in image sizes): the range over which the
-#: rasterizers (compiled, torch) are tested to agree. Checked by every Intrinsics when built; a
-#: focal length of 1e30 px (where the two part ways in float32) is refused there.
-CAMERA_FOV_RANGE_DEG = (0.01, 179.5)
-MAX_PRINCIPAL_OFFSET = 10.0
-
-
-def camera_problem(k: Intrinsics) -> str | None:
-    """What no camera at all has about ``k`` (looser than :func:`intrinsics_problem`, which is
-    what a real frame has): None when its focal lengths give 0.01-179.5 deg over the image's longer
-    side and its principal point is within 10 image sizes of the image."""
-    lo, hi = CAMERA_FOV_RANGE_DEG
-    side = max(k.width, k.height)
-    for name, f in (("fx", k.fx), ("fy", k.fy)):
-        fov = math.degrees(2 * math.atan(side / (2 * f)))
-        if not lo <= fov <= hi:
-            return (
-                f"{name}: a focal length of {f:g} px gives a {fov:.3g} deg field of view over {side} px; "
-                f"expected {lo} to {hi} deg (are the intrinsics in pixels?)"
-            )
-    for name, c, size in (("cx", k.cx, k.width), ("cy", k.cy, k.height)):
-        if not -MAX_PRINCIPAL_OFFSET * size <= c <= (1 + MAX_PRINCIPAL_OFFSET) * size:
-            return f"{name}: principal point {c:g} px is far outside the {size} px image; expected about {size / 2:g}"
     return None
 
 
