@@ -112,6 +112,9 @@ def register_loop(esub: argparse._SubParsersAction) -> None:
         metavar="DIR",
         help="results.json (resumed) and report.md (default runs/eval_loop)",
     )
+    from aes_planner.cli.processes import add_clock_flag
+
+    add_clock_flag(lp, "sim (a real gimbal, --set gimbal.emulate=false, needs wall)")
     lp.set_defaults(func=run_loop)
 
 
@@ -136,9 +139,11 @@ def run_loop(args: argparse.Namespace) -> int:
         timeout_s=args.timeout,
         sets=args.set,
     )
+    import functools
+
     from aes_planner.cli.demo import run_demo
 
-    results = run_loop_eval(cfg, Path(out), run_demo, progress=print)
+    results = run_loop_eval(cfg, Path(out), functools.partial(run_demo, clock=args.clock), progress=print)
     print((Path(out) / "report.md").read_text())
     s = results["summary"]
     return 0 if s.get("errors", 1) == 0 else 1

@@ -123,7 +123,15 @@ RECIPES: dict[str, Recipe] = {
     "launch": Recipe(lambda t, tty: ["launch", _graph_launch(t, tty)], slow=True),
     "demo": Recipe(
         lambda t, tty: (
-            ["demo", "--scene", "tabletop:1", "--moves", "1", "--out", str(t / "run")]
+            ["demo", "--scene", "tabletop:1", "--moves", "1", "--clock", "wall", "--out", str(t / "run")]
+            + ["--set", "planner.preset=fast", "--set", "gimbal.emulate=false", "--set", f"gimbal.device.port={tty}"]
+        ),
+        slow=True,
+    ),
+    "eval loop": Recipe(  # the demo's closed loop per scene x perturbation: a signal ends the evaluation
+        lambda t, tty: (
+            ["eval", "loop", "--scene", "tabletop:1", "--perturb", "base", "--moves", "1", "--clock", "wall"]
+            + ["--out", str(t / "run")]
             + ["--set", "planner.preset=fast", "--set", "gimbal.emulate=false", "--set", f"gimbal.device.port={tty}"]
         ),
         slow=True,
