@@ -151,7 +151,9 @@ class MavlinkLink:
         self.last_seen_s: dict[str, float] = {}  # message name -> arrival of the newest
         self.last_stream_request_s = -math.inf
         self.implausible_s = -math.inf  # arrival of the newest garbage position
-        self._position_ref: tuple[np.ndarray, float] | None = None  # newest position heard (any), its time
+        self._position_ref: tuple[np.ndarray, float, float] | None = (
+            None  # newest position heard (any): arrival, vehicle time
+        )
         self._outside_said = False
         self.compid = 1
         self.autopilot_seen: str | None = None
@@ -281,7 +283,7 @@ class MavlinkLink:
             if not np.all(np.isfinite(p)):
                 self.counters["telemetry_rejected"] += 1
                 return
-            problem = self._implausible(p, now)
+            problem = self._implausible(p, now, msg.time_boot_ms / 1000.0)
             if problem is not None:
                 self.counters["telemetry_implausible"] += 1
                 if now - self.implausible_s > self.config.telemetry_hold_s:
@@ -324,18 +326,24 @@ class MavlinkLink:
                 log.warning("vehicle refused the mode switch (MAV_RESULT %d)", msg.result)
 
     # ---------------------------------------------------------------------------- control
-    def _implausible(self, p_ned: np.ndarray, now: float) -> str | None:
-        """What no vehicle does about position ``p_ned`` arriving at ``now`` (None: plausible). A jump
-        is measured from the newest position heard, garbage or not, so a vehicle whose estimate
-        really moved (an EKF reset) is flown again after ``telemetry_hold_s`` of steady telemetry."""
+    def _implausible(self, p_ned: np.ndarray, now: float, boot_s: float = 0.0) -> str | None:
+        """What no vehicle does about position ``p_ned`` arriving at ``now``, measured at ``boot_s``
+        on the vehicle's own clock (``time_boot_ms``; None: plausible). A jump is measured from the
+        newest position heard, garbage or not, so a vehicle whose estimate really moved (an EKF
+        reset) is flown again after ``telemetry_hold_s`` of steady telemetry. The time between two
+        positions is the vehicle's (when it measured them), not when they arrived: on a loaded
+        companion computer messages arrive late and in bursts, which would make a real move look
+        too fast, or a stalled stream make garbage look slow enough. Arrival time is the fallback
+        when the vehicle's clock is absent (0) or went back (a reboot)."""
         far = float(np.abs(p_ned).max())
         if not far <= MAX_COORDINATE_M:
             return f"LOCAL_POSITION_NED {far:.3g} m from the origin (beyond {MAX_COORDINATE_M:.0e} m)"
-        ref, self._position_ref = self._position_ref, (p_ned, now)
+        ref, self._position_ref = self._position_ref, (p_ned, now, boot_s)
         if ref is None:
             return None
         jump = float(np.linalg.norm(p_ned - ref[0]))
-        dt = max(now - ref[1], 0.0)
+        vehicle_clock = boot_s > 0.0 and ref[2] > 0.0 and boot_s >= ref[2]
+        dt = boot_s - ref[2] if vehicle_clock else max(now - ref[1], 0.0)
         allowed = self.config.max_vehicle_speed_m_s * dt + JUMP_SLACK_M
         if jump > allowed:
             return f"LOCAL_POSITION_NED jumped {jump:.3g} m in {dt:.3f} s (faster than max_vehicle_speed_m_s {self.config.max_vehicle_speed_m_s:g})"

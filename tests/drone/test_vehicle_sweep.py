@@ -20,6 +20,7 @@ import pytest
 
 from aes_planner.config import from_dict
 from aes_planner.drone.node import MavlinkDroneConfig, MavlinkDroneNode
+from tests.drone.spec_vehicle import _Out
 from tests.drone.test_spec_vehicle import free_port
 from tests.helpers import wait_for
 
@@ -34,17 +35,6 @@ ARDUPILOT_GUIDED = 4
 def node(port, **kw) -> MavlinkDroneNode:
     cfg = {"connection": f"udpin:127.0.0.1:{port}", "request_offboard": True, "prime_s": 0.5, **BOX, **kw}
     return MavlinkDroneNode(from_dict(MavlinkDroneConfig, cfg))
-
-
-class _Out:
-    def __init__(self, sock, addr):
-        self.sock, self.addr = sock, addr
-
-    def write(self, data):
-        try:
-            self.sock.sendto(data, self.addr)
-        except OSError:
-            pass
 
 
 class ScriptedVehicle:
@@ -73,16 +63,18 @@ class ScriptedVehicle:
     def _run(self):
         t0 = time.monotonic()
         next_hb = next_pos = 0.0
+        sample = 0
         while not self._stop.is_set():
             t = time.monotonic() - t0
             if t >= next_hb:
                 next_hb = t + 0.5
                 self.mav.heartbeat_send(2, self.autopilot, 1 | 128, self.custom_mode, 4)
-            if t >= next_pos:
+            if t >= next_pos:  # the k-th sample is measured at k/30 s on the vehicle's clock, however late it leaves
                 next_pos = t + 1 / 30
-                n, e, d = self.position(t)
-                self.mav.local_position_ned_send(int(t * 1000), n, e, d, 0.0, 0.0, 0.0)
-                self.mav.attitude_send(int(t * 1000), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+                sample += 1
+                n, e, d = self.position(sample / 30)
+                self.mav.local_position_ned_send(sample * 1000 // 30, n, e, d, 0.0, 0.0, 0.0)
+                self.mav.attitude_send(sample * 1000 // 30, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             try:
                 data = self.sock.recv(2048)
             except OSError:
