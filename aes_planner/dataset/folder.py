@@ -42,7 +42,7 @@ from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.camera import Intrinsics, IntrinsicsError
 from aes_planner.geometry.plausible import intrinsics_problem
 from aes_planner.geometry.poses import PoseError, validate_cam2world
-from aes_planner.images import ImageError, check_image_size, downscale_parts, imread_bounded
+from aes_planner.images import ImageError, check_image_size, downscale_parts, image_size, imread_bounded
 from aes_planner.messages import MessageError, PosedFrame
 from aes_planner.paths import OutputPathError, PathOutsideError, output_in, resolve_inside
 
@@ -76,12 +76,35 @@ class PosedDataset:
         return np.stack([f.cam2world for f in self.frames]) if self.frames else np.zeros((0, 4, 4))
 
 
-def read_rgb(path: Path, key: str) -> np.ndarray:
-    """An image file -> ``[H, W, 3]`` uint8 RGB; errors name ``key``."""
+#: ``cv2.imread`` flags that decode at 1/2, 1/4 or 1/8 of the stored size (a JPEG is decoded so by
+#: libjpeg's DCT scaling, without ever holding the full-size image), largest reduction first.
+_REDUCED_COLOR = ((8, cv2.IMREAD_REDUCED_COLOR_8), (4, cv2.IMREAD_REDUCED_COLOR_4), (2, cv2.IMREAD_REDUCED_COLOR_2))
+
+
+def read_rgb(path: Path, key: str, max_side_px: int | None = None) -> np.ndarray:
+    """An image file -> ``[H, W, 3]`` uint8 RGB; errors name ``key``.
+
+    ``max_side_px``: decode at the largest of 1/8, 1/4, 1/2 of the stored size that still keeps the
+    longer side at least this long (the caller resamples the rest of the way): a 24 MP photo read for
+    a 320 px working size never sits in memory whole. Without it, or when no reduction fits, the
+    image is decoded at its stored size."""
     if not path.is_file():
         raise DatasetError(f"{key}: image file {path} not found; check the path (relative to the dataset folder)")
-    img = imread_bounded(path, cv2.IMREAD_COLOR, key, DatasetError)
+    flags = cv2.IMREAD_COLOR
+    stored = image_size(path) if max_side_px is not None else None
+    if stored is not None:
+        flags = next((f for r, f in _REDUCED_COLOR if max(stored) // r >= max_side_px), flags)
+    img = imread_bounded(path, flags, key, DatasetError)
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def _stored_size(path: Path, image: np.ndarray) -> tuple[int, int]:
+    """``(width, height)`` of the image file as ``read_rgb`` turned it (upright by its EXIF
+    orientation), whatever reduction it was decoded at."""
+    w, h = image_size(path) or image.shape[1::-1]
+    if w != h and (w > h) != (image.shape[1] > image.shape[0]):  # EXIF said rotate a quarter turn
+        w, h = h, w
+    return int(w), int(h)
 
 
 def read_depth(path: Path, key: str, png_scale_m: float = 0.001) -> np.ndarray:
@@ -372,17 +395,21 @@ def load_dataset(
             raise DatasetError(f"{key}: expected an object")
         if "image" not in e or not isinstance(e["image"], str):
             raise DatasetError(f"{key}.image: missing (a path relative to {root})")
-        image = read_rgb(_inside(root, e["image"], f"{key}.image", allow_outside), f"{key}.image")
-        width, height = (pixel_count(e, name, key, size) for name, size in zip(("width", "height"), image.shape[1::-1]))
-        if (width, height) != (image.shape[1], image.shape[0]):
+        image_path = _inside(root, e["image"], f"{key}.image", allow_outside)
+        image = read_rgb(image_path, f"{key}.image", max_side_px)
+        stored_wh = _stored_size(image_path, image)
+        width, height = (pixel_count(e, name, key, size) for name, size in zip(("width", "height"), stored_wh))
+        if (width, height) != tuple(stored_wh):
             raise DatasetError(
-                f"{key}: width/height say {width}x{height} but {e['image']} is {image.shape[1]}x{image.shape[0]}"
+                f"{key}: width/height say {width}x{height} but {e['image']} is {stored_wh[0]}x{stored_wh[1]}"
             )
         try:
             fx, fy, cx, cy = (finite_number(e, name, key) for name in ("fx", "fy", "cx", "cy"))
-            k = check_intrinsics(Intrinsics(fx, fy, cx, cy, image.shape[1], image.shape[0]), key)
+            k = check_intrinsics(Intrinsics(fx, fy, cx, cy, width, height), key)
         except IntrinsicsError as exc:
             raise DatasetError(f"{key}.{exc.problem}" if exc.problem else f"{key}: {exc}") from None
+        if (image.shape[1], image.shape[0]) != (width, height):  # decoded at 1/2..1/8 of its stored size
+            k = k.scaled(image.shape[1], image.shape[0])
         if "cam2world" not in e:
             raise DatasetError(f"{key}.cam2world: missing (a 4x4 camera-to-world matrix, OpenCV axes)")
         c2w = _matrix(e["cam2world"], f"{key}.cam2world")
@@ -394,9 +421,11 @@ def load_dataset(
             scale = finite_number(e, "depth_png_scale_m", key, 0.001)
             check_depth_scale(scale, f"{key}.depth_png_scale_m")
             depth = read_depth(_inside(root, e["depth"], f"{key}.depth", allow_outside), f"{key}.depth", scale)
-        if max_side_px is not None and max(image.shape[:2]) > max_side_px:  # a 24 MP photo is over a frame's cap
-            size = (image.shape[1], image.shape[0])
-            downscaled[size] = downscaled.get(size, 0) + 1
+        if depth is not None and image.shape[:2] != (height, width) and depth.shape == (height, width):
+            # the image was decoded reduced: its depth follows it (a depth of another size is refused below)
+            depth = cv2.resize(depth, image.shape[1::-1], interpolation=cv2.INTER_NEAREST)
+        if max_side_px is not None and max(width, height) > max_side_px:  # a 24 MP photo is over a frame's cap
+            downscaled[(width, height)] = downscaled.get((width, height), 0) + 1
             image, depth, k = downscale_parts(image, depth, k, max_side_px)
         frames.append(frame_from_parts(key, image, k, c2w, stamp, depth, str(e.get("frame_id", i))))
         frames[-1].extras["image_name"] = e["image"]  # as cameras.json names it (suggest --keep FRAME:...)

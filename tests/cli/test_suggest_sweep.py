@@ -175,13 +175,19 @@ def _photos(src: Path, dst: Path, width: int, height: int, count: int | None = N
 
 
 def test_suggest_on_full_resolution_photos_is_downscaled_and_bounded(folders, tmp_path):
-    """Three 12 MP photos (and one of 24 MP, over a frame's size cap): read one at a time and
-    downscaled; the whole command stays under 1.5 GB of peak RSS (measured ~0.5 GB for eight)."""
+    """Three 12 MP photos (and two of 24 MP, over a frame's size cap): decoded reduced and
+    downscaled as read, so the command's peak RSS is that of the same suggestion on 640x480 photos
+    plus little (it was 21.5 GB for eight 12 MP photos before they were downscaled). Measured
+    against a baseline run in the same environment, not as an absolute figure: what torch, numba's
+    kernels and the allocator cost varies with the machine and with whether the kernels are cached."""
     import subprocess
     import sys
 
-    photos = _photos(folders["rig"], tmp_path / "photos", 4000, 3000)
-    big = _photos(folders["rig"], tmp_path / "big", 6000, 4000, count=2)
+    runs = (
+        ("640x480", _photos(folders["rig"], tmp_path / "small", 640, 480)),
+        ("4000x3000", _photos(folders["rig"], tmp_path / "photos", 4000, 3000)),
+        ("6000x4000", _photos(folders["rig"], tmp_path / "big", 6000, 4000, count=2)),
+    )
     code = (
         "import resource, sys\n"
         "from aes_planner.cli import main\n"
@@ -189,9 +195,12 @@ def test_suggest_on_full_resolution_photos_is_downscaled_and_bounded(folders, tm
         "print('maxrss_kb', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n"
         "sys.exit(rc)\n"
     )
-    for folder, size in ((photos, "4000x3000"), (big, "6000x4000")):
+    peak_mb = {}
+    for size, folder in runs:
         out = subprocess.run([sys.executable, "-c", code, str(folder)], capture_output=True, text=True, timeout=300)
         assert out.returncode == 0, out.stderr[-2000:]
         assert f"of {size} px downscaled as read" in out.stdout and "suggestion(s)" in out.stdout
-        rss_mb = int(out.stdout.split("maxrss_kb")[1].split()[0]) / 1024
-        assert rss_mb < 1500, f"peak RSS {rss_mb:.0f} MB"
+        peak_mb[size] = int(out.stdout.split("maxrss_kb")[1].split()[0]) / 1024
+    for size in ("4000x3000", "6000x4000"):
+        # one 24 MP photo decoded whole is 72 MB of uint8 (288 MB as float): the margin admits neither twice
+        assert peak_mb[size] - peak_mb["640x480"] < 150, f"peak RSS by photo size (MB): {peak_mb}"

@@ -225,3 +225,39 @@ def test_cli_import_and_info(tmp_path, capsys):
     assert "2 frames" in out and "16x12" in out
     assert main(["dataset", "info", str(tmp_path / "nothing")]) == 2
     assert "not found" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("side_px", [2400, 1200, 320, 100])
+def test_large_photos_are_decoded_reduced_and_match_a_full_decode(tmp_path, side_px):
+    """``load_dataset(max_side_px=)`` decodes a JPEG at 1/2..1/8 of its size where that still covers
+    the working size: the frame it gives (pixels, intrinsics, depth) is the one a full decode then
+    downscale gives, to within resampling noise, and the stored size is still what cameras.json says."""
+    w, h = 2400, 1600
+    yy, xx = np.mgrid[0:h, 0:w]
+    img = np.stack([(xx * 255 // w), (yy * 255 // h), ((xx + yy) // 40 % 2) * 255], -1).astype(np.uint8)
+    k = Intrinsics(2000.0, 2000.0, 1190.0, 805.0, w, h)
+    frame = PosedFrame(img, k, view_to_cam2world(np.array([0.0, 0, 1.5, 0.3, -0.2])), 0.0, None, "f0")
+    save_dataset(tmp_path / "ds", [frame])
+    doc = json.loads((tmp_path / "ds" / "cameras.json").read_text())
+    png = doc["frames"][0]["image"]
+    jpg = png.replace(".png", ".jpg")
+    cv2.imwrite(str(tmp_path / "ds" / jpg), cv2.imread(str(tmp_path / "ds" / png)), [cv2.IMWRITE_JPEG_QUALITY, 95])
+    doc["frames"][0]["image"] = jpg
+    depth = np.full((h, w), 2.5, np.float32)
+    depth[:, : w // 2] = 4.0
+    np.save(tmp_path / "ds" / "d.npy", depth)
+    doc["frames"][0]["depth"] = "d.npy"
+    (tmp_path / "ds" / "cameras.json").write_text(json.dumps(doc))
+
+    got = load_dataset(tmp_path / "ds", max_side_px=side_px)
+    f = got.frames[0]
+    full = cv2.cvtColor(cv2.imread(str(tmp_path / "ds" / jpg)), cv2.COLOR_BGR2RGB)
+    scale = min(1.0, side_px / w)
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    want = cv2.resize(full, size, interpolation=cv2.INTER_AREA) if scale < 1 else full
+    assert f.image.shape == want.shape and f.extras["stored_size"] == (w, h)
+    assert np.abs(f.image.astype(int) - want.astype(int)).mean() < 4.0  # JPEG DCT scaling vs area average
+    assert f.intrinsics.width == size[0] and f.intrinsics.height == size[1]
+    assert f.intrinsics.fx == pytest.approx(k.fx * size[0] / w) and f.intrinsics.cy == pytest.approx(k.cy * size[1] / h)
+    assert f.depth_m.shape == want.shape[:2] and set(np.unique(f.depth_m)) == {2.5, 4.0}
+    assert got.downscaled == ({(w, h): 1} if scale < 1 else {})
