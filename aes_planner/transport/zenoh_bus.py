@@ -351,8 +351,13 @@ class ZenohBus(Bus):
         pub._z_pub = z_pub  # type: ignore[attr-defined]
 
     def _declare_subscription(self, sub: Subscription) -> None:
+        # The inbox is registered before anything is declared: a sample can arrive as soon as the
+        # subscriber is (a latched publisher repeats its last one when the token appears), and
+        # the dispatcher looks the inbox up by id — one it could not find was marked clean and its
+        # sample stayed queued, undelivered, until the next one came (a late joiner got nothing).
         with self._lock:
             inbox = self._inboxes.get(id(sub)) or _Inbox(sub)
+            self._inboxes[id(sub)] = inbox
         key = self._key(sub.topic)
         prefix_len = len(self.prefix) + 1
 
@@ -378,7 +383,6 @@ class ZenohBus(Bus):
             )
         with self._lock:
             self._subs[id(sub)] = sub
-            self._inboxes[id(sub)] = inbox
             self._handles[id(sub)] = handles
 
     def _declare_server(self, server: Server) -> None:
