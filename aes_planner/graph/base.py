@@ -126,6 +126,13 @@ class Node(ABC):
         can (:mod:`aes_planner.graph.clock`)."""
         return None
 
+    def transport_counters(self) -> dict[str, int]:
+        """What the transport under the node counts (its inputs' received/dropped/rejected, the bus
+        session's ``bus.*`` health, ``step_errors``): the runner that moves the node's messages
+        replaces this when it opens, and adds the same to every :class:`Diagnostics` the node
+        publishes. A node that reports elsewhere too (the ROS 2 bridge's ``/diagnostics``) reads it."""
+        return {}
+
     def start(self) -> None:
         """Open devices and resources (called once, in the process that runs the node)."""
         return None

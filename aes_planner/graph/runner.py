@@ -61,6 +61,7 @@ class NodeRunner:
             self.pubs[name] = self.bus.publisher(
                 self.topic(name), spec.msg_type, latched=spec.latched, reliable=spec.reliable or self.sim
             )
+        self.node.transport_counters = self.transport_counters  # type: ignore[method-assign]
         if self.sim:
             from aes_planner.graph.clock import Lockstep
 
@@ -100,8 +101,9 @@ class NodeRunner:
                 sent[pub.topic] = sent.get(pub.topic, 0) + 1
         return sent
 
-    def _add_transport_counters(self, msg: Diagnostics) -> None:
-        counters = dict(msg.counters)
+    def transport_counters(self) -> dict[str, int]:
+        """The node's inputs' counters, its step errors and the bus session's health (:meth:`Node.transport_counters`)."""
+        counters: dict[str, int] = {}
         for name, sub in self.subs.items():
             for key, value in sub.stats().items():
                 if key != "callback_errors":
@@ -110,7 +112,10 @@ class NodeRunner:
         counters.update({f"bus.{k}": int(v) for k, v in self.bus.health().items()})  # a lost session shows here
         if self.lockstep is not None:
             counters["clock_stalls"] = self.lockstep.stalls
-        msg.counters = dict(list(counters.items())[:128])
+        return counters
+
+    def _add_transport_counters(self, msg: Diagnostics) -> None:
+        msg.counters = dict(list({**msg.counters, **self.transport_counters()}.items())[:128])
 
     def loop(self) -> None:
         """Step until :meth:`request_stop`: on the simulated clock, or on the wall clock."""

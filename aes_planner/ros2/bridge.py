@@ -36,8 +36,10 @@ the frame ``framing_frame`` names (RegionOfInterest has no header: by default ``
 newest frame the planner holds when the request arrives); the other list stays as it was. A
 RegionOfInterest of zero width or height clears that list (docs/guides/framing.md).
 Anything unusable is counted in ``ros2/diagnostics`` (``rejected.<key>``) and dropped. The
-diagnostics also count what was sent (``sent.<key>``) and, as values, the DDS subscribers matched
-on each outbound topic (``subscribers.<key>``).
+diagnostics also count what was sent (``sent.<key>``), carry the bus's own counters (the bridge's
+inputs' ``<topic>.received``/``dropped``, ``bus.session_ok``, ``bus.session_losses``: a lost bus
+session shows on ``/diagnostics`` too) and, as values, the DDS subscribers matched on each outbound
+topic (``subscribers.<key>``).
 """
 
 from __future__ import annotations
@@ -398,7 +400,9 @@ class Ros2BridgeNode(Node):
             self._write(key, sample)
 
     def diagnostics(self, now: float) -> Diagnostics:
-        counters = dict(sorted(self.counters.items())[:120])
+        # the bus's own counters too (bus.session_ok, inputs dropped...): a ROS 2 user sees a lost
+        # session on /diagnostics, not only on the graph's topics
+        counters = dict(list({**self.transport_counters(), **dict(sorted(self.counters.items()))}.items())[:128])
         rejected = sum(v for k, v in self.counters.items() if k.startswith("rejected."))
         state = "rejecting input" if rejected and self._inbound and self._inbound.recent_rejections(now) else "bridging"
         values = {"search_latency_s": self.mapper.search_latency_s}

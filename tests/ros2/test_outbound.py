@@ -344,3 +344,31 @@ def test_the_bridge_announces_itself_on_the_ros2_graph(peer):
     suggestion = next(p for p in seen if p.topic_name == "rt/planner/suggestion")
     assert suggestion.key.bytes in writer_gids
     assert suggestion.participant_key.bytes == bytes(infos[-1].gid.data)
+
+
+def test_the_bus_counters_reach_dds_diagnostics(bridge, peer):
+    """A ROS 2 user watching /diagnostics sees what the bus under the bridge counts: its inputs'
+    received/dropped and the session's health (a lost session shows there, not only on the graph)."""
+    from aes_planner.graph.runner import NodeRunner
+    from aes_planner.transport.inprocess import InProcessBus
+
+    bus = InProcessBus()
+    bus.health = lambda: {"session_ok": 0, "session_losses": 2, "last_outage_ms": 5100}
+    runner = NodeRunner(bridge, bus)
+    runner.open()
+    try:
+        bus.publisher("planner/suggestion", type(sample_messages()["ViewSuggestion"]), latched=True).publish(
+            sample_messages()["ViewSuggestion"]
+        )
+        assert wait_for(lambda: runner.subs["planner/suggestion"].received == 1)
+        diag = peer.reader("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "reliable")
+        now = iter(range(100, 10**6, 2))
+        arrays = _collect(
+            peer, diag, "diagnostic_msgs/msg/DiagnosticArray", push=lambda: bridge.step({}, float(next(now)))
+        )
+        ours = [s for a in arrays for s in a.status if s.name == f"aes_planner: {bridge.node_id}"]
+        values = {kv.key: kv.value for kv in ours[0].values}
+        assert values["bus.session_ok"] == "0" and values["bus.session_losses"] == "2"
+        assert values["planner/suggestion.received"] == "1" and values["step_errors"] == "0"
+    finally:
+        runner.close()
