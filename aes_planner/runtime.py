@@ -349,6 +349,7 @@ def suggestion_threads(
     governor: ThreadGovernor | None = None,
     cpu_clock: Callable[[], float] = time.process_time,
     adapt: bool = True,
+    wall_clock: Callable[[], float] = time.perf_counter,
 ) -> Iterator[SuggestionJob]:
     """Run one suggestion's compute (scorer build and search) on the thread count picked for it,
     and let the governor learn from its wall and CPU time (the module docstring says how).
@@ -371,12 +372,12 @@ def suggestion_threads(
         _apply_threads(gov.threads)
     job = SuggestionJob(gov.threads if gov is not None else pinned)
     _local.depth = 1
-    t0, c0 = time.perf_counter(), cpu_clock()
+    t0, c0 = wall_clock(), cpu_clock()
     try:
         yield job
     finally:
         _local.depth = 0
-        job.wall_s, job.cpu_s = time.perf_counter() - t0, cpu_clock() - c0
+        job.wall_s, job.cpu_s = wall_clock() - t0, cpu_clock() - c0
         if gov is not None:
             with _governor_lock if own else contextlib.nullcontext():
                 gov.observe(job.wall_s, job.cpu_s)

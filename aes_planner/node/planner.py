@@ -117,6 +117,7 @@ class PlannerNode(ActiveLoop, Node):
         self._threads_set_in: int | None = None  # ident of the thread whose numba count was set
         self.governor: ThreadGovernor | None = None  # threads 0 + adapt_threads: made on the first step
         self.cpu_clock = time.process_time  # CPU seconds of the whole process (tests replace it)
+        self.wall_clock = time.perf_counter  # a search's wall seconds (tests replace it)
         self._intrinsics = None
         self._kernels_warm = False  # the rasterizer's kernels compiled or loaded (start())
         self._ahead_seen = 0  # messages rejected for stamps ahead of the clock
@@ -342,7 +343,9 @@ class PlannerNode(ActiveLoop, Node):
         from aes_planner.search.framing import FramingError
 
         try:
-            with suggestion_threads(self.governor, self.cpu_clock, adapt=self._adapt_threads) as job:
+            with suggestion_threads(
+                self.governor, self.cpu_clock, adapt=self._adapt_threads, wall_clock=self.wall_clock
+            ) as job:
                 proposal = self.proposer.propose(self.platform, captured, k, **kw)
         except FramingError:  # e.g. no reachable view holds the kept subject: counted, the caller goes on
             self.counters["framing_failed"] += 1

@@ -363,19 +363,25 @@ def test_threads_knob_applies_in_the_stepping_thread():
 
 
 class ContendedProposer(ScriptedProposer):
-    """Sleeps (no CPU of its own) for a wall time set per thread count: a search beside a busy
-    process, where two threads wait for each other and one thread is faster."""
+    """Takes a wall time set per thread count and little CPU, on clocks of its own (the node's
+    ``wall_clock`` and ``cpu_clock``): a search beside a busy process, where two threads wait for
+    each other and one thread is faster — whatever the machine running the test is doing."""
 
     def __init__(self, wall_s):
         super().__init__()
         self.wall_s = wall_s  # thread count -> seconds
+        self.now_s = self.cpu_s = 0.0
+
+    def attach(self, node):
+        node.wall_clock, node.cpu_clock = (lambda: self.now_s), (lambda: self.cpu_s)
+        return node
 
     def propose(self, platform, captured, top_k, keep_near=None):
-        import time
-
         import torch
 
-        time.sleep(self.wall_s[torch.get_num_threads()])
+        took_s = self.wall_s[torch.get_num_threads()]
+        self.now_s += took_s
+        self.cpu_s += 0.1 * took_s  # an efficiency of 0.1 or less: the trigger's "little CPU"
         return super().propose(platform, captured, top_k, keep_near)
 
 
@@ -388,7 +394,7 @@ def test_threads_adapt_to_the_cpu_the_searches_get(rig):
     torch.set_num_threads(2)
     try:
         prop = ContendedProposer({2: 0.06, 1: 0.02})
-        node = make(prop, active=False, min_suggest_period_s=0.5)
+        node = prop.attach(make(prop, active=False, min_suggest_period_s=0.5))
         for i in range(4):  # 2 slow searches on two threads, then 2 faster ones on one
             node.step({"camera/frame": [frame_at(rig, 0.0, 0.0, 1.0 + i)]}, 1.0 + i)
         assert torch.get_num_threads() == 1 and node.governor.changes == 1 and not node.governor.trial
