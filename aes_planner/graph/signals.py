@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import signal
 import threading
 from collections.abc import Iterator
@@ -97,17 +98,22 @@ def stop_on_signals(*, interrupt: bool = False, signals: tuple[int, ...] = STOP_
         yield stop
         return
 
+    arrivals = _ArrivalOrder()
+
     def handler(signum, frame):
         stop.count += 1
-        name = signal.Signals(signum).name
         if stop.signum is not None:
+            name = signal.Signals(signum).name
             log.warning("%s ignored (%d signals so far): finishing the clean-up first (torque off)", name, stop.count)
             return
-        stop.signum = signum
+        stop.signum = arrivals.first(signals) or signum
         stop.set()
-        log.info("%s: stopping (servos are left with torque off; further signals wait for that)", name)
+        log.info(
+            "%s: stopping (servos are left with torque off; further signals wait for that)",
+            signal.Signals(stop.signum).name,
+        )
         if interrupt:
-            raise SignalShutdown(signum)
+            raise SignalShutdown(stop.signum)
 
     previous = {sig: signal.signal(sig, handler) for sig in signals}
     try:
@@ -118,3 +124,52 @@ def stop_on_signals(*, interrupt: bool = False, signals: tuple[int, ...] = STOP_
             # which the interpreter keeps through its finalization, unlike a Python handler it
             # resets to the default: a signal there killed the process, status -15, not 143)
             signal.signal(sig, old if stop.signum is None else signal.SIG_IGN)
+        arrivals.close()
+
+
+class _ArrivalOrder:
+    """The order signals arrived in. Python runs the handlers of signals that arrived while the
+    main thread was in C (a driver's read, a join) in signal-number order, not arrival order:
+    SIGTERM then SIGINT 5 ms apart ran SIGINT's handler first, and the process exited 130, not
+    143. The interpreter's C-level handler writes each signal's number, as it arrives, to the
+    wakeup fd (:func:`signal.set_wakeup_fd`): the first byte there is the first signal. Left out
+    when something else (an asyncio loop) holds the wakeup fd: then the first handler run counts."""
+
+    def __init__(self) -> None:
+        self.fds: tuple[int, int] | None = None
+        self.previous = -1
+        read_fd, write_fd = os.pipe()
+        os.set_blocking(read_fd, False)
+        os.set_blocking(write_fd, False)
+        try:
+            self.previous = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+        except ValueError:  # not the main thread
+            self.previous = -1
+            os.close(read_fd)
+            os.close(write_fd)
+            return
+        if self.previous != -1:  # someone else's: give it back
+            signal.set_wakeup_fd(self.previous)
+            os.close(read_fd)
+            os.close(write_fd)
+            return
+        self.fds = (read_fd, write_fd)
+
+    def first(self, signals: tuple[int, ...]) -> int | None:
+        """The first of ``signals`` that arrived (and drains the record), or None when unknown."""
+        if self.fds is None:
+            return None
+        try:
+            arrived = os.read(self.fds[0], 512)
+        except (BlockingIOError, OSError):
+            return None
+        return next((int(b) for b in arrived if b in signals), None)
+
+    def close(self) -> None:
+        if self.fds is None:
+            return
+        with contextlib.suppress(ValueError):
+            signal.set_wakeup_fd(-1)
+        for fd in self.fds:
+            os.close(fd)
+        self.fds = None

@@ -13,6 +13,7 @@ import pytest
 from aes_planner.cli import main
 from aes_planner.drivers.emulator import LinkError, ServoEmulator
 from aes_planner.graph.signals import SignalShutdown, stop_on_signals
+from tests.helpers import wait_for
 
 
 # ------------------------------------------------------------------------------ stop_on_signals
@@ -70,6 +71,33 @@ def test_a_loop_stops_on_the_first_signal_and_nothing_is_ever_raised(own_handler
             os.kill(os.getpid(), sig)  # an impatient user: counted, logged, not raised
         time.sleep(0.05)
     assert stop.signum == signal.SIGINT and stop.exit_code == 130 and stop.count == 4
+
+
+def test_the_first_signal_is_the_first_to_arrive_not_the_lowest_numbered(own_handlers):
+    """SIGTERM, then SIGINT, both arriving while the main thread is in C (here a join; in a launch,
+    a driver's read): Python runs their handlers in signal-number order, SIGINT's first. The stop
+    names SIGTERM, the one that came first (a supervisor's SIGTERM, then a user's Ctrl-C: 143)."""
+    import threading
+
+    go = threading.Event()
+
+    def send():
+        go.wait()
+        os.kill(os.getpid(), signal.SIGTERM)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    sender = threading.Thread(target=send)  # started before the main thread blocks them: it takes both
+    sender.start()
+    with stop_on_signals() as stop:
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+        try:
+            go.set()
+            sender.join()  # both signals' C handlers ran on the sender's thread, in the order sent
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        assert stop.wait(5.0)
+        assert wait_for(lambda: stop.count == 2)
+    assert stop.signum == signal.SIGTERM and stop.exit_code == 143
 
 
 # ------------------------------------------------------------------------------ gimbal move + SIGTERM
