@@ -15,7 +15,7 @@ Steps (:func:`vertical_from_lines`):
    cameras' own up (:func:`aes_planner.photos.sfm.gravity_up`): the near-vertical ones. The prior
    only selects; it does not pull the answer.
 3. **Robust fit**: RANSAC over pairs of segments (``u = n_a x n_b``), length-weighted inliers within
-   :data:`INLIER_DEG`, then the smallest eigenvector of the inliers' weighted scatter
+   :data:`INLIER_DEG` (or, for a short segment, its direction's own uncertainty: 1 / length rad), then the smallest eigenvector of the inliers' weighted scatter
    ``sum w n n^T`` (re-fitted three times).
 4. **Confidence**: the photos with :data:`MIN_SEGMENTS_PER_PHOTO` or more inlier segments each fit
    their own up; the fit is used when at least :data:`MIN_PHOTOS` photos do, :data:`MIN_SEGMENTS`
@@ -143,7 +143,9 @@ def vertical_from_lines(
     if len(n) < 2:
         return nothing
     rng = np.random.default_rng(seed)
-    tol = math.sin(math.radians(INLIER_DEG))
+    # [S] each segment's tolerance: INLIER_DEG, or its direction's own uncertainty when it is short
+    # (half a pixel at each end: about 1 / length radians)
+    tol = np.sin(np.maximum(math.radians(INLIER_DEG), 1.0 / w))
     best, best_score = prior, -1.0
     for _ in range(HYPOTHESES):
         a, b = rng.choice(len(n), 2, replace=False)
