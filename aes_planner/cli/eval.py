@@ -150,6 +150,7 @@ def run_loop(args: argparse.Namespace) -> int:
 
 
 def register_framing(esub: argparse._SubParsersAction) -> None:
+    from aes_planner.platform import KIND_WORDS
     from aes_planner.search.config import PRESETS
 
     f = esub.add_parser(
@@ -160,7 +161,7 @@ def register_framing(esub: argparse._SubParsersAction) -> None:
     f.add_argument("--scene", action="append", metavar="FILE_OR_FAMILY:SEED", help="a scene (repeatable)")
     f.add_argument("--scenes", type=int, default=4, help="number of held-out scenes when no --scene (default 4)")
     f.add_argument("--seeds", type=_int_list, default=[0, 1], help="subjects per scene: 0,1 = the two largest")
-    f.add_argument("--mode", default="rig", choices=["rig", "drone", "free"], help="platform (default rig)")
+    f.add_argument("--mode", default="rig", choices=KIND_WORDS, help="platform (default rig)")
     f.add_argument("--preset", default="balanced", choices=list(PRESETS), help="search preset")
     f.add_argument("--keep-margin", type=float, default=0.05, metavar="FRAC", help="as suggest --keep-margin")
     f.add_argument("--json", metavar="OUT", help="write the results as JSON")
