@@ -27,12 +27,14 @@ def _int_list(text: str) -> list[int]:
 
 
 def register_field(esub: argparse._SubParsersAction) -> None:
+    from aes_planner.field.protocol import SOURCES
+
     f = esub.add_parser("field", help="novel-view aesthetic prediction: rgb, splat, field_nocond, field")
     f.add_argument("--scenes", type=int, default=4, help="held-out family scenes (default 4; ignored with --scene)")
     f.add_argument("--views", default="2,4,6", help="input view counts, comma separated (default 2,4,6)")
     f.add_argument(
         "--source",
-        choices=["rig", "free", "sweep", "survey"],
+        choices=SOURCES,
         default="rig",
         help="inputs: rig (a partial pan sweep, RGB), free (a sideways trajectory with depth), sweep (the rig's "
         "survey sweep, as sim render and the planner take it) or survey (free flight in a box around the rig)",
