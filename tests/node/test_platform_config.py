@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import math
 from importlib.resources import files
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from aes_planner.config import ConfigError, from_dict, load_yaml
 from aes_planner.geometry.rig import PanTiltConfig
@@ -101,3 +104,35 @@ def test_a_drone_on_a_rig_scene_flies_the_box_around_the_rigs_base():
     assert drone_node.kind == "drone" and drone_node.config.drone is not None
     base = rig_node.config.rig.base_xyz_m
     assert bool(drone_node.config.drone.contains(base)) or drone_node.config.drone.bounds_min_m[2] > base[2]
+
+
+_scalars = st.one_of(
+    st.none(), st.booleans(), st.integers(), st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=8)
+)
+_values = st.recursive(
+    _scalars,
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=6), inner, max_size=3),
+    max_leaves=12,
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    word=st.sampled_from(["rig", "drone", "handheld", "free", "", 3]),
+    extra=st.dictionaries(
+        st.sampled_from(["box", "pan_limits_deg", "tilt_limits_deg", "base_xyz_m", "camera_latency_s", "x"]),
+        _values,
+        max_size=3,
+    ),
+)
+def test_any_platform_mapping_is_a_typed_platform_or_an_error_naming_platform(word, extra):
+    try:
+        c = planner({"platform": {"type": word, **extra}})
+    except ConfigError as exc:
+        assert exc.key.startswith("planner.platform"), exc
+        return
+    assert isinstance(c.platform, (RigPlatformConfig, DronePlatformConfig))
+    box = c.drone
+    if box is not None:  # a box that passed is finite and has room to fly
+        assert all(math.isfinite(v) for v in (*box.bounds_min_m, *box.bounds_max_m))
+        assert all(hi > lo for lo, hi in zip(box.bounds_min_m, box.bounds_max_m))
