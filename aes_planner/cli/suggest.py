@@ -15,6 +15,7 @@ log = logging.getLogger(__name__)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from aes_planner.platform import HANDHELD, KIND_WORDS
     from aes_planner.search.config import PRESETS
     from aes_planner.search.scorers import SCORERS
 
@@ -37,7 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--preset", default="balanced", choices=list(PRESETS), help="speed/accuracy")
     p.add_argument(
         "--mode",
-        choices=["rig", "drone", "free", "handheld"],
+        choices=[*KIND_WORDS, HANDHELD],
         help="platform: rig, drone (free: the older word for drone) or handheld (photos); default: the folder's "
         "platform (rig if it has none)",
     )
