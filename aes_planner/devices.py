@@ -181,7 +181,8 @@ class Device(ABC):
 class Gimbal(Device):
     """A two-axis pan-tilt gimbal commanded in joint radians.
 
-    Implementations clamp every command to their joint limits, refuse NaN/Inf with
+    Implementations clamp every command to their joint limits (the one clamp a joint command
+    passes: :class:`~aes_planner.geometry.rig.JointLimits`), refuse NaN/Inf with
     :class:`~aes_planner.geometry.pantilt.JointCommandError` (nothing is sent), and are safe to
     call from several threads.
     """
@@ -249,7 +250,7 @@ def joint_command(pan_rad: Any, tilt_rad: Any) -> tuple[float, float]:
     """Two joint angles as floats, or :class:`~aes_planner.geometry.rig.JointCommandError`.
 
     Accepts anything ``float()`` takes except text and booleans (numpy and 0-d torch scalars
-    work); finiteness is checked by the clamp that follows (:meth:`JointLimits.clamp`).
+    work); finiteness is checked by the check or clamp that follows (:class:`JointLimits`).
     """
     from aes_planner.geometry.rig import JointCommandError
 
