@@ -23,6 +23,7 @@ left), ``tilt`` about the pan link's axis (positive looks up).
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import logging
 import math
@@ -53,6 +54,8 @@ __all__ = [
     "register_device",
     "device_class",
     "make_device",
+    "make_camera",
+    "RAW_KEY",
     "joint_command",
     "wait_for_arrival",
 ]
@@ -230,7 +233,11 @@ class CameraImage:
 class Camera(Device):
     """A camera: :meth:`read` the next image. ``intrinsics`` (an
     :class:`~aes_planner.geometry.camera.Intrinsics`) is set by the implementation once known
-    (from the calibration, or the simulated camera's field of view)."""
+    (from the calibration, or the simulated camera's field of view).
+
+    A camera whose config has a ``undistort`` field (:data:`RAW_KEY`; ``opencv_camera``) gives raw
+    frames, as the sensor took them, when it is false: what a calibration needs
+    (:func:`make_camera` with ``raw=True``)."""
 
     intrinsics: Any = None
 
@@ -375,6 +382,29 @@ def device_class(type_name: str, key: str = "type") -> type[Device]:
             "install the hardware extra: pip install 'aes-planner[hardware]'"
         ) from exc
     return getattr(module, attr)
+
+
+#: The camera config field that, false, makes a camera give raw (not undistorted) frames.
+RAW_KEY = "undistort"
+
+
+def make_camera(spec: Mapping[str, Any], key: str = "camera", raw: bool = False) -> Camera:
+    """An unconnected :class:`Camera` from a launch file's ``camera: {type: word, ...}`` mapping,
+    through the same factory as every device (:func:`make_device`). ``raw``: frames as the sensor
+    took them, not undistorted (what ``aes-planner calibrate`` reads); a camera type that cannot
+    give them is a :class:`~aes_planner.config.ConfigError` naming ``key.type``."""
+    if not raw:
+        return make_device(spec, key, kind=Camera)  # type: ignore[return-value]
+    type_key = f"{key}.type" if key else "type"
+    cls = device_class(tag_of(spec, key, DEVICE_TYPES), type_key)
+    fields = {f.name for f in dataclasses.fields(cls.config_class)} if cls.config_class is not None else set()
+    if not issubclass(cls, Camera) or RAW_KEY not in fields:
+        raise ConfigError(
+            type_key,
+            f"calibration reads raw (not undistorted) frames, and camera type {spec['type']!r} cannot give them "
+            f"(its config has no {RAW_KEY!r} setting); use a camera type that has one, e.g. opencv_camera",
+        )
+    return make_device({**spec, RAW_KEY: False}, key, kind=Camera)  # type: ignore[return-value]
 
 
 def make_device(spec: Mapping[str, Any], key: str = "", kind: type[Device] = Device) -> Device:
