@@ -5,6 +5,7 @@ Keys per case (``raster.<case>.<figure>``), all per view:
 * ``fwd_ms``, ``fwdbwd_ms``: the fast backend (numba when available), wall-clock medians.
 * ``fwd_cpu_ms``, ``fwdbwd_cpu_ms``: process CPU time (all threads) in the same runs, medians:
   on a shared machine, where wall-clock depends on what else runs, this is the work done.
+  Each of these four carries its spread over the runs beside it (``_min``, ``_max``).
 * ``dense_fwd_ms``: the dense reference in float32 (a plain dense rasterizer) in the same run;
   ``speedup_fwd`` = dense / fast. ``dense_fwdbwd_ms`` where the dense graph fits in memory.
 * ``pairs``: Gaussian-pixel pairs with ``alpha >= 1/255`` in the view (the work a rasterizer
@@ -111,8 +112,8 @@ _LOAD_SNIPPET = (
 )
 
 
-def _wall_and_cpu_ms(fn, runs: int, warmup: int = 2) -> tuple[float, float]:
-    """Medians of wall-clock and process CPU time (all threads) of ``fn()``, in ms."""
+def _wall_and_cpu_ms(fn, runs: int, warmup: int = 2) -> tuple[list[float], list[float]]:
+    """Wall-clock and process CPU time (all threads) of each of ``runs`` calls of ``fn()``, in ms."""
     for _ in range(warmup):
         fn()
     wall, cpu = [], []
@@ -121,7 +122,7 @@ def _wall_and_cpu_ms(fn, runs: int, warmup: int = 2) -> tuple[float, float]:
         fn()
         wall.append((time.perf_counter() - w0) * 1e3)
         cpu.append((time.process_time() - c0) * 1e3)
-    return statistics.median(wall), statistics.median(cpu)
+    return wall, cpu
 
 
 def _count_pairs(g, world2cam, K, width, height, rows: int) -> int:
@@ -174,13 +175,13 @@ def _bench_case(rec: Recorder, name: str, case: Case, quick: bool) -> None:
         out = rasterize(gg, w2c, K, size, height, validate=case.validate)
         (out.rgb.sum() + out.features.sum() + out.depth.sum() + out.alpha.sum()).backward()
 
-    fast_fwd, cpu_fwd = _wall_and_cpu_ms(fwd, runs)
-    fast_fb, cpu_fb = _wall_and_cpu_ms(fwdbwd, runs)
-    fast_fwd, cpu_fwd, fast_fb, cpu_fb = (v / views for v in (fast_fwd, cpu_fwd, fast_fb, cpu_fb))
-    rec.record(f"{prefix}.fwd_ms", fast_fwd, "ms", runs)
-    rec.record(f"{prefix}.fwdbwd_ms", fast_fb, "ms", runs)
-    rec.record(f"{prefix}.fwd_cpu_ms", cpu_fwd, "ms", runs)
-    rec.record(f"{prefix}.fwdbwd_cpu_ms", cpu_fb, "ms", runs)
+    samples = {}  # per view, with their spread: the machine is shared and a median alone hides it
+    samples["fwd_ms"], samples["fwd_cpu_ms"] = _wall_and_cpu_ms(fwd, runs)
+    samples["fwdbwd_ms"], samples["fwdbwd_cpu_ms"] = _wall_and_cpu_ms(fwdbwd, runs)
+    fast_fwd, cpu_fwd, fast_fb, cpu_fb = (
+        rec.record_spread(f"{prefix}.{figure}", [v / views for v in samples[figure]], "ms")
+        for figure in ("fwd_ms", "fwd_cpu_ms", "fwdbwd_ms", "fwdbwd_cpu_ms")
+    )
 
     if resolve_backend("auto") == "numba":
         _breakdown(rec, prefix, fwdbwd, runs, views)
