@@ -38,7 +38,6 @@ a frame the inputs do not have.
 from __future__ import annotations
 
 import dataclasses
-
 import logging
 import math
 import re
