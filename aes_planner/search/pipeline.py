@@ -299,6 +299,7 @@ def _search_views(
     avoid_poses = None if avoid is None else _check_inputs(avoid, "avoid", allow_empty=True)
     avoid_params = space.from_poses(avoid_poses) if avoid_poses is not None and len(avoid_poses) else None
     framing = framing if framing is not None and framing.active else None
+    framing_warnings: list[str] = []
     if framing is not None:
         scorer = framing.wrap(scorer)  # the avoided regions and the placement join the score
 
@@ -311,7 +312,13 @@ def _search_views(
     if framing is not None:  # stage 1 keeps the views that hold the subject, aimed ones among them
         from aes_planner.search.framing import feasible_candidates
 
-        candidates = feasible_candidates(framing, space, candidates, trajectory, cfg, rng)
+        asked = framing.cfg.margin_frac
+        candidates, framing = feasible_candidates(framing, space, candidates, trajectory, cfg, rng)
+        if framing.cfg.margin_frac < asked:
+            framing_warnings.append(
+                f"no reachable view holds the kept subject with the {100 * asked:g}% margin asked; "
+                f"the suggestions hold it whole with a {100 * framing.cfg.margin_frac:g}% margin"
+            )
     cand_poses = space.to_poses(candidates)  # [C, 4, 4]
     t_sampled = time.perf_counter()
     out1 = scorer.score_batched(cand_poses, cfg.batch_size)
@@ -338,7 +345,7 @@ def _search_views(
     else:
         pick = torch.arange(len(final_params))
     order = pick[torch.argsort(obj2[pick], descending=True)]
-    warnings = []
+    warnings = list(framing_warnings)
     covered = order[out2.coverage[order].double() >= cfg.coverage_min]
     dropped = len(order) - len(covered) if len(covered) else 0
     if not len(covered):
