@@ -143,6 +143,10 @@ class FramingConfig:
     no reachable view holds the subject. ``explore_samples``: random views (and the same turned to
     the subject) checked every search; at most ``explore_keep`` of those that hold the subject join
     stage 1's candidates, so the whole feasible set competes, not only the trajectory's part.
+    ``refine``: run stage 2 (gradient ascent, kept feasible by backtracking) on the feasible
+    stage-1 picks. Off by default: with a kept subject the feasible set is small and stage 2
+    climbs the field's errors away from the pick (on dev and held-out scenes the framed
+    suggestion scored higher without it, for half the time; docs/decisions.md).
     """
 
     margin_frac: float = 0.05
@@ -157,6 +161,7 @@ class FramingConfig:
     backtrack_steps: int = 6
     explore_samples: int = 512
     explore_keep: int = 64
+    refine: bool = False
 
     def __post_init__(self):
         require(
@@ -170,6 +175,7 @@ class FramingConfig:
         for name in ("placement_weight", "avoid_weight", "edge_weight", "grow_frac"):
             v = getattr(self, name)
             require(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0, name, f"must be >= 0, got {v!r}")
+        require(isinstance(self.refine, bool), "refine", f"must be true or false, got {self.refine!r}")
         for name in ("explore_samples", "explore_keep"):
             v = getattr(self, name)
             require(isinstance(v, int) and 0 <= v <= 100_000, name, f"must be an integer in [0, 100000], got {v!r}")

@@ -25,6 +25,7 @@ central finite differences (or not at all: ``nondiff_refine="skip"``).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -300,6 +301,8 @@ def _search_views(
     avoid_params = space.from_poses(avoid_poses) if avoid_poses is not None and len(avoid_poses) else None
     framing = framing if framing is not None and framing.active else None
     framing_warnings: list[str] = []
+    if framing is not None and not framing.cfg.refine:  # stage 1's feasible pick stands (FramingConfig.refine)
+        cfg = dataclasses.replace(cfg, steps=0)
     if framing is not None:
         scorer = framing.wrap(scorer)  # the avoided regions and the placement join the score
 

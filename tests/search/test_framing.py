@@ -88,15 +88,20 @@ def test_violation_is_finite_and_zero_only_when_held(x, y, z):
     assert torch.all((framing.violation(poses) > 0) | (held >= 1.0 - 1e-9))
 
 
-def test_the_search_keeps_the_subject_whole_in_every_suggestion():
+@pytest.mark.parametrize("refine", [False, True])
+def test_the_search_keeps_the_subject_whole_in_every_suggestion(refine):
     """The scorer wants the view straight ahead; the subject stands off to the side: every
-    suggestion holds it (stage 2 never leaves the feasible set) and turns towards it."""
+    suggestion holds it and turns towards it, with stage 2 off (the default) and on (it never
+    leaves the feasible set)."""
     platform = rig_platform(pan_limits_deg=(-120.0, 120.0), tilt_limits_deg=(-40.0, 40.0))
     subject = subject_at((3.0, 3.0, 1.3), (0.1, 0.1, 0.1))
-    framing = Framing([subject], [], platform.intrinsics, FramingConfig())
+    framing = Framing([subject], [], platform.intrinsics, FramingConfig(refine=refine))
     scorer = AimScorer([1.0, 0.0, 0.0])
     cfg = SearchConfig.preset("fast", top_k=2, steps=15, lr=0.05)
     result = search_views(scorer, rig_inputs(platform), platform, cfg, framing=framing)
+    if refine:  # stage 2 ran: its steps were scored, on top of what the search without it scored
+        without = Framing([subject], [], platform.intrinsics, FramingConfig(refine=False))
+        assert result.scored > search_views(scorer, rig_inputs(platform), platform, cfg, framing=without).scored
     assert result.suggestions
     for s in result.suggestions:
         assert s.held == pytest.approx(1.0)
