@@ -88,11 +88,9 @@ class Recorder:
         return median
 
     def time(self, key: str, fn: Callable[[], Any], runs: int = 7, warmup: int = 1) -> float:
-        """Time ``fn`` and record the median in ms under ``key``; returns the median."""
-        samples = time_ms(fn, runs=runs, warmup=warmup)
-        median = statistics.median(samples)
-        self.record(key, median, "ms", runs=runs)
-        return median
+        """Time ``fn`` and record the median in ms under ``key`` with its spread (``_min``,
+        ``_max``: :meth:`record_spread`); returns the median."""
+        return self.record_spread(key, time_ms(fn, runs=runs, warmup=warmup), "ms")
 
     def to_json(self) -> dict[str, Any]:
         return {"_meta": self.meta, **dict(sorted(self.results.items()))}

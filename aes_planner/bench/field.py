@@ -8,6 +8,8 @@ them), the default scorer knobs (render width 64), the shipped model:
 * ``field.score_b64.ms`` / ``rgb.score_b64.ms``: one ``score`` of 64 poses, no gradient.
 * ``field.grad_b2.ms`` / ``rgb.grad_b2.ms``: ``score`` of 2 poses and the backward pass to them.
 * ``field.score_b64_vs_rgb.ratio``, ``field.grad_b2_vs_rgb.ratio``: field time over RGB time.
+
+Each time carries its spread over the runs beside it (``_min``, ``_max``: ``Recorder.time``).
 """
 
 from __future__ import annotations
