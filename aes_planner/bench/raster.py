@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import torch
 
-from aes_planner.bench import Recorder, time_ms
+from aes_planner.bench import Recorder, time_ms, time_wall_cpu_ms
 
 log = logging.getLogger(__name__)
 
@@ -114,19 +114,6 @@ _LOAD_SNIPPET = (
 )
 
 
-def _wall_and_cpu_ms(fn, runs: int, warmup: int = 2) -> tuple[list[float], list[float]]:
-    """Wall-clock and process CPU time (all threads) of each of ``runs`` calls of ``fn()``, in ms."""
-    for _ in range(warmup):
-        fn()
-    wall, cpu = [], []
-    for _ in range(runs):
-        w0, c0 = time.perf_counter(), time.process_time()
-        fn()
-        wall.append((time.perf_counter() - w0) * 1e3)
-        cpu.append((time.process_time() - c0) * 1e3)
-    return wall, cpu
-
-
 def _count_pairs(g, world2cam, K, width, height, rows: int) -> int:
     """Pairs with alpha >= 1/255 in the first ``rows`` rows of camera 0 (chunked, no grad)."""
     from aes_planner.gaussians.numerics import ALPHA_MIN, SIGMA_CLAMP
@@ -178,8 +165,8 @@ def _bench_case(rec: Recorder, name: str, case: Case, quick: bool) -> None:
         (out.rgb.sum() + out.features.sum() + out.depth.sum() + out.alpha.sum()).backward()
 
     samples = {}  # per view, with their spread: the machine is shared and a median alone hides it
-    samples["fwd_ms"], samples["fwd_cpu_ms"] = _wall_and_cpu_ms(fwd, runs)
-    samples["fwdbwd_ms"], samples["fwdbwd_cpu_ms"] = _wall_and_cpu_ms(fwdbwd, runs)
+    samples["fwd_ms"], samples["fwd_cpu_ms"] = time_wall_cpu_ms(fwd, runs)
+    samples["fwdbwd_ms"], samples["fwdbwd_cpu_ms"] = time_wall_cpu_ms(fwdbwd, runs)
     fast_fwd, cpu_fwd, fast_fb, cpu_fb = (
         rec.record_spread(f"{prefix}.{figure}", [v / views for v in samples[figure]], "ms")
         for figure in ("fwd_ms", "fwd_cpu_ms", "fwdbwd_ms", "fwdbwd_cpu_ms")

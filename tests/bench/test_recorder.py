@@ -22,3 +22,13 @@ def test_record_spread_keeps_the_extremes_and_refuses_no_samples():
     assert (rec.results["g.case.cpu_ms_min"]["value"], rec.results["g.case.cpu_ms_max"]["value"]) == (1.0, 10.0)
     with pytest.raises(ValueError, match="no samples"):
         rec.record_spread("g.case.x", [], "ms")
+
+
+def test_time_with_cpu_records_both_clocks_with_their_spread():
+    rec = Recorder()
+    rec.time("g.case.ms", lambda: sum(range(20000)), runs=3, warmup=0, cpu=True)
+    for key in ("g.case.ms", "g.case.cpu_ms"):
+        r = rec.results
+        assert r[f"{key}_min"]["value"] <= r[key]["value"] <= r[f"{key}_max"]["value"], key
+        assert r[key]["runs"] == 3
+    assert rec.results["g.case.cpu_ms_max"]["value"] > 0  # the loop used the CPU it was timed on
