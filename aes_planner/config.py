@@ -230,7 +230,8 @@ def _convert(tp: Any, value: Any, key: str) -> Any:
 def from_dict(cls: type[T], data: Any, key: str = "") -> T:
     """Build the dataclass ``cls`` from a mapping, recursively, rejecting unknown keys.
 
-    Errors name the dotted key (``prefix`` + field). Validation in the dataclass's
+    Errors name the dotted key (``prefix`` + field); a key ``cls.RETIRED_KEYS`` (a class attribute
+    mapping a key a release replaced to how to rewrite it) is refused with that advice. Validation in the dataclass's
     ``__post_init__`` may raise :class:`ConfigError` with a field name; it is re-raised with
     the full path.
     """
@@ -240,6 +241,10 @@ def from_dict(cls: type[T], data: Any, key: str = "") -> T:
         raise ConfigError(key, f"expected a mapping of {cls.__name__} fields, got {short_repr(data)}")
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     unknown = [k for k in data if k not in fields]
+    retired = getattr(cls, "RETIRED_KEYS", {})  # a key a release replaced -> how to rewrite it
+    for k in unknown:
+        if k in retired:
+            raise ConfigError(_join(key, str(k)), retired[k])
     if unknown:
         raise ConfigError(
             _join(key, str(unknown[0])),

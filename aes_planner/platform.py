@@ -28,12 +28,13 @@ from __future__ import annotations
 import functools
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
-from aes_planner.config import ConfigError, require, require_finite, short_repr, to_dict
+from aes_planner.config import ConfigError, from_dict, require, require_finite, short_repr, tag_of, to_dict
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.pantilt import PanTilt
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
@@ -41,14 +42,19 @@ from aes_planner.geometry.rig import PanTiltConfig
 
 __all__ = [
     "KINDS",
+    "KIND_WORDS",
+    "PLATFORM_TYPES",
     "RIG_FREE_BOX_HALF_M",
     "DroneBox",
     "DronePlatform",
+    "DronePlatformConfig",
     "HandHeldPlatform",
     "Platform",
     "RigPlatform",
+    "RigPlatformConfig",
     "free_box_around",
     "parse_kind",
+    "parse_platform",
     "platform_from_meta",
     "platform_to_meta",
     "view_angle_deg",
@@ -57,6 +63,8 @@ __all__ = [
 #: The platform kinds, and the older words read as one of them (``free`` flew a drone).
 KINDS = ("rig", "drone")
 _ALIASES = {"rig": "rig", "drone": "drone", "free": "drone"}
+#: Every word a kind is read from (:func:`parse_kind`): the command lines' ``--mode`` choices.
+KIND_WORDS = tuple(_ALIASES)
 #: The hand-held photographer's kind (:class:`HandHeldPlatform`): searched, never driven by a node.
 HANDHELD = "handheld"
 #: How far beyond the photos' own pitches a hand-held search looks, degrees.
@@ -396,6 +404,49 @@ class HandHeldPlatform(Platform):
                 "pitch_limits_deg": list(self.pitch_limits_deg),
             },
         }
+
+
+@dataclass(frozen=True)
+class RigPlatformConfig:
+    """A launch file's ``platform: {type: rig, <PanTiltConfig keys>}``: a camera on a pan-tilt rig.
+    ``pan_tilt`` None (``platform: {type: rig}`` alone): the launch scene's rig."""
+
+    pan_tilt: PanTiltConfig | None = None
+    kind: ClassVar[str] = "rig"
+
+
+@dataclass(frozen=True)
+class DronePlatformConfig:
+    """A launch file's ``platform: {type: drone, box: {bounds_min_m: [x, y, z], bounds_max_m: [x, y, z]}}``:
+    a camera flying inside the box. ``box`` None (``platform: {type: drone}``): the launch scene's
+    box, or on a rig scene the box around the rig's base (:meth:`Platform.free_box`)."""
+
+    box: DroneBox | None = None
+    kind: ClassVar[str] = "drone"
+
+
+#: ``platform:``'s type words (``free``, the older word for a drone, is not one: the mapping is new).
+#: A hand-held camera is searched from photos (``aes-planner suggest``), never driven by a node.
+PLATFORM_TYPES: dict[str, type] = {"rig": RigPlatformConfig, "drone": DronePlatformConfig}
+
+
+def parse_platform(spec: Any, key: str = "platform") -> RigPlatformConfig | DronePlatformConfig:
+    """The typed platform of a tagged mapping ``{type: rig|drone, ...}`` (like a gimbal's
+    ``device:``): a rig's other keys are its :class:`PanTiltConfig`, a drone's the one key ``box``.
+    A typed config passes through. Unknown keys and types are :class:`ConfigError` s naming the key."""
+    if isinstance(spec, (RigPlatformConfig, DronePlatformConfig)):
+        return spec
+    if isinstance(spec, Mapping) and spec.get("type") == HANDHELD:
+        raise ConfigError(
+            f"{key}.type",
+            "a hand-held camera is not driven by a node: search from its photos with aes-planner suggest "
+            "(docs/guides/photos.md); a node's platform is rig or drone",
+        )
+    word = tag_of(spec, key, PLATFORM_TYPES)
+    rest = {k: v for k, v in spec.items() if k != "type"}
+    if word == "rig":
+        return RigPlatformConfig(from_dict(PanTiltConfig, rest, key) if rest else None)
+    return from_dict(DronePlatformConfig, rest, key)
 
 
 def platform_to_meta(platform: Platform) -> dict:

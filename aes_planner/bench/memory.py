@@ -75,13 +75,16 @@ def planner_frames(n_frames: int, scene: str = "indoor:3", width: int = 64) -> d
     node that suggests after each one; RSS after frame 40 (or the last) and at the end, and the peak."""
     from aes_planner.graph.base import LaunchContext
     from aes_planner.node.planner import PlannerConfig, PlannerNode
+    from aes_planner.platform import RigPlatformConfig
     from aes_planner.sim import SimCamera, SimCameraConfig, load_scene
 
     sc = load_scene(scene)
     cam = SimCamera(sc, SimCameraConfig(width=width, height=width * 3 // 4))
     views = [cam.capture_joints(p, t, stamp_s=0.0) for p, t in sc.rig.kinematics().sweep(12)]
     node = PlannerNode(
-        PlannerConfig(scorer="field", preset="fast", active=False, min_suggest_period_s=0.5, mode="rig"),
+        PlannerConfig(
+            scorer="field", preset="fast", active=False, min_suggest_period_s=0.5, platform=RigPlatformConfig()
+        ),
         context=LaunchContext(scene=scene),
     )
     node.start()

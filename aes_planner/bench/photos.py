@@ -2,8 +2,8 @@
 
 Figures (medians of several runs after a warm-up):
 
-* ``photos.pose_10x640.s``: ten 640 x 480 photos of a photo-textured sim scene
-  (:mod:`aes_planner.photos.simscene`), a photographer walking an 80 degree arc, posed by
+* ``photos.pose_10x640.s``: ten 640 x 480 photos of a sim scene textured with the shipped CC0
+  photographs (:func:`aes_planner.photos.simscene.cc0_photos`), a photographer walking an 80 degree arc, posed by
   :func:`aes_planner.photos.pose_images` (features, matching, mapping, undistortion, outputs).
   Target: under 30 s on 2 cores.
 * ``photos.pose_10x640.cpu_s``: the CPU time of the same (every thread of the process): on a
@@ -37,7 +37,7 @@ def render_photo_set(
     n: int = 10,
     size: tuple[int, int] = (640, 480),
     seed: int = 0,
-    textures: Sequence[str | Path] = (),
+    textures: Sequence[str | Path] | None = None,
     supersample: int = 2,
     poses: np.ndarray | None = None,
     hfov_deg: float = 60.0,
@@ -46,16 +46,19 @@ def render_photo_set(
     """Render ``n`` photos (``IMG_0000.jpg``...) of :func:`~aes_planner.photos.simscene.photo_scene`
     from :func:`~aes_planner.photos.simscene.arc_poses` (or ``poses [n, 4, 4]``) into
     ``out_dir/images``; returns the images folder, the true cam2world ``[n, 4, 4]`` and the scene file.
-    Without ``textures``, dead-leaves images (:func:`~aes_planner.photos.simscene.dead_leaves_textures`)
-    stand in for photographs."""
+    ``textures`` defaults to the shipped CC0 photographs (:func:`~aes_planner.photos.simscene.cc0_photos`);
+    an empty sequence puts dead-leaves images (:func:`~aes_planner.photos.simscene.dead_leaves_textures`)
+    in their place."""
     import cv2
     import yaml
 
-    from aes_planner.photos.simscene import arc_poses, dead_leaves_textures, photo_scene
+    from aes_planner.photos.simscene import arc_poses, cc0_photos, dead_leaves_textures, photo_scene
     from aes_planner.sim import load_scene, render
 
     out = Path(out_dir)
     (out / "images").mkdir(parents=True, exist_ok=True)
+    if textures is None:
+        textures = cc0_photos()
     if not textures:
         textures = dead_leaves_textures(out / "textures", seed=seed)
     scene_file = out / "scene.yaml"

@@ -22,6 +22,7 @@ import numpy as np
 from aes_planner.graph.runner import NodeRunner
 from aes_planner.messages import Diagnostics, PlannerRequest, PosedFrame, ViewSuggestion
 from aes_planner.node.planner import PlannerConfig, PlannerNode
+from aes_planner.platform import RigPlatformConfig
 
 log = logging.getLogger(__name__)
 
@@ -100,7 +101,7 @@ def run_soak(
             max_frames=max_frames,
             min_suggest_period_s=min_suggest_period_s,
             diagnostics_period_s=0.5,
-            mode="rig",
+            platform=RigPlatformConfig(),
         ),
         node_id="planner",
         context=_context(scene),

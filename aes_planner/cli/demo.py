@@ -40,6 +40,8 @@ DEFAULT_SCENE = "indoor:3"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from aes_planner.platform import KIND_WORDS
+
     p = sub.add_parser(
         "demo",
         help="the simulated closed loop on a scene: explore, suggest, move, verify, polish, settle; scored against the oracle",
@@ -51,7 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--mode",
-        choices=("rig", "drone", "free"),
+        choices=KIND_WORDS,
         default=None,
         help="the platform: pan-tilt rig or drone (free: the older word for drone; default: what the scene has; "
         "a drone on a rig scene flies the box around the rig's base)",
@@ -77,7 +79,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 #: Platform kind -> the launch file that runs it, and its settings.
-LAUNCH_FILES = {"rig": ("sim_closed_loop.yaml", []), "drone": ("drone.yaml", ["drone.type=sim", "planner.mode=drone"])}
+LAUNCH_FILES = {
+    "rig": ("sim_closed_loop.yaml", []),
+    "drone": ("drone.yaml", ["drone.type=sim", "planner.platform.type=drone"]),
+}
 #: Scene platforms a drone can fly around (a box around a rig's base).
 CAN_FLY_AROUND = ("rig",)
 
@@ -156,7 +161,7 @@ def run_demo(
     if drone == "mavlink":  # a MAVLink vehicle (aes_planner.drone.demo)
         from aes_planner.drone import demo as mavlink_demo
 
-        kind, launch_file, sets = DronePlatform.kind, mavlink_demo.LAUNCH_FILE, ["planner.mode=drone"]
+        kind, launch_file, sets = DronePlatform.kind, mavlink_demo.LAUNCH_FILE, ["planner.platform.type=drone"]
     if drone == "mavlink" and clock == "sim":
         raise ConfigError("--clock", "a MAVLink vehicle (and its emulator) flies in real time: use --clock wall")
     clock = clock or ("wall" if drone == "mavlink" else "sim")

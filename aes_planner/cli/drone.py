@@ -38,6 +38,8 @@ def _window(text: str) -> list[float]:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from aes_planner.drone.modes import AUTOPILOTS
+
     p = sub.add_parser(
         "drone",
         help="MAVLink drone: emulate a PX4-like vehicle for dry runs",
@@ -51,7 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     e.add_argument("--connection", default="udpout:127.0.0.1:14540", help="where to send (default %(default)s)")
-    e.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4")
+    e.add_argument("--autopilot", choices=AUTOPILOTS, default="px4")
     e.add_argument("--system-id", type=int, default=1)
     e.add_argument(
         "--start-ned",

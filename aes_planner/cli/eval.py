@@ -27,12 +27,14 @@ def _int_list(text: str) -> list[int]:
 
 
 def register_field(esub: argparse._SubParsersAction) -> None:
+    from aes_planner.field.protocol import SOURCES
+
     f = esub.add_parser("field", help="novel-view aesthetic prediction: rgb, splat, field_nocond, field")
     f.add_argument("--scenes", type=int, default=4, help="held-out family scenes (default 4; ignored with --scene)")
     f.add_argument("--views", default="2,4,6", help="input view counts, comma separated (default 2,4,6)")
     f.add_argument(
         "--source",
-        choices=["rig", "free", "sweep", "survey"],
+        choices=SOURCES,
         default="rig",
         help="inputs: rig (a partial pan sweep, RGB), free (a sideways trajectory with depth), sweep (the rig's "
         "survey sweep, as sim render and the planner take it) or survey (free flight in a box around the rig)",
@@ -150,6 +152,7 @@ def run_loop(args: argparse.Namespace) -> int:
 
 
 def register_framing(esub: argparse._SubParsersAction) -> None:
+    from aes_planner.platform import KIND_WORDS
     from aes_planner.search.config import PRESETS
 
     f = esub.add_parser(
@@ -160,7 +163,7 @@ def register_framing(esub: argparse._SubParsersAction) -> None:
     f.add_argument("--scene", action="append", metavar="FILE_OR_FAMILY:SEED", help="a scene (repeatable)")
     f.add_argument("--scenes", type=int, default=4, help="number of held-out scenes when no --scene (default 4)")
     f.add_argument("--seeds", type=_int_list, default=[0, 1], help="subjects per scene: 0,1 = the two largest")
-    f.add_argument("--mode", default="rig", choices=["rig", "drone", "free"], help="platform (default rig)")
+    f.add_argument("--mode", default="rig", choices=KIND_WORDS, help="platform (default rig)")
     f.add_argument("--preset", default="balanced", choices=list(PRESETS), help="search preset")
     f.add_argument("--keep-margin", type=float, default=0.05, metavar="FRAC", help="as suggest --keep-margin")
     f.add_argument("--verify-top", type=int, default=0, metavar="N",

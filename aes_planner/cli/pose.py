@@ -116,6 +116,7 @@ def run_pose(images, out, cfg, quiet: bool = False):
     if result.other_models:
         print(f"note: {len(result.other_models)} smaller group(s) of photos did not connect to the rest (left out)")
     print(f"unit: {'metres (' + result.scale_source + ')' if result.metric else result.unit}")
+    print(f"up: {result.gravity}")
     return result
 
 

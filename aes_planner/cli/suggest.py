@@ -4,6 +4,7 @@ photos without poses: the pose step runs first, :mod:`aes_planner.photos`)."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import math
@@ -14,6 +15,7 @@ log = logging.getLogger(__name__)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from aes_planner.platform import HANDHELD, KIND_WORDS
     from aes_planner.search.config import PRESETS
     from aes_planner.search.scorers import SCORERS
 
@@ -36,7 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--preset", default="balanced", choices=list(PRESETS), help="speed/accuracy")
     p.add_argument(
         "--mode",
-        choices=["rig", "drone", "free", "handheld"],
+        choices=[*KIND_WORDS, HANDHELD],
         help="platform: rig, drone (free: the older word for drone) or handheld (photos); default: the folder's "
         "platform (rig if it has none)",
     )
@@ -206,6 +208,7 @@ def run(args: argparse.Namespace) -> int:
 
     from aes_planner.dataset import load_dataset
     from aes_planner.messages.suggestion import MAX_CANDIDATES
+    from aes_planner.platform import HANDHELD
     from aes_planner.runtime import suggestion_threads
     from aes_planner.search import SearchConfig, SearchError, build_search_scorer, search_views
     from aes_planner.search.report import render_with, write_report
@@ -262,7 +265,15 @@ def run(args: argparse.Namespace) -> int:
             framing = build_framing(scorer, frames, keep, avoid, platform.intrinsics, framing_cfg)
             for line in framing.describe():
                 print(f"framing: {line}")
-        result = search_views(scorer, data.cam2worlds(), platform, cfg, framing=framing)
+        search_cfg = cfg
+        if platform.kind == HANDHELD and not framing:  # more candidates, ranked again against the photos
+            search_cfg = dataclasses.replace(cfg, top_k=MAX_CANDIDATES)
+        result = search_views(scorer, data.cam2worlds(), platform, search_cfg, framing=framing)
+        if platform.kind == HANDHELD and not framing:
+            from aes_planner.photos.anchor import anchor_on_photos
+
+            images = [f.image for f in data.frames]
+            result.suggestions = anchor_on_photos(scorer, data.cam2worlds(), images, result.suggestions)
     latency_ms = (time.perf_counter() - t0) * 1e3
     top = args.top or cfg.top_k
     print(f"{len(result.suggestions[:top])} suggestion(s), {result.mode} mode, preset {args.preset}, "

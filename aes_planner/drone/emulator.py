@@ -43,7 +43,7 @@ import numpy as np
 from aes_planner.config import require, require_numbers, require_within, short_repr
 from aes_planner.drone import frames as fr
 from aes_planner.drone.connection import connect, parse_connection
-from aes_planner.drone.modes import ARDUPILOT_MODES, mavlink, mode_name, px4_custom_mode
+from aes_planner.drone.modes import AUTOPILOTS, mavlink, mode_name, px4_custom_mode, set_mode_params
 
 log = logging.getLogger(__name__)
 
@@ -103,9 +103,7 @@ class EmulatorConfig:
     seed: int = 0
 
     def __post_init__(self):
-        require(
-            self.autopilot in ("px4", "ardupilot"), "autopilot", f"must be px4 or ardupilot, got {self.autopilot!r}"
-        )
+        require(self.autopilot in AUTOPILOTS, "autopilot", f"must be {' or '.join(AUTOPILOTS)}, got {self.autopilot!r}")
         require(self.gimbal_axes in (2, 3), "gimbal_axes", f"must be 2 or 3, got {self.gimbal_axes!r}")
         for name in ("system_id", "component_id"):
             v = getattr(self, name)
@@ -460,10 +458,8 @@ class VehicleEmulator:
 
     # ------------------------------------------------------------------------- outgoing
     def _custom_mode(self) -> int:
-        if self.config.autopilot == "px4":
-            main, sub = {"OFFBOARD": (6, 0), "AUTO.LOITER": (4, 3)}[self.mode]
-            return px4_custom_mode(main, sub)
-        return next(k for k, v in ARDUPILOT_MODES.items() if v == self.mode)
+        _, main, sub = set_mode_params(self.config.autopilot, self.mode)  # the one table of mode numbers
+        return px4_custom_mode(int(main), int(sub)) if self.config.autopilot == "px4" else int(main)
 
     def _ms(self) -> int:
         return int((time.monotonic() - self._boot) * 1000) & 0xFFFFFFFF

@@ -13,6 +13,7 @@ import os
 
 __all__ = [
     "ARDUPILOT_MODES",
+    "AUTOPILOTS",
     "PX4_MAIN_MODES",
     "PX4_AUTO_SUB_MODES",
     "control_mode",
@@ -60,6 +61,8 @@ ARDUPILOT_MODES = {
     20: "GUIDED_NOGPS",
     21: "SMART_RTL",
 }
+#: The flight stacks whose modes this module knows: ``autopilot:`` settings and ``--autopilot`` choices.
+AUTOPILOTS = ("px4", "ardupilot")
 CUSTOM_MODE_ENABLED = 1  # MAV_MODE_FLAG_CUSTOM_MODE_ENABLED (checked against pymavlink in the tests)
 
 

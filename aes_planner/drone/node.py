@@ -20,6 +20,7 @@ import numpy as np
 
 from aes_planner.config import ConfigError, from_dict, require, require_numbers
 from aes_planner.drone import frames as fr
+from aes_planner.drone.modes import AUTOPILOTS
 from aes_planner.graph.base import LaunchContext, Node, NodeError, Outputs
 from aes_planner.messages import Diagnostics, DroneState, ViewSuggestion
 from aes_planner.node.scene import launch_scene
@@ -131,9 +132,7 @@ class MavlinkDroneConfig:
         from aes_planner.drone.connection import parse_connection
 
         self.connection_parsed = parse_connection(self.connection, "connection")
-        require(
-            self.autopilot in ("px4", "ardupilot"), "autopilot", f"must be px4 or ardupilot, got {self.autopilot!r}"
-        )
+        require(self.autopilot in AUTOPILOTS, "autopilot", f"must be {' or '.join(AUTOPILOTS)}, got {self.autopilot!r}")
         require(
             self.heartbeat_type in ("onboard_controller", "gcs"),
             "heartbeat_type",

@@ -46,7 +46,7 @@ from aes_planner.node.motion import DroneMotion, Motion, RigMotion
 from aes_planner.node.planner_config import PlannerConfig
 from aes_planner.node.proposer import FieldProposer, Proposer
 from aes_planner.node.scene import launch_scene
-from aes_planner.platform import DronePlatform, Platform, RigPlatform
+from aes_planner.platform import DronePlatform, DronePlatformConfig, Platform, RigPlatform, RigPlatformConfig
 from aes_planner.runtime import ThreadGovernor, set_threads, suggestion_threads
 
 log = logging.getLogger(__name__)
@@ -267,8 +267,8 @@ class PlannerNode(ActiveLoop, Node):
         if self.motion is not None:
             return self.motion.bind(intrinsics)
         raise NodeError(
-            f"{self.node_id}: no platform: give the planner a 'rig' (pan_tilt kinematics and limits) or a 'drone' box, "
-            "or a 'scene' in the launch file"
+            f"{self.node_id}: no platform: give the planner platform: {{type: rig, <the rig's keys>}} or "
+            "platform: {type: drone, box: {...}}, or a 'scene' in the launch file"
         )
 
     def _on_request(self, req, now: float) -> None:
@@ -465,11 +465,17 @@ def _motion(config: PlannerConfig) -> Motion | None:
 
 
 def _platform_from_scene(config: PlannerConfig, scene) -> PlannerConfig:
-    """The scene's rig, or a drone: the scene's box, or the box around a rig scene's base."""
-    if scene.rig is not None and config.mode != DronePlatform.kind:
-        return dataclasses.replace(config, rig=scene.rig.pan_tilt)
-    if config.mode == RigPlatform.kind:
-        raise NodeError(f"scene {scene.name!r} has a drone, not a rig: use mode drone")
+    """The platform the config leaves to the scene: ``{type: rig}`` (or none, on a rig scene) the
+    scene's rig; ``{type: drone}`` (or none, on a drone scene) the scene's box, or the box around a
+    rig scene's base."""
+    kind = config.platform.kind if config.platform is not None else None
+    if scene.rig is not None and kind != DronePlatform.kind:
+        return dataclasses.replace(config, platform=RigPlatformConfig(scene.rig.pan_tilt))
+    if kind == RigPlatform.kind:
+        raise NodeError(
+            f"planner.platform: scene {scene.name!r} has a drone, not a rig: "
+            "write platform: {type: drone}, or give the rig's keys"
+        )
     from aes_planner.sim.source import platform_of
 
-    return dataclasses.replace(config, drone=platform_of(scene).free_box())
+    return dataclasses.replace(config, platform=DronePlatformConfig(platform_of(scene).free_box()))

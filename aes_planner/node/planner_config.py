@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 from aes_planner.config import require, require_numbers
 from aes_planner.geometry.plausible import MAX_STAMP_AHEAD_S
-from aes_planner.geometry.rig import PanTiltConfig
-from aes_planner.platform import DroneBox, parse_kind
+from aes_planner.platform import DronePlatformConfig, RigPlatformConfig, parse_platform
 from aes_planner.runtime import MAX_THREADS
 
 __all__ = ["PlannerConfig"]
@@ -58,11 +58,14 @@ class PlannerConfig:
     * ``fault_timeout_s``: how long a hardware fault may last before the loop ends.
     * ``min_suggest_period_s``: passive mode, the shortest time between suggestions.
     * ``diagnostics_period_s``: how often ``planner/diagnostics`` is published.
-    * ``rig`` / ``drone``: the platform: a rig's kinematics and joint limits, or a drone's box
-      (a :class:`~aes_planner.platform.DroneBox`; a sim launch fills either from the scene).
-    * ``mode``: the platform kind: ``auto`` (the platform given or the scene's), ``rig`` or
-      ``drone`` (on a rig scene, a drone in the box around the rig's base:
-      :meth:`~aes_planner.platform.Platform.free_box`); ``free`` is read as ``drone``.
+    * ``platform``: where the camera goes, a tagged mapping like a gimbal's ``device:``
+      (:func:`~aes_planner.platform.parse_platform`): ``{type: rig, <the rig's kinematics and
+      joint limits: PanTiltConfig keys>}`` or ``{type: drone, box: {bounds_min_m: [x, y, z],
+      bounds_max_m: [x, y, z]}}``; ``{type: rig}`` / ``{type: drone}`` alone take the launch
+      scene's rig / box (a drone on a rig scene: the box around the rig's base,
+      :meth:`~aes_planner.platform.Platform.free_box`); none at all: the scene's platform.
+      The older ``rig:`` / ``drone:`` / ``mode:`` keys are refused with how to rewrite them
+      (docs/decisions.md, "One platform: mapping").
     * ``seed``: for the search's sampling.
     * ``threads``: CPU threads for the planner's torch and numba work (torch's count is
       process-wide); 0 = torch's default, all cores. 1 keeps a suggestion steady beside busy
@@ -104,12 +107,20 @@ class PlannerConfig:
     fault_timeout_s: float = 10.0
     min_suggest_period_s: float = 0.5
     diagnostics_period_s: float = 1.0
-    rig: PanTiltConfig | None = None
-    drone: DroneBox | None = None
-    mode: str = "auto"
+    platform: dict | RigPlatformConfig | DronePlatformConfig | None = None
     seed: int = 0
     threads: int = 0
     adapt_threads: bool = True
+
+    #: The keys ``platform:`` replaced, and how to rewrite each (read by :func:`~aes_planner.config.from_dict`).
+    RETIRED_KEYS: ClassVar[dict[str, str]] = {
+        "rig": "replaced by platform: write platform: {type: rig, <the rig's keys>} "
+        "(with a YAML anchor: platform: {<<: *rig, type: rig}); docs/decisions.md",
+        "drone": "replaced by platform: write platform: {type: drone, box: {bounds_min_m: [...], "
+        "bounds_max_m: [...]}}; docs/decisions.md",
+        "mode": "replaced by platform: write platform: {type: rig} or platform: {type: drone} "
+        "(the scene's rig or box; drop the key for auto); docs/decisions.md",
+    }
 
     def __post_init__(self):
         from aes_planner.search.scorers import SCORERS
@@ -190,5 +201,15 @@ class PlannerConfig:
         ):
             v = getattr(self, name)
             require(v <= most, name, f"must be <= {most:g} s, got {v}")
-        require(self.rig is None or self.drone is None, "drone", "give a rig or a drone, not both")
-        self.mode = parse_kind(self.mode, "mode", allow_auto=True)
+        if self.platform is not None:
+            self.platform = parse_platform(self.platform, "platform")
+
+    @property
+    def rig(self):
+        """The rig's :class:`~aes_planner.geometry.rig.PanTiltConfig` when the platform names one, else None."""
+        return self.platform.pan_tilt if isinstance(self.platform, RigPlatformConfig) else None
+
+    @property
+    def drone(self):
+        """The drone's :class:`~aes_planner.platform.DroneBox` when the platform names one, else None."""
+        return self.platform.box if isinstance(self.platform, DronePlatformConfig) else None

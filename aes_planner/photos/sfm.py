@@ -19,9 +19,12 @@ Steps (:func:`pose_images`):
    homographies, or the registered cameras sit within :data:`MIN_PARALLAX` of the scene's depth);
    files that are not images.
 4. **Undistortion** with ``pycolmap.undistort_images`` (pinhole cameras, the images resampled).
-5. **Frame**: COLMAP's frame has an arbitrary origin, rotation and scale. It is levelled (world +z
-   perpendicular to the cameras' right axes, :func:`gravity_up`: right for photos held level, whose
-   horizon is level; the cameras' mean up vector where they all face one way), its origin put at the first registered photo's camera and its x
+5. **Frame**: COLMAP's frame has an arbitrary origin, rotation and scale. It is levelled: world +z
+   is the scene's vertical vanishing direction when the photos' straight lines say it confidently
+   (:func:`aes_planner.photos.vertical.vertical_from_lines`: right whatever way the camera was
+   held), else the cameras' up (:func:`gravity_up`: perpendicular to their right axes, right for
+   photos held level; their mean up where they all face one way); the outputs say which. Its
+   origin is put at the first registered photo's camera and its x
    axis along that photo's levelled viewing direction (REP-103: x forward, y left, z up). Scale:
    metres from ``scale_from`` (two photos and the distance between their cameras) or from a
    calibration board seen in two or more photos (``board``); otherwise the unit is the distance
@@ -59,6 +62,7 @@ from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.images import ImageError, image_size, imread_bounded
 from aes_planner.photos.exif import CameraTags, read_camera_tags
+from aes_planner.photos.vertical import VerticalLines, vertical_from_lines
 from aes_planner.platform import HandHeldPlatform
 
 log = logging.getLogger(__name__)
@@ -70,6 +74,8 @@ MIN_REGISTERED = 3
 #: The registered cameras' spread over the scene's median depth below which the views count as
 #: taken from one spot (no parallax: depth and pose are not determined).
 MIN_PARALLAX = 0.02
+#: ... and this, when most photo pairs were explained by a rotation (see :func:`_check_parallax`).
+PANORAMIC_PARALLAX = 0.2
 #: Fewest photos the pose step takes, and most (exhaustive matching grows with their square).
 MIN_IMAGES, MAX_IMAGES = 3, 500
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp", ".pgm", ".ppm", ".pnm")
@@ -160,6 +166,8 @@ class PoseResult:
     timings_s: dict[str, float] = field(default_factory=dict)
     margin: float = 0.0
     distortion: str = ""
+    gravity: str = ""  # where the frame's up came from, in words
+    vertical: VerticalLines | None = None  # what the scene's vertical lines said
 
     def to_json(self) -> dict:
         return {
@@ -173,6 +181,9 @@ class PoseResult:
             "scale_source": self.scale_source,
             "cameras": self.cameras,
             "distortion": self.distortion,
+            "gravity": self.gravity,
+            "gravity_source": "vertical lines" if self.vertical is not None and self.vertical.confident else "cameras",
+            "vertical_lines": self.vertical.to_json() if self.vertical is not None else None,
             "other_models": list(self.other_models),
             "time_s": self.time_s,
             "timings_s": dict(self.timings_s),
@@ -338,9 +349,21 @@ def gravity_up(c2w: np.ndarray) -> np.ndarray:  # [N, 4, 4] -> [3] unit
     return up / np.linalg.norm(up)
 
 
-def _leveller(c2w: np.ndarray) -> np.ndarray:  # [N, 4, 4] -> [4, 4] world transform
-    """Level (:func:`gravity_up` -> +z), origin at the first camera, x along its levelled view."""
-    up = rotation_to_z(gravity_up(c2w))  # [4, 4] rotation
+def level_up(
+    images: Sequence[np.ndarray], ks: Sequence[Intrinsics], c2w: np.ndarray
+) -> tuple[np.ndarray, str, VerticalLines]:  # -> up [3], where it came from, the lines' say
+    """The world's up for photos ``images`` posed ``c2w [N, 4, 4]``: the scene's vertical vanishing
+    direction when the lines say it confidently, else :func:`gravity_up` (the cameras' up)."""
+    cameras = gravity_up(c2w)
+    lines = vertical_from_lines(images, ks, c2w, cameras)
+    if lines.confident:
+        return lines.up, f"the scene's vertical lines ({lines.text()})", lines
+    return cameras, f"the cameras' up (the scene's vertical lines were not conclusive: {lines.text()})", lines
+
+
+def _leveller(c2w: np.ndarray, up_dir: np.ndarray) -> np.ndarray:  # [N, 4, 4], [3] -> [4, 4] world transform
+    """Level (``up_dir`` -> +z), origin at the first camera, x along its levelled view."""
+    up = rotation_to_z(up_dir)  # [4, 4] rotation
     levelled = up @ c2w[0]
     fwd = levelled[:3, 2].copy()
     fwd[2] = 0.0
@@ -512,7 +535,7 @@ def pose_images(
             if flat_share > 0.5:
                 raise _no_parallax_error(len(files))
             raise _too_few_error(len(reg_ids), len(files), missing)
-        _check_parallax(rec, reg_ids, len(files))
+        _check_parallax(rec, reg_ids, len(files), flat_share)
         mean_err = float(rec.compute_mean_reprojection_error())
 
         # ---- undistortion (pycolmap's), then our frame
@@ -541,7 +564,9 @@ def pose_images(
             report("undistorting", len(frames_rgb), len(reg_ids))
         timings["undistort"] = time.perf_counter() - t0
         c2w = np.stack(c2w_sfm)  # [R, 4, 4] COLMAP's frame, OpenCV camera axes
-        world = _leveller(c2w)
+        up_dir, gravity, vertical = level_up(frames_rgb, ks, c2w)
+        log.info("up: %s", gravity)
+        world = _leveller(c2w, up_dir)
         c2w = np.einsum("ij,njk->nik", world, c2w)
 
         # ---- scale
@@ -580,8 +605,9 @@ def pose_images(
             "unregistered": missing,
             "mean_reprojection_error_px": mean_err,
             "distortion": distortion,
+            "gravity": gravity,
             "frame": (
-                f"levelled (z up: perpendicular to the cameras' right axes), origin at {reg_names[0]}'s camera, "
+                f"levelled (z up: {gravity}), origin at {reg_names[0]}'s camera, "
                 f"x along its levelled view; lengths in {'metres' if metric else unit}"
             ),
             **platform.to_meta(),
@@ -610,6 +636,8 @@ def pose_images(
         timings_s=timings,
         margin=margin,
         distortion=distortion,
+        gravity=gravity,
+        vertical=vertical,
     )
 
 
@@ -617,14 +645,18 @@ def _camera_text(rec) -> str:
     return "; ".join(f"{c.model_name} {', '.join(f'{v:.4g}' for v in c.params)}" for c in rec.cameras.values())
 
 
-def _check_parallax(rec, reg_ids: list[int], total: int) -> None:
+def _check_parallax(rec, reg_ids: list[int], total: int, flat_share: float = 0.0) -> None:
     """Refuse a model whose cameras sit within :data:`MIN_PARALLAX` of the scene's median depth of
-    one another (turning on one spot: depths and poses are not determined)."""
+    one another (turning on one spot: depths and poses are not determined), or within
+    :data:`PANORAMIC_PARALLAX` of it when most photo pairs were explained by a rotation
+    (``flat_share`` > 0.5): COLMAP can still build a model from a turn in place, its cameras spread
+    by noise (4 of 6 photos of a 50 deg turn, 0.04 of the depth apart; a walked arc: 1.2, 7 % of its
+    pairs rotation-like)."""
     centres = np.stack([rec.images[i].projection_center() for i in reg_ids])  # [R, 3]
     spread = float(np.max(np.linalg.norm(centres[:, None] - centres[None], axis=-1)))
     pts = np.array([p.xyz for p in rec.points3D.values()]) if rec.num_points3D() else np.zeros((0, 3))
     if not len(pts):
         raise _no_parallax_error(total)
     depth = float(np.median(np.linalg.norm(pts[:, None] - centres[None], axis=-1)))
-    if depth <= 0 or spread / depth < MIN_PARALLAX:
+    if depth <= 0 or spread / depth < (PANORAMIC_PARALLAX if flat_share > 0.5 else MIN_PARALLAX):
         raise _no_parallax_error(total)

@@ -4,9 +4,10 @@ arc around it, for tests, the ``bench photos`` figure and trying ``aes-planner p
 The scene is plain data (a scene YAML mapping, :mod:`aes_planner.sim.spec`'s format): a floor and a
 back wall carrying photographs, boxes and panels with photographs on their faces at several depths
 (parallax), under soft light. The photographs are the caller's image files (``textures``); without
-them procedural noise patterns stand in (less like a real photo, and poorer in corners);
-:func:`dead_leaves_textures` writes stand-ins with a photograph's statistics (occluding discs of
-every size: edges, corners and texture at every scale).
+them procedural noise patterns stand in (less like a real photo, and poorer in corners).
+:func:`cc0_photos` lists the real photographs the package ships for this (six CC0 photographs from
+scikit-image's data, ``sim/assets/photos``); :func:`dead_leaves_textures` writes stand-ins with a
+photograph's statistics (occluding discs of every size: edges, corners and texture at every scale).
 """
 
 from __future__ import annotations
@@ -19,10 +20,18 @@ import numpy as np
 
 from aes_planner.geometry.poses import look_at
 
-__all__ = ["arc_poses", "dead_leaves_textures", "photo_scene"]
+__all__ = ["arc_poses", "cc0_photos", "dead_leaves_textures", "photo_scene"]
 
 #: Where the photographed subject stands (world metres): the arc's cameras look at it.
 SUBJECT_M = (3.0, 0.0, 0.7)
+
+
+def cc0_photos() -> list[Path]:
+    """The real photographs shipped for photo-textured scenes (CC0; ``sim/assets/photos/README.md``
+    names each one's photographer), sorted by name."""
+    from importlib import resources
+
+    return sorted(Path(str(resources.files("aes_planner.sim") / "assets" / "photos")).glob("*.jpg"))
 
 
 def dead_leaves_textures(out_dir: str | Path, n: int = 6, size_px: int = 256, seed: int = 0) -> list[Path]:

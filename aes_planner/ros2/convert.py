@@ -27,6 +27,7 @@ import numpy as np
 from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.camera import Intrinsics, IntrinsicsError
 from aes_planner.geometry.plausible import distortion_problem, intrinsics_problem, joint_problem, stamp_problem
+from aes_planner.geometry.rotations import matrix_to_quat
 from aes_planner.messages import Diagnostics, GimbalState, PosedFrame, ViewSuggestion
 from aes_planner.messages.posed_frame import MAX_FRAME_PIXELS, MAX_FRAME_SIDE_PX
 from aes_planner.ros2 import idl
@@ -93,15 +94,10 @@ def stamp_s(t: idl.Time, what: str = "header.stamp") -> float:
 
 
 def quaternion_xyzw(rotation: np.ndarray) -> tuple[float, float, float, float]:
-    """A rotation matrix ``[3, 3]`` -> unit quaternion ``(x, y, z, w)``, ``w >= 0``."""
-    from transforms3d.quaternions import mat2quat
-
-    w, x, y, z = mat2quat(np.asarray(rotation, dtype=np.float64))
-    q = np.array([x, y, z, w])
-    q /= np.linalg.norm(q)
-    if q[3] < 0:
-        q = -q
-    return float(q[0]), float(q[1]), float(q[2]), float(q[3])
+    """A rotation matrix ``[3, 3]`` -> unit quaternion ``(x, y, z, w)``, ``w >= 0``: ROS's order of
+    :func:`~aes_planner.geometry.rotations.matrix_to_quat` (the package's one conversion)."""
+    w, x, y, z = matrix_to_quat(rotation)
+    return float(x), float(y), float(z), float(w)
 
 
 def pose(a2b: np.ndarray) -> idl.Pose:

@@ -95,9 +95,12 @@ def test_gimbal_states_with_implausible_joints_are_refused():
 
 def test_the_planner_rejects_and_counts_a_frame_that_is_not_its_scene():
     from aes_planner.node.planner import PlannerConfig, PlannerNode
+    from aes_planner.platform import RigPlatformConfig
     from tests.node.nodekit import RIG, FakeTeacher, ScriptedProposer, frame_at
 
-    node = PlannerNode(PlannerConfig(rig=RIG, active=False), proposer=ScriptedProposer(), teacher=FakeTeacher())
+    node = PlannerNode(
+        PlannerConfig(platform=RigPlatformConfig(RIG), active=False), proposer=ScriptedProposer(), teacher=FakeTeacher()
+    )
     rig = ScriptedProposer().rig
     first = frame_at(rig, 0.0, 0.0, 1.0)
     node.step({"camera/frame": [first]}, 1.0)

@@ -13,6 +13,7 @@ from aes_planner.node.gimbal import GimbalNode, GimbalNodeConfig
 from aes_planner.node.planner import PlannerConfig, PlannerNode
 from aes_planner.node.scene import launch_scene
 from aes_planner.node.sim_camera import SimCameraNode, SimCameraNodeConfig
+from aes_planner.platform import RigPlatformConfig
 
 from .nodekit import FakeTeacher, ScriptedProposer
 
@@ -44,7 +45,14 @@ def build(tmp_path, **planner_kw):
         context=ctx,
     )
     camera = SimCameraNode(SimCameraNodeConfig(rate_hz=20.0, camera={"width": 32, "height": 24}), context=ctx)
-    cfg = dict(rig=rig, explore_views=4, max_moves=3, settle_s=0.05, move_timeout_s=6.0, fault_timeout_s=1.5)
+    cfg = dict(
+        platform=RigPlatformConfig(rig),
+        explore_views=4,
+        max_moves=3,
+        settle_s=0.05,
+        move_timeout_s=6.0,
+        fault_timeout_s=1.5,
+    )
     cfg.update(planner_kw)
     planner = PlannerNode(PlannerConfig(**cfg), proposer=ScriptedProposer(rig, peak=(0.5, 0.1)), teacher=FakeTeacher())
     return Launch([(gimbal, {}), (camera, {}), (planner, {})]), gimbal, planner

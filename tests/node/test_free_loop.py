@@ -11,7 +11,7 @@ from aes_planner.messages import Candidate, PosedFrame
 from aes_planner.node.planner import PlannerConfig, PlannerNode
 from aes_planner.node.proposer import Proposal, Proposer
 from aes_planner.node.sim_drone import SimDrone, SimDroneConfig
-from aes_planner.platform import DroneBox
+from aes_planner.platform import DroneBox, DronePlatformConfig
 
 from .nodekit import FakeTeacher, K
 
@@ -58,7 +58,9 @@ class FreeProposer(Proposer):
 
 def test_free_loop_flies_to_better_views_inside_the_box():
     node = PlannerNode(
-        PlannerConfig(drone=BOX, explore_views=3, max_moves=3, settle_s=0.0, arrival_tolerance_deg=1.0),
+        PlannerConfig(
+            platform=DronePlatformConfig(BOX), explore_views=3, max_moves=3, settle_s=0.0, arrival_tolerance_deg=1.0
+        ),
         proposer=FreeProposer(),
         teacher=FakeTeacher(),
     )

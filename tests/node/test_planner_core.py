@@ -9,12 +9,13 @@ import pytest
 from aes_planner.config import ConfigError
 from aes_planner.messages import Candidate, PlannerRequest
 from aes_planner.node.planner import Capture, PlannerConfig, PlannerNode
+from aes_planner.platform import RigPlatformConfig
 
 from .nodekit import RIG, FakeTeacher, ScriptedProposer, SimRig, frame_at
 
 
 def make(proposer=None, **kw):
-    cfg = PlannerConfig(rig=RIG, settle_s=0.0, **kw)
+    cfg = PlannerConfig(platform=RigPlatformConfig(RIG), settle_s=0.0, **kw)
     return PlannerNode(cfg, proposer=proposer or ScriptedProposer(), teacher=FakeTeacher())
 
 
@@ -161,7 +162,7 @@ def test_a_camera_that_falls_silent_ends_the_loop_after_the_move_timeout():
 
 def test_max_stamp_ahead_is_checked():
     with pytest.raises(ConfigError, match="max_stamp_ahead_s"):
-        PlannerConfig(rig=RIG, max_stamp_ahead_s=-1.0)
+        PlannerConfig(platform=RigPlatformConfig(RIG), max_stamp_ahead_s=-1.0)
 
 
 def test_fault_that_clears_resumes_the_loop():
@@ -429,7 +430,7 @@ def test_start_readies_the_rasterizer_once_for_the_field_and_not_for_a_stand_in(
 
     calls = []
     monkeypatch.setattr(warmup, "warm_kernels", lambda: calls.append(1) or 0.0)
-    node = PlannerNode(PlannerConfig(rig=RIG), teacher=FakeTeacher())  # the field's proposer
+    node = PlannerNode(PlannerConfig(platform=RigPlatformConfig(RIG)), teacher=FakeTeacher())  # the field's proposer
     node.start()
     node.start()
     assert len(calls) == 1  # compiled (or loaded) at start, not in the first plan

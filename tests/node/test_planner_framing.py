@@ -10,6 +10,7 @@ from aes_planner.messages import PlannerRequest
 from aes_planner.messages.diagnostics import FramingRegion
 from aes_planner.node.planner import PlannerConfig, PlannerNode
 from aes_planner.node.proposer import FieldProposer
+from aes_planner.platform import RigPlatformConfig
 from aes_planner.sim import SimSource
 from aes_planner.sim.camera import SimCameraConfig
 
@@ -20,7 +21,7 @@ def test_planner_keeps_the_requested_subject_in_its_suggestions():
     source = SimSource("tabletop:1", supersample=1, camera=SimCameraConfig(width=64, height=48, supersample=1))
     rig = source.scene.rig.pan_tilt
     node = PlannerNode(
-        PlannerConfig(rig=rig, active=False, min_suggest_period_s=0.01),
+        PlannerConfig(platform=RigPlatformConfig(rig), active=False, min_suggest_period_s=0.01),
         proposer=FieldProposer("rgb", "fast"),
         teacher=FakeTeacher(),
     )

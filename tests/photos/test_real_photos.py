@@ -1,5 +1,5 @@
 """The coordinator's check, on our own renders: ten hand-held-like 640 x 480 views of a scene textured
-with real photographs (CC0, tests/photos/assets), poses withheld, a printed board in view. Slow
+with real photographs (the six CC0 ones the package ships, sim/assets/photos), poses withheld, a printed board in view. Slow
 (a minute of rendering and structure from motion): run by `make bench`."""
 
 from __future__ import annotations
@@ -10,8 +10,9 @@ import pytest
 from aes_planner.bench.photos import render_photo_set
 from aes_planner.geometry.board import parse_board
 from aes_planner.photos import PoseConfig, pose_errors, pose_images
+from aes_planner.photos.simscene import cc0_photos
 
-ASSETS = sorted((__import__("pathlib").Path(__file__).parent / "assets").glob("*.jpg"))
+ASSETS = cc0_photos()
 BOARD = "chessboard:9x6:0.06"
 
 

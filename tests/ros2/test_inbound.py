@@ -17,6 +17,7 @@ from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.pantilt import PanTilt
 from aes_planner.graph.runner import Launch
 from aes_planner.node.planner import PlannerConfig, PlannerNode
+from aes_planner.platform import RigPlatformConfig
 from aes_planner.ros2.bridge import Ros2BridgeConfig, Ros2BridgeNode
 from aes_planner.ros2.dds import DdsConfig
 from aes_planner.sim import load_scene
@@ -118,7 +119,7 @@ def test_a_ros2_rig_drives_the_closed_loop(peer):
     )
     proposer = ScriptedProposer(rig, peak=(0.5, 0.1))
     planner = PlannerNode(
-        PlannerConfig(rig=rig, settle_s=0.0, explore_views=3, max_moves=2, move_timeout_s=10.0),
+        PlannerConfig(platform=RigPlatformConfig(rig), settle_s=0.0, explore_views=3, max_moves=2, move_timeout_s=10.0),
         proposer=proposer,
         teacher=FakeTeacher(),
     )
