@@ -23,6 +23,7 @@ left), ``tilt`` about the pan link's axis (positive looks up).
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import logging
 import math
@@ -53,6 +54,8 @@ __all__ = [
     "register_device",
     "device_class",
     "make_device",
+    "make_camera",
+    "RAW_KEY",
     "joint_command",
     "wait_for_arrival",
 ]
@@ -181,7 +184,8 @@ class Device(ABC):
 class Gimbal(Device):
     """A two-axis pan-tilt gimbal commanded in joint radians.
 
-    Implementations clamp every command to their joint limits, refuse NaN/Inf with
+    Implementations clamp every command to their joint limits (the one clamp a joint command
+    passes: :class:`~aes_planner.geometry.rig.JointLimits`), refuse NaN/Inf with
     :class:`~aes_planner.geometry.pantilt.JointCommandError` (nothing is sent), and are safe to
     call from several threads.
     """
@@ -229,7 +233,11 @@ class CameraImage:
 class Camera(Device):
     """A camera: :meth:`read` the next image. ``intrinsics`` (an
     :class:`~aes_planner.geometry.camera.Intrinsics`) is set by the implementation once known
-    (from the calibration, or the simulated camera's field of view)."""
+    (from the calibration, or the simulated camera's field of view).
+
+    A camera whose config has a ``undistort`` field (:data:`RAW_KEY`; ``opencv_camera``) gives raw
+    frames, as the sensor took them, when it is false: what a calibration needs
+    (:func:`make_camera` with ``raw=True``)."""
 
     intrinsics: Any = None
 
@@ -249,7 +257,7 @@ def joint_command(pan_rad: Any, tilt_rad: Any) -> tuple[float, float]:
     """Two joint angles as floats, or :class:`~aes_planner.geometry.rig.JointCommandError`.
 
     Accepts anything ``float()`` takes except text and booleans (numpy and 0-d torch scalars
-    work); finiteness is checked by the clamp that follows (:meth:`JointLimits.clamp`).
+    work); finiteness is checked by the check or clamp that follows (:class:`JointLimits`).
     """
     from aes_planner.geometry.rig import JointCommandError
 
@@ -374,6 +382,29 @@ def device_class(type_name: str, key: str = "type") -> type[Device]:
             "install the hardware extra: pip install 'aes-planner[hardware]'"
         ) from exc
     return getattr(module, attr)
+
+
+#: The camera config field that, false, makes a camera give raw (not undistorted) frames.
+RAW_KEY = "undistort"
+
+
+def make_camera(spec: Mapping[str, Any], key: str = "camera", raw: bool = False) -> Camera:
+    """An unconnected :class:`Camera` from a launch file's ``camera: {type: word, ...}`` mapping,
+    through the same factory as every device (:func:`make_device`). ``raw``: frames as the sensor
+    took them, not undistorted (what ``aes-planner calibrate`` reads); a camera type that cannot
+    give them is a :class:`~aes_planner.config.ConfigError` naming ``key.type``."""
+    if not raw:
+        return make_device(spec, key, kind=Camera)  # type: ignore[return-value]
+    type_key = f"{key}.type" if key else "type"
+    cls = device_class(tag_of(spec, key, DEVICE_TYPES), type_key)
+    fields = {f.name for f in dataclasses.fields(cls.config_class)} if cls.config_class is not None else set()
+    if not issubclass(cls, Camera) or RAW_KEY not in fields:
+        raise ConfigError(
+            type_key,
+            f"calibration reads raw (not undistorted) frames, and camera type {spec['type']!r} cannot give them "
+            f"(its config has no {RAW_KEY!r} setting); use a camera type that has one, e.g. opencv_camera",
+        )
+    return make_device({**spec, RAW_KEY: False}, key, kind=Camera)  # type: ignore[return-value]
 
 
 def make_device(spec: Mapping[str, Any], key: str = "", kind: type[Device] = Device) -> Device:

@@ -10,8 +10,10 @@ its kind:
 * what the search moves (the search owns its spaces: :func:`aes_planner.search.space.space_for`
   opens a rig's joints, a drone's or a hand-held camera's 5-DoF views; this module is a leaf that
   imports no search);
-* the clamp a command passes (:meth:`RigPlatform.clamp`: the joint limits, NaN/Inf refused;
-  :meth:`DronePlatform.clamp`: the box);
+* what a command must stay inside (:meth:`RigPlatform.check`: the joint limits, a command beyond
+  them or NaN/Inf refused, never clamped -- the one clamp is the device's,
+  :class:`~aes_planner.geometry.rig.JointLimits`; :meth:`DronePlatform.clamp`: a pose moved into
+  the box);
 * the box free flight takes around it (:meth:`Platform.free_box`: a rig's is
   ``RIG_FREE_BOX_HALF_M`` around its base, a drone's is its own);
 * the arrival test (:meth:`RigPlatform.arrived`: the gimbal at its goal, the goal ours;
@@ -228,10 +230,12 @@ class RigPlatform(Platform):
     def kinematics(self) -> PanTilt:
         return PanTilt(self.rig)
 
-    def clamp(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
-        """The joints inside the limits (:meth:`JointLimits.clamp`; NaN/Inf raise
-        :class:`~aes_planner.geometry.JointCommandError`): the one clamp a planner's command passes."""
-        return self.kinematics.clamp(pan_rad, tilt_rad)
+    def check(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
+        """The joints unchanged when inside the limits (:meth:`JointLimits.check`: within
+        ``JOINT_LIMIT_TOLERANCE_RAD``); beyond them, or NaN/Inf,
+        :class:`~aes_planner.geometry.JointCommandError`. The planner refuses what fails; the
+        device applies the one clamp (:class:`~aes_planner.geometry.rig.JointLimits`)."""
+        return self.kinematics.limits.check(pan_rad, tilt_rad)
 
     def arrived(self, state, pan_rad: float, tilt_rad: float, tol_rad: float, any_goal: bool = False) -> bool:
         """Whether a gimbal ``state`` (:class:`~aes_planner.messages.GimbalState`) stands still at

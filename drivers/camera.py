@@ -5,7 +5,10 @@ The calibration is an OpenCV ``FileStorage`` YAML with ``camera_matrix`` /
 ``distortion_coefficients`` / ``image_width`` / ``image_height``, or a ROS ``camera_info`` YAML
 with ``camera_matrix: {rows, cols, data}`` and ``distortion_coefficients`` (read with
 ``yaml.safe_load``). Each image is checked against the calibration's size, undistorted with its
-coefficients, and turned from OpenCV's BGR into RGB. ``cv2`` is imported on :meth:`connect`.
+coefficients, and turned from OpenCV's BGR into RGB. With ``undistort: false`` (what
+``aes-planner calibrate`` asks for, :func:`aes_planner.devices.make_camera`) frames are given raw,
+as the sensor took them, and the calibration file is optional (the one being made needs none).
+``cv2`` is imported on :meth:`connect`, which asks the camera for the calibration's size.
 """
 
 from __future__ import annotations
@@ -135,14 +138,18 @@ def check_capture_source(device: Any) -> None:
 @dataclass
 class OpenCVCameraConfig:
     """* ``device``: the ``cv2.VideoCapture`` source, an index (``/dev/videoN``) or a path/URL.
-    * ``calibration``: the camera-info YAML (OpenCV or ROS); required to read images."""
+    * ``calibration``: the camera-info YAML (OpenCV or ROS); required to read undistorted images.
+    * ``undistort``: undistort each frame with the calibration (a node's frames); false: raw
+      frames, as the sensor took them (a calibration's; the calibration file then optional)."""
 
     device: int | str = 0
     calibration: str = ""
+    undistort: bool = True
 
     def __post_init__(self):
         check_capture_source(self.device)
         require(isinstance(self.calibration, str), "calibration", f"expected a file path, got {self.calibration!r}")
+        require(isinstance(self.undistort, bool), "undistort", f"expected true or false, got {self.undistort!r}")
 
 
 class OpenCVCamera(Camera):
@@ -153,12 +160,15 @@ class OpenCVCamera(Camera):
 
     def __init__(self, config: OpenCVCameraConfig, capture=None, calibration: Calibration | None = None):
         self.config = config
-        if calibration is None:
+        if calibration is None and (config.calibration or config.undistort):
             if not config.calibration:
-                raise ConfigError("calibration", "give the camera's calibration YAML (OpenCV or ROS camera_info)")
+                raise ConfigError(
+                    "calibration",
+                    "give the camera's calibration YAML (OpenCV or ROS camera_info), or undistort: false for raw frames",
+                )
             calibration = load_calibration(config.calibration)
-        self.calibration = calibration
-        self.intrinsics = calibration.intrinsics
+        self.calibration = calibration  # None: raw frames of any size (a camera being calibrated)
+        self.intrinsics = calibration.intrinsics if calibration is not None else None
         self._capture = capture
 
     @property
@@ -172,6 +182,9 @@ class OpenCVCamera(Camera):
             capture = cv2.VideoCapture(self.config.device)
             if not capture.isOpened():
                 raise DeviceError(f"cannot open camera {self.config.device!r}; check the index or path")
+            if self.intrinsics is not None:  # ask for the calibration's size (a camera may start at another)
+                capture.set(cv2.CAP_PROP_FRAME_WIDTH, self.intrinsics.width)
+                capture.set(cv2.CAP_PROP_FRAME_HEIGHT, self.intrinsics.height)
             self._capture = capture
 
     def disconnect(self) -> None:
@@ -188,9 +201,15 @@ class OpenCVCamera(Camera):
         if not ok or bgr is None:
             return None
         k = self.intrinsics
-        if bgr.ndim != 3 or bgr.shape[:2] != (k.height, k.width):
-            raise CameraError(f"frame {bgr.shape} does not match the calibration {k.width}x{k.height}")
-        if self.calibration.distortion.size and np.any(self.calibration.distortion):
+        if bgr.ndim != 3 or bgr.shape[2] != 3:
+            raise CameraError(f"frame {bgr.shape} is not a colour image [H, W, 3]; check the camera's pixel format")
+        if k is not None and bgr.shape[:2] != (k.height, k.width):
+            raise CameraError(
+                f"the camera delivers {bgr.shape[1]}x{bgr.shape[0]} frames but its calibration is for "
+                f"{k.width}x{k.height}; calibrate the camera at this resolution"
+            )
+        undistort = self.config.undistort and self.calibration is not None
+        if undistort and self.calibration.distortion.size and np.any(self.calibration.distortion):
             import cv2
 
             bgr = cv2.undistort(bgr, self.calibration.K_opencv, self.calibration.distortion)

@@ -33,12 +33,17 @@ def test_one_word_for_the_kind_and_free_is_read_as_drone():
             parse_kind(bad, "mode")
 
 
-def test_rig_clamp_is_the_joint_limits_and_refuses_nan():
+def test_rig_check_refuses_beyond_the_joint_limits_and_nan_and_never_clamps():
     rig = RigPlatform(K, RIG)
-    assert rig.clamp(math.radians(120), math.radians(-50)) == pytest.approx((math.radians(90), math.radians(-30)))
-    assert rig.clamp(0.1, -0.2) == (0.1, -0.2)
-    with pytest.raises(JointCommandError):
-        rig.clamp(float("nan"), 0.0)
+    with pytest.raises(JointCommandError, match="pan 120.000 deg is beyond the limits"):
+        rig.check(math.radians(120), 0.0)
+    with pytest.raises(JointCommandError, match="tilt -50.000 deg"):
+        rig.check(0.0, math.radians(-50))
+    assert rig.check(0.1, -0.2) == (0.1, -0.2)
+    edge = math.radians(90.15)  # a servo's read-back a few ticks past its limit: passes, unchanged
+    assert rig.check(edge, 0.0) == (edge, 0.0)
+    with pytest.raises(JointCommandError, match="finite"):
+        rig.check(float("nan"), 0.0)
 
 
 def test_rig_arrival_needs_the_gimbal_still_at_our_goal():

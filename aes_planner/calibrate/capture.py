@@ -281,30 +281,34 @@ class SimStream:
 
 
 class HardwareViewSource(ViewSource):
-    """A real gimbal (any :class:`~aes_planner.devices.Gimbal`, connected) and a camera
-    (``cv2.VideoCapture`` or anything with ``read() -> (ok, bgr)``): move, wait until the servos
-    report arrival, let the bracket settle ``settle_s``, drop ``flush_frames`` buffered frames,
-    then take one and the joints the gimbal reports."""
+    """A real gimbal (any :class:`~aes_planner.devices.Gimbal`, connected) and a camera (any
+    :class:`~aes_planner.devices.Camera`, connected, giving raw frames: built by the device factory
+    as a node's camera is, :func:`aes_planner.devices.make_camera` with ``raw=True``): move, wait
+    until the servos report arrival, let the bracket settle ``settle_s``, drop ``flush_frames``
+    buffered frames, then take one and the joints the gimbal reports."""
 
-    def __init__(self, gimbal, capture, camera: CameraModel, settle_s: float = 0.5, flush_frames: int = 4):
+    def __init__(self, gimbal, camera_device, camera: CameraModel, settle_s: float = 0.5, flush_frames: int = 4):
         self.gimbal = gimbal
-        self.capture_device = capture
+        self.camera_device = camera_device
         self.camera = camera
         self.settle_s = settle_s
         self.flush_frames = flush_frames
 
-    def _read(self) -> np.ndarray:
-        ok, bgr = self.capture_device.read()
-        if not ok or bgr is None:
+    def _read(self) -> np.ndarray:  # -> [H, W] uint8 gray
+        import time
+
+        shot = self.camera_device.read(time.time())
+        if shot is None:
             raise RigCalibrationError(
                 "the camera returned no frame; check the device index and that nothing else holds it"
             )
-        if bgr.shape[:2] != (self.camera.height, self.camera.width):
+        rgb = shot.image  # [H, W, 3] uint8 RGB, raw
+        if rgb.shape[:2] != (self.camera.height, self.camera.width):
             raise RigCalibrationError(
-                f"the camera delivers {bgr.shape[1]}x{bgr.shape[0]} frames but its calibration is for "
+                f"the camera delivers {rgb.shape[1]}x{rgb.shape[0]} frames but its calibration is for "
                 f"{self.camera.width}x{self.camera.height}; calibrate the camera at this resolution"
             )
-        return bgr if bgr.ndim == 2 else cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+        return rgb if rgb.ndim == 2 else cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
 
     def capture(self, pan_rad: float, tilt_rad: float) -> tuple[np.ndarray, float, float]:
         import time

@@ -45,15 +45,26 @@ def register(sub: argparse._SubParsersAction) -> None:
     c = csub.add_parser(
         "camera",
         help="camera intrinsics from board images (ROS camera_info YAML)",
-        description="OpenCV's calibration (sub-pixel corners, plumb_bob) of the images, or of frames taken live "
-        "with --device; writes the ROS camera_info YAML the camera node reads.",
+        description="OpenCV's calibration (sub-pixel corners, plumb_bob) of the images, or of raw frames taken live "
+        "with --device or from the camera node of --launch (its camera: {type: ...}, built as the node builds it); "
+        "writes the ROS camera_info YAML the camera node reads.",
     )
     c.add_argument("images", nargs="*", metavar="IMAGE", help="board images (PNG, JPEG, ...)")
     c.add_argument("--board", required=True, help=board_help)
     c.add_argument("--out", required=True, metavar="YAML", help="camera_info YAML to write")
     c.add_argument("--json", metavar="REPORT", help="write the report (fx, fy, cx, cy, distortion, rms_px, views)")
     c.add_argument("--camera-name", default="camera", help="camera_name in the YAML (default camera)")
-    c.add_argument("--device", metavar="N", help="capture live from this cv2.VideoCapture index or path instead")
+    c.add_argument(
+        "--device", metavar="N", help="capture live from this camera index or path instead (an opencv_camera)"
+    )
+    c.add_argument(
+        "--launch",
+        metavar="LAUNCH",
+        help="capture live from the camera node of this launch file instead (any camera type giving raw frames)",
+    )
+    c.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="--launch override (as `launch --set`)"
+    )
     c.add_argument("--frames", type=int, default=20, help="live: views to accept (default 20)")
     c.add_argument("--save-dir", metavar="DIR", help="live: keep the accepted frames here")
     c.set_defaults(func=run_camera)
@@ -195,13 +206,15 @@ def run_camera(args) -> int:
     _check_outputs(args, ("--out", "--json"))
     spec = parse_board(args.board)
     t0 = time.monotonic()
-    if args.device is not None:
-        if args.images:
-            raise CalibrateUsageError("give IMAGES or --device, not both")
+    if args.device is not None or args.launch is not None:
+        if args.images or (args.device is not None and args.launch is not None):
+            raise CalibrateUsageError("give one of IMAGES, --device or --launch")
         views = _live_views(args, spec)
     else:
         if not args.images:
-            raise CalibrationFailed("no images given; pass the board images (e.g. views/*.png) or --device N")
+            raise CalibrationFailed(
+                "no images given; pass the board images (e.g. views/*.png), --device N or --launch LAUNCH"
+            )
         views = load_views(args.images, spec)
     result = calibrate_views(views, spec)
     Path(args.out).write_text(
@@ -223,29 +236,51 @@ def run_camera(args) -> int:
     return 0
 
 
+def launch_camera_spec(launch: str, overrides) -> dict:
+    """The ``camera: {type: ...}`` mapping of the launch file's camera node (its short form
+    ``device:`` / ``calibration:`` read as an ``opencv_camera``), checked as the node checks it."""
+    from aes_planner.config import from_dict
+    from aes_planner.graph.launch_file import load_launch
+    from aes_planner.node.camera import CameraNodeConfig
+
+    entry = next((e for e in load_launch(launch, overrides).nodes if e.type == "camera"), None)
+    if entry is None:
+        raise CalibrateUsageError(f"--launch {launch}: needs a camera node (as pan_tilt_rig.yaml)")
+    return dict(from_dict(CameraNodeConfig, entry.config, "camera.config").device_spec)
+
+
+def _live_camera(args):
+    """The camera a live ``calibrate camera`` reads, raw, built by the device factory as the camera
+    node builds it: ``--device N`` an ``opencv_camera``, ``--launch`` the launch's camera node's."""
+    from aes_planner.devices import make_camera
+
+    if args.launch is not None:
+        return make_camera(launch_camera_spec(args.launch, args.set), "camera", raw=True)
+    device = int(args.device) if str(args.device).isdigit() else args.device
+    # the config refuses a bad index before OpenCV sees it (VideoCapture(-1) kills the process)
+    return make_camera({"type": "opencv_camera", "device": device}, "device", raw=True)
+
+
 def _live_views(args, spec):
-    """Frames from a live camera: a view is kept when the board is found and its corners moved
+    """Raw frames from a live camera: a view is kept when the board is found and its corners moved
     (a new pose); prints the image coverage as views accumulate."""
     import cv2
     import numpy as np
 
     from aes_planner.calibrate.board import detect
     from aes_planner.calibrate.intrinsics import DUPLICATE_PX, View, _coverage
-    from aes_planner.drivers.camera import check_capture_source
 
-    device = int(args.device) if str(args.device).isdigit() else args.device
-    check_capture_source(device)  # before OpenCV: VideoCapture(-1) kills the process
-    cap = cv2.VideoCapture(device)
-    if not cap.isOpened():
-        raise CalibrateUsageError(f"cannot open camera {args.device!r}; check the index or path")
+    camera = _live_camera(args)
+    camera.connect()
     views, tries = [], 0
     try:
         while len(views) < args.frames and tries < 200 * args.frames:
             tries += 1
-            ok, bgr = cap.read()
-            if not ok:
+            shot = camera.read(time.time())
+            if shot is None:
                 continue
-            gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+            rgb = shot.image  # [H, W, 3] uint8, raw
+            gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
             found = detect(gray, spec)
             if found is None:
                 continue
@@ -260,14 +295,14 @@ def _live_views(args, spec):
             name = f"live_{len(views):03d}"
             if args.save_dir:
                 Path(args.save_dir).mkdir(parents=True, exist_ok=True)
-                cv2.imwrite(str(Path(args.save_dir) / f"{name}.png"), bgr)
+                cv2.imwrite(str(Path(args.save_dir) / f"{name}.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
             views.append(View(name, gray, found))
             cover = _coverage([v.detection.image_points for v in views], gray.shape[1], gray.shape[0])
             print(
                 f"view {len(views)}/{args.frames}: corners cover {100 * cover:.0f} % of the image (move the board to the empty parts)"
             )
     finally:
-        cap.release()
+        camera.disconnect()
     return views
 
 
@@ -312,7 +347,7 @@ class _Session:
         self.args = args
         self.scene = None
         self.gimbal = None
-        self.capture = None
+        self.camera = None  # the camera device (--launch), raw frames
         self.tilt_direction = 1
         self.tilt_zero_offset_ticks: int | None = None  # the driver's present value (--launch)
 
@@ -339,33 +374,23 @@ class _Session:
         return self
 
     def _hardware(self):
-        import cv2
         import numpy as np
 
         from aes_planner.calibrate.capture import CameraModel, HardwareViewSource
-        from aes_planner.devices import make_device
+        from aes_planner.devices import make_camera, make_device
         from aes_planner.drivers.camera import load_calibration
         from aes_planner.graph.launch_file import load_launch
 
         a = self.args
         spec = load_launch(a.launch, a.set)
         gimbal_entry = next((e for e in spec.nodes if e.type == "gimbal"), None)
-        camera_entry = next((e for e in spec.nodes if e.type == "camera"), None)
-        if gimbal_entry is None or camera_entry is None or "device" not in gimbal_entry.config:
+        if gimbal_entry is None or "device" not in gimbal_entry.config:
             raise CalibrateUsageError(
                 f"--launch {a.launch}: needs a gimbal node with a device and a camera node (as pan_tilt_rig.yaml)"
             )
-        from aes_planner.config import from_dict
-        from aes_planner.node.camera import CameraNodeConfig
-
         # the camera node's own config: camera: {type: ...} or its device/calibration short form, checked
         # (a bad index fails here, before OpenCV: VideoCapture(-1) kills the process)
-        camera_spec = from_dict(CameraNodeConfig, camera_entry.config, "camera.config")._spec
-        if camera_spec["type"] != "opencv_camera":
-            raise CalibrateUsageError(
-                f"--launch {a.launch}: calibrating the rig reads raw frames from an opencv_camera; the launch's camera "
-                f"is a {camera_spec['type']}"
-            )
+        camera_spec = launch_camera_spec(a.launch, a.set)
         device_spec = dict(gimbal_entry.config["device"])
         self.tilt_direction = int(device_spec.get("tilt_direction", 1))
         self.tilt_zero_offset_ticks = int(device_spec.get("tilt_zero_offset_ticks", 0))
@@ -379,15 +404,15 @@ class _Session:
         dist = np.zeros(5)
         dist[: min(5, cal.distortion.size)] = cal.distortion[:5]
         camera = CameraModel(cal.K_opencv, dist, k.width, k.height)
+        if "calibration" in camera_spec:  # the file the rig is calibrated with sets the frame size asked for
+            camera_spec["calibration"] = calibration_file
+        # raw frames (not undistorted: the calibration models the distortion), through the device
+        # factory as the camera node builds its camera
+        self.camera = make_camera(camera_spec, "camera", raw=True)
         self.gimbal = make_device(device_spec, "gimbal.device")
         self.gimbal.connect()
-        device = camera_spec.get("device", 0)
-        self.capture = cv2.VideoCapture(device)
-        if not self.capture.isOpened():
-            raise CalibrateUsageError(f"cannot open camera {device!r}; check the launch file's camera.device")
-        self.capture.set(cv2.CAP_PROP_FRAME_WIDTH, k.width)
-        self.capture.set(cv2.CAP_PROP_FRAME_HEIGHT, k.height)
-        return HardwareViewSource(self.gimbal, self.capture, camera, settle_s=a.settle_s)
+        self.camera.connect()
+        return HardwareViewSource(self.gimbal, self.camera, camera, settle_s=a.settle_s)
 
     def stream(self):
         """The continuous-sweep callable for the latency."""
@@ -398,8 +423,8 @@ class _Session:
         return self.source.stream
 
     def __exit__(self, *exc):
-        if self.capture is not None:
-            self.capture.release()
+        if self.camera is not None:
+            self.camera.disconnect()
         if self.gimbal is not None:
             self.gimbal.disconnect()
 

@@ -201,6 +201,25 @@ def print_table(result, top: int) -> None:
             where = f"{x:{w}.2f} {y:{w}.2f} {z:{w}.2f} {math.degrees(s.yaw_rad):7.1f} {math.degrees(s.pitch_rad):9.1f}"
         terms = sorted(((k, v) for k, v in s.terms.items() if k != "score"), key=lambda kv: -kv[1])[:3]
         print(f"{i + 1:2d}  {where}  {s.score:6.3f}  {s.coverage:8.2f}  " + ", ".join(f"{k} {v:.2f}" for k, v in terms))
+    print_coverage(result, rig)
+
+
+def print_coverage(result, rig: bool) -> None:
+    """How much of the reachable space the inputs cover, and the exploratory candidate: the best
+    view may lie where no input looked (one shot cannot know it; capturing there can)."""
+    if getattr(result, "covered_fraction", None) is None:  # none measured (explore_points 0, kept subjects)
+        return
+    line = f"the inputs cover {100 * result.covered_fraction:.0f} % of the reachable views"
+    e = result.explore
+    if e is None:
+        print(line)
+        return
+    if rig:
+        where = f"pan {math.degrees(e.pan_rad):.1f} deg, tilt {math.degrees(e.tilt_rad):.1f} deg"
+    else:
+        x, y, z = e.position_m
+        where = f"({x:.2f}, {y:.2f}, {z:.2f}) m, yaw {math.degrees(e.yaw_rad):.1f} deg, pitch {math.degrees(e.pitch_rad):.1f} deg"
+    print(f"{line}; a better view may lie where no input looked: explore {where} (coverage {e.coverage:.2f})")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -307,6 +326,8 @@ def run(args: argparse.Namespace) -> int:
             "scorer": args.scorer,
             "latency_ms": latency_ms,
             "suggestions": [s.to_json() for s in result.suggestions[:top]],
+            "covered_fraction": result.covered_fraction,  # of the reachable views, the share the inputs cover
+            "explore": None if result.explore is None else result.explore.to_json(),  # where no input looked
         }
         if moves:  # the frame of the poses the pose step wrote, and each view from its nearest photo
             doc["posed_folder"] = str(data.root)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from aes_planner.config import require, require_finite, to_dict
 from aes_planner.errors import AesPlannerError
 
-__all__ = ["JointCommandError", "JointLimits", "PanTiltConfig", "rig_dict"]
+__all__ = ["JOINT_LIMIT_TOLERANCE_RAD", "JointCommandError", "JointLimits", "PanTiltConfig", "rig_dict"]
 
 
 class JointCommandError(AesPlannerError, ValueError):
@@ -22,6 +22,12 @@ class JointCommandError(AesPlannerError, ValueError):
 #: Farthest a rig's base may sit from the origin, and longest its arms (tilt offset, lever arm), metres.
 MAX_BASE_M = 1e9
 MAX_ARM_M = 100.0
+
+#: How far beyond its limits a joint angle may be and still pass :meth:`JointLimits.check`,
+#: radians (0.2 deg, two Dynamixel ticks of 0.088 deg and a little): a servo reads back a tick or
+#: two past a limit it was sent to, and a capture's joints, read from the gimbal, are sent again to
+#: settle on it. A command that far beyond a gimbal node's launch limits reaches the device as sent.
+JOINT_LIMIT_TOLERANCE_RAD = math.radians(0.2)
 
 
 @dataclass
@@ -113,7 +119,14 @@ def rig_dict(config: PanTiltConfig) -> dict:
 
 @dataclass(frozen=True)
 class JointLimits:
-    """Inclusive (min, max) joint limits in radians, and the one clamp every command passes."""
+    """Inclusive (min, max) joint limits in radians, and the one clamp every command passes.
+
+    **The clamp rule.** :meth:`clamp` is applied once, last, by whatever drives the joints: the
+    :class:`~aes_planner.devices.Gimbal` device (every driver's ``move_to``), or, when ROS 2
+    drives them, the bridge's outbound joint command (:mod:`aes_planner.ros2.inbound`). Everything
+    before it (the planner's motion, the gimbal node's launch limits) only check (:meth:`check`): a
+    command beyond the limits is refused and counted, never moved inside them.
+    """
 
     pan_rad: tuple[float, float]
     tilt_rad: tuple[float, float]
@@ -133,6 +146,23 @@ class JointLimits:
             )
         (plo, phi), (tlo, thi) = self.pan_rad, self.tilt_rad
         return min(max(pan_rad, plo), phi), min(max(tilt_rad, tlo), thi)
+
+    def check(self, pan_rad: float, tilt_rad: float, tol_rad: float = JOINT_LIMIT_TOLERANCE_RAD) -> tuple[float, float]:
+        """The joint angles unchanged when they are finite and inside the limits (widened by
+        ``tol_rad``); else :class:`JointCommandError` saying which joint and by how much. The check
+        of everything before the one clamp (see the class docstring): it refuses, it never moves."""
+        if not (math.isfinite(pan_rad) and math.isfinite(tilt_rad)):
+            raise JointCommandError(
+                f"joint command must be finite, got pan={pan_rad!r} rad, tilt={tilt_rad!r} rad; refusing to move"
+            )
+        for name, value, (lo, hi) in (("pan", pan_rad, self.pan_rad), ("tilt", tilt_rad, self.tilt_rad)):
+            if not lo - tol_rad <= value <= hi + tol_rad:
+                raise JointCommandError(
+                    f"{name} {math.degrees(value):.3f} deg is beyond the limits "
+                    f"[{math.degrees(lo):.3f}, {math.degrees(hi):.3f}] deg; refusing to move "
+                    "(command an angle inside them)"
+                )
+        return pan_rad, tilt_rad
 
     def within(self, pan_rad: float, tilt_rad: float, tol_rad: float = 1e-9) -> bool:
         """Whether the joints are inside the limits (widened by ``tol_rad``)."""

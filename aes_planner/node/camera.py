@@ -19,7 +19,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from aes_planner.config import from_dict, require, require_numbers, tag_of
-from aes_planner.devices import DEVICE_TYPES, Camera, CameraImage, device_class, make_device
+from aes_planner.devices import DEVICE_TYPES, Camera, CameraImage, device_class, make_camera
 from aes_planner.geometry.pantilt import PanTilt, PanTiltConfig
 from aes_planner.geometry.trajectory import JointHistory
 from aes_planner.graph.base import Input, LaunchContext, NodeError
@@ -77,6 +77,13 @@ class CameraNodeConfig:
         check_frame_source(self.frame_id, self.rate_hz)
         require(self.state_history_s <= 60, "state_history_s", f"must be <= 60 s (memory), got {self.state_history_s}")
 
+    @property
+    def device_spec(self) -> dict:
+        """The camera as one ``{type: word, <its config keys>}`` mapping (the short form read as an
+        ``opencv_camera``): what :func:`aes_planner.devices.make_camera` builds, here and in
+        ``aes-planner calibrate``."""
+        return dict(self._spec)
+
 
 class CameraNode(FrameNode):
     """See the module docstring. ``camera`` replaces the configured device (any
@@ -110,7 +117,7 @@ class CameraNode(FrameNode):
         if camera is None and (capture is not None or calibration is not None):  # test hooks of the OpenCV device
             camera = device_class("opencv_camera")(c._device, capture=capture, calibration=calibration)
         elif camera is None:
-            camera = make_device(c._spec, "camera", kind=Camera)
+            camera = make_camera(c.device_spec, "camera")
         self.camera = camera
         self.history = JointHistory(c.state_history_s)
         self._init_frames()

@@ -2,8 +2,9 @@
 
 It publishes ``gimbal/state`` at ``rate_hz`` and executes ``gimbal/command``:
 
-* ``move``: clamped to the joint limits (the device's, and the platform's when configured);
-  a command that is not finite is refused and counted (nothing reaches the servos);
+* ``move``: checked against the launch's joint limits when it sets some (the platform's): a move
+  beyond them, or not finite, is refused and counted (nothing reaches the servos); the device
+  applies the one clamp to its own limits (the clamp rule: :class:`~aes_planner.geometry.rig.JointLimits`);
 * ``stop``: hold where the joints are now;
 * ``reboot``: clear a latched hardware error (the only way out of ``fault``).
 
@@ -46,7 +47,7 @@ from aes_planner.node.scene import launch_scene
 
 log = logging.getLogger(__name__)
 
-#: No limits of the launch's own: only the finiteness check (the device's limits still apply).
+#: No limits of the launch's own: only the finiteness check (the device clamps to its own).
 _UNLIMITED = JointLimits((-math.inf, math.inf), (-math.inf, math.inf))
 
 __all__ = ["GimbalNode", "GimbalNodeConfig"]
@@ -72,7 +73,8 @@ class GimbalNodeConfig:
     """* ``device``: the gimbal as a launch-file device mapping (``type:`` word + its settings).
     * ``rate_hz``: ``gimbal/state`` rate.
     * ``pan_limits_deg``, ``tilt_limits_deg``: extra joint limits (the platform's; a sim launch
-      takes them from the scene's rig); the device's own limits apply too.
+      takes them from the scene's rig): a move beyond them is refused and counted, not clamped;
+      the device clamps to its own limits.
     * ``diagnostics_period_s``: how often ``gimbal/diagnostics`` is published.
     * ``emulate``: start the Protocol 2.0 servo emulator in a child process (its own GIL, like
       real servos) and connect the ``dynamixel_pan_tilt`` device to its pty (the device's
@@ -143,7 +145,7 @@ class GimbalNode(Node):
             ),
             0,
         )
-        self._pending_move: tuple[float, float] | None = None  # clamped joints the device has yet to take
+        self._pending_move: tuple[float, float] | None = None  # checked joints the device has yet to take
         self._seq = 0  # gimbal/state's counter
         self._diag_seq = 0  # gimbal/diagnostics' own
         self._last_state_s = -math.inf
@@ -263,13 +265,13 @@ class GimbalNode(Node):
                 out[name] = value
         return out
 
-    def clamp(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
-        """The joints inside the launch's limits when it sets some (the shared check of the values,
-        then :meth:`JointLimits.clamp`); the device clamps to its own after. :class:`JointCommandError`
-        for anything but two finite numbers."""
+    def check(self, pan_rad: float, tilt_rad: float, launch_limits: bool = True) -> tuple[float, float]:
+        """The joints unchanged when they are two finite numbers inside the launch's limits (when
+        it sets some and ``launch_limits``; :meth:`JointLimits.check`), else
+        :class:`JointCommandError`. The node never clamps: the device does, to its own limits."""
         pan_rad, tilt_rad = joint_command(pan_rad, tilt_rad)
-        limits = JointLimits(*self.limits_rad) if self.limits_rad is not None else _UNLIMITED
-        return limits.clamp(pan_rad, tilt_rad)
+        limits = JointLimits(*self.limits_rad) if self.limits_rad is not None and launch_limits else _UNLIMITED
+        return limits.check(pan_rad, tilt_rad)
 
     def _execute(self, cmd) -> None:
         kind = getattr(cmd, "kind", None)
@@ -290,13 +292,13 @@ class GimbalNode(Node):
                     ", ".join(self.faults),
                 )
             elif kind == "move":
-                pan, tilt = self.clamp(cmd.pan_rad, cmd.tilt_rad)
+                pan, tilt = self.check(cmd.pan_rad, cmd.tilt_rad)
                 self._pending_move = (pan, tilt)  # until the device took it (kept over a lost port)
                 self.device.move_to(pan, tilt)
                 self._moved()
             elif kind == "stop":
                 s = self.device.state()
-                self.device.move_to(*self.clamp(*_joints(s)))
+                self.device.move_to(*self.check(*_joints(s), launch_limits=False))  # hold: where it is
             else:
                 self.counters["commands_refused"] += 1
         except JointCommandError as exc:

@@ -1,8 +1,9 @@
 """How the planner's active loop moves the camera: one adapter per platform.
 
 * :class:`RigMotion` -- a pan-tilt rig: targets are joints, a command is ``gimbal/command``
-  (clamped by :meth:`RigPlatform.clamp <aes_planner.platform.RigPlatform.clamp>`, the planner's
-  one clamp), arrival is the gimbal's own state, a hardware fault pauses the loop.
+  (checked by :meth:`RigPlatform.check <aes_planner.platform.RigPlatform.check>`: a target
+  beyond the joint limits is refused and counted, never clamped -- the device applies the one
+  clamp), arrival is the gimbal's own state, a hardware fault pauses the loop.
 * :class:`DroneMotion` -- a drone that flies the top candidate of ``planner/suggestion``:
   targets are poses inside the box, arrival is a frame seen at the pose.
 
@@ -22,7 +23,7 @@ import numpy as np
 import torch
 
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
-from aes_planner.geometry.rig import PanTiltConfig
+from aes_planner.geometry.rig import JointCommandError, PanTiltConfig
 from aes_planner.graph.base import Outputs
 from aes_planner.messages import Candidate, GimbalCommand, GimbalState, MessageError, PosedFrame, ViewSuggestion
 from aes_planner.node.captures import Capture, CaptureKind, Target
@@ -132,30 +133,37 @@ class RigMotion(Motion):
         return [Target(CaptureKind.EXPLORE, kin.forward(p, t), float(p), float(t)) for p, t in joints]
 
     def polish(self, cap, step_rad):
+        """The four joint neighbours ``step_rad`` away that lie inside the limits (one beyond them
+        is not a place the rig can look: left out, not clamped onto the limit)."""
         if cap.pan_rad is None or cap.tilt_rad is None:
             return []
         out = []
         for dp, dt in ((step_rad, 0.0), (-step_rad, 0.0), (0.0, step_rad), (0.0, -step_rad)):
-            pan, tilt = self.platform.clamp(cap.pan_rad + dp, cap.tilt_rad + dt)
-            out.append(Target(CaptureKind.POLISH, self.platform.kinematics.forward(pan, tilt), pan, tilt))
+            pan, tilt = cap.pan_rad + dp, cap.tilt_rad + dt
+            if self.platform.kinematics.within_limits(pan, tilt):  # strictly: the neighbour is ours to pick
+                out.append(Target(CaptureKind.POLISH, self.platform.kinematics.forward(pan, tilt), pan, tilt))
         return out
 
     def safe(self, cd):
-        if cd.pan_rad is None or not (math.isfinite(cd.pan_rad) and math.isfinite(cd.tilt_rad)):
+        """A candidate whose joints pass :meth:`RigPlatform.check` (finite, inside the limits);
+        its pose is made the joints' own. One beyond the limits is refused, not clamped."""
+        if cd.pan_rad is None or cd.tilt_rad is None:
             return False
-        cd.pan_rad, cd.tilt_rad = self.platform.clamp(cd.pan_rad, cd.tilt_rad)
+        try:
+            self.platform.check(cd.pan_rad, cd.tilt_rad)
+        except JointCommandError as exc:
+            log.warning("candidate refused: %s", exc)
+            return False
         cd.cam2world = self.platform.kinematics.forward(cd.pan_rad, cd.tilt_rad)
         return True
 
     def send(self, node: Sender, target, now, out):
         try:
-            pan, tilt = self.platform.clamp(target.pan_rad, target.tilt_rad)
+            pan, tilt = self.platform.check(target.pan_rad, target.tilt_rad)
             cmd = GimbalCommand("move", pan, tilt, stamp_s=now, sequence=node.next_command_sequence())
-        except (MessageError, ValueError) as exc:  # JointCommandError: NaN/Inf
+        except (MessageError, ValueError) as exc:  # JointCommandError: NaN/Inf, beyond the limits
             log.warning("%s: refused to command %s: %s", node.node_id, target, exc)
             return False
-        target.pan_rad, target.tilt_rad = pan, tilt
-        target.cam2world = self.platform.kinematics.forward(pan, tilt)
         out["gimbal/command"].append(cmd)
         node.count("commands_sent")
         return True

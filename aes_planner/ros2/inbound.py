@@ -17,7 +17,9 @@ Polled from :meth:`aes_planner.ros2.bridge.Ros2BridgeNode.step`:
   ``state_history_s`` (a publisher's clock corrected, a bag replayed from its start) reset the
   joint history (``joint_history_resets``), so no stale or far-future state poisons it for good.
 * ``gimbal/command`` (move, stop) -> one trajectory point or a forward command, clamped to the
-  rig's limits; ``reboot`` has no ROS 2 counterpart here and is counted (``ignored_commands``).
+  rig's limits: here the bridge stands where a :class:`~aes_planner.devices.Gimbal` device
+  stands, so this is the one clamp of the clamp rule (:class:`~aes_planner.geometry.rig.JointLimits`);
+  ``reboot`` has no ROS 2 counterpart here and is counted (``ignored_commands``).
 """
 
 from __future__ import annotations

@@ -68,6 +68,11 @@ class SearchConfig:
     field/RGB scorer renders; the height keeps the aspect) and ``max_gaussians`` (the Gaussian
     budget; ``None``: the scorer's default).
 
+    Information: ``explore_points`` views spread over the whole space (rig: a pan x tilt grid; drone:
+    uniform at random) are scored once more after stage 2 to say how much of the reachable space the
+    inputs cover (``SearchResult.covered_fraction``) and to offer a second, exploratory candidate
+    (``SearchResult.explore``): the best-scored view at the edge of what the inputs saw. 0 = neither.
+
     ``pitch_limits_deg``: the pitch range searched in free mode (a drone gimbal's range).
     ``batch_size``: poses per scorer call in stage 1. ``seed``: the sampling seed.
     """
@@ -76,6 +81,7 @@ class SearchConfig:
     segment_budget: int | None = 3
     neighbours: int = 8
     grid_points: int = 0
+    explore_points: int = 64
     top_k: int = 2
     steps: int = 25
     lr: float = 0.01
@@ -103,6 +109,13 @@ class SearchConfig:
         for name, most in _MOST.items():
             v = getattr(self, name)
             require(v <= most, name, f"must be <= {most}, got {v}")
+        require(
+            isinstance(self.explore_points, int)
+            and not isinstance(self.explore_points, bool)
+            and 0 <= self.explore_points <= 4096,
+            "explore_points",
+            f"must be an integer in [0, 4096], got {self.explore_points!r}",
+        )
         require(
             isinstance(self.grid_points, int)
             and not isinstance(self.grid_points, bool)
@@ -194,7 +207,7 @@ class SearchConfig:
 
 #: Preset name -> the fields it sets (everything else keeps the dataclass default).
 PRESETS: dict[str, dict[str, Any]] = {
-    "fast": dict(samples_per_segment=4, neighbours=4, top_k=1, steps=10, render_width_px=32),
+    "fast": dict(samples_per_segment=4, neighbours=4, top_k=1, steps=10, render_width_px=32, explore_points=16),
     "balanced": dict(samples_per_segment=16, neighbours=8, top_k=2, steps=25, render_width_px=48),
 }
 

@@ -12,6 +12,11 @@
    kept; they are returned ranked, after the same duplicate check (two survivors refined onto
    nearly the same view are one suggestion).
 
+3. **What the inputs cover.** ``explore_points`` views spread over the space are scored: the
+   fraction the inputs cover (``covered_fraction``) and an exploratory candidate (``explore``), the
+   best-scored view the inputs only partly cover. Where the best view lies where no input looked,
+   one shot cannot know it (``eval search``'s ``covered_oracle``); a loop can go and look there.
+
 The objective is the scorer's score minus a coverage penalty, so views of space the scorer has
 not observed lose; suggestions below ``coverage_min`` are dropped unless nothing else remains.
 Any :class:`~aes_planner.field.scorer.Scorer` plugs in; a non-differentiable one is refined with
@@ -20,6 +25,7 @@ central finite differences (or not at all: ``nondiff_refine="skip"``).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -100,6 +106,8 @@ class SearchResult:
     warnings: list[str] = field(default_factory=list)
     dropped_uncovered: int = 0  # refined candidates left out: their coverage fell below coverage_min
     dropped_duplicates: int = 0  # ... and left out as near-duplicates of a better one after refinement
+    covered_fraction: float | None = None  # of cfg.explore_points views spread over the space, the share covered
+    explore: Suggestion | None = None  # the exploratory candidate: the edge of what the inputs saw (None: all seen)
 
     @property
     def best(self) -> Suggestion:
@@ -292,6 +300,9 @@ def _search_views(
     avoid_poses = None if avoid is None else _check_inputs(avoid, "avoid", allow_empty=True)
     avoid_params = space.from_poses(avoid_poses) if avoid_poses is not None and len(avoid_poses) else None
     framing = framing if framing is not None and framing.active else None
+    framing_warnings: list[str] = []
+    if framing is not None and not framing.cfg.refine:  # stage 1's feasible pick stands (FramingConfig.refine)
+        cfg = dataclasses.replace(cfg, steps=0)
     if framing is not None:
         scorer = framing.wrap(scorer)  # the avoided regions and the placement join the score
 
@@ -304,7 +315,13 @@ def _search_views(
     if framing is not None:  # stage 1 keeps the views that hold the subject, aimed ones among them
         from aes_planner.search.framing import feasible_candidates
 
-        candidates = feasible_candidates(framing, space, candidates, trajectory, cfg, rng)
+        asked = framing.cfg.margin_frac
+        candidates, framing = feasible_candidates(framing, space, candidates, trajectory, cfg, rng)
+        if framing.cfg.margin_frac < asked:
+            framing_warnings.append(
+                f"no reachable view holds the kept subject with the {100 * asked:g}% margin asked; "
+                f"the suggestions hold it whole with a {100 * framing.cfg.margin_frac:g}% margin"
+            )
     cand_poses = space.to_poses(candidates)  # [C, 4, 4]
     t_sampled = time.perf_counter()
     out1 = scorer.score_batched(cand_poses, cfg.batch_size)
@@ -331,7 +348,7 @@ def _search_views(
     else:
         pick = torch.arange(len(final_params))
     order = pick[torch.argsort(obj2[pick], descending=True)]
-    warnings = []
+    warnings = list(framing_warnings)
     covered = order[out2.coverage[order].double() >= cfg.coverage_min]
     dropped = len(order) - len(covered) if len(covered) else 0
     if not len(covered):
@@ -363,13 +380,17 @@ def _search_views(
         for sug in suggestions:  # the aesthetic score, and how much of the subject the view holds
             sug.score = sug.terms.get("aesthetic", sug.score)
             sug.held = float(framing.held(torch.as_tensor(sug.cam2world)[None])[0])
+    t_final = time.perf_counter()
+    # with kept subjects every candidate must hold them: no exploratory candidate then
+    covered_fraction, explore, explored = _explore(scorer, space, cfg, rng) if framing is None else (None, None, 0)
     t_end = time.perf_counter()
     timings = {
         "sample": (t_sampled - t_start) * 1e3,
         "stage1_score": (t_stage1 - t_sampled) * 1e3,
         "stage2": (t_stage2 - t_stage1) * 1e3,
         "final": (t_verify - t_stage2) * 1e3,
-        "verify": (t_end - t_verify) * 1e3,
+        "verify": (t_final - t_verify) * 1e3,
+        "explore": (t_end - t_final) * 1e3,
         "total": (t_end - t_start) * 1e3,
     }
     steps_scored = cfg.steps * len(keep) * (1 if differentiable else 1 + 2 * space.dims) if refine else 0
@@ -380,11 +401,37 @@ def _search_views(
         candidates_cam2world=cand_poses.detach().numpy(),
         candidates_score=out1.score.detach().double().numpy(),
         candidates_coverage=out1.coverage.detach().double().numpy(),
-        scored=len(candidates) + steps_scored + len(final_params),
+        scored=len(candidates) + steps_scored + len(final_params) + explored,
         warnings=warnings,
         dropped_uncovered=dropped,
         dropped_duplicates=len(covered) - len(distinct),
+        covered_fraction=covered_fraction,
+        explore=explore,
     )
+
+
+def _explore(scorer: Scorer, space: SearchSpace, cfg: SearchConfig, rng: np.random.Generator):
+    """``(covered_fraction, explore, views scored)`` over ``cfg.explore_points`` views spread over
+    the space (``(None, None, 0)`` when 0): the share of them the inputs cover (coverage >= ``coverage_min``)
+    and the exploratory candidate: among the views only partly covered (0 < coverage <
+    ``coverage_min``), the best scored, where the scorer's guess still rests on something seen;
+    with none partly covered, the least covered; None when every view is covered."""
+    if cfg.explore_points == 0:
+        return None, None, 0
+    spread = space.grid(cfg.explore_points)  # [G, D]
+    if len(spread) == 0:  # free flight: too large to grid, drawn after every stage-1 sample
+        spread = space.random(cfg.explore_points, rng)
+    poses = space.to_poses(spread).detach()  # [G, 4, 4]
+    out = scorer.score_batched(poses, cfg.batch_size)
+    cov = out.coverage.double()  # [G]
+    covered = cov >= cfg.coverage_min
+    fraction = float(covered.double().mean())
+    if bool(covered.all()):
+        return fraction, None, len(spread)
+    partly = (cov > 0.0) & ~covered
+    score = torch.nan_to_num(out.score.double(), nan=-math.inf)
+    i = int(torch.argmax(torch.where(partly, score, -math.inf))) if bool(partly.any()) else int(torch.argmin(cov))
+    return fraction, _suggestion(space, spread[i], poses[i], out, i, float(score[i])), len(spread)
 
 
 def _suggestion(space: SearchSpace, params: Tensor, pose: Tensor, out: ScoreOutput, i: int, obj: float) -> Suggestion:

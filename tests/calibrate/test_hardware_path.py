@@ -15,7 +15,7 @@ from aes_planner.calibrate.pipeline import calibrate_rig
 from aes_planner.calibrate.rig import compare_kinematics
 from aes_planner.calibrate.simscene import board_scene, perturbed_rig
 from aes_planner.cli.calibrate import sim_calibration_camera
-from aes_planner.devices import make_device
+from aes_planner.devices import Camera, CameraImage, make_device
 from aes_planner.geometry import PanTiltConfig
 from aes_planner.sim import load_scene
 
@@ -24,19 +24,25 @@ pytest.importorskip("dynamixel_sdk", reason="the hardware extra (dynamixel-sdk) 
 BOARD = parse_board("chessboard:9x6:0.06")
 
 
-class RenderingCamera:
-    """``read()`` renders what the sim rig sees at the gimbal's present joints (as a camera on it would)."""
+class RenderingCamera(Camera):
+    """A camera device whose ``read`` renders what the sim rig sees at the gimbal's present joints
+    (as a camera on it would), raw RGB."""
 
     def __init__(self, gimbal, sim_source):
         self.gimbal, self.sim = gimbal, sim_source
 
-    def read(self):
+    connected = True
+
+    def connect(self):
+        pass
+
+    def disconnect(self):
+        pass
+
+    def read(self, stamp_s):
         s = self.gimbal.state()
         gray, _, _ = self.sim.capture(s.pan_rad, s.tilt_rad)
-        return True, cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
-
-    def release(self):
-        pass
+        return CameraImage(cv2.cvtColor(gray, cv2.COLOR_GRAY2RGB), stamp_s)
 
 
 @pytest.fixture
@@ -130,4 +136,5 @@ def test_launch_file_wiring_opens_the_gimbal_and_the_camera(tmp_path, fast_switc
         assert gray.shape == (240, 320)
         assert (pan, tilt) == pytest.approx((0.1, -0.05), abs=0.002)  # within a tick of the goal
         assert np.allclose(session.source.camera.K, K)
-    assert not session.gimbal.connected
+        assert type(session.camera).__name__ == "OpenCVCamera" and session.camera.config.undistort is False
+    assert not session.gimbal.connected and not session.camera.connected

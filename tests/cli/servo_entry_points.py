@@ -5,7 +5,10 @@ through the source (AST), every function, class and method of the package the co
 names, transitively. A command opens a servo device when that reaches one of :data:`OPENERS` --
 the device factory, the node factory a launch file goes through (a launch may hold a gimbal
 node), the multi-process supervisor -- or a :class:`~aes_planner.devices.Gimbal` class. A new
-command that opens a gimbal in any of these ways is found without anyone listing it.
+command that opens a gimbal in any of these ways is found without anyone listing it. The walk does
+not follow :data:`CAMERA_ONLY`: the camera factory (it goes through the device factory but refuses
+anything that is not a :class:`~aes_planner.devices.Camera`) and the reading of a launch file's
+camera spec (it parses the graph, which names node classes, and returns a mapping; nothing opens).
 """
 
 from __future__ import annotations
@@ -18,11 +21,14 @@ import textwrap
 from collections.abc import Callable
 
 from aes_planner.cli import build_parser
-from aes_planner.devices import Gimbal, make_device
+from aes_planner.cli.calibrate import launch_camera_spec
+from aes_planner.devices import Gimbal, make_camera, make_device
 from aes_planner.graph.base import make_node, node_class
 from aes_planner.graph.supervisor import Supervisor
 
 OPENERS = {make_device, node_class, make_node, Supervisor}
+#: What reaches :data:`OPENERS` but can only build or describe a camera: not followed.
+CAMERA_ONLY = {make_camera, launch_camera_spec}
 
 
 def leaf_commands(parser: argparse.ArgumentParser | None = None, prefix: str = "") -> dict[str, object]:
@@ -129,6 +135,8 @@ def reaches(func, hit: Callable[[object], bool]) -> bool:
         seen.add(id(obj))
         if hit(obj):
             return True
+        if obj in CAMERA_ONLY:
+            continue
         todo.extend(r for r in _references(obj) if id(r) not in seen)
     return False
 

@@ -45,6 +45,12 @@ def test_suggest_rig_json_and_report(folder, tmp_path, capsys):
         s["score"] - cfg.coverage_penalty * max(0.0, cfg.coverage_min - s["coverage"]) for s in doc["suggestions"]
     ]
     assert objective == sorted(objective, reverse=True)
+    # what the inputs cover, said in the text and the JSON, with the exploratory candidate
+    assert 0.0 <= doc["covered_fraction"] <= 1.0
+    assert f"the inputs cover {100 * doc['covered_fraction']:.0f} % of the reachable views" in text
+    if doc["explore"] is not None:
+        assert doc["explore"]["coverage"] < cfg.coverage_min and "explore pan" in text
+        assert -180 <= doc["explore"]["pan_deg"] <= 180
     for s in doc["suggestions"]:
         assert set(s) >= {
             "cam2world",

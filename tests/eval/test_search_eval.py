@@ -184,3 +184,45 @@ def test_repeated_scenes_views_and_modes_count_once(caplog):
     assert (cfg.scenes, cfg.views, cfg.modes) == (["indoor:100"], [2], ["rig"])
     assert "indoor:100 given more than once" in caplog.text
     assert FieldEvalConfig(views=[4, 2, 4]).views == [4, 2]
+
+
+def test_covered_oracle_is_the_best_grid_view_the_inputs_cover(tmp_path):
+    """What one shot can know: never above the oracle, a view the inputs cover, and the oracle's
+    own coverage reported beside it (below 1: part of the best view was never seen)."""
+    from aes_planner.eval.search import _inputs, _source, covered_oracle, scene_oracle
+    from aes_planner.search import SearchConfig, build_search_scorer
+    from aes_planner.sim.scene import load_scene
+    from aes_planner.teachers import get_teacher
+
+    cfg = tiny(tmp_path, modes=["rig"], methods=["oracle", "covered_oracle"])
+    doc = run_search_eval(cfg)
+    row = doc["per_scene"][0]
+    assert row["methods"]["covered_oracle"]["teacher"] <= row["methods"]["oracle"]["teacher"] + 1e-9
+    assert 0.0 <= row["oracle_coverage"] <= 1.0
+    teacher = get_teacher()
+    source = _source(load_scene("tabletop:102"), cfg)
+    o_score, o_pose, o_extra = scene_oracle("tabletop:102", source, teacher, source.platform, cfg)
+    inputs = _inputs(source, source.platform, 2)
+    frames = [source.capture(p) for p in inputs]
+    pose, _ = covered_oracle(frames, source.platform, o_pose, o_extra, teacher)
+    grid = _grid_poses(source, o_extra)  # [G, 4, 4]
+    scfg = SearchConfig.preset("balanced")
+    with torch.no_grad():
+        alpha = build_search_scorer("rgb", frames, scfg, teacher).render(torch.as_tensor(grid))[1]
+    cov = alpha.double().mean((1, 2)).numpy()  # [G]
+    chosen = int(np.argmin(np.abs(grid - pose[None]).reshape(len(grid), -1).max(1)))
+    assert np.allclose(grid[chosen], pose)  # one of the oracle grid's views
+    covered = cov >= scfg.coverage_min
+    if covered.any():  # the best-scoring covered view
+        assert covered[chosen]
+        assert o_extra["grid_scores"][chosen] == pytest.approx(o_extra["grid_scores"][covered].max())
+    else:  # nothing covered: the best-covered view
+        assert cov[chosen] == pytest.approx(cov.max())
+
+
+def _grid_poses(source, o_extra):
+    from aes_planner.search import SearchConfig
+    from aes_planner.search.space import space_for
+
+    space = space_for(source.platform, SearchConfig())
+    return space.to_poses(torch.as_tensor(o_extra["grid_params"])).numpy()

@@ -1,6 +1,5 @@
-"""GimbalNode: state at its rate, clamped commands, NaN refused, fault -> stop -> reboot."""
+"""GimbalNode: state at its rate, moves beyond the launch limits refused (the device clamps), NaN refused, fault -> stop -> reboot."""
 
-import math
 import time
 from types import SimpleNamespace
 
@@ -69,10 +68,21 @@ def test_publishes_state_at_its_rate():
     assert 9 <= published <= 11
 
 
-def test_commands_are_clamped_to_the_limits():
+def test_moves_beyond_the_launch_limits_are_refused_and_counted_never_clamped():
     node, dev = make()
     node.step({"gimbal/command": [GimbalCommand("move", 3.0, -2.0)]}, 1.0)
-    assert dev.moves[-1] == pytest.approx((math.radians(90), math.radians(-30)))
+    assert dev.moves == [] and node.counters["commands_refused"] == 1
+    node.step({"gimbal/command": [GimbalCommand("move", 0.5, -0.2)]}, 2.0)  # inside: passed on unchanged
+    assert dev.moves == [(0.5, -0.2)] and node.counters["moves"] == 1
+
+
+def test_without_launch_limits_the_device_applies_the_one_clamp():
+    dev = FakeGimbal()
+    node = GimbalNode(GimbalNodeConfig(), device=dev)
+    node.start()
+    node.step({"gimbal/command": [GimbalCommand("move", 3.0, -2.0)]}, 1.0)
+    assert dev.moves == [(3.0, -2.0)]  # the node passes it on as sent: clamping is the device's
+    assert node.counters["commands_refused"] == 0
 
 
 def test_nonfinite_commands_are_refused_and_counted():
@@ -106,13 +116,17 @@ def test_stop_disconnects():
 
 
 def test_emulated_servos_never_receive_a_goal_outside_the_limits():
-    """The real Dynamixel driver on the emulator's pty: goals in ticks stay inside the limits."""
+    """The real Dynamixel driver on the emulator's pty: the node passes moves far beyond the joints
+    on (it has no launch limits), the device's one clamp keeps the goals in ticks inside its limits."""
     from aes_planner.drivers.dynamixel_models import CENTER_TICKS, TICKS_PER_REV
 
     cfg = GimbalNodeConfig(
-        device={"type": "emulated_pan_tilt", "profile_velocity_deg_s": 360.0},
-        pan_limits_deg=(-60.0, 60.0),
-        tilt_limits_deg=(-20.0, 20.0),
+        device={
+            "type": "emulated_pan_tilt",
+            "profile_velocity_deg_s": 360.0,
+            "pan_limits_deg": [-60.0, 60.0],
+            "tilt_limits_deg": [-20.0, 20.0],
+        },
     )
     node = GimbalNode(cfg)
     node.start()
@@ -129,3 +143,5 @@ def test_emulated_servos_never_receive_a_goal_outside_the_limits():
         lim = 60.0 if dxl_id == 1 else 20.0
         deg = (ticks - CENTER_TICKS) * 360.0 / TICKS_PER_REV
         assert -lim - 0.2 <= deg <= lim + 0.2
+    pan_deg = [(t - CENTER_TICKS) * 360.0 / TICKS_PER_REV for i, t in log if i == 1]
+    assert max(pan_deg) > 59.5 and min(pan_deg) < -59.5  # the far moves were clamped onto the limits, not refused

@@ -76,7 +76,7 @@ def test_no_move_when_no_candidate_beats_the_best_capture():
     assert " after 0 moves; " in node.outcome()
 
 
-def test_out_of_range_candidates_are_clamped_and_nonfinite_ones_never_commanded():
+def test_out_of_range_candidates_are_refused_not_clamped_and_nonfinite_ones_never_commanded():
     prop = ScriptedProposer()
     calls = iter(range(1000))
 
@@ -94,6 +94,9 @@ def test_out_of_range_candidates_are_clamped_and_nonfinite_ones_never_commanded(
         assert math.isfinite(cmd.pan_rad) and math.isfinite(cmd.tilt_rad)
         assert math.radians(-90) - 1e-9 <= cmd.pan_rad <= math.radians(90) + 1e-9
         assert math.radians(-30) - 1e-9 <= cmd.tilt_rad <= math.radians(30) + 1e-9
+        assert cmd.pan_rad != pytest.approx(math.radians(90))  # no candidate was pulled onto the limit
+    assert node.counters["commands_refused"] >= 1
+    assert all(c.kind != "move" for c in node.captures)  # every wild candidate refused: no move
 
 
 def test_hardware_fault_stops_commands_then_ends_failed_after_the_timeout():

@@ -9,6 +9,7 @@ import shutil
 import numpy as np
 import pytest
 
+from aes_planner.bench.photos import render_photo_set
 from aes_planner.cli import main
 from aes_planner.dataset import import_nerfstudio, load_dataset
 from aes_planner.photos import PoseConfig, pose_errors, pose_images
@@ -25,15 +26,25 @@ def _truth_of(result, truth):
     return truth[[int(name[4:8]) for name in result.registered]]
 
 
-def test_every_photo_registers_and_poses_match_the_truth_after_a_similarity(posed):
+def test_every_photo_registers_as_one_camera(posed):
     result, truth = posed
     assert result.registered == [f"IMG_{i:04d}.jpg" for i in range(len(truth))]
     assert result.unregistered == [] and result.total == len(truth)
     assert result.cameras == 1  # one size, no EXIF: one shared camera
+    assert 0 < result.mean_reprojection_px < 1.0
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_ten_640x480_photos_pose_within_1_deg_and_2_percent_after_a_similarity(seed, tmp_path):
+    """The issue's figure, at the issue's size: ten 640 x 480 photos walking an arc. (At 320 x 240
+    SIFT does not pin the shared focal length down -- 2-3 % off on some arcs -- and the largest
+    rotation error after the centres' similarity reaches 1.6-2.7 deg: docs/guides/photos.md.)"""
+    images, truth, _ = render_photo_set(tmp_path / "set", n=10, size=(640, 480), seed=seed, supersample=1)
+    result = pose_images(images, tmp_path / "posed")
+    assert result.registered == [f"IMG_{i:04d}.jpg" for i in range(len(truth))]
     errors = pose_errors(result.cam2world, _truth_of(result, truth))
     assert errors.rotation_deg.max() < 1.0, errors.rotation_deg
     assert errors.centre_frac.max() < 0.02, errors.centre_frac
-    assert 0 < result.mean_reprojection_px < 1.0
 
 
 def test_the_frame_is_levelled_and_starts_at_the_first_photo(posed):

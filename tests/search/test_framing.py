@@ -89,15 +89,20 @@ def test_violation_is_finite_and_zero_only_when_held(x, y, z):
     assert torch.all((framing.violation(poses) > 0) | (held >= 1.0 - 1e-9))
 
 
-def test_the_search_keeps_the_subject_whole_in_every_suggestion():
+@pytest.mark.parametrize("refine", [False, True])
+def test_the_search_keeps_the_subject_whole_in_every_suggestion(refine):
     """The scorer wants the view straight ahead; the subject stands off to the side: every
-    suggestion holds it (stage 2 never leaves the feasible set) and turns towards it."""
+    suggestion holds it and turns towards it, with stage 2 off (the default) and on (it never
+    leaves the feasible set)."""
     platform = rig_platform(pan_limits_deg=(-120.0, 120.0), tilt_limits_deg=(-40.0, 40.0))
     subject = subject_at((3.0, 3.0, 1.3), (0.1, 0.1, 0.1))
-    framing = Framing([subject], [], platform.intrinsics, FramingConfig())
+    framing = Framing([subject], [], platform.intrinsics, FramingConfig(refine=refine))
     scorer = AimScorer([1.0, 0.0, 0.0])
     cfg = SearchConfig.preset("fast", top_k=2, steps=15, lr=0.05)
     result = search_views(scorer, rig_inputs(platform), platform, cfg, framing=framing)
+    if refine:  # stage 2 ran: its steps were scored, on top of what the search without it scored
+        without = Framing([subject], [], platform.intrinsics, FramingConfig(refine=False))
+        assert result.scored > search_views(scorer, rig_inputs(platform), platform, cfg, framing=without).scored
     assert result.suggestions
     for s in result.suggestions:
         assert s.held == pytest.approx(1.0)
@@ -114,6 +119,26 @@ def test_no_reachable_view_is_a_clear_error():
         search_views(
             AimScorer([1.0, 0.0, 0.0]), rig_inputs(platform), platform, SearchConfig.preset("fast"), framing=framing
         )
+
+
+def test_a_subject_held_only_near_the_edge_is_held_with_a_smaller_margin_and_said_so():
+    """At the pan limit (30 deg, half the 60 deg field of view) a subject 57 deg off the rig's
+    axis projects 95.5 % across the frame: outside the 5 % margin, inside half of it. The search
+    holds it whole with the smaller margin and says so, rather than refusing a view that exists."""
+    platform = rig_platform(pan_limits_deg=(-30.0, 30.0), tilt_limits_deg=(-20.0, 20.0))
+    bearing = math.radians(57.0)
+    base = np.asarray(platform.rig.base_xyz_m, float)
+    subject = subject_at(base + 4.0 * np.array([math.cos(bearing), math.sin(bearing), 0.0]), (0.05, 0.05, 0.05))
+    framing = Framing([subject], [], platform.intrinsics, FramingConfig(margin_frac=0.05))
+    result = search_views(
+        AimScorer([1.0, 0.0, 0.0]), rig_inputs(platform), platform, SearchConfig.preset("fast"), framing=framing
+    )
+    assert result.suggestions and any("5% margin asked" in w and "2.5% margin" in w for w in result.warnings)
+    half = framing.with_margin(0.025)
+    for s in result.suggestions:
+        pose = torch.as_tensor(s.cam2world[None])
+        assert float(half.violation(pose)[0]) == 0.0 and s.held == pytest.approx(1.0)
+        assert float(framing.violation(pose)[0]) > 0.0  # the margin asked could not be had
 
 
 def test_an_avoided_region_pushes_the_view_away():

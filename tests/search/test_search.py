@@ -397,3 +397,51 @@ def test_adam_equals_torch_adam_step_for_step():
         opt.step()
     assert torch.allclose(ours, theirs.detach(), rtol=0, atol=1e-12)
     assert not torch.equal(ours, start)
+
+
+# ------------------------------------------------------------------------------------ information
+class EdgeScorer(AimScorer):
+    """AimScorer whose coverage fades from 1 (looking along +x) to 0 (looking across it or behind):
+    ``clamp(2 * forward_x, 0, 1)``, so the views at the edge of what was seen are partly covered."""
+
+    def score(self, cam2world):
+        out = super().score(cam2world)
+        fwd_x = cam2world.detach()[:, 0, 2].to(torch.float64)
+        return ScoreOutput(out.score, (2.0 * fwd_x).clamp(0.0, 1.0), out.terms)
+
+
+def test_explore_says_what_the_inputs_cover_and_where_to_look_next():
+    from aes_planner.search.space import space_for
+
+    platform = rig_platform(pan_limits_deg=(-170.0, 170.0), tilt_limits_deg=(-40.0, 40.0))
+    target = np.array([0.0, 1.0, 0.0])  # the best view looks along +y, at the edge of what was seen
+    cfg = SearchConfig.preset("fast", explore_points=64)  # fast spreads 16: more here, to find the edge
+    result = search_views(EdgeScorer(target), rig_inputs(platform), platform, cfg)
+    assert 0.0 < result.covered_fraction < 1.0  # the views behind were never seen
+    e = result.explore
+    assert 0.0 < e.coverage < cfg.coverage_min and PanTilt(platform.rig).within_limits(e.pan_rad, e.tilt_rad)
+    # the best-scored of the spread views that are only partly covered
+    space = space_for(platform, cfg)
+    out = EdgeScorer(target).score(space.to_poses(space.grid(64)))
+    partly = (out.coverage > 0) & (out.coverage < cfg.coverage_min)
+    assert e.score == pytest.approx(float(out.score[partly].max()))
+    assert result.timings_ms["explore"] >= 0.0
+    # the exploratory pass comes after the search: the suggestions are the same without it
+    plain = search_views(
+        EdgeScorer(target), rig_inputs(platform), platform, SearchConfig.preset("fast", explore_points=0)
+    )
+    assert plain.covered_fraction is None and plain.explore is None
+    assert [s.pan_rad for s in plain.suggestions] == [s.pan_rad for s in result.suggestions]
+    assert result.scored == plain.scored + len(space.grid(64))
+
+
+def test_explore_on_a_drone_and_when_everything_was_seen():
+    cfg = SearchConfig.preset("fast", mode="drone", explore_points=32)
+    seen = search_views(AimScorer([1.0, 0.0, 0.0]), rig_inputs(rig_platform()), drone_platform(), cfg)
+    assert seen.covered_fraction == 1.0 and seen.explore is None  # nothing unseen: nothing to explore
+    half = search_views(
+        AimScorer([1.0, 0.0, 0.0], unseen_dir=[-1.0, 0.0, 0.0]), rig_inputs(rig_platform()), drone_platform(), cfg
+    )
+    assert 0.0 < half.covered_fraction < 1.0
+    assert half.explore.coverage == 0.0  # none partly covered: the least covered
+    assert np.all(np.isfinite(half.explore.cam2world))
