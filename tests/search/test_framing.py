@@ -255,3 +255,30 @@ def test_verification_config_is_checked():
         FramingConfig(verify_weight=1.5)
     with pytest.raises(AesPlannerError, match="verify_width_px"):
         FramingConfig(verify_width_px=4)
+
+
+@pytest.mark.parametrize("lr", [0.02, 0.3, 1.0])
+def test_stage_2_never_returns_a_feasible_view_the_field_scores_below_its_start(lr):
+    """Stage 2 under a kept subject (``FramingConfig(refine=True)``), with steps small and large
+    enough to overshoot: every returned view still holds the subject, and the field (the wrapped
+    objective, scored afresh) never rates it below the stage-1 view it started from."""
+    from aes_planner.search.pipeline import _objective, refine_params
+    from aes_planner.search.space import space_for
+
+    platform = rig_platform(pan_limits_deg=(-120.0, 120.0), tilt_limits_deg=(-40.0, 40.0))
+    framing = Framing(
+        [subject_at((3.0, 3.0, 1.3), (0.1, 0.1, 0.1))], [], platform.intrinsics, FramingConfig(refine=True)
+    )
+    cfg = SearchConfig.preset("fast", steps=20, lr=lr)
+    space = space_for(platform, cfg)
+    scorer = framing.wrap(AimScorer([1.0, 0.0, 0.0]))
+    cands = space.random(4096, np.random.default_rng(0))  # [C, D]
+    start = cands[framing.feasible(space.to_poses(cands))][:8]  # [K, D], all holding the subject
+    assert len(start) >= 4
+    start_obj = _objective(scorer.score_batched(space.to_poses(start), 64), cfg).double()
+    _, best, best_obj = refine_params(scorer, space, start, start_obj, cfg, framing)
+    assert bool(framing.feasible(space.to_poses(best)).all())
+    rescored = _objective(scorer.score_batched(space.to_poses(best).detach(), 64), cfg).double()
+    assert torch.all(rescored >= start_obj - 1e-9)
+    assert torch.all(best_obj >= start_obj)
+    assert bool((rescored > start_obj + 1e-6).any())  # it climbed somewhere: the check is not vacuous
