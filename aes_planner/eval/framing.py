@@ -345,11 +345,37 @@ def run_framing_eval(cfg: FramingEvalConfig, progress=None, figure: str | None =
             row["normalized_teacher"] = _norm(row["teacher"], oracle["mean_teacher"], oracle["best_teacher"])
             row["normalized_evaluator"] = _norm(row["evaluator"], oracle["mean_evaluator"], oracle["best_evaluator"])
             row["subject_box_m"] = framing.keep[0].to_json()
+            row.update(_stage1_pool(result, judge, points, k, oracle))
             rows.append(row)
             log.info("%s", {k2: v for k2, v in row.items() if k2 != "subject_box_m"})
     if figure:
         write_figure(figure, rows, sources, cfg)
     return {"config": dataclasses.asdict(cfg), "rows": rows, "summary": summarize(rows)}
+
+
+#: how many of stage 1's best candidates (by the field) the loss breakdown scores on ground truth
+POOL_TOP = 16
+
+
+def _stage1_pool(result, judge: Judge, points: np.ndarray, intrinsics, oracle: dict) -> dict[str, Any]:
+    """Where the framed suggestion loses: the field's ``POOL_TOP`` best stage-1 candidates that hold
+    the subject by the true geometry, scored by the teacher on ground-truth renders. ``pool_best``:
+    the best of them (normalised like the suggestion), ``pool_pick``: the field's first of them,
+    ``pool_rank_corr``: Spearman correlation of the field's and the teacher's scores over them."""
+    poses = np.asarray(result.candidates_cam2world)  # [C, 4, 4]
+    field = np.asarray(result.candidates_score, float)  # [C]
+    ok = np.flatnonzero(true_holds(points, poses, intrinsics) & np.isfinite(field))
+    top = ok[np.argsort(-field[ok], kind="stable")][:POOL_TOP]
+    if len(top) < 2:
+        return {}
+    t, _ = judge.measure(poses[top])
+    t = np.asarray(t, float)  # [N], in the field's order
+    rank_f = np.argsort(np.argsort(-field[top]))
+    rank_t = np.argsort(np.argsort(-t))
+    corr = float(np.corrcoef(rank_f, rank_t)[0, 1]) if np.std(rank_t) > 0 else 0.0
+    mean, best = oracle["mean_teacher"], oracle["best_teacher"]
+    return {"pool_n": len(top), "pool_best": _norm(float(t.max()), mean, best),
+            "pool_pick": _norm(float(t[0]), mean, best), "pool_rank_corr": corr}  # fmt: skip
 
 
 def summarize(rows: list[dict]) -> dict[str, Any]:
@@ -366,6 +392,10 @@ def summarize(rows: list[dict]) -> dict[str, Any]:
         out[f"{name}_at_least_0.85"] = float(np.mean(vals >= 0.85))
     out["latency_ms_median"] = float(np.median([r["latency_ms"] for r in done]))
     out["verify_ms_median"] = float(np.median([r.get("verify_ms", 0.0) for r in done]))
+    for name in ("pool_best", "pool_pick", "pool_rank_corr"):  # the loss breakdown (_stage1_pool)
+        vals = [r[name] for r in done if name in r]
+        if vals:
+            out[f"{name}_median"] = float(np.median(vals))
     return out
 
 
