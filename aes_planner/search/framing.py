@@ -67,6 +67,8 @@ __all__ = [
     "frame_index",
     "lift_region",
     "render_depth",
+    "verified_scores",
+    "verify_suggestions",
     "world_gaussians",
 ]
 
@@ -142,6 +144,11 @@ class FramingConfig:
     no reachable view holds the subject. ``explore_samples``: random views (and the same turned to
     the subject) checked every search; at most ``explore_keep`` of those that hold the subject join
     stage 1's candidates, so the whole feasible set competes, not only the trajectory's part.
+    ``verify_top``: the refined suggestions and this many distinct best stage-1 candidates (all
+    holding the subject) are verified: RGB of the reconstruction rendered at ``verify_width_px``
+    and scored by the teacher; they are ranked by ``verify_weight`` times that score plus
+    ``1 - verify_weight`` times the field's (0, the default: no verification; on the dev scenes
+    the teacher on those renders ranked the views that hold a subject no better than the field).
     """
 
     margin_frac: float = 0.05
@@ -156,6 +163,9 @@ class FramingConfig:
     backtrack_steps: int = 6
     explore_samples: int = 512
     explore_keep: int = 64
+    verify_top: int = 0
+    verify_weight: float = 1.0
+    verify_width_px: int = 96
 
     def __post_init__(self):
         require(
@@ -169,7 +179,17 @@ class FramingConfig:
         for name in ("placement_weight", "avoid_weight", "edge_weight", "grow_frac"):
             v = getattr(self, name)
             require(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0, name, f"must be >= 0, got {v!r}")
-        for name in ("explore_samples", "explore_keep"):
+        require(
+            isinstance(self.verify_weight, (int, float)) and 0.0 <= self.verify_weight <= 1.0,
+            "verify_weight",
+            f"must be in [0, 1], got {self.verify_weight!r}",
+        )
+        require(
+            isinstance(self.verify_width_px, int) and 16 <= self.verify_width_px <= 1024,
+            "verify_width_px",
+            f"must be an integer in [16, 1024] px, got {self.verify_width_px!r}",
+        )
+        for name in ("explore_samples", "explore_keep", "verify_top"):
             v = getattr(self, name)
             require(isinstance(v, int) and 0 <= v <= 100_000, name, f"must be an integer in [0, 100000], got {v!r}")
         for name in ("depth_bin", "depth_cap"):
@@ -350,6 +370,83 @@ def render_depth(scorer: Scorer, cam2world: np.ndarray, intrinsics: Intrinsics) 
         out = rasterize(bare, w2c, torch.from_numpy(intrinsics.K), intrinsics.width, intrinsics.height, validate=False)
     depth = out.depth[0].double().numpy()
     return np.where(out.alpha[0].numpy() >= 0.5, depth, 0.0)
+
+
+def _colour_reconstruction(scorer: Scorer):
+    """The reconstruction's Gaussians with their RGB colours and its local frame (the field's own
+    Gaussians carry features, not colours), or ``(None, None)``."""
+    inner = getattr(scorer, "inner", scorer)
+    inputs = getattr(inner, "inputs", None)
+    if inputs is not None and getattr(inputs, "splats", None) is not None:
+        return inputs.splats.to_gaussians(), inputs.local_frame
+    rec = getattr(inner, "reconstruction", None)
+    if rec is not None:
+        return rec.gaussians, rec.local_frame
+    return None, None
+
+
+def verified_scores(
+    scorer: Scorer, cam2world: Tensor, intrinsics: Intrinsics, width_px: int, batch: int = 16
+) -> Tensor | None:
+    """The teacher's scores ``[B]`` of RGB rendered from the reconstruction behind ``scorer`` at
+    poses ``[B, 4, 4]`` (``intrinsics``' field of view, ``width_px`` wide), or None when the scorer
+    has no coloured reconstruction or no teacher. The field tracks the teacher only roughly
+    among views that all hold a subject; a render of what the inputs saw, scored by the teacher
+    itself, might separate them better (an option: on the dev scenes it did not)."""
+    from aes_planner.field.common import local_world2cam, render_intrinsics
+    from aes_planner.gaussians import Gaussians, rasterize
+
+    g, local = _colour_reconstruction(scorer)
+    teacher = getattr(scorer, "teacher", None)
+    if g is None or len(g) == 0 or teacher is None or len(cam2world) == 0:
+        return None
+    bare = Gaussians(g.means.detach(), g.quats.detach(), g.log_scales.detach(), g.opacities.detach(),
+                     g.colors.detach().float())  # fmt: skip
+    k = render_intrinsics(intrinsics, width_px)
+    K = torch.from_numpy(k.K)  # [3, 3]
+    background = torch.tensor(getattr(getattr(scorer, "config", None), "background", (0.0, 0.0, 0.0)))
+    out = []
+    with torch.no_grad():
+        for i in range(0, len(cam2world), batch):
+            w2c = local_world2cam(cam2world[i : i + batch].detach().to(torch.float64), local)
+            rgb = rasterize(bare, w2c, K, k.width, k.height, background=background.float(), validate=False).rgb
+            out.append(teacher.explain_map(teacher.features(rgb.clamp(0.0, 1.0)))["score"].double())
+    return torch.cat(out)  # [B]
+
+
+def verify_suggestions(scorer, framing: Framing, space, suggestions: list, params: Tensor, candidates: Tensor,
+                       out1: ScoreOutput, obj1: Tensor, cfg, avoid: Tensor | None = None) -> list:  # fmt: skip
+    """The refined ``suggestions`` (their parameters ``params [S, D]``) and the
+    ``framing.cfg.verify_top`` best distinct stage-1 ``candidates [C, D]`` (objective ``obj1``,
+    scores ``out1``) that cover what the inputs saw and are not near ``avoid [A, D]``, re-ranked by :func:`verified_scores` (see
+    :class:`FramingConfig`); as many suggestions as came in, best first, each with its verified
+    teacher score in ``terms["verified"]``."""
+    from aes_planner.search.pipeline import _select_distinct, _suggestion
+
+    fc = framing.cfg
+    if fc.verify_top <= 0 or not suggestions:
+        return suggestions
+    covered = torch.nonzero(out1.coverage.double() >= cfg.coverage_min).flatten()
+    extra = covered[_select_distinct(space, candidates[covered], obj1[covered], fc.verify_top, avoid)]
+    poses = space.to_poses(candidates[extra]).detach()
+    pool = list(suggestions) + [
+        _suggestion(space, candidates[i], poses[j], out1, int(i), float(obj1[i])) for j, i in enumerate(extra.tolist())
+    ]
+    for j, i in enumerate(extra.tolist()):
+        pool[len(suggestions) + j].stage1_score = float(out1.score[i])
+    pool_params = torch.cat([params, candidates[extra]])  # [P, D]
+    pool_poses = torch.as_tensor(np.stack([s.cam2world for s in pool]))  # [P, 4, 4]
+    teacher = verified_scores(scorer, pool_poses, framing.intrinsics, fc.verify_width_px)
+    if teacher is None:
+        return suggestions
+    field = torch.tensor([s.objective for s in pool], dtype=torch.float64)
+    ranked = fc.verify_weight * (teacher + framing.soft_terms(pool_poses)) + (1.0 - fc.verify_weight) * field
+    for s, t in zip(pool, teacher.tolist()):
+        s.terms["verified"] = t
+    order = _select_distinct(space, pool_params, ranked, len(suggestions), None)
+    log.info("framing: %d views verified; the best is %s", len(pool),
+             "a refined one" if int(order[0]) < len(suggestions) else "a stage-1 candidate")  # fmt: skip
+    return [pool[i] for i in order.tolist()]
 
 
 def project_corners(corners: Tensor, cam2world: Tensor, intrinsics: Intrinsics) -> tuple[Tensor, Tensor, Tensor]:

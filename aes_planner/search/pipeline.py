@@ -360,10 +360,16 @@ def _search_views(
     for i in distinct.tolist():
         sug = _suggestion(space, final_params[i], final_poses[i], out2, i, float(obj2[i]))
         sug.stage1_score = float(out1.score[keep[i % len(keep)]])
-        if framing is not None:  # the aesthetic score, and how much of the subject the view holds
-            sug.score = sug.terms.get("aesthetic", sug.score)
-            sug.held = float(framing.held(final_poses[i : i + 1])[0])
         suggestions.append(sug)
+    t_verify = time.perf_counter()
+    if framing is not None:
+        from aes_planner.search.framing import verify_suggestions
+
+        suggestions = verify_suggestions(scorer, framing, space, suggestions, final_params[distinct], candidates,
+                                         out1, obj1, cfg, avoid_params)  # fmt: skip
+        for sug in suggestions:  # the aesthetic score, and how much of the subject the view holds
+            sug.score = sug.terms.get("aesthetic", sug.score)
+            sug.held = float(framing.held(torch.as_tensor(sug.cam2world)[None])[0])
     t_final = time.perf_counter()
     # with kept subjects every candidate must hold them: no exploratory candidate then
     covered_fraction, explore, explored = _explore(scorer, space, cfg, rng) if framing is None else (None, None, 0)
@@ -372,7 +378,8 @@ def _search_views(
         "sample": (t_sampled - t_start) * 1e3,
         "stage1_score": (t_stage1 - t_sampled) * 1e3,
         "stage2": (t_stage2 - t_stage1) * 1e3,
-        "final": (t_final - t_stage2) * 1e3,
+        "final": (t_verify - t_stage2) * 1e3,
+        "verify": (t_final - t_verify) * 1e3,
         "explore": (t_end - t_final) * 1e3,
         "total": (t_end - t_start) * 1e3,
     }
