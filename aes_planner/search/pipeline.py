@@ -327,14 +327,20 @@ def _search_views(
 
     # ---- final scores of the refined poses, ranked
     final_params = best_params
+    # with kept subjects, stage 2 must beat its start by a margin (FramingConfig.stage2_min_gain):
+    # the starts are scored beside the refined views and win unless stage 2 gained that much
+    gate = refine and framing is not None and framing.cfg.stage2_min_gain > 0
     if refine:  # the last step's parameters were never scored: score them beside the best
-        final_params = torch.cat([best_params, params])
+        final_params = torch.cat([best_params, params, candidates[keep]] if gate else [best_params, params])
     final_poses = space.to_poses(final_params).detach()
     out2 = scorer.score_batched(final_poses, cfg.batch_size)
     obj2 = torch.nan_to_num(_objective(out2, cfg).double(), nan=-math.inf)
     if refine:  # per candidate, the better of its best iterate and its last one
         k = len(best_params)
-        pick = torch.where(obj2[k:] > obj2[:k], torch.arange(k) + k, torch.arange(k))
+        pick = torch.where(obj2[k : 2 * k] > obj2[:k], torch.arange(k) + k, torch.arange(k))
+        if gate:  # ... unless it gains less than the margin over its stage-1 start
+            kept_start = obj2[pick] < obj2[2 * k :] + framing.cfg.stage2_min_gain
+            pick = torch.where(kept_start, torch.arange(k) + 2 * k, pick)
     else:
         pick = torch.arange(len(final_params))
     order = pick[torch.argsort(obj2[pick], descending=True)]

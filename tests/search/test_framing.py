@@ -230,3 +230,32 @@ def test_verification_config_is_checked():
         FramingConfig(verify_weight=1.5)
     with pytest.raises(AesPlannerError, match="verify_width_px"):
         FramingConfig(verify_width_px=4)
+
+
+# ---------------------------------------------------------------- stage 2's acceptance margin
+def test_stage2_is_kept_only_when_it_gains_the_margin():
+    """With a margin larger than any gain the field can give, every suggestion is a stage-1
+    candidate, unmoved; without one, stage 2 moves the best view and raises the field's score."""
+    platform = rig_platform(pan_limits_deg=(-120.0, 120.0), tilt_limits_deg=(-40.0, 40.0))
+    subject = subject_at((3.0, 3.0, 1.3), (0.1, 0.1, 0.1))
+    scorer = AimScorer([1.0, 0.0, 0.0])
+    cfg = SearchConfig.preset("fast", top_k=2, steps=15, lr=0.05)
+    runs = {}
+    for gain in (0.0, 10.0):
+        framing = Framing([subject], [], platform.intrinsics, FramingConfig(stage2_min_gain=gain))
+        runs[gain] = search_views(scorer, rig_inputs(platform), platform, cfg, framing=framing)
+        assert all(s.held == pytest.approx(1.0) for s in runs[gain].suggestions)
+
+    def in_stage1(s):
+        return float(np.abs(runs[10.0].candidates_cam2world - s.cam2world[None]).max(axis=(1, 2)).min()) < 1e-9
+
+    assert all(in_stage1(s) for s in runs[10.0].suggestions)
+    assert all(s.objective == pytest.approx(s.stage1_score, abs=1e-6) for s in runs[10.0].suggestions)
+    assert not in_stage1(runs[0.0].best)
+    assert runs[0.0].best.objective > runs[10.0].best.objective
+
+
+@pytest.mark.parametrize("bad", [-0.1, math.nan, math.inf])
+def test_stage2_margin_is_checked(bad):
+    with pytest.raises(AesPlannerError, match="stage2_min_gain"):
+        FramingConfig(stage2_min_gain=bad)
