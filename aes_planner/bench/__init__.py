@@ -47,7 +47,7 @@ GROUPS: dict[str, str] = {
     "memory": "aes_planner.bench.memory",
 }
 
-__all__ = ["GROUPS", "Recorder", "run_groups", "time_ms", "machine_info"]
+__all__ = ["GROUPS", "Recorder", "run_groups", "time_ms", "time_wall_cpu_ms", "machine_info"]
 
 
 def time_ms(fn: Callable[[], Any], runs: int = 7, warmup: int = 1) -> list[float]:
@@ -60,6 +60,21 @@ def time_ms(fn: Callable[[], Any], runs: int = 7, warmup: int = 1) -> list[float
         fn()
         samples.append((time.perf_counter() - t0) * 1e3)
     return samples
+
+
+def time_wall_cpu_ms(fn: Callable[[], Any], runs: int, warmup: int = 2) -> tuple[list[float], list[float]]:
+    """Wall-clock and process CPU time (all threads) of each of ``runs`` calls of ``fn()``, in ms,
+    after ``warmup`` untimed calls: on a shared machine the CPU time is the work done, the wall
+    time what else ran as well."""
+    for _ in range(warmup):
+        fn()
+    wall, cpu = [], []
+    for _ in range(runs):
+        w0, c0 = time.perf_counter(), time.process_time()
+        fn()
+        wall.append((time.perf_counter() - w0) * 1e3)
+        cpu.append((time.process_time() - c0) * 1e3)
+    return wall, cpu
 
 
 class Recorder:
@@ -87,12 +102,17 @@ class Recorder:
         self.record(f"{key}_max", max(samples), unit, len(samples))
         return median
 
-    def time(self, key: str, fn: Callable[[], Any], runs: int = 7, warmup: int = 1) -> float:
-        """Time ``fn`` and record the median in ms under ``key``; returns the median."""
-        samples = time_ms(fn, runs=runs, warmup=warmup)
-        median = statistics.median(samples)
-        self.record(key, median, "ms", runs=runs)
-        return median
+    def time(self, key: str, fn: Callable[[], Any], runs: int = 7, warmup: int = 1, cpu: bool = False) -> float:
+        """Time ``fn`` and record the median in ms under ``key`` with its spread (``_min``,
+        ``_max``: :meth:`record_spread`); returns the median. With ``cpu``, the process CPU time
+        of the same calls too, under ``key``'s last part prefixed ``cpu_`` (``g.case.ms`` ->
+        ``g.case.cpu_ms``), with its spread."""
+        if not cpu:
+            return self.record_spread(key, time_ms(fn, runs=runs, warmup=warmup), "ms")
+        wall, cpu_ms = time_wall_cpu_ms(fn, runs=runs, warmup=warmup)
+        group_case, _, figure = key.rpartition(".")
+        self.record_spread(f"{group_case}.cpu_{figure}", cpu_ms, "ms")
+        return self.record_spread(key, wall, "ms")
 
     def to_json(self) -> dict[str, Any]:
         return {"_meta": self.meta, **dict(sorted(self.results.items()))}

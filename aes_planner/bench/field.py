@@ -8,6 +8,10 @@ them), the default scorer knobs (render width 64), the shipped model:
 * ``field.score_b64.ms`` / ``rgb.score_b64.ms``: one ``score`` of 64 poses, no gradient.
 * ``field.grad_b2.ms`` / ``rgb.grad_b2.ms``: ``score`` of 2 poses and the backward pass to them.
 * ``field.score_b64_vs_rgb.ratio``, ``field.grad_b2_vs_rgb.ratio``: field time over RGB time.
+
+Each time carries its spread over the runs beside it (``_min``, ``_max``: ``Recorder.time``),
+and its process CPU time in the same calls (``field.build_4v.cpu_ms`` and so on, with spread):
+on a shared machine the wall time depends on what else runs.
 """
 
 from __future__ import annotations
@@ -38,8 +42,8 @@ def run(rec: Recorder, quick: bool = False) -> None:
 
     frames, poses = _frames_and_poses()
     runs = 3 if quick else 7
-    rec.time("field.build_4v.ms", lambda: AestheticField.build(frames), runs=runs)
-    rec.time("rgb.build_4v.ms", lambda: RGBScorer.build(frames), runs=runs)
+    rec.time("field.build_4v.ms", lambda: AestheticField.build(frames), runs=runs, cpu=True)
+    rec.time("rgb.build_4v.ms", lambda: RGBScorer.build(frames), runs=runs, cpu=True)
     scorers = {"field": AestheticField.build(frames), "rgb": RGBScorer.build(frames)}
 
     def grad(scorer):
@@ -48,8 +52,8 @@ def run(rec: Recorder, quick: bool = False) -> None:
 
     for name, scorer in scorers.items():
         with torch.no_grad():
-            rec.time(f"{name}.score_b64.ms", lambda s=scorer: s.score(poses), runs=runs)
-        rec.time(f"{name}.grad_b2.ms", lambda s=scorer: grad(s), runs=runs)
+            rec.time(f"{name}.score_b64.ms", lambda s=scorer: s.score(poses), runs=runs, cpu=True)
+        rec.time(f"{name}.grad_b2.ms", lambda s=scorer: grad(s), runs=runs, cpu=True)
     for case in ("score_b64", "grad_b2"):
         f, r = rec.results[f"field.{case}.ms"]["value"], rec.results[f"rgb.{case}.ms"]["value"]
         rec.record(f"field.{case}_vs_rgb.ratio", f / r, "x", runs)

@@ -123,8 +123,7 @@ def run(rec: Recorder, quick: bool) -> None:
     runs = 1 if quick else 3
     sug = [suggest_memory() for _ in range(runs)]
     for key in ("imports_rss_mb", "peak_rss_mb"):
-        vals = sorted(s[key] for s in sug)
-        rec.record(f"memory.suggest_balanced.{key}", vals[len(vals) // 2], "MB", runs)
+        rec.record_spread(f"memory.suggest_balanced.{key}", [s[key] for s in sug], "MB")
     t0 = time.perf_counter()
     node = planner_memory(40 if quick else 100)
     rec.record("memory.planner_100_frames.rss_mb", node["rss_mb"], "MB")

@@ -5,8 +5,11 @@ Keys per case (``raster.<case>.<figure>``), all per view:
 * ``fwd_ms``, ``fwdbwd_ms``: the fast backend (numba when available), wall-clock medians.
 * ``fwd_cpu_ms``, ``fwdbwd_cpu_ms``: process CPU time (all threads) in the same runs, medians:
   on a shared machine, where wall-clock depends on what else runs, this is the work done.
+  Each of these four carries its spread over the runs beside it (``_min``, ``_max``).
 * ``dense_fwd_ms``: the dense reference in float32 (a plain dense rasterizer) in the same run;
-  ``speedup_fwd`` = dense / fast. ``dense_fwdbwd_ms`` where the dense graph fits in memory.
+  ``speedup_fwd`` = dense / fast, its spread the slowest dense call over the fastest fast one
+  and the other way round (``_min``, ``_max``, as ``dense_fwd_ms``'s). ``dense_fwdbwd_ms`` where
+  the dense graph fits in memory.
 * ``pairs``: Gaussian-pixel pairs with ``alpha >= 1/255`` in the view (the work a rasterizer
   cannot avoid, up to early termination); ``pairs_per_s_fwd``, ``pairs_per_s_fwdbwd``.
 * ``cpu_<stage>_ms`` (numba backend): where the process CPU time of one forward+backward goes,
@@ -40,7 +43,7 @@ from dataclasses import dataclass
 
 import torch
 
-from aes_planner.bench import Recorder, time_ms
+from aes_planner.bench import Recorder, time_ms, time_wall_cpu_ms
 
 log = logging.getLogger(__name__)
 
@@ -111,19 +114,6 @@ _LOAD_SNIPPET = (
 )
 
 
-def _wall_and_cpu_ms(fn, runs: int, warmup: int = 2) -> tuple[float, float]:
-    """Medians of wall-clock and process CPU time (all threads) of ``fn()``, in ms."""
-    for _ in range(warmup):
-        fn()
-    wall, cpu = [], []
-    for _ in range(runs):
-        w0, c0 = time.perf_counter(), time.process_time()
-        fn()
-        wall.append((time.perf_counter() - w0) * 1e3)
-        cpu.append((time.process_time() - c0) * 1e3)
-    return statistics.median(wall), statistics.median(cpu)
-
-
 def _count_pairs(g, world2cam, K, width, height, rows: int) -> int:
     """Pairs with alpha >= 1/255 in the first ``rows`` rows of camera 0 (chunked, no grad)."""
     from aes_planner.gaussians.numerics import ALPHA_MIN, SIGMA_CLAMP
@@ -174,13 +164,13 @@ def _bench_case(rec: Recorder, name: str, case: Case, quick: bool) -> None:
         out = rasterize(gg, w2c, K, size, height, validate=case.validate)
         (out.rgb.sum() + out.features.sum() + out.depth.sum() + out.alpha.sum()).backward()
 
-    fast_fwd, cpu_fwd = _wall_and_cpu_ms(fwd, runs)
-    fast_fb, cpu_fb = _wall_and_cpu_ms(fwdbwd, runs)
-    fast_fwd, cpu_fwd, fast_fb, cpu_fb = (v / views for v in (fast_fwd, cpu_fwd, fast_fb, cpu_fb))
-    rec.record(f"{prefix}.fwd_ms", fast_fwd, "ms", runs)
-    rec.record(f"{prefix}.fwdbwd_ms", fast_fb, "ms", runs)
-    rec.record(f"{prefix}.fwd_cpu_ms", cpu_fwd, "ms", runs)
-    rec.record(f"{prefix}.fwdbwd_cpu_ms", cpu_fb, "ms", runs)
+    samples = {}  # per view, with their spread: the machine is shared and a median alone hides it
+    samples["fwd_ms"], samples["fwd_cpu_ms"] = time_wall_cpu_ms(fwd, runs)
+    samples["fwdbwd_ms"], samples["fwdbwd_cpu_ms"] = time_wall_cpu_ms(fwdbwd, runs)
+    fast_fwd, cpu_fwd, fast_fb, cpu_fb = (
+        rec.record_spread(f"{prefix}.{figure}", [v / views for v in samples[figure]], "ms")
+        for figure in ("fwd_ms", "fwd_cpu_ms", "fwdbwd_ms", "fwdbwd_cpu_ms")
+    )
 
     if resolve_backend("auto") == "numba":
         _breakdown(rec, prefix, fwdbwd, runs, views)
@@ -211,9 +201,13 @@ def _bench_case(rec: Recorder, name: str, case: Case, quick: bool) -> None:
     # takes ~11 s a call, so it is timed once
     dense_runs = 3 if (quick or case.n < 50_000) else 1
     dense_warmup = 1 if quick else 0
-    dense_fwd = statistics.median(time_ms(dense, runs=dense_runs, warmup=dense_warmup)) / dense_views * scale
-    rec.record(f"{prefix}.dense_fwd_ms", dense_fwd, "ms", dense_runs)
+    dense_ms = [t / dense_views * scale for t in time_ms(dense, runs=dense_runs, warmup=dense_warmup)]
+    dense_fwd = rec.record_spread(f"{prefix}.dense_fwd_ms", dense_ms, "ms")
     rec.record(f"{prefix}.speedup_fwd", dense_fwd / fast_fwd, "x", dense_runs)
+    # its spread: the slowest dense call over the fastest kernel call, and the other way round
+    fwd_min, fwd_max = (rec.results[f"{prefix}.fwd_ms{e}"]["value"] for e in ("_min", "_max"))
+    rec.record(f"{prefix}.speedup_fwd_min", min(dense_ms) / fwd_max, "x", dense_runs)
+    rec.record(f"{prefix}.speedup_fwd_max", max(dense_ms) / fwd_min, "x", dense_runs)
     rec.record(f"{prefix}.dense_extrapolated", float(extrapolated), "bool")
     if case.dense_backward and not quick:
 

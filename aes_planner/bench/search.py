@@ -26,7 +26,8 @@ balanced search on RGB scoring), on held-out scenes with 4 input frames of 128x9
   cost in a cold process (numba's cached kernels loaded, the model read, the frames read, the
   field built, the search run); ``_cpu_ms`` the same in CPU time (user + system) of the children.
 
-``latency_ms`` and ``build_ms`` also carry their spread (``_min``, ``_max``). Each run builds its
+Every time (wall and CPU, the stages, the busy-neighbour and cold-process figures) carries its
+spread over the runs beside it (``_min``, ``_max``). Each run builds its
 field from scratch (the cache of teacher maps emptied first); ``_meta.group_load_average``
 says how busy the shared machine was.
 
@@ -120,13 +121,13 @@ def run(rec: Recorder, quick: bool) -> None:
             norm.append((s - extras["mean_random"]) / span if span > 1e-9 else 0.0)
         key = f"search.{case}"
         rec.record_spread(f"{key}.latency_ms", lat, "ms")
-        rec.record(f"{key}.latency_cpu_ms", statistics.median(cpu), "ms", len(cpu))
+        rec.record_spread(f"{key}.latency_cpu_ms", cpu, "ms")
         rec.record_spread(f"{key}.build_ms", build, "ms")
-        rec.record(f"{key}.stage1_ms", statistics.median(st1), "ms", len(st1))
-        rec.record(f"{key}.stage2_ms", statistics.median(st2), "ms", len(st2))
+        rec.record_spread(f"{key}.stage1_ms", st1, "ms")
+        rec.record_spread(f"{key}.stage2_ms", st2, "ms")
         rec.record(f"{key}.scored", statistics.median(scored), "poses", len(scored))
         if numba:
-            rec.record(f"{key}.raster_ms", statistics.median(raster), "ms", len(raster))
+            rec.record_spread(f"{key}.raster_ms", raster, "ms")
         rec.record(f"{key}.normalized", float(np.mean(norm)), "ratio", len(norm))
         se = standard_error(norm)  # single scenes swing by up to 0.5: the mean's spread (None for one scene)
         if se is not None:
@@ -170,9 +171,8 @@ def busy_case(rec: Recorder, spec: str, teacher, kind: str, repeats: int) -> Non
         busy.kill()
         busy.wait()
         reset_suggestion_governor()
-    picked, full = statistics.median(lat["picked"]), statistics.median(lat["all"])
-    rec.record("search.balanced.busy_latency_ms", picked, "ms", len(lat["picked"]))
-    rec.record("search.balanced.busy_all_threads_latency_ms", full, "ms", len(lat["all"]))
+    picked = rec.record_spread("search.balanced.busy_latency_ms", lat["picked"], "ms")
+    full = rec.record_spread("search.balanced.busy_all_threads_latency_ms", lat["all"], "ms")
     rec.record("search.balanced.busy_speedup", full / picked, "ratio", len(lat["picked"]))
     rec.record("search.balanced.busy_threads", statistics.median(threads), "threads", len(threads))
 
@@ -224,8 +224,8 @@ def cold_case(rec: Recorder, repeats: int) -> None:
                     cpu[name].append(c)
     for name in cases:
         rec.record_spread(f"search.cold_suggest.{name}_ms", wall[name], "ms")
-        rec.record(f"search.cold_suggest.{name}_cpu_ms", statistics.median(cpu[name]), "ms", len(cpu[name]))
+        rec.record_spread(f"search.cold_suggest.{name}_cpu_ms", cpu[name], "ms")
     after = [p - i for p, i in zip(wall["process"], wall["imports"])]
     rec.record_spread("search.cold_suggest.after_imports_ms", after, "ms")
     after_cpu = [p - i for p, i in zip(cpu["process"], cpu["imports"])]
-    rec.record("search.cold_suggest.after_imports_cpu_ms", statistics.median(after_cpu), "ms", len(after_cpu))
+    rec.record_spread("search.cold_suggest.after_imports_cpu_ms", after_cpu, "ms")

@@ -170,8 +170,6 @@ def register_framing(esub: argparse._SubParsersAction) -> None:
                    help="stage-1 candidates verified beside the refined ones by the teacher on rendered RGB (default 0: off)")  # fmt: skip
     f.add_argument("--verify-weight", type=float, default=1.0, metavar="W",
                    help="weight of the verified score against the field's in the final ranking (default 1)")  # fmt: skip
-    f.add_argument("--stage2-min-gain", type=float, default=0.01, metavar="G",
-                   help="a refined view replaces its stage-1 start only when it gains this much (default 0.01; 0: always)")  # fmt: skip
     f.add_argument("--json", metavar="OUT", help="write the results as JSON")
     f.add_argument("--figure", metavar="PNG", help="write a figure: input box, suggestion, constrained oracle per case")
     f.set_defaults(func=run_framing)
@@ -195,7 +193,7 @@ def run_framing(args: argparse.Namespace) -> int:
         output_file(args.figure, "--figure")
     cfg = FramingEvalConfig(
         scenes=scenes, seeds=args.seeds, mode=args.mode, preset=args.preset, keep_margin=args.keep_margin,
-        verify_top=args.verify_top, verify_weight=args.verify_weight, stage2_min_gain=args.stage2_min_gain,
+        verify_top=args.verify_top, verify_weight=args.verify_weight,
     )  # fmt: skip
     doc = run_framing_eval(cfg, progress=lambda text: log.info("eval framing: %s", text), figure=args.figure)
     print(markdown(doc))

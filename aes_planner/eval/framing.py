@@ -59,7 +59,6 @@ class FramingEvalConfig:
     keep_margin: float = 0.05
     verify_top: int = FramingConfig.verify_top
     verify_weight: float = FramingConfig.verify_weight
-    stage2_min_gain: float = FramingConfig.stage2_min_gain
     min_frac: float = 0.01
     max_frac: float = 0.4
     min_shown: float = 0.6
@@ -84,8 +83,7 @@ class FramingEvalConfig:
 
     def framing(self) -> FramingConfig:
         """The framing constraint the searches run with."""
-        return FramingConfig(margin_frac=self.keep_margin, verify_top=self.verify_top, verify_weight=self.verify_weight,
-                             stage2_min_gain=self.stage2_min_gain)  # fmt: skip
+        return FramingConfig(margin_frac=self.keep_margin, verify_top=self.verify_top, verify_weight=self.verify_weight)
 
 
 class FramingEvalError(AesPlannerError, ValueError):

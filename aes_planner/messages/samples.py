@@ -47,6 +47,8 @@ def sample_messages() -> dict:
         field_version=4,
         sequence=2,
         mode="rig",
+        covered_fraction=0.625,
+        explore=Candidate(view_to_cam2world(np.array([0, 0, 1.0, 2.5, 0.1])), 0.3, 0.2, 2.5, 0.1),
     )
     return {
         "PosedFrame": frame,

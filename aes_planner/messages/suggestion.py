@@ -144,10 +144,18 @@ class ViewSuggestion(Message):
     * ``kind``: ``"search"`` (the candidates a search ranked) or ``"waypoint"`` (one candidate: the
       pose the drone is being sent to now, scored by the field's prediction, 0 when it has none;
       free mode only). Schema version 2; a version-1 message decodes as ``"search"``.
+    * ``covered_fraction``: the share of views spread over the platform's whole space that the
+      inputs cover (the field has seen enough of them to score them), in [0, 1]; None when the
+      search did not measure it (a waypoint, framing, ``explore_points: 0``). Schema version 3.
+    * ``explore``: a second, exploratory candidate, not ranked with ``candidates``: the best-scored
+      view at the edge of what the inputs saw (partly covered), for a loop or a user who would
+      rather look where nothing was seen yet; None when everything is covered. Schema version 3;
+      older messages decode both as None.
     """
 
     TYPE_NAME: ClassVar[str] = "ViewSuggestion"
-    SCHEMA_VERSION: ClassVar[int] = 2
+    WIRE_RULES: ClassVar[tuple[str, ...]] = ("`covered_fraction` present and outside [0, 1]",)
+    SCHEMA_VERSION: ClassVar[int] = 3
     MAX_BYTES: ClassVar[int] = 1 << 20
     FIELDS = (
         Scalar(
@@ -174,6 +182,24 @@ class ViewSuggestion(Message):
             doc="`search`: the ranked result of a search; `waypoint`: one candidate, the pose a drone is being "
             "sent to now, scored by the field's prediction (0 when none), free mode only",
         ),
+        Optional(
+            Scalar(
+                "covered_fraction",
+                "f64",
+                doc="share of views spread over the platform's whole space that the inputs cover, [0, 1]; "
+                "absent when not measured",
+            ),
+            since=3,
+        ),
+        Optional(
+            Struct(
+                "explore",
+                Candidate,
+                doc="an exploratory candidate at the edge of what the inputs saw, not ranked with `candidates`; "
+                "absent when everything is covered",
+            ),
+            since=3,
+        ),
     )
 
     stamp_s: float
@@ -183,6 +209,8 @@ class ViewSuggestion(Message):
     frame_id: str = "world"
     mode: str = "free"
     kind: str = "search"
+    covered_fraction: float | None = None
+    explore: Candidate | None = None
 
     def __post_init__(self):
         self.stamp_s = check_finite(self.stamp_s, "ViewSuggestion.stamp_s")
@@ -201,6 +229,11 @@ class ViewSuggestion(Message):
             raise MessageError(f"ViewSuggestion.mode must be 'rig' or 'free', got {self.mode!r}")
         if self.kind not in SUGGESTION_KINDS:
             raise MessageError(f"ViewSuggestion.kind must be one of {SUGGESTION_KINDS}, got {self.kind!r}")
+        self.covered_fraction = check_optional_finite(self.covered_fraction, "ViewSuggestion.covered_fraction")
+        if self.covered_fraction is not None and not 0.0 <= self.covered_fraction <= 1.0:
+            raise MessageError(f"ViewSuggestion.covered_fraction must be in [0, 1], got {self.covered_fraction}")
+        if self.explore is not None and not isinstance(self.explore, Candidate):
+            raise MessageError(f"ViewSuggestion.explore must be a Candidate or None, got {type(self.explore).__name__}")
 
     @property
     def best(self) -> Candidate | None:

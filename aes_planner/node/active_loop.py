@@ -143,7 +143,9 @@ class ActiveLoop:
             log.exception("%s: planning failed; settling on the best captured view", self.node_id)
             return None
         cands = [cd for cd in proposal.candidates if self._safe_candidate(cd)]
-        out["planner/suggestion"].append(self._suggestion(cands[: c.top_k], proposal.field_version, now))
+        out["planner/suggestion"].append(
+            self._suggestion(cands[: c.top_k], proposal.field_version, now, proposal=proposal)
+        )
         hope = hopes(cands, self.captures, proposal.captured_pred, c.optimism, c.min_sigma, c.residual_length_deg)
         best_true = self._best_capture().score
         for i in decision_order(hope, cands, c.hope_quantum):

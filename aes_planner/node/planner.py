@@ -328,7 +328,9 @@ class PlannerNode(ActiveLoop, Node):
                 log.exception("%s: suggestion failed", self.node_id)
                 return
             cands = [cd for cd in proposal.candidates if self._safe_candidate(cd)]
-            out["planner/suggestion"].append(self._suggestion(cands[: self.config.top_k], proposal.field_version, now))
+            out["planner/suggestion"].append(
+                self._suggestion(cands[: self.config.top_k], proposal.field_version, now, proposal=proposal)
+            )
             self.state = LoopState.SUGGESTING
 
     @property
@@ -354,9 +356,21 @@ class PlannerNode(ActiveLoop, Node):
         return proposal
 
     # ---------------------------------------------------------------------------- messages
-    def _suggestion(self, candidates: list[Candidate], version: int, now: float, kind="search") -> ViewSuggestion:
+    def _suggestion(
+        self, candidates: list[Candidate], version: int, now: float, kind="search", proposal=None
+    ) -> ViewSuggestion:
+        """``proposal``: the search's :class:`~aes_planner.node.proposer.Proposal`, whose coverage
+        and exploratory candidate (checked as the candidates are) the message carries too."""
         mode = self.motion.suggestion_mode
-        msg = ViewSuggestion(now, list(candidates), int(version), self._next("sugg"), "world", mode, kind)
+        covered, explore = None, None
+        if proposal is not None:
+            covered = proposal.covered_fraction
+            explore = (
+                proposal.explore if proposal.explore is not None and self._safe_candidate(proposal.explore) else None
+            )
+        msg = ViewSuggestion(
+            now, list(candidates), int(version), self._next("sugg"), "world", mode, kind, covered, explore
+        )
         self.suggestions.append(msg)
         del self.suggestions[:-64]
         self.counters["suggestions"] += 1

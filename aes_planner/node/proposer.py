@@ -11,6 +11,7 @@ reconstruction) when they changed, and runs the two-stage search
 from __future__ import annotations
 
 import logging
+import math
 from abc import ABC, abstractmethod
 from collections import deque
 from dataclasses import dataclass
@@ -29,11 +30,31 @@ __all__ = ["FieldProposer", "Proposal", "Proposer"]
 @dataclass
 class Proposal:
     """Ranked candidates (best first, the scorer's units) and the same scorer's scores of the
-    views already captured (``captured_pred [M]``), so a gain is measured on one scale."""
+    views already captured (``captured_pred [M]``), so a gain is measured on one scale; what the
+    inputs cover of the space (``covered_fraction``, None when not measured) and the exploratory
+    candidate at the edge of what they saw (``explore``, None when everything is covered)."""
 
     candidates: list[Candidate]
     captured_pred: np.ndarray  # [M]
     field_version: int
+    covered_fraction: float | None = None
+    explore: Candidate | None = None
+
+
+def candidate_of(s) -> Candidate:
+    """The wire's :class:`~aes_planner.messages.Candidate` from a search's
+    :class:`~aes_planner.search.Suggestion` (coverage kept in [0, 1], at most 32 score terms)."""
+    pan = getattr(s, "pan_rad", None)
+    tilt = getattr(s, "tilt_rad", None)
+    terms = {k: float(v) for k, v in (getattr(s, "terms", None) or {}).items()}
+    return Candidate(
+        np.asarray(s.cam2world, dtype=np.float64),
+        float(s.score),
+        float(min(max(getattr(s, "coverage", 1.0), 0.0), 1.0)),
+        None if pan is None else float(pan),
+        None if tilt is None else float(tilt),
+        dict(list(terms.items())[:32]),
+    )
 
 
 class Proposer(ABC):
@@ -178,24 +199,12 @@ class FieldProposer(Proposer):
         if framing is not None and result.suggestions:
             pose = torch.as_tensor(result.best.cam2world[None])
             self.framing_held = [float(framing.held_each(pose)[0, i]) for i in range(len(framing.keep))]
-        candidates = []
-        for s in result.suggestions:
-            pan = getattr(s, "pan_rad", None)
-            tilt = getattr(s, "tilt_rad", None)
-            terms = {k: float(v) for k, v in (getattr(s, "terms", None) or {}).items()}
-            candidates.append(
-                Candidate(
-                    np.asarray(s.cam2world, dtype=np.float64),
-                    float(s.score),
-                    float(min(max(getattr(s, "coverage", 1.0), 0.0), 1.0)),
-                    None if pan is None else float(pan),
-                    None if tilt is None else float(tilt),
-                    dict(list(terms.items())[:32]),
-                )
-            )
+        candidates = [candidate_of(sug) for sug in result.suggestions]
         if len(captured):
             with torch.no_grad():
                 pred = scorer.score_batched(torch.as_tensor(captured, dtype=torch.float64)).score.numpy()
         else:
             pred = np.zeros(0)
-        return Proposal(candidates, np.asarray(pred, dtype=np.float64), self.version)
+        explore = result.explore  # its prediction rests on a part-seen view: sent only when finite
+        explore = candidate_of(explore) if explore is not None and math.isfinite(explore.score) else None
+        return Proposal(candidates, np.asarray(pred, dtype=np.float64), self.version, result.covered_fraction, explore)

@@ -25,6 +25,7 @@ central finite differences (or not at all: ``nondiff_refine="skip"``).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -299,6 +300,9 @@ def _search_views(
     avoid_poses = None if avoid is None else _check_inputs(avoid, "avoid", allow_empty=True)
     avoid_params = space.from_poses(avoid_poses) if avoid_poses is not None and len(avoid_poses) else None
     framing = framing if framing is not None and framing.active else None
+    framing_warnings: list[str] = []
+    if framing is not None and not framing.cfg.refine:  # stage 1's feasible pick stands (FramingConfig.refine)
+        cfg = dataclasses.replace(cfg, steps=0)
     if framing is not None:
         scorer = framing.wrap(scorer)  # the avoided regions and the placement join the score
 
@@ -311,7 +315,13 @@ def _search_views(
     if framing is not None:  # stage 1 keeps the views that hold the subject, aimed ones among them
         from aes_planner.search.framing import feasible_candidates
 
-        candidates = feasible_candidates(framing, space, candidates, trajectory, cfg, rng)
+        asked = framing.cfg.margin_frac
+        candidates, framing = feasible_candidates(framing, space, candidates, trajectory, cfg, rng)
+        if framing.cfg.margin_frac < asked:
+            framing_warnings.append(
+                f"no reachable view holds the kept subject with the {100 * asked:g}% margin asked; "
+                f"the suggestions hold it whole with a {100 * framing.cfg.margin_frac:g}% margin"
+            )
     cand_poses = space.to_poses(candidates)  # [C, 4, 4]
     t_sampled = time.perf_counter()
     out1 = scorer.score_batched(cand_poses, cfg.batch_size)
@@ -327,24 +337,18 @@ def _search_views(
 
     # ---- final scores of the refined poses, ranked
     final_params = best_params
-    # with kept subjects, stage 2 must beat its start by a margin (FramingConfig.stage2_min_gain):
-    # the starts are scored beside the refined views and win unless stage 2 gained that much
-    gate = refine and framing is not None and framing.cfg.stage2_min_gain > 0
     if refine:  # the last step's parameters were never scored: score them beside the best
-        final_params = torch.cat([best_params, params, candidates[keep]] if gate else [best_params, params])
+        final_params = torch.cat([best_params, params])
     final_poses = space.to_poses(final_params).detach()
     out2 = scorer.score_batched(final_poses, cfg.batch_size)
     obj2 = torch.nan_to_num(_objective(out2, cfg).double(), nan=-math.inf)
     if refine:  # per candidate, the better of its best iterate and its last one
         k = len(best_params)
-        pick = torch.where(obj2[k : 2 * k] > obj2[:k], torch.arange(k) + k, torch.arange(k))
-        if gate:  # ... unless it gains less than the margin over its stage-1 start
-            kept_start = obj2[pick] < obj2[2 * k :] + framing.cfg.stage2_min_gain
-            pick = torch.where(kept_start, torch.arange(k) + 2 * k, pick)
+        pick = torch.where(obj2[k:] > obj2[:k], torch.arange(k) + k, torch.arange(k))
     else:
         pick = torch.arange(len(final_params))
     order = pick[torch.argsort(obj2[pick], descending=True)]
-    warnings = []
+    warnings = list(framing_warnings)
     covered = order[out2.coverage[order].double() >= cfg.coverage_min]
     dropped = len(order) - len(covered) if len(covered) else 0
     if not len(covered):

@@ -15,6 +15,8 @@ def test_case_records_timings_speedup_and_a_breakdown_that_adds_up():
     r = {k: v["value"] for k, v in rec.results.items()}
     for key in ("fwd_ms", "fwdbwd_ms", "fwd_cpu_ms", "fwdbwd_cpu_ms", "dense_fwd_ms", "speedup_fwd", "pairs"):
         assert r[f"raster.tiny.{key}"] > 0, key
+    for key in ("fwd_ms", "fwdbwd_ms", "fwd_cpu_ms", "fwdbwd_cpu_ms", "dense_fwd_ms", "speedup_fwd"):  # with spread
+        assert r[f"raster.tiny.{key}_min"] <= r[f"raster.tiny.{key}"] <= r[f"raster.tiny.{key}_max"], key
     parts = [f"raster.tiny.cpu_{name}_ms" for name in (*bench_raster.KERNELS, "glue", "outside")]
     assert all(r[p] >= 0 for p in parts[:-2]), "kernel CPU times are non-negative"
     assert sum(r[p] for p in parts) > 0

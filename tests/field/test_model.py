@@ -218,6 +218,28 @@ def test_decode_matches_its_plain_reference_in_values_and_gradients(model):
         model.float()
 
 
+def test_decode_without_autograd_attends_in_chunks_to_the_same_values(model, monkeypatch):
+    """Stage 1's path (no autograd: the attention a few poses at a time, scaled in place) gives
+    what the differentiable path gives, over a batch that ends in a partial chunk."""
+    from aes_planner.field import model as field_model
+
+    gen = torch.Generator().manual_seed(5)
+    c, d = model.feature_channels, model.config.embed_dim
+    inputs = [torch.rand(7, c + d, 36, 48, generator=gen), torch.rand(7, 36, 48, generator=gen)]
+    inputs.append(torch.rand(7, 2, 36, 48, generator=gen))
+    n = model.feature_size[0] * model.feature_size[1]
+    monkeypatch.setattr(field_model, "_ATTENTION_CHUNK_BYTES", 3 * 4 * n * n)  # chunks of 3, 3, 1 poses
+    calls = []
+    bmm = torch.bmm
+    monkeypatch.setattr(torch, "bmm", lambda *a, **k: calls.append(a[0].shape[0]) or bmm(*a, **k))
+    with torch.no_grad():
+        chunked = model.decode(*inputs)
+    assert calls == [3, 3, 3, 3, 1, 1]  # scores and context per chunk
+    whole = model.decode(*inputs).detach()  # autograd on: the whole batch at once
+    torch.testing.assert_close(chunked, whole, rtol=1e-6, atol=1e-7)
+    assert float(whole.abs().sum()) > 0
+
+
 def test_gaussians_carry_the_source_direction_in_the_colour_slot(model, teacher, rig_frames):
     """Layout the renderer relies on: features = [teacher map (C), embedding (D)], colours = the
     unit direction from each Gaussian to the camera that observed it (local frame)."""

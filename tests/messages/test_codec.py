@@ -29,6 +29,8 @@ def assert_same(a, b):
             assert len(va) == len(vb)
             for x, y in zip(va, vb):
                 assert_same(x, y)
+        elif hasattr(va, "__dataclass_fields__"):  # a nested struct (a suggestion's explore candidate)
+            assert_same(va, vb)
         else:
             assert va == vb, name
 
@@ -210,3 +212,30 @@ def test_huge_rotation_entries_are_refused_without_overflow(value):
     far = _patch_f64(ENCODED["PosedFrame"], float(frame.cam2world[0, 3]), 1e200)
     with pytest.raises(MessageError, match="translation"):
         decode(far)
+
+
+def test_a_version_2_suggestion_decodes_without_coverage_or_explore():
+    """Schema 3 appended ``covered_fraction`` and ``explore``: a version-2 message (the bytes a
+    version-2 writer sends: the header's version 2, the payload without the appended fields)
+    decodes with both absent."""
+    from aes_planner.messages import ViewSuggestion
+
+    old = ViewSuggestion(3.0, SAMPLES["ViewSuggestion"].candidates, 4, 2, mode="rig", kind="search")
+    data = bytearray(encode(old))
+    data = data[: len(data) - 2]  # both optional fields absent: one flag byte each
+    struct.pack_into("<H", data, 6, 2)  # header bytes 6-7: the schema version
+    struct.pack_into("<I", data, 8, len(data) - HEADER_SIZE - len("ViewSuggestion"))
+    back = decode(bytes(data))
+    assert back.covered_fraction is None and back.explore is None
+    assert back.kind == "search" and len(back.candidates) == 2
+
+
+def test_a_suggestion_refuses_a_coverage_outside_0_1_naming_the_field():
+    from aes_planner.messages import ViewSuggestion
+
+    with pytest.raises(MessageError, match="covered_fraction"):
+        ViewSuggestion(1.0, [], covered_fraction=1.5)
+    with pytest.raises(MessageError, match="covered_fraction"):
+        ViewSuggestion(1.0, [], covered_fraction=math.nan)
+    with pytest.raises(MessageError, match="explore"):
+        ViewSuggestion(1.0, [], explore="left")

@@ -156,6 +156,10 @@ def assert_matches(decoded: dict, msg, fields: list[dict]) -> None:
                     got["height"],
                 )
                 assert np.array_equal(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[..., ::-1], want)
+        elif f["type"] == "optional" and f["value"]["type"] == "struct":  # a suggestion's explore candidate
+            assert (got is None) == (want is None), f["name"]
+            if want is not None:
+                assert_matches(got, want, f["value"]["fields"])
         elif f["type"] == "list" and f["items"]["type"] == "struct":
             assert len(got) == len(want)
             for g, w in zip(got, want):
@@ -191,18 +195,23 @@ def recording(tmp_path_factory):
         rec.write_raw("t/png_frame", encode(samples["PosedFrame"], image_format="png"))
         sent.append(("/t/png_frame", samples["PosedFrame"], 1))
         rec.write_raw("t/old_suggestion", version_1_suggestion(samples["ViewSuggestion"]))
-        sent.append(("/t/old_suggestion", dataclasses.replace(samples["ViewSuggestion"], kind="search"), 1))
+        old = dataclasses.replace(samples["ViewSuggestion"], kind="search", covered_fraction=None, explore=None)
+        sent.append(("/t/old_suggestion", old, 1))
     bus.close()
     return path, sent
 
 
 def version_1_suggestion(msg) -> bytes:
-    """A ViewSuggestion as version 1 wrote it: no kind byte at the end of the payload."""
+    """A ViewSuggestion as version 1 wrote it: none of the fields appended since (version 2's
+    kind byte, version 3's two absent optionals: one flag byte each) at the end of the payload."""
+    import dataclasses
+
     from aes_planner.messages import encode
 
-    data = bytearray(encode(msg)[:-1])
+    newer = 3
+    data = bytearray(encode(dataclasses.replace(msg, covered_fraction=None, explore=None))[:-newer])
     magic, fmt, n, _version, payload = struct.unpack_from("<4sBBHI", data, 0)
-    struct.pack_into("<4sBBHI", data, 0, magic, fmt, n, 1, payload - 1)
+    struct.pack_into("<4sBBHI", data, 0, magic, fmt, n, 1, payload - newer)
     return bytes(data)
 
 
