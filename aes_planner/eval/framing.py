@@ -57,6 +57,8 @@ class FramingEvalConfig:
     mode: str = "rig"
     preset: str = "balanced"
     keep_margin: float = 0.05
+    verify_top: int = FramingConfig.verify_top
+    verify_weight: float = FramingConfig.verify_weight
     min_frac: float = 0.01
     max_frac: float = 0.4
     min_shown: float = 0.6
@@ -77,7 +79,11 @@ class FramingEvalConfig:
         require(bool(self.seeds) and all(isinstance(s, int) and s >= 0 for s in self.seeds), "seeds", "must be >= 0")
         require(isinstance(self.views, int) and 1 <= self.views <= 16, "views", f"must be in [1, 16], got {self.views}")
         require(0 < self.min_frac < self.max_frac <= 1, "min_frac", "must satisfy 0 < min_frac < max_frac <= 1")
-        FramingConfig(margin_frac=self.keep_margin)  # the margin's own checks
+        self.framing()  # the margin's and the verification's own checks
+
+    def framing(self) -> FramingConfig:
+        """The framing constraint the searches run with."""
+        return FramingConfig(margin_frac=self.keep_margin, verify_top=self.verify_top, verify_weight=self.verify_weight)
 
 
 class FramingEvalError(AesPlannerError, ValueError):
@@ -322,7 +328,7 @@ def run_framing_eval(cfg: FramingEvalConfig, progress=None, figure: str | None =
                      for i, f in enumerate(frames)}  # fmt: skip
             t0 = time.perf_counter()
             try:
-                framing = build_framing(scorer, named, [region], [], k, FramingConfig(margin_frac=cfg.keep_margin))
+                framing = build_framing(scorer, named, [region], [], k, cfg.framing())
                 result = search_views(scorer, inputs, platform, scfg, framing=framing)
             except FramingError as exc:
                 row["error"] = str(exc)
@@ -333,6 +339,7 @@ def run_framing_eval(cfg: FramingEvalConfig, progress=None, figure: str | None =
             row["cam2world"] = pose.tolist()
             row["holds"] = bool(true_holds(points, pose[None], k)[0])
             row["held_predicted"] = result.best.held
+            row["verify_ms"] = result.timings_ms.get("verify", 0.0)
             t, e = judge.measure(pose[None])
             row["teacher"], row["evaluator"] = float(t[0]), float(e[0])
             row["normalized_teacher"] = _norm(row["teacher"], oracle["mean_teacher"], oracle["best_teacher"])
@@ -358,6 +365,7 @@ def summarize(rows: list[dict]) -> dict[str, Any]:
         out[f"{name}_min"] = float(vals.min())
         out[f"{name}_at_least_0.85"] = float(np.mean(vals >= 0.85))
     out["latency_ms_median"] = float(np.median([r["latency_ms"] for r in done]))
+    out["verify_ms_median"] = float(np.median([r.get("verify_ms", 0.0) for r in done]))
     return out
 
 
