@@ -6,8 +6,9 @@
     exploring  visit a few poses spread over the joint range (rig) or around the start (drone),
                capturing each
     planning   build the scorer from every capture, search, and pick the best candidate that the
-               same scorer expects to beat the best captured view by ``margin``
-               (none, or ``max_moves`` spent -> polishing)
+               same scorer expects to beat the best captured view by ``margin``; none, while the
+               search's inputs cover too little of the space: its exploratory candidate
+               (``explore_below_covered``, ``explore_moves``); else (or ``max_moves`` spent) -> polishing
     moving     command it (``gimbal/command``; a drone flies the top candidate of
                ``planner/suggestion``), wait for arrival (``gimbal/state``, or frames at the pose),
                capture there and score the real capture with the teacher (it verifies the
@@ -54,6 +55,13 @@ from aes_planner.platform import view_angle_deg
 log = logging.getLogger(__name__)
 
 __all__ = ["ActiveLoop", "LoopState"]
+
+
+def _where(cd: Candidate) -> str:
+    """Where a candidate looks, for the log: pan/tilt in degrees on a rig, else its position."""
+    if cd.pan_rad is not None and cd.tilt_rad is not None:
+        return f"pan {math.degrees(cd.pan_rad):.1f} tilt {math.degrees(cd.tilt_rad):.1f} deg"
+    return "at " + " ".join(f"{v:.2f}" for v in cd.cam2world[:3, 3]) + " m"
 
 
 class LoopState(str, enum.Enum):
@@ -148,14 +156,56 @@ class ActiveLoop:
         )
         hope = hopes(cands, self.captures, proposal.captured_pred, c.optimism, c.min_sigma, c.residual_length_deg)
         best_true = self._best_capture().score
-        for i in decision_order(hope, cands, c.hope_quantum):
+        order = decision_order(hope, cands, c.hope_quantum)
+        self._log_decision(cands, hope, order, best_true, proposal)
+        for i in order:
             cd = cands[i]
             if hope[i] - best_true < c.margin:
                 break  # in order of hope: no later one promises more
             if near_captured(self.captures, cd.cam2world, c.min_move_deg, c.min_move_m):
                 continue
+            log.info("%s: move %d: %s, hope %.3f", self.node_id, self.moves + 1, _where(cd), hope[i])
             return Target("move", cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=float(hope[i]))
-        return None
+        return self._explore_target(proposal)
+
+    def _explore_target(self, proposal) -> Target | None:
+        """Before stopping on the views it has: the search's exploratory candidate when its inputs
+        cover less than ``explore_below_covered`` of the space (the best predicted view is then
+        unverified where nothing was seen), up to ``explore_moves`` times; else None."""
+        c = self.config
+        cd = proposal.explore
+        covered = proposal.covered_fraction
+        if cd is None or covered is None or covered >= c.explore_below_covered or self.explored >= c.explore_moves:
+            return None
+        if not self._safe_candidate(cd) or near_captured(self.captures, cd.cam2world, c.min_move_deg, c.min_move_m):
+            return None
+        self.explored += 1
+        log.info(
+            "%s: move %d: explore %s (inputs cover %.2f of the space; the predictions are unverified beyond)",
+            self.node_id,
+            self.moves + 1,
+            _where(cd),
+            covered,
+        )
+        return Target("move", cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=None)
+
+    def _log_decision(self, cands, hope, order, best_true, proposal) -> None:
+        """The planning's evidence, one line: the best captured score, the ranked candidates with
+        their prediction and hope, the coverage and the exploratory candidate (what a flip between
+        two runs is read from)."""
+        if not log.isEnabledFor(logging.INFO):
+            return
+        ranked = "; ".join(f"{_where(cands[i])} pred {cands[i].score:.3f} hope {hope[i]:.3f}" for i in order[:4])
+        covered = proposal.covered_fraction
+        log.info(
+            "%s: planning after %d moves: best captured %.3f; %s; covered %s; explore %s",
+            self.node_id,
+            self.moves,
+            best_true,
+            ranked or "no candidate",
+            "-" if covered is None else f"{covered:.2f}",
+            "-" if proposal.explore is None else _where(proposal.explore),
+        )
 
     def _best_capture(self) -> Capture:
         """The best captured view; a later capture displaces an earlier one only by more than

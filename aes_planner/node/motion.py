@@ -124,7 +124,9 @@ class RigMotion(Motion):
         return Target(kind, kin.forward(gimbal.pan_rad, gimbal.tilt_rad), gimbal.pan_rad, gimbal.tilt_rad)
 
     def explore(self, n, frame, captures):
-        """A survey sweep over the joint range, starting at the end nearer the last capture."""
+        """A survey sweep over the joint range, starting at the end nearer the last capture (none: ``explore_views: 0``)."""
+        if n == 0:
+            return []
         kin = self.platform.kinematics
         joints = kin.sweep(n)  # [n, 2] left to right
         start = captures[-1].pan_rad if captures else 0.0

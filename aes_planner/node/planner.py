@@ -91,6 +91,7 @@ class PlannerNode(ActiveLoop, Node):
         self.captures: list[Capture] = []
         self.suggestions: list[ViewSuggestion] = []  # every suggestion published (bounded)
         self.moves = 0
+        self.explored = 0  # moves spent on the search's exploratory candidate
         self.counters = dict.fromkeys(
             (
                 "frames_in",
@@ -285,6 +286,7 @@ class PlannerNode(ActiveLoop, Node):
             self._queue.clear()
             self._target = None
             self.moves = 0
+            self.explored = 0
             self.state = LoopState.WAITING
         elif kind == "stop" and self.config.active and not self.finished:
             self._queue.clear()

@@ -46,6 +46,12 @@ class PlannerConfig:
     * ``hope_quantum``: candidates are ranked by their hope rounded to this (teacher units), ties
       by where they look, so that near-equal predictions do not pick the move by their last bits
       (which differ between processors, backends and thread counts).
+    * ``explore_below_covered`` / ``explore_moves``: when the search says its inputs cover less
+      than this share of the space (the suggestion's ``covered_fraction``), the best predicted
+      view is unverified where nothing was seen: before the loop stops on what it has (no
+      candidate promises ``margin``), it spends up to ``explore_moves`` of its ``max_moves`` on
+      the suggestion's exploratory candidate (``explore``: the edge of what was seen), and plans
+      again with that capture in the field. 0 = never.
     * ``top_k``: candidates per published suggestion.
     * ``max_frames``: frames the field holds (memory bound); captures are kept before passive frames.
     * ``arrival_tolerance_deg`` / ``arrival_tolerance_m``: how close counts as arrived;
@@ -97,6 +103,8 @@ class PlannerConfig:
     polish_start_gap: float = 0.1
     tie_tolerance: float = 0.002
     hope_quantum: float = 0.005
+    explore_below_covered: float = 0.9
+    explore_moves: int = 1
     top_k: int = 3
     max_frames: int = 24
     arrival_tolerance_deg: float = 0.6
@@ -143,6 +151,7 @@ class PlannerConfig:
             "polish_captures",
             "polish_scales",
             "polish_starts",
+            "explore_moves",
         ):
             v = getattr(self, name)
             require(
@@ -158,6 +167,7 @@ class PlannerConfig:
             ("polish_captures", 64),
             ("polish_scales", 6),
             ("polish_starts", 8),
+            ("explore_moves", 64),
             ("max_moves", 10_000),
             ("max_frames", 1024),
             ("threads", MAX_THREADS),
@@ -173,6 +183,12 @@ class PlannerConfig:
         require(self.polish_scales >= 1, "polish_scales", f"must be >= 1, got {self.polish_scales}")
         require(self.polish_starts >= 1, "polish_starts", f"must be >= 1, got {self.polish_starts}")
         require_numbers(self, ("tie_tolerance", "hope_quantum", "polish_start_gap"), strict=False)
+        require_numbers(self, ("explore_below_covered",), strict=False)
+        require(
+            self.explore_below_covered <= 1.0,
+            "explore_below_covered",
+            f"must be in [0, 1] (a share of the space), got {self.explore_below_covered}",
+        )
         require(
             self.tie_tolerance <= 0.1, "tie_tolerance", f"must be in [0, 0.1] (teacher units), got {self.tie_tolerance}"
         )

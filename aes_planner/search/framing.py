@@ -69,7 +69,6 @@ __all__ = [
     "lift_region",
     "render_depth",
     "verified_scores",
-    "verify_suggestions",
     "world_gaussians",
 ]
 
@@ -185,6 +184,7 @@ class FramingConfig:
         for name in ("placement_weight", "avoid_weight", "edge_weight", "grow_frac"):
             v = getattr(self, name)
             require(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0, name, f"must be >= 0, got {v!r}")
+        require(isinstance(self.refine, bool), "refine", f"must be true or false, got {self.refine!r}")
         require(
             isinstance(self.verify_weight, (int, float)) and 0.0 <= self.verify_weight <= 1.0,
             "verify_weight",
@@ -195,7 +195,6 @@ class FramingConfig:
             "verify_width_px",
             f"must be an integer in [16, 1024] px, got {self.verify_width_px!r}",
         )
-        require(isinstance(self.refine, bool), "refine", f"must be true or false, got {self.refine!r}")
         for name in ("explore_samples", "explore_keep", "verify_top"):
             v = getattr(self, name)
             require(isinstance(v, int) and 0 <= v <= 100_000, name, f"must be an integer in [0, 100000], got {v!r}")
@@ -419,41 +418,6 @@ def verified_scores(
             rgb = rasterize(bare, w2c, K, k.width, k.height, background=background.float(), validate=False).rgb
             out.append(teacher.explain_map(teacher.features(rgb.clamp(0.0, 1.0)))["score"].double())
     return torch.cat(out)  # [B]
-
-
-def verify_suggestions(scorer, framing: Framing, space, suggestions: list, params: Tensor, candidates: Tensor,
-                       out1: ScoreOutput, obj1: Tensor, cfg, avoid: Tensor | None = None) -> list:  # fmt: skip
-    """The refined ``suggestions`` (their parameters ``params [S, D]``) and the
-    ``framing.cfg.verify_top`` best distinct stage-1 ``candidates [C, D]`` (objective ``obj1``,
-    scores ``out1``) that cover what the inputs saw and are not near ``avoid [A, D]``, re-ranked by :func:`verified_scores` (see
-    :class:`FramingConfig`); as many suggestions as came in, best first, each with its verified
-    teacher score in ``terms["verified"]``."""
-    from aes_planner.search.pipeline import _select_distinct, _suggestion
-
-    fc = framing.cfg
-    if fc.verify_top <= 0 or not suggestions:
-        return suggestions
-    covered = torch.nonzero(out1.coverage.double() >= cfg.coverage_min).flatten()
-    extra = covered[_select_distinct(space, candidates[covered], obj1[covered], fc.verify_top, avoid)]
-    poses = space.to_poses(candidates[extra]).detach()
-    pool = list(suggestions) + [
-        _suggestion(space, candidates[i], poses[j], out1, int(i), float(obj1[i])) for j, i in enumerate(extra.tolist())
-    ]
-    for j, i in enumerate(extra.tolist()):
-        pool[len(suggestions) + j].stage1_score = float(out1.score[i])
-    pool_params = torch.cat([params, candidates[extra]])  # [P, D]
-    pool_poses = torch.as_tensor(np.stack([s.cam2world for s in pool]))  # [P, 4, 4]
-    teacher = verified_scores(scorer, pool_poses, framing.intrinsics, fc.verify_width_px)
-    if teacher is None:
-        return suggestions
-    field = torch.tensor([s.objective for s in pool], dtype=torch.float64)
-    ranked = fc.verify_weight * (teacher + framing.soft_terms(pool_poses)) + (1.0 - fc.verify_weight) * field
-    for s, t in zip(pool, teacher.tolist()):
-        s.terms["verified"] = t
-    order = _select_distinct(space, pool_params, ranked, len(suggestions), None)
-    log.info("framing: %d views verified; the best is %s", len(pool),
-             "a refined one" if int(order[0]) < len(suggestions) else "a stage-1 candidate")  # fmt: skip
-    return [pool[i] for i in order.tolist()]
 
 
 def project_corners(corners: Tensor, cam2world: Tensor, intrinsics: Intrinsics) -> tuple[Tensor, Tensor, Tensor]:

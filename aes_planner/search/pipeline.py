@@ -373,9 +373,7 @@ def _search_views(
         suggestions.append(sug)
     t_verify = time.perf_counter()
     if framing is not None:
-        from aes_planner.search.framing import verify_suggestions
-
-        suggestions = verify_suggestions(scorer, framing, space, suggestions, final_params[distinct], candidates,
+        suggestions = _verify_suggestions(scorer, framing, space, suggestions, final_params[distinct], candidates,
                                          out1, obj1, cfg, avoid_params)  # fmt: skip
         for sug in suggestions:  # the aesthetic score, and how much of the subject the view holds
             sug.score = sug.terms.get("aesthetic", sug.score)
@@ -408,6 +406,41 @@ def _search_views(
         covered_fraction=covered_fraction,
         explore=explore,
     )
+
+
+def _verify_suggestions(scorer, framing,  space, suggestions: list, params: Tensor, candidates: Tensor,
+                       out1: ScoreOutput, obj1: Tensor, cfg, avoid: Tensor | None = None) -> list:  # fmt: skip
+    """The refined ``suggestions`` (their parameters ``params [S, D]``) and the
+    ``framing.cfg.verify_top`` best distinct stage-1 ``candidates [C, D]`` (objective ``obj1``,
+    scores ``out1``) that cover what the inputs saw and are not near ``avoid [A, D]``, re-ranked by :func:`~aes_planner.search.framing.verified_scores` (see
+    :class:`~aes_planner.search.framing.FramingConfig`); as many suggestions as came in, best first, each with its verified
+    teacher score in ``terms["verified"]``."""
+    from aes_planner.search.framing import verified_scores
+
+    fc = framing.cfg
+    if fc.verify_top <= 0 or not suggestions:
+        return suggestions
+    covered = torch.nonzero(out1.coverage.double() >= cfg.coverage_min).flatten()
+    extra = covered[_select_distinct(space, candidates[covered], obj1[covered], fc.verify_top, avoid)]
+    poses = space.to_poses(candidates[extra]).detach()
+    pool = list(suggestions) + [
+        _suggestion(space, candidates[i], poses[j], out1, int(i), float(obj1[i])) for j, i in enumerate(extra.tolist())
+    ]
+    for j, i in enumerate(extra.tolist()):
+        pool[len(suggestions) + j].stage1_score = float(out1.score[i])
+    pool_params = torch.cat([params, candidates[extra]])  # [P, D]
+    pool_poses = torch.as_tensor(np.stack([s.cam2world for s in pool]))  # [P, 4, 4]
+    teacher = verified_scores(scorer, pool_poses, framing.intrinsics, fc.verify_width_px)
+    if teacher is None:
+        return suggestions
+    field = torch.tensor([s.objective for s in pool], dtype=torch.float64)
+    ranked = fc.verify_weight * (teacher + framing.soft_terms(pool_poses)) + (1.0 - fc.verify_weight) * field
+    for s, t in zip(pool, teacher.tolist()):
+        s.terms["verified"] = t
+    order = _select_distinct(space, pool_params, ranked, len(suggestions), None)
+    log.info("framing: %d views verified; the best is %s", len(pool),
+             "a refined one" if int(order[0]) < len(suggestions) else "a stage-1 candidate")  # fmt: skip
+    return [pool[i] for i in order.tolist()]
 
 
 def _explore(scorer: Scorer, space: SearchSpace, cfg: SearchConfig, rng: np.random.Generator):

@@ -257,6 +257,30 @@ def test_verification_config_is_checked():
         FramingConfig(verify_width_px=4)
 
 
+# ---------------------------------------------------------------- stage 2 under a kept subject
+def test_with_a_kept_subject_the_suggestions_are_unmoved_stage1_picks_unless_refine():
+    """Stage 2 is off under a kept subject by default (FramingConfig.refine): every suggestion is
+    a stage-1 candidate, unmoved, with its stage-1 score; with refine on, stage 2 moves the best
+    view off the candidates and raises the field's score."""
+    platform = rig_platform(pan_limits_deg=(-120.0, 120.0), tilt_limits_deg=(-40.0, 40.0))
+    subject = subject_at((3.0, 3.0, 1.3), (0.1, 0.1, 0.1))
+    scorer = AimScorer([1.0, 0.0, 0.0])
+    cfg = SearchConfig.preset("fast", top_k=2, steps=15, lr=0.05)
+    runs = {}
+    for refine in (False, True):
+        framing = Framing([subject], [], platform.intrinsics, FramingConfig(refine=refine))
+        runs[refine] = search_views(scorer, rig_inputs(platform), platform, cfg, framing=framing)
+        assert all(s.held == pytest.approx(1.0) for s in runs[refine].suggestions)
+
+    def in_stage1(s):
+        return float(np.abs(runs[False].candidates_cam2world - s.cam2world[None]).max(axis=(1, 2)).min()) < 1e-9
+
+    assert all(in_stage1(s) for s in runs[False].suggestions)
+    assert all(s.objective == pytest.approx(s.stage1_score, abs=1e-6) for s in runs[False].suggestions)
+    assert not in_stage1(runs[True].best)
+    assert runs[True].best.objective > runs[False].best.objective
+
+
 @pytest.mark.parametrize("lr", [0.02, 0.3, 1.0])
 def test_stage_2_never_returns_a_feasible_view_the_field_scores_below_its_start(lr):
     """Stage 2 under a kept subject (``FramingConfig(refine=True)``), with steps small and large
