@@ -166,6 +166,10 @@ def register_framing(esub: argparse._SubParsersAction) -> None:
     f.add_argument("--mode", default="rig", choices=KIND_WORDS, help="platform (default rig)")
     f.add_argument("--preset", default="balanced", choices=list(PRESETS), help="search preset")
     f.add_argument("--keep-margin", type=float, default=0.05, metavar="FRAC", help="as suggest --keep-margin")
+    f.add_argument("--verify-top", type=int, default=0, metavar="N",
+                   help="stage-1 candidates verified beside the refined ones by the teacher on rendered RGB (default 0: off)")  # fmt: skip
+    f.add_argument("--verify-weight", type=float, default=1.0, metavar="W",
+                   help="weight of the verified score against the field's in the final ranking (default 1)")  # fmt: skip
     f.add_argument("--json", metavar="OUT", help="write the results as JSON")
     f.add_argument("--figure", metavar="PNG", help="write a figure: input box, suggestion, constrained oracle per case")
     f.set_defaults(func=run_framing)
@@ -188,8 +192,9 @@ def run_framing(args: argparse.Namespace) -> int:
     if args.figure:
         output_file(args.figure, "--figure")
     cfg = FramingEvalConfig(
-        scenes=scenes, seeds=args.seeds, mode=args.mode, preset=args.preset, keep_margin=args.keep_margin
-    )
+        scenes=scenes, seeds=args.seeds, mode=args.mode, preset=args.preset, keep_margin=args.keep_margin,
+        verify_top=args.verify_top, verify_weight=args.verify_weight,
+    )  # fmt: skip
     doc = run_framing_eval(cfg, progress=lambda text: log.info("eval framing: %s", text), figure=args.figure)
     print(markdown(doc))
     if args.json:

@@ -57,6 +57,8 @@ class FramingEvalConfig:
     mode: str = "rig"
     preset: str = "balanced"
     keep_margin: float = 0.05
+    verify_top: int = FramingConfig.verify_top
+    verify_weight: float = FramingConfig.verify_weight
     min_frac: float = 0.01
     max_frac: float = 0.4
     min_shown: float = 0.6
@@ -77,7 +79,11 @@ class FramingEvalConfig:
         require(bool(self.seeds) and all(isinstance(s, int) and s >= 0 for s in self.seeds), "seeds", "must be >= 0")
         require(isinstance(self.views, int) and 1 <= self.views <= 16, "views", f"must be in [1, 16], got {self.views}")
         require(0 < self.min_frac < self.max_frac <= 1, "min_frac", "must satisfy 0 < min_frac < max_frac <= 1")
-        FramingConfig(margin_frac=self.keep_margin)  # the margin's own checks
+        self.framing()  # the margin's and the verification's own checks
+
+    def framing(self) -> FramingConfig:
+        """The framing constraint the searches run with."""
+        return FramingConfig(margin_frac=self.keep_margin, verify_top=self.verify_top, verify_weight=self.verify_weight)
 
 
 class FramingEvalError(AesPlannerError, ValueError):
@@ -322,7 +328,7 @@ def run_framing_eval(cfg: FramingEvalConfig, progress=None, figure: str | None =
                      for i, f in enumerate(frames)}  # fmt: skip
             t0 = time.perf_counter()
             try:
-                framing = build_framing(scorer, named, [region], [], k, FramingConfig(margin_frac=cfg.keep_margin))
+                framing = build_framing(scorer, named, [region], [], k, cfg.framing())
                 result = search_views(scorer, inputs, platform, scfg, framing=framing)
             except FramingError as exc:
                 row["error"] = str(exc)
@@ -333,16 +339,43 @@ def run_framing_eval(cfg: FramingEvalConfig, progress=None, figure: str | None =
             row["cam2world"] = pose.tolist()
             row["holds"] = bool(true_holds(points, pose[None], k)[0])
             row["held_predicted"] = result.best.held
+            row["verify_ms"] = result.timings_ms.get("verify", 0.0)
             t, e = judge.measure(pose[None])
             row["teacher"], row["evaluator"] = float(t[0]), float(e[0])
             row["normalized_teacher"] = _norm(row["teacher"], oracle["mean_teacher"], oracle["best_teacher"])
             row["normalized_evaluator"] = _norm(row["evaluator"], oracle["mean_evaluator"], oracle["best_evaluator"])
             row["subject_box_m"] = framing.keep[0].to_json()
+            row.update(_stage1_pool(result, judge, points, k, oracle))
             rows.append(row)
             log.info("%s", {k2: v for k2, v in row.items() if k2 != "subject_box_m"})
     if figure:
         write_figure(figure, rows, sources, cfg)
     return {"config": dataclasses.asdict(cfg), "rows": rows, "summary": summarize(rows)}
+
+
+#: how many of stage 1's best candidates (by the field) the loss breakdown scores on ground truth
+POOL_TOP = 16
+
+
+def _stage1_pool(result, judge: Judge, points: np.ndarray, intrinsics, oracle: dict) -> dict[str, Any]:
+    """Where the framed suggestion loses: the field's ``POOL_TOP`` best stage-1 candidates that hold
+    the subject by the true geometry, scored by the teacher on ground-truth renders. ``pool_best``:
+    the best of them (normalised like the suggestion), ``pool_pick``: the field's first of them,
+    ``pool_rank_corr``: Spearman correlation of the field's and the teacher's scores over them."""
+    poses = np.asarray(result.candidates_cam2world)  # [C, 4, 4]
+    field = np.asarray(result.candidates_score, float)  # [C]
+    ok = np.flatnonzero(true_holds(points, poses, intrinsics) & np.isfinite(field))
+    top = ok[np.argsort(-field[ok], kind="stable")][:POOL_TOP]
+    if len(top) < 2:
+        return {}
+    t, _ = judge.measure(poses[top])
+    t = np.asarray(t, float)  # [N], in the field's order
+    rank_f = np.argsort(np.argsort(-field[top]))
+    rank_t = np.argsort(np.argsort(-t))
+    corr = float(np.corrcoef(rank_f, rank_t)[0, 1]) if np.std(rank_t) > 0 else 0.0
+    mean, best = oracle["mean_teacher"], oracle["best_teacher"]
+    return {"pool_n": len(top), "pool_best": _norm(float(t.max()), mean, best),
+            "pool_pick": _norm(float(t[0]), mean, best), "pool_rank_corr": corr}  # fmt: skip
 
 
 def summarize(rows: list[dict]) -> dict[str, Any]:
@@ -358,6 +391,11 @@ def summarize(rows: list[dict]) -> dict[str, Any]:
         out[f"{name}_min"] = float(vals.min())
         out[f"{name}_at_least_0.85"] = float(np.mean(vals >= 0.85))
     out["latency_ms_median"] = float(np.median([r["latency_ms"] for r in done]))
+    out["verify_ms_median"] = float(np.median([r.get("verify_ms", 0.0) for r in done]))
+    for name in ("pool_best", "pool_pick", "pool_rank_corr"):  # the loss breakdown (_stage1_pool)
+        vals = [r[name] for r in done if name in r]
+        if vals:
+            out[f"{name}_median"] = float(np.median(vals))
     return out
 
 

@@ -674,6 +674,11 @@ class AestheticField(Scorer):
         return self._gaussians
 
     @property
+    def inputs(self) -> FieldInputs | None:
+        """The reconstruction and input views behind the current map (None before any frame)."""
+        return self._inputs
+
+    @property
     def local_frame(self) -> LocalFrame | None:
         return None if self._inputs is None else self._inputs.local_frame
 

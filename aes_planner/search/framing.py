@@ -68,6 +68,7 @@ __all__ = [
     "frame_index",
     "lift_region",
     "render_depth",
+    "verified_scores",
     "world_gaussians",
 ]
 
@@ -143,6 +144,11 @@ class FramingConfig:
     no reachable view holds the subject. ``explore_samples``: random views (and the same turned to
     the subject) checked every search; at most ``explore_keep`` of those that hold the subject join
     stage 1's candidates, so the whole feasible set competes, not only the trajectory's part.
+    ``verify_top``: the refined suggestions and this many distinct best stage-1 candidates (all
+    holding the subject) are verified: RGB of the reconstruction rendered at ``verify_width_px``
+    and scored by the teacher; they are ranked by ``verify_weight`` times that score plus
+    ``1 - verify_weight`` times the field's (0, the default: no verification; on the dev scenes
+    the teacher on those renders ranked the views that hold a subject no better than the field).
     ``refine``: run stage 2 (gradient ascent, kept feasible by backtracking) on the feasible
     stage-1 picks. Off by default: with a kept subject the feasible set is small and stage 2
     climbs the field's errors away from the pick (on dev and held-out scenes the framed
@@ -161,6 +167,9 @@ class FramingConfig:
     backtrack_steps: int = 6
     explore_samples: int = 512
     explore_keep: int = 64
+    verify_top: int = 0
+    verify_weight: float = 1.0
+    verify_width_px: int = 96
     refine: bool = False
 
     def __post_init__(self):
@@ -176,7 +185,17 @@ class FramingConfig:
             v = getattr(self, name)
             require(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0, name, f"must be >= 0, got {v!r}")
         require(isinstance(self.refine, bool), "refine", f"must be true or false, got {self.refine!r}")
-        for name in ("explore_samples", "explore_keep"):
+        require(
+            isinstance(self.verify_weight, (int, float)) and 0.0 <= self.verify_weight <= 1.0,
+            "verify_weight",
+            f"must be in [0, 1], got {self.verify_weight!r}",
+        )
+        require(
+            isinstance(self.verify_width_px, int) and 16 <= self.verify_width_px <= 1024,
+            "verify_width_px",
+            f"must be an integer in [16, 1024] px, got {self.verify_width_px!r}",
+        )
+        for name in ("explore_samples", "explore_keep", "verify_top"):
             v = getattr(self, name)
             require(isinstance(v, int) and 0 <= v <= 100_000, name, f"must be an integer in [0, 100000], got {v!r}")
         for name in ("depth_bin", "depth_cap"):
@@ -357,6 +376,48 @@ def render_depth(scorer: Scorer, cam2world: np.ndarray, intrinsics: Intrinsics) 
         out = rasterize(bare, w2c, torch.from_numpy(intrinsics.K), intrinsics.width, intrinsics.height, validate=False)
     depth = out.depth[0].double().numpy()
     return np.where(out.alpha[0].numpy() >= 0.5, depth, 0.0)
+
+
+def _colour_reconstruction(scorer: Scorer):
+    """The reconstruction's Gaussians with their RGB colours and its local frame (the field's own
+    Gaussians carry features, not colours), or ``(None, None)``."""
+    inner = getattr(scorer, "inner", scorer)
+    inputs = getattr(inner, "inputs", None)
+    if inputs is not None and getattr(inputs, "splats", None) is not None:
+        return inputs.splats.to_gaussians(), inputs.local_frame
+    rec = getattr(inner, "reconstruction", None)
+    if rec is not None:
+        return rec.gaussians, rec.local_frame
+    return None, None
+
+
+def verified_scores(
+    scorer: Scorer, cam2world: Tensor, intrinsics: Intrinsics, width_px: int, batch: int = 16
+) -> Tensor | None:
+    """The teacher's scores ``[B]`` of RGB rendered from the reconstruction behind ``scorer`` at
+    poses ``[B, 4, 4]`` (``intrinsics``' field of view, ``width_px`` wide), or None when the scorer
+    has no coloured reconstruction or no teacher. The field tracks the teacher only roughly
+    among views that all hold a subject; a render of what the inputs saw, scored by the teacher
+    itself, might separate them better (an option: on the dev scenes it did not)."""
+    from aes_planner.field.common import local_world2cam, render_intrinsics
+    from aes_planner.gaussians import Gaussians, rasterize
+
+    g, local = _colour_reconstruction(scorer)
+    teacher = getattr(scorer, "teacher", None)
+    if g is None or len(g) == 0 or teacher is None or len(cam2world) == 0:
+        return None
+    bare = Gaussians(g.means.detach(), g.quats.detach(), g.log_scales.detach(), g.opacities.detach(),
+                     g.colors.detach().float())  # fmt: skip
+    k = render_intrinsics(intrinsics, width_px)
+    K = torch.from_numpy(k.K)  # [3, 3]
+    background = torch.tensor(getattr(getattr(scorer, "config", None), "background", (0.0, 0.0, 0.0)))
+    out = []
+    with torch.no_grad():
+        for i in range(0, len(cam2world), batch):
+            w2c = local_world2cam(cam2world[i : i + batch].detach().to(torch.float64), local)
+            rgb = rasterize(bare, w2c, K, k.width, k.height, background=background.float(), validate=False).rgb
+            out.append(teacher.explain_map(teacher.features(rgb.clamp(0.0, 1.0)))["score"].double())
+    return torch.cat(out)  # [B]
 
 
 def project_corners(corners: Tensor, cam2world: Tensor, intrinsics: Intrinsics) -> tuple[Tensor, Tensor, Tensor]:

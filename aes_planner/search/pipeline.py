@@ -370,10 +370,14 @@ def _search_views(
     for i in distinct.tolist():
         sug = _suggestion(space, final_params[i], final_poses[i], out2, i, float(obj2[i]))
         sug.stage1_score = float(out1.score[keep[i % len(keep)]])
-        if framing is not None:  # the aesthetic score, and how much of the subject the view holds
-            sug.score = sug.terms.get("aesthetic", sug.score)
-            sug.held = float(framing.held(final_poses[i : i + 1])[0])
         suggestions.append(sug)
+    t_verify = time.perf_counter()
+    if framing is not None:
+        suggestions = _verify_suggestions(scorer, framing, space, suggestions, final_params[distinct], candidates,
+                                         out1, obj1, cfg, avoid_params)  # fmt: skip
+        for sug in suggestions:  # the aesthetic score, and how much of the subject the view holds
+            sug.score = sug.terms.get("aesthetic", sug.score)
+            sug.held = float(framing.held(torch.as_tensor(sug.cam2world)[None])[0])
     t_final = time.perf_counter()
     # with kept subjects every candidate must hold them: no exploratory candidate then
     covered_fraction, explore, explored = _explore(scorer, space, cfg, rng) if framing is None else (None, None, 0)
@@ -382,7 +386,8 @@ def _search_views(
         "sample": (t_sampled - t_start) * 1e3,
         "stage1_score": (t_stage1 - t_sampled) * 1e3,
         "stage2": (t_stage2 - t_stage1) * 1e3,
-        "final": (t_final - t_stage2) * 1e3,
+        "final": (t_verify - t_stage2) * 1e3,
+        "verify": (t_final - t_verify) * 1e3,
         "explore": (t_end - t_final) * 1e3,
         "total": (t_end - t_start) * 1e3,
     }
@@ -401,6 +406,41 @@ def _search_views(
         covered_fraction=covered_fraction,
         explore=explore,
     )
+
+
+def _verify_suggestions(scorer, framing,  space, suggestions: list, params: Tensor, candidates: Tensor,
+                       out1: ScoreOutput, obj1: Tensor, cfg, avoid: Tensor | None = None) -> list:  # fmt: skip
+    """The refined ``suggestions`` (their parameters ``params [S, D]``) and the
+    ``framing.cfg.verify_top`` best distinct stage-1 ``candidates [C, D]`` (objective ``obj1``,
+    scores ``out1``) that cover what the inputs saw and are not near ``avoid [A, D]``, re-ranked by :func:`~aes_planner.search.framing.verified_scores` (see
+    :class:`~aes_planner.search.framing.FramingConfig`); as many suggestions as came in, best first, each with its verified
+    teacher score in ``terms["verified"]``."""
+    from aes_planner.search.framing import verified_scores
+
+    fc = framing.cfg
+    if fc.verify_top <= 0 or not suggestions:
+        return suggestions
+    covered = torch.nonzero(out1.coverage.double() >= cfg.coverage_min).flatten()
+    extra = covered[_select_distinct(space, candidates[covered], obj1[covered], fc.verify_top, avoid)]
+    poses = space.to_poses(candidates[extra]).detach()
+    pool = list(suggestions) + [
+        _suggestion(space, candidates[i], poses[j], out1, int(i), float(obj1[i])) for j, i in enumerate(extra.tolist())
+    ]
+    for j, i in enumerate(extra.tolist()):
+        pool[len(suggestions) + j].stage1_score = float(out1.score[i])
+    pool_params = torch.cat([params, candidates[extra]])  # [P, D]
+    pool_poses = torch.as_tensor(np.stack([s.cam2world for s in pool]))  # [P, 4, 4]
+    teacher = verified_scores(scorer, pool_poses, framing.intrinsics, fc.verify_width_px)
+    if teacher is None:
+        return suggestions
+    field = torch.tensor([s.objective for s in pool], dtype=torch.float64)
+    ranked = fc.verify_weight * (teacher + framing.soft_terms(pool_poses)) + (1.0 - fc.verify_weight) * field
+    for s, t in zip(pool, teacher.tolist()):
+        s.terms["verified"] = t
+    order = _select_distinct(space, pool_params, ranked, len(suggestions), None)
+    log.info("framing: %d views verified; the best is %s", len(pool),
+             "a refined one" if int(order[0]) < len(suggestions) else "a stage-1 candidate")  # fmt: skip
+    return [pool[i] for i in order.tolist()]
 
 
 def _explore(scorer: Scorer, space: SearchSpace, cfg: SearchConfig, rng: np.random.Generator):

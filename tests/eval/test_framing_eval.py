@@ -41,3 +41,7 @@ def test_one_case_holds_its_subject_and_is_measured_against_the_constrained_orac
     assert row["best_teacher"] >= row["mean_teacher"] and np.isfinite(row["teacher"])
     s = doc["summary"]
     assert s["hold_rate"] == 1.0 and np.isfinite(s["normalized_teacher_median"])
+    # the loss breakdown: the field's best stage-1 candidates that hold the subject, on ground truth
+    assert 2 <= row["pool_n"] <= 16
+    assert row["pool_best"] >= row["pool_pick"] and -1.0 <= row["pool_rank_corr"] <= 1.0
+    assert s["pool_best_median"] == row["pool_best"]

@@ -10,6 +10,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from aes_planner.errors import AesPlannerError
 from aes_planner.geometry import Intrinsics
 from aes_planner.geometry.poses import look_at
 from aes_planner.messages import PlannerRequest
@@ -182,3 +183,126 @@ def test_bad_requests_are_refused(kw, words):
         PlannerRequest("suggest", set_framing=True, **kw)
     with pytest.raises(Exception, match="zero size"):
         FramingRegion("a.png", 3, 3, 3, 9)
+
+
+# ---------------------------------------------------------------- verification
+class CentreRedTeacher:
+    """A teacher that likes red at the image centre: score = red mass weighted by a centre bump."""
+
+    name = "centre_red"
+
+    def features(self, rgb):  # [B, 3, H, W] -> the same
+        return rgb
+
+    def explain_map(self, rgb):  # -> {"score": [B]}
+        h, w = rgb.shape[-2:]
+        yy, xx = torch.meshgrid(torch.linspace(-1, 1, h), torch.linspace(-1, 1, w), indexing="ij")
+        bump = torch.exp(-(xx**2 + yy**2) / 0.1)
+        red = (rgb[:, 0] - 0.5 * (rgb[:, 1] + rgb[:, 2])).clamp_min(0)
+        return {"score": (red * bump).sum((1, 2)) / bump.sum()}
+
+
+class ColouredAim(AimScorer):
+    """AimScorer (wants the view straight ahead) beside a reconstruction of one red blob: what the
+    verification renders and scores with its teacher."""
+
+    def __init__(self, blob_m, target_dir):
+        from types import SimpleNamespace
+
+        from aes_planner.gaussians import Gaussians
+
+        super().__init__(target_dir)
+        n = 64
+        rng = np.random.default_rng(0)
+        means = torch.as_tensor(np.asarray(blob_m) + rng.normal(0, 0.05, (n, 3)), dtype=torch.float32)
+        g = Gaussians(means, torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1), torch.full((n, 3), math.log(0.06)),
+                      torch.full((n,), 0.9), torch.tensor([[1.0, 0.0, 0.0]]).repeat(n, 1))  # fmt: skip
+        self.reconstruction = SimpleNamespace(gaussians=g, local_frame=None)
+        self.teacher = CentreRedTeacher()
+
+
+def test_verification_ranks_by_the_teacher_on_rendered_rgb():
+    """The field (AimScorer) wants the optical axis along +x, so among the views holding the subject
+    it prefers those with the subject at the frame's edge; the teacher on the reconstruction's
+    render wants the (red) subject at the centre: with verification the suggestion is the
+    teacher's choice, still holding the subject, and carries its verified score."""
+    platform = rig_platform(pan_limits_deg=(-120.0, 120.0), tilt_limits_deg=(-40.0, 40.0))
+    subject = subject_at((3.0, 2.0, 1.3), (0.15, 0.15, 0.15))
+    scorer = ColouredAim(subject.centre_m, [1.0, 0.0, 0.0])
+    cfg = SearchConfig.preset("fast", top_k=2, steps=10, lr=0.05)
+
+    def off_centre(result):  # normalised distance of the subject's centre from the image centre
+        from aes_planner.search.framing import project_corners
+
+        c = torch.as_tensor(subject.centre_m)[None, None]
+        u, v, _ = project_corners(c, torch.as_tensor(result.best.cam2world[None]), platform.intrinsics)
+        return math.hypot(float(u) - 0.5, float(v) - 0.5)
+
+    runs = {}
+    for top in (0, 16):
+        framing = Framing([subject], [], platform.intrinsics, FramingConfig(verify_top=top, verify_width_px=32))
+        runs[top] = search_views(scorer, rig_inputs(platform), platform, cfg, framing=framing)
+        assert all(s.held == pytest.approx(1.0) for s in runs[top].suggestions)
+        assert len(runs[top].suggestions) >= 1
+    assert "verified" not in runs[0].best.terms
+    assert runs[16].best.terms["verified"] > 0
+    assert off_centre(runs[16]) < off_centre(runs[0]) - 0.05
+    assert runs[16].timings_ms["verify"] > 0
+
+
+def test_verification_config_is_checked():
+    with pytest.raises(AesPlannerError, match="verify_weight"):
+        FramingConfig(verify_weight=1.5)
+    with pytest.raises(AesPlannerError, match="verify_width_px"):
+        FramingConfig(verify_width_px=4)
+
+
+# ---------------------------------------------------------------- stage 2 under a kept subject
+def test_with_a_kept_subject_the_suggestions_are_unmoved_stage1_picks_unless_refine():
+    """Stage 2 is off under a kept subject by default (FramingConfig.refine): every suggestion is
+    a stage-1 candidate, unmoved, with its stage-1 score; with refine on, stage 2 moves the best
+    view off the candidates and raises the field's score."""
+    platform = rig_platform(pan_limits_deg=(-120.0, 120.0), tilt_limits_deg=(-40.0, 40.0))
+    subject = subject_at((3.0, 3.0, 1.3), (0.1, 0.1, 0.1))
+    scorer = AimScorer([1.0, 0.0, 0.0])
+    cfg = SearchConfig.preset("fast", top_k=2, steps=15, lr=0.05)
+    runs = {}
+    for refine in (False, True):
+        framing = Framing([subject], [], platform.intrinsics, FramingConfig(refine=refine))
+        runs[refine] = search_views(scorer, rig_inputs(platform), platform, cfg, framing=framing)
+        assert all(s.held == pytest.approx(1.0) for s in runs[refine].suggestions)
+
+    def in_stage1(s):
+        return float(np.abs(runs[False].candidates_cam2world - s.cam2world[None]).max(axis=(1, 2)).min()) < 1e-9
+
+    assert all(in_stage1(s) for s in runs[False].suggestions)
+    assert all(s.objective == pytest.approx(s.stage1_score, abs=1e-6) for s in runs[False].suggestions)
+    assert not in_stage1(runs[True].best)
+    assert runs[True].best.objective > runs[False].best.objective
+
+
+@pytest.mark.parametrize("lr", [0.02, 0.3, 1.0])
+def test_stage_2_never_returns_a_feasible_view_the_field_scores_below_its_start(lr):
+    """Stage 2 under a kept subject (``FramingConfig(refine=True)``), with steps small and large
+    enough to overshoot: every returned view still holds the subject, and the field (the wrapped
+    objective, scored afresh) never rates it below the stage-1 view it started from."""
+    from aes_planner.search.pipeline import _objective, refine_params
+    from aes_planner.search.space import space_for
+
+    platform = rig_platform(pan_limits_deg=(-120.0, 120.0), tilt_limits_deg=(-40.0, 40.0))
+    framing = Framing(
+        [subject_at((3.0, 3.0, 1.3), (0.1, 0.1, 0.1))], [], platform.intrinsics, FramingConfig(refine=True)
+    )
+    cfg = SearchConfig.preset("fast", steps=20, lr=lr)
+    space = space_for(platform, cfg)
+    scorer = framing.wrap(AimScorer([1.0, 0.0, 0.0]))
+    cands = space.random(4096, np.random.default_rng(0))  # [C, D]
+    start = cands[framing.feasible(space.to_poses(cands))][:8]  # [K, D], all holding the subject
+    assert len(start) >= 4
+    start_obj = _objective(scorer.score_batched(space.to_poses(start), 64), cfg).double()
+    _, best, best_obj = refine_params(scorer, space, start, start_obj, cfg, framing)
+    assert bool(framing.feasible(space.to_poses(best)).all())
+    rescored = _objective(scorer.score_batched(space.to_poses(best).detach(), 64), cfg).double()
+    assert torch.all(rescored >= start_obj - 1e-9)
+    assert torch.all(best_obj >= start_obj)
+    assert bool((rescored > start_obj + 1e-6).any())  # it climbed somewhere: the check is not vacuous

@@ -1,0 +1,84 @@
+"""Where a framed suggestion loses against the constrained oracle (docs/results/framing_loss_dev.md).
+
+The cases are those of ``aes-planner eval framing``. For each case the script gives the teacher
+score of the stage-1 pick (stage 2 off, the default) and of the search with stage 2 on
+(``FramingConfig.refine``). It also takes the whole feasible stage-1 pool, scores it on
+ground-truth renders, and gives the pool's best view and its rank in the field's ordering. Every
+score is normalised to the constrained oracle.
+
+    .venv/bin/python scripts/framing_loss_check.py tabletop:3,indoor:4,outdoor:5,gallery:6 0,1
+    # one JSON line per case, prefixed ROW
+"""
+
+import dataclasses
+import json
+import sys
+
+import numpy as np
+
+from aes_planner.eval.framing import FramingEvalConfig, constrained_oracle, object_points, pick_subject
+from aes_planner.eval.search import Judge, _inputs, _mode_platform, _source
+from aes_planner.search import SearchConfig, build_search_scorer, search_views
+from aes_planner.search.framing import FramingError, build_framing
+from aes_planner.search.space import space_for
+from aes_planner.teachers import get_teacher
+from aes_planner.teachers.evaluator import CompositionEvaluator
+
+
+def spearman(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.corrcoef(np.argsort(np.argsort(a)), np.argsort(np.argsort(b)))[0, 1])
+
+
+def main(scenes: list[str], seeds: list[int]) -> None:
+    cfg = FramingEvalConfig(scenes=scenes, seeds=seeds)
+    teacher, evaluator = get_teacher(), CompositionEvaluator()
+    for spec in scenes:
+        source = _source(spec, cfg)
+        platform = _mode_platform(source, cfg.mode, cfg.free_box_m)
+        inputs = _inputs(source, platform, cfg.views)
+        frames = [source.capture(p) for p in inputs]
+        k, judge = platform.intrinsics, Judge(source, teacher, evaluator)
+        scfg = SearchConfig.preset(cfg.preset, mode=platform.kind)
+        space, scorer = space_for(platform, scfg), None
+        named = {f"view{i}": (f.cam2world, f.intrinsics, (f.intrinsics.width, f.intrinsics.height))
+                 for i, f in enumerate(frames)}  # fmt: skip
+        for seed in seeds:
+            picked = pick_subject(source.scene, inputs, frames[0].intrinsics, seed, cfg)
+            oracle = (
+                None
+                if picked is None
+                else constrained_oracle(space, judge, object_points(source.scene.objects[picked[0]]), k, cfg)
+            )
+            if oracle is None:
+                continue
+            scorer = scorer or build_search_scorer("field", frames, scfg)
+            runs = {}
+            try:
+                for refine in (False, True):
+                    fc = dataclasses.replace(cfg.framing(), refine=refine)
+                    runs[refine] = search_views(
+                        scorer, inputs, platform, scfg, framing=build_framing(scorer, named, [picked[2]], [], k, fc)
+                    )
+            except FramingError:
+                continue
+
+            mean, span = oracle["mean_teacher"], oracle["best_teacher"] - oracle["mean_teacher"]
+            norm = lambda t, m=mean, d=span: (np.asarray(t, float) - m) / d  # noqa: E731
+
+            pool = runs[False].candidates_cam2world
+            field = np.nan_to_num(runs[False].candidates_score, nan=-np.inf)
+            t_pool = norm(judge.measure(pool)[0])
+            t_pick = norm(judge.measure(runs[False].best.cam2world[None])[0])[0]
+            t_s2 = norm(judge.measure(runs[True].best.cam2world[None])[0])[0]
+            best = int(np.argmax(t_pool))
+            row = {"scene": spec, "seed": seed, "pool": len(pool), "pool_best": float(t_pool[best]),
+                   "pool_best_field_rank": int((field > field[best]).sum()),
+                   "field_top5_best": float(t_pool[np.argsort(-field)[:5]].max()),
+                   "stage1_pick": float(t_pick), "after_stage2": float(t_s2),
+                   "stage2_field_gain": runs[True].best.objective - runs[False].best.objective,
+                   "field_teacher_spearman": spearman(field, t_pool)}  # fmt: skip
+            print("ROW", json.dumps(row), flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1].split(","), [int(s) for s in sys.argv[2].split(",")])
