@@ -177,7 +177,7 @@ class ActiveLoop:
         covered = proposal.covered_fraction
         if cd is None or covered is None or covered >= c.explore_below_covered or self.explored >= c.explore_moves:
             return None
-        if not self._safe_candidate(cd) or near_captured(self.captures, cd.cam2world, c.min_move_deg, c.min_move_m):
+        if near_captured(self.captures, cd.cam2world, c.min_move_deg, c.min_move_m):  # checked in _propose
             return None
         self.explored += 1
         log.info(

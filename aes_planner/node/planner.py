@@ -355,21 +355,20 @@ class PlannerNode(ActiveLoop, Node):
             self.counters["framing_failed"] += 1
             raise
         self.latencies_s.append(job.wall_s)
+        if proposal.explore is not None and not self._safe_candidate(proposal.explore):
+            proposal.explore = None  # checked once, as the candidates are: refused (counted), never sent
         return proposal
 
     # ---------------------------------------------------------------------------- messages
     def _suggestion(
         self, candidates: list[Candidate], version: int, now: float, kind="search", proposal=None
     ) -> ViewSuggestion:
-        """``proposal``: the search's :class:`~aes_planner.node.proposer.Proposal`, whose coverage
-        and exploratory candidate (checked as the candidates are) the message carries too."""
+        """``proposal``: the search's :class:`~aes_planner.node.proposer.Proposal` (from
+        :meth:`_propose`, its exploratory candidate checked), whose coverage and exploratory
+        candidate the message carries too."""
         mode = self.motion.suggestion_mode
-        covered, explore = None, None
-        if proposal is not None:
-            covered = proposal.covered_fraction
-            explore = (
-                proposal.explore if proposal.explore is not None and self._safe_candidate(proposal.explore) else None
-            )
+        covered = None if proposal is None else proposal.covered_fraction
+        explore = None if proposal is None else proposal.explore
         msg = ViewSuggestion(
             now, list(candidates), int(version), self._next("sugg"), "world", mode, kind, covered, explore
         )
