@@ -300,7 +300,7 @@ def _search_views(
     avoid_poses = None if avoid is None else _check_inputs(avoid, "avoid", allow_empty=True)
     avoid_params = space.from_poses(avoid_poses) if avoid_poses is not None and len(avoid_poses) else None
     framing = framing if framing is not None and framing.active else None
-    framing_warnings: list[str] = []
+    warnings: list[str] = []
     if framing is not None and not framing.cfg.refine:  # stage 1's feasible pick stands (FramingConfig.refine)
         cfg = dataclasses.replace(cfg, steps=0)
     if framing is not None:
@@ -318,7 +318,7 @@ def _search_views(
         asked = framing.cfg.margin_frac
         candidates, framing = feasible_candidates(framing, space, candidates, trajectory, cfg, rng)
         if framing.cfg.margin_frac < asked:
-            framing_warnings.append(
+            warnings.append(
                 f"no reachable view holds the kept subject with the {100 * asked:g}% margin asked; "
                 f"the suggestions hold it whole with a {100 * framing.cfg.margin_frac:g}% margin"
             )
@@ -348,7 +348,6 @@ def _search_views(
     else:
         pick = torch.arange(len(final_params))
     order = pick[torch.argsort(obj2[pick], descending=True)]
-    warnings = list(framing_warnings)
     covered = order[out2.coverage[order].double() >= cfg.coverage_min]
     dropped = len(order) - len(covered) if len(covered) else 0
     if not len(covered):
@@ -408,7 +407,7 @@ def _search_views(
     )
 
 
-def _verify_suggestions(scorer, framing,  space, suggestions: list, params: Tensor, candidates: Tensor,
+def _verify_suggestions(scorer, framing, space, suggestions: list, params: Tensor, candidates: Tensor,
                        out1: ScoreOutput, obj1: Tensor, cfg, avoid: Tensor | None = None) -> list:  # fmt: skip
     """The refined ``suggestions`` (their parameters ``params [S, D]``) and the
     ``framing.cfg.verify_top`` best distinct stage-1 ``candidates [C, D]`` (objective ``obj1``,
@@ -423,11 +422,10 @@ def _verify_suggestions(scorer, framing,  space, suggestions: list, params: Tens
     covered = torch.nonzero(out1.coverage.double() >= cfg.coverage_min).flatten()
     extra = covered[_select_distinct(space, candidates[covered], obj1[covered], fc.verify_top, avoid)]
     poses = space.to_poses(candidates[extra]).detach()
-    pool = list(suggestions) + [
-        _suggestion(space, candidates[i], poses[j], out1, int(i), float(obj1[i])) for j, i in enumerate(extra.tolist())
-    ]
+    pool = list(suggestions)
     for j, i in enumerate(extra.tolist()):
-        pool[len(suggestions) + j].stage1_score = float(out1.score[i])
+        pool.append(_suggestion(space, candidates[i], poses[j], out1, i, float(obj1[i])))
+        pool[-1].stage1_score = float(out1.score[i])
     pool_params = torch.cat([params, candidates[extra]])  # [P, D]
     pool_poses = torch.as_tensor(np.stack([s.cam2world for s in pool]))  # [P, 4, 4]
     teacher = verified_scores(scorer, pool_poses, framing.intrinsics, fc.verify_width_px)
