@@ -102,3 +102,22 @@ class SimRig:
             self.commands.append(cmd)
             if not self.faults:
                 self.pan, self.tilt = cmd.pan_rad, cmd.tilt_rad
+
+
+def passive_sim_planner(scene: str = "tabletop:1"):
+    """A passive planner on a sim scene's rig with a real search (RGB scoring, ``fast``), frames
+    64 x 48: ``(source, node, kinematics)``."""
+    from aes_planner.node.planner import PlannerConfig, PlannerNode
+    from aes_planner.node.proposer import FieldProposer
+    from aes_planner.platform import RigPlatformConfig
+    from aes_planner.sim import SimSource
+    from aes_planner.sim.camera import SimCameraConfig
+
+    source = SimSource(scene, supersample=1, camera=SimCameraConfig(width=64, height=48, supersample=1))
+    rig = source.scene.rig.pan_tilt
+    node = PlannerNode(
+        PlannerConfig(platform=RigPlatformConfig(rig), active=False, min_suggest_period_s=0.01),
+        proposer=FieldProposer("rgb", "fast"),
+        teacher=FakeTeacher(),
+    )
+    return source, node, PanTilt(rig)

@@ -9,12 +9,10 @@ import numpy as np
 
 from aes_planner.messages import Candidate, ViewSuggestion, decode, encode
 from aes_planner.node.planner import PlannerConfig, PlannerNode
-from aes_planner.node.proposer import FieldProposer, Proposal
+from aes_planner.node.proposer import Proposal
 from aes_planner.platform import RigPlatformConfig
-from aes_planner.sim import SimSource
-from aes_planner.sim.camera import SimCameraConfig
 
-from .nodekit import RIG, FakeTeacher, ScriptedProposer, SimRig, frame_at
+from .nodekit import RIG, FakeTeacher, ScriptedProposer, SimRig, frame_at, passive_sim_planner
 
 
 class ExploringProposer(ScriptedProposer):
@@ -58,16 +56,8 @@ def test_a_field_search_measures_what_its_inputs_cover():
     """A real search (RGB scorer, fast preset) on four frames of one side of a sim scene: the
     share covered is measured, below 1 on a rig that can turn away from them, and the exploratory
     candidate (offered since part of the range is uncovered) lies inside the joint limits."""
-    source = SimSource("tabletop:1", supersample=1, camera=SimCameraConfig(width=64, height=48, supersample=1))
+    source, node, kin = passive_sim_planner("tabletop:1")
     rig = source.scene.rig.pan_tilt
-    node = PlannerNode(
-        PlannerConfig(platform=RigPlatformConfig(rig), active=False, min_suggest_period_s=0.01),
-        proposer=FieldProposer("rgb", "fast"),
-        teacher=FakeTeacher(),
-    )
-    from aes_planner.geometry.pantilt import PanTilt
-
-    kin = PanTilt(rig)
     lo, hi = (math.radians(v) for v in rig.pan_limits_deg)
     pans = np.linspace(lo, lo + 0.2 * (hi - lo), 4)  # one fifth of the pan range seen
     out = {}

@@ -8,26 +8,12 @@ import numpy as np
 from aes_planner.eval.framing import FramingEvalConfig, object_points, pick_subject, true_holds
 from aes_planner.messages import PlannerRequest
 from aes_planner.messages.diagnostics import FramingRegion
-from aes_planner.node.planner import PlannerConfig, PlannerNode
-from aes_planner.node.proposer import FieldProposer
-from aes_planner.platform import RigPlatformConfig
-from aes_planner.sim import SimSource
-from aes_planner.sim.camera import SimCameraConfig
 
-from .nodekit import FakeTeacher
+from .nodekit import passive_sim_planner
 
 
 def test_planner_keeps_the_requested_subject_in_its_suggestions():
-    source = SimSource("tabletop:1", supersample=1, camera=SimCameraConfig(width=64, height=48, supersample=1))
-    rig = source.scene.rig.pan_tilt
-    node = PlannerNode(
-        PlannerConfig(platform=RigPlatformConfig(rig), active=False, min_suggest_period_s=0.01),
-        proposer=FieldProposer("rgb", "fast"),
-        teacher=FakeTeacher(),
-    )
-    from aes_planner.geometry.pantilt import PanTilt
-
-    kin = PanTilt(rig)
+    source, node, kin = passive_sim_planner("tabletop:1")
     sweep = kin.sweep(4)
     poses = kin.forward(sweep[:, 0], sweep[:, 1])
     k = source.platform.intrinsics
