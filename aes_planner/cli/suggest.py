@@ -15,6 +15,7 @@ log = logging.getLogger(__name__)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from aes_planner.photos.refine import RefineConfig
     from aes_planner.platform import HANDHELD, KIND_WORDS
     from aes_planner.search.config import PRESETS
     from aes_planner.search.scorers import SCORERS
@@ -109,6 +110,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=float,
         metavar="LENGTH",
         help="the hand-held search region's margin around the walked path (default: a quarter of the cameras' spread)",
+    )
+    photos.add_argument(
+        "--refine-turn",
+        type=float,
+        default=RefineConfig.max_turn_deg,
+        metavar="DEG",
+        help="suggest first the best view within DEG of turn and tilt of the photo the teacher likes best, scored on "
+        f"the photos warped into it (default {RefineConfig.max_turn_deg:g}; 0: the search's ranking alone)",
+    )
+    photos.add_argument(
+        "--refine-forward",
+        default=",".join(f"{f:g}" for f in RefineConfig.forward_fracs),
+        metavar="FRACS",
+        help="steps towards the subject tried there, as fractions of its distance (default "
+        f"{','.join(f'{f:g}' for f in RefineConfig.forward_fracs)})",
     )
     p.set_defaults(func=run)
 
@@ -251,6 +267,7 @@ def run(args: argparse.Namespace) -> int:
     from aes_planner.images import MAX_WORKING_SIDE_PX
 
     framing_cfg, keep, avoid = _framing_args(args)  # a malformed box fails before the pose step and the search
+    refine_cfg = _refine_args(args)
     args.dataset = _pose_first(args)
     data = load_dataset(args.dataset, load_depth=True, max_side_px=MAX_WORKING_SIDE_PX)
     for (w, h), n in data.downscaled.items():  # say so: the report shows the downscaled views
@@ -276,7 +293,7 @@ def run(args: argparse.Namespace) -> int:
             kind = "rgb"
             scorer = build_search_scorer(kind, data.frames, cfg)
         args.scorer = kind
-        framing = None
+        framing, refined = None, None
         if keep or avoid:
             from aes_planner.search.framing import build_framing, dataset_frames
 
@@ -293,12 +310,21 @@ def run(args: argparse.Namespace) -> int:
 
             images = [f.image for f in data.frames]
             result.suggestions = anchor_on_photos(scorer, data.cam2worlds(), images, result.suggestions)
+            refined = _refine(scorer, data, platform, refine_cfg)
+            if refined is not None:
+                result.suggestions = [refined["pick"], *result.suggestions]
     latency_ms = (time.perf_counter() - t0) * 1e3
     top = args.top or cfg.top_k
     print(f"{len(result.suggestions[:top])} suggestion(s), {result.mode} mode, preset {args.preset}, "
           f"scorer {args.scorer}, {latency_ms:.0f} ms, {job.threads} thread(s)")  # fmt: skip
     print_table(result, top)
     moves = _hand_held_moves(platform, data, result.suggestions[:top])
+    if refined is not None:
+        print(
+            f"#1 refined at the photo the teacher likes best, {refined['photo']} (teacher {refined['photo_score']:.3f}): "
+            f"predicted {refined['pick'].score:.3f} ({refined['pick'].terms['photo_gain']:+.3f}) on the photos warped "
+            f"into it, best of {refined['candidates']} views within {refine_cfg.max_turn_deg:g} deg"
+        )
     if moves:
         unit = data.meta.get("unit", "m")
         if unit != "m":
@@ -336,6 +362,14 @@ def run(args: argparse.Namespace) -> int:
             doc["search_space"] = {"kind": "handheld", "margin": platform.margin_m, "cameras": len(platform.centres)}
             for entry, move in zip(doc["suggestions"], moves):
                 entry["from_photo"] = move.to_json()
+            if refined is not None:
+                doc["suggestions"][0]["refined"] = True
+                doc["refine"] = {
+                    "photo": refined["photo"],
+                    "photo_score": refined["photo_score"],
+                    "candidates": refined["candidates"],
+                    **dataclasses.asdict(refine_cfg),
+                }
         if framing is not None:
             doc["keep"] = [s.to_json() for s in framing.keep]
             doc["avoid"] = [s.to_json() for s in framing.avoid]
@@ -377,6 +411,46 @@ def run(args: argparse.Namespace) -> int:
         )
         print(f"wrote {report}")
     return 0
+
+
+def _refine_args(args):
+    """``--refine-turn``/``--refine-forward`` -> RefineConfig, checked before anything is loaded."""
+    from aes_planner.config import ConfigError
+    from aes_planner.photos.refine import RefineConfig
+    from aes_planner.search import SearchError
+
+    try:
+        fracs = tuple(float(t) for t in str(args.refine_forward).split(","))
+    except ValueError:
+        raise SearchError(
+            f"--refine-forward: {args.refine_forward!r} is not a comma-separated list of fractions (e.g. 0,0.1,0.2)"
+        ) from None
+    try:
+        return RefineConfig(max_turn_deg=args.refine_turn, forward_fracs=fracs)
+    except ConfigError as exc:
+        flag = "--refine-forward" if "forward_fracs" in str(exc) else "--refine-turn"
+        raise SearchError(f"{flag}: {exc}") from None
+
+
+def _refine(scorer, data, platform, cfg) -> dict | None:
+    """The best view near the photo the teacher likes best, when one is predicted better than the
+    photo (:func:`aes_planner.photos.refine.refine_at_best_photo`); None when off or none is."""
+    if not cfg.enabled:
+        return None
+    from aes_planner.photos.refine import refine_at_best_photo
+    from aes_planner.teachers import get_teacher
+
+    teacher = getattr(scorer, "teacher", None) or get_teacher()
+    images = [f.image for f in data.frames]
+    cands, best, photo_score = refine_at_best_photo(
+        teacher, data.cam2worlds(), images, data.frames[0].intrinsics, cfg, platform
+    )
+    if not cands or cands[0].terms["photo_gain"] <= 0:
+        log.info("refinement at the best photo found nothing predicted better than the photo")
+        return None
+    names = data.meta.get("photos")
+    name = names[best] if isinstance(names, list) and len(names) == len(data.frames) else f"input {best + 1}"
+    return {"pick": cands[0], "photo": str(name), "photo_score": photo_score, "candidates": len(cands)}
 
 
 def _hand_held_moves(platform, data, suggestions) -> list:

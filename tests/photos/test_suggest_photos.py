@@ -35,6 +35,10 @@ def test_suggest_on_photos_alone(arc_set, tmp_path, capsys):
     doc = json.loads((tmp_path / "s.json").read_text())
     assert doc["mode"] == "handheld" and doc["posed_folder"] == str(posed)
     assert doc["unit"].startswith("the distance between the cameras of IMG_0000.jpg")
+    # suggestion #1 refined at the photo the teacher likes best, said from that photo
+    assert "#1 refined at the photo the teacher likes best" in text
+    assert doc["suggestions"][0]["refined"] and doc["suggestions"][0]["terms"]["photo_gain"] > 0
+    assert doc["suggestions"][0]["from_photo"]["photo"] == doc["refine"]["photo"]
     data = load_dataset(posed)
     platform = platform_from_meta(data.meta, data.frames[0].intrinsics)
     for i, s in enumerate(doc["suggestions"]):
@@ -49,3 +53,16 @@ def test_suggest_on_photos_alone(arc_set, tmp_path, capsys):
         forward, left = np.array([np.cos(yaw), np.sin(yaw), 0]), np.array([-np.sin(yaw), np.cos(yaw), 0])
         back = photo[:3, 3] + move["forward"] * forward - move["right"] * left + [0, 0, move["up"]]
         np.testing.assert_allclose(back, c2w[:3, 3], atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "flag, value, said",
+    [("--refine-forward", "0,x", "--refine-forward"), ("--refine-forward", "0.9", "--refine-forward"),
+     ("--refine-turn", "-2", "--refine-turn"), ("--refine-turn", "nan", "--refine-turn")],
+)  # fmt: skip
+def test_bad_refinement_is_refused_before_the_pose_step(arc_set, tmp_path, capsys, flag, value, said):
+    images, _ = arc_set
+    code = main(["suggest", str(images), flag, value, "--posed", str(tmp_path / "posed")])
+    err = capsys.readouterr().err
+    assert code == 2 and said in err and err.count("\n") == 1
+    assert not (tmp_path / "posed").exists()  # refused before the pose step ran

@@ -1,0 +1,239 @@
+"""Hand-held suggestions refined at the best photo, scored on the photos themselves.
+
+The teacher scores the real input photos exactly, so the best photo is known; what a photo set
+cannot give is a faithful image of a view far from every photo (the field and renders of a
+ten-photo reconstruction rank a hand-held search's candidates about as well as chance:
+``docs/guides/photos.md``). Close to a photo it can: a turn of the camera on the spot maps the
+photo onto the new view exactly (the homography ``K R K^-1``), and a short step towards the
+subject nearly so (the homography of a plane at the subject's distance). :func:`refine_at_best_photo`
+tries turns of a few degrees and short steps forward from the photo the teacher likes best,
+builds each candidate's image from the photos warped into it (the best photo first, its
+neighbours filling the strip it does not cover), scores those images with the teacher and
+returns the candidates best first. The photo itself, levelled, is one of them, so the pick is
+never predicted worse than the photo.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from aes_planner.config import require, require_finite
+
+if TYPE_CHECKING:
+    from aes_planner.geometry.camera import Intrinsics
+
+# cv2, torch and the pose helpers are imported where used: the CLI reads RefineConfig's defaults
+# when it builds its parser
+
+__all__ = ["RefineConfig", "refine_at_best_photo", "photo_composite", "subject_distance"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class RefineConfig:
+    """How far :func:`refine_at_best_photo` looks from the best photo.
+
+    * ``max_turn_deg``: the largest change of yaw and of pitch tried (0: no refinement at all);
+    * ``turn_step_deg``: the grid's step in yaw and pitch;
+    * ``forward_fracs``: steps towards the subject tried, as fractions of its distance from the
+      photo (0 = stay where the photo was taken);
+    * ``work_width_px``: width of the images the candidates are scored on (the height keeps the
+      photos' aspect; the default teacher judges a 64 x 64 frame);
+    * ``min_photo_cover``: share of a candidate's image the photos must cover (the rest is
+      filled from its surroundings); candidates below it are not tried.
+    """
+
+    max_turn_deg: float = 6.0
+    turn_step_deg: float = 2.0
+    forward_fracs: tuple[float, ...] = (0.0, 0.1, 0.2)
+    work_width_px: int = 160
+    min_photo_cover: float = 0.97
+
+    def __post_init__(self):
+        require_finite([self.max_turn_deg, self.turn_step_deg, self.min_photo_cover], "refine")
+        require(0.0 <= self.max_turn_deg <= 30.0, "max_turn_deg", f"must be in [0, 30] deg, got {self.max_turn_deg!r}")
+        require(
+            0.1 <= self.turn_step_deg <= 30.0, "turn_step_deg", f"must be in [0.1, 30] deg, got {self.turn_step_deg!r}"
+        )
+        fr = tuple(self.forward_fracs)
+        require(
+            len(fr) >= 1 and all(isinstance(f, (int, float)) and math.isfinite(f) and 0.0 <= f <= 0.5 for f in fr),
+            "forward_fracs",
+            f"must be one or more fractions of the subject's distance in [0, 0.5], got {self.forward_fracs!r}",
+        )
+        object.__setattr__(self, "forward_fracs", tuple(float(f) for f in fr))
+        require(
+            isinstance(self.work_width_px, int) and 32 <= self.work_width_px <= 1024,
+            "work_width_px",
+            f"must be an integer in [32, 1024] px, got {self.work_width_px!r}",
+        )
+        require(
+            0.0 < self.min_photo_cover <= 1.0, "min_photo_cover", f"must be in (0, 1], got {self.min_photo_cover!r}"
+        )
+
+    @property
+    def enabled(self) -> bool:
+        return self.max_turn_deg > 0
+
+
+def subject_distance(photos_c2w: np.ndarray, index: int) -> float | None:
+    """Distance along photo ``index``'s view to the point its cameras look at: the least-squares
+    meeting point of all photos' optical axes (``photos_c2w [N, 4, 4]``). None when the axes do
+    not meet in front of the photo (all parallel: a walk past a wall)."""
+    c = photos_c2w[:, :3, 3]  # [N, 3]
+    f = photos_c2w[:, :3, 2]  # [N, 3] forward (OpenCV z)
+    proj = np.eye(3)[None] - f[:, :, None] * f[:, None, :]  # [N, 3, 3] perpendicular to each axis
+    a, b = proj.sum(0), np.einsum("nij,nj->i", proj, c)
+    if np.linalg.cond(a) > 1e6:
+        return None
+    point = np.linalg.solve(a, b)
+    d = float((point - c[index]) @ f[index])
+    spread = float(np.max(np.linalg.norm(c[:, None] - c[None], axis=-1))) if len(c) > 1 else 0.0
+    return d if d > max(spread, 1e-9) * 0.1 else None
+
+
+def _plane_homography(k: np.ndarray, src_c2w: np.ndarray, dst_c2w: np.ndarray, normal_w, offset_w) -> np.ndarray | None:
+    """Pixel homography ``[3, 3]`` from camera ``src`` to camera ``dst`` induced by the world plane
+    ``normal_w . X = offset_w`` (None when the plane is behind ``src``); ``normal_w`` None: the plane
+    at infinity (exact for a turn on the spot)."""
+    r = dst_c2w[:3, :3].T @ src_c2w[:3, :3]  # [3, 3] src camera -> dst camera
+    m = r
+    if normal_w is not None:
+        n = src_c2w[:3, :3].T @ normal_w  # the plane's normal in src camera axes
+        d = float(offset_w - normal_w @ src_c2w[:3, 3])  # its distance from src's centre
+        if d <= 1e-9:
+            return None
+        t = dst_c2w[:3, :3].T @ (src_c2w[:3, 3] - dst_c2w[:3, 3])
+        m = r + np.outer(t, n) / d
+    return k @ m @ np.linalg.inv(k)
+
+
+def photo_composite(
+    images: list[np.ndarray],
+    photos_c2w: np.ndarray,
+    k: np.ndarray,
+    target_c2w: np.ndarray,
+    order: list[int],
+    plane: tuple[np.ndarray, float] | None,
+) -> tuple[np.ndarray, float]:
+    """The image at ``target_c2w [4, 4]`` made of the photos (``images`` [H, W, 3] uint8, all one
+    size, camera matrix ``k`` at that size) warped into it through ``plane`` (``(normal_w,
+    offset_w)``, None: at infinity), in ``order`` (first wins); the part no photo covers is filled
+    from its surroundings. Returns the image [H, W, 3] uint8 and the share the photos covered."""
+    import cv2
+
+    h, w = images[0].shape[:2]
+    out = np.zeros((h, w, 3), np.uint8)
+    have = np.zeros((h, w), np.uint8)
+    ones = np.full((h, w), 255, np.uint8)
+    for j in order:
+        hom = _plane_homography(k, photos_c2w[j], target_c2w, *(plane if plane is not None else (None, 0.0)))
+        if hom is None:
+            continue
+        warped = cv2.warpPerspective(images[j], hom, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        # the valid part shrunk by a pixel: bilinear samples at the border mix in the black outside
+        valid = cv2.erode(cv2.warpPerspective(ones, hom, (w, h), flags=cv2.INTER_NEAREST), np.ones((3, 3), np.uint8))
+        new = (valid > 0) & (have == 0)
+        out[new] = warped[new]
+        have[new] = 255
+        if have.all():
+            break
+    cover = float(np.count_nonzero(have)) / have.size
+    if cover < 1.0:
+        out = cv2.inpaint(out, 255 - have, 3, cv2.INPAINT_TELEA)
+    return out, cover
+
+
+def refine_at_best_photo(
+    teacher,
+    photos_c2w: np.ndarray,
+    images: list[np.ndarray],
+    intrinsics: Intrinsics,
+    cfg: RefineConfig,
+    platform=None,
+) -> tuple[list, int, float]:
+    """Candidates around the photo the teacher likes best, scored on the photos warped into them.
+
+    ``photos_c2w [N, 4, 4]`` world, ``images`` the photos ([H, W, 3] uint8, one size; ``intrinsics``
+    for the size of the posed frames, rescaled to theirs), ``platform`` (optional) keeps the
+    candidates inside the hand-held region and its pitch limits. Returns ``(suggestions best first,
+    the best photo's index, its teacher score)``; each :class:`~aes_planner.search.Suggestion`'s
+    ``score`` is the teacher's on its image, ``terms`` the teacher's terms plus ``photo_gain`` (its
+    score minus the best photo's), ``coverage`` the share of its image the photos cover. Empty when refinement is off or the photos
+    differ in size."""
+    import cv2
+    import torch
+
+    from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
+    from aes_planner.search.pipeline import Suggestion
+
+    if not cfg.enabled or not images or len({im.shape for im in images}) != 1:
+        return [], -1, float("nan")
+    h0, w0 = images[0].shape[:2]
+    ww = cfg.work_width_px
+    wh = max(8, round(ww * h0 / w0))
+    small = [cv2.resize(im, (ww, wh), interpolation=cv2.INTER_AREA) for im in images]  # [wh, ww, 3] each
+    k = intrinsics.K.astype(np.float64).copy()
+    k[0] *= ww / intrinsics.width
+    k[1] *= wh / intrinsics.height
+    photos_c2w = np.asarray(photos_c2w, np.float64)
+
+    def teacher_terms(batch: list[np.ndarray]) -> dict[str, np.ndarray]:
+        x = torch.from_numpy(np.stack(batch)).permute(0, 3, 1, 2).float() / 255.0  # [B, 3, wh, ww]
+        with torch.no_grad():
+            terms = teacher.explain_map(teacher.features(x))
+        return {name: t.double().numpy() for name, t in terms.items()}
+
+    real = teacher_terms(small)["score"]  # [N] the photos as taken
+    best = int(np.argmax(real))
+    base = cam2world_to_view(photos_c2w[best])  # [5] x, y, z, yaw, pitch (the photo levelled: roll dropped)
+    dist = subject_distance(photos_c2w, best)
+    forward = photos_c2w[best, :3, 2]
+    plane = None if dist is None else (forward, float(forward @ photos_c2w[best, :3, 3]) + dist)
+    steps = np.arange(-cfg.max_turn_deg, cfg.max_turn_deg + 1e-9, cfg.turn_step_deg)
+    steps = np.unique(np.round(np.concatenate([steps, [0.0]]), 9))
+    fwd = cfg.forward_fracs if dist is not None else (0.0,)  # no subject distance: turns only
+    lo, hi = platform.pitch_limits_deg if platform is not None and hasattr(platform, "pitch_limits_deg") else (-90, 90)
+    heading = np.array([math.cos(base[3]), math.sin(base[3]), 0.0])  # level forward of the photo
+    views, shots, covers = [], [], []
+    centres = photos_c2w[:, :3, 3]
+    for frac in fwd:
+        xyz = base[:3] + (frac * dist if frac else 0.0) * heading
+        if frac and platform is not None and not bool(platform.contains(xyz)):
+            continue
+        order = [best] + [int(j) for j in np.argsort(np.linalg.norm(centres - xyz, axis=1)) if j != best]
+        for dy in steps:
+            for dp in steps:
+                pitch = float(np.degrees(base[4]) + dp)
+                if not lo <= pitch <= hi:
+                    continue
+                view = np.array([*xyz, base[3] + math.radians(dy), math.radians(pitch)])
+                c2w = view_to_cam2world(view)
+                img, cover = photo_composite(small, photos_c2w, k, c2w, order, plane if frac else None)
+                if cover < cfg.min_photo_cover:
+                    continue
+                views.append(c2w)
+                shots.append(img)
+                covers.append(cover)
+    if not views:
+        return [], best, float(real[best])
+    terms = teacher_terms(shots)
+    score = terms["score"]
+    out = []
+    for i, c2w in enumerate(views):
+        t = {name: float(v[i]) for name, v in terms.items()}
+        t["photo_gain"] = float(score[i] - real[best])
+        v = cam2world_to_view(c2w)
+        out.append(Suggestion(c2w, c2w[:3, 3].copy(), float(v[3]), float(v[4]), float(score[i]), covers[i], t))
+    out.sort(key=lambda s: -s.score)
+    log.info(
+        "refined at photo %d (teacher %.3f): %d candidates, best %.3f (%+.3f)",
+        best, real[best], len(out), out[0].score, out[0].score - real[best],
+    )  # fmt: skip
+    return out, best, float(real[best])

@@ -1,0 +1,102 @@
+"""How well refining at the best photo does (:mod:`aes_planner.photos.refine`), on scenes textured
+with the shipped CC0 photographs (the set-up of ``scripts/photos_suggest_check.py``, in one
+process): every candidate of a wide grid (turns up to ``--turn`` deg, steps forward up to 0.3 of
+the subject's distance) is scored on the photos warped into it and, mapped back into the true
+frame, on the simulator's render; for each radius (largest turn) and forward step, the pick's
+true score against the best input photo's true render, and the estimate's rank correlation.
+
+    .venv/bin/python scripts/photos_refine_check.py SEED [--turn 10]   # one JSON line, prefixed ROW
+"""
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+from pathlib import Path
+
+import cv2  # noqa: F401  (before pycolmap, always)
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from photos_suggest_check import score
+
+from aes_planner.bench.photos import render_photo_set
+from aes_planner.dataset import load_dataset
+from aes_planner.geometry.poses import cam2world_to_view
+from aes_planner.images import MAX_WORKING_SIDE_PX
+from aes_planner.photos import pose_errors, pose_images
+from aes_planner.photos.refine import RefineConfig, refine_at_best_photo, subject_distance
+from aes_planner.platform import HandHeldPlatform
+from aes_planner.sim import load_scene
+from aes_planner.teachers import get_teacher
+
+ap = argparse.ArgumentParser()
+ap.add_argument("seed", type=int)
+ap.add_argument("--turn", type=float, default=10.0)
+args = ap.parse_args()
+out = Path(tempfile.mkdtemp())
+images, truth, scene_file = render_photo_set(out / "set", 10, (640, 480), seed=args.seed)
+pose_images(images, out / "posed")
+data = load_dataset(out / "posed", max_side_px=MAX_WORKING_SIDE_PX)
+idx = [int(n[4:8]) for n in data.meta["photos"]]
+err = pose_errors(data.cam2worlds(), truth[idx])
+
+
+def to_true(c2w):
+    m = np.array(c2w, np.float64)
+    m[:3, 3] = err.scale * err.rotation @ m[:3, 3] + err.translation
+    m[:3, :3] = err.rotation @ m[:3, :3]
+    return m
+
+
+photos = data.cam2worlds()
+k = data.frames[0].intrinsics
+platform = HandHeldPlatform.around_photos(k, photos)
+teacher = get_teacher()
+cfg = RefineConfig(max_turn_deg=args.turn, turn_step_deg=2.0, forward_fracs=(0.0, 0.1, 0.2, 0.3))
+cands, best, real_best = refine_at_best_photo(teacher, photos, [f.image for f in data.frames], k, cfg, platform)
+scene = load_scene(scene_file, allow_outside=True)
+true_in = score(teacher, scene, truth)
+true_c = score(teacher, scene, np.stack([to_true(c.cam2world) for c in cands]))
+base = cam2world_to_view(photos[best])
+dist = subject_distance(photos, best)
+est = np.array([c.score for c in cands])
+rows = []
+for c in cands:
+    v = cam2world_to_view(c.cam2world)
+    step = float(np.linalg.norm(v[:3] - base[:3]))
+    rows.append((math.degrees(v[3] - base[3]), math.degrees(v[4] - base[4]), step / dist if dist else 0.0))
+rows = np.array(rows)  # [C, 3] turn, tilt (deg), forward fraction
+true_best_photo_pose = float(true_in[idx[best]])
+res = {
+    "seed": args.seed,
+    "best_input": round(float(true_in.max()), 3),
+    "best_photo_by_teacher_is_true_best": bool(idx[best] == int(np.argmax(true_in))),
+    "true_at_teacher_best_photo": round(true_best_photo_pose, 3),
+    "teacher_on_photo": round(real_best, 3),
+    "subject_distance": dist,
+    "n": len(cands),
+    "rho_all": round(float(np.corrcoef(np.argsort(np.argsort(est)), np.argsort(np.argsort(true_c)))[0, 1]), 2),
+    "best_cand": round(float(true_c.max()), 3),
+    "by_radius": {},
+}
+for turn in (2, 4, 6, 8, 10):
+    for fmax in (0.0, 0.1, 0.2, 0.3):
+        sel = (np.abs(rows[:, 0]) <= turn + 1e-6) & (np.abs(rows[:, 1]) <= turn + 1e-6) & (rows[:, 2] <= fmax + 1e-6)
+        if not sel.any():
+            continue
+        i = np.flatnonzero(sel)[int(np.argmax(est[sel]))]
+        res["by_radius"][f"t{turn}_f{fmax}"] = {
+            "pick_true": round(float(true_c[i]), 3),
+            "margin": round(float(true_c[i] - true_in.max()), 3),
+            "pick_est": round(float(est[i]), 3),
+            "pick": [round(float(x), 2) for x in rows[i]],
+            "best_true_here": round(float(true_c[sel].max()), 3),
+            "rho": round(
+                float(np.corrcoef(np.argsort(np.argsort(est[sel])), np.argsort(np.argsort(true_c[sel])))[0, 1]), 2
+            ),
+        }
+(out / "cands.json").write_text(json.dumps({"rows": rows.tolist(), "est": est.tolist(), "true": true_c.tolist()}))
+print("ROW", json.dumps(res), flush=True)
+print("cands in", out / "cands.json")

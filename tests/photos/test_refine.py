@@ -1,0 +1,116 @@
+"""Refinement at the best photo: the photos warped into a nearby view stand for it, and the view
+picked there beats the best photo on the scene's true render."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from aes_planner.bench.photos import render_photo_set
+from aes_planner.config import ConfigError
+from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
+from aes_planner.photos.refine import RefineConfig, photo_composite, refine_at_best_photo, subject_distance
+from aes_planner.platform import HandHeldPlatform
+from aes_planner.sim import load_scene, render
+from aes_planner.teachers import get_teacher
+
+
+@pytest.fixture(scope="module")
+def cc0_walk(tmp_path_factory):
+    """Ten 320 x 240 views of a CC0-photo scene on a hand-held arc, as photos (JPEG, read back) with
+    their true poses, and the scene to render any other view."""
+    import cv2
+
+    images_dir, truth, scene_file = render_photo_set(tmp_path_factory.mktemp("walk"), 10, (320, 240), seed=3)
+    images = [cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) for p in sorted(images_dir.glob("*.jpg"))]
+    return images, truth, load_scene(scene_file, allow_outside=True)
+
+
+def _teacher_scores(teacher, images) -> np.ndarray:
+    import torch
+
+    x = torch.from_numpy(np.stack(images)).permute(0, 3, 1, 2).float() / 255.0
+    with torch.no_grad():
+        return teacher.score(x).double().numpy()
+
+
+def test_a_turn_on_the_spot_is_the_photo_warped(cc0_walk):
+    images, truth, scene = cc0_walk
+    k = scene.intrinsics()
+    v = cam2world_to_view(truth[4])
+    turned = view_to_cam2world(v + np.array([0, 0, 0, math.radians(4), math.radians(-3)]))
+    want = render(scene, turned, k).rgb.astype(np.float64)  # [H, W, 3]
+    got, cover = photo_composite([images[4]], truth[4:5], k.K, turned, [0], None)
+    assert 0.8 < cover < 1.0  # the photo covers most of the turned view, not all of it
+    err_warped = np.abs(got.astype(np.float64) - want).mean()
+    err_as_is = np.abs(images[4].astype(np.float64) - want).mean()
+    err_jpeg = np.abs(images[4].astype(np.float64) - render(scene, truth[4], k).rgb).mean()  # the photo at its own pose
+    assert err_warped < 0.45 * err_as_is and err_warped < 2 * err_jpeg, (err_warped, err_as_is, err_jpeg)
+    # with its neighbours the whole view is covered
+    _, cover_all = photo_composite(images, truth, k.K, turned, [4, 3, 5, 2, 6], None)
+    assert cover_all > cover
+
+
+def test_the_pick_beats_the_best_photo_on_the_true_render(cc0_walk):
+    images, truth, scene = cc0_walk
+    k = scene.intrinsics()
+    teacher = get_teacher()
+    platform = HandHeldPlatform.around_photos(k, truth)
+    cands, best, photo_score = refine_at_best_photo(teacher, truth, images, k, RefineConfig(), platform)
+    assert best == int(np.argmax(_teacher_scores(teacher, images)))
+    assert len(cands) > 50 and cands[0].terms["photo_gain"] > 0
+    assert all(bool(platform.contains(c.position_m)) for c in cands)
+    # the photo itself (levelled) is one of the candidates
+    base = cam2world_to_view(truth[best])
+    assert any(np.allclose(cam2world_to_view(c.cam2world), base, atol=1e-9) for c in cands)
+    true = _teacher_scores(teacher, [render(scene, c.cam2world, k).rgb for c in cands[:1]])
+    true_photos = _teacher_scores(teacher, [render(scene, p, k).rgb for p in truth])
+    assert true[0] > true_photos.max() + 0.01, (true[0], true_photos.max())
+
+
+def test_off_or_photos_of_two_sizes_gives_nothing(cc0_walk):
+    images, truth, scene = cc0_walk
+    teacher = get_teacher()
+    assert refine_at_best_photo(teacher, truth, images, scene.intrinsics(), RefineConfig(max_turn_deg=0))[0] == []
+    mixed = [images[0][:200], *images[1:]]
+    assert refine_at_best_photo(teacher, truth, mixed, scene.intrinsics(), RefineConfig())[0] == []
+
+
+def test_subject_distance_meets_the_axes_in_front():
+    from aes_planner.geometry.poses import look_at
+
+    target = np.array([3.0, 0.0, 0.7])
+    poses = np.stack([look_at(np.array([3 - 4 * math.cos(a), 4 * math.sin(a), 1.5]), target) for a in (-0.5, 0, 0.5)])
+    d = subject_distance(poses, 1)
+    assert d == pytest.approx(np.linalg.norm(poses[1, :3, 3] - target), rel=1e-6)
+    parallel = poses.copy()
+    parallel[:, :3, :3] = poses[1, :3, :3]
+    assert subject_distance(parallel, 0) is None  # all axes parallel: no subject to step towards
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [("max_turn_deg", -1.0), ("max_turn_deg", float("nan")), ("turn_step_deg", 0.0), ("forward_fracs", (0.9,)),
+     ("forward_fracs", ()), ("work_width_px", 8), ("min_photo_cover", 0.0)],
+)  # fmt: skip
+def test_config_names_the_bad_field(field, value):
+    with pytest.raises(ConfigError, match=field if field != "max_turn_deg" or value == value else "refine"):
+        RefineConfig(**{field: value})
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    yaw=st.floats(-0.3, 0.3), pitch=st.floats(-0.3, 0.3), fwd=st.floats(-1e6, 1e6, allow_nan=False)
+)  # fmt: skip
+def test_composite_is_finite_for_any_view_near_or_far(yaw, pitch, fwd):
+    rng = np.random.default_rng(0)
+    images = [rng.integers(0, 256, (24, 32, 3), dtype=np.uint8) for _ in range(2)]
+    k = np.array([[30.0, 0, 16], [0, 30.0, 12], [0, 0, 1]])
+    photos = np.stack([view_to_cam2world(np.array([0, y, 1.5, 0, 0.0])) for y in (0.0, 0.5)])
+    target = view_to_cam2world(np.array([fwd, 0, 1.5, yaw, pitch]))
+    img, cover = photo_composite(images, photos, k, target, [0, 1], (np.array([1.0, 0, 0]), 5.0))
+    assert img.shape == (24, 32, 3) and img.dtype == np.uint8 and 0.0 <= cover <= 1.0
