@@ -34,6 +34,7 @@ from aes_planner.teachers import get_teacher
 ap = argparse.ArgumentParser()
 ap.add_argument("seed", type=int)
 ap.add_argument("--turn", type=float, default=10.0)
+ap.add_argument("--around", type=int, default=2, help="refine at this many of the best photos")
 args = ap.parse_args()
 out = Path(tempfile.mkdtemp())
 images, truth, scene_file = render_photo_set(out / "set", 10, (640, 480), seed=args.seed)
@@ -54,20 +55,25 @@ photos = data.cam2worlds()
 k = data.frames[0].intrinsics
 platform = HandHeldPlatform.around_photos(k, photos)
 teacher = get_teacher()
-cfg = RefineConfig(max_turn_deg=args.turn, turn_step_deg=2.0, forward_fracs=(0.0, 0.1, 0.2, 0.3))
-cands, best, real_best = refine_at_best_photo(teacher, photos, [f.image for f in data.frames], k, cfg, platform)
+cfg = RefineConfig(
+    max_turn_deg=args.turn, turn_step_deg=2.0, forward_fracs=(0.0, 0.1, 0.2, 0.3), around_best=args.around
+)
+found = refine_at_best_photo(teacher, photos, [f.image for f in data.frames], k, cfg, platform)
+cands, best, real_best = found.suggestions, found.best_photo, float(found.photo_scores.max())
 scene = load_scene(scene_file, allow_outside=True)
 true_in = score(teacher, scene, truth)
 true_c = score(teacher, scene, np.stack([to_true(c.cam2world) for c in cands]))
-base = cam2world_to_view(photos[best])
-dist = subject_distance(photos, best)
 est = np.array([c.score for c in cands])
 rows = []
-for c in cands:
+for c, b in zip(cands, found.photo_of):
+    base = cam2world_to_view(photos[b])
+    dist = subject_distance(photos, int(b))
     v = cam2world_to_view(c.cam2world)
     step = float(np.linalg.norm(v[:3] - base[:3]))
     rows.append((math.degrees(v[3] - base[3]), math.degrees(v[4] - base[4]), step / dist if dist else 0.0))
 rows = np.array(rows)  # [C, 3] turn, tilt (deg), forward fraction
+at_best = found.photo_of == best
+dist = subject_distance(photos, best)
 true_best_photo_pose = float(true_in[idx[best]])
 res = {
     "seed": args.seed,
@@ -84,6 +90,7 @@ res = {
 for turn in (2, 4, 6, 8, 10):
     for fmax in (0.0, 0.1, 0.2, 0.3):
         sel = (np.abs(rows[:, 0]) <= turn + 1e-6) & (np.abs(rows[:, 1]) <= turn + 1e-6) & (rows[:, 2] <= fmax + 1e-6)
+        sel &= at_best
         if not sel.any():
             continue
         i = np.flatnonzero(sel)[int(np.argmax(est[sel]))]
@@ -97,6 +104,20 @@ for turn in (2, 4, 6, 8, 10):
                 float(np.corrcoef(np.argsort(np.argsort(est[sel])), np.argsort(np.argsort(true_c[sel])))[0, 1]), 2
             ),
         }
-(out / "cands.json").write_text(json.dumps({"rows": rows.tolist(), "est": est.tolist(), "true": true_c.tolist()}))
+(out / "cands.json").write_text(
+    json.dumps(
+        {
+            **{k: res[k] for k in ("seed", "best_input", "teacher_on_photo")},
+            "photo_scores": found.photo_scores.tolist(),
+            "true_inputs": true_in[idx].tolist(),
+            "rows": rows.tolist(),
+            "photo_of": found.photo_of.tolist(),
+            "own_cover": found.own_cover.tolist(),
+            "cover": [c.coverage for c in cands],
+            "est": est.tolist(),
+            "true": true_c.tolist(),
+        }
+    )
+)
 print("ROW", json.dumps(res), flush=True)
-print("cands in", out / "cands.json")
+print("CANDS", out / "cands.json")

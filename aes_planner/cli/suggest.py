@@ -116,8 +116,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=float,
         default=RefineConfig.max_turn_deg,
         metavar="DEG",
-        help="suggest first the best view within DEG of turn and tilt of the photo the teacher likes best, scored on "
+        help="suggest first the best view within DEG of turn and tilt of the photos the teacher likes best, scored on "
         f"the photos warped into it (default {RefineConfig.max_turn_deg:g}; 0: the search's ranking alone)",
+    )
+    photos.add_argument(
+        "--refine-at",
+        type=int,
+        default=RefineConfig.around_best,
+        metavar="N",
+        help=f"refine at the N photos the teacher likes best (default {RefineConfig.around_best})",
     )
     photos.add_argument(
         "--refine-forward",
@@ -321,7 +328,7 @@ def run(args: argparse.Namespace) -> int:
     moves = _hand_held_moves(platform, data, result.suggestions[:top])
     if refined is not None:
         print(
-            f"#1 refined at the photo the teacher likes best, {refined['photo']} (teacher {refined['photo_score']:.3f}): "
+            f"#1 refined at a photo the teacher likes best, {refined['photo']} (teacher {refined['photo_score']:.3f}): "
             f"predicted {refined['pick'].score:.3f} ({refined['pick'].terms['photo_gain']:+.3f}) on the photos warped "
             f"into it, best of {refined['candidates']} views within {refine_cfg.max_turn_deg:g} deg"
         )
@@ -426,9 +433,10 @@ def _refine_args(args):
             f"--refine-forward: {args.refine_forward!r} is not a comma-separated list of fractions (e.g. 0,0.1,0.2)"
         ) from None
     try:
-        return RefineConfig(max_turn_deg=args.refine_turn, forward_fracs=fracs)
+        return RefineConfig(max_turn_deg=args.refine_turn, forward_fracs=fracs, around_best=args.refine_at)
     except ConfigError as exc:
-        flag = "--refine-forward" if "forward_fracs" in str(exc) else "--refine-turn"
+        flags = {"forward_fracs": "--refine-forward", "around_best": "--refine-at"}
+        flag = next((f for key, f in flags.items() if key in str(exc)), "--refine-turn")
         raise SearchError(f"{flag}: {exc}") from None
 
 
@@ -442,15 +450,20 @@ def _refine(scorer, data, platform, cfg) -> dict | None:
 
     teacher = getattr(scorer, "teacher", None) or get_teacher()
     images = [f.image for f in data.frames]
-    cands, best, photo_score = refine_at_best_photo(
-        teacher, data.cam2worlds(), images, data.frames[0].intrinsics, cfg, platform
-    )
-    if not cands or cands[0].terms["photo_gain"] <= 0:
+    found = refine_at_best_photo(teacher, data.cam2worlds(), images, data.frames[0].intrinsics, cfg, platform)
+    if not found.suggestions or found.suggestions[0].terms["photo_gain"] <= 0:
         log.info("refinement at the best photo found nothing predicted better than the photo")
         return None
     names = data.meta.get("photos")
-    name = names[best] if isinstance(names, list) and len(names) == len(data.frames) else f"input {best + 1}"
-    return {"pick": cands[0], "photo": str(name), "photo_score": photo_score, "candidates": len(cands)}
+    if not (isinstance(names, list) and len(names) == len(data.frames)):
+        names = [f"input {i + 1}" for i in range(len(data.frames))]
+    at = int(found.photo_of[0])
+    return {
+        "pick": found.suggestions[0],
+        "photo": str(names[at]),
+        "photo_score": float(found.photo_scores[at]),
+        "candidates": len(found.suggestions),
+    }
 
 
 def _hand_held_moves(platform, data, suggestions) -> list:

@@ -30,7 +30,7 @@ if TYPE_CHECKING:
 # cv2, torch and the pose helpers are imported where used: the CLI reads RefineConfig's defaults
 # when it builds its parser
 
-__all__ = ["RefineConfig", "refine_at_best_photo", "photo_composite", "subject_distance"]
+__all__ = ["RefineConfig", "RefineResult", "refine_at_best_photo", "photo_composite", "subject_distance"]
 
 log = logging.getLogger(__name__)
 
@@ -45,14 +45,16 @@ class RefineConfig:
       photo (0 = stay where the photo was taken);
     * ``work_width_px``: width of the images the candidates are scored on (the height keeps the
       photos' aspect; the default teacher judges a 64 x 64 frame);
+    * ``around_best``: how many of the photos the teacher likes best are refined at;
     * ``min_photo_cover``: share of a candidate's image the photos must cover (the rest is
       filled from its surroundings); candidates below it are not tried.
     """
 
     max_turn_deg: float = 6.0
     turn_step_deg: float = 2.0
-    forward_fracs: tuple[float, ...] = (0.0, 0.1, 0.2)
+    forward_fracs: tuple[float, ...] = (0.0, 0.1, 0.2, 0.3)
     work_width_px: int = 160
+    around_best: int = 2
     min_photo_cover: float = 0.97
 
     def __post_init__(self):
@@ -72,6 +74,11 @@ class RefineConfig:
             isinstance(self.work_width_px, int) and 32 <= self.work_width_px <= 1024,
             "work_width_px",
             f"must be an integer in [32, 1024] px, got {self.work_width_px!r}",
+        )
+        require(
+            isinstance(self.around_best, int) and 1 <= self.around_best <= 100,
+            "around_best",
+            f"must be an integer in [1, 100] photos, got {self.around_best!r}",
         )
         require(
             0.0 < self.min_photo_cover <= 1.0, "min_photo_cover", f"must be in (0, 1], got {self.min_photo_cover!r}"
@@ -125,29 +132,54 @@ def photo_composite(
     """The image at ``target_c2w [4, 4]`` made of the photos (``images`` [H, W, 3] uint8, all one
     size, camera matrix ``k`` at that size) warped into it through ``plane`` (``(normal_w,
     offset_w)``, None: at infinity), in ``order`` (first wins); the part no photo covers is filled
-    from its surroundings. Returns the image [H, W, 3] uint8 and the share the photos covered."""
+    from its surroundings. Returns the image [H, W, 3] uint8, the share the photos covered and the
+    share the first photo in ``order`` covered."""
     import cv2
 
     h, w = images[0].shape[:2]
     out = np.zeros((h, w, 3), np.uint8)
     have = np.zeros((h, w), np.uint8)
+    first = 0.0
     ones = np.full((h, w), 255, np.uint8)
+    kernel = np.ones((3, 3), np.uint8)
     for j in order:
         hom = _plane_homography(k, photos_c2w[j], target_c2w, *(plane if plane is not None else (None, 0.0)))
         if hom is None:
             continue
-        warped = cv2.warpPerspective(images[j], hom, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         # the valid part shrunk by a pixel: bilinear samples at the border mix in the black outside
-        valid = cv2.erode(cv2.warpPerspective(ones, hom, (w, h), flags=cv2.INTER_NEAREST), np.ones((3, 3), np.uint8))
-        new = (valid > 0) & (have == 0)
-        out[new] = warped[new]
-        have[new] = 255
-        if have.all():
+        valid = cv2.erode(cv2.warpPerspective(ones, hom, (w, h), flags=cv2.INTER_NEAREST), kernel)
+        new = cv2.bitwise_and(valid, cv2.bitwise_not(have))  # [h, w] 255 where this photo fills a gap
+        n_new = cv2.countNonZero(new)
+        if j == order[0]:
+            first = n_new / new.size
+        if n_new == 0:
+            continue
+        warped = cv2.warpPerspective(images[j], hom, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        cv2.copyTo(warped, new, out)
+        cv2.bitwise_or(have, new, have)
+        if cv2.countNonZero(have) == have.size:
             break
-    cover = float(np.count_nonzero(have)) / have.size
+    cover = cv2.countNonZero(have) / have.size
     if cover < 1.0:
-        out = cv2.inpaint(out, 255 - have, 3, cv2.INPAINT_TELEA)
-    return out, cover
+        out = cv2.inpaint(out, cv2.bitwise_not(have), 3, cv2.INPAINT_TELEA)
+    return out, cover, first
+
+
+@dataclass
+class RefineResult:
+    """What :func:`refine_at_best_photo` found: ``suggestions`` best first, and for each the photo
+    it was refined at (``photo_of [C]``) and the share of its image that photo covers itself
+    (``own_cover [C]``, the rest from its neighbours); the teacher's scores of the photos as taken
+    (``photo_scores [N]``)."""
+
+    suggestions: list
+    photo_of: np.ndarray  # [C] int
+    own_cover: np.ndarray  # [C]
+    photo_scores: np.ndarray  # [N]
+
+    @property
+    def best_photo(self) -> int:
+        return int(np.argmax(self.photo_scores)) if len(self.photo_scores) else -1
 
 
 def refine_at_best_photo(
@@ -157,24 +189,25 @@ def refine_at_best_photo(
     intrinsics: Intrinsics,
     cfg: RefineConfig,
     platform=None,
-) -> tuple[list, int, float]:
-    """Candidates around the photo the teacher likes best, scored on the photos warped into them.
+) -> RefineResult:
+    """Candidates around the photos the teacher likes best, scored on the photos warped into them.
 
     ``photos_c2w [N, 4, 4]`` world, ``images`` the photos ([H, W, 3] uint8, one size; ``intrinsics``
     for the size of the posed frames, rescaled to theirs), ``platform`` (optional) keeps the
-    candidates inside the hand-held region and its pitch limits. Returns ``(suggestions best first,
-    the best photo's index, its teacher score)``; each :class:`~aes_planner.search.Suggestion`'s
-    ``score`` is the teacher's on its image, ``terms`` the teacher's terms plus ``photo_gain`` (its
-    score minus the best photo's), ``coverage`` the share of its image the photos cover. Empty when refinement is off or the photos
-    differ in size."""
+    candidates inside the hand-held region and its pitch limits. Each candidate is a
+    :class:`~aes_planner.search.Suggestion`: ``score`` the teacher's on its image, ``terms`` the
+    teacher's terms plus ``photo_gain`` (its score minus the best photo's), ``coverage`` the share
+    of its image the photos cover. No candidates when refinement is off or the photos differ in
+    size."""
     import cv2
     import torch
 
     from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
     from aes_planner.search.pipeline import Suggestion
 
+    none = RefineResult([], np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
     if not cfg.enabled or not images or len({im.shape for im in images}) != 1:
-        return [], -1, float("nan")
+        return none
     h0, w0 = images[0].shape[:2]
     ww = cfg.work_width_px
     wh = max(8, round(ww * h0 / w0))
@@ -191,49 +224,53 @@ def refine_at_best_photo(
         return {name: t.double().numpy() for name, t in terms.items()}
 
     real = teacher_terms(small)["score"]  # [N] the photos as taken
-    best = int(np.argmax(real))
-    base = cam2world_to_view(photos_c2w[best])  # [5] x, y, z, yaw, pitch (the photo levelled: roll dropped)
-    dist = subject_distance(photos_c2w, best)
-    forward = photos_c2w[best, :3, 2]
-    plane = None if dist is None else (forward, float(forward @ photos_c2w[best, :3, 3]) + dist)
+    none.photo_scores = real
     steps = np.arange(-cfg.max_turn_deg, cfg.max_turn_deg + 1e-9, cfg.turn_step_deg)
     steps = np.unique(np.round(np.concatenate([steps, [0.0]]), 9))
-    fwd = cfg.forward_fracs if dist is not None else (0.0,)  # no subject distance: turns only
     lo, hi = platform.pitch_limits_deg if platform is not None and hasattr(platform, "pitch_limits_deg") else (-90, 90)
-    heading = np.array([math.cos(base[3]), math.sin(base[3]), 0.0])  # level forward of the photo
-    views, shots, covers = [], [], []
     centres = photos_c2w[:, :3, 3]
-    for frac in fwd:
-        xyz = base[:3] + (frac * dist if frac else 0.0) * heading
-        if frac and platform is not None and not bool(platform.contains(xyz)):
-            continue
-        order = [best] + [int(j) for j in np.argsort(np.linalg.norm(centres - xyz, axis=1)) if j != best]
-        for dy in steps:
-            for dp in steps:
-                pitch = float(np.degrees(base[4]) + dp)
-                if not lo <= pitch <= hi:
-                    continue
-                view = np.array([*xyz, base[3] + math.radians(dy), math.radians(pitch)])
-                c2w = view_to_cam2world(view)
-                img, cover = photo_composite(small, photos_c2w, k, c2w, order, plane if frac else None)
-                if cover < cfg.min_photo_cover:
-                    continue
-                views.append(c2w)
-                shots.append(img)
-                covers.append(cover)
+    views, shots, covers, owns, bases = [], [], [], [], []
+    for b in np.argsort(-real)[: cfg.around_best]:
+        b = int(b)
+        base = cam2world_to_view(photos_c2w[b])  # [5] x, y, z, yaw, pitch (the photo levelled: roll dropped)
+        dist = subject_distance(photos_c2w, b)
+        forward = photos_c2w[b, :3, 2]
+        # the neighbours are warped through the plane at the subject's distance (the photo itself,
+        # turned on the spot, is exact through any plane)
+        plane = None if dist is None else (forward, float(forward @ photos_c2w[b, :3, 3]) + dist)
+        heading = np.array([math.cos(base[3]), math.sin(base[3]), 0.0])  # level forward of the photo
+        for frac in cfg.forward_fracs if dist is not None else (0.0,):  # no subject distance: turns only
+            xyz = base[:3] + (frac * dist if frac else 0.0) * heading
+            if frac and platform is not None and not bool(platform.contains(xyz)):
+                continue
+            order = [b] + [int(j) for j in np.argsort(np.linalg.norm(centres - xyz, axis=1)) if j != b]
+            for dy in steps:
+                for dp in steps:
+                    pitch = float(np.degrees(base[4]) + dp)
+                    if not lo <= pitch <= hi:
+                        continue
+                    c2w = view_to_cam2world(np.array([*xyz, base[3] + math.radians(dy), math.radians(pitch)]))
+                    img, cover, own = photo_composite(small, photos_c2w, k, c2w, order, plane)
+                    if cover < cfg.min_photo_cover:
+                        continue
+                    views.append(c2w)
+                    shots.append(img)
+                    covers.append(cover)
+                    owns.append(own)
+                    bases.append(b)
     if not views:
-        return [], best, float(real[best])
+        return none
     terms = teacher_terms(shots)
     score = terms["score"]
     out = []
     for i, c2w in enumerate(views):
         t = {name: float(v[i]) for name, v in terms.items()}
-        t["photo_gain"] = float(score[i] - real[best])
+        t["photo_gain"] = float(score[i] - real.max())
         v = cam2world_to_view(c2w)
         out.append(Suggestion(c2w, c2w[:3, 3].copy(), float(v[3]), float(v[4]), float(score[i]), covers[i], t))
-    out.sort(key=lambda s: -s.score)
+    order = np.argsort(-score, kind="stable")
     log.info(
-        "refined at photo %d (teacher %.3f): %d candidates, best %.3f (%+.3f)",
-        best, real[best], len(out), out[0].score, out[0].score - real[best],
+        "refined at photo(s) %s (teacher %s): %d candidates, best %.3f (%+.3f)",
+        sorted(set(bases)), np.round(real, 3), len(out), score.max(), score.max() - real.max(),
     )  # fmt: skip
-    return out, best, float(real[best])
+    return RefineResult([out[i] for i in order], np.asarray(bases, np.int64)[order], np.asarray(owns)[order], real)

@@ -44,15 +44,15 @@ def test_a_turn_on_the_spot_is_the_photo_warped(cc0_walk):
     v = cam2world_to_view(truth[4])
     turned = view_to_cam2world(v + np.array([0, 0, 0, math.radians(4), math.radians(-3)]))
     want = render(scene, turned, k).rgb.astype(np.float64)  # [H, W, 3]
-    got, cover = photo_composite([images[4]], truth[4:5], k.K, turned, [0], None)
-    assert 0.8 < cover < 1.0  # the photo covers most of the turned view, not all of it
+    got, cover, own = photo_composite([images[4]], truth[4:5], k.K, turned, [0], None)
+    assert 0.8 < cover < 1.0 and own == cover  # the photo covers most of the turned view, not all of it
     err_warped = np.abs(got.astype(np.float64) - want).mean()
     err_as_is = np.abs(images[4].astype(np.float64) - want).mean()
     err_jpeg = np.abs(images[4].astype(np.float64) - render(scene, truth[4], k).rgb).mean()  # the photo at its own pose
     assert err_warped < 0.45 * err_as_is and err_warped < 2 * err_jpeg, (err_warped, err_as_is, err_jpeg)
     # with its neighbours the whole view is covered
-    _, cover_all = photo_composite(images, truth, k.K, turned, [4, 3, 5, 2, 6], None)
-    assert cover_all > cover
+    _, cover_all, own_all = photo_composite(images, truth, k.K, turned, [4, 3, 5, 2, 6], None)
+    assert cover_all > cover and own_all == cover
 
 
 def test_the_pick_beats_the_best_photo_on_the_true_render(cc0_walk):
@@ -60,8 +60,11 @@ def test_the_pick_beats_the_best_photo_on_the_true_render(cc0_walk):
     k = scene.intrinsics()
     teacher = get_teacher()
     platform = HandHeldPlatform.around_photos(k, truth)
-    cands, best, photo_score = refine_at_best_photo(teacher, truth, images, k, RefineConfig(), platform)
+    found = refine_at_best_photo(teacher, truth, images, k, RefineConfig(), platform)
+    cands, best = found.suggestions, found.best_photo
     assert best == int(np.argmax(_teacher_scores(teacher, images)))
+    assert set(found.photo_of.tolist()) <= set(np.argsort(-found.photo_scores)[:2].tolist())
+    assert np.all(found.own_cover > 0.5)
     assert len(cands) > 50 and cands[0].terms["photo_gain"] > 0
     assert all(bool(platform.contains(c.position_m)) for c in cands)
     # the photo itself (levelled) is one of the candidates
@@ -75,9 +78,21 @@ def test_the_pick_beats_the_best_photo_on_the_true_render(cc0_walk):
 def test_off_or_photos_of_two_sizes_gives_nothing(cc0_walk):
     images, truth, scene = cc0_walk
     teacher = get_teacher()
-    assert refine_at_best_photo(teacher, truth, images, scene.intrinsics(), RefineConfig(max_turn_deg=0))[0] == []
+    off = refine_at_best_photo(teacher, truth, images, scene.intrinsics(), RefineConfig(max_turn_deg=0))
+    assert off.suggestions == [] and off.best_photo == -1
     mixed = [images[0][:200], *images[1:]]
-    assert refine_at_best_photo(teacher, truth, mixed, scene.intrinsics(), RefineConfig())[0] == []
+    assert refine_at_best_photo(teacher, truth, mixed, scene.intrinsics(), RefineConfig()).suggestions == []
+
+
+def test_refining_at_one_or_three_photos(cc0_walk):
+    images, truth, scene = cc0_walk
+    one = refine_at_best_photo(get_teacher(), truth, images, scene.intrinsics(), RefineConfig(around_best=1))
+    assert set(one.photo_of.tolist()) == {one.best_photo}
+    found = refine_at_best_photo(get_teacher(), truth, images, scene.intrinsics(), RefineConfig(around_best=3))
+    three = np.argsort(-found.photo_scores)[:3]
+    assert set(found.photo_of.tolist()) == set(three.tolist())
+    gains = [s.terms["photo_gain"] for s in found.suggestions]
+    np.testing.assert_allclose(gains, [s.score - found.photo_scores.max() for s in found.suggestions])
 
 
 def test_subject_distance_meets_the_axes_in_front():
@@ -95,7 +110,7 @@ def test_subject_distance_meets_the_axes_in_front():
 @pytest.mark.parametrize(
     "field, value",
     [("max_turn_deg", -1.0), ("max_turn_deg", float("nan")), ("turn_step_deg", 0.0), ("forward_fracs", (0.9,)),
-     ("forward_fracs", ()), ("work_width_px", 8), ("min_photo_cover", 0.0)],
+     ("forward_fracs", ()), ("work_width_px", 8), ("min_photo_cover", 0.0), ("around_best", 0)],
 )  # fmt: skip
 def test_config_names_the_bad_field(field, value):
     with pytest.raises(ConfigError, match=field if field != "max_turn_deg" or value == value else "refine"):
@@ -112,5 +127,5 @@ def test_composite_is_finite_for_any_view_near_or_far(yaw, pitch, fwd):
     k = np.array([[30.0, 0, 16], [0, 30.0, 12], [0, 0, 1]])
     photos = np.stack([view_to_cam2world(np.array([0, y, 1.5, 0, 0.0])) for y in (0.0, 0.5)])
     target = view_to_cam2world(np.array([fwd, 0, 1.5, yaw, pitch]))
-    img, cover = photo_composite(images, photos, k, target, [0, 1], (np.array([1.0, 0, 0]), 5.0))
-    assert img.shape == (24, 32, 3) and img.dtype == np.uint8 and 0.0 <= cover <= 1.0
+    img, cover, own = photo_composite(images, photos, k, target, [0, 1], (np.array([1.0, 0, 0]), 5.0))
+    assert img.shape == (24, 32, 3) and img.dtype == np.uint8 and 0.0 <= own <= cover <= 1.0

@@ -35,8 +35,8 @@ def test_suggest_on_photos_alone(arc_set, tmp_path, capsys):
     doc = json.loads((tmp_path / "s.json").read_text())
     assert doc["mode"] == "handheld" and doc["posed_folder"] == str(posed)
     assert doc["unit"].startswith("the distance between the cameras of IMG_0000.jpg")
-    # suggestion #1 refined at the photo the teacher likes best, said from that photo
-    assert "#1 refined at the photo the teacher likes best" in text
+    # suggestion #1 refined at a photo the teacher likes best, said from that photo
+    assert "#1 refined at a photo the teacher likes best" in text
     assert doc["suggestions"][0]["refined"] and doc["suggestions"][0]["terms"]["photo_gain"] > 0
     assert doc["suggestions"][0]["from_photo"]["photo"] == doc["refine"]["photo"]
     data = load_dataset(posed)
@@ -58,7 +58,8 @@ def test_suggest_on_photos_alone(arc_set, tmp_path, capsys):
 @pytest.mark.parametrize(
     "flag, value, said",
     [("--refine-forward", "0,x", "--refine-forward"), ("--refine-forward", "0.9", "--refine-forward"),
-     ("--refine-turn", "-2", "--refine-turn"), ("--refine-turn", "nan", "--refine-turn")],
+     ("--refine-turn", "-2", "--refine-turn"), ("--refine-turn", "nan", "--refine-turn"),
+     ("--refine-at", "0", "--refine-at")],
 )  # fmt: skip
 def test_bad_refinement_is_refused_before_the_pose_step(arc_set, tmp_path, capsys, flag, value, said):
     images, _ = arc_set
