@@ -20,15 +20,12 @@ import sys
 
 import numpy as np
 import torch
+from framing_loss_check import cases  # the cases of eval framing (scripts/ is on the path when run)
 
-from aes_planner.eval.framing import FramingEvalConfig, constrained_oracle, object_points, pick_subject, true_holds
-from aes_planner.eval.search import Judge, _inputs, _mode_platform, _source
-from aes_planner.search import SearchConfig, build_search_scorer, search_views
+from aes_planner.eval.framing import true_holds
+from aes_planner.search import search_views
 from aes_planner.search.framing import FramingError, build_framing, project_corners, verified_scores
 from aes_planner.search.pipeline import _select_distinct
-from aes_planner.search.space import space_for
-from aes_planner.teachers import get_teacher
-from aes_planner.teachers.evaluator import CompositionEvaluator
 
 JITTERS = 8
 
@@ -49,65 +46,44 @@ def jittered(poses: np.ndarray, deg: float, rng: np.random.Generator) -> np.ndar
 
 
 def main(scenes: list[str], seeds: list[int], distinct: bool) -> None:
-    cfg = FramingEvalConfig(scenes=scenes, seeds=seeds)
-    teacher, evaluator = get_teacher(), CompositionEvaluator()
-    for spec in scenes:
-        source = _source(spec, cfg)
-        platform = _mode_platform(source, cfg.mode, cfg.free_box_m)
-        inputs = _inputs(source, platform, cfg.views)
-        frames = [source.capture(p) for p in inputs]
-        k, judge = platform.intrinsics, Judge(source, teacher, evaluator)
-        scfg = SearchConfig.preset(cfg.preset, mode=platform.kind)
-        space, scorer = space_for(platform, scfg), None
-        named = {f"view{i}": (f.cam2world, f.intrinsics, (f.intrinsics.width, f.intrinsics.height))
-                 for i, f in enumerate(frames)}  # fmt: skip
-        for seed in seeds:
-            picked = pick_subject(source.scene, inputs, frames[0].intrinsics, seed, cfg)
-            if picked is None:
-                continue
-            points = object_points(source.scene.objects[picked[0]])
-            oracle = constrained_oracle(space, judge, points, k, cfg)
-            if oracle is None:
-                continue
-            scorer = scorer or build_search_scorer("field", frames, scfg)
-            try:
-                framing = build_framing(scorer, named, [picked[2]], [], k, cfg.framing())
-                result = search_views(scorer, inputs, platform, scfg, framing=framing)
-            except FramingError:
-                continue
-            fc = framing.cfg
-            poses = result.candidates_cam2world
-            field = np.nan_to_num(result.candidates_score, nan=-1e9)
-            cov = result.candidates_coverage
-            obj = field - fc.coverage_penalty * np.clip(fc.coverage_min - cov, 0, None)
-            if distinct:
-                sel = _select_distinct(space, space.from_poses(poses), torch.as_tensor(obj), 24, None).numpy()
-            else:
-                sel = np.argsort(-obj, kind="stable")[:32]
-            pool = poses[sel]
-            feats = {"field": field[sel].tolist(), "obj": obj[sel].tolist(), "cov": cov[sel].tolist()}
-            rng = np.random.default_rng(0)
-            for deg in (1.5, 3, 5):
-                out = scorer.score_batched(torch.as_tensor(jittered(pool, deg, rng)), 64)
-                feats[f"jit{deg:g}"] = out.score.double().numpy().reshape(len(pool), JITTERS).mean(1).tolist()
-            rendered = verified_scores(scorer, torch.as_tensor(pool), k, 96)
-            feats["render_teacher"] = None if rendered is None else rendered.tolist()
-            u, v, _ = project_corners(framing._keep, torch.as_tensor(pool), k)  # [P, 1, 8]
-            feats["size"] = ((u.amax(-1) - u.amin(-1)).clamp(0, 1) * (v.amax(-1) - v.amin(-1)).clamp(0, 1))[
-                :, 0
-            ].tolist()
-            cu, cv = 0.5 * (u.amax(-1) + u.amin(-1)), 0.5 * (v.amax(-1) + v.amin(-1))
-            feats["centre_d"] = torch.sqrt((cu - 0.5) ** 2 + (cv - 0.5) ** 2)[:, 0].tolist()
-            cosines = np.clip(pool[:, :3, 2] @ inputs[:, :3, 2].T, -1, 1)
-            feats["in_angle_deg"] = np.degrees(np.arccos(cosines).min(1)).tolist()
-            params = space.from_poses(pool)
-            feats["dist"] = space.distance(params, params).numpy().tolist()
-            m, b = oracle["mean_teacher"], oracle["best_teacher"]
-            truth = (np.asarray(judge.measure(pool)[0], float) - m) / (b - m)
-            pick = (float(judge.measure(result.best.cam2world[None])[0][0]) - m) / (b - m)
-            row = {"scene": spec, "seed": seed, "n": len(pool), "gt": truth.tolist(),
-                   "holds": true_holds(points, pool, k).tolist(), "pick_norm": pick, "feats": feats}  # fmt: skip
-            print("ROW", json.dumps(row), flush=True)
+    for c in cases(scenes, seeds):
+        k, judge, space, scorer, inputs, points, oracle = c.k, c.judge, c.space, c.scorer, c.inputs, c.points, c.oracle
+        try:
+            framing = build_framing(scorer, c.named, [c.picked[2]], [], k, c.cfg.framing())
+            result = search_views(scorer, inputs, c.platform, c.scfg, framing=framing)
+        except FramingError:
+            continue
+        fc = framing.cfg
+        poses = result.candidates_cam2world
+        field = np.nan_to_num(result.candidates_score, nan=-1e9)
+        cov = result.candidates_coverage
+        obj = field - fc.coverage_penalty * np.clip(fc.coverage_min - cov, 0, None)
+        if distinct:
+            sel = _select_distinct(space, space.from_poses(poses), torch.as_tensor(obj), 24, None).numpy()
+        else:
+            sel = np.argsort(-obj, kind="stable")[:32]
+        pool = poses[sel]
+        feats = {"field": field[sel].tolist(), "obj": obj[sel].tolist(), "cov": cov[sel].tolist()}
+        rng = np.random.default_rng(0)
+        for deg in (1.5, 3, 5):
+            out = scorer.score_batched(torch.as_tensor(jittered(pool, deg, rng)), 64)
+            feats[f"jit{deg:g}"] = out.score.double().numpy().reshape(len(pool), JITTERS).mean(1).tolist()
+        rendered = verified_scores(scorer, torch.as_tensor(pool), k, 96)
+        feats["render_teacher"] = None if rendered is None else rendered.tolist()
+        u, v, _ = project_corners(framing._keep, torch.as_tensor(pool), k)  # [P, 1, 8]
+        feats["size"] = ((u.amax(-1) - u.amin(-1)).clamp(0, 1) * (v.amax(-1) - v.amin(-1)).clamp(0, 1))[:, 0].tolist()
+        cu, cv = 0.5 * (u.amax(-1) + u.amin(-1)), 0.5 * (v.amax(-1) + v.amin(-1))
+        feats["centre_d"] = torch.sqrt((cu - 0.5) ** 2 + (cv - 0.5) ** 2)[:, 0].tolist()
+        cosines = np.clip(pool[:, :3, 2] @ inputs[:, :3, 2].T, -1, 1)
+        feats["in_angle_deg"] = np.degrees(np.arccos(cosines).min(1)).tolist()
+        params = space.from_poses(pool)
+        feats["dist"] = space.distance(params, params).numpy().tolist()
+        m, b = oracle["mean_teacher"], oracle["best_teacher"]
+        truth = (np.asarray(judge.measure(pool)[0], float) - m) / (b - m)
+        pick = (float(judge.measure(result.best.cam2world[None])[0][0]) - m) / (b - m)
+        row = {"scene": c.spec, "seed": c.seed, "n": len(pool), "gt": truth.tolist(),
+               "holds": true_holds(points, pool, k).tolist(), "pick_norm": pick, "feats": feats}  # fmt: skip
+        print("ROW", json.dumps(row), flush=True)
 
 
 if __name__ == "__main__":
