@@ -79,6 +79,7 @@ def one(seed: int, out: Path, preset: str, top: int, extra: list[str]) -> dict:
         "nearest_input_frac_of_spread": [round(d / spread, 3) for d in nearest],
         "from_photo": [s["from_photo"]["text"] for s in doc["suggestions"]],
         "above_best_input": bool(got[0] > inputs.max()),
+        "refined": bool(doc["suggestions"][0].get("refined", False)),  # #1 from the refinement at the best photos
         "field_first_choice": float(got[field_pick]),
         "field_first_above_best_input": bool(got[field_pick] > inputs.max()),
         "candidates": len(got),
@@ -104,6 +105,7 @@ def main() -> int:
         "scenes": len(rows),
         "above_best_input": sum(r["above_best_input"] for r in ok),
         "field_first_above_best_input": sum(r["field_first_above_best_input"] for r in ok),
+        "refined": sum(r["refined"] for r in ok),
         "median_suggestion_minus_best_input": statistics.median(r["suggestion_1"] - r["best_input"] for r in ok)
         if ok
         else None,
