@@ -13,6 +13,7 @@ score is normalised to the constrained oracle.
 import dataclasses
 import json
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -29,7 +30,10 @@ def spearman(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.corrcoef(np.argsort(np.argsort(a)), np.argsort(np.argsort(b)))[0, 1])
 
 
-def main(scenes: list[str], seeds: list[int]) -> None:
+def cases(scenes: list[str], seeds: list[int]):
+    """The cases of ``aes-planner eval framing`` with a constrained oracle, one namespace each:
+    cfg, spec, seed, platform, inputs, k (intrinsics), judge, scfg, space, scorer (the field,
+    built once per scene), named (the input frames by region name), picked, points, oracle."""
     cfg = FramingEvalConfig(scenes=scenes, seeds=seeds)
     teacher, evaluator = get_teacher(), CompositionEvaluator()
     for spec in scenes:
@@ -44,40 +48,48 @@ def main(scenes: list[str], seeds: list[int]) -> None:
                  for i, f in enumerate(frames)}  # fmt: skip
         for seed in seeds:
             picked = pick_subject(source.scene, inputs, frames[0].intrinsics, seed, cfg)
-            oracle = (
-                None
-                if picked is None
-                else constrained_oracle(space, judge, object_points(source.scene.objects[picked[0]]), k, cfg)
-            )
+            if picked is None:
+                continue
+            points = object_points(source.scene.objects[picked[0]])
+            oracle = constrained_oracle(space, judge, points, k, cfg)
             if oracle is None:
                 continue
             scorer = scorer or build_search_scorer("field", frames, scfg)
-            runs = {}
-            try:
-                for refine in (False, True):
-                    fc = dataclasses.replace(cfg.framing(), refine=refine)
-                    runs[refine] = search_views(
-                        scorer, inputs, platform, scfg, framing=build_framing(scorer, named, [picked[2]], [], k, fc)
-                    )
-            except FramingError:
-                continue
+            yield SimpleNamespace(cfg=cfg, spec=spec, seed=seed, platform=platform, inputs=inputs, k=k, judge=judge,
+                                  scfg=scfg, space=space, scorer=scorer, named=named, picked=picked, points=points,
+                                  oracle=oracle)  # fmt: skip
 
-            mean, span = oracle["mean_teacher"], oracle["best_teacher"] - oracle["mean_teacher"]
-            norm = lambda t, m=mean, d=span: (np.asarray(t, float) - m) / d  # noqa: E731
 
-            pool = runs[False].candidates_cam2world
-            field = np.nan_to_num(runs[False].candidates_score, nan=-np.inf)
-            t_pool = norm(judge.measure(pool)[0])
-            t_pick = norm(judge.measure(runs[False].best.cam2world[None])[0])[0]
-            t_s2 = norm(judge.measure(runs[True].best.cam2world[None])[0])[0]
-            best = int(np.argmax(t_pool))
-            row = {"scene": spec, "seed": seed, "pool": len(pool), "pool_best": float(t_pool[best]),
-                   "pool_best_field_rank": int((field > field[best]).sum()),
-                   "field_top5_best": float(t_pool[np.argsort(-field)[:5]].max()),
-                   "stage1_pick": float(t_pick), "after_stage2": float(t_s2),
-                   "stage2_field_gain": runs[True].best.objective - runs[False].best.objective,
-                   "field_teacher_spearman": spearman(field, t_pool)}  # fmt: skip
-            print("ROW", json.dumps(row), flush=True)
+def main(scenes: list[str], seeds: list[int]) -> None:
+    for c in cases(scenes, seeds):
+        cfg, spec, seed, platform, inputs, k, judge = c.cfg, c.spec, c.seed, c.platform, c.inputs, c.k, c.judge
+        scfg, scorer, named, picked, oracle = c.scfg, c.scorer, c.named, c.picked, c.oracle
+        runs = {}
+        try:
+            for refine in (False, True):
+                fc = dataclasses.replace(cfg.framing(), refine=refine)
+                runs[refine] = search_views(
+                    scorer, inputs, platform, scfg, framing=build_framing(scorer, named, [picked[2]], [], k, fc)
+                )
+        except FramingError:
+            continue
+
+        mean, span = oracle["mean_teacher"], oracle["best_teacher"] - oracle["mean_teacher"]
+        norm = lambda t, m=mean, d=span: (np.asarray(t, float) - m) / d  # noqa: E731
+
+        pool = runs[False].candidates_cam2world
+        field = np.nan_to_num(runs[False].candidates_score, nan=-np.inf)
+        t_pool = norm(judge.measure(pool)[0])
+        t_pick = norm(judge.measure(runs[False].best.cam2world[None])[0])[0]
+        t_s2 = norm(judge.measure(runs[True].best.cam2world[None])[0])[0]
+        best = int(np.argmax(t_pool))
+        row = {"scene": spec, "seed": seed, "pool": len(pool), "pool_best": float(t_pool[best]),
+               "pool_best_field_rank": int((field > field[best]).sum()),
+               "field_top5_best": float(t_pool[np.argsort(-field)[:5]].max()),
+               "stage1_pick": float(t_pick), "after_stage2": float(t_s2),
+               "stage2_field_gain": runs[True].best.objective - runs[False].best.objective,
+               "field_teacher_spearman": spearman(field, t_pool)}  # fmt: skip
+        print("ROW", json.dumps(row), flush=True)
 
 
 if __name__ == "__main__":

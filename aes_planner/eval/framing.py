@@ -59,6 +59,8 @@ class FramingEvalConfig:
     keep_margin: float = 0.05
     verify_top: int = FramingConfig.verify_top
     verify_weight: float = FramingConfig.verify_weight
+    coverage_min: float = FramingConfig.coverage_min
+    coverage_penalty: float = FramingConfig.coverage_penalty
     min_frac: float = 0.01
     max_frac: float = 0.4
     min_shown: float = 0.6
@@ -83,7 +85,8 @@ class FramingEvalConfig:
 
     def framing(self) -> FramingConfig:
         """The framing constraint the searches run with."""
-        return FramingConfig(margin_frac=self.keep_margin, verify_top=self.verify_top, verify_weight=self.verify_weight)
+        return FramingConfig(margin_frac=self.keep_margin, verify_top=self.verify_top, verify_weight=self.verify_weight,
+                             coverage_min=self.coverage_min, coverage_penalty=self.coverage_penalty)  # fmt: skip
 
 
 class FramingEvalError(AesPlannerError, ValueError):

@@ -303,6 +303,9 @@ def _search_views(
     warnings: list[str] = []
     if framing is not None and not framing.cfg.refine:  # stage 1's feasible pick stands (FramingConfig.refine)
         cfg = dataclasses.replace(cfg, steps=0)
+    if framing is not None:  # the views all hold a seen subject: the milder coverage rule of FramingConfig
+        cfg = dataclasses.replace(cfg, coverage_min=framing.cfg.coverage_min,
+                                  coverage_penalty=framing.cfg.coverage_penalty)  # fmt: skip
     if framing is not None:
         scorer = framing.wrap(scorer)  # the avoided regions and the placement join the score
 

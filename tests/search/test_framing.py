@@ -11,6 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aes_planner.errors import AesPlannerError
+from aes_planner.field.scorer import ScoreOutput
 from aes_planner.geometry import Intrinsics
 from aes_planner.geometry.poses import look_at
 from aes_planner.messages import PlannerRequest
@@ -306,3 +307,45 @@ def test_stage_2_never_returns_a_feasible_view_the_field_scores_below_its_start(
     assert torch.all(rescored >= start_obj - 1e-9)
     assert torch.all(best_obj >= start_obj)
     assert bool((rescored > start_obj + 1e-6).any())  # it climbed somewhere: the check is not vacuous
+
+
+# ---------------------------------------------------------------- the coverage rule under a kept subject
+class PartlySeenScorer(AimScorer):
+    """Best aimed 15 deg left of the rig's axis; views turned more than 5 deg left are partly
+    covered (0.55): the best view is there, the most covered ones are straight ahead."""
+
+    def __init__(self):
+        super().__init__([math.cos(math.radians(15.0)), math.sin(math.radians(15.0)), 0.0])
+
+    def score(self, cam2world):
+        out = super().score(cam2world)
+        left = cam2world[:, :3, 2].detach() @ torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64)
+        cov = torch.where(left > math.sin(math.radians(5.0)), 0.55, 1.0).to(out.score.dtype)
+        return ScoreOutput(out.score, cov, out.terms)
+
+
+def test_a_kept_subject_is_ranked_by_the_field_not_pushed_to_the_most_covered_view():
+    """Every view that holds a kept subject sees something the inputs saw, so the search takes the
+    milder coverage rule of FramingConfig (0.5 and 0.5): the field's best view (0.55 covered)
+    wins. The search's own rule (0.7 and 2), still used without a kept subject, and the framed
+    search configured with it pick a fully covered view instead."""
+    platform = rig_platform(pan_limits_deg=(-60.0, 60.0), tilt_limits_deg=(-30.0, 30.0))
+    base = np.asarray(platform.rig.base_xyz_m, float)
+    subject = subject_at(base + np.array([4.0, 0.0, 0.0]), (0.05, 0.05, 0.05))
+    scorer, cfg = PartlySeenScorer(), SearchConfig.preset("fast", top_k=2)
+    mild = search_views(scorer, rig_inputs(platform), platform, cfg,
+                        framing=Framing([subject], [], platform.intrinsics, FramingConfig()))  # fmt: skip
+    strict = Framing([subject], [], platform.intrinsics, FramingConfig(coverage_min=0.7, coverage_penalty=2.0))
+    strict_run = search_views(scorer, rig_inputs(platform), platform, cfg, framing=strict)
+    free = search_views(scorer, rig_inputs(platform), platform, cfg)
+    assert mild.best.held == pytest.approx(1.0) and strict_run.best.held == pytest.approx(1.0)
+    assert mild.best.coverage == pytest.approx(0.55) and math.degrees(mild.best.pan_rad) > 10.0
+    for run in (strict_run, free):
+        assert run.best.coverage == pytest.approx(1.0) and math.degrees(run.best.pan_rad) < 6.0
+    assert mild.best.score > strict_run.best.score
+
+
+def test_the_coverage_rule_under_a_kept_subject_is_checked():
+    for kw in (dict(coverage_min=1.5), dict(coverage_min=float("nan")), dict(coverage_penalty=-1.0)):
+        with pytest.raises(AesPlannerError, match=next(iter(kw))):
+            FramingConfig(**kw)
