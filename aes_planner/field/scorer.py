@@ -22,6 +22,7 @@ Contract of :meth:`Scorer.score`:
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import torch
@@ -94,3 +95,20 @@ class Scorer(ABC):
             torch.cat([o.coverage for o in outs]),
             terms,
         )
+
+    def score_screened(
+        self,
+        cam2world: Tensor,  # [B, 4, 4]
+        batch_size: int,
+        keep: int,
+        rank: Callable[[ScoreOutput], Tensor],  # ScoreOutput of b poses -> [b] objective, higher first
+        eligible: Tensor | None = None,  # [B] bool: False = rank last
+    ) -> tuple[ScoreOutput, Tensor]:  # ScoreOutput of [B], exact [B] bool
+        """Scores of every pose where at least the ``keep`` poses a cheaper screen ranks first
+        (by ``rank`` of the screen's scores, ``eligible`` poses before the others) are scored by
+        :meth:`score` itself; ``exact`` marks them, the other poses carry the screen's scores. A
+        scorer without a cheaper screen scores every pose exactly (this default:
+        :meth:`score_batched`); :class:`~aes_planner.field.model.AestheticField` screens with the
+        splatted teacher map (its decoder left out)."""
+        out = self.score_batched(cam2world, batch_size)
+        return out, torch.ones(len(out.score), dtype=torch.bool)

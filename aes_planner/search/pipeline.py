@@ -102,6 +102,7 @@ class SearchResult:
     candidates_cam2world: np.ndarray | None = None  # [C, 4, 4] stage-1 candidates
     candidates_score: np.ndarray | None = None  # [C]
     candidates_coverage: np.ndarray | None = None  # [C]
+    candidates_exact: np.ndarray | None = None  # [C] bool: scored by the scorer itself, not its screen (screen_keep)
     scored: int = 0  # poses scored in total
     warnings: list[str] = field(default_factory=list)
     dropped_uncovered: int = 0  # refined candidates left out: their coverage fell below coverage_min
@@ -327,8 +328,15 @@ def _search_views(
             )
     cand_poses = space.to_poses(candidates)  # [C, 4, 4]
     t_sampled = time.perf_counter()
-    out1 = scorer.score_batched(cand_poses, cfg.batch_size)
-    obj1 = torch.nan_to_num(_objective(out1, cfg).double(), nan=-math.inf)
+    if cfg.screen_keep > 0:  # the screen's best scored exactly; the rest can be neither kept nor verified
+        fresh = None if avoid_params is None else ~(space.distance(candidates, avoid_params) < 1.0).any(1)  # [C]
+        out1, exact = scorer.score_screened(
+            cand_poses, cfg.batch_size, cfg.screen_keep, lambda o: _objective(o, cfg), fresh
+        )
+        obj1 = torch.where(exact, torch.nan_to_num(_objective(out1, cfg).double(), nan=-math.inf), -math.inf)
+    else:
+        out1, exact = scorer.score_batched(cand_poses, cfg.batch_size), torch.ones(len(candidates), dtype=torch.bool)
+        obj1 = torch.nan_to_num(_objective(out1, cfg).double(), nan=-math.inf)
     keep = _select_distinct(space, candidates, obj1, cfg.top_k, avoid_params)
     t_stage1 = time.perf_counter()
 
@@ -401,6 +409,7 @@ def _search_views(
         candidates_cam2world=cand_poses.detach().numpy(),
         candidates_score=out1.score.detach().double().numpy(),
         candidates_coverage=out1.coverage.detach().double().numpy(),
+        candidates_exact=exact.numpy(),
         scored=len(candidates) + steps_scored + len(final_params) + explored,
         warnings=warnings,
         dropped_uncovered=dropped,

@@ -445,3 +445,63 @@ def test_explore_on_a_drone_and_when_everything_was_seen():
     assert 0.0 < half.covered_fraction < 1.0
     assert half.explore.coverage == 0.0  # none partly covered: the least covered
     assert np.all(np.isfinite(half.explore.cam2world))
+
+
+# ------------------------------------------------------------------------------------ stage-1 screen
+class ScreenedAimScorer(AimScorer):
+    """An :class:`AimScorer` whose cheaper screen aims at ``screen_dir`` instead (records its calls)."""
+
+    def __init__(self, target_dir, screen_dir, **kw):
+        super().__init__(target_dir, **kw)
+        self.screen = AimScorer(screen_dir)
+        self.screened: list[tuple[int, int, torch.Tensor | None]] = []  # (poses, keep, eligible)
+
+    def score_screened(self, cam2world, batch_size, keep, rank, eligible=None):
+        self.screened.append((len(cam2world), keep, eligible))
+        out = self.screen.score_batched(cam2world, batch_size)
+        ok = torch.ones(len(cam2world), dtype=torch.bool) if eligible is None else eligible
+        r = torch.where(ok, rank(out).double(), -math.inf)
+        exact = torch.zeros(len(cam2world), dtype=torch.bool)
+        exact[torch.argsort(r, descending=True)[:keep]] = True
+        true = self.score_batched(cam2world[exact], batch_size)
+        out.score[exact], out.terms["score"][exact] = true.score, true.score
+        return out, exact
+
+
+def test_screen_keep_scores_only_the_screens_best_exactly():
+    platform = rig_platform()
+    cfg = SearchConfig.preset("balanced", steps=0, screen_keep=12)
+    scorer = ScreenedAimScorer([1.0, 0.0, 0.0], screen_dir=[1.0, -0.4, 0.3])
+    result = search_views(scorer, rig_inputs(platform), platform, cfg)
+    ((n, keep, _),) = scorer.screened
+    assert n == len(result.candidates_cam2world) > keep == 12 == int(result.candidates_exact.sum())
+    exact = result.candidates_exact
+    # the stage-1 picks are the best *exact* candidates: the true scores, not the screen's
+    true = AimScorer([1.0, 0.0, 0.0]).score_batched(torch.as_tensor(result.candidates_cam2world)).score.numpy()
+    np.testing.assert_allclose(result.candidates_score[exact], true[exact], atol=1e-12)
+    assert result.best.stage1_score == pytest.approx(true[exact].max(), abs=1e-12)
+    assert true[exact].max() < true.max()  # the screen left the true best out: the picks come from its keep
+    # screen_keep = 0: no screen, every candidate exact
+    plain = search_views(
+        scorer, rig_inputs(platform), platform, SearchConfig.preset("balanced", steps=0, screen_keep=0)
+    )
+    assert len(scorer.screened) == 1 and plain.candidates_exact.all()
+    assert SearchConfig().screen_keep == 0 and SearchConfig.preset("fast").screen_keep == 0
+    assert SearchConfig.preset("balanced").screen_keep == 128  # docs/benchmarks.md, perf-2 third round
+    assert SearchConfig.preset("balanced", mode="drone").screen_keep == 0  # not measured on a drone
+
+
+def test_screen_puts_poses_near_avoided_ones_last():
+    platform = rig_platform()
+    cfg = SearchConfig.preset("balanced", steps=0, screen_keep=8)
+    scorer = ScreenedAimScorer([1.0, 0.2, 0.0], screen_dir=[1.0, 0.2, 0.0])
+    first = search_views(scorer, rig_inputs(platform), platform, cfg)
+    second = search_views(scorer, rig_inputs(platform), platform, cfg, avoid=first.best.cam2world[None])
+    eligible = scorer.screened[-1][2]
+    assert eligible is not None and not eligible.all() and eligible.any()
+    assert not (second.candidates_exact & ~eligible.numpy()).any()  # the 8 decoded are all new views
+    gap = angle_to(second.best.cam2world, first.best.cam2world[:3, 2])
+    assert gap >= math.degrees(cfg.dedup_fov * K.hfov_rad) - 1e-6
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ConfigError, match="screen_keep"):
+            SearchConfig(screen_keep=bad)
