@@ -259,7 +259,7 @@ def print_summary(s: dict) -> None:
         f"{s['mode']} on {s['scene']}: initial {s['initial']:.3f} -> final {s['final']:.3f} "
         f"(oracle {s['oracle']:.3f}, random {s['random_mean']:.3f}); normalized {s['normalized']:.2f} "
         f"(initial view {s['initial_normalized']:.2f}) in {s['moves']} move{'' if s['moves'] == 1 else 's'} after {s['explore_captures']} "
-        f"exploration captures and {s['polish_captures']} polishing; {s['time_s']:.1f} s ({s['loop_s']:.1f} s in the loop)"
+        f"exploration captures, {s.get('verify_captures', 0)} verifying and {s['polish_captures']} polishing; {s['time_s']:.1f} s ({s['loop_s']:.1f} s in the loop)"
     )
     if "final_pan_deg" in s:
         print(f"final view: pan {s['final_pan_deg']:+.1f} deg, tilt {s['final_tilt_deg']:+.1f} deg")

@@ -88,6 +88,7 @@ def evaluate_run(planner, scene: str, kind: str, out: Path, loop_s: float) -> di
         "moves": planner.moves,
         "explore_captures": sum(c.kind == "explore" for c in caps),
         "polish_captures": sum(c.kind == "polish" for c in caps),
+        "verify_captures": sum(c.kind == "verify" for c in caps),
         "captures": len(caps),
         "loop_s": round(loop_s, 2),
         "time_s": None,
@@ -230,6 +231,7 @@ def _score_map_image(rig, joints: np.ndarray, scores: np.ndarray, caps, width: i
             "explore": (200, 200, 200),
             "move": (255, 80, 80),
             "polish": (255, 200, 0),
+            "verify": (80, 200, 255),
             "settle": (255, 0, 0),
         }.get(c.kind, (255, 255, 255))
         cv2.circle(img, p, 4 if c.kind != "settle" else 6, colour, -1 if c.kind != "settle" else 2, cv2.LINE_AA)

@@ -234,6 +234,12 @@ def run_one(
             planner = next(n for n, _ in nodes if n.node_id == "planner")
             _noisy_teacher(planner, p.noise_rel, p.seed)
 
+    # the teacher maps cached by image content (aes_planner.field.model) would carry one run's
+    # maps into the next: a noise run's noisy maps of the shared initial and exploration views
+    # changed the path of the run after it; every run starts from none
+    from aes_planner.field.model import clear_feature_cache
+
+    clear_feature_cache()
     t0 = time.time()
     with _backend(p.backend):
         summary = run_demo(
@@ -250,6 +256,7 @@ def run_one(
         captures=summary.get("captures"),
         explore_captures=summary.get("explore_captures"),
         polish_captures=summary.get("polish_captures"),
+        verify_captures=summary.get("verify_captures"),
         final_pan_deg=summary.get("final_pan_deg"),
         wall_s=round(time.time() - t0, 1),
         path=path,

@@ -13,7 +13,9 @@
                ``planner/suggestion``), wait for arrival (``gimbal/state``, or frames at the pose),
                capture there and score the real capture with the teacher (it verifies the
                prediction and feeds the field) -> planning
-    polishing  a coarse-to-fine compass search with real captures around the best captured view,
+    polishing  first one capture of the search's best predicted view on each of up to
+               ``verify_hills`` hills no capture lies on (ranked by hope), then
+               a coarse-to-fine compass search with real captures around the best captured view,
                then around up to ``polish_starts - 1`` other captured hills nearly as good:
                its four neighbours ``polish_step_deg * 2**k`` away (pan/tilt; a drone: yaw/pitch;
                k from ``polish_scales - 1`` down to 0), moving to a better one, halving the step
@@ -49,7 +51,7 @@ import torch
 
 from aes_planner.graph.base import Outputs
 from aes_planner.messages import Candidate, PosedFrame
-from aes_planner.node.captures import Capture, Target, decision_order, hopes, near_captured
+from aes_planner.node.captures import Capture, CaptureKind, Target, decision_order, hopes, near_captured
 from aes_planner.platform import view_angle_deg
 
 log = logging.getLogger(__name__)
@@ -230,22 +232,67 @@ class ActiveLoop:
         c = self.config
         self._polish_left = c.polish_captures
         self.state = LoopState.POLISHING
-        # the best hill and the runners-up nearly as good, each climbed in turn: a hill captured
-        # second (or on its flank) is not lost to the local optimum captured first
+        self._polish_centre = None
+        self._climbs = None  # chosen once the hills' verifications are captured
+        # the hills the moves never reached: one real capture of each one's best predicted view
+        # (on top of the polish's budget), so the hill climbed first is chosen on captures, not on
+        # the field's (over-)estimate
+        self._queue = self._verify_targets()
+        if not self._queue:
+            self._polish_step(now)
+
+    def _verify_targets(self) -> list[Target]:
+        """Up to ``verify_hills`` targets: the search's best predicted views on hills no capture
+        lies on (at least a coarsest polish step from every capture, two from each other), ranked by hope
+        (:func:`~aes_planner.node.captures.decision_order`), each hoping for at least the best
+        captured score minus ``polish_start_gap`` (a hill that could be climbed)."""
+        c = self.config
+        if c.verify_hills <= 0 or c.polish_captures <= 0 or not self.captures:
+            return []
+        step_deg = c.polish_step_deg * 2.0 ** (c.polish_scales - 1)  # the polish's coarsest step
+        captured = np.stack([cap.cam2world for cap in self.captures])  # [M, 4, 4]
+        try:
+            proposal = self._propose(captured, max(c.top_k, c.verify_hills + 2))
+        except Exception:
+            log.exception("%s: the hills' verification failed; polishing the captured hills", self.node_id)
+            return []
+        cands = [cd for cd in proposal.candidates if self._safe_candidate(cd)]
+        hope = hopes(cands, self.captures, proposal.captured_pred, c.optimism, c.min_sigma, c.residual_length_deg)
+        floor = self._best_capture().score - c.polish_start_gap
+        targets: list[Target] = []
+        for i in decision_order(hope, cands, c.hope_quantum):
+            cd = cands[i]
+            if len(targets) >= c.verify_hills or hope[i] < floor:
+                break
+            if near_captured(self.captures, cd.cam2world, step_deg, c.min_move_m):
+                continue  # within a coarse polish step of a capture: its climb can reach it
+            if any(view_angle_deg(cd.cam2world, t.cam2world) < 2.0 * step_deg for t in targets):
+                continue
+            log.info("%s: verify a hill: %s, pred %.3f hope %.3f", self.node_id, _where(cd), cd.score, hope[i])
+            targets.append(Target(CaptureKind.VERIFY, cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=float(hope[i])))
+        return targets
+
+    def _begin_climbs(self) -> None:
+        """The best hill and the runners-up nearly as good, each climbed in turn: a hill captured
+        second (or on its flank, or only verified) is not lost to the local optimum captured first."""
+        c = self.config
         step_deg = c.polish_step_deg * 2.0 ** (c.polish_scales - 1)
         self._climbs = self._polish_starts(2.0 * step_deg)
-        self._climb_budget = max(c.polish_captures // max(len(self._climbs), 1), 1)
-        self._polish_centre = None
-        self._polish_step(now)
+        self._climb_budget = max(self._polish_left // max(len(self._climbs), 1), 1)
 
     def _polish_starts(self, apart_deg: float) -> list[Capture]:
         """The best capture, then up to ``polish_starts - 1`` others scoring within
-        ``polish_start_gap`` of it, each at least ``apart_deg`` from those before (other hills)."""
+        ``polish_start_gap`` of it, each at least ``apart_deg`` from those before (other hills).
+        A verification is a start only when it is the best capture: one real sample of a hill
+        does not displace a runner-up the moves found (and the field's ranking of the two is
+        what it over-rates)."""
         c = self.config
         best = self._best_capture()
         ranked = sorted(self.captures, key=lambda cap: -cap.score)  # stable: earlier first on a tie
         starts = [best]
         for cap in ranked:
+            if cap.kind is CaptureKind.VERIFY:
+                continue
             if len(starts) >= c.polish_starts or cap.score < best.score - c.polish_start_gap:
                 break
             if all(view_angle_deg(cap.cam2world, s.cam2world) >= apart_deg for s in starts):
@@ -260,6 +307,8 @@ class ActiveLoop:
         finest step or its share of the budget, and the next hill's climb begins; settle when
         every climb ended."""
         c = self.config
+        if self._climbs is None:
+            self._begin_climbs()
         while self._polish_left > 0:
             if self._polish_centre is None:  # the next climb
                 if not self._climbs:

@@ -25,6 +25,7 @@ class CaptureKind(str, Enum):
     INITIAL = "initial"  # the view the camera showed when the loop started
     EXPLORE = "explore"  # spread over the range before the field can be trusted
     MOVE = "move"  # a suggestion the field expects to beat the best capture
+    VERIFY = "verify"  # the best predicted view of a hill not captured yet, before the polish
     POLISH = "polish"  # a compass step around the best capture
     SETTLE = "settle"  # back to the best capture, the loop's result
     PASSIVE = "passive"  # a passive planner's last pose seen (no capture of its own)

@@ -129,7 +129,7 @@ class PlannerNode(ActiveLoop, Node):
         self._polish_left = 0
         self._polish_scale = 0
         self._polish_previous: Capture | None = None
-        self._climbs: list[Capture] = []
+        self._climbs: list[Capture] | None = []  # None: chosen after the hills' verifications
         self._climb_budget = 0
         self._climb_left = 0
         self._round_from: int | None = None

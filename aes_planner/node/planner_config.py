@@ -41,6 +41,11 @@ class PlannerConfig:
       ``polish_start_gap`` (teacher units) of it, at least two coarsest steps apart (a hill
       captured second is not lost to the local optimum captured first); the loop settles on the
       best view of all.
+    * ``verify_hills``: before the climbs, up to this many captures (on top of
+      ``polish_captures``) of the search's best predicted views on hills no capture lies on
+      (a coarsest polish step or more from every capture; ranked by hope, each hoping for at
+      least the best captured score minus ``polish_start_gap``): a verification that beats every
+      capture is the first hill climbed, whichever hills the moves happened to visit. 0 = none.
     * ``tie_tolerance``: a capture displaces the best captured view (the polish's centre, the
       view settled on) only when it scored more than this higher (teacher units).
     * ``hope_quantum``: candidates are ranked by their hope rounded to this (teacher units), ties
@@ -101,6 +106,7 @@ class PlannerConfig:
     polish_scales: int = 4
     polish_starts: int = 2
     polish_start_gap: float = 0.1
+    verify_hills: int = 2
     tie_tolerance: float = 0.002
     hope_quantum: float = 0.005
     explore_below_covered: float = 0.9
@@ -152,6 +158,7 @@ class PlannerConfig:
             "polish_scales",
             "polish_starts",
             "explore_moves",
+            "verify_hills",
         ):
             v = getattr(self, name)
             require(
@@ -168,6 +175,7 @@ class PlannerConfig:
             ("polish_scales", 6),
             ("polish_starts", 8),
             ("explore_moves", 64),
+            ("verify_hills", 16),
             ("max_moves", 10_000),
             ("max_frames", 1024),
             ("threads", MAX_THREADS),

@@ -72,3 +72,29 @@ def test_summary_reports_spread_worst_and_moves():
     text = markdown({"runs": runs, "moves": 4}, ["a", "b"], ["base", "torch"])
     assert "| a | 0.950 (2) | 0.800 (5) | 0.875 | 0.800 | 0.150 |" in text
     assert "| b | 1.000 (2) | error |" in text
+
+
+def test_every_run_starts_without_the_previous_runs_teacher_maps(tmp_path):
+    """The field's teacher maps are cached per process by image content: a noise run's noisy maps
+    of the views every run of the scene shares (initial, exploration) changed the path of the next
+    run in the same process. Each run starts with the cache empty."""
+    import numpy as np
+    import torch
+
+    from aes_planner.eval.loop import run_one
+    from aes_planner.field import model as field_model
+
+    seen = []
+
+    def fake_demo(scene, mode, out, moves, overrides, timeout_s, planner_overrides=None, hook=None):
+        seen.append(len(field_model._feature_cache))
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "captures.json").write_text("[]")
+        return {"state": "done", "normalized": 1.0, "moves": 0}
+
+    field_model._feature_cache[("t", (1,), np.zeros(1, np.uint8).tobytes())] = torch.zeros(1)
+    for p in ("noise:1e-6", "seed:1"):
+        row = run_one(fake_demo, "indoor:200", parse_perturbation(p), 4, tmp_path / p)
+        field_model._feature_cache[("t", (2,), p.encode())] = torch.zeros(1)  # what a run leaves
+        assert row["normalized"] == 1.0
+    assert seen == [0, 0]

@@ -498,3 +498,36 @@ def test_polish_probes_a_second_hill_before_it_climbs():
         finals[starts] = node.captures[-1].score
     assert finals[1] == pytest.approx(0.75, abs=0.01)
     assert finals[2] > 0.9
+
+
+class _FarHill(ScriptedProposer):
+    """A narrow hill of 0.75 at (0.6, 0.2) and a higher one of 1.0 at (-1.0, 0), far from the start
+    and from the exploration's views."""
+
+    def value(self, pan, tilt):
+        a = 0.75 * math.exp(-((pan - 0.6) ** 2 + (tilt - 0.2) ** 2) / 0.01)
+        b = math.exp(-((pan + 1.0) ** 2 + tilt**2) / 0.02)
+        return float(max(a, b))
+
+
+def test_polish_verifies_a_predicted_hill_the_moves_never_reached():
+    """The field over-rates the narrow hill, so the one move goes there (0.75); the higher hill
+    (1.0) is only predicted. Without verification the polish climbs the hills it captured and ends
+    at 0.75; with it one capture of the higher hill's predicted top beats every capture and is
+    the hill climbed first."""
+    finals = {}
+    for verify in (0, 2):
+        prop = _FarHill()
+        prop.fixed = lambda p=prop: [
+            Candidate(p.rig.forward(0.6, 0.2), 10.0, 1.0, 0.6, 0.2),  # over-rated
+            Candidate(p.rig.forward(-0.97, 0.03), p.value(-0.97, 0.03), 1.0, -0.97, 0.03),
+        ]
+        node = make(prop, explore_views=2, max_moves=1, polish_captures=16, verify_hills=verify)
+        drive(node, SimRig(prop), steps=800)
+        assert node.state == "done" and node.moves == 1
+        kinds = [c.kind for c in node.captures]
+        assert kinds.count("verify") == (1 if verify else 0)
+        assert kinds.count("polish") <= 16  # the verification comes on top of the polish budget
+        finals[verify] = node.captures[-1].score
+    assert finals[0] == pytest.approx(0.75, abs=0.01)
+    assert finals[2] > 0.9
