@@ -39,13 +39,6 @@ idx = [int(n[4:8]) for n in data.meta["photos"]]
 err = pose_errors(data.cam2worlds(), truth[idx])
 
 
-def to_true(c2w):
-    m = np.array(c2w, np.float64)
-    m[:3, 3] = err.scale * err.rotation @ m[:3, 3] + err.translation
-    m[:3, :3] = err.rotation @ m[:3, :3]
-    return m
-
-
 k = data.frames[0].intrinsics
 platform = platform_from_meta(data.meta, k)
 cfg = SearchConfig.preset("balanced", mode=platform.kind)
@@ -69,7 +62,7 @@ with torch.no_grad():
     }
 near = np.array([int(np.argmin(np.linalg.norm(photos[:, :3, 3] - c[:3, 3], axis=1))) for c in cands])
 scene = load_scene(scene_file, allow_outside=True)
-true_c = score(teacher, scene, np.stack([to_true(c) for c in cands]))
+true_c = score(teacher, scene, np.stack([err.to_true(c) for c in cands]))
 true_in = score(teacher, scene, truth)
 rank = {"field": f_c, "field_anch": f_c + (real - f_p)[near]}
 for w, (rc, rp) in r.items():

@@ -44,13 +44,6 @@ idx = [int(n[4:8]) for n in data.meta["photos"]]
 err = pose_errors(data.cam2worlds(), truth[idx])
 
 
-def to_true(c2w):
-    m = np.array(c2w, np.float64)
-    m[:3, 3] = err.scale * err.rotation @ m[:3, 3] + err.translation
-    m[:3, :3] = err.rotation @ m[:3, :3]
-    return m
-
-
 photos = data.cam2worlds()
 k = data.frames[0].intrinsics
 platform = HandHeldPlatform.around_photos(k, photos)
@@ -62,7 +55,7 @@ found = refine_at_best_photo(teacher, photos, [f.image for f in data.frames], k,
 cands, best, real_best = found.suggestions, found.best_photo, float(found.photo_scores.max())
 scene = load_scene(scene_file, allow_outside=True)
 true_in = score(teacher, scene, truth)
-true_c = score(teacher, scene, np.stack([to_true(c.cam2world) for c in cands]))
+true_c = score(teacher, scene, np.stack([err.to_true(c.cam2world) for c in cands]))
 est = np.array([c.score for c in cands])
 rows = []
 for c, b in zip(cands, found.photo_of):

@@ -51,16 +51,10 @@ def one(seed: int, out: Path, preset: str, top: int, extra: list[str]) -> dict:
     idx = [int(n[4:8]) for n in data.meta["photos"]]
     err = pose_errors(data.cam2worlds(), truth[idx])
 
-    def to_true(c2w: np.ndarray) -> np.ndarray:
-        m = np.array(c2w, np.float64)
-        m[:3, 3] = err.scale * err.rotation @ m[:3, 3] + err.translation
-        m[:3, :3] = err.rotation @ m[:3, :3]
-        return m
-
     scene = load_scene(scene_file, allow_outside=True)
     teacher = get_teacher()
     inputs = score(teacher, scene, truth)
-    sugg = [to_true(s["cam2world"]) for s in doc["suggestions"]]
+    sugg = [err.to_true(s["cam2world"]) for s in doc["suggestions"]]
     got = score(teacher, scene, np.stack(sugg))
     # the field's own first choice among the same candidates (before the photos' correction)
     field_pick = int(np.argmax([s["terms"].get("field", s["score"]) for s in doc["suggestions"]]))

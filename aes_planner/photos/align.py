@@ -38,6 +38,13 @@ class PoseErrors:
     translation: np.ndarray  # [3]
     spread: float
 
+    def to_true(self, cam2world: np.ndarray) -> np.ndarray:
+        """A cam2world [4, 4] of the estimated frame mapped into the true frame by the similarity."""
+        m = np.array(cam2world, np.float64)
+        m[:3, 3] = self.scale * self.rotation @ m[:3, 3] + self.translation
+        m[:3, :3] = self.rotation @ m[:3, :3]
+        return m
+
     def to_json(self) -> dict:
         return {
             "rotation_deg_max": float(self.rotation_deg.max()),

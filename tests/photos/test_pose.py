@@ -181,3 +181,21 @@ def test_bad_scale_options_are_refused_before_any_work(arc_set, tmp_path, capsys
     assert "nope.jpg" in err
     err = _refused([images, "--out", tmp_path / "o", "--board", "chessboard:9x6"], capsys)
     assert "board" in err
+
+
+def test_to_true_maps_estimated_poses_onto_the_truth_through_the_similarity():
+    """Poses made from the truth by a known similarity come back onto the truth exactly."""
+    rng = np.random.default_rng(3)
+    truth = np.tile(np.eye(4), (5, 1, 1))  # [5, 4, 4]
+    truth[:, :3, 3] = rng.normal(size=(5, 3)) * 2.0
+    for i, yaw in enumerate(rng.uniform(-math.pi, math.pi, 5)):
+        c, s = math.cos(yaw), math.sin(yaw)
+        truth[i, :3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # 90 deg about z
+    est = truth.copy()
+    est[:, :3, 3] = 0.5 * truth[:, :3, 3] @ turn.T + [1.0, -2.0, 0.3]  # a frame 2x smaller, turned, moved
+    est[:, :3, :3] = turn @ truth[:, :3, :3]
+    errors = pose_errors(est, truth)
+    assert errors.rotation_deg.max() < 1e-6 and errors.centre_frac.max() < 1e-9
+    for e, t in zip(est, truth):
+        np.testing.assert_allclose(errors.to_true(e), t, atol=1e-9)
