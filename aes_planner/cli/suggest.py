@@ -454,13 +454,10 @@ def _refine(scorer, data, platform, cfg) -> dict | None:
     if not found.suggestions or found.suggestions[0].terms["photo_gain"] <= 0:
         log.info("refinement at the best photo found nothing predicted better than the photo")
         return None
-    names = data.meta.get("photos")
-    if not (isinstance(names, list) and len(names) == len(data.frames)):
-        names = [f"input {i + 1}" for i in range(len(data.frames))]
     at = int(found.photo_of[0])
     return {
         "pick": found.suggestions[0],
-        "photo": str(names[at]),
+        "photo": _photo_names(data)[at],
         "photo_score": float(found.photo_scores[at]),
         "candidates": len(found.suggestions),
     }
@@ -475,12 +472,17 @@ def _hand_held_moves(platform, data, suggestions) -> list:
         return []
     import numpy as np
 
-    names = data.meta.get("photos")
-    if not (isinstance(names, list) and len(names) == len(data.frames) and all(isinstance(n, str) for n in names)):
-        names = [f.frame_id or f"input {i + 1}" for i, f in enumerate(data.frames)]
     unit = data.meta.get("unit", "m")
     targets = np.stack([s.cam2world for s in suggestions])  # [K, 4, 4]
-    return moves_from_photos(targets, data.cam2worlds(), names, "m" if unit == "m" else str(unit))
+    return moves_from_photos(targets, data.cam2worlds(), _photo_names(data), "m" if unit == "m" else str(unit))
+
+
+def _photo_names(data) -> list[str]:
+    """The input photos' file names (the pose step's ``photos`` list), else the frames' ids."""
+    names = data.meta.get("photos")
+    if isinstance(names, list) and len(names) == len(data.frames) and all(isinstance(n, str) for n in names):
+        return names
+    return [f.frame_id or f"input {i + 1}" for i, f in enumerate(data.frames)]
 
 
 def _framing_args(args):

@@ -302,12 +302,12 @@ def _search_views(
     avoid_params = space.from_poses(avoid_poses) if avoid_poses is not None and len(avoid_poses) else None
     framing = framing if framing is not None and framing.active else None
     warnings: list[str] = []
-    if framing is not None and not framing.cfg.refine:  # stage 1's feasible pick stands (FramingConfig.refine)
-        cfg = dataclasses.replace(cfg, steps=0)
-    if framing is not None:  # the views all hold a seen subject: the milder coverage rule of FramingConfig
-        cfg = dataclasses.replace(cfg, coverage_min=framing.cfg.coverage_min,
-                                  coverage_penalty=framing.cfg.coverage_penalty)  # fmt: skip
     if framing is not None:
+        # the views all hold a seen subject: FramingConfig's milder coverage rule; stage 1's
+        # feasible pick stands unless FramingConfig.refine
+        cfg = dataclasses.replace(cfg, coverage_min=framing.cfg.coverage_min,
+                                  coverage_penalty=framing.cfg.coverage_penalty,
+                                  steps=cfg.steps if framing.cfg.refine else 0)  # fmt: skip
         scorer = framing.wrap(scorer)  # the avoided regions and the placement join the score
 
     # ---- stage 1: trajectory samples + neighbours, scored in batches
@@ -333,10 +333,9 @@ def _search_views(
         out1, exact = scorer.score_screened(
             cand_poses, cfg.batch_size, cfg.screen_keep, lambda o: _objective(o, cfg), fresh
         )
-        obj1 = torch.where(exact, torch.nan_to_num(_objective(out1, cfg).double(), nan=-math.inf), -math.inf)
     else:
         out1, exact = scorer.score_batched(cand_poses, cfg.batch_size), torch.ones(len(candidates), dtype=torch.bool)
-        obj1 = torch.nan_to_num(_objective(out1, cfg).double(), nan=-math.inf)
+    obj1 = torch.where(exact, torch.nan_to_num(_objective(out1, cfg).double(), nan=-math.inf), -math.inf)  # [C]
     keep = _select_distinct(space, candidates, obj1, cfg.top_k, avoid_params)
     t_stage1 = time.perf_counter()
 
