@@ -51,7 +51,15 @@ import torch
 
 from aes_planner.graph.base import Outputs
 from aes_planner.messages import Candidate, PosedFrame
-from aes_planner.node.captures import Capture, CaptureKind, Target, decision_order, hopes, near_captured
+from aes_planner.node.captures import (
+    Capture,
+    CaptureKind,
+    Target,
+    decision_order,
+    hopes,
+    look_distance_m,
+    near_captured,
+)
 from aes_planner.platform import view_angle_deg
 
 log = logging.getLogger(__name__)
@@ -118,7 +126,12 @@ class ActiveLoop:
         # choose what comes next
         if self.state is LoopState.INITIAL:
             self._queue = self.motion.explore(self.config.explore_views, self._frame, self.captures)
+            self._positions_explored = False
             self.state = LoopState.EXPLORING
+        if self.state is LoopState.EXPLORING and not self._queue and not self._positions_explored:
+            # after the turn (a drone): positions across the box, looking the best way seen so far
+            self._positions_explored = True
+            self._queue = self.motion.explore_positions(self.config.explore_positions, self.captures)
         if self.state is LoopState.EXPLORING and not self._queue:
             self.state = LoopState.PLANNING
         if self.state is LoopState.PLANNING:
@@ -334,14 +347,14 @@ class ActiveLoop:
                     continue
             centre = self._polish_centre
             step_deg = c.polish_step_deg * 2.0**self._polish_scale
-            neighbours = self.motion.polish(centre, math.radians(step_deg))
+            step_m = c.polish_step_m * 2.0**self._polish_scale
+            neighbours = self.motion.polish(centre, math.radians(step_deg), step_m)
             previous = self._polish_previous
             if previous is not None and previous is not centre:  # keep going the way the last step went
                 neighbours.sort(key=lambda t: -view_angle_deg(t.cam2world, previous.cam2world))
             half_step_deg = 0.5 * step_deg
-            targets = [
-                t for t in neighbours if not near_captured(self.captures, t.cam2world, half_step_deg, c.min_move_m)
-            ]
+            same_m = min(c.min_move_m, 0.5 * step_m) if step_m > 0 else c.min_move_m  # a translated neighbour is new
+            targets = [t for t in neighbours if not near_captured(self.captures, t.cam2world, half_step_deg, same_m)]
             if not targets:  # every neighbour at this step was captured already: a finer step
                 self._polish_scale -= 1
                 if self._polish_scale < 0:
@@ -444,7 +457,15 @@ class ActiveLoop:
         if pan is None:
             pan, tilt = self.motion.joints_now(self._gimbal)
         cap = Capture(
-            target.kind, frame.cam2world.copy(), score, frame.stamp_s, pan, tilt, target.predicted, frame.image
+            target.kind,
+            frame.cam2world.copy(),
+            score,
+            frame.stamp_s,
+            pan,
+            tilt,
+            target.predicted,
+            frame.image,
+            look_distance_m(frame.depth_m),
         )
         self.captures.append(cap)
         self.counters["captures"] += 1

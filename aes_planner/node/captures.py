@@ -50,6 +50,7 @@ class Capture:
     tilt_rad: float | None = None
     predicted: float | None = None
     image: np.ndarray | None = field(default=None, repr=False)  # [H, W, 3] uint8
+    look_m: float | None = None  # how far the view's middle is (median depth of its central ninth); None: no depth
 
     def __post_init__(self):
         self.kind = CaptureKind(self.kind)
@@ -70,6 +71,17 @@ class Target:
 
     def __post_init__(self):
         self.kind = CaptureKind(self.kind)
+
+
+def look_distance_m(depth_m: np.ndarray | None) -> float | None:
+    """The median z-depth (metres) of a frame's central ninth (``depth_m`` ``[H, W]``, 0 = no
+    measurement); None without depth or without a measured pixel there."""
+    if depth_m is None:
+        return None
+    h, w = depth_m.shape
+    mid = depth_m[h // 3 : h - h // 3, w // 3 : w - w // 3]  # [h/3, w/3]
+    seen = mid[np.isfinite(mid) & (mid > 0)]
+    return float(np.median(seen)) if seen.size else None
 
 
 def near_captured(captures: list[Capture], cam2world: np.ndarray, limit_deg: float, limit_m: float) -> bool:

@@ -22,7 +22,7 @@ from typing import Protocol
 import numpy as np
 import torch
 
-from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
+from aes_planner.geometry.poses import cam2world_to_view, direction_to_yaw_pitch, view_to_cam2world
 from aes_planner.geometry.rig import JointCommandError, PanTiltConfig
 from aes_planner.graph.base import Outputs
 from aes_planner.messages import Candidate, GimbalCommand, GimbalState, MessageError, PosedFrame, ViewSuggestion
@@ -33,6 +33,9 @@ from aes_planner.search.space import space_for
 log = logging.getLogger(__name__)
 
 __all__ = ["DroneMotion", "Motion", "RigMotion", "Sender"]
+
+#: How far along the way to the box's wall a drone's exploration positions go.
+EXPLORE_REACH = 0.7
 
 
 class Sender(Protocol):
@@ -78,9 +81,14 @@ class Motion(ABC):
     def explore(self, n: int, frame: PosedFrame, captures: list[Capture]) -> list[Target]:
         """``n`` exploration targets."""
 
+    def explore_positions(self, n: int, captures: list[Capture]) -> list[Target]:
+        """Captures away from the start after the exploration's turn (a drone); none on a rig."""
+        return []
+
     @abstractmethod
-    def polish(self, cap: Capture, step_rad: float) -> list[Target]:
-        """The four neighbours ``step_rad`` from a capture, inside the platform's range."""
+    def polish(self, cap: Capture, step_rad: float, step_m: float = 0.0) -> list[Target]:
+        """The neighbours ``step_rad`` from a capture (and ``step_m`` for a platform that
+        translates), inside the platform's range."""
 
     @abstractmethod
     def safe(self, cd: Candidate) -> bool:
@@ -134,7 +142,7 @@ class RigMotion(Motion):
             joints = joints[::-1]
         return [Target(CaptureKind.EXPLORE, kin.forward(p, t), float(p), float(t)) for p, t in joints]
 
-    def polish(self, cap, step_rad):
+    def polish(self, cap, step_rad, step_m=0.0):
         """The four joint neighbours ``step_rad`` away that lie inside the limits (one beyond them
         is not a place the rig can look: left out, not clamped onto the limit)."""
         if cap.pan_rad is None or cap.tilt_rad is None:
@@ -218,15 +226,60 @@ class DroneMotion(Motion):
             )
         return targets
 
-    def polish(self, cap, step_rad):
-        """Yaw and pitch ``step_rad`` away, the position kept, the pitch inside the searched range."""
+    def explore_positions(self, n, captures):
+        """``n`` positions spread across the box around the start (to its sides, ahead and
+        behind, along the best capture's view; each ``EXPLORE_REACH`` of the way to the box's
+        wall, at the start's height), each looking at what the best capture looks at (the point
+        its depth puts in the middle of its view; without depth: the way it looks)."""
+        if n <= 0 or not captures:
+            return []
+        start = captures[0].cam2world[:3, 3]
+        best = max(captures, key=lambda cap: cap.score)  # stable: the earliest on a tie
+        _, _, _, yaw, pitch = (float(v) for v in cam2world_to_view(best.cam2world))
+        fwd = np.array([math.cos(yaw), math.sin(yaw), 0.0])
+        side = np.array([-math.sin(yaw), math.cos(yaw), 0.0])
+        lo, hi = np.asarray(self.box.bounds_min_m), np.asarray(self.box.bounds_max_m)
+        aim = None  # [3], what the best capture looks at
+        if best.look_m is not None and math.isfinite(best.look_m) and best.look_m > 0:
+            aim = best.cam2world[:3, 3] + best.look_m * best.cam2world[:3, 2]
+        targets = []
+        for i in range(n):
+            a = 2 * math.pi * i / n  # left, ahead, right, behind for n = 4 ...
+            d = math.cos(a) * side + math.sin(a) * fwd  # [3], unit, horizontal
+            # how far the box lets the drone go from the start along d
+            with np.errstate(divide="ignore", invalid="ignore"):
+                room = np.where(d > 1e-9, (hi - start) / d, np.where(d < -1e-9, (lo - start) / d, np.inf))
+            reach = EXPLORE_REACH * float(np.min(room))
+            if not math.isfinite(reach) or reach <= 0.0:
+                continue
+            p = self.box.clamp(start + reach * d)  # [3]
+            if aim is not None and np.linalg.norm(aim - p) > 1e-3:
+                y_, p_ = direction_to_yaw_pitch(torch.as_tensor(aim - p))
+                lo_p, hi_p = float(self.space.lower[4]), float(self.space.upper[4])
+                targets.append(Target(CaptureKind.EXPLORE, self._pose(*p, float(y_), min(max(float(p_), lo_p), hi_p))))
+            else:
+                targets.append(Target(CaptureKind.EXPLORE, self._pose(*p, yaw, pitch)))
+        return targets
+
+    def polish(self, cap, step_rad, step_m=0.0):
+        """Yaw and pitch ``step_rad`` away, the position kept, the pitch inside the searched range;
+        with ``step_m`` > 0 also ``step_m`` to either side and forward and back (inside the box)."""
         lo, hi = float(self.space.lower[4]), float(self.space.upper[4])
         x, y, z, yaw, pitch = (float(v) for v in cam2world_to_view(cap.cam2world))
         offsets = ((step_rad, 0.0), (-step_rad, 0.0), (0.0, step_rad), (0.0, -step_rad))
-        return [
+        out = [
             Target(CaptureKind.POLISH, self._pose(x, y, z, yaw + dy, min(max(pitch + dp, lo), hi)))
             for dy, dp in offsets
         ]
+        if step_m > 0.0:
+            fwd = np.array([math.cos(yaw), math.sin(yaw), 0.0]) * step_m
+            side = np.array([-math.sin(yaw), math.cos(yaw), 0.0]) * step_m
+            here = np.array([x, y, z])
+            for d in (side, -side, fwd, -fwd):
+                p = here + d
+                if self.box.contains(p):  # one beyond the wall is left out, not clamped onto it
+                    out.append(Target(CaptureKind.POLISH, self._pose(*p, yaw, pitch)))
+        return out
 
     def safe(self, cd):
         cd.cam2world = self.platform.clamp(cd.cam2world)

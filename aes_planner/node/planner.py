@@ -125,6 +125,7 @@ class PlannerNode(ActiveLoop, Node):
         self._frame: PosedFrame | None = None  # newest accepted frame
         self._gimbal: GimbalState | None = None  # newest gimbal state
         self._queue: list[Target] = []
+        self._positions_explored = False  # a drone's exploration positions queued (after the turn)
         self._target: Target | None = None
         self._polish_left = 0
         self._polish_scale = 0

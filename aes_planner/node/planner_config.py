@@ -23,6 +23,11 @@ class PlannerConfig:
     * ``preset``: search preset (``fast``, ``balanced``); ``teacher``: the teacher name.
     * ``active``: run the active loop (commands the gimbal / flies the drone); false = suggest only.
     * ``explore_views``: captures spread over the range before the first suggestion.
+    * ``explore_positions``: a drone only (a rig ignores it): after turning in place, captures at
+      this many positions spread across its box (to either side of the start and ahead of and
+      behind it, each most of the way to the box's wall), each looking the way the best capture so
+      far looks: the field then has seen the scene from more than one place, and the moves and the
+      polish are not bound to the start (a drone that only turned stayed within ~0.2 m of it).
     * ``max_moves``: suggestion-driven moves at most; ``margin``: the gain (teacher units) a
       suggestion must promise over the best captured view to be worth a move. The promise is the
       scorer's prediction calibrated on the captures (their true teacher scores: ``true = pred +
@@ -36,6 +41,8 @@ class PlannerConfig:
       or yaw and pitch for a drone, k from ``polish_scales - 1`` down to 0; the search moves to a
       better neighbour, halves the step when none is better and stops after the finest step);
       0 = settle at once. ``polish_step_deg`` should exceed ``arrival_tolerance_deg``.
+      ``polish_step_m``: a drone only: its polish also moves ``polish_step_m * 2**k`` to either
+      side and forward and back (0 = turns only); should exceed ``arrival_tolerance_m``.
     * ``polish_starts``: hills the polish climbs, one after the other, each with an equal share of
       ``polish_captures``: the best captured view and up to ``polish_starts - 1`` others within
       ``polish_start_gap`` (teacher units) of it, at least two coarsest steps apart (a hill
@@ -94,6 +101,7 @@ class PlannerConfig:
     teacher: str = "composition"
     active: bool = True
     explore_views: int = 6
+    explore_positions: int = 4
     max_moves: int = 4
     margin: float = 0.01
     optimism: float = 1.0
@@ -103,6 +111,7 @@ class PlannerConfig:
     min_move_m: float = 0.1
     polish_captures: int = 32
     polish_step_deg: float = 1.25
+    polish_step_m: float = 0.0
     polish_scales: int = 4
     polish_starts: int = 2
     polish_start_gap: float = 0.1
@@ -150,6 +159,7 @@ class PlannerConfig:
         require(self.preset in PRESETS, "preset", f"must be {' or '.join(PRESETS)}, got {self.preset!r}")
         for name in (
             "explore_views",
+            "explore_positions",
             "max_moves",
             "top_k",
             "max_frames",
@@ -171,6 +181,7 @@ class PlannerConfig:
         require(self.top_k <= MAX_CANDIDATES, "top_k", f"must be <= {MAX_CANDIDATES}, got {self.top_k}")
         for name, most in (
             ("explore_views", 64),
+            ("explore_positions", 64),
             ("polish_captures", 64),
             ("polish_scales", 6),
             ("polish_starts", 8),
@@ -187,6 +198,8 @@ class PlannerConfig:
             self, ("margin", "optimism", "min_sigma", "min_move_deg", "min_move_m", "settle_s"), strict=False
         )
         require_numbers(self, ("residual_length_deg", "polish_step_deg"))
+        require_numbers(self, ("polish_step_m",), strict=False)
+        require(self.polish_step_m <= 1.0, "polish_step_m", f"must be <= 1 (metres), got {self.polish_step_m}")
         require(self.polish_step_deg <= 30.0, "polish_step_deg", f"must be <= 30, got {self.polish_step_deg}")
         require(self.polish_scales >= 1, "polish_scales", f"must be >= 1, got {self.polish_scales}")
         require(self.polish_starts >= 1, "polish_starts", f"must be >= 1, got {self.polish_starts}")

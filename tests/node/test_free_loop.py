@@ -87,3 +87,110 @@ def test_free_loop_flies_to_better_views_inside_the_box():
     # a consumer tells the drone's waypoints (one pose each) from search results
     assert kinds["waypoint"] and all(len(s.candidates) == 1 for s in kinds["waypoint"])
     assert kinds["search"] and set(kinds) == {"waypoint", "search"}
+
+
+def _fly(config: PlannerConfig) -> PlannerNode:
+    """The loop of ``config`` on the scripted scorer, flown by a SimDrone from the box's middle."""
+    node = PlannerNode(config, proposer=FreeProposer(), teacher=FakeTeacher())
+    drone = SimDrone(BOX, SimDroneConfig(max_speed_m_s=3.0, max_yaw_rate_deg_s=360.0), [0, 0, 1.5, 0, 0])
+    now = 0.0
+    for _ in range(6000):
+        c2w = drone.cam2world()
+        img = np.full((K.height, K.width, 3), int(255 * value(c2w)), np.uint8)
+        out = node.step({"camera/frame": [PosedFrame(img, K, c2w, now)]}, now)
+        for s in out["planner/suggestion"]:
+            if s.candidates:
+                drone.set_target(s.candidates[0].view)
+        drone.advance(0.02)
+        now += 0.02
+        if node.finished:
+            break
+    assert node.state == "done"
+    return node
+
+
+def test_a_drone_explores_positions_across_its_box_not_only_turns_at_the_start():
+    """After turning in place, the exploration flies to positions spread over the box (each most
+    of the way to a wall), all looking the way the best turn looked; without them every
+    exploration capture is at the start (the drone that stayed within ~0.2 m of it)."""
+    base = dict(platform=DronePlatformConfig(BOX), explore_views=3, max_moves=0, settle_s=0.0, polish_captures=0)
+    start = np.array([0.0, 0.0, 1.5])
+    node = _fly(PlannerConfig(**base, explore_positions=4))
+    explore = [c for c in node.captures if c.kind == "explore"]
+    assert len(explore) == 3 + 4
+    turns, spread = explore[:3], explore[3:]
+    assert all(np.linalg.norm(c.cam2world[:3, 3] - start) < 0.06 for c in turns)
+    away = [np.linalg.norm(c.cam2world[:3, 3] - start) for c in spread]
+    assert min(away) > 0.5, away  # 0.7 of the way to a wall 1 m off
+    best_turn = max(node.captures[:4], key=lambda c: c.score)
+    yaw = float(cam2world_to_view(best_turn.cam2world)[3])
+    for c in spread:
+        assert BOX.contains(c.cam2world[:3, 3])
+        assert abs(math.remainder(float(cam2world_to_view(c.cam2world)[3]) - yaw, 2 * math.pi)) < math.radians(3)
+    # four directions: both sides and ahead/behind of the best view
+    offsets = np.stack([c.cam2world[:3, 3] - start for c in spread])  # [4, 3]
+    assert np.linalg.matrix_rank(offsets[:, :2], tol=0.1) == 2
+    still = _fly(PlannerConfig(**base, explore_positions=0))
+    assert all(np.linalg.norm(c.cam2world[:3, 3] - start) < 0.06 for c in still.captures)
+
+
+def test_a_drones_polish_translates_with_a_step_in_metres():
+    """polish_step_m > 0: the compass search also moves to either side and ahead/behind (inside
+    the box); 0: turns only. A climb on the scripted scorer, whose peak is 0.64 m from the start,
+    moves the drone towards it only when it may translate."""
+    from aes_planner.node.captures import Capture
+    from aes_planner.node.motion import DroneMotion
+    from aes_planner.search.config import SearchConfig
+
+    motion = DroneMotion(BOX, SearchConfig())
+    motion.bind(K)
+    here = view_to_cam2world(torch.tensor([0.95, 0.0, 1.5, 0.0, 0.0], dtype=torch.float64)).numpy()
+    cap = Capture("polish", here, 0.5, 0.0)
+    turns = motion.polish(cap, math.radians(5.0))
+    assert len(turns) == 4 and all(np.allclose(t.cam2world[:3, 3], here[:3, 3]) for t in turns)
+    both = motion.polish(cap, math.radians(5.0), 0.2)
+    moved = [t.cam2world[:3, 3] - here[:3, 3] for t in both[4:]]
+    assert len(moved) == 3  # ahead (+x) would leave the box at x = 1: left out, not clamped
+    assert all(abs(np.linalg.norm(d) - 0.2) < 1e-9 for d in moved)
+    base = dict(
+        platform=DronePlatformConfig(BOX),
+        explore_views=3,
+        explore_positions=0,
+        max_moves=0,
+        verify_hills=0,
+        settle_s=0.0,
+    )
+    turning = _fly(PlannerConfig(**base, polish_captures=48, polish_starts=1))
+    walking = _fly(PlannerConfig(**base, polish_captures=48, polish_starts=1, polish_step_m=0.05))
+    far = lambda n: max(np.linalg.norm(c.cam2world[:3, 3] - [0, 0, 1.5]) for c in n.captures)  # noqa: E731
+    assert far(turning) < 0.06 < 0.2 < far(walking)
+    assert value(walking.captures[-1].cam2world) > value(turning.captures[-1].cam2world)
+
+
+def test_a_drones_exploration_positions_look_at_what_the_best_view_sees():
+    """With depth, each position looks at the point in the middle of the best capture's view (its
+    depth away), so the subject stays in the picture from every side; without depth, parallel."""
+    from aes_planner.node.captures import Capture, look_distance_m
+    from aes_planner.node.motion import DroneMotion
+    from aes_planner.search.config import SearchConfig
+
+    motion = DroneMotion(BOX, SearchConfig())
+    motion.bind(K)
+    start = view_to_cam2world(torch.tensor([0.0, 0.0, 1.5, 0.0, 0.0], dtype=torch.float64)).numpy()
+    best = view_to_cam2world(torch.tensor([0.0, 0.0, 1.5, 0.6, -0.1], dtype=torch.float64)).numpy()
+    depth = np.zeros((30, 30), np.float32)
+    depth[10:20, 10:20] = 2.0  # the middle nine-th measured, 2 m away
+    assert look_distance_m(depth) == 2.0 and look_distance_m(None) is None
+    assert look_distance_m(np.zeros((30, 30), np.float32)) is None
+    caps = [Capture("initial", start, 0.2, 0.0), Capture("explore", best, 0.6, 1.0, look_m=2.0)]
+    aim = best[:3, 3] + 2.0 * best[:3, 2]
+    targets = motion.explore_positions(4, caps)
+    assert len(targets) == 4
+    for t in targets:
+        p, fwd = t.cam2world[:3, 3], t.cam2world[:3, 2]
+        assert BOX.contains(p) and np.linalg.norm(p - start[:3, 3]) > 0.3
+        to_aim = (aim - p) / np.linalg.norm(aim - p)
+        assert float(fwd @ to_aim) > math.cos(math.radians(1.0))  # looks at it
+    caps[1].look_m = None
+    for t in motion.explore_positions(4, caps):
+        assert float(t.cam2world[:3, 2] @ best[:3, 2]) > math.cos(math.radians(1.0))  # parallel
