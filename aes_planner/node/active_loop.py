@@ -333,8 +333,10 @@ class ActiveLoop:
                 self._polish_previous = None
             elif self._round_from is not None:  # the round just captured
                 top = self._polish_centre
+                # a coarse step moves the centre only on a material gain (a narrow peak beside it)
+                gain = c.tie_tolerance if self._polish_scale == 0 else max(c.tie_tolerance, c.polish_coarse_gain)
                 for cap in self.captures[self._round_from :]:
-                    if cap.score > top.score + c.tie_tolerance:
+                    if cap.score > top.score + gain:
                         top = cap
                 self._round_from = None
                 if top is not self._polish_centre:

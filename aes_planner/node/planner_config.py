@@ -55,6 +55,11 @@ class PlannerConfig:
       capture is the first hill climbed, whichever hills the moves happened to visit. 0 = none.
     * ``tie_tolerance``: a capture displaces the best captured view (the polish's centre, the
       view settled on) only when it scored more than this higher (teacher units).
+    * ``polish_coarse_gain``: at a polish step coarser than the finest, a neighbour displaces the
+      climb's centre only when it scored more than this higher (teacher units; at the finest,
+      ``tie_tolerance``): a neighbour a coarse step away on another, broader hill that is a hair
+      better does not pull the climb off a narrow peak the centre sits next to -- the step halves
+      and the finer steps find that peak. 0 = ``tie_tolerance`` at every step.
     * ``hope_quantum``: candidates are ranked by their hope rounded to this (teacher units), ties
       by where they look, so that near-equal predictions do not pick the move by their last bits
       (which differ between processors, backends and thread counts).
@@ -117,6 +122,7 @@ class PlannerConfig:
     polish_start_gap: float = 0.1
     verify_hills: int = 2
     tie_tolerance: float = 0.002
+    polish_coarse_gain: float = 0.02
     hope_quantum: float = 0.005
     explore_below_covered: float = 0.9
     explore_moves: int = 1
@@ -203,7 +209,12 @@ class PlannerConfig:
         require(self.polish_step_deg <= 30.0, "polish_step_deg", f"must be <= 30, got {self.polish_step_deg}")
         require(self.polish_scales >= 1, "polish_scales", f"must be >= 1, got {self.polish_scales}")
         require(self.polish_starts >= 1, "polish_starts", f"must be >= 1, got {self.polish_starts}")
-        require_numbers(self, ("tie_tolerance", "hope_quantum", "polish_start_gap"), strict=False)
+        require_numbers(self, ("tie_tolerance", "hope_quantum", "polish_start_gap", "polish_coarse_gain"), strict=False)
+        require(
+            self.polish_coarse_gain <= 0.5,
+            "polish_coarse_gain",
+            f"must be in [0, 0.5] (teacher units), got {self.polish_coarse_gain}",
+        )
         require_numbers(self, ("explore_below_covered",), strict=False)
         require(
             self.explore_below_covered <= 1.0,

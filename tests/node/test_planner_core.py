@@ -531,3 +531,38 @@ def test_polish_verifies_a_predicted_hill_the_moves_never_reached():
         finals[verify] = node.captures[-1].score
     assert finals[0] == pytest.approx(0.75, abs=0.01)
     assert finals[2] > 0.9
+
+
+def test_a_coarse_polish_step_does_not_pull_the_climb_off_a_narrow_peak():
+    """The move lands 1.7 deg beside a narrow peak (0.85, 2 deg wide); a neighbour 10 deg away on
+    the flank of a broad, lower hill (0.725 at its top) scores 0.008 more than the centre. With
+    tie_tolerance alone the centre moves there and the climb ends on the broad hill (dev
+    wide_indoor_204 ``seed:1``: a 0.004 gain at 10 deg cost 0.1 of the oracle); with
+    polish_coarse_gain the coarse step halves instead and the finer steps climb the narrow peak."""
+    peak = (0.6, 0.2)
+    sn, sb = math.radians(2.0), math.radians(12.0)
+    broad_pan = peak[0] + math.radians(25.0)
+
+    def value(pan, tilt):
+        narrow = 0.85 * math.exp(-((pan - peak[0]) ** 2 + (tilt - peak[1]) ** 2) / (2 * sn**2))
+        broad = 0.525 + 0.2 * math.exp(-((pan - broad_pan) ** 2 + (tilt - peak[1]) ** 2) / (2 * sb**2))
+        return max(narrow, broad)
+
+    finals = {}
+    for gain in (0.0, 0.02):
+        prop = ScriptedProposer(peak=peak)
+        prop.value = value
+        _one_candidate(prop, peak[0] - math.radians(1.7), peak[1])
+        node = make(
+            prop,
+            explore_views=2,
+            max_moves=1,
+            polish_captures=24,
+            polish_starts=1,
+            verify_hills=0,
+            polish_coarse_gain=gain,
+        )
+        drive(node, SimRig(prop), steps=1000)
+        assert node.state == "done" and node.captures[-1].kind == "settle"
+        finals[gain] = node.captures[-1].score
+    assert finals[0.0] < 0.75 < 0.8 < finals[0.02]
