@@ -15,7 +15,10 @@ Timing model (all times in seconds of sim time, the ``stamp_s`` of the frames):
   rotation by a random rotation vector ``N(0, sigma^2)`` per camera axis); the true pose is
   rendered. **Pixel noise** adds ``N(0, sigma^2)`` (8-bit levels) to each channel, rounded and
   clipped. Both are seeded; they use separate streams, so turning one on does not change the
-  other.
+  other. With ``noise_by_pose`` a frame's noise is drawn from the seed and the pose it shows
+  (the same view, the same noise, whenever it is captured) instead of from a stream one draw per
+  frame: a closed loop's noise then does not depend on how many frames the camera rendered
+  before a capture, which a simulated gimbal's arrival time changes from process to process.
 * ``frame.extras`` holds ``instance_id`` (``[H, W]`` int32), ``true_cam2world`` (the rendered
   pose), ``exposure_stamp_s`` (``t - latency_s``) and ``reported_pose_error_m`` (translation
   between the reported and rendered poses).
@@ -24,6 +27,7 @@ Timing model (all times in seconds of sim time, the ``stamp_s`` of the frames):
 from __future__ import annotations
 
 import bisect
+import hashlib
 import math
 from dataclasses import dataclass
 
@@ -60,6 +64,7 @@ class SimCameraConfig:
       the reported pose (the rendered pose stays true).
     * ``latency_s``: a frame captured at ``t`` shows the pose at ``t - latency_s``.
     * ``seed``: for the noise streams.
+    * ``noise_by_pose``: draw each frame's noise from ``seed`` and its pose, not from a stream.
     """
 
     width: int | None = None
@@ -71,6 +76,7 @@ class SimCameraConfig:
     pose_noise_rotation_deg: float = 0.0
     latency_s: float = 0.0
     seed: int = 0
+    noise_by_pose: bool = False
 
     def __post_init__(self):
         for name in ("width", "height"):
@@ -105,6 +111,9 @@ class SimCameraConfig:
             self.pose_noise_rotation_deg <= 180.0,
             "pose_noise_rotation_deg",
             f"must be <= 180 deg, got {self.pose_noise_rotation_deg}",
+        )
+        require(
+            isinstance(self.noise_by_pose, bool), "noise_by_pose", f"must be true or false, got {self.noise_by_pose!r}"
         )
 
 
@@ -203,12 +212,13 @@ class SimCamera(Camera):
         t = self._stamps[-1] if stamp_s is None else float(stamp_s)
         exposure_s = t - self.config.latency_s
         true_pose = self.pose_at(exposure_s)
-        reported = self._perturb(self.pose_at(t))
+        reported = self._perturb(self.pose_at(t), self._rng_for(self._pose_rng, 0, true_pose))
         out = render(self.scene, true_pose, self.intrinsics, self.config.supersample)
         image = out.rgb
         sigma = self.config.pixel_noise_sigma
         if sigma > 0:
-            noisy = image + self._pixel_rng.normal(0.0, sigma, image.shape)
+            rng = self._rng_for(self._pixel_rng, 1, true_pose)
+            noisy = image + rng.normal(0.0, sigma, image.shape)
             image = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
         frame = PosedFrame(
             image=image,
@@ -239,12 +249,21 @@ class SimCamera(Camera):
         self.move_joints(pan_rad, tilt_rad, t)
         return self.capture(t)
 
-    def _perturb(self, cam2world: np.ndarray) -> np.ndarray:
+    def _rng_for(self, stream: np.random.Generator, which: int, pose: np.ndarray) -> np.random.Generator:
+        """The generator of one frame's noise: the stream, or with ``noise_by_pose`` one seeded by
+        ``seed``, ``which`` (0 pose, 1 pixels) and the shown pose ``[4, 4]`` rounded to 1e-9."""
+        if not self.config.noise_by_pose:
+            return stream
+        key = np.rint(np.asarray(pose, dtype=np.float64)[:3, :4] * 1e9).astype(np.int64).tobytes()
+        digest = int.from_bytes(hashlib.blake2b(key, digest_size=8).digest(), "little")
+        return np.random.default_rng([self.config.seed, which, digest])
+
+    def _perturb(self, cam2world: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         c = self.config
         if c.pose_noise_translation_m == 0 and c.pose_noise_rotation_deg == 0:
             return cam2world
         pose = cam2world.copy()
-        rotvec = self._pose_rng.normal(0.0, math.radians(c.pose_noise_rotation_deg), 3)
+        rotvec = rng.normal(0.0, math.radians(c.pose_noise_rotation_deg), 3)
         pose[:3, :3] = cam2world[:3, :3] @ cv2.Rodrigues(rotvec.reshape(3, 1))[0]
-        pose[:3, 3] += self._pose_rng.normal(0.0, c.pose_noise_translation_m, 3)
+        pose[:3, 3] += rng.normal(0.0, c.pose_noise_translation_m, 3)
         return pose

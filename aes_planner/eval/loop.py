@@ -222,11 +222,13 @@ def run_one(
             overrides += [
                 f"{camera}.camera.pose_noise_translation_m={p.noise_rel}",
                 f"{camera}.camera.pose_noise_rotation_deg={math.degrees(p.noise_rel)}",
+                f"{camera}.camera.noise_by_pose=true",
             ]
         else:
             overrides += [
                 f"camera.camera.pose_noise_translation_m={p.noise_rel}",
                 f"camera.camera.pose_noise_rotation_deg={math.degrees(p.noise_rel)}",
+                "camera.camera.noise_by_pose=true",
             ]
 
     def hook(nodes) -> None:

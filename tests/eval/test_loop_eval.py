@@ -98,3 +98,30 @@ def test_every_run_starts_without_the_previous_runs_teacher_maps(tmp_path):
         field_model._feature_cache[("t", (2,), p.encode())] = torch.zeros(1)  # what a run leaves
         assert row["normalized"] == 1.0
     assert seen == [0, 0]
+
+
+def test_a_noise_run_draws_its_noise_by_pose_for_rig_and_drone(tmp_path):
+    """The camera's noise of a noise run is keyed by the view, not drawn one per rendered frame
+    (how many frames come before a capture differs between processes); and the overrides load."""
+    from aes_planner.eval.loop import run_one
+    from aes_planner.graph.launch_file import load_launch
+
+    got = {}
+
+    def fake_demo(scene, mode, out, moves, overrides, timeout_s, planner_overrides=None, hook=None):
+        got[mode] = list(overrides)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "captures.json").write_text("[]")
+        return {"state": "done", "normalized": 1.0, "moves": 0}
+
+    run_one(fake_demo, "indoor:200", parse_perturbation("noise:1e-6"), 4, tmp_path / "rig")
+    run_one(fake_demo, "indoor:200@drone", parse_perturbation("noise:1e-6"), 4, tmp_path / "drone")
+    assert "camera.camera.noise_by_pose=true" in got[None] or "camera.camera.noise_by_pose=true" in got["rig"]
+    assert "drone.camera.noise_by_pose=true" in got["drone"]
+    spec = load_launch("sim_closed_loop.yaml", ["scene=indoor:200", *next(v for k, v in got.items() if k != "drone")])
+    cam = next(n for n in spec.nodes if n.id == "camera")
+    assert cam.config["camera"]["noise_by_pose"] is True
+    from aes_planner.config import from_dict
+    from aes_planner.node.sim_camera import SimCameraNodeConfig
+
+    assert from_dict(SimCameraNodeConfig, cam.config, "camera")._camera.noise_by_pose is True

@@ -77,6 +77,33 @@ def test_pose_noise_perturbs_the_report_not_the_image(scene):
     assert np.array_equal(both.capture_pose(pose, 0.0).cam2world, frames[0].cam2world)
 
 
+def test_noise_by_pose_does_not_depend_on_the_frames_rendered_before(scene):
+    """With a stream, the noise of a view depends on how many frames came before it (a simulated
+    gimbal arriving one tick later in another process changed a noise run's path: dev gallery:203
+    first move at pan 2.2 in one process, 2.8 in another); keyed by the pose, a view gets the same
+    noise whenever it is captured, another view other noise, and the seed still matters."""
+    kin = scene.rig.kinematics()
+    pose, other = kin.forward(0.1, -0.3), kin.forward(0.4, 0.1)
+    noise = dict(pose_noise_translation_m=0.01, pose_noise_rotation_deg=0.5, pixel_noise_sigma=3.0, width=16, height=12)
+
+    def after(n_before: int, by_pose: bool, seed: int = 1):
+        cam = SimCamera(scene, SimCameraConfig(seed=seed, noise_by_pose=by_pose, **noise))
+        for i in range(n_before):
+            cam.capture_pose(other, stamp_s=float(i))
+        return cam.capture_pose(pose, stamp_s=float(n_before))
+
+    a, b = after(3, True), after(7, True)
+    assert np.array_equal(a.cam2world, b.cam2world) and np.array_equal(a.image, b.image)
+    assert not np.allclose(a.cam2world, pose)  # it is noisy
+    assert not np.array_equal(a.cam2world, after(3, True, seed=2).cam2world)
+    c = SimCamera(scene, SimCameraConfig(seed=1, noise_by_pose=True, **noise)).capture_pose(other)
+    assert abs(c.extras["reported_pose_error_m"] - a.extras["reported_pose_error_m"]) > 1e-9  # other view, other draw
+    s3, s7 = after(3, False), after(7, False)
+    assert not np.array_equal(s3.cam2world, s7.cam2world)  # the stream: the count before matters
+    with pytest.raises(ConfigError, match="noise_by_pose"):
+        SimCameraConfig(noise_by_pose="yes")
+
+
 def test_latency_shows_the_earlier_pose_and_reports_the_current(scene):
     kin = scene.rig.kinematics()
     a, b = kin.forward(-0.5, -0.3), kin.forward(0.5, -0.3)
