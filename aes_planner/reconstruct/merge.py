@@ -335,8 +335,10 @@ def contributions(
     """Per splat, the largest total blending weight (pixels) over ``views`` and whether any of
     them drew it at all: ``(max_weight [M], seen [M])``.
 
-    The weight is exact and cheap: the gradient of the summed red channel with respect to a
-    splat's red colour is the sum over pixels of its blending weight ``T alpha``.
+    The weight is exact and cheap: the gradient of a rendered value channel with respect to a
+    splat's value in it is the sum over pixels of its blending weight ``T alpha``. Views of one
+    image size render in one batched call with one probe channel per view (channel ``b`` read
+    in view ``b`` only), so that the rasterizer runs once for all of them.
     """
     from aes_planner.gaussians import autograd_on, rasterize
 
@@ -344,18 +346,30 @@ def contributions(
     seen = np.zeros(len(sp), bool)
     if not len(sp):
         return best, seen
+    by_size: dict[tuple[int, int], list[int]] = {}
+    for i, (_, k) in enumerate(views):
+        by_size.setdefault((k.width, k.height), []).append(i)
     with autograd_on():  # the weights are a gradient, also under a caller's no_grad or inference_mode
         g = sp.to_gaussians()
-        colors = g.colors.clone().requires_grad_(True)
-        g.colors = colors
-        for cam2world, k in views:
-            out = rasterize(
-                g, torch.from_numpy(np.linalg.inv(cam2world)), torch.from_numpy(k.K), k.width, k.height, validate=False
-            )
-            (grad,) = torch.autograd.grad(out.rgb[:, 0].sum(), colors)
-            wgt = grad[:, 0].double().numpy()
-            best = np.maximum(best, wgt)
-            seen |= wgt > 0
+        for (width, height), index in by_size.items():
+            n_views = len(index)
+            # [M, B] probes: the colours carry views 0-2 and features the rest (few value channels
+            # keep the backward on its lane-wise path)
+            probe = torch.zeros(len(sp), max(n_views, 3), dtype=g.colors.dtype, requires_grad=True)
+            g.colors, g.features = probe[:, :3], probe[:, 3:]
+            world2cam = torch.from_numpy(np.stack([np.linalg.inv(views[i][0]) for i in index]))  # [B, 4, 4]
+            K = torch.from_numpy(np.stack([views[i][1].K for i in index]))  # [B, 3, 3]
+            out = rasterize(g, world2cam, K, width, height, validate=False)
+            # d/d(view b's own channel) = 1, all else 0; built in numpy: large torch ops would wake
+            # torch's thread pool against the rasterizer's (numba_backend._Raster says why)
+            maps = (out.rgb, out.features, out.depth, out.alpha)
+            upstream = [np.zeros(tuple(t.shape), np.float32) for t in maps]
+            for b in range(n_views):
+                (upstream[0][b, b] if b < 3 else upstream[1][b, b - 3])[:] = 1.0
+            (grad,) = torch.autograd.grad(maps, probe, [torch.from_numpy(u) for u in upstream])
+            wgt = grad[:, :n_views].double().numpy()  # [M, B]
+            best = np.maximum(best, wgt.max(axis=1))
+            seen |= (wgt > 0).any(axis=1)
     return best, seen
 
 
