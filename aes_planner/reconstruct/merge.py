@@ -38,8 +38,7 @@ import torch
 
 from aes_planner.gaussians.projection import covariance_3d
 from aes_planner.geometry.camera import Intrinsics
-from aes_planner.geometry.poses import matrix_to_quat
-from aes_planner.reconstruct.splats import SplatSet
+from aes_planner.reconstruct.splats import SplatSet, rotations_to_quats
 
 __all__ = ["BASE_CELL_M", "coarsen", "contributions", "dedupe", "levels", "prune_hidden", "refit_colors"]
 
@@ -202,7 +201,7 @@ def _merge_groups(
     area = np.bincount(group, weights=sp.footprint_m[members].astype(np.float64) ** 2, minlength=n)
     return SplatSet(
         means=mu.astype(np.float32),
-        quats=matrix_to_quat(evecs).astype(np.float32),
+        quats=rotations_to_quats(evecs),
         log_scales=np.log(scales).astype(np.float32),
         opacities=np.clip(opacity, 0, 1).astype(np.float32),
         colors=color.astype(np.float32),
