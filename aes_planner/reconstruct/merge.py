@@ -327,6 +327,22 @@ def coarsen(sp: SplatSet, target: int, scale_factor: float) -> SplatSet:
     return sp
 
 
+class _Upstream(torch.autograd.Function):
+    """A scalar whose gradient with respect to ``maps`` is ``upstream`` (tensors like them):
+    ``autograd.grad(maps, ..., grad_outputs=upstream)`` computes the same but imports torch's
+    symbolic-shape machinery (sympy: ~1 s of a cold ``suggest`` under load) to check the shapes.
+    Only for differentiating the scalar itself (its own gradient is 1)."""
+
+    @staticmethod
+    def forward(ctx, upstream, *maps):
+        ctx.upstream = upstream
+        return maps[0].new_zeros(())
+
+    @staticmethod
+    def backward(ctx, _one):
+        return (None, *ctx.upstream)
+
+
 def contributions(
     sp: SplatSet,
     views: list[tuple[np.ndarray, Intrinsics]],  # (cam2world [4, 4] local frame, intrinsics)
@@ -365,7 +381,7 @@ def contributions(
             upstream = [np.zeros(tuple(t.shape), np.float32) for t in maps]
             for b in range(n_views):
                 (upstream[0][b, b] if b < 3 else upstream[1][b, b - 3])[:] = 1.0
-            (grad,) = torch.autograd.grad(maps, probe, [torch.from_numpy(u) for u in upstream])
+            (grad,) = torch.autograd.grad(_Upstream.apply([torch.from_numpy(u) for u in upstream], *maps), probe)
             wgt = grad[:, :n_views].double().numpy()  # [M, B]
             best = np.maximum(best, wgt.max(axis=1))
             seen |= (wgt > 0).any(axis=1)
