@@ -73,3 +73,21 @@ def test_batched_weights_match_one_render_per_view(sizes):
     np.testing.assert_allclose(best, ref_best, rtol=1e-5, atol=1e-6)
     # the weight of a splat is at most its pixels of coverage and at least 0
     assert (best >= 0).all() and (best <= max(w * h for w, h in sizes)).all()
+
+
+def test_weights_do_not_import_torch_symbolic_shapes():
+    """autograd's check of explicit grad_outputs imports torch's symbolic shapes and sympy
+    (~0.5 s of CPU in a cold `suggest`); the weights must come without it."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from tests.reconstruct.test_contributions import _splats, _view\n"
+        "from aes_planner.reconstruct.merge import contributions\n"
+        "best, seen = contributions(_splats(200, 0), [_view(a, 32, 24) for a in (-10.0, 0.0, 10.0, 20.0)])\n"
+        "assert seen.any()\n"
+        "print('sympy' in sys.modules, 'torch.fx.experimental.symbolic_shapes' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, check=True)
+    assert out.stdout.split()[-2:] == ["False", "False"], out.stdout + out.stderr
