@@ -189,7 +189,7 @@ class FramingConfig:
     refine: bool = False
     coverage_min: float = 0.5
     coverage_penalty: float = 0.5
-    photo_rank: bool = False
+    photo_rank: bool = True
     photo_top: int = 32
     photo_turn_deg: float = 12.0
     photo_step_deg: float = 2.0

@@ -386,6 +386,10 @@ def test_a_photo_warped_to_its_own_view_scores_as_the_photo_and_a_view_away_is_u
     assert cover[:4] == pytest.approx(1.0, abs=0.05)
     assert scores[:4] == pytest.approx(own["score"].double().numpy(), rel=0.05, abs=1e-3)
     assert cover[4] == 0.0 and np.isnan(scores[4])
+    red = lambda views, size: np.broadcast_to(np.array([230, 20, 20], np.uint8), (len(views), size[1], size[0], 3))  # noqa: E731
+    filled, _ = warped_photo_scores(teacher, [f.image for f in frames], poses, platform.intrinsics, away, None, 64,
+                                    fill=red)  # fmt: skip
+    assert filled[0] > 0.5  # what no photo saw comes from the fill: all red
 
 
 def test_the_suggestion_is_ranked_on_the_warped_input_photos():
