@@ -177,7 +177,7 @@ def register_framing(esub: argparse._SubParsersAction) -> None:
                    "the search's own rule, before 2026-11-29: --coverage-min 0.7 --coverage-penalty 2)")  # fmt: skip
     f.add_argument("--photo-rank", action=argparse.BooleanOptionalAction, default=None,
                    help="rank the views that hold the subject by the teacher on the input images warped into them "
-                   "(default: FramingConfig's, on; --no-photo-rank: the field's ranking, before 2026-11-29)")  # fmt: skip
+                   "(default: FramingConfig's, off: on the held-out scenes it lowered the teacher's score; docs/guides/framing.md)")  # fmt: skip
     f.add_argument("--json", metavar="OUT", help="write the results as JSON")
     f.add_argument("--figure", metavar="PNG", help="write a figure: input box, suggestion, constrained oracle per case")
     f.set_defaults(func=run_framing)
