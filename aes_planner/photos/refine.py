@@ -12,7 +12,7 @@ neighbours filling the strip it does not cover), scores those images with the te
 returns the candidates best first.
 
 The estimate is unbiased but noisy (on twelve dev scenes its error against the true render has a
-standard deviation of 0.04-0.075, growing with the step forward and with the share of the image
+standard deviation of 0.02-0.075, growing with the step forward and with the share of the image
 taken from other photos than the one refined at: :func:`estimate_error`), and the best of a few
 hundred noisy estimates is mostly the luckiest one. So the candidates are ranked by a lower bound,
 the prediction minus ``caution`` times the expected error, and a refined view is only trusted
