@@ -321,7 +321,7 @@ def run(args: argparse.Namespace) -> int:
             from aes_planner.search.framing import build_framing, dataset_frames
 
             frames = dataset_frames(data.frames)
-            framing = build_framing(scorer, frames, keep, avoid, platform.intrinsics, framing_cfg)
+            framing = build_framing(scorer, frames, keep, avoid, platform.intrinsics, framing_cfg, data.frames)
             for line in framing.describe():
                 print(f"framing: {line}")
         search_cfg = cfg

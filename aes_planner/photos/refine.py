@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from aes_planner.config import require, require_finite
+from aes_planner.search.photo_warp import photo_composite
 
 if TYPE_CHECKING:
     from aes_planner.geometry.camera import Intrinsics
@@ -143,66 +144,6 @@ def estimate_error(step_frac, own_cover):
     score, for its step towards the subject (fraction of the subject's distance) and the share of
     its image the photo it is refined at covers itself (the rest comes from other photos)."""
     return _ERR_BASE + _ERR_PER_STEP * np.asarray(step_frac) + _ERR_PER_OTHER * (1.0 - np.asarray(own_cover))
-
-
-def _plane_homography(k: np.ndarray, src_c2w: np.ndarray, dst_c2w: np.ndarray, normal_w, offset_w) -> np.ndarray | None:
-    """Pixel homography ``[3, 3]`` from camera ``src`` to camera ``dst`` induced by the world plane
-    ``normal_w . X = offset_w`` (None when the plane is behind ``src``); ``normal_w`` None: the plane
-    at infinity (exact for a turn on the spot)."""
-    r = dst_c2w[:3, :3].T @ src_c2w[:3, :3]  # [3, 3] src camera -> dst camera
-    m = r
-    if normal_w is not None:
-        n = src_c2w[:3, :3].T @ normal_w  # the plane's normal in src camera axes
-        d = float(offset_w - normal_w @ src_c2w[:3, 3])  # its distance from src's centre
-        if d <= 1e-9:
-            return None
-        t = dst_c2w[:3, :3].T @ (src_c2w[:3, 3] - dst_c2w[:3, 3])
-        m = r + np.outer(t, n) / d
-    return k @ m @ np.linalg.inv(k)
-
-
-def photo_composite(
-    images: list[np.ndarray],
-    photos_c2w: np.ndarray,
-    k: np.ndarray,
-    target_c2w: np.ndarray,
-    order: list[int],
-    plane: tuple[np.ndarray, float] | None,
-) -> tuple[np.ndarray, float]:
-    """The image at ``target_c2w [4, 4]`` made of the photos (``images`` [H, W, 3] uint8, all one
-    size, camera matrix ``k`` at that size) warped into it through ``plane`` (``(normal_w,
-    offset_w)``, None: at infinity), in ``order`` (first wins); the part no photo covers is filled
-    from its surroundings. Returns the image [H, W, 3] uint8, the share the photos covered and the
-    share the first photo in ``order`` covered."""
-    import cv2
-
-    h, w = images[0].shape[:2]
-    out = np.zeros((h, w, 3), np.uint8)
-    have = np.zeros((h, w), np.uint8)
-    first = 0.0
-    ones = np.full((h, w), 255, np.uint8)
-    kernel = np.ones((3, 3), np.uint8)
-    for j in order:
-        hom = _plane_homography(k, photos_c2w[j], target_c2w, *(plane if plane is not None else (None, 0.0)))
-        if hom is None:
-            continue
-        # the valid part shrunk by a pixel: bilinear samples at the border mix in the black outside
-        valid = cv2.erode(cv2.warpPerspective(ones, hom, (w, h), flags=cv2.INTER_NEAREST), kernel)
-        new = cv2.bitwise_and(valid, cv2.bitwise_not(have))  # [h, w] 255 where this photo fills a gap
-        n_new = cv2.countNonZero(new)
-        if j == order[0]:
-            first = n_new / new.size
-        if n_new == 0:
-            continue
-        warped = cv2.warpPerspective(images[j], hom, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-        cv2.copyTo(warped, new, out)
-        cv2.bitwise_or(have, new, have)
-        if cv2.countNonZero(have) == have.size:
-            break
-    cover = cv2.countNonZero(have) / have.size
-    if cover < 1.0:
-        out = cv2.inpaint(out, cv2.bitwise_not(have), 3, cv2.INPAINT_TELEA)
-    return out, cover, first
 
 
 @dataclass
