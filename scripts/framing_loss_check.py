@@ -33,7 +33,8 @@ def spearman(a: np.ndarray, b: np.ndarray) -> float:
 def cases(scenes: list[str], seeds: list[int]):
     """The cases of ``aes-planner eval framing`` with a constrained oracle, one namespace each:
     cfg, spec, seed, platform, inputs, k (intrinsics), judge, scfg, space, scorer (the field,
-    built once per scene), named (the input frames by region name), picked, points, oracle."""
+    built once per scene), named (the input frames by region name), frames (the input frames),
+    picked, points, oracle."""
     cfg = FramingEvalConfig(scenes=scenes, seeds=seeds)
     teacher, evaluator = get_teacher(), CompositionEvaluator()
     for spec in scenes:
@@ -56,7 +57,7 @@ def cases(scenes: list[str], seeds: list[int]):
                 continue
             scorer = scorer or build_search_scorer("field", frames, scfg)
             yield SimpleNamespace(cfg=cfg, spec=spec, seed=seed, platform=platform, inputs=inputs, k=k, judge=judge,
-                                  scfg=scfg, space=space, scorer=scorer, named=named, picked=picked, points=points,
+                                  scfg=scfg, space=space, scorer=scorer, named=named, frames=frames, picked=picked, points=points,
                                   oracle=oracle)  # fmt: skip
 
 

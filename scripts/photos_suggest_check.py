@@ -73,11 +73,19 @@ def one(seed: int, out: Path, preset: str, top: int, extra: list[str]) -> dict:
         "nearest_input_frac_of_spread": [round(d / spread, 3) for d in nearest],
         "from_photo": [s["from_photo"]["text"] for s in doc["suggestions"]],
         "above_best_input": bool(got[0] > inputs.max()),
-        "refined": bool(doc["suggestions"][0].get("refined", False)),  # #1 from the refinement at the best photos
+        "refined": bool(doc["suggestions"][0].get("refined", False)),  # #1 a refined view, trusted
+        "as_taken": bool(doc["suggestions"][0].get("as_taken", False)),  # #1 the best photo as taken (not trusted)
+        "predicted_gain": doc.get("refine", {}).get("top_gain"),
+        "predicted_gain_low": doc.get("refine", {}).get("top_gain_low"),
+        "margin": float(got[0] - inputs.max()),
         "field_first_choice": float(got[field_pick]),
         "field_first_above_best_input": bool(got[field_pick] > inputs.max()),
         "candidates": len(got),
+        "registered": f"{len(idx)}/{len(truth)}",
         "rotation_err_deg_max": float(err.rotation_deg.max()),
+        "centre_err_pct_of_spread_max": float(100 * err.centre_frac.max()),
+        # the pose check: all registered, every rotation <= 1 deg, every centre <= 2 % of the spread
+        "pose_check": bool(len(idx) == len(truth) and err.rotation_deg.max() <= 1.0 and err.centre_frac.max() <= 0.02),
     }
 
 
@@ -100,6 +108,9 @@ def main() -> int:
         "above_best_input": sum(r["above_best_input"] for r in ok),
         "field_first_above_best_input": sum(r["field_first_above_best_input"] for r in ok),
         "refined": sum(r["refined"] for r in ok),
+        "as_taken": sum(r["as_taken"] for r in ok),
+        "pose_check": sum(r["pose_check"] for r in ok),
+        "smallest_margin": min((r["margin"] for r in ok), default=None),
         "median_suggestion_minus_best_input": statistics.median(r["suggestion_1"] - r["best_input"] for r in ok)
         if ok
         else None,

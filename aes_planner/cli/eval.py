@@ -175,6 +175,9 @@ def register_framing(esub: argparse._SubParsersAction) -> None:
     f.add_argument("--coverage-penalty", type=float, default=None, metavar="W",
                    help="the coverage rule's weight while a subject is kept (default: FramingConfig's, 0.5; "
                    "the search's own rule, before 2026-11-29: --coverage-min 0.7 --coverage-penalty 2)")  # fmt: skip
+    f.add_argument("--photo-rank", action=argparse.BooleanOptionalAction, default=None,
+                   help="rank the views that hold the subject by the teacher on the input images warped into them "
+                   "(default: FramingConfig's, off: on the held-out scenes it lowered the teacher's score; docs/guides/framing.md)")  # fmt: skip
     f.add_argument("--json", metavar="OUT", help="write the results as JSON")
     f.add_argument("--figure", metavar="PNG", help="write a figure: input box, suggestion, constrained oracle per case")
     f.set_defaults(func=run_framing)
@@ -199,8 +202,8 @@ def run_framing(args: argparse.Namespace) -> int:
     cfg = FramingEvalConfig(
         scenes=scenes, seeds=args.seeds, mode=args.mode, preset=args.preset, keep_margin=args.keep_margin,
         verify_top=args.verify_top, verify_weight=args.verify_weight,
-        **{k: v for k, v in (("coverage_min", args.coverage_min), ("coverage_penalty", args.coverage_penalty))
-           if v is not None},
+        **{k: v for k, v in (("coverage_min", args.coverage_min), ("coverage_penalty", args.coverage_penalty),
+                             ("photo_rank", args.photo_rank)) if v is not None},
     )  # fmt: skip
     doc = run_framing_eval(cfg, progress=lambda text: log.info("eval framing: %s", text), figure=args.figure)
     print(markdown(doc))

@@ -133,6 +133,22 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="steps towards the subject tried there, as fractions of its distance (default "
         f"{','.join(f'{f:g}' for f in RefineConfig.forward_fracs)})",
     )
+    photos.add_argument(
+        "--refine-caution",
+        type=float,
+        default=RefineConfig.caution,
+        metavar="K",
+        help="rank the refined views by their predicted score less K times the estimate's expected error "
+        f"(default {RefineConfig.caution:g}; 0: by the prediction alone)",
+    )
+    photos.add_argument(
+        "--refine-min-gain",
+        type=float,
+        default=RefineConfig.min_gain,
+        metavar="SCORE",
+        help="trust a refined view only when that lower bound clears the best photo by SCORE; else suggestion #1 is "
+        f"the best photo as taken (default {RefineConfig.min_gain:g})",
+    )
     p.set_defaults(func=run)
 
 
@@ -305,7 +321,7 @@ def run(args: argparse.Namespace) -> int:
             from aes_planner.search.framing import build_framing, dataset_frames
 
             frames = dataset_frames(data.frames)
-            framing = build_framing(scorer, frames, keep, avoid, platform.intrinsics, framing_cfg)
+            framing = build_framing(scorer, frames, keep, avoid, platform.intrinsics, framing_cfg, data.frames)
             for line in framing.describe():
                 print(f"framing: {line}")
         search_cfg = cfg
@@ -327,11 +343,21 @@ def run(args: argparse.Namespace) -> int:
     print_table(result, top)
     moves = _hand_held_moves(platform, data, result.suggestions[:top])
     if refined is not None:
-        print(
-            f"#1 refined at a photo the teacher likes best, {refined['photo']} (teacher {refined['photo_score']:.3f}): "
-            f"predicted {refined['pick'].score:.3f} ({refined['pick'].terms['photo_gain']:+.3f}) on the photos warped "
-            f"into it, best of {refined['candidates']} views within {refine_cfg.max_turn_deg:g} deg"
-        )
+        within = f"{refine_cfg.max_turn_deg:g} deg"
+        if refined["confident"]:
+            print(
+                f"#1 refined at a photo the teacher likes best, {refined['photo']} (teacher {refined['photo_score']:.3f}): "
+                f"predicted {refined['pick'].score:.3f} ({refined['top_gain']:+.3f}, at least "
+                f"{refined['top_gain_low']:+.3f} after the estimate's expected error) on the photos warped into it, "
+                f"best of {refined['candidates']} views within {within}"
+            )
+        else:
+            print(
+                f"#1 is the photo the teacher likes best, {refined['best_photo']} (teacher "
+                f"{refined['best_photo_score']:.3f}), as taken: none of {refined['candidates']} views within {within} "
+                f"cleared it by the estimate's expected error (the best predicted {refined['top_gain']:+.3f}, at least "
+                f"{refined['top_gain_low']:+.3f}; needed {refine_cfg.min_gain:+.3f})"
+            )
     if moves:
         unit = data.meta.get("unit", "m")
         if unit != "m":
@@ -369,12 +395,18 @@ def run(args: argparse.Namespace) -> int:
             doc["search_space"] = {"kind": "handheld", "margin": platform.margin_m, "cameras": len(platform.centres)}
             for entry, move in zip(doc["suggestions"], moves):
                 entry["from_photo"] = move.to_json()
-            if refined is not None:
-                doc["suggestions"][0]["refined"] = True
+            if refined is not None:  # #1 is a refined view (trusted) or the best photo as taken (not)
+                doc["suggestions"][0]["refined"] = refined["confident"]
+                doc["suggestions"][0]["as_taken"] = not refined["confident"]
                 doc["refine"] = {
+                    "confident": refined["confident"],
                     "photo": refined["photo"],
                     "photo_score": refined["photo_score"],
+                    "best_photo": refined["best_photo"],
+                    "best_photo_score": refined["best_photo_score"],
                     "candidates": refined["candidates"],
+                    "top_gain": refined["top_gain"],
+                    "top_gain_low": refined["top_gain_low"],
                     **dataclasses.asdict(refine_cfg),
                 }
         if framing is not None:
@@ -433,16 +465,28 @@ def _refine_args(args):
             f"--refine-forward: {args.refine_forward!r} is not a comma-separated list of fractions (e.g. 0,0.1,0.2)"
         ) from None
     try:
-        return RefineConfig(max_turn_deg=args.refine_turn, forward_fracs=fracs, around_best=args.refine_at)
+        return RefineConfig(
+            max_turn_deg=args.refine_turn,
+            forward_fracs=fracs,
+            around_best=args.refine_at,
+            caution=args.refine_caution,
+            min_gain=args.refine_min_gain,
+        )
     except ConfigError as exc:
-        flags = {"forward_fracs": "--refine-forward", "around_best": "--refine-at"}
+        flags = {
+            "forward_fracs": "--refine-forward",
+            "around_best": "--refine-at",
+            "caution": "--refine-caution",
+            "min_gain": "--refine-min-gain",
+        }
         flag = next((f for key, f in flags.items() if key in str(exc)), "--refine-turn")
         raise SearchError(f"{flag}: {exc}") from None
 
 
 def _refine(scorer, data, platform, cfg) -> dict | None:
-    """The best view near the photo the teacher likes best, when one is predicted better than the
-    photo (:func:`aes_planner.photos.refine.refine_at_best_photo`); None when off or none is."""
+    """Suggestion #1 near the photos the teacher likes best
+    (:func:`aes_planner.photos.refine.refine_at_best_photo`): the best refined view when its lower
+    bound clears the best photo, else that photo as taken; None when off or nothing was tried."""
     if not cfg.enabled:
         return None
     from aes_planner.photos.refine import refine_at_best_photo
@@ -451,15 +495,22 @@ def _refine(scorer, data, platform, cfg) -> dict | None:
     teacher = getattr(scorer, "teacher", None) or get_teacher()
     images = [f.image for f in data.frames]
     found = refine_at_best_photo(teacher, data.cam2worlds(), images, data.frames[0].intrinsics, cfg, platform)
-    if not found.suggestions or found.suggestions[0].terms["photo_gain"] <= 0:
-        log.info("refinement at the best photo found nothing predicted better than the photo")
+    if found.pick is None:
+        log.info("refinement at the best photos tried no view")
         return None
-    at = int(found.photo_of[0])
+    names = _photo_names(data)
+    top = found.suggestions[0]
+    at = int(found.photo_of[0]) if found.confident else found.best_photo
     return {
-        "pick": found.suggestions[0],
-        "photo": _photo_names(data)[at],
+        "pick": found.pick,
+        "confident": found.confident,
+        "photo": names[at],
         "photo_score": float(found.photo_scores[at]),
+        "best_photo": names[found.best_photo],
+        "best_photo_score": float(found.photo_scores[found.best_photo]),
         "candidates": len(found.suggestions),
+        "top_gain": top.terms["photo_gain"],  # the first-ranked view's predicted gain and its lower bound
+        "top_gain_low": top.terms["photo_gain_low"],
     }
 
 

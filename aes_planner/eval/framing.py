@@ -61,6 +61,7 @@ class FramingEvalConfig:
     verify_weight: float = FramingConfig.verify_weight
     coverage_min: float = FramingConfig.coverage_min
     coverage_penalty: float = FramingConfig.coverage_penalty
+    photo_rank: bool = FramingConfig.photo_rank
     min_frac: float = 0.01
     max_frac: float = 0.4
     min_shown: float = 0.6
@@ -86,7 +87,8 @@ class FramingEvalConfig:
     def framing(self) -> FramingConfig:
         """The framing constraint the searches run with."""
         return FramingConfig(margin_frac=self.keep_margin, verify_top=self.verify_top, verify_weight=self.verify_weight,
-                             coverage_min=self.coverage_min, coverage_penalty=self.coverage_penalty)  # fmt: skip
+                             coverage_min=self.coverage_min, coverage_penalty=self.coverage_penalty,
+                             photo_rank=self.photo_rank)  # fmt: skip
 
 
 class FramingEvalError(AesPlannerError, ValueError):
@@ -331,7 +333,7 @@ def run_framing_eval(cfg: FramingEvalConfig, progress=None, figure: str | None =
                      for i, f in enumerate(frames)}  # fmt: skip
             t0 = time.perf_counter()
             try:
-                framing = build_framing(scorer, named, [region], [], k, cfg.framing())
+                framing = build_framing(scorer, named, [region], [], k, cfg.framing(), frames)
                 result = search_views(scorer, inputs, platform, scfg, framing=framing)
             except FramingError as exc:
                 row["error"] = str(exc)

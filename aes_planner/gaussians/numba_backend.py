@@ -207,8 +207,9 @@ class _Raster(torch.autograd.Function):
         g_log_scales = np.empty_like(log_scales)
         g_opac = np.empty_like(opacities)
         g_cam = np.zeros((threads, n_cam, k.G_CAM_STRIDE))
+        need_pose = ctx.needs_input_grad[7]  # world2cam
         with _stage("project_bwd"):
-            if n:
+            if n and (need_gaussians or need_pose):  # e.g. not for a reconstruction's blending weights
                 k.project_bwd(
                     means,
                     quats,
@@ -237,7 +238,7 @@ class _Raster(torch.autograd.Function):
             torch.from_numpy(np.ascontiguousarray(g_values[:, :3])) if need_values else None,
             torch.from_numpy(np.ascontiguousarray(g_values[:, 3:])) if need_values else None,
             None if g_bg is None else torch.from_numpy(g_bg.astype(dtype, copy=False)),
-            torch.from_numpy(g_w2c.astype(w2c.dtype)).to(cam_dtype),
+            torch.from_numpy(g_w2c.astype(w2c.dtype)).to(cam_dtype) if need_pose else None,
             None,
             None,
             None,

@@ -166,7 +166,8 @@ class FieldProposer(Proposer):
         from aes_planner.search.framing import build_framing
 
         keep, avoid, cfg, views = self.framing
-        return build_framing(scorer, views, keep, avoid, platform.intrinsics, cfg)
+        photos = [f for f, _ in self._frames]  # the held frames, for FramingConfig.photo_rank
+        return build_framing(scorer, views, keep, avoid, platform.intrinsics, cfg, photos)
 
     def scorer(self):
         """The scorer of the present frames (rebuilt only when they changed)."""

@@ -38,8 +38,7 @@ import torch
 
 from aes_planner.gaussians.projection import covariance_3d
 from aes_planner.geometry.camera import Intrinsics
-from aes_planner.geometry.poses import matrix_to_quat
-from aes_planner.reconstruct.splats import SplatSet
+from aes_planner.reconstruct.splats import SplatSet, rotations_to_quats
 
 __all__ = ["BASE_CELL_M", "coarsen", "contributions", "dedupe", "levels", "prune_hidden", "refit_colors"]
 
@@ -202,7 +201,7 @@ def _merge_groups(
     area = np.bincount(group, weights=sp.footprint_m[members].astype(np.float64) ** 2, minlength=n)
     return SplatSet(
         means=mu.astype(np.float32),
-        quats=matrix_to_quat(evecs).astype(np.float32),
+        quats=rotations_to_quats(evecs),
         log_scales=np.log(scales).astype(np.float32),
         opacities=np.clip(opacity, 0, 1).astype(np.float32),
         colors=color.astype(np.float32),
@@ -328,6 +327,22 @@ def coarsen(sp: SplatSet, target: int, scale_factor: float) -> SplatSet:
     return sp
 
 
+class _Upstream(torch.autograd.Function):
+    """A scalar whose gradient with respect to ``maps`` is ``upstream`` (tensors like them):
+    ``autograd.grad(maps, ..., grad_outputs=upstream)`` computes the same but imports torch's
+    symbolic-shape machinery (sympy: ~1 s of a cold ``suggest`` under load) to check the shapes.
+    Only for differentiating the scalar itself (its own gradient is 1)."""
+
+    @staticmethod
+    def forward(ctx, upstream, *maps):
+        ctx.upstream = upstream
+        return maps[0].new_zeros(())
+
+    @staticmethod
+    def backward(ctx, _one):
+        return (None, *ctx.upstream)
+
+
 def contributions(
     sp: SplatSet,
     views: list[tuple[np.ndarray, Intrinsics]],  # (cam2world [4, 4] local frame, intrinsics)
@@ -335,8 +350,10 @@ def contributions(
     """Per splat, the largest total blending weight (pixels) over ``views`` and whether any of
     them drew it at all: ``(max_weight [M], seen [M])``.
 
-    The weight is exact and cheap: the gradient of the summed red channel with respect to a
-    splat's red colour is the sum over pixels of its blending weight ``T alpha``.
+    The weight is exact and cheap: the gradient of a rendered value channel with respect to a
+    splat's value in it is the sum over pixels of its blending weight ``T alpha``. Views of one
+    image size render in one batched call with one probe channel per view (channel ``b`` read
+    in view ``b`` only), so that the rasterizer runs once for all of them.
     """
     from aes_planner.gaussians import autograd_on, rasterize
 
@@ -344,18 +361,30 @@ def contributions(
     seen = np.zeros(len(sp), bool)
     if not len(sp):
         return best, seen
+    by_size: dict[tuple[int, int], list[int]] = {}
+    for i, (_, k) in enumerate(views):
+        by_size.setdefault((k.width, k.height), []).append(i)
     with autograd_on():  # the weights are a gradient, also under a caller's no_grad or inference_mode
         g = sp.to_gaussians()
-        colors = g.colors.clone().requires_grad_(True)
-        g.colors = colors
-        for cam2world, k in views:
-            out = rasterize(
-                g, torch.from_numpy(np.linalg.inv(cam2world)), torch.from_numpy(k.K), k.width, k.height, validate=False
-            )
-            (grad,) = torch.autograd.grad(out.rgb[:, 0].sum(), colors)
-            wgt = grad[:, 0].double().numpy()
-            best = np.maximum(best, wgt)
-            seen |= wgt > 0
+        for (width, height), index in by_size.items():
+            n_views = len(index)
+            # [M, B] probes: the colours carry views 0-2 and features the rest (few value channels
+            # keep the backward on its lane-wise path)
+            probe = torch.zeros(len(sp), max(n_views, 3), dtype=g.colors.dtype, requires_grad=True)
+            g.colors, g.features = probe[:, :3], probe[:, 3:]
+            world2cam = torch.from_numpy(np.stack([np.linalg.inv(views[i][0]) for i in index]))  # [B, 4, 4]
+            K = torch.from_numpy(np.stack([views[i][1].K for i in index]))  # [B, 3, 3]
+            out = rasterize(g, world2cam, K, width, height, validate=False)
+            # d/d(view b's own channel) = 1, all else 0; built in numpy: large torch ops would wake
+            # torch's thread pool against the rasterizer's (numba_backend._Raster says why)
+            maps = (out.rgb, out.features, out.depth, out.alpha)
+            upstream = [np.zeros(tuple(t.shape), np.float32) for t in maps]
+            for b in range(n_views):
+                (upstream[0][b, b] if b < 3 else upstream[1][b, b - 3])[:] = 1.0
+            (grad,) = torch.autograd.grad(_Upstream.apply([torch.from_numpy(u) for u in upstream], *maps), probe)
+            wgt = grad[:, :n_views].double().numpy()  # [M, B]
+            best = np.maximum(best, wgt.max(axis=1))
+            seen |= (wgt > 0).any(axis=1)
     return best, seen
 
 

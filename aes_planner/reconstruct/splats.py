@@ -49,6 +49,19 @@ _TINY = 1e-12
 MIN_SIGMA_PX = 0.2  # a splat never shrinks below this on screen in its own view
 
 
+# Rows per torch call in rotations_to_quats: the conversion's [rows, 4, 4] candidates stay under
+# torch's parallel grain (32768 elements), so it never wakes torch's OpenMP pool, whose threads
+# then spin beside the other work (12k rotations, load ~10: 12.7 ms CPU in one call, 3.3 ms in
+# chunks, bit-identical; docs/benchmarks.md, "perf-2, fourth round").
+QUAT_CHUNK_ROWS = 2048
+
+
+def rotations_to_quats(rotations: np.ndarray) -> np.ndarray:  # [M, 3, 3] float64 -> [M, 4] float32
+    """:func:`~aes_planner.geometry.poses.matrix_to_quat` in chunks of ``QUAT_CHUNK_ROWS``."""
+    parts = [matrix_to_quat(rotations[i : i + QUAT_CHUNK_ROWS]) for i in range(0, len(rotations), QUAT_CHUNK_ROWS)]
+    return (np.concatenate(parts) if parts else np.zeros((0, 4))).astype(np.float32)
+
+
 @dataclass
 class SplatSet:
     """Splats as numpy arrays (``M`` rows), means in the reconstruction's local frame."""
@@ -215,29 +228,30 @@ def _edge_distance(cut_h: np.ndarray, cut_v: np.ndarray) -> np.ndarray:
     return cv2.distanceTransform((~on_edge).astype(np.uint8), cv2.DIST_L2, 3).astype(np.float32)
 
 
-def _tangent(p: np.ndarray, cut: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
-    """Derivative of the point map ``p [H, W, 3]`` along ``axis`` (1 = u, 0 = v) per pixel,
-    central where both sides are joined, one-sided where one is; ``ok`` False where neither."""
-    if axis == 1:
-        fwd = np.zeros_like(p)
-        fwd[:, :-1] = p[:, 1:] - p[:, :-1]
-        joined_f = np.zeros(p.shape[:2], bool)
-        joined_f[:, :-1] = ~cut
-        bwd = np.zeros_like(p)
-        bwd[:, 1:] = p[:, 1:] - p[:, :-1]
-        joined_b = np.zeros(p.shape[:2], bool)
-        joined_b[:, 1:] = ~cut
-    else:
-        fwd = np.zeros_like(p)
-        fwd[:-1] = p[1:] - p[:-1]
-        joined_f = np.zeros(p.shape[:2], bool)
-        joined_f[:-1] = ~cut
-        bwd = np.zeros_like(p)
-        bwd[1:] = p[1:] - p[:-1]
-        joined_b = np.zeros(p.shape[:2], bool)
-        joined_b[1:] = ~cut
+def _tangent(
+    p: np.ndarray, cut: np.ndarray, axis: int, rr: np.ndarray, cc: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:  # [H, W, 3], [H, W-1] or [H-1, W], [M], [M] -> [M, 3], [M]
+    """Derivative of the point map ``p [H, W, 3]`` along ``axis`` (1 = u, 0 = v) at the pixels
+    ``(rr, cc)``, central where both sides are joined, one-sided where one is; ``ok`` False where
+    neither. Only the block centres use it: computed there, not over the whole image."""
+    h, w = p.shape[:2]
+    step = (0, 1) if axis == 1 else (1, 0)
+    last = (w if axis == 1 else h) - 1
+    pos = cc if axis == 1 else rr
+    has_f, has_b = pos < last, pos > 0
+    # the neighbour's index clipped into the image; a clipped side is not joined
+    rf, cf = np.minimum(rr + step[0], h - 1), np.minimum(cc + step[1], w - 1)
+    rb, cb = np.maximum(rr - step[0], 0), np.maximum(cc - step[1], 0)
+    here = p[rr, cc]
+    fwd = np.where(has_f[:, None], p[rf, cf] - here, 0.0)
+    bwd = np.where(has_b[:, None], here - p[rb, cb], 0.0)
+    if cut.size:
+        joined_f = has_f & ~cut[np.minimum(rr, cut.shape[0] - 1), np.minimum(cc, cut.shape[1] - 1)]
+        joined_b = has_b & ~cut[rb, cb]
+    else:  # one pixel across this axis: no neighbours
+        joined_f = joined_b = np.zeros(rr.shape, bool)
     both = joined_f & joined_b
-    out = np.where(both[..., None], 0.5 * (fwd + bwd), np.where(joined_f[..., None], fwd, bwd))
+    out = np.where(both[:, None], 0.5 * (fwd + bwd), np.where(joined_f[:, None], fwd, bwd))
     return out, joined_f | joined_b
 
 
@@ -273,11 +287,6 @@ def splats_from_depth(
     p = rays * d[..., None]  # [H, W, 3] camera frame
     cut_h, cut_v = depth_edges(d, params.edge_rel, params.edge_ratio)
     edge_dist = _edge_distance(cut_h, cut_v)
-    a, ok_a = _tangent(p, cut_h, axis=1)
-    b, ok_b = _tangent(p, cut_v, axis=0)
-    # fronto-parallel fallback where a pixel has no joined neighbour along an axis
-    a = np.where(ok_a[..., None], a, np.stack([d / intrinsics.fx, np.zeros_like(d), np.zeros_like(d)], -1))
-    b = np.where(ok_b[..., None], b, np.stack([np.zeros_like(d), d / intrinsics.fy, np.zeros_like(d)], -1))
     # the block-centre pixel of every stride block
     rows = np.arange(hb) * s + s // 2
     cols = np.arange(wb) * s + s // 2
@@ -286,7 +295,13 @@ def splats_from_depth(
     rr, cc = rr[keep], cc[keep]
     if rr.size == 0:
         return SplatSet.empty()
-    pc, ac, bc, dc = p[rr, cc], a[rr, cc], b[rr, cc], d[rr, cc]  # [M, 3] x3, [M]
+    pc, dc = p[rr, cc], d[rr, cc]  # [M, 3], [M]
+    ac, ok_a = _tangent(p, cut_h, 1, rr, cc)  # [M, 3], [M]
+    bc, ok_b = _tangent(p, cut_v, 0, rr, cc)
+    # fronto-parallel fallback where a pixel has no joined neighbour along an axis
+    zero = np.zeros_like(dc)
+    ac = np.where(ok_a[:, None], ac, np.stack([dc / intrinsics.fx, zero, zero], -1))
+    bc = np.where(ok_b[:, None], bc, np.stack([zero, dc / intrinsics.fy, zero], -1))
 
     # colour: mean of the block's pixels on the same surface as the centre (plane prediction)
     img = image.astype(np.float64) / 255.0
@@ -344,7 +359,7 @@ def splats_from_depth(
     cc_conf = conf[rr, cc]
     return SplatSet(
         means=means.astype(np.float32),
-        quats=matrix_to_quat(rot_world).astype(np.float32),
+        quats=rotations_to_quats(rot_world),
         log_scales=np.log(np.stack([sig1, sig2, sig3], 1)).astype(np.float32),
         opacities=np.full(rr.size, params.opacity, np.float32),
         colors=color.astype(np.float32),

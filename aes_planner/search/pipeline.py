@@ -380,10 +380,13 @@ def _search_views(
         sug = _suggestion(space, final_params[i], final_poses[i], out2, i, float(obj2[i]))
         sug.stage1_score = float(out1.score[keep[i % len(keep)]])
         suggestions.append(sug)
-    t_verify = time.perf_counter()
+    t_verify, t_photo = time.perf_counter(), 0.0
     if framing is not None:
         suggestions = _verify_suggestions(scorer, framing, space, suggestions, final_params[distinct], candidates,
                                          out1, obj1, cfg, avoid_params)  # fmt: skip
+        t_photo = time.perf_counter()
+        suggestions = _photo_rank(scorer, framing, space, suggestions, candidates, obj1, cfg)
+        t_photo = time.perf_counter() - t_photo
         for sug in suggestions:  # the aesthetic score, and how much of the subject the view holds
             sug.score = sug.terms.get("aesthetic", sug.score)
             sug.held = float(framing.held(torch.as_tensor(sug.cam2world)[None])[0])
@@ -396,7 +399,8 @@ def _search_views(
         "stage1_score": (t_stage1 - t_sampled) * 1e3,
         "stage2": (t_stage2 - t_stage1) * 1e3,
         "final": (t_verify - t_stage2) * 1e3,
-        "verify": (t_final - t_verify) * 1e3,
+        "verify": (t_final - t_verify - t_photo) * 1e3,
+        "photo_rank": t_photo * 1e3,
         "explore": (t_end - t_final) * 1e3,
         "total": (t_end - t_start) * 1e3,
     }
@@ -450,6 +454,67 @@ def _verify_suggestions(scorer, framing, space, suggestions: list, params: Tenso
     log.info("framing: %d views verified; the best is %s", len(pool),
              "a refined one" if int(order[0]) < len(suggestions) else "a stage-1 candidate")  # fmt: skip
     return [pool[i] for i in order.tolist()]
+
+
+def _turns(space: SearchSpace, params: Tensor, turn_deg: float, step_deg: float) -> Tensor:  # [P, D] -> [P * G, D]
+    """Each view of ``params`` turned and tilted by up to ``turn_deg``, ``step_deg`` apart (the
+    last two parameters: pan and tilt on a rig, yaw and pitch otherwise), inside the bounds."""
+    steps = torch.as_tensor(np.radians(np.arange(-turn_deg, turn_deg + 1e-9, step_deg)), dtype=params.dtype)
+    off = torch.cartesian_prod(steps, steps)  # [G, 2]
+    turned = params[:, None, :].repeat(1, len(off), 1)  # [P, G, D]
+    turned[..., -2:] += off[None]
+    return space.project(turned.reshape(-1, params.shape[-1]))
+
+
+def _photo_rank(scorer, framing, space, suggestions: list, candidates: Tensor, obj1: Tensor, cfg) -> list:
+    """The ``suggestions`` re-ranked by the teacher on the input photos warped into each view
+    (``FramingConfig.photo_rank``; :func:`~aes_planner.search.photo_warp.warped_photo_scores`),
+    among a pool of views that all hold the kept subjects: the suggestions, the
+    ``photo_top`` best stage-1 ``candidates [C, D]`` (objective ``obj1``), turns and tilts around
+    each input photo and around the 8 best candidates. As many suggestions as came in, best first,
+    each with ``terms["photo"]`` (the warped score) and ``terms["photo_cover"]``; the suggestions
+    unchanged when there are no photos or none covers a view enough."""
+    from aes_planner.search.photo_warp import warped_photo_scores
+
+    fc, photos, teacher = framing.cfg, framing.photos, getattr(scorer, "teacher", None)
+    if not fc.photo_rank or photos is None or teacher is None or not suggestions or not framing.keep:
+        return suggestions
+    finite = torch.nonzero(torch.isfinite(obj1)).flatten()
+    top = finite[torch.argsort(obj1[finite], descending=True)[: fc.photo_top]]
+    sug_params = space.from_poses(np.stack([s.cam2world for s in suggestions]))  # [S, D]
+    around = torch.cat([space.from_poses(photos.cam2world), candidates[top[:8]]])
+    extra = torch.cat([
+        candidates[top],
+        _turns(space, around[: len(photos.cam2world)], fc.photo_turn_deg, fc.photo_step_deg),
+        _turns(space, around[len(photos.cam2world):], fc.photo_turn_deg / 3, fc.photo_step_deg),
+    ])  # fmt: skip
+    extra_poses = space.to_poses(extra).detach()
+    ok = framing.feasible(extra_poses)
+    extra, extra_poses = extra[ok], extra_poses[ok]
+    pool = list(suggestions)
+    if len(extra):
+        out = scorer.score_batched(extra_poses, cfg.batch_size)
+        obj = torch.nan_to_num(_objective(out, cfg).double(), nan=-math.inf)  # [E]
+        pool += [_suggestion(space, extra[i], extra_poses[i], out, i, float(obj[i])) for i in range(len(extra))]
+    pool_params = torch.cat([sug_params, extra])  # [P, D]
+    pool_poses = np.stack([s.cam2world for s in pool])  # [P, 4, 4]
+    centre = np.mean([s.centre_m for s in framing.keep], axis=0)
+    warped, cover = warped_photo_scores(teacher, photos.images, photos.cam2world,
+                                        photos.intrinsics, pool_poses, centre, fc.photo_width_px,
+                                        fc.photo_min_cover, cfg.batch_size)  # fmt: skip
+    usable = torch.as_tensor(np.isfinite(warped))
+    if not bool(usable.any()):
+        log.info("framing: no view is covered enough by the input photos to re-rank on them")
+        return suggestions
+    ranked = torch.as_tensor(np.nan_to_num(warped, nan=-np.inf)) + framing.soft_terms(torch.as_tensor(pool_poses))
+    for s, w, c in zip(pool, warped.tolist(), cover.tolist()):
+        s.terms["photo"], s.terms["photo_cover"] = w, c
+    order = _select_distinct(space, pool_params, torch.where(usable, ranked, -math.inf), len(suggestions), None)
+    order = order[usable[order]]
+    rest = [s for s in suggestions if all(s is not pool[i] for i in order.tolist())]
+    log.info("framing: %d views ranked on the input photos (%d covered); the best is %s", len(pool),
+             int(usable.sum()), "a suggestion" if int(order[0]) < len(suggestions) else "a nearby view")  # fmt: skip
+    return ([pool[i] for i in order.tolist()] + rest)[: len(suggestions)]
 
 
 def _explore(scorer: Scorer, space: SearchSpace, cfg: SearchConfig, rng: np.random.Generator):

@@ -87,6 +87,7 @@ on random rig views of the simulator's scenes); an ordinary view of a subject 0.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -228,6 +229,79 @@ def _smoothing_matrix(n: int, kernel: Tensor) -> Tensor:  # [K] -> [n, n]
     return m.float()
 
 
+@dataclass(frozen=True)
+class _Tables:
+    filters: int  # filters per opponent channel in the separable bank
+    radius: int  # px, of the bank's kernels
+    buffers: tuple[tuple[str, Tensor], ...]  # (buffer name, constant tensor)
+
+
+@functools.lru_cache(maxsize=8)
+def _constant_tables(n: int, thirds_sigma: float, centre_sigma: float, surround_sigmas: tuple[float, ...]) -> _Tables:
+    """The teacher's constant filters and cell matrices for a feature map of ``n`` x ``n`` cells,
+    computed once per process and setting: building them took 30-140 ms of every field build
+    (a field builds its teacher each time; docs/benchmarks.md, "perf-2, fourth round")."""
+    buffers: dict[str, Tensor] = {}
+    # Every filter of the working frame in one separable pass per axis: per opponent channel,
+    # the centre blur, the surround blurs, and the Sobel derivatives of the centre blur.
+    # (Few large convolutions: the thread pool's start-up, not arithmetic, dominates here.)
+    blurs = [_gaussian_kernel(sg) for sg in (centre_sigma, *surround_sigmas)]
+    # Sobel = [1, 2, 1] / 4 across times this along, /8 in all
+    diff = torch.tensor([-0.5, 0.0, 0.5], dtype=torch.float32)
+    smooth = torch.tensor([0.25, 0.5, 0.25], dtype=torch.float32)
+    centre = blurs[0]
+    d_centre = torch.conv1d(F.pad(centre, (1, 1))[None, None], diff.flip(0)[None, None])[0, 0]
+    s_centre = torch.conv1d(F.pad(centre, (1, 1))[None, None], smooth[None, None])[0, 0]
+    along_x = [*blurs, d_centre, s_centre]  # outputs: blurs..., gx, gy
+    along_y = [*blurs, s_centre, d_centre]
+    radius = max(k.numel() for k in along_x) // 2
+
+    def bank(kernels: list[Tensor]) -> Tensor:  # -> [3 * F, K]
+        padded = [F.pad(k, ((2 * radius + 1 - k.numel()) // 2,) * 2) for k in kernels]
+        return torch.stack(padded).repeat(3, 1)
+
+    buffers["_filters_x"] = bank(along_x)[:, None, None, :]  # [3F, 1, 1, K]
+    buffers["_filters_y"] = bank(along_y)[:, None, :, None]  # [3F, 1, K, 1]
+    opponent = torch.tensor([[0.299, 0.587, 0.114], [0.5, -0.5, 0.0], [0.25, 0.25, -0.5]], dtype=torch.float32)
+    buffers["_opponent"] = opponent  # rows: L, red-green, yellow-blue
+    buffers["_colour_weights"] = torch.tensor([1.0, _CHROMA_WEIGHT, _CHROMA_WEIGHT], dtype=torch.float32)
+
+    c = (torch.arange(n, dtype=torch.float64) + 0.5) / n
+    y, x = torch.meshgrid(c, c, indexing="ij")
+    cells = torch.stack([y.flatten(), x.flatten()], -1)  # [N, 2] frame units
+    far = 1.0 - torch.exp(-((cells[:, None] - cells[None]) ** 2).sum(-1) / (2 * _FAR**2))
+    buffers["_far"] = far.float()  # [N, N]: 0 for the same cell, ~1 across the frame
+    thirds = (1.0 / 3.0, 2.0 / 3.0)
+    s = thirds_sigma
+    points = torch.stack(
+        [torch.exp(-((x - a) ** 2 + (y - b) ** 2) / (2 * s * s)) for a in thirds for b in thirds]
+    ).amax(0)
+    ridge = torch.stack(
+        [torch.exp(-((x - a) ** 2) / (2 * (s / 2) ** 2)) for a in thirds]
+        + [torch.exp(-((y - a) ** 2) / (2 * (s / 2) ** 2)) for a in thirds]
+    ).amax(0)
+    ring = torch.zeros(n, n, dtype=torch.float64)
+    ring[0, :] = ring[-1, :] = ring[:, 0] = ring[:, -1] = 1.0
+    buffers["_x"] = x.float()
+    buffers["_y"] = y.float()
+    buffers["_thirds"] = torch.maximum(points, 0.5 * ridge).float()
+    buffers["_ring"] = ring.float()
+    buffers["_rows"] = c.float()
+    buffers["_box3"] = _smoothing_matrix(n, torch.full((3,), 1.0 / 3.0, dtype=torch.float32))
+    buffers["_row_blur"] = _smoothing_matrix(n, _gaussian_kernel(1.5))
+    # Annulus means as one [N, N] matrix (source cell -> target cell): the outer Gaussian minus
+    # the inner one (both 1 at distance 0, so the cell itself drops out), clipped to the frame
+    # and normalised per target cell; every weight >= 0.
+    inner, outer = (torch.exp(-((c[:, None] - c[None]) ** 2) / (2 * sg**2)) for sg in _ANNULUS_SIGMAS)
+    annulus = (torch.kron(outer, outer) - torch.kron(inner, inner)).clamp_min(0.0)
+    buffers["_annulus"] = (annulus / annulus.sum(0, keepdim=True)).float()  # [N, N]
+    groups = torch.zeros(n, 3, dtype=torch.float32)  # column -> left / middle / right third of the width
+    for j, (a, b) in enumerate(zip((0, n // 3, n - n // 3), (n // 3, n - n // 3, n))):
+        groups[a:b, j] = 1.0
+    buffers["_thirds_of_width"] = groups
+    return _Tables(len(along_x), radius, tuple(buffers.items()))
+
+
 class CompositionTeacher(Teacher):
     """Composition teacher (the default): see the module docstring for the map, terms and score."""
 
@@ -243,72 +317,10 @@ class CompositionTeacher(Teacher):
         n = cfg.feature_size
         self.feature_channels = len(CHANNELS)
         self.feature_size = (n, n)
-        # Every filter of the working frame in one separable pass per axis: per opponent channel,
-        # the centre blur, the surround blurs, and the Sobel derivatives of the centre blur.
-        # (Few large convolutions: the thread pool's start-up, not arithmetic, dominates here.)
-        sigmas = (self._CENTRE_SIGMA, *self._SURROUND_SIGMAS)
-        blurs = [_gaussian_kernel(sg) for sg in sigmas]
-        # Sobel = [1, 2, 1] / 4 across times this along, /8 in all
-        diff = torch.tensor([-0.5, 0.0, 0.5], dtype=torch.float32)
-        smooth = torch.tensor([0.25, 0.5, 0.25], dtype=torch.float32)
-        centre = blurs[0]
-        d_centre = torch.conv1d(F.pad(centre, (1, 1))[None, None], diff.flip(0)[None, None])[0, 0]
-        s_centre = torch.conv1d(F.pad(centre, (1, 1))[None, None], smooth[None, None])[0, 0]
-        along_x = [*blurs, d_centre, s_centre]  # outputs: blurs..., gx, gy
-        along_y = [*blurs, s_centre, d_centre]
-        radius = max(k.numel() for k in along_x) // 2
-        self._filters = len(along_x)
-        self._radius = radius
-
-        def bank(kernels: list[Tensor]) -> Tensor:  # -> [3 * F, K]
-            padded = [F.pad(k, ((2 * radius + 1 - k.numel()) // 2,) * 2) for k in kernels]
-            return torch.stack(padded).repeat(3, 1)
-
-        self.register_buffer("_filters_x", bank(along_x)[:, None, None, :], persistent=False)  # [3F, 1, 1, K]
-        self.register_buffer("_filters_y", bank(along_y)[:, None, :, None], persistent=False)  # [3F, 1, K, 1]
-        opponent = torch.tensor([[0.299, 0.587, 0.114], [0.5, -0.5, 0.0], [0.25, 0.25, -0.5]], dtype=torch.float32)
-        self.register_buffer("_opponent", opponent, persistent=False)  # rows: L, red-green, yellow-blue
-        self.register_buffer(
-            "_colour_weights",
-            torch.tensor([1.0, _CHROMA_WEIGHT, _CHROMA_WEIGHT], dtype=torch.float32),
-            persistent=False,
-        )
-
-        c = (torch.arange(n, dtype=torch.float64) + 0.5) / n
-        y, x = torch.meshgrid(c, c, indexing="ij")
-        cells = torch.stack([y.flatten(), x.flatten()], -1)  # [N, 2] frame units
-        far = 1.0 - torch.exp(-((cells[:, None] - cells[None]) ** 2).sum(-1) / (2 * _FAR**2))
-        self.register_buffer("_far", far.float(), persistent=False)  # [N, N]: 0 for the same cell, ~1 across the frame
-        thirds = (1.0 / 3.0, 2.0 / 3.0)
-        s = cfg.thirds_sigma
-        points = torch.stack(
-            [torch.exp(-((x - a) ** 2 + (y - b) ** 2) / (2 * s * s)) for a in thirds for b in thirds]
-        ).amax(0)
-        ridge = torch.stack(
-            [torch.exp(-((x - a) ** 2) / (2 * (s / 2) ** 2)) for a in thirds]
-            + [torch.exp(-((y - a) ** 2) / (2 * (s / 2) ** 2)) for a in thirds]
-        ).amax(0)
-        ring = torch.zeros(n, n, dtype=torch.float64)
-        ring[0, :] = ring[-1, :] = ring[:, 0] = ring[:, -1] = 1.0
-        self.register_buffer("_x", x.float(), persistent=False)
-        self.register_buffer("_y", y.float(), persistent=False)
-        self.register_buffer("_thirds", torch.maximum(points, 0.5 * ridge).float(), persistent=False)
-        self.register_buffer("_ring", ring.float(), persistent=False)
-        self.register_buffer("_rows", c.float(), persistent=False)
-        self.register_buffer(
-            "_box3", _smoothing_matrix(n, torch.full((3,), 1.0 / 3.0, dtype=torch.float32)), persistent=False
-        )
-        self.register_buffer("_row_blur", _smoothing_matrix(n, _gaussian_kernel(1.5)), persistent=False)
-        # Annulus means as one [N, N] matrix (source cell -> target cell): the outer Gaussian minus
-        # the inner one (both 1 at distance 0, so the cell itself drops out), clipped to the frame
-        # and normalised per target cell; every weight >= 0.
-        inner, outer = (torch.exp(-((c[:, None] - c[None]) ** 2) / (2 * sg**2)) for sg in _ANNULUS_SIGMAS)
-        ring = (torch.kron(outer, outer) - torch.kron(inner, inner)).clamp_min(0.0)
-        self.register_buffer("_annulus", (ring / ring.sum(0, keepdim=True)).float(), persistent=False)  # [N, N]
-        groups = torch.zeros(n, 3, dtype=torch.float32)  # column -> left / middle / right third of the width
-        for j, (a, b) in enumerate(zip((0, n // 3, n - n // 3), (n // 3, n - n // 3, n))):
-            groups[a:b, j] = 1.0
-        self.register_buffer("_thirds_of_width", groups, persistent=False)
+        tables = _constant_tables(n, cfg.thirds_sigma, self._CENTRE_SIGMA, self._SURROUND_SIGMAS)
+        self._filters, self._radius = tables.filters, tables.radius
+        for name, value in tables.buffers:  # copies: a caller's in-place change stays in its teacher
+            self.register_buffer(name, value.clone(), persistent=False)
         weights = torch.tensor([getattr(cfg.weights, t) for t in TERMS], dtype=torch.float32)
         self.register_buffer("_weights", weights, persistent=False)
         self.freeze()

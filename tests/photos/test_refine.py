@@ -13,7 +13,13 @@ from hypothesis import strategies as st
 from aes_planner.bench.photos import render_photo_set
 from aes_planner.config import ConfigError
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
-from aes_planner.photos.refine import RefineConfig, photo_composite, refine_at_best_photo, subject_distance
+from aes_planner.photos.refine import (
+    RefineConfig,
+    estimate_error,
+    photo_composite,
+    refine_at_best_photo,
+    subject_distance,
+)
 from aes_planner.platform import HandHeldPlatform
 from aes_planner.sim import load_scene, render
 from aes_planner.teachers import get_teacher
@@ -65,14 +71,40 @@ def test_the_pick_beats_the_best_photo_on_the_true_render(cc0_walk):
     assert best == int(np.argmax(_teacher_scores(teacher, images)))
     assert set(found.photo_of.tolist()) <= set(np.argsort(-found.photo_scores)[:2].tolist())
     assert np.all(found.own_cover > 0.5)
-    assert len(cands) > 50 and cands[0].terms["photo_gain"] > 0
+    assert len(cands) > 50 and found.confident and found.pick is cands[0] and cands[0].terms["photo_gain"] > 0
     assert all(bool(platform.contains(c.position_m)) for c in cands)
+    # ranked by the lower bound: the prediction less one expected error of the estimate
+    low = np.array([c.terms["photo_gain_low"] for c in cands])
+    assert np.all(np.diff(low) <= 1e-12)
+    np.testing.assert_allclose(low, [c.terms["photo_gain"] - c.terms["estimate_error"] for c in cands])
+    assert low[0] >= RefineConfig().min_gain
     # the photo itself (levelled) is one of the candidates
     base = cam2world_to_view(truth[best])
     assert any(np.allclose(cam2world_to_view(c.cam2world), base, atol=1e-9) for c in cands)
     true = _teacher_scores(teacher, [render(scene, c.cam2world, k).rgb for c in cands[:1]])
     true_photos = _teacher_scores(teacher, [render(scene, p, k).rgb for p in truth])
     assert true[0] > true_photos.max() + 0.01, (true[0], true_photos.max())
+
+
+def test_not_trusted_gives_the_best_photo_as_taken(cc0_walk):
+    images, truth, scene = cc0_walk
+    teacher = get_teacher()
+    # no refined view clears the best photo by 0.5 after its expected error: the photo itself, as taken
+    found = refine_at_best_photo(teacher, truth, images, scene.intrinsics(), RefineConfig(min_gain=0.5))
+    assert found.suggestions and not found.confident
+    pick = found.pick
+    np.testing.assert_array_equal(pick.cam2world, truth[found.best_photo])  # with its roll
+    assert pick.score == found.photo_scores.max() and pick.terms["photo_gain"] == 0.0
+    # more caution lowers every candidate's bound by its expected error, never its prediction
+    bold = refine_at_best_photo(teacher, truth, images, scene.intrinsics(), RefineConfig(caution=0.0))
+    assert all(c.terms["photo_gain_low"] == pytest.approx(c.terms["photo_gain"]) for c in bold.suggestions)
+    assert max(c.score for c in bold.suggestions) == pytest.approx(max(c.score for c in found.suggestions))
+
+
+def test_the_estimate_error_grows_with_the_step_and_the_other_photos_share():
+    base = estimate_error(0.0, 1.0)
+    assert 0.0 < base < estimate_error(0.3, 1.0) and base < estimate_error(0.0, 0.8)
+    assert estimate_error(np.array([0.0, 0.3]), np.array([1.0, 0.5])).shape == (2,)
 
 
 def test_off_or_photos_of_two_sizes_gives_nothing(cc0_walk):
@@ -110,7 +142,8 @@ def test_subject_distance_meets_the_axes_in_front():
 @pytest.mark.parametrize(
     "field, value",
     [("max_turn_deg", -1.0), ("max_turn_deg", float("nan")), ("turn_step_deg", 0.0), ("forward_fracs", (0.9,)),
-     ("forward_fracs", ()), ("work_width_px", 8), ("min_photo_cover", 0.0), ("around_best", 0)],
+     ("forward_fracs", ()), ("work_width_px", 8), ("min_photo_cover", 0.0), ("around_best", 0),
+     ("caution", -0.5), ("min_gain", 2.0)],
 )  # fmt: skip
 def test_config_names_the_bad_field(field, value):
     with pytest.raises(ConfigError, match=field if field != "max_turn_deg" or value == value else "refine"):

@@ -35,10 +35,18 @@ def test_suggest_on_photos_alone(arc_set, tmp_path, capsys):
     doc = json.loads((tmp_path / "s.json").read_text())
     assert doc["mode"] == "handheld" and doc["posed_folder"] == str(posed)
     assert doc["unit"].startswith("the distance between the cameras of IMG_0000.jpg")
-    # suggestion #1 refined at a photo the teacher likes best, said from that photo
-    assert "#1 refined at a photo the teacher likes best" in text
-    assert doc["suggestions"][0]["refined"] and doc["suggestions"][0]["terms"]["photo_gain"] > 0
-    assert doc["suggestions"][0]["from_photo"]["photo"] == doc["refine"]["photo"]
+    # suggestion #1: a view refined at a photo the teacher likes best when its lower bound clears the
+    # best photo, else that photo as taken; said from that photo either way
+    first, refine = doc["suggestions"][0], doc["refine"]
+    assert first["from_photo"]["photo"] == refine["photo"]
+    if refine["confident"]:
+        assert "#1 refined at a photo the teacher likes best" in text
+        assert first["refined"] and not first["as_taken"]
+        assert first["terms"]["photo_gain_low"] >= refine["min_gain"] and first["terms"]["photo_gain"] > 0
+    else:
+        assert f"#1 is the photo the teacher likes best, {refine['best_photo']}" in text
+        assert first["as_taken"] and not first["refined"] and refine["photo"] == refine["best_photo"]
+        assert refine["top_gain_low"] < refine["min_gain"]
     data = load_dataset(posed)
     platform = platform_from_meta(data.meta, data.frames[0].intrinsics)
     for i, s in enumerate(doc["suggestions"]):
@@ -59,7 +67,8 @@ def test_suggest_on_photos_alone(arc_set, tmp_path, capsys):
     "flag, value, said",
     [("--refine-forward", "0,x", "--refine-forward"), ("--refine-forward", "0.9", "--refine-forward"),
      ("--refine-turn", "-2", "--refine-turn"), ("--refine-turn", "nan", "--refine-turn"),
-     ("--refine-at", "0", "--refine-at")],
+     ("--refine-at", "0", "--refine-at"), ("--refine-caution", "-1", "--refine-caution"),
+     ("--refine-min-gain", "nan", "--refine-min-gain")],
 )  # fmt: skip
 def test_bad_refinement_is_refused_before_the_pose_step(arc_set, tmp_path, capsys, flag, value, said):
     images, _ = arc_set

@@ -115,3 +115,34 @@ def test_tiny_images_give_finite_splats(shape):
         assert len(sp) >= 1
         for name in ("means", "quats", "log_scales", "colors", "normals", "footprint_m", "score"):
             assert np.all(np.isfinite(getattr(sp, name))), name
+
+
+def _tangent_whole_image(p, cut, axis):
+    """The derivative over the whole image as splats_from_depth computed it before it asked only
+    at the block centres (the reference for ``_tangent``)."""
+    fwd, bwd = np.zeros_like(p), np.zeros_like(p)
+    joined_f, joined_b = np.zeros(p.shape[:2], bool), np.zeros(p.shape[:2], bool)
+    if axis == 1:
+        fwd[:, :-1] = bwd[:, 1:] = p[:, 1:] - p[:, :-1]
+        joined_f[:, :-1] = joined_b[:, 1:] = ~cut
+    else:
+        fwd[:-1] = bwd[1:] = p[1:] - p[:-1]
+        joined_f[:-1] = joined_b[1:] = ~cut
+    both = joined_f & joined_b
+    out = np.where(both[..., None], 0.5 * (fwd + bwd), np.where(joined_f[..., None], fwd, bwd))
+    return out, joined_f | joined_b
+
+
+@pytest.mark.parametrize("shape", [(7, 9), (1, 6), (5, 1), (1, 1)])
+def test_tangent_at_pixels_equals_the_whole_image_derivative(shape):
+    from aes_planner.reconstruct.splats import _tangent
+
+    rng = np.random.default_rng(sum(shape))
+    h, w = shape
+    p = rng.normal(size=(h, w, 3))
+    rr, cc = (a.reshape(-1) for a in np.meshgrid(np.arange(h), np.arange(w), indexing="ij"))
+    for axis, cut in ((1, rng.random((h, w - 1)) < 0.3), (0, rng.random((h - 1, w)) < 0.3)):
+        ref, ref_ok = _tangent_whole_image(p, cut, axis)
+        got, ok = _tangent(p, cut, axis, rr, cc)
+        np.testing.assert_array_equal(ok, ref_ok[rr, cc])
+        np.testing.assert_array_equal(got, ref[rr, cc])  # bit for bit: the same float operations

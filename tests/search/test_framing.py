@@ -349,3 +349,83 @@ def test_the_coverage_rule_under_a_kept_subject_is_checked():
     for kw in (dict(coverage_min=1.5), dict(coverage_min=float("nan")), dict(coverage_penalty=-1.0)):
         with pytest.raises(AesPlannerError, match=next(iter(kw))):
             FramingConfig(**kw)
+
+
+# ---------------------------------------------------------------- ranking on the warped input photos
+def red_dot_photos(platform, centre, n: int = 4, width: int = 64):
+    """Photos of a red dot at ``centre`` on grey from the rig's survey sweep: (frames, poses)."""
+    from types import SimpleNamespace
+
+    poses = rig_inputs(platform, n)
+    k = platform.intrinsics
+    scale = width / k.width
+    h = round(k.height * scale)
+    frames = []
+    for c2w in poses:
+        img = np.full((h, width, 3), 100, np.uint8)
+        p = np.linalg.inv(c2w) @ np.r_[centre, 1.0]
+        if p[2] > 0:
+            u, v = (k.K[:2, :2] @ (p[:2] / p[2]) + k.K[:2, 2]) * scale
+            yy, xx = np.mgrid[:h, :width]
+            img[(xx - u) ** 2 + (yy - v) ** 2 <= (0.08 * width) ** 2] = (230, 20, 20)
+        frames.append(SimpleNamespace(image=img, cam2world=c2w, intrinsics=k))
+    return frames, poses
+
+
+def test_a_photo_warped_to_its_own_view_scores_as_the_photo_and_a_view_away_is_uncovered():
+    from aes_planner.search.photo_warp import warped_photo_scores
+
+    platform = rig_platform(pan_limits_deg=(-120.0, 120.0), tilt_limits_deg=(-40.0, 40.0))
+    frames, poses = red_dot_photos(platform, np.array([3.0, 0.5, 1.3]))
+    teacher = CentreRedTeacher()
+    eye = poses[:1, :3, 3]
+    away = np.asarray(look_at(eye, eye + np.array([[0.05, 0.0, -1.0]])), float)  # straight down: no photo saw it
+    scores, cover = warped_photo_scores(teacher, [f.image for f in frames], poses, platform.intrinsics,
+                                        np.concatenate([poses, away]), None, 64, 0.5)  # fmt: skip
+    own = teacher.explain_map(torch.as_tensor(np.stack([f.image for f in frames])).permute(0, 3, 1, 2).float() / 255)
+    assert cover[:4] == pytest.approx(1.0, abs=0.05)
+    assert scores[:4] == pytest.approx(own["score"].double().numpy(), rel=0.05, abs=1e-3)
+    assert cover[4] == 0.0 and np.isnan(scores[4])
+    red = lambda views, size: np.broadcast_to(np.array([230, 20, 20], np.uint8), (len(views), size[1], size[0], 3))  # noqa: E731
+    filled, _ = warped_photo_scores(teacher, [f.image for f in frames], poses, platform.intrinsics, away, None, 64,
+                                    fill=red)  # fmt: skip
+    assert filled[0] > 0.5  # what no photo saw comes from the fill: all red
+
+
+def test_the_suggestion_is_ranked_on_the_warped_input_photos():
+    """The field (AimScorer) wants the optical axis along +x, so among the views that hold the
+    subject it prefers those with the subject at the frame's edge; the teacher on the input photos
+    warped into each view wants the (red) subject at the centre: with ``photo_rank`` the
+    suggestion is the teacher's choice, still holds the subject, and carries its warped score."""
+    from aes_planner.search.framing import PhotoSet, project_corners
+
+    platform = rig_platform(pan_limits_deg=(-120.0, 120.0), tilt_limits_deg=(-40.0, 40.0))
+    subject = subject_at((3.0, 0.9, 1.3), (0.15, 0.15, 0.15))
+    frames, poses = red_dot_photos(platform, subject.centre_m)
+    scorer = AimScorer([1.0, 0.0, 0.0])
+    scorer.teacher = CentreRedTeacher()
+    cfg = SearchConfig.preset("fast", top_k=2, steps=0)
+
+    def off_centre(result):
+        c = torch.as_tensor(subject.centre_m)[None, None]
+        u, v, _ = project_corners(c, torch.as_tensor(result.best.cam2world[None]), platform.intrinsics)
+        return math.hypot(float(u) - 0.5, float(v) - 0.5)
+
+    runs = {}
+    for on in (False, True):
+        fc = FramingConfig(photo_rank=on, photo_width_px=64)
+        framing = Framing([subject], [], platform.intrinsics, fc, PhotoSet.of(frames) if on else None)
+        runs[on] = search_views(scorer, poses, platform, cfg, framing=framing)
+        assert runs[on].suggestions and all(s.held == pytest.approx(1.0) for s in runs[on].suggestions)
+    assert "photo" not in runs[False].best.terms
+    assert runs[True].best.terms["photo"] > 0 and runs[True].best.terms["photo_cover"] > 0.3
+    assert runs[True].timings_ms["photo_rank"] > 0
+    assert off_centre(runs[True]) < 0.05 < off_centre(runs[False])
+
+
+def test_the_photo_ranking_config_is_checked():
+    for kw, name in ((dict(photo_rank=1), "photo_rank"), (dict(photo_turn_deg=90.0), "photo_turn_deg"),
+                     (dict(photo_step_deg=0.0), "photo_step_deg"), (dict(photo_min_cover=1.5), "photo_min_cover"),
+                     (dict(photo_width_px=8), "photo_width_px"), (dict(photo_top=-1), "photo_top")):  # fmt: skip
+        with pytest.raises(AesPlannerError, match=name):
+            FramingConfig(**kw)

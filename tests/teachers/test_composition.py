@@ -349,3 +349,19 @@ def test_bad_inputs_are_refused_with_advice(teacher, images, match):
 def test_head_refuses_maps_of_the_wrong_shape(teacher):
     with pytest.raises(TeacherError, match="feature_size"):
         teacher.head(torch.zeros(1, 4, 14, 14))
+
+
+def test_constant_tables_are_shared_by_value_not_by_reference():
+    """The filters and cell matrices are computed once per setting (a field builds its teacher
+    on every build), but each teacher holds its own copies: an in-place change in one teacher
+    leaves the next one's scores as they were."""
+    image = draw_disc(canvas(96, 128), 0.33, 0.33, 0.12, (0.9, 0.2, 0.1))[None]
+    first = CompositionTeacher()
+    before = first.score(image).clone()
+    first._annulus.zero_()
+    first._filters_x.zero_()
+    second = CompositionTeacher()
+    assert torch.equal(second.score(image), before)
+    assert not torch.equal(first.score(image), before)
+    other = CompositionTeacher(CompositionConfig(thirds_sigma=0.2))
+    assert not torch.equal(other._thirds, second._thirds)  # a different setting gets its own tables
