@@ -61,6 +61,24 @@ def cases(scenes: list[str], seeds: list[int]):
                                   oracle=oracle)  # fmt: skip
 
 
+def framed_search(c: SimpleNamespace) -> SimpleNamespace | None:
+    """The framed search of one case (the eval's framing settings) and the stage-1 objective its
+    candidates were ranked by; None when the subject cannot be framed. Fields: framing, result,
+    poses [N, 4, 4], field [N] (NaN as -1e9), cov [N], obj [N]."""
+    try:
+        framing = build_framing(c.scorer, c.named, [c.picked[2]], [], c.k, c.cfg.framing())
+        result = search_views(c.scorer, c.inputs, c.platform, c.scfg, framing=framing)
+    except FramingError:
+        return None
+    fc = framing.cfg
+    field = np.nan_to_num(result.candidates_score, nan=-1e9)
+    cov = result.candidates_coverage
+    obj = field - fc.coverage_penalty * np.clip(fc.coverage_min - cov, 0, None)
+    return SimpleNamespace(
+        framing=framing, result=result, poses=result.candidates_cam2world, field=field, cov=cov, obj=obj
+    )
+
+
 def main(scenes: list[str], seeds: list[int]) -> None:
     for c in cases(scenes, seeds):
         cfg, spec, seed, platform, inputs, k, judge = c.cfg, c.spec, c.seed, c.platform, c.inputs, c.k, c.judge

@@ -23,11 +23,14 @@ import time
 import cv2
 import numpy as np
 import torch
-from framing_loss_check import cases, spearman  # the cases of eval framing (scripts/ is on the path when run)
+from framing_loss_check import (  # the cases of eval framing (scripts/ is on the path when run)
+    cases,
+    framed_search,
+    spearman,
+)
 
 from aes_planner.eval.framing import true_holds
-from aes_planner.search import search_views
-from aes_planner.search.framing import FramingError, build_framing, rendered_rgb
+from aes_planner.search.framing import rendered_rgb
 from aes_planner.search.photo_warp import warped_photo_scores
 
 
@@ -59,16 +62,10 @@ def around(space, poses: np.ndarray, turn_deg: float) -> torch.Tensor:  # [P, 4,
 def main(scenes: list[str], seeds: list[int], turn_deg: float) -> None:
     for c in cases(scenes, seeds):
         k, judge, space, scorer, inputs, points, oracle = c.k, c.judge, c.space, c.scorer, c.inputs, c.points, c.oracle
-        try:
-            framing = build_framing(scorer, c.named, [c.picked[2]], [], k, c.cfg.framing())
-            result = search_views(scorer, inputs, c.platform, c.scfg, framing=framing)
-        except FramingError:
+        run = framed_search(c)
+        if run is None:
             continue
-        fc = framing.cfg
-        poses = result.candidates_cam2world
-        field = np.nan_to_num(result.candidates_score, nan=-1e9)
-        cov = result.candidates_coverage
-        obj = field - fc.coverage_penalty * np.clip(fc.coverage_min - cov, 0, None)
+        framing, result, poses, obj = run.framing, run.result, run.poses, run.obj
         top = np.argsort(-obj, kind="stable")[:32]
         pool_a = poses[top]
         extra = torch.cat([around(space, inputs, turn_deg), around(space, pool_a[:8], 4.0)])

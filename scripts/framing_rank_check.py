@@ -20,11 +20,10 @@ import sys
 
 import numpy as np
 import torch
-from framing_loss_check import cases  # the cases of eval framing (scripts/ is on the path when run)
+from framing_loss_check import cases, framed_search  # the cases of eval framing (scripts/ is on the path when run)
 
 from aes_planner.eval.framing import true_holds
-from aes_planner.search import search_views
-from aes_planner.search.framing import FramingError, build_framing, project_corners, verified_scores
+from aes_planner.search.framing import project_corners, verified_scores
 from aes_planner.search.pipeline import _select_distinct
 
 JITTERS = 8
@@ -48,16 +47,10 @@ def jittered(poses: np.ndarray, deg: float, rng: np.random.Generator) -> np.ndar
 def main(scenes: list[str], seeds: list[int], distinct: bool) -> None:
     for c in cases(scenes, seeds):
         k, judge, space, scorer, inputs, points, oracle = c.k, c.judge, c.space, c.scorer, c.inputs, c.points, c.oracle
-        try:
-            framing = build_framing(scorer, c.named, [c.picked[2]], [], k, c.cfg.framing())
-            result = search_views(scorer, inputs, c.platform, c.scfg, framing=framing)
-        except FramingError:
+        run = framed_search(c)
+        if run is None:
             continue
-        fc = framing.cfg
-        poses = result.candidates_cam2world
-        field = np.nan_to_num(result.candidates_score, nan=-1e9)
-        cov = result.candidates_coverage
-        obj = field - fc.coverage_penalty * np.clip(fc.coverage_min - cov, 0, None)
+        framing, result, poses, field, cov, obj = run.framing, run.result, run.poses, run.field, run.cov, run.obj
         if distinct:
             sel = _select_distinct(space, space.from_poses(poses), torch.as_tensor(obj), 24, None).numpy()
         else:
