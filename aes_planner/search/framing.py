@@ -47,7 +47,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from aes_planner.config import require
+from aes_planner.config import require, require_within
 from aes_planner.errors import AesPlannerError
 from aes_planner.field.scorer import ScoreOutput, Scorer
 from aes_planner.geometry.camera import Intrinsics
@@ -229,21 +229,9 @@ class FramingConfig:
             "photo_top",
             f"must be an integer in [0, 10000], got {self.photo_top!r}",
         )
-        require(
-            isinstance(self.photo_turn_deg, (int, float)) and 0.0 <= self.photo_turn_deg <= 45.0,
-            "photo_turn_deg",
-            f"must be in [0, 45] deg, got {self.photo_turn_deg!r}",
-        )
-        require(
-            isinstance(self.photo_step_deg, (int, float)) and 0.5 <= self.photo_step_deg <= 45.0,
-            "photo_step_deg",
-            f"must be in [0.5, 45] deg, got {self.photo_step_deg!r}",
-        )
-        require(
-            isinstance(self.photo_min_cover, (int, float)) and 0.0 <= self.photo_min_cover <= 1.0,
-            "photo_min_cover",
-            f"must be a fraction of the view in [0, 1], got {self.photo_min_cover!r}",
-        )
+        require_within(self, ("photo_turn_deg",), 0.0, 45.0)
+        require_within(self, ("photo_step_deg",), 0.5, 45.0)
+        require_within(self, ("photo_min_cover",), 0.0, 1.0)
         require(
             isinstance(self.photo_width_px, int) and 32 <= self.photo_width_px <= 1024,
             "photo_width_px",
