@@ -15,8 +15,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-import cv2  # noqa: F401  (before pycolmap, always)
+import cv2  # before pycolmap, always
 import numpy as np
+import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
 from photos_suggest_check import score
@@ -26,7 +27,7 @@ from aes_planner.dataset import load_dataset
 from aes_planner.geometry.poses import cam2world_to_view
 from aes_planner.images import MAX_WORKING_SIDE_PX
 from aes_planner.photos import pose_errors, pose_images
-from aes_planner.photos.refine import RefineConfig, refine_at_best_photo, subject_distance
+from aes_planner.photos.refine import RefineConfig, photo_composite, refine_at_best_photo, subject_distance
 from aes_planner.platform import HandHeldPlatform
 from aes_planner.sim import load_scene
 from aes_planner.teachers import get_teacher
@@ -35,6 +36,13 @@ ap = argparse.ArgumentParser()
 ap.add_argument("seed", type=int)
 ap.add_argument("--turn", type=float, default=10.0)
 ap.add_argument("--around", type=int, default=2, help="refine at this many of the best photos")
+ap.add_argument("--keep-roll", action="store_true", help="turn the photos as taken (RefineConfig.keep_roll)")
+ap.add_argument("--turns", action="store_true", help="also the best photo as taken turned on the spot (the fall-back)")
+ap.add_argument(
+    "--planes",
+    default="0.7,1.4",
+    help="also score each candidate through planes at these multiples of the subject's distance",
+)
 args = ap.parse_args()
 out = Path(tempfile.mkdtemp())
 images, truth, scene_file = render_photo_set(out / "set", 10, (640, 480), seed=args.seed)
@@ -49,12 +57,18 @@ k = data.frames[0].intrinsics
 platform = HandHeldPlatform.around_photos(k, photos)
 teacher = get_teacher()
 cfg = RefineConfig(
-    max_turn_deg=args.turn, turn_step_deg=2.0, forward_fracs=(0.0, 0.1, 0.2, 0.3), around_best=args.around
+    max_turn_deg=args.turn,
+    turn_step_deg=2.0,
+    forward_fracs=(0.0, 0.1, 0.2, 0.3),
+    around_best=args.around,
+    keep_roll=args.keep_roll,
 )
 found = refine_at_best_photo(teacher, photos, [f.image for f in data.frames], k, cfg, platform)
 cands, best, real_best = found.suggestions, found.best_photo, float(found.photo_scores.max())
 scene = load_scene(scene_file, allow_outside=True)
 true_in = score(teacher, scene, truth)
+# the best photo's own pose mapped back through the similarity (what the fall-back "as taken" renders)
+true_as_taken_sim = float(score(teacher, scene, err.to_true(photos[best])[None])[0])
 true_c = score(teacher, scene, np.stack([err.to_true(c.cam2world) for c in cands]))
 est = np.array([c.score for c in cands])
 rows = []
@@ -65,6 +79,33 @@ for c, b in zip(cands, found.photo_of):
     step = float(np.linalg.norm(v[:3] - base[:3]))
     rows.append((math.degrees(v[3] - base[3]), math.degrees(v[4] - base[4]), step / dist if dist else 0.0))
 rows = np.array(rows)  # [C, 3] turn, tilt (deg), forward fraction
+# the same candidates warped through planes nearer and farther than the subject (how much each
+# estimate leans on the plane's depth)
+ww = cfg.work_width_px
+h0, w0 = data.frames[0].image.shape[:2]
+wh = max(8, round(ww * h0 / w0))
+small = [cv2.resize(f.image, (ww, wh), interpolation=cv2.INTER_AREA) for f in data.frames]
+kk = k.K.astype(np.float64).copy()
+kk[0] *= ww / k.width
+kk[1] *= wh / k.height
+centres = photos[:, :3, 3]
+plane_est = {}
+for fac in [float(x) for x in args.planes.split(",") if x]:
+    shots = []
+    for c, b in zip(cands, found.photo_of):
+        b = int(b)
+        d = subject_distance(photos, b)
+        fwd = photos[b, :3, 2]
+        plane = None if d is None else (fwd, float(fwd @ photos[b, :3, 3]) + fac * d)
+        xyz = c.cam2world[:3, 3]
+        order = [b] + [int(j) for j in np.argsort(np.linalg.norm(centres - xyz, axis=1)) if j != b]
+        shots.append(photo_composite(small, photos, kk, c.cam2world, order, plane)[0])
+    vals = []
+    for i in range(0, len(shots), 64):
+        x = torch.from_numpy(np.stack(shots[i : i + 64])).permute(0, 3, 1, 2).float() / 255.0
+        with torch.no_grad():
+            vals.append(teacher.explain_map(teacher.features(x))["score"].double().numpy())
+    plane_est[str(fac)] = np.concatenate(vals).tolist()
 at_best = found.photo_of == best
 dist = subject_distance(photos, best)
 true_best_photo_pose = float(true_in[idx[best]])
@@ -97,6 +138,18 @@ for turn in (2, 4, 6, 8, 10):
                 float(np.corrcoef(np.argsort(np.argsort(est[sel])), np.argsort(np.argsort(true_c[sel])))[0, 1]), 2
             ),
         }
+turns = {}
+if args.turns:  # the fall-back's views: the best photo as taken (roll kept) turned and tilted on the spot
+    tcfg = RefineConfig(max_turn_deg=args.turn, forward_fracs=(0.0,), around_best=1, keep_roll=True)
+    tf = refine_at_best_photo(teacher, photos, [f.image for f in data.frames], k, tcfg, platform)
+    base = cam2world_to_view(photos[best])
+    turns = {
+        "rows": [[math.degrees(cam2world_to_view(c.cam2world)[3] - base[3]),
+                  math.degrees(cam2world_to_view(c.cam2world)[4] - base[4]), 0.0] for c in tf.suggestions],
+        "est": [c.score for c in tf.suggestions],
+        "own_cover": tf.own_cover.tolist(),
+        "true": score(teacher, scene, np.stack([err.to_true(c.cam2world) for c in tf.suggestions])).tolist(),
+    }  # fmt: skip
 (out / "cands.json").write_text(
     json.dumps(
         {
@@ -109,6 +162,13 @@ for turn in (2, 4, 6, 8, 10):
             "cover": [c.coverage for c in cands],
             "est": est.tolist(),
             "true": true_c.tolist(),
+            "keep_roll": args.keep_roll,
+            "turns": turns,
+            "plane_est": plane_est,
+            "true_as_taken_sim": true_as_taken_sim,
+            "photos_c2w": photos.tolist(),
+            "subject_dist": [subject_distance(photos, int(b)) for b in found.photo_of],
+            "unit": data.meta.get("unit"),
         }
     )
 )

@@ -56,6 +56,14 @@ def one(seed: int, out: Path, preset: str, top: int, extra: list[str]) -> dict:
     inputs = score(teacher, scene, truth)
     sugg = [err.to_true(s["cam2world"]) for s in doc["suggestions"]]
     got = score(teacher, scene, np.stack(sugg))
+    # suggestion #1 as the photographer acts on it: the move from the photo it names, applied to
+    # where that photo was really taken (the similarity's scale only; its rotation and translation,
+    # fitted to the centres alone, do not enter)
+    first = doc["suggestions"][0]
+    j = int(first["from_photo"]["photo_index"])
+    rel = np.linalg.inv(data.cam2worlds()[j]) @ np.asarray(first["cam2world"], np.float64)
+    rel[:3, 3] *= err.scale
+    got_rel = float(score(teacher, scene, (truth[idx[j]] @ rel)[None])[0])
     # the field's own first choice among the same candidates (before the photos' correction)
     field_pick = int(np.argmax([s["terms"].get("field", s["score"]) for s in doc["suggestions"]]))
     nearest = [float(np.min(np.linalg.norm(truth[:, :3, 3] - p[:3, 3], axis=1))) for p in sugg]
@@ -78,6 +86,8 @@ def one(seed: int, out: Path, preset: str, top: int, extra: list[str]) -> dict:
         "predicted_gain": doc.get("refine", {}).get("top_gain"),
         "predicted_gain_low": doc.get("refine", {}).get("top_gain_low"),
         "margin": float(got[0] - inputs.max()),
+        "suggestion_1_from_photo": got_rel,
+        "margin_from_photo": float(got_rel - inputs.max()),
         "field_first_choice": float(got[field_pick]),
         "field_first_above_best_input": bool(got[field_pick] > inputs.max()),
         "candidates": len(got),
@@ -111,6 +121,7 @@ def main() -> int:
         "as_taken": sum(r["as_taken"] for r in ok),
         "pose_check": sum(r["pose_check"] for r in ok),
         "smallest_margin": min((r["margin"] for r in ok), default=None),
+        "above_best_input_from_photo": sum(r["margin_from_photo"] > 0 for r in ok),
         "median_suggestion_minus_best_input": statistics.median(r["suggestion_1"] - r["best_input"] for r in ok)
         if ok
         else None,

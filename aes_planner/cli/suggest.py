@@ -147,7 +147,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=RefineConfig.min_gain,
         metavar="SCORE",
         help="trust a refined view only when that lower bound clears the best photo by SCORE; else suggestion #1 is "
-        f"the best photo as taken (default {RefineConfig.min_gain:g})",
+        f"the fall-back (default {RefineConfig.min_gain:g})",
+    )
+    photos.add_argument(
+        "--refine-fallback",
+        choices=("turn", "photo"),
+        default="turn" if RefineConfig.fallback_turn else "photo",
+        help="when no refined view is trusted: the best photo as taken, turned and tilted on the spot when that "
+        "clears it by the same lower bound, else the photo itself (turn); or always the photo itself (photo) "
+        f"(default {'turn' if RefineConfig.fallback_turn else 'photo'})",
     )
     p.set_defaults(func=run)
 
@@ -352,9 +360,16 @@ def run(args: argparse.Namespace) -> int:
                 f"best of {refined['candidates']} views within {within}"
             )
         else:
+            pick = refined["pick"]
+            how = (
+                f"turned on the spot (predicted {pick.score:.3f}, {pick.terms['photo_gain']:+.3f}, at least "
+                f"{pick.terms['photo_gain_low']:+.3f} on the photo itself turned)"
+                if refined["kind"] == "turn"
+                else "as taken"
+            )
             print(
                 f"#1 is the photo the teacher likes best, {refined['best_photo']} (teacher "
-                f"{refined['best_photo_score']:.3f}), as taken: none of {refined['candidates']} views within {within} "
+                f"{refined['best_photo_score']:.3f}), {how}: none of {refined['candidates']} views within {within} "
                 f"cleared it by the estimate's expected error (the best predicted {refined['top_gain']:+.3f}, at least "
                 f"{refined['top_gain_low']:+.3f}; needed {refine_cfg.min_gain:+.3f})"
             )
@@ -395,11 +410,13 @@ def run(args: argparse.Namespace) -> int:
             doc["search_space"] = {"kind": "handheld", "margin": platform.margin_m, "cameras": len(platform.centres)}
             for entry, move in zip(doc["suggestions"], moves):
                 entry["from_photo"] = move.to_json()
-            if refined is not None:  # #1 is a refined view (trusted) or the best photo as taken (not)
-                doc["suggestions"][0]["refined"] = refined["confident"]
-                doc["suggestions"][0]["as_taken"] = not refined["confident"]
+            if refined is not None:  # #1: a refined view (trusted), the best photo turned, or as taken
+                doc["suggestions"][0]["refined"] = refined["kind"] == "refined"
+                doc["suggestions"][0]["turned"] = refined["kind"] == "turn"
+                doc["suggestions"][0]["as_taken"] = refined["kind"] == "as_taken"
                 doc["refine"] = {
                     "confident": refined["confident"],
+                    "kind": refined["kind"],
                     "photo": refined["photo"],
                     "photo_score": refined["photo_score"],
                     "best_photo": refined["best_photo"],
@@ -471,6 +488,7 @@ def _refine_args(args):
             around_best=args.refine_at,
             caution=args.refine_caution,
             min_gain=args.refine_min_gain,
+            fallback_turn=args.refine_fallback == "turn",
         )
     except ConfigError as exc:
         flags = {
@@ -503,6 +521,7 @@ def _refine(scorer, data, platform, cfg) -> dict | None:
     at = int(found.photo_of[0]) if found.confident else found.best_photo
     return {
         "pick": found.pick,
+        "kind": found.kind,  # refined / turn / as_taken
         "confident": found.confident,
         "photo": names[at],
         "photo_score": float(found.photo_scores[at]),

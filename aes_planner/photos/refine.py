@@ -76,7 +76,19 @@ class RefineConfig:
     * ``caution``: how many of the estimate's expected errors (:func:`estimate_error`) are taken
       off each candidate's predicted score before ranking (0: rank by the prediction alone);
     * ``min_gain``: how far that lower bound must clear the best photo's teacher score for a
-      refined view to be trusted; otherwise the best photo as taken is the answer.
+      refined view to be trusted; otherwise the best photo as taken is the answer;
+    * ``keep_roll``: turn and tilt the photo as it was taken (its roll kept: the turn about the
+      vertical, the tilt about the camera's own right axis) instead of the photo levelled; the
+      photo itself is then exactly one of the grid's views and every turn on the spot an exact
+      warp of it;
+    * ``plane_depth``: the plane a step forward and the neighbours are warped through, at this
+      multiple of the subject's distance along the photo's view (the subject is where the
+      photos' axes meet; most of a view lies behind it);
+    * ``fallback_turn``: when no refined view is trusted, try first the best photo as taken
+      (its roll kept) turned and tilted on the spot by the grid's steps, where the photo covers
+      at least ``fallback_min_own`` of the view (their estimate is the most faithful of all: the
+      photo's own pixels, moved exactly), and take the best of those by the same lower bound when
+      it clears the best photo by ``fallback_min_gain``; only then the photo as taken.
     """
 
     max_turn_deg: float = 6.0
@@ -87,6 +99,11 @@ class RefineConfig:
     min_photo_cover: float = 0.97
     caution: float = 1.0
     min_gain: float = 0.02
+    keep_roll: bool = False
+    plane_depth: float = 1.0
+    fallback_turn: bool = False
+    fallback_min_gain: float = 0.0
+    fallback_min_own: float = 0.85
 
     def __post_init__(self):
         require_finite([self.max_turn_deg, self.turn_step_deg, self.min_photo_cover], "refine")
@@ -117,6 +134,25 @@ class RefineConfig:
         # NaN fails these ranges too, named
         require(0.0 <= self.caution <= 10.0, "caution", f"must be in [0, 10] expected errors, got {self.caution!r}")
         require(-1.0 <= self.min_gain <= 1.0, "min_gain", f"must be in [-1, 1] (teacher score), got {self.min_gain!r}")
+        require(isinstance(self.keep_roll, bool), "keep_roll", f"must be true or false, got {self.keep_roll!r}")
+        require(
+            0.25 <= self.plane_depth <= 4.0,
+            "plane_depth",
+            f"must be in [0.25, 4] times the subject's distance, got {self.plane_depth!r}",
+        )
+        require(
+            isinstance(self.fallback_turn, bool), "fallback_turn", f"must be true or false, got {self.fallback_turn!r}"
+        )
+        require(
+            -1.0 <= self.fallback_min_gain <= 1.0,
+            "fallback_min_gain",
+            f"must be in [-1, 1] (teacher score), got {self.fallback_min_gain!r}",
+        )
+        require(
+            0.0 <= self.fallback_min_own <= 1.0,
+            "fallback_min_own",
+            f"must be in [0, 1] (share of the view), got {self.fallback_min_own!r}",
+        )
 
     @property
     def enabled(self) -> bool:
@@ -137,6 +173,16 @@ def subject_distance(photos_c2w: np.ndarray, index: int) -> float | None:
     d = float((point - c[index]) @ f[index])
     spread = float(np.max(np.linalg.norm(c[:, None] - c[None], axis=-1))) if len(c) > 1 else 0.0
     return d if d > max(spread, 1e-9) * 0.1 else None
+
+
+def _rot_z(a: float) -> np.ndarray:  # [3, 3] a turn by ``a`` rad about world +z (left: positive)
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _rot_x(a: float) -> np.ndarray:  # [3, 3] about a camera's own x (right) axis: positive tilts an OpenCV camera up
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
 def estimate_error(step_frac, own_cover):
@@ -162,18 +208,28 @@ class RefineResult:
     photo_scores: np.ndarray  # [N]
     as_taken: object = None
     confident: bool = False
+    turn: object = None  # the fall-back turn on the spot at the best photo (RefineConfig.fallback_turn), if any
 
     @property
     def best_photo(self) -> int:
         return int(np.argmax(self.photo_scores)) if len(self.photo_scores) else -1
 
     @property
-    def pick(self):
-        """Suggestion #1: the first refined view when it is trusted, else the best photo as taken
-        (None when nothing was refined)."""
+    def kind(self) -> str:
+        """What suggestion #1 is: ``"refined"`` (the first refined view, trusted), ``"turn"`` (the
+        fall-back turn on the spot at the best photo) or ``"as_taken"`` (the best photo itself)."""
         if self.confident and self.suggestions:
+            return "refined"
+        return "turn" if self.turn is not None else "as_taken"
+
+    @property
+    def pick(self):
+        """Suggestion #1: the first refined view when it is trusted, else the fall-back turn at the
+        best photo when one cleared it, else the best photo as taken (None when nothing was refined)."""
+        kind = self.kind
+        if kind == "refined":
             return self.suggestions[0]
-        return self.as_taken
+        return self.turn if kind == "turn" else self.as_taken
 
 
 def refine_at_best_photo(
@@ -225,27 +281,40 @@ def refine_at_best_photo(
     steps = np.unique(np.round(np.concatenate([steps, [0.0]]), 9))
     lo, hi = platform.pitch_limits_deg if platform is not None and hasattr(platform, "pitch_limits_deg") else (-90, 90)
     centres = photos_c2w[:, :3, 3]
-    views, shots, covers, owns, bases, fracs = [], [], [], [], [], []
-    for b in np.argsort(-real)[: cfg.around_best]:
-        b = int(b)
+    views, shots, covers, owns, bases, fracs, spare = [], [], [], [], [], [], []
+    best = int(np.argmax(real))
+    # the grid at the best photos, then (for the fall-back) the photo the teacher likes best as
+    # taken, turned on the spot: kept apart from the ranking (``spare``)
+    grids = [(int(b), cfg.forward_fracs, cfg.keep_roll, False) for b in np.argsort(-real)[: cfg.around_best]]
+    if cfg.fallback_turn:
+        grids.append((best, (0.0,), True, True))
+    for b, grid_fracs, keep_roll, is_spare in grids:
         base = cam2world_to_view(photos_c2w[b])  # [5] x, y, z, yaw, pitch (the photo levelled: roll dropped)
         dist = subject_distance(photos_c2w, b)
         forward = photos_c2w[b, :3, 2]
         # the neighbours are warped through the plane at the subject's distance (the photo itself,
         # turned on the spot, is exact through any plane)
-        plane = None if dist is None else (forward, float(forward @ photos_c2w[b, :3, 3]) + dist)
+        plane = None if dist is None else (forward, float(forward @ photos_c2w[b, :3, 3]) + cfg.plane_depth * dist)
         heading = np.array([math.cos(base[3]), math.sin(base[3]), 0.0])  # level forward of the photo
-        for frac in cfg.forward_fracs if dist is not None else (0.0,):  # no subject distance: turns only
+        for frac in grid_fracs if dist is not None else (0.0,):  # no subject distance: turns only
             xyz = base[:3] + (frac * dist if frac else 0.0) * heading
             if frac and platform is not None and not bool(platform.contains(xyz)):
                 continue
             order = [b] + [int(j) for j in np.argsort(np.linalg.norm(centres - xyz, axis=1)) if j != b]
             for dy in steps:
                 for dp in steps:
-                    pitch = float(np.degrees(base[4]) + dp)
+                    if keep_roll:
+                        if not frac and dy == 0 and dp == 0:
+                            continue  # the photo itself: its score is exact, it is the as-taken answer
+                        c2w = np.eye(4)
+                        c2w[:3, :3] = _rot_z(math.radians(dy)) @ photos_c2w[b, :3, :3] @ _rot_x(math.radians(dp))
+                        c2w[:3, 3] = xyz
+                        pitch = float(np.degrees(cam2world_to_view(c2w)[4]))
+                    else:
+                        pitch = float(np.degrees(base[4]) + dp)
+                        c2w = view_to_cam2world(np.array([*xyz, base[3] + math.radians(dy), math.radians(pitch)]))
                     if not lo <= pitch <= hi:
                         continue
-                    c2w = view_to_cam2world(np.array([*xyz, base[3] + math.radians(dy), math.radians(pitch)]))
                     img, cover, own = photo_composite(small, photos_c2w, k, c2w, order, plane)
                     if cover < cfg.min_photo_cover:
                         continue
@@ -255,11 +324,12 @@ def refine_at_best_photo(
                     owns.append(own)
                     bases.append(b)
                     fracs.append(frac)
+                    spare.append(is_spare)
     if not views:
         return none
     terms = teacher_terms(shots)
     score = terms["score"]
-    best = int(np.argmax(real))
+    spare = np.asarray(spare, bool)  # [C] the fall-back's turns, not ranked with the grid
     steps_frac = np.asarray(fracs)  # [C] step forward of each candidate, fraction of the subject's distance
     err = estimate_error(steps_frac, np.asarray(owns))  # [C] expected error of each estimate
     low = score - cfg.caution * err  # [C] the lower bound the candidates are ranked by
@@ -271,7 +341,9 @@ def refine_at_best_photo(
         t["photo_gain_low"] = float(low[i] - real[best])
         v = cam2world_to_view(c2w)
         out.append(Suggestion(c2w, c2w[:3, 3].copy(), float(v[3]), float(v[4]), float(score[i]), covers[i], t))
-    order = np.argsort(-low, kind="stable")
+    order = np.array([i for i in np.argsort(-low, kind="stable") if not spare[i]], np.int64)
+    if not len(order):
+        return none
     # the best photo as taken (with its roll): the teacher's score on it is exact
     t = {name: float(v[best]) for name, v in real_terms.items()}
     t.update(photo_gain=0.0, estimate_error=0.0, photo_gain_low=0.0)
@@ -279,11 +351,27 @@ def refine_at_best_photo(
     as_taken = Suggestion(photos_c2w[best].copy(), photos_c2w[best, :3, 3].copy(), float(v[3]), float(v[4]),
                           float(real[best]), 1.0, t)  # fmt: skip
     confident = bool(low[order[0]] - real[best] >= cfg.min_gain)
+    turn = None
+    if not confident and cfg.fallback_turn:
+        # the best photo as taken turned on the spot, its own pixels covering most of the view
+        on_spot = spare & (np.asarray(owns) >= cfg.fallback_min_own)  # [C]
+        if on_spot.any():
+            j = int(np.flatnonzero(on_spot)[np.argmax(low[on_spot])])
+            if low[j] - real[best] >= cfg.fallback_min_gain:
+                turn = out[j]
     log.info(
         "refined at photo(s) %s (teacher %s): %d candidates, best predicted %.3f (%+.3f), lower bound %+.3f: %s",
         sorted(set(bases)), np.round(real, 3), len(out), score.max(), score.max() - real[best],
-        low[order[0]] - real[best], "trusted" if confident else "not trusted, the best photo as taken instead",
+        low[order[0]] - real[best], "trusted" if confident else
+        "not trusted, a turn at the best photo instead" if turn is not None else
+        "not trusted, the best photo as taken instead",
     )  # fmt: skip
     return RefineResult(
-        [out[i] for i in order], np.asarray(bases, np.int64)[order], np.asarray(owns)[order], real, as_taken, confident
+        [out[i] for i in order],
+        np.asarray(bases, np.int64)[order],
+        np.asarray(owns)[order],
+        real,
+        as_taken,
+        confident,
+        turn,
     )

@@ -101,6 +101,61 @@ def test_not_trusted_gives_the_best_photo_as_taken(cc0_walk):
     assert max(c.score for c in bold.suggestions) == pytest.approx(max(c.score for c in found.suggestions))
 
 
+def _turned(rb, dy_deg, dp_deg):  # [3, 3] the photo's rotation turned about the vertical, tilted about its right axis
+    a, p = math.radians(dy_deg), math.radians(dp_deg)
+    rz = np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
+    rx = np.array([[1, 0, 0], [0, math.cos(p), -math.sin(p)], [0, math.sin(p), math.cos(p)]])
+    return rz @ rb @ rx
+
+
+def _grid_of(rot, rb, cfg) -> tuple[float, float] | None:
+    """The grid's (turn, tilt) that gives ``rot`` from the photo's ``rb`` with its roll kept, or None."""
+    steps = np.arange(-cfg.max_turn_deg, cfg.max_turn_deg + 1e-9, cfg.turn_step_deg)
+    return next(((dy, dp) for dy in steps for dp in steps if np.allclose(rot, _turned(rb, dy, dp), atol=1e-9)), None)
+
+
+def test_keep_roll_turns_the_photo_as_it_was_taken(cc0_walk):
+    images, truth, scene = cc0_walk
+    cfg = RefineConfig(keep_roll=True, forward_fracs=(0.0,), around_best=1)
+    found = refine_at_best_photo(get_teacher(), truth, images, scene.intrinsics(), cfg)
+    b = found.best_photo
+    rb = truth[b, :3, :3]
+    assert abs(rb[2, 0]) > 1e-3  # the hand's roll jitter: the photo is not level
+    assert len(found.suggestions) > 5 and set(found.photo_of.tolist()) == {b}
+    # every candidate is the photo as taken turned about the vertical and tilted about its own right
+    # axis, on the spot; the photo itself is not one of them (it is the as-taken answer, its score exact)
+    grid = [_grid_of(c.cam2world[:3, :3], rb, cfg) for c in found.suggestions]
+    assert None not in grid and (0.0, 0.0) not in grid
+    assert all(np.allclose(c.position_m, truth[b, :3, 3]) for c in found.suggestions)
+    # the pure turns keep the photo's roll (its right axis's height); the levelled grid's are level
+    assert all(np.isclose(c.cam2world[2, 0], rb[2, 0]) for c, (_, dp) in zip(found.suggestions, grid) if dp == 0)
+    levelled = refine_at_best_photo(get_teacher(), truth, images, scene.intrinsics(), RefineConfig(around_best=1))
+    assert all(abs(c.cam2world[2, 0]) < 1e-9 for c in levelled.suggestions)
+
+
+def test_the_fallback_turn_is_the_best_photo_turned_on_the_spot(cc0_walk):
+    images, truth, scene = cc0_walk
+    teacher = get_teacher()
+    # nothing is trusted (min_gain 0.5): the fall-back turns the best photo as taken on the spot
+    cfg = RefineConfig(min_gain=0.5, fallback_turn=True, fallback_min_gain=-1.0)
+    found = refine_at_best_photo(teacher, truth, images, scene.intrinsics(), cfg)
+    b = found.best_photo
+    assert not found.confident and found.kind == "turn" and found.pick is found.turn
+    turn = found.turn
+    np.testing.assert_allclose(turn.position_m, truth[b, :3, 3], atol=1e-9)  # on the spot
+    assert _grid_of(turn.cam2world[:3, :3], truth[b, :3, :3], cfg) not in (None, (0.0, 0.0))  # its roll kept
+    assert turn.terms["photo_gain_low"] == pytest.approx(turn.terms["photo_gain"] - turn.terms["estimate_error"])
+    # the fall-back's views are not ranked with the grid (which stays the levelled one)
+    assert all(abs(c.cam2world[2, 0]) < 1e-9 for c in found.suggestions)
+    # without it, or when no turn clears the best photo by fallback_min_gain: the photo as taken
+    for strict in (RefineConfig(min_gain=0.5), RefineConfig(min_gain=0.5, fallback_turn=True, fallback_min_gain=0.5)):
+        none = refine_at_best_photo(teacher, truth, images, scene.intrinsics(), strict)
+        assert none.kind == "as_taken" and none.turn is None and none.pick is none.as_taken
+    # trusted: the refined view, whatever the fall-back
+    bold = refine_at_best_photo(teacher, truth, images, scene.intrinsics(), RefineConfig(fallback_turn=True))
+    assert bold.kind == "refined" and bold.pick is bold.suggestions[0] and bold.turn is None
+
+
 def test_the_estimate_error_grows_with_the_step_and_the_other_photos_share():
     base = estimate_error(0.0, 1.0)
     assert 0.0 < base < estimate_error(0.3, 1.0) and base < estimate_error(0.0, 0.8)
@@ -143,7 +198,8 @@ def test_subject_distance_meets_the_axes_in_front():
     "field, value",
     [("max_turn_deg", -1.0), ("max_turn_deg", float("nan")), ("turn_step_deg", 0.0), ("forward_fracs", (0.9,)),
      ("forward_fracs", ()), ("work_width_px", 8), ("min_photo_cover", 0.0), ("around_best", 0),
-     ("caution", -0.5), ("min_gain", 2.0)],
+     ("caution", -0.5), ("min_gain", 2.0), ("keep_roll", 1), ("fallback_turn", "yes"), ("fallback_min_gain", 2.0),
+     ("fallback_min_own", 1.5)],
 )  # fmt: skip
 def test_config_names_the_bad_field(field, value):
     with pytest.raises(ConfigError, match=field if field != "max_turn_deg" or value == value else "refine"):

@@ -36,17 +36,26 @@ def test_suggest_on_photos_alone(arc_set, tmp_path, capsys):
     assert doc["mode"] == "handheld" and doc["posed_folder"] == str(posed)
     assert doc["unit"].startswith("the distance between the cameras of IMG_0000.jpg")
     # suggestion #1: a view refined at a photo the teacher likes best when its lower bound clears the
-    # best photo, else that photo as taken; said from that photo either way
+    # best photo, else that photo turned on the spot when that clears it, else the photo as taken;
+    # said from that photo either way
     first, refine = doc["suggestions"][0], doc["refine"]
     assert first["from_photo"]["photo"] == refine["photo"]
+    assert [first["refined"], first["turned"], first["as_taken"]].count(True) == 1
+    assert refine["kind"] == ("refined" if first["refined"] else "turn" if first["turned"] else "as_taken")
     if refine["confident"]:
-        assert "#1 refined at a photo the teacher likes best" in text
-        assert first["refined"] and not first["as_taken"]
+        assert "#1 refined at a photo the teacher likes best" in text and first["refined"]
         assert first["terms"]["photo_gain_low"] >= refine["min_gain"] and first["terms"]["photo_gain"] > 0
     else:
         assert f"#1 is the photo the teacher likes best, {refine['best_photo']}" in text
-        assert first["as_taken"] and not first["refined"] and refine["photo"] == refine["best_photo"]
-        assert refine["top_gain_low"] < refine["min_gain"]
+        assert refine["photo"] == refine["best_photo"] and refine["top_gain_low"] < refine["min_gain"]
+        if first["turned"]:
+            assert "turned on the spot" in text and refine["fallback_turn"]
+            assert first["terms"]["photo_gain_low"] >= refine["fallback_min_gain"]
+            assert first["from_photo"]["right"] == pytest.approx(0, abs=1e-9) and first["from_photo"][
+                "forward"
+            ] == pytest.approx(0, abs=1e-9)
+        else:
+            assert "as taken" in text
     data = load_dataset(posed)
     platform = platform_from_meta(data.meta, data.frames[0].intrinsics)
     for i, s in enumerate(doc["suggestions"]):
