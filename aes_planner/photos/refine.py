@@ -5,7 +5,8 @@ cannot give is a faithful image of a view far from every photo (the field and re
 ten-photo reconstruction rank a hand-held search's candidates about as well as chance:
 ``docs/guides/photos.md``). Close to a photo it can: a turn of the camera on the spot maps the
 photo onto the new view exactly (the homography ``K R K^-1``), and a short step towards the
-subject nearly so (the homography of a plane at the subject's distance). :func:`refine_at_best_photo`
+subject nearly so (the homography of a plane facing the photo, 1.4 times as far as the subject:
+most of a view lies behind what the photos are aimed at). :func:`refine_at_best_photo`
 tries turns of a few degrees and short steps forward from the photo the teacher likes best,
 builds each candidate's image from the photos warped into it (the best photo first, its
 neighbours filling the strip it does not cover), scores those images with the teacher and
@@ -50,14 +51,17 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 # The photo-warped estimate's error (standard deviation of the teacher's score on the warped photos
-# minus its score on the true render), fitted on 6,500 candidates of twelve dev scenes (seeds 3-5,
-# 9-17, ``scripts/photos_refine_check.py``): a base for resampling and levelling, a part growing with
-# the step towards the subject (the plane at the subject's distance is only right on that plane)
-# and one with the share of the image filled from other photos (their misregistration, seams).
-# The size of the turn adds nothing measurable once those two are known.
+# minus its score on the true render) with the plane at 1.4 x the subject's distance, fitted on the
+# 2,282 candidates of eight dev grids (seeds 3, 10, 14, 16, 40, 41; ``scripts/photos_refine_check.py
+# --planes``; weighted least squares of the binned standard deviations: 0.023 + 0.119 x step +
+# 0.001 x other share): a base for resampling and levelling, a part growing with the step towards
+# the subject (a plane is only right on that plane: parallax), and a little for the share of the
+# image filled from other photos (their seams; it was 0.15 with the plane at the subject's distance,
+# where the neighbours misregistered, and the tails were there). The size of the turn adds nothing
+# measurable once those are known.
 _ERR_BASE = 0.025
-_ERR_PER_STEP = 0.19  # per fraction of the subject's distance stepped forward
-_ERR_PER_OTHER = 0.15  # per share of the image from other photos than the one refined at
+_ERR_PER_STEP = 0.12  # per fraction of the subject's distance stepped forward
+_ERR_PER_OTHER = 0.05  # per share of the image from other photos than the one refined at
 
 
 @dataclass(frozen=True)
@@ -100,7 +104,7 @@ class RefineConfig:
     caution: float = 1.0
     min_gain: float = 0.02
     keep_roll: bool = False
-    plane_depth: float = 1.0
+    plane_depth: float = 1.4
     fallback_turn: bool = False
     fallback_min_gain: float = 0.0
     fallback_min_own: float = 0.85
@@ -292,8 +296,8 @@ def refine_at_best_photo(
         base = cam2world_to_view(photos_c2w[b])  # [5] x, y, z, yaw, pitch (the photo levelled: roll dropped)
         dist = subject_distance(photos_c2w, b)
         forward = photos_c2w[b, :3, 2]
-        # the neighbours are warped through the plane at the subject's distance (the photo itself,
-        # turned on the spot, is exact through any plane)
+        # a step and the neighbours are warped through the plane at plane_depth x the subject's
+        # distance (the photo itself, turned on the spot, is exact through any plane)
         plane = None if dist is None else (forward, float(forward @ photos_c2w[b, :3, 3]) + cfg.plane_depth * dist)
         heading = np.array([math.cos(base[3]), math.sin(base[3]), 0.0])  # level forward of the photo
         for frac in grid_fracs if dist is not None else (0.0,):  # no subject distance: turns only

@@ -199,7 +199,7 @@ def test_subject_distance_meets_the_axes_in_front():
     [("max_turn_deg", -1.0), ("max_turn_deg", float("nan")), ("turn_step_deg", 0.0), ("forward_fracs", (0.9,)),
      ("forward_fracs", ()), ("work_width_px", 8), ("min_photo_cover", 0.0), ("around_best", 0),
      ("caution", -0.5), ("min_gain", 2.0), ("keep_roll", 1), ("fallback_turn", "yes"), ("fallback_min_gain", 2.0),
-     ("fallback_min_own", 1.5)],
+     ("fallback_min_own", 1.5), ("plane_depth", 0.1), ("plane_depth", float("nan"))],
 )  # fmt: skip
 def test_config_names_the_bad_field(field, value):
     with pytest.raises(ConfigError, match=field if field != "max_turn_deg" or value == value else "refine"):
