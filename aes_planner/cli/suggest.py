@@ -81,6 +81,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="FRAC",
         help="the kept subject stays this fraction of the frame's width/height inside every edge (default 0.05)",
     )
+    p.add_argument(
+        "--photo-rank",
+        action="store_true",
+        help="with --keep: rank the views that hold the subject by the teacher on the input photos warped into "
+        "them, not by the field alone (about ten times the search time; docs/guides/framing.md, "
+        '"Ranked on the input photos")',
+    )
     p.add_argument("--json", metavar="OUT", help="write the suggestions as JSON")
     p.add_argument("--out", metavar="DIR", help="write the report image (report.png) into DIR")
     p.add_argument(
@@ -376,6 +383,13 @@ def run(args: argparse.Namespace) -> int:
             )
         if result.dropped_duplicates:
             print(f"note: {result.dropped_duplicates} refined candidate(s) left out: they converged onto a better one")
+    if framing is not None and framing.cfg.photo_rank:
+        best = result.best.terms if result.suggestions else {}
+        if "photo" in best:
+            print(f"#1 ranked on the input photos warped into it: teacher {best['photo']:.3f}, "
+                  f"the photos cover {best['photo_cover']:.0%} of it")  # fmt: skip
+        else:
+            print(f"note: --photo-rank ranked nothing: the {args.scorer} scorer has no teacher or no view was covered")
     for w in result.warnings:
         print(f"warning: {w}")
     if args.json:
@@ -413,6 +427,7 @@ def run(args: argparse.Namespace) -> int:
             doc["keep"] = [s.to_json() for s in framing.keep]
             doc["avoid"] = [s.to_json() for s in framing.avoid]
             doc["keep_margin"] = framing.cfg.margin_frac
+            doc["photo_rank"] = framing.cfg.photo_rank
         Path(args.json).write_text(json.dumps(doc, indent=1) + "\n")
         print(f"wrote {args.json}")
     if args.out:
@@ -537,8 +552,8 @@ def _photo_names(data) -> list[str]:
 
 
 def _framing_args(args):
-    """``--keep``/``--avoid``/``--keep-at``/``--keep-margin`` -> (FramingConfig, keep, avoid), checked
-    before anything is loaded."""
+    """``--keep``/``--avoid``/``--keep-at``/``--keep-margin``/``--photo-rank`` -> (FramingConfig, keep,
+    avoid), checked before anything is loaded."""
     from aes_planner.config import ConfigError
     from aes_planner.search.framing import FramingConfig, FramingError, Region
 
@@ -546,8 +561,12 @@ def _framing_args(args):
     avoid = [Region.parse(t, "--avoid") for t in args.avoid]
     if args.keep_at and not keep:
         raise FramingError("--keep-at places the kept subject: give the subject with --keep FRAME:X0,Y0,X1,Y1")
+    if args.photo_rank and not keep:
+        raise FramingError(
+            "--photo-rank ranks the views that hold a kept subject: give it with --keep FRAME:X0,Y0,X1,Y1"
+        )
     try:
-        cfg = FramingConfig(margin_frac=args.keep_margin, keep_at=args.keep_at)
+        cfg = FramingConfig(margin_frac=args.keep_margin, keep_at=args.keep_at, photo_rank=args.photo_rank)
     except ConfigError as exc:
         raise FramingError(f"--keep-margin: {exc}") from None
     return cfg, keep, avoid
