@@ -182,7 +182,7 @@ class FramingConfig:
     depth_bin: float = 0.04
     edge_weight: float = 0.2
     grow_frac: float = 0.08
-    depth_cap: float = 0.75
+    depth_cap: float = 0.3
     feasibility_samples: int = 4096
     backtrack_steps: int = 6
     explore_samples: int = 512

@@ -302,6 +302,7 @@ def _search_views(
     avoid_params = space.from_poses(avoid_poses) if avoid_poses is not None and len(avoid_poses) else None
     framing = framing if framing is not None and framing.active else None
     warnings: list[str] = []
+    explore_cfg = cfg  # what "covered" means to covered_fraction / explore, with or without a kept subject
     if framing is not None:
         # the views all hold a seen subject: FramingConfig's milder coverage rule; stage 1's
         # feasible pick stands unless FramingConfig.refine
@@ -391,8 +392,7 @@ def _search_views(
             sug.score = sug.terms.get("aesthetic", sug.score)
             sug.held = float(framing.held(torch.as_tensor(sug.cam2world)[None])[0])
     t_final = time.perf_counter()
-    # with kept subjects every candidate must hold them: no exploratory candidate then
-    covered_fraction, explore, explored = _explore(scorer, space, cfg, rng) if framing is None else (None, None, 0)
+    covered_fraction, explore, explored = _explore(scorer, space, explore_cfg, rng, framing)
     t_end = time.perf_counter()
     timings = {
         "sample": (t_sampled - t_start) * 1e3,
@@ -517,18 +517,27 @@ def _photo_rank(scorer, framing, space, suggestions: list, candidates: Tensor, o
     return ([pool[i] for i in order.tolist()] + rest)[: len(suggestions)]
 
 
-def _explore(scorer: Scorer, space: SearchSpace, cfg: SearchConfig, rng: np.random.Generator):
+def _explore(scorer: Scorer, space: SearchSpace, cfg: SearchConfig, rng: np.random.Generator, framing=None):
     """``(covered_fraction, explore, views scored)`` over ``cfg.explore_points`` views spread over
     the space (``(None, None, 0)`` when 0): the share of them the inputs cover (coverage >= ``coverage_min``)
     and the exploratory candidate: among the views only partly covered (0 < coverage <
     ``coverage_min``), the best scored, where the scorer's guess still rests on something seen;
-    with none partly covered, the least covered; None when every view is covered."""
+    with none partly covered, the least covered; None when every view is covered. With a
+    ``framing`` that keeps subjects: over the views, of ``framing.cfg.explore_samples`` spread over
+    the space, that hold them (the exploratory candidate holds them too; ``(None, None, 0)`` when
+    none of those views does)."""
     if cfg.explore_points == 0:
         return None, None, 0
-    spread = space.grid(cfg.explore_points)  # [G, D]
+    n = cfg.explore_points if framing is None or not framing.keep else framing.cfg.explore_samples
+    spread = space.grid(n)  # [G, D]
     if len(spread) == 0:  # free flight: too large to grid, drawn after every stage-1 sample
-        spread = space.random(cfg.explore_points, rng)
+        spread = space.random(n, rng)
     poses = space.to_poses(spread).detach()  # [G, 4, 4]
+    if framing is not None and framing.keep:  # only the views that hold the kept subjects
+        held = framing.feasible(poses)
+        spread, poses = spread[held], poses[held]
+        if not len(spread):
+            return None, None, 0
     out = scorer.score_batched(poses, cfg.batch_size)
     cov = out.coverage.double()  # [G]
     covered = cov >= cfg.coverage_min
