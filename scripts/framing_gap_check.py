@@ -22,15 +22,13 @@ The row then says where the loss is:
 import json
 import sys
 
+import framing_loss_check as flc  # the cases of eval framing (scripts/ is on the path when run)
 import numpy as np
 import torch
 
-sys.path.insert(0, __file__.rsplit("/", 1)[0])
-import framing_loss_check as flc  # noqa: E402
-
-from aes_planner.eval.framing import true_holds  # noqa: E402
-from aes_planner.eval.search import Judge  # noqa: E402
-from aes_planner.search.photo_warp import warped_photo_scores  # noqa: E402
+from aes_planner.eval.framing import true_holds
+from aes_planner.eval.search import Judge
+from aes_planner.search.photo_warp import warped_photo_scores
 
 
 class CachedJudge(Judge):
@@ -83,10 +81,10 @@ def main(scenes: list[str], seeds: list[int]) -> None:
                                                      np.stack([f.cam2world for f in fr]), fr[0].intrinsics,
                                                      poses[use], framing.keep[0].centre_m, fc.photo_width_px)  # fmt: skip
 
-        def best(mask):
+        def best(mask, t=t):
             return float(np.nanmax(t[mask])) if mask.any() else None
 
-        def pick(score, mask):
+        def pick(score, mask, t=t):
             if not mask.any():
                 return None
             i = np.flatnonzero(mask)[int(np.nanargmax(np.where(np.isfinite(score[mask]), score[mask], -np.inf)))]
