@@ -16,7 +16,9 @@ The row then says where the loss is:
   field's objective / the warped photos / a coverage blend picks;
 * ``suggestion``: the search's own pick (the default settings).
 
-    .venv/bin/python scripts/framing_gap_check.py tabletop:3,indoor:4 0,1   # one JSON line per case, prefixed ROW
+    .venv/bin/python scripts/framing_gap_check.py tabletop:3,indoor:4 0,1 [ARRAYS_DIR]
+    # one JSON line per case, prefixed ROW; the per-view arrays of each case go to ARRAYS_DIR
+    # (default /tmp/framing_gap) for scripts/framing_gap_rankers.py and framing_lift_sweep.py
 """
 
 import json
@@ -49,7 +51,14 @@ class CachedJudge(Judge):
         return np.array([self.cache[k][0] for k in keys]), np.array([self.cache[k][1] for k in keys])
 
 
-def main(scenes: list[str], seeds: list[int]) -> None:
+def arrays_path(folder: str, spec: str, seed: int) -> str:
+    return f"{folder}/{spec.replace(':', '_')}_{seed}.npz"
+
+
+def main(scenes: list[str], seeds: list[int], folder: str = "/tmp/framing_gap") -> None:
+    import os
+
+    os.makedirs(folder, exist_ok=True)
     flc.Judge = CachedJudge  # the cases' judges cache their scores
     for c in flc.cases(scenes, seeds):
         run = flc.framed_search(c)
@@ -120,10 +129,10 @@ def main(scenes: list[str], seeds: list[int]) -> None:
                                                           1.1)[1][0]),
         }  # fmt: skip
         print("ROW", json.dumps(row), flush=True)
-        np.savez_compressed(f"/tmp/framing_gap_{c.spec.replace(':', '_')}_{c.seed}.npz", poses=poses, true=true,
+        np.savez_compressed(arrays_path(folder, c.spec, c.seed), poses=poses, true=true,
                             feas=feas, t=t, field=field, cov_f=cov_f, obj=obj, photo=photo, cover=cover,
                             sug=sug, sug_t=row["suggestion"])  # fmt: skip
 
 
 if __name__ == "__main__":
-    main(sys.argv[1].split(","), [int(s) for s in sys.argv[2].split(",")])
+    main(sys.argv[1].split(","), [int(s) for s in sys.argv[2].split(",")], *sys.argv[3:4])
