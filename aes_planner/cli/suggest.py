@@ -232,7 +232,7 @@ def _platform(meta: dict, frames, mode: str | None, rig_file: str | None):
     return DronePlatform(k, DroneBox(tuple(lo), tuple(hi)))
 
 
-def print_table(result, top: int) -> None:
+def print_table(result, top: int, framed: bool = False) -> None:
     shown = result.suggestions[:top]
     rig = bool(shown) and getattr(shown[0], "pan_rad", None) is not None  # joints: a rig's suggestions
     # positions far from the origin (a site's own coordinates) widen their columns rather than shift the row
@@ -247,15 +247,17 @@ def print_table(result, top: int) -> None:
             where = f"{x:{w}.2f} {y:{w}.2f} {z:{w}.2f} {math.degrees(s.yaw_rad):7.1f} {math.degrees(s.pitch_rad):9.1f}"
         terms = sorted(((k, v) for k, v in s.terms.items() if k != "score"), key=lambda kv: -kv[1])[:3]
         print(f"{i + 1:2d}  {where}  {s.score:6.3f}  {s.coverage:8.2f}  " + ", ".join(f"{k} {v:.2f}" for k, v in terms))
-    print_coverage(result, rig)
+    print_coverage(result, rig, framed)
 
 
-def print_coverage(result, rig: bool) -> None:
-    """How much of the reachable space the inputs cover, and the exploratory candidate: the best
-    view may lie where no input looked (one shot cannot know it; capturing there can)."""
-    if getattr(result, "covered_fraction", None) is None:  # none measured (explore_points 0, kept subjects)
+def print_coverage(result, rig: bool, framed: bool = False) -> None:
+    """How much of the reachable space the inputs cover (``framed``: of the reachable views that
+    hold the kept subjects), and the exploratory candidate: the best view may lie where no input
+    looked (one shot cannot know it; capturing there can)."""
+    if getattr(result, "covered_fraction", None) is None:  # none measured (explore_points 0, no view holds it)
         return
-    line = f"the inputs cover {100 * result.covered_fraction:.0f} % of the reachable views"
+    which = "reachable views that hold the kept subject" if framed else "reachable views"
+    line = f"the inputs cover {100 * result.covered_fraction:.0f} % of the {which}"
     e = result.explore
     if e is None:
         print(line)
@@ -347,7 +349,7 @@ def run(args: argparse.Namespace) -> int:
     top = args.top or cfg.top_k
     print(f"{len(result.suggestions[:top])} suggestion(s), {result.mode} mode, preset {args.preset}, "
           f"scorer {args.scorer}, {latency_ms:.0f} ms, {job.threads} thread(s)")  # fmt: skip
-    print_table(result, top)
+    print_table(result, top, framed=framing is not None and bool(framing.keep))
     moves = _hand_held_moves(platform, data, result.suggestions[:top])
     if refined is not None:
         within = f"{refine_cfg.max_turn_deg:g} deg"
@@ -399,7 +401,7 @@ def run(args: argparse.Namespace) -> int:
             "scorer": args.scorer,
             "latency_ms": latency_ms,
             "suggestions": [s.to_json() for s in result.suggestions[:top]],
-            "covered_fraction": result.covered_fraction,  # of the reachable views, the share the inputs cover
+            "covered_fraction": result.covered_fraction,  # of the reachable views (holding the kept subject), the share the inputs cover
             "explore": None if result.explore is None else result.explore.to_json(),  # where no input looked
         }
         if moves:  # the frame of the poses the pose step wrote, and each view from its nearest photo

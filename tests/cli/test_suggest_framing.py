@@ -41,8 +41,10 @@ def test_keep_holds_the_subject_and_the_report_outlines_it(folder, tmp_path, cap
     assert main([*argv, "--json", str(js), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "framing: keep 00003.png:35,31,51,77" in printed
+    assert "% of the reachable views that hold the kept subject" in printed  # what the inputs cover of them
     doc = json.loads(js.read_text())
     assert doc["keep_margin"] == 0.05 and len(doc["keep"]) == 1
+    assert 0.0 <= doc["covered_fraction"] <= 1.0
     assert all(s["held"] == pytest.approx(1.0) for s in doc["suggestions"])
     import cv2
 
