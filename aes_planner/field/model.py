@@ -757,12 +757,16 @@ class AestheticField(Scorer):
                     raise ScorerError(
                         f"{who}: which must return [b] = [{len(chunk)}] booleans, got {tuple(pick.shape)}"
                     )
-                out = self._explain(self.model.splat_maps(pooled), coverage)
-                if bool(pick.any()):
-                    decoded = self._explain(self.model.decode_pooled(pooled[pick]), coverage[pick])
-                    out.score[pick] = decoded.score.to(out.score.dtype)
-                    for k in out.terms:
-                        out.terms[k][pick] = decoded.terms[k].to(out.terms[k].dtype)
+                parts = [(rows, self._explain(maps(pooled[rows]), coverage[rows]))  # decoded or screened
+                         for rows, maps in ((pick, self.model.decode_pooled), (~pick, self.model.splat_maps))
+                         if bool(rows.any())]  # fmt: skip
+                first = parts[0][1]
+                out = ScoreOutput(first.score.new_empty(len(chunk)), coverage,
+                                  {k: v.new_empty(len(chunk)) for k, v in first.terms.items()})  # fmt: skip
+                for rows, part in parts:
+                    out.score[rows] = part.score
+                    for k, v in out.terms.items():
+                        v[rows] = part.terms[k]
                 outs.append(out)
                 exact.append(pick)
         terms = {k: torch.cat([o.terms[k] for o in outs]) for k in outs[0].terms}
