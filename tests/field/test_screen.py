@@ -1,6 +1,8 @@
 """The field's stage-1 screen (``score_screened``): the splatted teacher map ranks, the decoder
 scores only the ``keep`` best, and what it scores equals ``score_batched``."""
 
+import contextlib
+
 import numpy as np
 import pytest
 import torch
@@ -31,12 +33,9 @@ def poses(rig_source):
     return torch.as_tensor(np.stack([pt.forward(p, t) for p, t in zip(pan.ravel(), tilt.ravel())]))  # [18, 4, 4]
 
 
-def _rank(out):
-    return out.score - 2.0 * (0.7 - out.coverage.to(out.score.dtype)).clamp_min(0.0)
-
-
-def test_the_kept_are_the_screens_best_and_scored_as_score_batched(field, poses):
-    full = field.score_batched(poses, 64)
+@contextlib.contextmanager
+def _counting_decoder(field):
+    """Yields a list that gets the batch size of every decoder call in the block."""
     decoded = []
     decode = field.model.decode_pooled
 
@@ -46,9 +45,19 @@ def test_the_kept_are_the_screens_best_and_scored_as_score_batched(field, poses)
 
     field.model.decode_pooled = counting
     try:
-        out, exact = field.score_screened(poses, 4, 5, _rank)  # batches of 4: the kept set carried across
+        yield decoded
     finally:
         del field.model.decode_pooled
+
+
+def _rank(out):
+    return out.score - 2.0 * (0.7 - out.coverage.to(out.score.dtype)).clamp_min(0.0)
+
+
+def test_the_kept_are_the_screens_best_and_scored_as_score_batched(field, poses):
+    full = field.score_batched(poses, 64)
+    with _counting_decoder(field) as decoded:
+        out, exact = field.score_screened(poses, 4, 5, _rank)  # batches of 4: the kept set carried across
     assert sum(decoded) == 5 and int(exact.sum()) == 5  # the decoder saw the 5 kept poses, no more
     assert torch.allclose(out.score[exact], full.score[exact], atol=1e-5)
     assert torch.equal(out.coverage, full.coverage)
@@ -103,21 +112,12 @@ def test_score_where_decodes_only_the_picked_poses(field, poses):
     """The explore pass's score_where: every pose's coverage, the decoder on the picked ones only,
     and their scores those of score_batched."""
     full = field.score_batched(poses, 64)
-    decoded = []
-    decode = field.model.decode_pooled
-
-    def counting(x):
-        decoded.append(len(x))
-        return decode(x)
 
     def middle(coverage):  # a pick that depends on the coverage, as the explore pass's does
         return (coverage > 0.2) & (coverage < 0.9)
 
-    field.model.decode_pooled = counting
-    try:
+    with _counting_decoder(field) as decoded:
         out, exact = field.score_where(poses, 5, middle)  # batches of 5: 18 poses in 4 batches
-    finally:
-        del field.model.decode_pooled
     want = middle(full.coverage)
     assert 0 < int(want.sum()) < len(poses)  # the case picks some, not all
     assert torch.equal(exact, want) and sum(decoded) == int(want.sum())
