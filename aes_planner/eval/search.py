@@ -101,7 +101,10 @@ class SearchEvalConfig:
     a drone scene runs as a drone only: rig mode alone on one is an error); ``oracle_step_deg``: the rig oracle's grid step; ``supersample``: of the
     ground-truth renders; ``ablations``: run Tables 3, 4 and S1 on the first ``ablation_scenes``
     rig scenes (rig, 4 views); ``free_box_m``: half-size of the drone box around a rig scene's
-    base for a drone (a drone scene flies its own box); ``width``/``height`` override the scenes' camera (tests)."""
+    base for a drone (a drone scene flies its own box); ``width``/``height`` override the scenes' camera (tests);
+    ``seed``: of the oracle and the random views (the normalisation); ``search_seed``: the searches'
+    own sampling seed (``rgb`` and the field presets), so a figure's spread over seeds can be
+    measured against one oracle."""
 
     scenes: list[str] = dataclasses.field(default_factory=lambda: HELD_OUT_SCENES[:4])
     views: list[int] = dataclasses.field(default_factory=lambda: [4])
@@ -123,6 +126,7 @@ class SearchEvalConfig:
     height: int | None = None
     cache_dir: str | None = None
     seed: int = 0
+    search_seed: int = 0
 
     def __post_init__(self):
         from aes_planner.config import distinct, require
@@ -132,6 +136,11 @@ class SearchEvalConfig:
         for name in ("scenes", "views", "modes", "methods"):
             setattr(self, name, distinct(getattr(self, name), name))
         require(len(self.scenes) >= 1, "scenes", "give at least one scene (FAMILY:SEED or a YAML file)")
+        require(
+            isinstance(self.search_seed, int) and not isinstance(self.search_seed, bool) and self.search_seed >= 0,
+            "search_seed",
+            f"must be an integer >= 0, got {self.search_seed!r}",
+        )
         require(
             bool(self.views) and all(isinstance(v, int) and 1 <= v <= 16 for v in self.views),
             "views",
@@ -257,7 +266,7 @@ def _method_pose(
     try:
         if method in FIELD_PRESETS or method == "rgb":
             preset = FIELD_PRESETS.get(method, "balanced")
-            scfg = SearchConfig.preset(preset, mode=platform.kind, seed=cfg.seed)
+            scfg = SearchConfig.preset(preset, mode=platform.kind, seed=cfg.search_seed)
             scorer = build_search_scorer("field" if method != "rgb" else "rgb", frames, scfg, teacher)
             result = search_views(scorer, inputs, platform, scfg)
             return result.best.cam2world
@@ -292,7 +301,7 @@ def _warm_up(first, methods: list[str], teacher, cfg: SearchEvalConfig) -> None:
     inputs = _inputs(source, platform, cfg.views[0])
     frames = [source.capture(p) for p in inputs]
     for kind in sorted({"rgb" if m == "rgb" else "field" for m in methods}):
-        scfg = SearchConfig.preset("fast", mode=platform.kind, seed=cfg.seed)
+        scfg = SearchConfig.preset("fast", mode=platform.kind, seed=cfg.search_seed)
         try:
             search_views(build_search_scorer(kind, frames, scfg, teacher), inputs, platform, scfg)
         except SearchError as exc:  # the method itself will say so, scene by scene
@@ -529,7 +538,7 @@ def _aggregate(rows: list[dict[str, Any]], cfg: SearchEvalConfig) -> dict[str, A
                     lat[method] = float(np.median(ms))
             views.setdefault(str(n), {})[mode] = table
             views[str(n)].setdefault("latency_ms", {})[mode] = lat
-    return {"views": views, "scenes": list(cfg.scenes)}
+    return {"views": views, "scenes": list(cfg.scenes), "search_seed": cfg.search_seed}
 
 
 # ------------------------------------------------------------------------------------ ablations
