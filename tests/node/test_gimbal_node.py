@@ -123,6 +123,7 @@ def test_emulated_servos_never_receive_a_goal_outside_the_limits():
     cfg = GimbalNodeConfig(
         device={
             "type": "emulated_pan_tilt",
+            "latency_timer_ms": 100.0,  # a reply budget a loaded 2-core host meets (tests/drivers/conftest.py)
             "profile_velocity_deg_s": 360.0,
             "pan_limits_deg": [-60.0, 60.0],
             "tilt_limits_deg": [-20.0, 20.0],
