@@ -81,6 +81,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="FRAC",
         help="the kept subject stays this fraction of the frame's width/height inside every edge (default 0.05)",
     )
+    p.add_argument(
+        "--photo-rank",
+        action="store_true",
+        help="with --keep: rank the views that hold the subject by the teacher on the input photos warped into "
+        "them, not by the field alone (about ten times the search time; docs/guides/framing.md, "
+        '"Ranked on the input photos")',
+    )
     p.add_argument("--json", metavar="OUT", help="write the suggestions as JSON")
     p.add_argument("--out", metavar="DIR", help="write the report image (report.png) into DIR")
     p.add_argument(
@@ -225,7 +232,7 @@ def _platform(meta: dict, frames, mode: str | None, rig_file: str | None):
     return DronePlatform(k, DroneBox(tuple(lo), tuple(hi)))
 
 
-def print_table(result, top: int) -> None:
+def print_table(result, top: int, framed: bool = False) -> None:
     shown = result.suggestions[:top]
     rig = bool(shown) and getattr(shown[0], "pan_rad", None) is not None  # joints: a rig's suggestions
     # positions far from the origin (a site's own coordinates) widen their columns rather than shift the row
@@ -240,15 +247,17 @@ def print_table(result, top: int) -> None:
             where = f"{x:{w}.2f} {y:{w}.2f} {z:{w}.2f} {math.degrees(s.yaw_rad):7.1f} {math.degrees(s.pitch_rad):9.1f}"
         terms = sorted(((k, v) for k, v in s.terms.items() if k != "score"), key=lambda kv: -kv[1])[:3]
         print(f"{i + 1:2d}  {where}  {s.score:6.3f}  {s.coverage:8.2f}  " + ", ".join(f"{k} {v:.2f}" for k, v in terms))
-    print_coverage(result, rig)
+    print_coverage(result, rig, framed)
 
 
-def print_coverage(result, rig: bool) -> None:
-    """How much of the reachable space the inputs cover, and the exploratory candidate: the best
-    view may lie where no input looked (one shot cannot know it; capturing there can)."""
-    if getattr(result, "covered_fraction", None) is None:  # none measured (explore_points 0, kept subjects)
+def print_coverage(result, rig: bool, framed: bool = False) -> None:
+    """How much of the reachable space the inputs cover (``framed``: of the reachable views that
+    hold the kept subjects), and the exploratory candidate: the best view may lie where no input
+    looked (one shot cannot know it; capturing there can)."""
+    if getattr(result, "covered_fraction", None) is None:  # none measured (explore_points 0, no view holds it)
         return
-    line = f"the inputs cover {100 * result.covered_fraction:.0f} % of the reachable views"
+    which = "reachable views that hold the kept subject" if framed else "reachable views"
+    line = f"the inputs cover {100 * result.covered_fraction:.0f} % of the {which}"
     e = result.explore
     if e is None:
         print(line)
@@ -340,7 +349,7 @@ def run(args: argparse.Namespace) -> int:
     top = args.top or cfg.top_k
     print(f"{len(result.suggestions[:top])} suggestion(s), {result.mode} mode, preset {args.preset}, "
           f"scorer {args.scorer}, {latency_ms:.0f} ms, {job.threads} thread(s)")  # fmt: skip
-    print_table(result, top)
+    print_table(result, top, framed=framing is not None and bool(framing.keep))
     moves = _hand_held_moves(platform, data, result.suggestions[:top])
     if refined is not None:
         within = f"{refine_cfg.max_turn_deg:g} deg"
@@ -376,6 +385,13 @@ def run(args: argparse.Namespace) -> int:
             )
         if result.dropped_duplicates:
             print(f"note: {result.dropped_duplicates} refined candidate(s) left out: they converged onto a better one")
+    if framing is not None and framing.cfg.photo_rank:
+        best = result.best.terms if result.suggestions else {}
+        if "photo" in best:
+            print(f"#1 ranked on the input photos warped into it: teacher {best['photo']:.3f}, "
+                  f"the photos cover {best['photo_cover']:.0%} of it")  # fmt: skip
+        else:
+            print(f"note: --photo-rank ranked nothing: the {args.scorer} scorer has no teacher or no view was covered")
     for w in result.warnings:
         print(f"warning: {w}")
     if args.json:
@@ -385,7 +401,7 @@ def run(args: argparse.Namespace) -> int:
             "scorer": args.scorer,
             "latency_ms": latency_ms,
             "suggestions": [s.to_json() for s in result.suggestions[:top]],
-            "covered_fraction": result.covered_fraction,  # of the reachable views, the share the inputs cover
+            "covered_fraction": result.covered_fraction,  # of the reachable views (holding the kept subject), the share the inputs cover
             "explore": None if result.explore is None else result.explore.to_json(),  # where no input looked
         }
         if moves:  # the frame of the poses the pose step wrote, and each view from its nearest photo
@@ -413,6 +429,7 @@ def run(args: argparse.Namespace) -> int:
             doc["keep"] = [s.to_json() for s in framing.keep]
             doc["avoid"] = [s.to_json() for s in framing.avoid]
             doc["keep_margin"] = framing.cfg.margin_frac
+            doc["photo_rank"] = framing.cfg.photo_rank
         Path(args.json).write_text(json.dumps(doc, indent=1) + "\n")
         print(f"wrote {args.json}")
     if args.out:
@@ -537,8 +554,8 @@ def _photo_names(data) -> list[str]:
 
 
 def _framing_args(args):
-    """``--keep``/``--avoid``/``--keep-at``/``--keep-margin`` -> (FramingConfig, keep, avoid), checked
-    before anything is loaded."""
+    """``--keep``/``--avoid``/``--keep-at``/``--keep-margin``/``--photo-rank`` -> (FramingConfig, keep,
+    avoid), checked before anything is loaded."""
     from aes_planner.config import ConfigError
     from aes_planner.search.framing import FramingConfig, FramingError, Region
 
@@ -546,8 +563,12 @@ def _framing_args(args):
     avoid = [Region.parse(t, "--avoid") for t in args.avoid]
     if args.keep_at and not keep:
         raise FramingError("--keep-at places the kept subject: give the subject with --keep FRAME:X0,Y0,X1,Y1")
+    if args.photo_rank and not keep:
+        raise FramingError(
+            "--photo-rank ranks the views that hold a kept subject: give it with --keep FRAME:X0,Y0,X1,Y1"
+        )
     try:
-        cfg = FramingConfig(margin_frac=args.keep_margin, keep_at=args.keep_at)
+        cfg = FramingConfig(margin_frac=args.keep_margin, keep_at=args.keep_at, photo_rank=args.photo_rank)
     except ConfigError as exc:
         raise FramingError(f"--keep-margin: {exc}") from None
     return cfg, keep, avoid

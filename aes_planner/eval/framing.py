@@ -344,6 +344,7 @@ def run_framing_eval(cfg: FramingEvalConfig, progress=None, figure: str | None =
             row["cam2world"] = pose.tolist()
             row["holds"] = bool(true_holds(points, pose[None], k)[0])
             row["held_predicted"] = result.best.held
+            row["covered_fraction"] = result.covered_fraction  # of the views that hold the subject, the share seen
             row["verify_ms"] = result.timings_ms.get("verify", 0.0)
             t, e = judge.measure(pose[None])
             row["teacher"], row["evaluator"] = float(t[0]), float(e[0])

@@ -32,6 +32,7 @@ them; :class:`AestheticField` is the :class:`~aes_planner.field.scorer.Scorer`.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import logging
 import math
@@ -526,6 +527,16 @@ def _empty_gaussians(channels: int) -> Gaussians:
     return Gaussians(z(0, 3), z(0, 4), z(0, 3), z(0), z(0, 3), z(0, channels))
 
 
+@functools.lru_cache(maxsize=8)
+def _unit_rays(width: int, height: int, fx: float, fy: float, cx: float, cy: float) -> Tensor:  # [H, W, 3]
+    """Unit camera-frame rays through the pixel centres, float32, computed once per camera: every
+    render of a search is at the same intrinsics (read-only: the cache hands out one tensor)."""
+    with autograd_on():  # a normal tensor also when first asked for under inference_mode (stage 2 saves it)
+        k = Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height)
+        rays = torch.from_numpy(k.pixel_directions().astype(np.float32))
+        return rays / rays.norm(dim=-1, keepdim=True)
+
+
 def render_maps(
     model: FieldModel,
     gaussians: Gaussians,
@@ -563,8 +574,7 @@ def render_pooled(
         emb, src, alpha, depth = out.features, out.rgb, out.alpha, out.depth  # src: see embed_inputs
     cond = None
     if model.config.condition:
-        rays = torch.from_numpy(k.pixel_directions().astype(np.float32))  # [H, W, 3] camera frame
-        rays = rays / rays.norm(dim=-1, keepdim=True)
+        rays = _unit_rays(k.width, k.height, k.fx, k.fy, k.cx, k.cy)  # [H, W, 3] camera frame
         rot = cam2world[:, :3, :3].float()  # [B, 3, 3]: local and world axes agree
         ray_w = torch.einsum("bij,hwj->bihw", rot, rays)  # [B, 3, H, W]
         # sqrt of a channel sum, not Tensor.norm(dim=1): torch's CPU norm over a strided channel axis
@@ -724,6 +734,44 @@ class AestheticField(Scorer):
     def _explain(self, maps: Tensor, coverage: Tensor) -> ScoreOutput:  # [B, C, fh, fw], [B]
         terms = self.teacher.explain_map(maps)
         return ScoreOutput(terms["score"], coverage, {k: v.detach() for k, v in terms.items()})
+
+    def score_where(self, cam2world, batch_size, which):
+        """:meth:`Scorer.score_where`: every pose rendered once (its coverage and the splatted
+        map's screen), the decoder run only on the poses ``which`` picks, batch by batch. The
+        explore pass needs the score of its partly covered views only; the decoder was ~2/3 of
+        the pass (docs/benchmarks.md, "perf-2, fifth round")."""
+        who = "AestheticField.score_where"
+        poses = check_poses(cam2world, who)
+        if not isinstance(batch_size, int) or isinstance(batch_size, bool) or batch_size < 1:
+            raise ScorerError(f"{who}: batch_size must be an integer >= 1, got {batch_size!r}")
+        if len(self._gaussians) == 0:  # nothing rendered: no decoder to leave out
+            return super().score_where(poses, batch_size, which)
+        outs: list[ScoreOutput] = []
+        exact: list[Tensor] = []
+        with torch.no_grad():
+            for start in range(0, poses.shape[0], batch_size):
+                chunk = poses[start : start + batch_size]
+                pooled, coverage = render_pooled(self.model, self._gaussians, self.local_frame, chunk, self.intrinsics)
+                pick = torch.as_tensor(which(coverage), dtype=torch.bool)  # [b]
+                if tuple(pick.shape) != (len(chunk),):
+                    raise ScorerError(
+                        f"{who}: which must return [b] = [{len(chunk)}] booleans, got {tuple(pick.shape)}"
+                    )
+                parts = [(rows, self._explain(maps(pooled[rows]), coverage[rows]))  # decoded or screened
+                         for rows, maps in ((pick, self.model.decode_pooled), (~pick, self.model.splat_maps))
+                         if bool(rows.any())]  # fmt: skip
+                first = parts[0][1]
+                out = ScoreOutput(first.score.new_empty(len(chunk)), coverage,
+                                  {k: v.new_empty(len(chunk)) for k, v in first.terms.items()})  # fmt: skip
+                for rows, part in parts:
+                    out.score[rows] = part.score
+                    for k, v in out.terms.items():
+                        v[rows] = part.terms[k]
+                outs.append(out)
+                exact.append(pick)
+        terms = {k: torch.cat([o.terms[k] for o in outs]) for k in outs[0].terms}
+        merged = ScoreOutput(torch.cat([o.score for o in outs]), torch.cat([o.coverage for o in outs]), terms)
+        return merged, torch.cat(exact)
 
     def score_screened(self, cam2world, batch_size, keep, rank, eligible=None):
         """:meth:`Scorer.score_screened`, screened by the splatted teacher map (the ``splat``

@@ -112,3 +112,18 @@ class Scorer(ABC):
         splatted teacher map (its decoder left out)."""
         out = self.score_batched(cam2world, batch_size)
         return out, torch.ones(len(out.score), dtype=torch.bool)
+
+    def score_where(
+        self,
+        cam2world: Tensor,  # [B, 4, 4]
+        batch_size: int,
+        which: Callable[[Tensor], Tensor],  # coverage [b] of a batch -> [b] bool: score these exactly
+    ) -> tuple[ScoreOutput, Tensor]:  # ScoreOutput of [B], exact [B] bool
+        """Coverage of every pose, and scores and terms exact where ``which`` of a batch's
+        coverage says so (``exact`` marks them); the other poses carry a cheaper screen's scores,
+        or are exact too. For passes that need the score of some views only (the search's explore
+        pass: only the partly covered ones). A scorer without a cheaper screen scores every pose
+        exactly (this default); :class:`~aes_planner.field.model.AestheticField` renders every
+        pose once and decodes only the chosen ones."""
+        out = self.score_batched(cam2world, batch_size)
+        return out, torch.ones(len(out.score), dtype=torch.bool)

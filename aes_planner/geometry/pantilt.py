@@ -169,6 +169,13 @@ class PanTilt:
         x: a few fixed-point steps correct the joints for it.
         """
         d = np.asarray(direction_world, dtype=np.float64)
+        return self._solution(*self.direction_joints(d, pan_hint_rad), d)
+
+    def direction_joints(self, direction_world: Sequence[float], pan_hint_rad: float = 0.0) -> tuple[float, float]:
+        """``(pan, tilt)`` in radians of :meth:`inverse_direction` before clamping, without the
+        aim error it reports: that costs a forward pass per call, most of a search's trajectory
+        sampling, which needs the joints only."""
+        d = np.asarray(direction_world, dtype=np.float64)
         if d.shape != (3,) or not np.all(np.isfinite(d)) or not np.any(d):
             raise JointCommandError(f"direction must be 3 finite numbers, not all zero; got {d.tolist()}")
         d_base = self.base2world[:3, :3].T @ d
@@ -183,8 +190,7 @@ class PanTilt:
                 pan, tilt = pan + step_pan, min(max(tilt + want_tilt - float(got_tilt), -math.pi / 2), math.pi / 2)
                 if abs(step_pan) + abs(want_tilt - float(got_tilt)) < 1e-13:
                     break
-        pan = self._pick_pan(pan, float(pan_hint_rad))
-        return self._solution(pan, tilt, d)
+        return self._pick_pan(pan, float(pan_hint_rad)), tilt
 
     def inverse_look_at(
         self, target_world: Sequence[float], pan_hint_rad: float = 0.0, iterations: int = 50, tol_rad: float = 1e-12

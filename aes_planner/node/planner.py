@@ -302,7 +302,8 @@ class PlannerNode(ActiveLoop, Node):
         try:
             keep = [Region(r.frame, r.x0, r.y0, r.x1, r.y1) for r in req.keep]
             avoid = [Region(r.frame, r.x0, r.y0, r.x1, r.y1) for r in req.avoid]
-            self.proposer.set_framing(keep, avoid, FramingConfig(margin_frac=req.keep_margin))
+            fc = FramingConfig(margin_frac=req.keep_margin, photo_rank=self.config.photo_rank)
+            self.proposer.set_framing(keep, avoid, fc)
         except AesPlannerError as exc:
             self.counters["framing_rejected"] += 1
             log.warning("%s: framing request refused: %s", self.node_id, exc)

@@ -100,6 +100,10 @@ class PlannerConfig:
       count runs them faster, and probe all cores again now and then; diagnostics report
       ``threads``, ``cpu_efficiency`` and ``thread_changes``. Not on a simulated clock, where
       nothing may follow the load (docs/guides/clock.md).
+    * ``photo_rank``: while a ``planner/request`` keeps a subject, rank the views that hold it by
+      the teacher on the held frames warped into them
+      (:class:`~aes_planner.search.framing.FramingConfig` ``photo_rank``, ``suggest --photo-rank``);
+      about ten times the search time. Off by default.
     """
 
     scorer: str = "field"
@@ -141,6 +145,7 @@ class PlannerConfig:
     seed: int = 0
     threads: int = 0
     adapt_threads: bool = True
+    photo_rank: bool = False
 
     #: The keys ``platform:`` replaced, and how to rewrite each (read by :func:`~aes_planner.config.from_dict`).
     RETIRED_KEYS: ClassVar[dict[str, str]] = {
@@ -250,6 +255,7 @@ class PlannerConfig:
         ):
             v = getattr(self, name)
             require(v <= most, name, f"must be <= {most:g} s, got {v}")
+        require(isinstance(self.photo_rank, bool), "photo_rank", f"must be true or false, got {self.photo_rank!r}")
         if self.platform is not None:
             self.platform = parse_platform(self.platform, "platform")
 

@@ -139,7 +139,9 @@ class FramingConfig:
     ``margin_frac``: the subject must project inside the frame shrunk by this fraction of the
     width/height on every side (0.05: 5 %). ``keep_at``: None, ``centre`` or ``thirds``.
     ``placement_weight`` / ``avoid_weight``: weights of the soft terms, in units of the score.
-    ``depth_bin``, ``edge_weight``, ``grow_frac``, ``depth_cap``: the lift's robust rule.
+    ``depth_bin``, ``edge_weight``, ``grow_frac``, ``depth_cap``: the lift's robust rule (``depth_cap`` 0.3,
+    was 0.75: the lifted box then kept more of the views that hold the subject and none that cut
+    it; docs/results/framing_gap_dev.md).
     ``feasibility_samples``: extra random views tried (geometry only, cheap) before saying that
     no reachable view holds the subject. ``explore_samples``: random views (and the same turned to
     the subject) checked every search; at most ``explore_keep`` of those that hold the subject join
@@ -182,7 +184,7 @@ class FramingConfig:
     depth_bin: float = 0.04
     edge_weight: float = 0.2
     grow_frac: float = 0.08
-    depth_cap: float = 0.75
+    depth_cap: float = 0.3
     feasibility_samples: int = 4096
     backtrack_steps: int = 6
     explore_samples: int = 512

@@ -211,19 +211,40 @@ def refine_params(
     With a ``framing`` (:class:`~aes_planner.search.framing.Framing`) every step is backtracked
     (halved) until it stays feasible, so feasible starts stay feasible.
     """
+    params, best_params, best_obj, _ = _refine(scorer, space, start, start_obj, cfg, framing)
+    return params, best_params, best_obj
+
+
+def _refine(scorer: Scorer, space: SearchSpace, start: Tensor, start_obj: Tensor, cfg: SearchConfig, framing=None,
+            start_out: ScoreOutput | None = None):  # fmt: skip
+    """:func:`refine_params`, and the scores of each best iterate (a :class:`ScoreOutput` of
+    ``[K]``, the steps' own) when ``start_out`` gives the starts' (else None): the search then
+    scores only the last iterates again, not the best ones too."""
     differentiable = bool(scorer.differentiable)
     params = start.detach().clone()
     best_params, best_obj = params.clone(), start_obj.detach().double().clone()
+    best_out = None if start_out is None else _copy_out(start_out)
     if cfg.steps == 0 or not (differentiable or cfg.nondiff_refine == "fd"):
-        return params, best_params, best_obj
+        return params, best_params, best_obj, best_out
     adam = Adam(params, cfg.lr)
     for _ in range(cfg.steps):
-        obj, _, grad = _gradient(scorer, space, params, cfg, differentiable)
+        obj, out, grad = _gradient(scorer, space, params, cfg, differentiable)
         better = obj.double() > best_obj
         best_params[better], best_obj[better] = params[better], obj.double()[better]
+        if best_out is not None and bool(better.any()):
+            best_out.score[better] = out.score[better].to(best_out.score.dtype)
+            best_out.coverage[better] = out.coverage[better].to(best_out.coverage.dtype)
+            for k, v in best_out.terms.items():
+                v[better] = out.terms[k][better].to(v.dtype)
         step = space.project(adam.step(params, -grad))  # ascent
         params = step if framing is None else _feasible_step(space, framing, params, step)
-    return params, best_params, best_obj
+    return params, best_params, best_obj, best_out
+
+
+def _copy_out(out: ScoreOutput) -> ScoreOutput:
+    """A detached copy whose tensors own their memory (rows are overwritten in place)."""
+    return ScoreOutput(out.score.detach().clone(), out.coverage.detach().clone(),
+                       {k: v.detach().clone() for k, v in out.terms.items()})  # fmt: skip
 
 
 def _feasible_step(space: SearchSpace, framing, params: Tensor, step: Tensor) -> Tensor:  # [K, D] -> [K, D]
@@ -302,6 +323,7 @@ def _search_views(
     avoid_params = space.from_poses(avoid_poses) if avoid_poses is not None and len(avoid_poses) else None
     framing = framing if framing is not None and framing.active else None
     warnings: list[str] = []
+    explore_cfg = cfg  # what "covered" means to covered_fraction / explore, with or without a kept subject
     if framing is not None:
         # the views all hold a seen subject: FramingConfig's milder coverage rule; stage 1's
         # feasible pick stands unless FramingConfig.refine
@@ -342,7 +364,11 @@ def _search_views(
     # ---- stage 2: Adam on the parameters, projected into the bounds after every step
     differentiable = bool(scorer.differentiable)
     refine = cfg.steps > 0 and (differentiable or cfg.nondiff_refine == "fd")
-    params, best_params, best_obj = refine_params(scorer, space, candidates[keep], obj1[keep], cfg, framing)
+    start_out = ScoreOutput(out1.score[keep], out1.coverage[keep], {k: v[keep] for k, v in out1.terms.items()})
+    reuse = refine and bool(exact[keep].all())  # a start carrying the screen's score is scored again below
+    params, best_params, best_obj, best_out = _refine(
+        scorer, space, candidates[keep], obj1[keep], cfg, framing, start_out if reuse else None
+    )
     t_stage2 = time.perf_counter()
 
     # ---- final scores of the refined poses, ranked
@@ -350,7 +376,15 @@ def _search_views(
     if refine:  # the last step's parameters were never scored: score them beside the best
         final_params = torch.cat([best_params, params])
     final_poses = space.to_poses(final_params).detach()
-    out2 = scorer.score_batched(final_poses, cfg.batch_size)
+    if best_out is not None:  # the best iterates were scored by the steps (the starts by stage 1)
+        last = scorer.score_batched(final_poses[len(best_params) :], cfg.batch_size)
+        out2 = ScoreOutput(
+            torch.cat([best_out.score, last.score.to(best_out.score.dtype)]),
+            torch.cat([best_out.coverage, last.coverage.to(best_out.coverage.dtype)]),
+            {k: torch.cat([v, last.terms[k].to(v.dtype)]) for k, v in best_out.terms.items()},
+        )
+    else:
+        out2 = scorer.score_batched(final_poses, cfg.batch_size)
     obj2 = torch.nan_to_num(_objective(out2, cfg).double(), nan=-math.inf)
     if refine:  # per candidate, the better of its best iterate and its last one
         k = len(best_params)
@@ -391,8 +425,7 @@ def _search_views(
             sug.score = sug.terms.get("aesthetic", sug.score)
             sug.held = float(framing.held(torch.as_tensor(sug.cam2world)[None])[0])
     t_final = time.perf_counter()
-    # with kept subjects every candidate must hold them: no exploratory candidate then
-    covered_fraction, explore, explored = _explore(scorer, space, cfg, rng) if framing is None else (None, None, 0)
+    covered_fraction, explore, explored = _explore(scorer, space, explore_cfg, rng, framing)
     t_end = time.perf_counter()
     timings = {
         "sample": (t_sampled - t_start) * 1e3,
@@ -413,7 +446,7 @@ def _search_views(
         candidates_score=out1.score.detach().double().numpy(),
         candidates_coverage=out1.coverage.detach().double().numpy(),
         candidates_exact=exact.numpy(),
-        scored=len(candidates) + steps_scored + len(final_params) + explored,
+        scored=len(candidates) + steps_scored + len(final_params) - (0 if best_out is None else len(keep)) + explored,
         warnings=warnings,
         dropped_uncovered=dropped,
         dropped_duplicates=len(covered) - len(distinct),
@@ -517,27 +550,49 @@ def _photo_rank(scorer, framing, space, suggestions: list, candidates: Tensor, o
     return ([pool[i] for i in order.tolist()] + rest)[: len(suggestions)]
 
 
-def _explore(scorer: Scorer, space: SearchSpace, cfg: SearchConfig, rng: np.random.Generator):
+def _explore(scorer: Scorer, space: SearchSpace, cfg: SearchConfig, rng: np.random.Generator, framing=None):
     """``(covered_fraction, explore, views scored)`` over ``cfg.explore_points`` views spread over
     the space (``(None, None, 0)`` when 0): the share of them the inputs cover (coverage >= ``coverage_min``)
     and the exploratory candidate: among the views only partly covered (0 < coverage <
     ``coverage_min``), the best scored, where the scorer's guess still rests on something seen;
-    with none partly covered, the least covered; None when every view is covered."""
+    with none partly covered, the least covered; None when every view is covered. With a
+    ``framing`` that keeps subjects: over the views, of ``framing.cfg.explore_samples`` spread over
+    the space, that hold them (the exploratory candidate holds them too; ``(None, None, 0)`` when
+    none of those views does)."""
     if cfg.explore_points == 0:
         return None, None, 0
-    spread = space.grid(cfg.explore_points)  # [G, D]
+    n = cfg.explore_points if framing is None or not framing.keep else framing.cfg.explore_samples
+    spread = space.grid(n)  # [G, D]
     if len(spread) == 0:  # free flight: too large to grid, drawn after every stage-1 sample
-        spread = space.random(cfg.explore_points, rng)
+        spread = space.random(n, rng)
     poses = space.to_poses(spread).detach()  # [G, 4, 4]
-    out = scorer.score_batched(poses, cfg.batch_size)
+    if framing is not None and framing.keep:  # only the views that hold the kept subjects
+        held = framing.feasible(poses)
+        spread, poses = spread[held], poses[held]
+        if not len(spread):
+            return None, None, 0
+
+    def partly_covered(coverage: Tensor) -> Tensor:  # [b] -> [b] bool: 0 < coverage < coverage_min
+        cov = coverage.double()
+        return (cov > 0.0) & (cov < cfg.coverage_min)
+
+    # only the partly covered views' scores are read: a field decodes those alone (Scorer.score_where)
+    out, _ = scorer.score_where(poses, cfg.batch_size, partly_covered)
     cov = out.coverage.double()  # [G]
     covered = cov >= cfg.coverage_min
     fraction = float(covered.double().mean())
     if bool(covered.all()):
         return fraction, None, len(spread)
     partly = (cov > 0.0) & ~covered
-    score = torch.nan_to_num(out.score.double(), nan=-math.inf)
-    i = int(torch.argmax(torch.where(partly, score, -math.inf))) if bool(partly.any()) else int(torch.argmin(cov))
+    if bool(partly.any()):
+        score = torch.nan_to_num(out.score.double(), nan=-math.inf)
+        i = int(torch.argmax(torch.where(partly, score, -math.inf)))
+    else:  # none partly covered: the least covered, scored exactly on its own
+        i = int(torch.argmin(cov))
+        with torch.no_grad():
+            out = scorer.score(poses[i : i + 1]).detach()
+        score = torch.nan_to_num(out.score.double(), nan=-math.inf)
+        return fraction, _suggestion(space, spread[i], poses[i], out, 0, float(score[0])), len(spread)
     return fraction, _suggestion(space, spread[i], poses[i], out, i, float(score[i])), len(spread)
 
 

@@ -116,10 +116,10 @@ class RigSpace(SearchSpace):
 
     def from_poses(self, cam2world: np.ndarray) -> Tensor:  # [M, 4, 4] -> [M, 2]
         out, hint = [], 0.5 * float(self.lower[0] + self.upper[0])
-        for pose in np.asarray(cam2world, dtype=np.float64):
-            sol = self.kinematics.inverse_direction(pose[:3, 2], pan_hint_rad=hint)
-            out.append((sol.pan_rad, sol.tilt_rad))
-            hint = sol.pan_rad
+        for pose in np.asarray(cam2world, dtype=np.float64):  # the joints of inverse_direction, clamped
+            pan, tilt = self.kinematics.clamp(*self.kinematics.direction_joints(pose[:3, 2], pan_hint_rad=hint))
+            out.append((pan, tilt))
+            hint = pan
         return self.project(torch.tensor(out, dtype=torch.float64).reshape(-1, 2))
 
     def joints(self, params: Tensor) -> tuple[float, float]:  # [2] -> (pan, tilt)

@@ -4,6 +4,7 @@ control tables, byte stuffing on the wire, baud rate, motion dynamics."""
 import os
 import subprocess
 import sys
+import termios
 import time
 
 import dynamixel_sdk as sdk
@@ -284,3 +285,23 @@ def test_the_emulator_process_ends_with_the_process_that_started_it():
         assert wait_for(lambda: _gone(emulator_pid), timeout_s=10.0, poll_s=0.1)
     finally:
         starter.kill()
+
+
+def test_wait_idle_returns_once_what_a_client_wrote_is_handled():
+    """A client that exits leaves its last instructions in the pty; ``wait_idle`` is the barrier
+    a test takes before it reads the servos' state (here the I/O loop is held up by the lock)."""
+    torque = model_by_name("xm430-w350").item("torque_enable").addr
+    with ServoEmulator() as emu:
+        fd = os.open(emu.port, os.O_RDWR | os.O_NOCTTY)
+        attrs = termios.tcgetattr(fd)
+        attrs[4] = attrs[5] = termios.B1000000  # the servos' baud: at another they do not hear
+        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+        try:
+            with emu.lock:  # the I/O loop cannot answer while the test holds the servos
+                os.write(fd, build_packet(1, Inst.WRITE, bytes([torque, 0, 1])))
+                assert not emu.wait_idle(timeout_s=0.3)
+                assert not emu.servos[1].torque_on
+            assert emu.wait_idle(timeout_s=30.0)
+            assert emu.servos[1].torque_on
+        finally:
+            os.close(fd)

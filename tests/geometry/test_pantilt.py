@@ -182,3 +182,15 @@ def test_sweep_spreads_over_the_range(n):
         span = RIG.pan_limits_rad[1] - RIG.pan_limits_rad[0]
         assert joints[-1, 0] - joints[0, 0] == pytest.approx(0.8 * span)
         assert len(np.unique(joints[:, 1])) == 2  # tilt zig-zags
+
+
+@given(pans, tilts, st.floats(-3.0, 3.0), st.booleans())
+def test_direction_joints_are_inverse_directions_joints_before_clamping(pan, tilt, hint, mount):
+    """The search samples its trajectory with direction_joints (no aim-error forward pass): the
+    same joints as inverse_direction, which clamps them."""
+    rig = RIG if not mount else PanTilt(PanTiltConfig(camera_mount_rpy_deg=(1.5, -2.0, 0.7), tilt_limits_deg=(-60, 40)))
+    axis = rig.forward(pan, tilt)[:3, 2]
+    sol = rig.inverse_direction(axis, pan_hint_rad=hint)
+    assert rig.clamp(*rig.direction_joints(axis, pan_hint_rad=hint)) == (sol.pan_rad, sol.tilt_rad)
+    with pytest.raises(JointCommandError, match="direction"):
+        rig.direction_joints([0.0, 0.0, 0.0])

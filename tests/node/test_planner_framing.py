@@ -4,6 +4,7 @@ active in its diagnostics, and refuses (counts, keeps the old framing) regions i
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from aes_planner.eval.framing import FramingEvalConfig, object_points, pick_subject, true_holds
 from aes_planner.messages import PlannerRequest
@@ -48,3 +49,39 @@ def test_planner_keeps_the_requested_subject_in_its_suggestions():
     assert node.proposer.framing is None
     assert not any(n.startswith("framing.") for n in node.diagnostics(now + 0.4).values)
     assert np.isfinite(best.cam2world).all()
+
+
+def test_planner_ranks_the_framed_views_on_its_held_frames_with_photo_rank():
+    """``photo_rank: true`` in the planner's config: a keep request's searches rank the views that
+    hold the subject by the teacher on the frames the planner holds, warped into each view; the
+    published best candidate holds the subject (true geometry) and carries that score, which is
+    the teacher's score of exactly those frames warped into it."""
+    import dataclasses
+
+    from aes_planner.search.photo_warp import warped_photo_scores
+
+    source, node, kin = passive_sim_planner("tabletop:1")
+    node.config = dataclasses.replace(node.config, photo_rank=True)
+    sweep = kin.sweep(4)
+    poses = kin.forward(sweep[:, 0], sweep[:, 1])
+    k = source.platform.intrinsics
+    obj_i, view, region = pick_subject(source.scene, poses, k, 0, FramingEvalConfig(min_frac=0.005))
+    now = 1.0
+    frames = []
+    for p in [*np.delete(poses, view, axis=0), poses[view]]:
+        frames.append(source.capture(p, stamp_s=now))
+        node.step({"camera/frame": [frames[-1]]}, now)
+        now += 1.0
+    box = FramingRegion("latest", region.x0, region.y0, region.x1, region.y1)
+    out = node.step({"planner/request": [PlannerRequest("suggest", set_framing=True, keep=[box])]}, now)
+    assert node.proposer.framing[2].photo_rank, "the planner's photo_rank reaches the framing it applies"
+    best = out["planner/suggestion"][-1].candidates[0]
+    assert true_holds(object_points(source.scene.objects[obj_i]), best.cam2world[None], k)[0]
+    assert 0.0 < best.terms["photo_cover"] <= 1.0 and np.isfinite(best.terms["photo"])
+    framing = node.proposer._framing(node.proposer.scorer(), node.platform)
+    again, cover = warped_photo_scores(node.proposer.scorer().teacher, [f.image for f in frames],
+                                       np.stack([f.cam2world for f in frames]), frames[0].intrinsics,
+                                       best.cam2world[None], framing.keep[0].centre_m,
+                                       framing.cfg.photo_width_px)  # fmt: skip
+    assert best.terms["photo"] == pytest.approx(float(again[0]), abs=1e-5)
+    assert best.terms["photo_cover"] == pytest.approx(float(cover[0]), abs=1e-9)

@@ -90,6 +90,34 @@ def test_violation_is_finite_and_zero_only_when_held(x, y, z):
     assert torch.all((framing.violation(poses) > 0) | (held >= 1.0 - 1e-9))
 
 
+def test_with_a_kept_subject_explore_says_what_the_inputs_cover_of_the_views_that_hold_it():
+    """The framed search says how much of the views that hold the subject the inputs cover
+    (``covered_fraction``) and where to look next (``explore``): a view that holds the subject,
+    only partly covered. EdgeScorer's coverage fades from views along +x to those across it; the
+    subject stands off +y towards +x, so some views that hold it are covered and some are not."""
+    from aes_planner.search.space import space_for
+    from tests.search.test_search import EdgeScorer
+
+    platform = rig_platform(pan_limits_deg=(-170.0, 170.0), tilt_limits_deg=(-40.0, 40.0))
+    subject = subject_at((0.8, 3.0, 1.3), (0.1, 0.1, 0.1))
+    framing = Framing([subject], [], platform.intrinsics, FramingConfig(explore_samples=256))
+    cfg = SearchConfig.preset("fast", top_k=2, explore_points=16)
+    result = search_views(EdgeScorer([0.0, 1.0, 0.0]), rig_inputs(platform), platform, cfg, framing=framing)
+    space = space_for(platform, cfg)
+    poses = space.to_poses(space.grid(256))
+    held = framing.feasible(poses)
+    cov = EdgeScorer([0.0, 1.0, 0.0]).score(poses[held]).coverage.double()
+    assert result.covered_fraction == pytest.approx(float((cov >= cfg.coverage_min).double().mean()))
+    assert 0.0 < result.covered_fraction < 1.0
+    e = result.explore
+    assert e is not None and 0.0 < e.coverage < cfg.coverage_min  # the search's own rule, as without a subject
+    assert float(framing.held(torch.as_tensor(e.cam2world[None]))[0]) == pytest.approx(1.0)
+    # no views spread (explore_samples 0): nothing said rather than a view that may cut the subject
+    tiny = Framing([subject], [], platform.intrinsics, FramingConfig(explore_samples=0))
+    quiet = search_views(EdgeScorer([0.0, 1.0, 0.0]), rig_inputs(platform), platform, cfg, framing=tiny)
+    assert quiet.covered_fraction is None and quiet.explore is None
+
+
 @pytest.mark.parametrize("refine", [False, True])
 def test_the_search_keeps_the_subject_whole_in_every_suggestion(refine):
     """The scorer wants the view straight ahead; the subject stands off to the side: every

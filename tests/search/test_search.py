@@ -410,6 +410,35 @@ class EdgeScorer(AimScorer):
         return ScoreOutput(out.score, (2.0 * fwd_x).clamp(0.0, 1.0), out.terms)
 
 
+class CountingAimScorer(AimScorer):
+    """An :class:`AimScorer` that counts the poses it scores."""
+
+    def __init__(self, *a, **kw):
+        super().__init__(*a, **kw)
+        self.poses = 0
+
+    def score(self, cam2world):
+        self.poses += len(cam2world)
+        return super().score(cam2world)
+
+
+@pytest.mark.parametrize("differentiable", [True, False])
+def test_the_best_iterates_are_not_scored_again(differentiable):
+    """Stage 2 keeps the scores of each start's best iterate; the final ranking scores only the
+    last iterates (never scored by a step): every pose is scored once and the suggestions carry
+    their own poses' scores."""
+    platform = rig_platform(pan_limits_deg=(-120.0, 120.0), tilt_limits_deg=(-40.0, 40.0))
+    target = np.array([math.cos(0.5) * math.cos(0.2), math.sin(0.5) * math.cos(0.2), math.sin(0.2)])
+    scorer = CountingAimScorer(target, differentiable=differentiable)
+    cfg = SearchConfig.preset("fast", steps=12, top_k=2, explore_points=0)
+    result = search_views(scorer, rig_inputs(platform), platform, cfg)
+    assert result.scored == scorer.poses  # the best iterates (2) were not scored again
+    for s in result.suggestions:
+        fresh = AimScorer(target).score(torch.as_tensor(s.cam2world)[None])
+        assert s.score == pytest.approx(float(fresh.score[0]), abs=1e-12)
+        assert s.objective == pytest.approx(s.score, abs=1e-12)  # covered: no penalty
+
+
 def test_explore_says_what_the_inputs_cover_and_where_to_look_next():
     from aes_planner.search.space import space_for
 
