@@ -12,7 +12,15 @@ Protocol 2.0, position mode. The life of a command::
 
 Faults: every SDK exchange runs under one lock, resets the SDK's ``is_using`` flag afterwards and
 is retried with exponential backoff on timeouts and corrupt replies (a short status packet counts
-as corrupt; the SDK would index past its end). A status with the hardware-alert bit reads
+as corrupt; the SDK would index past its end). Late replies: a status packet does not say which
+instruction it answers, and the SDK takes any status of the right id. A reply that comes after the
+driver gave up on it (a servo on a loaded USB adapter, an emulator starved of CPU) would answer the
+next instruction to that servo: a late reply to a READ of Firmware Version (45) once read as a
+PING's model number 48429 (its data byte and its CRC's low byte). So every reply must have the
+length its instruction calls for (a READ's data, a PING's three bytes, none for a WRITE or a
+REBOOT), else it counts as corrupt; and after a try that went unanswered the driver clears the
+line before its next instruction: a READ of a length no other exchange uses, every status before
+its reply dropped (servos answer in order). A status with the hardware-alert bit reads
 Hardware Error Status, reports the fault in :class:`GimbalReading`, turns torque off on both
 servos and refuses motion until :meth:`DynamixelPanTilt.reboot`. Communication lost after every
 retry is fatal too (torque off, best effort).
@@ -127,6 +135,8 @@ class _Port(sdk.PortHandler):
 # I/O errors of a serial port that went away (pyserial raises SerialException, an OSError;
 # termios calls raise termios.error).
 _PORT_ERRORS = (OSError, termios.error)
+#: The length of the READ that clears the line after an unanswered try (no other exchange reads it).
+_SETTLE_READ_BYTES = 6
 
 
 def _open_port(port_name: str, baud: int, latency_timer_ms: float) -> _Port:
@@ -185,6 +195,7 @@ class DynamixelPanTilt(Gimbal):
         self._resume_control = False  # the driver had control when the port went
         self._reopen_wait_s = 0.0
         self._next_reopen_s = 0.0  # time.monotonic() of the next reopening try
+        self._late_replies = False  # a try went unanswered: its reply may still come (module docstring)
 
     # ------------------------------------------------------------------------------ Device
     @property
@@ -296,12 +307,12 @@ class DynamixelPanTilt(Gimbal):
             joints = [j for j in JOINTS if j in self._faults] or list(JOINTS)
             for joint in joints:
                 log.warning("rebooting %s servo (id %d)", joint, self.config.joint_id(joint))
-                self._exchange(joint, f"reboot {joint}", lambda p, i: (None, *self._ph.reboot(p, i)))
+                self._exchange(joint, f"reboot {joint}", self._reboot_one)
             deadline = time.monotonic() + self.config.reboot_timeout_s
             for joint in joints:
                 while True:
                     try:
-                        self._exchange(joint, f"ping {joint}", self._ph.ping, retries=0, fatal=False)
+                        self._exchange(joint, f"ping {joint}", self._ping, retries=0, fatal=False)
                         break
                     except GimbalCommError:
                         if time.monotonic() > deadline:
@@ -320,7 +331,7 @@ class DynamixelPanTilt(Gimbal):
         alerts = []
         for joint in JOINTS:
             dxl_id = self.config.joint_id(joint)
-            number, err = self._exchange(joint, f"ping {joint}", self._ph.ping)
+            number, err = self._exchange(joint, f"ping {joint}", self._ping)
             model = model_by_number(number)
             if model is None:
                 raise DeviceError(
@@ -501,6 +512,7 @@ class DynamixelPanTilt(Gimbal):
     def _release_port(self) -> None:
         _close_port(self._port)
         self._port = None
+        self._late_replies = False  # whatever was on its way went with the port
 
     # ------------------------------------------------------------------------------ exchanges
     def _exchange(
@@ -531,13 +543,19 @@ class DynamixelPanTilt(Gimbal):
                 if port is None:
                     raise GimbalPortLostError(f"serial port {self.config.port} is not open; call connect()")
                 try:
-                    value, comm, err = fn(port, *args) if dxl_id is None else fn(port, dxl_id, *args)
+                    settled = self._settle_line(port) if self._late_replies else sdk.COMM_SUCCESS
+                    if settled != sdk.COMM_SUCCESS:
+                        value, comm, err = None, settled, 0  # not sent: the line is not clear yet
+                    else:
+                        value, comm, err = fn(port, *args) if dxl_id is None else fn(port, dxl_id, *args)
                 except IndexError:
                     value, comm, err = None, sdk.COMM_RX_CORRUPT, 0  # the SDK indexed a short status packet
                 except _PORT_ERRORS as exc:
                     raise self._port_lost(exc) from exc
                 finally:
                     port.is_using = False
+                if comm not in (sdk.COMM_SUCCESS, sdk.COMM_NOT_AVAILABLE):
+                    self._late_replies = True  # unanswered, or answered by something else: more may come
             if comm == sdk.COMM_SUCCESS:
                 errnum = err & ~ERRBIT_ALERT
                 if errnum == ErrNum.NONE:
@@ -590,12 +608,63 @@ class DynamixelPanTilt(Gimbal):
             )
         data = list(to_unsigned(value, item.size).to_bytes(item.size, "little"))
         what = "torque off" if (name, value) == ("torque_enable", 0) else f"write {name}={value} to {joint}"
-        self._exchange(
-            joint,
-            what,
-            lambda port, dxl_id: (None, *self._ph.writeTxRx(port, dxl_id, item.addr, item.size, data)),
-            retries=retries,
-        )
+
+        def write(port, dxl_id):
+            tx = [0] * (12 + item.size)
+            length = 5 + item.size  # INST + address + data + CRC
+            tx[4], tx[5], tx[6], tx[7] = dxl_id, length & 0xFF, length >> 8, sdk.INST_WRITE
+            tx[8], tx[9] = item.addr & 0xFF, item.addr >> 8
+            tx[10 : 10 + item.size] = data
+            rx, comm, _ = self._ph.txRxPacket(port, tx)
+            _, comm, err = _status_data(rx, comm, 0)
+            return None, comm, err
+
+        self._exchange(joint, what, write, retries=retries)
+
+    def _ping(self, port, dxl_id: int) -> tuple[int | None, int, int]:
+        """PING with its reply's length checked (three data bytes: model number, firmware); the
+        SDK's ping would take any status of the id (module docstring). ``(model number, comm, error)``."""
+        tx = [0] * 10
+        tx[4], tx[5], tx[6], tx[7] = dxl_id, 3, 0, sdk.INST_PING
+        rx, comm, _ = self._ph.txRxPacket(port, tx)
+        data, comm, err = _status_data(rx, comm, 3)
+        return (None if data is None else data[0] | data[1] << 8), comm, err
+
+    def _reboot_one(self, port, dxl_id: int) -> tuple[None, int, int]:
+        """REBOOT with its reply checked (a status without data)."""
+        tx = [0] * 10
+        tx[4], tx[5], tx[6], tx[7] = dxl_id, 3, 0, sdk.INST_REBOOT
+        rx, comm, _ = self._ph.txRxPacket(port, tx)
+        _, comm, err = _status_data(rx, comm, 0)
+        return None, comm, err
+
+    def _settle_line(self, port) -> int:
+        """Clear the line of late replies before the next instruction (module docstring): a READ
+        of 6 bytes at address 0 (Model Number and Model Information; no other exchange of the
+        driver reads 6 bytes) to the pan servo, and every status packet before its reply is
+        dropped. Servos answer in order, so once that reply is in, every late one came before it.
+        ``COMM_SUCCESS`` when the line is clear, else why not (no reply in time, or only corrupt
+        ones): the instruction waits for the next try."""
+        tx = [0] * 14
+        tx[4], tx[5], tx[6], tx[7] = self.config.joint_id("pan"), 7, 0, sdk.INST_READ
+        tx[8:12] = [0, 0, _SETTLE_READ_BYTES, 0]
+        sent = self._ph.txPacket(port, tx)
+        if sent != sdk.COMM_SUCCESS:
+            return sent
+        port.setPacketTimeout(_SETTLE_READ_BYTES + 11)
+        dropped, corrupt = 0, False
+        for _ in range(64):  # bounded: each status packet, or the timeout, ends one rxPacket
+            rx, comm = self._ph.rxPacket(port, False)
+            if comm == sdk.COMM_RX_TIMEOUT:
+                break
+            if comm == sdk.COMM_SUCCESS and rx[4] == tx[4] and (rx[5] | rx[6] << 8) == _SETTLE_READ_BYTES + 4:
+                if dropped:
+                    log.debug("dropped %d late replies on %s", dropped, self.config.port)
+                self._late_replies = False
+                return sdk.COMM_SUCCESS
+            dropped += 1
+            corrupt = corrupt or comm != sdk.COMM_SUCCESS
+        return sdk.COMM_RX_CORRUPT if corrupt else sdk.COMM_RX_TIMEOUT
 
     def _sync_write(self, name: str, values: dict[str, int]) -> None:
         item = self._models["pan"].item(name)

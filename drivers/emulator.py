@@ -28,7 +28,8 @@ moment) stays in real time: it is the link, not the world.
 Run it in a background thread (``with ServoEmulator() as emu: emu.port``), in the foreground
 (``aes-planner gimbal emulate``), or in a child process (:class:`EmulatorProcess`, which shares no
 GIL with the driver, as real servos would not). State is guarded by ``emu.lock``; tests may inspect
-``emu.servos`` and ``emu.goal_log`` under it.
+``emu.servos`` and ``emu.goal_log`` under it, after :meth:`ServoEmulator.wait_idle` when a client
+has just written (on a loaded machine the I/O loop may not have read its last instructions yet).
 """
 
 from __future__ import annotations
@@ -70,6 +71,7 @@ from aes_planner.drivers.protocol import (
     Inst,
     Packet,
     PacketParser,
+    build_packet,
     build_status,
 )
 from aes_planner.errors import AesPlannerError
@@ -579,6 +581,10 @@ class ServoEmulator:
         self.wire_timing = wire_timing
         self.lock = threading.RLock()
         self.packets_seen = 0
+        # wait_idle's marker packets: sent, and reached by the I/O loop
+        self._marker_id = next(i for i in range(MAX_ID, -1, -1) if i not in ids)
+        self._markers = threading.Condition()
+        self._markers_sent = self._markers_seen = 0
         self._master: int | None = None
         self._slave: int | None = None
         self._pty_path: str | None = None
@@ -700,8 +706,35 @@ class ServoEmulator:
                 except OSError:
                     continue  # EIO while no client has the slave open
                 for pkt in self._parser.feed(data):
+                    if pkt.inst == Inst.PING and pkt.dxl_id == self._marker_id and self._markers_sent:
+                        with self._markers:  # wait_idle's: everything written before it is handled
+                            self._markers_seen += 1
+                            self._markers.notify_all()
+                        continue
                     self._answer(pkt)
         self._drain_commands()
+
+    def wait_idle(self, timeout_s: float = 30.0) -> bool:
+        """Wait until everything clients wrote to the bus so far has been read and answered
+        (True), or ``timeout_s`` passed (False). A client that exits leaves its last instructions
+        (a torque off) in the pty; on a loaded machine the I/O loop may not have read them yet
+        when the client is gone: check the servos' state after this, not before.
+
+        A barrier, not a poll: a PING to an id no servo had at start is written into the line
+        behind what is there (the pty keeps its order), and the I/O loop counts it when it gets
+        there (it is not answered, nor counted in ``packets_seen``)."""
+        if self._thread is None or self._slave is None:
+            return True
+        with self._markers:
+            target = self._markers_sent + 1  # the first of the two below
+            self._markers_sent += 2
+        try:
+            # twice: a client killed half-way through a packet may swallow the first into its rest
+            os.write(self._slave, build_packet(self._marker_id, Inst.PING) * 2)
+        except OSError:
+            return True  # the pty went (stop, vanish): nothing more will be read
+        with self._markers:
+            return self._markers.wait_for(lambda: self._markers_seen >= target, timeout_s)
 
     # ------------------------------------------------------------------------------ internals
     def _wake(self) -> None:

@@ -10,7 +10,8 @@ and writes a run folder:
   (oracle - mean random)``), ``moves``, ``time_s``, ``scene``, ``mode``, ``initial_cam2world``,
   ``final_cam2world`` (and for the rig ``final_pan_deg``, ``final_tilt_deg``), ``clock`` (``sim``
   or ``wall``) and on a simulated clock ``sim_time_s`` (when the loop ended, simulated seconds);
-* ``suggestions.json``: every suggestion the planner published; ``captures.json``: every capture;
+* ``suggestions.json``: every suggestion the planner published; ``captures.json``: every capture
+  (``stamp_s``: when, on the graph's clock);
 * ``report.png``: the input views, each move's view with its true score, the rig's pan x tilt
   ground-truth score map with the path taken, and the final view beside the oracle's best.
 

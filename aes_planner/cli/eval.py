@@ -65,6 +65,12 @@ def register_search(esub: argparse._SubParsersAction) -> None:
     s.add_argument("--methods", help="comma-separated subset of the methods (default all)")
     s.add_argument("--no-ablations", action="store_true", help="skip Tables 3, 4 and S1")
     s.add_argument("--oracle-step-deg", type=float, default=5.0, help="rig oracle grid step (default 5)")
+    s.add_argument(
+        "--search-seed",
+        type=int,
+        default=0,
+        help="sampling seed of the searches (default 0); the oracle keeps its own: run several for the spread over seeds",
+    )
     s.add_argument("--json", metavar="OUT", help="write the results as JSON")
     s.add_argument("--out", metavar="DIR", help="write markdown tables and plots into DIR")
     s.add_argument(
@@ -246,6 +252,7 @@ def run_search(args: argparse.Namespace) -> int:
         methods=[m.strip() for m in args.methods.split(",")] if args.methods else list(METHODS),
         ablations=not args.no_ablations,
         oracle_step_deg=args.oracle_step_deg,
+        search_seed=args.search_seed,
     )
     bar = tqdm(desc="eval search", unit="step", leave=False)
 

@@ -107,6 +107,7 @@ def evaluate_run(planner, scene: str, kind: str, out: Path, loop_s: float) -> di
             [
                 {
                     "kind": c.kind,
+                    "stamp_s": c.stamp_s,
                     "captured_score": c.score,
                     "true_score": float(t),
                     "predicted": c.predicted,

@@ -101,7 +101,10 @@ class SearchEvalConfig:
     a drone scene runs as a drone only: rig mode alone on one is an error); ``oracle_step_deg``: the rig oracle's grid step; ``supersample``: of the
     ground-truth renders; ``ablations``: run Tables 3, 4 and S1 on the first ``ablation_scenes``
     rig scenes (rig, 4 views); ``free_box_m``: half-size of the drone box around a rig scene's
-    base for a drone (a drone scene flies its own box); ``width``/``height`` override the scenes' camera (tests)."""
+    base for a drone (a drone scene flies its own box); ``width``/``height`` override the scenes' camera (tests);
+    ``seed``: of the oracle and the random views (the normalisation); ``search_seed``: the searches'
+    own sampling seed (``rgb`` and the field presets), so a figure's spread over seeds can be
+    measured against one oracle."""
 
     scenes: list[str] = dataclasses.field(default_factory=lambda: HELD_OUT_SCENES[:4])
     views: list[int] = dataclasses.field(default_factory=lambda: [4])
@@ -123,6 +126,7 @@ class SearchEvalConfig:
     height: int | None = None
     cache_dir: str | None = None
     seed: int = 0
+    search_seed: int = 0
 
     def __post_init__(self):
         from aes_planner.config import distinct, require
@@ -132,6 +136,11 @@ class SearchEvalConfig:
         for name in ("scenes", "views", "modes", "methods"):
             setattr(self, name, distinct(getattr(self, name), name))
         require(len(self.scenes) >= 1, "scenes", "give at least one scene (FAMILY:SEED or a YAML file)")
+        require(
+            isinstance(self.search_seed, int) and not isinstance(self.search_seed, bool) and self.search_seed >= 0,
+            "search_seed",
+            f"must be an integer >= 0, got {self.search_seed!r}",
+        )
         require(
             bool(self.views) and all(isinstance(v, int) and 1 <= v <= 16 for v in self.views),
             "views",
@@ -257,7 +266,7 @@ def _method_pose(
     try:
         if method in FIELD_PRESETS or method == "rgb":
             preset = FIELD_PRESETS.get(method, "balanced")
-            scfg = SearchConfig.preset(preset, mode=platform.kind, seed=cfg.seed)
+            scfg = SearchConfig.preset(preset, mode=platform.kind, seed=cfg.search_seed)
             scorer = build_search_scorer("field" if method != "rgb" else "rgb", frames, scfg, teacher)
             result = search_views(scorer, inputs, platform, scfg)
             return result.best.cam2world
@@ -292,7 +301,7 @@ def _warm_up(first, methods: list[str], teacher, cfg: SearchEvalConfig) -> None:
     inputs = _inputs(source, platform, cfg.views[0])
     frames = [source.capture(p) for p in inputs]
     for kind in sorted({"rgb" if m == "rgb" else "field" for m in methods}):
-        scfg = SearchConfig.preset("fast", mode=platform.kind, seed=cfg.seed)
+        scfg = SearchConfig.preset("fast", mode=platform.kind, seed=cfg.search_seed)
         try:
             search_views(build_search_scorer(kind, frames, scfg, teacher), inputs, platform, scfg)
         except SearchError as exc:  # the method itself will say so, scene by scene
@@ -437,7 +446,8 @@ def write_front_plots(doc: dict[str, Any], out: Path) -> list[Path]:
                 if m in table and m in lat
             }
             if points:
-                paths.append(write_pareto(points, output_in(out, f"preset_front_{n}v_{mode}.png")))
+                title = f"presets, {mode}, {n} views: time against oracle-normalised score"
+                paths.append(write_pareto(points, output_in(out, f"preset_front_{n}v_{mode}.png"), title))
     return paths
 
 
@@ -528,7 +538,7 @@ def _aggregate(rows: list[dict[str, Any]], cfg: SearchEvalConfig) -> dict[str, A
                     lat[method] = float(np.median(ms))
             views.setdefault(str(n), {})[mode] = table
             views[str(n)].setdefault("latency_ms", {})[mode] = lat
-    return {"views": views, "scenes": list(cfg.scenes)}
+    return {"views": views, "scenes": list(cfg.scenes), "search_seed": cfg.search_seed}
 
 
 # ------------------------------------------------------------------------------------ ablations
@@ -768,48 +778,81 @@ def _top_view(out: Path, spec: str, platform, frames, inputs, teacher, cfg: Sear
     cv2.imwrite(str(output_in(out, f"top_view_{spec.replace(':', '_').replace('/', '_')}.png")), img)
 
 
-def write_pareto(points: dict[str, tuple], path: Path) -> Path:
-    """Latency (log x) against normalised score (y); the presets joined, rgb apart. ``points``:
+#: How :func:`write_pareto` draws a point: BGR colour and marker; the presets joined in cost order.
+_PARETO_STYLE = {
+    "rgb": ((40, 40, 210), cv2.MARKER_SQUARE),  # RGB scoring: the reference the field must beat
+    "input (best)": ((110, 110, 110), cv2.MARKER_TRIANGLE_UP),  # the best of the inputs: no search
+}
+_PRESET_COLOUR = (190, 110, 0)
+_PRESET_CHAIN = ("fast", "balanced", "accurate")  # accurate: in results from before its removal
+
+
+def write_pareto(points: dict[str, tuple], path: Path, title: str = "") -> Path:
+    """Latency (log x) against oracle-normalised score (y); the presets joined, the references
+    (``rgb``, ``input (best)``) drawn apart in their own colour and marker. ``points``:
     ``{name: (latency_ms, normalized)}`` or ``(latency_ms, normalized, standard_error | None)``,
     the error drawn as a bar of +-1 standard error over the scenes (``bench search`` and
-    ``eval search --out`` draw it)."""
+    ``eval search --out`` draw it). Axes with ticks; the 0.8 and 0.9 goals and the 1 s goal as
+    thin lines; each point's figures listed under the plot, so no label covers a point."""
     points = {name: (p[0], p[1], p[2] if len(p) > 2 else None) for name, p in points.items()}
-    w, h, m = 520, 360, 50
+    left, right, top, plot_h, w = 64, 24, 44, 260, 560
+    legend_h = 20 + 16 * len(points)
+    h = top + plot_h + 34 + legend_h
     img = np.full((h, w, 3), 255, np.uint8)
     lats = [p[0] for p in points.values()]
     lo, hi = np.log10(max(min(min(lats) / 2, 500.0), 1.0)), np.log10(max(max(lats) * 2, 2000.0))  # the 1 s goal in view
+    y_lo, y_hi = -0.2, 1.1
+    font, ink, grey = cv2.FONT_HERSHEY_PLAIN, (0, 0, 0), (215, 215, 215)
 
     def px(lat: float, norm: float) -> tuple[int, int]:
-        x = m + (np.log10(max(lat, 1.0)) - lo) / max(hi - lo, 1e-9) * (w - 2 * m)
-        y = h - m - np.clip(norm, -0.2, 1.1) / 1.1 * (h - 2 * m)
-        return int(x), int(y)
+        x = left + (np.log10(max(lat, 1.0)) - lo) / max(hi - lo, 1e-9) * (w - left - right)
+        y = top + plot_h - (np.clip(norm, y_lo, y_hi) - y_lo) / (y_hi - y_lo) * plot_h
+        return int(round(x)), int(round(y))
 
-    cv2.rectangle(img, (m, m), (w - m, h - m), (0, 0, 0), 1)
+    for norm in (0.0, 0.2, 0.4, 0.6, 0.8, 1.0):  # y ticks, with a light grid
+        (x0, y), (x1, _) = px(10**lo, norm), px(10**hi, norm)
+        cv2.line(img, (x0, y), (x1, y), grey, 1)
+        cv2.putText(img, f"{norm:.1f}", (left - 30, y + 4), font, 0.9, ink, 1, cv2.LINE_AA)
+    for decade in range(int(np.floor(lo)), int(np.ceil(hi)) + 1):  # x ticks: 1, 2, 5 per decade
+        for mult in (1, 2, 5):
+            lat = mult * 10.0**decade
+            if not lo <= np.log10(lat) <= hi:
+                continue
+            x, y = px(lat, y_lo)
+            cv2.line(img, (x, y), (x, y + 4), ink, 1)
+            text = f"{lat / 1000:g} s" if lat >= 1000 else f"{lat:g}"
+            cv2.putText(img, text, (x - 4 * len(text), y + 17), font, 0.9, ink, 1, cv2.LINE_AA)
     for goal, colour in ((0.8, (0, 160, 0)), (0.9, (0, 100, 0))):
-        cv2.line(img, px(10**lo, goal), px(10**hi, goal), colour, 1)
-    cv2.line(img, px(1000, -0.2), px(1000, 1.1), (0, 0, 200), 1)  # the 1 s goal
-    chain = [points[c][:2] for c in ("fast", "balanced", "accurate") if c in points]
+        (x0, y), (x1, _) = px(10**lo, goal), px(10**hi, goal)
+        cv2.line(img, (x0, y), (x1, y), colour, 1)
+        cv2.putText(img, f"{goal} goal", (x1 - 62, y - 4), font, 0.8, colour, 1, cv2.LINE_AA)
+    (xg, y0), (_, y1) = px(1000, y_lo), px(1000, y_hi)
+    cv2.line(img, (xg, y0), (xg, y1), (150, 150, 230), 1)  # the 1 s goal
+    cv2.rectangle(img, px(10**lo, y_hi), px(10**hi, y_lo), ink, 1)
+    cv2.putText(img, "ms per suggestion (log)", (left + (w - left - right) // 2 - 80, top + plot_h + 32), font, 0.9, ink, 1, cv2.LINE_AA)  # fmt: skip
+    heading = title or "time against oracle-normalised score"
+    cv2.putText(img, heading, (left, top - 26), font, 1.0, ink, 1, cv2.LINE_AA)
+    cv2.putText(img, "(1 = the oracle's view, 0 = chance; bars +-1 s.e. over scenes)", (left, top - 10), font, 0.8, ink, 1, cv2.LINE_AA)  # fmt: skip
+    chain = [points[c][:2] for c in _PRESET_CHAIN if c in points]
     for a, b in zip(chain, chain[1:]):
-        cv2.line(img, px(*a), px(*b), (200, 120, 0), 2)
+        cv2.line(img, px(*a), px(*b), _PRESET_COLOUR, 2, cv2.LINE_AA)
     for i, (name, (lat, norm, se)) in enumerate(points.items()):
-        colour = (0, 0, 200) if name == "rgb" else (200, 120, 0)
+        colour, marker = _PARETO_STYLE.get(name, (_PRESET_COLOUR, None))
+        x, y = px(lat, norm)
         if se is not None:  # +-1 standard error over the scenes, with caps
-            (x, y0), (_, y1) = px(lat, norm - se), px(lat, norm + se)
-            cv2.line(img, (x, y0), (x, y1), colour, 1)
-            for y in (y0, y1):
-                cv2.line(img, (x - 4, y), (x + 4, y), colour, 1)
-        cv2.circle(img, px(lat, norm), 5, colour, -1)
-        cv2.putText(
-            img, name[0].upper(), (px(lat, norm)[0] - 4, px(lat, norm)[1] - 8), cv2.FONT_HERSHEY_PLAIN, 1.0, colour, 1
-        )
+            (_, ya), (_, yb) = px(lat, norm - se), px(lat, norm + se)
+            cv2.line(img, (x, ya), (x, yb), colour, 1)
+            for yy in (ya, yb):
+                cv2.line(img, (x - 4, yy), (x + 4, yy), colour, 1)
+        if marker is None:
+            cv2.circle(img, (x, y), 5, colour, -1, cv2.LINE_AA)
+        else:
+            cv2.drawMarker(img, (x, y), colour, marker, 12, 2)
+        cv2.putText(img, name[0].upper(), (x + 7, y - 6), font, 1.0, colour, 1, cv2.LINE_AA)
         spread = "" if se is None else f" +- {se:.2f}"
-        cv2.putText(img, f"{name[0].upper()} {name}: {lat:.0f} ms, {norm:.2f}{spread}", (m + 6, m + 16 + 14 * i),
-                    cv2.FONT_HERSHEY_PLAIN, 0.9, (0, 0, 0), 1, cv2.LINE_AA)  # fmt: skip
-    cv2.putText(
-        img, "latency (ms, log) vs oracle-normalised score", (m, m - 12), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1
-    )
+        cv2.putText(img, f"{name[0].upper()}  {name}: {lat:.0f} ms, {norm:.2f}{spread}",
+                    (left, top + plot_h + 56 + 16 * i), font, 0.95, colour, 1, cv2.LINE_AA)  # fmt: skip
     from aes_planner.images import write_image
 
     path.parent.mkdir(parents=True, exist_ok=True)
-
     return write_image(path, img, "the trade-off plot")

@@ -18,8 +18,10 @@ the motors unpowered.
 On a simulated clock (``clock: sim``, :mod:`aes_planner.graph.clock`) the device takes its time
 from the node's ``now``: the servo emulator in its own process reads it from a shared
 :class:`~aes_planner.drivers.emulator.FileClock` the node sets at each step, an in-process
-emulated or simulated gimbal from the same clock, and states are stamped ``now``; a real gimbal
-cannot run on it.
+emulated or simulated gimbal from the same clock, and states are stamped ``now``; a step that
+sent a command reads the device back before it ends, so that the command takes effect at ``now``
+(a move is a write the servos do not answer; see :meth:`GimbalNode._settle_commands`). A real
+gimbal cannot run on it.
 """
 
 from __future__ import annotations
@@ -238,8 +240,12 @@ class GimbalNode(Node):
         for cmd in commands:
             self.counters["commands_in"] += 1
             self._execute(cmd)
+        sent = bool(commands)
         if self._pending_move is not None and not commands:
             self._resend_pending()
+            sent = True
+        if sent and self.sim_clock is not None:
+            self._settle_commands()
         if now - self._last_state_s >= self.period_s * 0.999:
             self._last_state_s = now
             state = self._read_state()
@@ -315,6 +321,24 @@ class GimbalNode(Node):
             self.counters["comm_errors"] += 1
             self._pending_move = None
             log.warning("%s: %s", self.node_id, exc)
+
+    def _settle_commands(self) -> None:
+        """On a simulated clock, hold the step until the device has taken what this step sent.
+
+        A Dynamixel move is a sync write, which the servos do not answer: the emulator (a thread,
+        or a process of its own) applies it whenever it next gets the CPU, and by then the graph's
+        clock may have moved on, so the move began at ``now`` or a gimbal period later depending
+        on the machine's load (two ``make demo`` runs took the same captures 0.08 s apart). A
+        state read is answered only after everything sent before it has been handled: one read
+        here (not published) makes the move begin at ``now`` on every run. A read that fails is
+        counted as a communication error (the move may then begin late, as on a real bus)."""
+        try:
+            self.device.state()
+        except GimbalHardwareError:
+            pass  # the state read reports it, as for any fault
+        except DeviceError as exc:
+            self.counters["comm_errors"] += 1
+            log.debug("%s: reading back after a command failed: %s", self.node_id, exc)
 
     def _moved(self) -> None:
         self._pending_move = None

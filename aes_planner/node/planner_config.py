@@ -46,8 +46,9 @@ class PlannerConfig:
     * ``polish_starts``: hills the polish climbs, one after the other, each with an equal share of
       ``polish_captures``: the best captured view and up to ``polish_starts - 1`` others within
       ``polish_start_gap`` (teacher units) of it, at least two coarsest steps apart (a hill
-      captured second is not lost to the local optimum captured first); the loop settles on the
-      best view of all.
+      captured second is not lost to the local optimum captured first; three, because on dev
+      tabletop:202 the oracle's hill was the third captured, touched only on its flank); the loop
+      settles on the best view of all.
     * ``verify_hills``: before the climbs, up to this many captures (on top of
       ``polish_captures``) of the search's best predicted views on hills no capture lies on
       (a coarsest polish step or more from every capture; ranked by hope, each hoping for at
@@ -118,11 +119,11 @@ class PlannerConfig:
     residual_length_deg: float = 15.0
     min_move_deg: float = 3.0
     min_move_m: float = 0.1
-    polish_captures: int = 32
+    polish_captures: int = 48
     polish_step_deg: float = 1.25
     polish_step_m: float = 0.0
     polish_scales: int = 4
-    polish_starts: int = 2
+    polish_starts: int = 3
     polish_start_gap: float = 0.1
     verify_hills: int = 2
     tie_tolerance: float = 0.002

@@ -28,7 +28,7 @@ from aes_planner.errors import AesPlannerError
 from aes_planner.geometry.camera import Intrinsics, IntrinsicsError
 from aes_planner.geometry.plausible import distortion_problem, intrinsics_problem, joint_problem, stamp_problem
 from aes_planner.geometry.rotations import matrix_to_quat
-from aes_planner.messages import Diagnostics, GimbalState, PosedFrame, ViewSuggestion
+from aes_planner.messages import Candidate, Diagnostics, GimbalState, PosedFrame, ViewSuggestion
 from aes_planner.messages.posed_frame import MAX_FRAME_PIXELS, MAX_FRAME_SIDE_PX
 from aes_planner.ros2 import idl
 
@@ -51,6 +51,7 @@ __all__ = [
     "stamp",
     "stamp_s",
     "transform_stamped",
+    "view_candidate",
     "view_suggestion",
 ]
 
@@ -128,26 +129,28 @@ def pose_array(msg: ViewSuggestion, frame_id: str) -> idl.PoseArray:
     return idl.PoseArray(idl.Header(stamp(msg.stamp_s), frame_id), [pose(c.cam2world) for c in msg.candidates])
 
 
+def view_candidate(c: Candidate, rank: int) -> idl.ViewCandidate:
+    """One of the package's candidates as ``aes_planner_msgs/ViewCandidate``."""
+    view = c.view
+    return idl.ViewCandidate(
+        rank=rank,
+        score=c.score,
+        coverage=c.coverage,
+        pose=pose(c.cam2world),
+        yaw=float(view[3]),
+        pitch=float(view[4]),
+        has_joints=c.pan_rad is not None,
+        pan=c.pan_rad or 0.0,
+        tilt=c.tilt_rad or 0.0,
+        term_names=list(c.terms),
+        term_values=[float(v) for v in c.terms.values()],
+    )
+
+
 def view_suggestion(msg: ViewSuggestion, frame_id: str, search_latency_s: float = 0.0) -> idl.ViewSuggestion:
-    """Everything the package's suggestion carries, as ``aes_planner_msgs/ViewSuggestion``."""
-    cands = []
-    for rank, c in enumerate(msg.candidates):
-        view = c.view
-        cands.append(
-            idl.ViewCandidate(
-                rank=rank,
-                score=c.score,
-                coverage=c.coverage,
-                pose=pose(c.cam2world),
-                yaw=float(view[3]),
-                pitch=float(view[4]),
-                has_joints=c.pan_rad is not None,
-                pan=c.pan_rad or 0.0,
-                tilt=c.tilt_rad or 0.0,
-                term_names=list(c.terms),
-                term_values=[float(v) for v in c.terms.values()],
-            )
-        )
+    """Everything the package's suggestion carries, as ``aes_planner_msgs/ViewSuggestion``: the
+    optional ``covered_fraction`` as a ``has_`` flag beside the value (0 when absent), the optional
+    ``explore`` candidate as a sequence of at most one."""
     return idl.ViewSuggestion(
         header=idl.Header(stamp(msg.stamp_s), frame_id),
         sequence_number=msg.sequence,
@@ -155,7 +158,10 @@ def view_suggestion(msg: ViewSuggestion, frame_id: str, search_latency_s: float 
         mode=MODE_CODES[msg.mode],
         kind=KIND_CODES[msg.kind],
         search_latency_s=float(search_latency_s) if math.isfinite(search_latency_s) else 0.0,
-        candidates=cands,
+        candidates=[view_candidate(c, rank) for rank, c in enumerate(msg.candidates)],
+        has_covered_fraction=msg.covered_fraction is not None,
+        covered_fraction=msg.covered_fraction or 0.0,
+        explore=[] if msg.explore is None else [view_candidate(msg.explore, 0)],
     )
 
 

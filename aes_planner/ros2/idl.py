@@ -335,6 +335,9 @@ class ViewSuggestion(IdlStruct, typename="aes_planner_msgs::msg::dds_::ViewSugge
     kind: t.uint8 = 0  # KIND_SEARCH_RESULT=0 KIND_WAYPOINT=1
     search_latency_s: t.float64 = 0.0
     candidates: t.sequence[ViewCandidate] = field(default_factory=list)
+    has_covered_fraction: bool = False
+    covered_fraction: t.float64 = 0.0
+    explore: t.sequence[ViewCandidate, 1] = field(default_factory=list)  # ViewCandidate[<=1]: optional
 
 
 #: "pkg/msg/Type" -> IDL class

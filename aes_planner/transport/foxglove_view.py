@@ -11,7 +11,9 @@ For a message on topic ``T`` (shown as ``/T``), :func:`foxglove_view` returns:
 * ``ViewSuggestion``: ``/T/scene`` (``foxglove.SceneUpdate``: a frustum per candidate coloured
   by score, red = worst to green = best, with its rank and score as text), ``/tf`` (world ->
   ``suggestion``, the best candidate), ``/T/scores`` (JSON: best score, coverage, each term,
-  the best view in degrees, all scores: plottable).
+  the best view in degrees, all scores: plottable). A search's exploratory candidate (schema 3's
+  ``explore``) is a blue frustum labelled ``explore``, and it and ``covered_fraction`` are in
+  ``/T/scores`` too.
 * ``Diagnostics`` of the planner (``planner/diagnostics``): also ``/T/framing``
   (``foxglove.SceneUpdate``: the lifted 3D box of each kept subject, green, and avoided region,
   red, as a ``CubePrimitive``; empty when no framing is active; docs/guides/framing.md).
@@ -134,6 +136,8 @@ def camera_frame_id(topic: str) -> str:
 
 #: The tf frame of the best suggestion (world -> suggestion).
 SUGGESTION_FRAME = "suggestion"
+#: The colour (RGBA) of a suggestion's exploratory candidate: apart from the red-to-green ranked ones.
+EXPLORE_COLOR = (0.2, 0.5, 1.0, 1.0)
 
 
 def _stamp(t_ns: int):
@@ -362,6 +366,19 @@ def foxglove_view(
             )
             for i, c in enumerate(msg.candidates)
         ]
+        if msg.explore is not None:  # the exploratory candidate: not ranked, drawn apart in blue
+            entities.append(
+                _entity(
+                    "explore",
+                    msg.explore.cam2world,
+                    EXPLORE_COLOR,
+                    f"explore {msg.explore.score:.3f}",
+                    log_time_ns,
+                    style,
+                    state.hfov_rad,
+                    state.aspect,
+                )
+            )
         from foxglove.messages import SceneEntityDeletion, SceneEntityDeletionType
 
         deletions = [SceneEntityDeletion(timestamp=_stamp(log_time_ns), type=SceneEntityDeletionType.All, id="")]
@@ -390,6 +407,12 @@ def foxglove_view(
                 summary["best"]["pan_deg"] = math.degrees(best.pan_rad)
                 summary["best"]["tilt_deg"] = math.degrees(best.tilt_rad)
         summary["scores"] = scores
+        if msg.covered_fraction is not None:
+            summary["covered_fraction"] = msg.covered_fraction
+        if msg.explore is not None:
+            _, _, _, yaw, pitch = msg.explore.view.tolist()
+            summary["explore"] = {"score": msg.explore.score, "coverage": msg.explore.coverage,
+                                  "yaw_deg": math.degrees(yaw), "pitch_deg": math.degrees(pitch)}  # fmt: skip
         out.append(_json(f"{base}/scores", "aes_planner.SuggestionScores", summary))
         return out
     if isinstance(msg, Diagnostics):

@@ -61,7 +61,7 @@ def _rig_files(tmp_path: Path, tty: Path) -> list[str]:
     (tmp_path / "rig_launch.yaml").write_text(
         "nodes:\n"
         "  - id: gimbal\n    type: gimbal\n"
-        f"    config: {{device: {{type: dynamixel_pan_tilt, port: {tty}, latency_timer_ms: 30}}}}\n"
+        f"    config: {{device: {{type: dynamixel_pan_tilt, port: {tty}, latency_timer_ms: 100}}}}\n"
         "  - id: camera\n    type: camera\n"
         f"    config: {{device: {video}, calibration: {tmp_path / 'camera_info.yaml'}}}\n"
     )
@@ -77,7 +77,7 @@ def _graph_launch(tmp_path: Path, tty: Path) -> str:
     launch = tmp_path / "gimbal_launch.yaml"
     launch.write_text(
         "scene: tabletop:1\nnodes:\n"
-        f"  - id: gimbal\n    type: gimbal\n    config: {{rate_hz: 10, device: {{type: dynamixel_pan_tilt, port: {tty}, latency_timer_ms: 30}}}}\n"
+        f"  - id: gimbal\n    type: gimbal\n    config: {{rate_hz: 10, device: {{type: dynamixel_pan_tilt, port: {tty}, latency_timer_ms: 100}}}}\n"
         "  - id: camera\n    type: sim_camera\n    config: {rate_hz: 5, camera: {width: 32, height: 24}}\n"
         "  - id: planner\n    type: planner\n    config: {explore_views: 12, preset: fast}\n"
     )
@@ -205,6 +205,7 @@ def test_signals_leave_the_servos_unpowered(tmp_path, name, pattern):
                 proc.kill()
                 proc.wait()
         out = "".join(lines)
+        assert emu.wait_idle(), "the emulator did not catch up with what the command sent"
         assert _torque(emu) == [False, False], out[-3000:]
     assert proc.returncode == 128 + signals[0], (proc.returncode, out[-3000:])
     assert "Traceback" not in out and "terminate called" not in out, out[-3000:]

@@ -31,10 +31,11 @@ FAST = dict(
 def _in_process_timing(monkeypatch):
     """The SDK busy-waits holding the GIL; switch threads every 0.5 ms, not 5 ms, so that the
     in-process emulator answers about as fast as a servo would. Tests that use the SDK directly
-    have no retries: they get a 0.2 s reply timeout (the SDK reads this global at call time)."""
+    have no retries: they get a 0.5 s reply timeout (the SDK reads this global at call time; at
+    0.2 s, reads timed out and came back as 0 on a 2-core machine under a load of 20)."""
     import dynamixel_sdk.port_handler
 
-    monkeypatch.setattr(dynamixel_sdk.port_handler, "LATENCY_TIMER", 100)
+    monkeypatch.setattr(dynamixel_sdk.port_handler, "LATENCY_TIMER", 250)
     before = sys.getswitchinterval()
     sys.setswitchinterval(0.0005)
     yield

@@ -96,6 +96,27 @@ def test_delayed_replies(emulator, gimbal, caplog, delay_s, retried):
     assert ("There is no status packet!; retry 1/3" in caplog.text) == retried
 
 
+def test_a_late_reply_never_answers_a_later_instruction(emulator, gimbal, caplog):
+    """A reply the driver gave up on (here 500 ms late: a servo behind a loaded USB adapter, an
+    emulator starved of CPU) must not be taken for the reply to the next instruction. The SDK takes
+    any status of the id: on a loaded CI machine a late reply to a READ of Firmware Version (45)
+    came back from a PING as model number 48429 (45 and its CRC's low byte, 0xbd)."""
+    emulator.faults.delay_s = 0.5
+    emulator.faults.delay_next = 1
+    with pytest.raises(GimbalCommError, match="no status packet"):
+        gimbal._read_item("pan", "firmware_version", retries=0)  # gives up after 202 ms
+    with caplog.at_level(logging.DEBUG, logger="aes_planner.drivers.dynamixel"):
+        number, _ = gimbal._exchange("pan", "ping pan", gimbal._ping)  # the late reply comes meanwhile
+    assert number == model_by_name("xm430-w350").model_number
+    assert "dropped 1 late replies" in caplog.text  # the late reply was seen, and dropped
+    # and a 1-byte read after a late 1-byte reply gets its own item, not the late one
+    emulator.faults.delay_next = 1
+    with pytest.raises(GimbalCommError):
+        gimbal._read_item("pan", "firmware_version", retries=0)
+    assert gimbal._read_item("pan", "hardware_error_status") == 0
+    assert gimbal._read_item("pan", "firmware_version") == 45
+
+
 @pytest.mark.parametrize("fault, servo_id, joint", [("overload", 2, "tilt"), ("overheating", 1, "pan")])
 def test_hardware_error_is_reported_and_blocks_motion_until_reboot(emulator, gimbal, fault, servo_id, joint):
     gimbal.move_to(0.1, 0.1)

@@ -226,3 +226,22 @@ def _grid_poses(source, o_extra):
 
     space = space_for(source.platform, SearchConfig())
     return space.to_poses(torch.as_tensor(o_extra["grid_params"])).numpy()
+
+
+def test_the_search_seed_moves_the_searches_not_the_oracle(tmp_path, monkeypatch):
+    """``--search-seed`` (the spread over seeds): the presets search with it, the oracle and the
+    random views (the normalisation) keep ``seed``; a negative one is refused, naming the field."""
+    from aes_planner.config import ConfigError
+    from aes_planner.eval import search as ev
+
+    with pytest.raises(ConfigError, match="search_seed"):
+        tiny(tmp_path, search_seed=-1)
+    seen = []
+    real = ev.search_views
+    monkeypatch.setattr(ev, "search_views", lambda scorer, inputs, platform, cfg: seen.append(cfg.seed) or real(scorer, inputs, platform, cfg))  # fmt: skip
+    a = run_search_eval(tiny(tmp_path, modes=["rig"], methods=["field_fast", "oracle", "random"]))
+    b = run_search_eval(tiny(tmp_path, modes=["rig"], methods=["field_fast", "oracle", "random"], search_seed=3))
+    assert seen == [0, 0, 3, 3]  # the warm-up's and the method's search, each run
+    assert b["search_seed"] == 3 and a["search_seed"] == 0
+    assert a["per_scene"][0]["oracle"] == b["per_scene"][0]["oracle"]
+    assert a["per_scene"][0]["mean_random"] == b["per_scene"][0]["mean_random"]

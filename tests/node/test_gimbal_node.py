@@ -123,6 +123,7 @@ def test_emulated_servos_never_receive_a_goal_outside_the_limits():
     cfg = GimbalNodeConfig(
         device={
             "type": "emulated_pan_tilt",
+            "latency_timer_ms": 100.0,  # a reply budget a loaded 2-core host meets (tests/drivers/conftest.py)
             "profile_velocity_deg_s": 360.0,
             "pan_limits_deg": [-60.0, 60.0],
             "tilt_limits_deg": [-20.0, 20.0],
@@ -145,3 +146,40 @@ def test_emulated_servos_never_receive_a_goal_outside_the_limits():
         assert -lim - 0.2 <= deg <= lim + 0.2
     pan_deg = [(t - CENTER_TICKS) * 360.0 / TICKS_PER_REV for i, t in log if i == 1]
     assert max(pan_deg) > 59.5 and min(pan_deg) < -59.5  # the far moves were clamped onto the limits, not refused
+
+
+def test_on_a_simulated_clock_a_move_takes_effect_at_the_step_that_sent_it(monkeypatch):
+    """A move is a sync write, which the servos do not answer: the emulator (a thread here, a
+    process in the demo) handles it when it next gets the CPU. Here it gets it 0.3 s late (a loaded
+    host) while the graph goes on to its next step: the goal must still take effect at the
+    simulated time of the step that sent it, not at the next one's (which made two runs of the
+    same demo take their captures 0.08 s apart)."""
+    from aes_planner.drivers.emulator import ServoBus
+    from aes_planner.drivers.protocol import Inst
+    from aes_planner.graph.base import LaunchContext
+    from tests.helpers import wait_for
+
+    handled_at: list[float] = []  # the simulated time at which the emulator applied each sync write
+    handle = ServoBus.handle
+
+    def late(bus, pkt, line_baud=None):
+        if pkt.inst == Inst.SYNC_WRITE:
+            time.sleep(0.3)
+            handled_at.append(next(iter(bus.servos.values())).clock())
+        return handle(bus, pkt, line_baud)
+
+    monkeypatch.setattr(ServoBus, "handle", late)
+    cfg = GimbalNodeConfig(
+        rate_hz=25.0, device={"type": "emulated_pan_tilt", "latency_timer_ms": 250.0, "profile_velocity_deg_s": 90.0}
+    )
+    node = GimbalNode(cfg, context=LaunchContext(clock="sim"))
+    node.start()
+    try:
+        node.step({}, 1.0)  # a state read
+        node.step({"gimbal/command": [GimbalCommand("move", 0.5, 0.0)]}, 1.01)  # between two state reads
+        node.step({}, 1.04)  # the next state read: the graph's clock has moved on
+        wait_for(lambda: handled_at, timeout_s=30.0)
+    finally:
+        node.stop()
+    assert handled_at[0] == 1.01
+    assert node.counters["comm_errors"] == 0 and node.counters["moves"] == 1

@@ -566,3 +566,37 @@ def test_a_coarse_polish_step_does_not_pull_the_climb_off_a_narrow_peak():
         assert node.state == "done" and node.captures[-1].kind == "settle"
         finals[gain] = node.captures[-1].score
     assert finals[0.0] < 0.75 < 0.8 < finals[0.02]
+
+
+class _ThreeHills(ScriptedProposer):
+    """Two narrow hills whose tops the moves capture (0.75 at (0.6, 0.2), 0.74 at (-0.3, 0.1)) and
+    a higher, broader one (1.0 at (0.0, -0.25)) that a move captured only on its flank (0.72)."""
+
+    A, B, C = (0.6, 0.2), (-0.3, 0.1), (0.0, -0.25)
+    SN, SC = math.radians(2.0), math.radians(7.4)
+
+    def value(self, pan, tilt):
+        def hill(top, at, s):
+            return top * math.exp(-((pan - at[0]) ** 2 + (tilt - at[1]) ** 2) / (2 * s**2))
+
+        return float(max(hill(0.75, self.A, self.SN), hill(0.74, self.B, self.SN), hill(1.0, self.C, self.SC)))
+
+
+def test_the_polish_climbs_a_third_hill_the_moves_touched_on_its_flank():
+    """Dev tabletop:202: the moves capture the tops of two lower hills and the oracle's hill only
+    on its flank (0.68-0.72, third best); climbing the best two captured hills ends on a top of
+    0.75, climbing the third too reaches the higher hill (the default ``polish_starts``)."""
+    finals = {}
+    for starts in (2, PlannerConfig().polish_starts):
+        prop = _ThreeHills()
+        flank = (prop.C[0] + math.radians(6.0), prop.C[1])
+        prop.fixed = lambda p=prop, f=flank: [Candidate(p.rig.forward(*at), 10.0, 1.0, *at) for at in (p.A, p.B, f)]
+        node = make(prop, explore_views=2, max_moves=3, polish_captures=48, polish_starts=starts, verify_hills=0)
+        drive(node, SimRig(prop), steps=2000)
+        assert node.state == "done" and node.moves == 3
+        moves = sorted(c.score for c in node.captures if c.kind == "move")
+        assert moves[0] == pytest.approx(0.72, abs=0.01) and moves[-1] == pytest.approx(0.75, abs=0.01)
+        assert sum(c.kind == "polish" for c in node.captures) <= 48
+        finals[starts] = node.captures[-1].score
+    assert finals[2] == pytest.approx(0.75, abs=0.01)
+    assert finals[PlannerConfig().polish_starts] > 0.95

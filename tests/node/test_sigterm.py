@@ -67,7 +67,7 @@ def _signal_when_torque_on(proc, emu, signals, gap_s=0.1):
 )
 def test_signals_leave_torque_off_and_exit_with_the_first(tmp_path, signals, gap_s):
     link = tmp_path / "ttyDXL"
-    launch = _launch_file(tmp_path, f"{{type: dynamixel_pan_tilt, port: {link}, latency_timer_ms: 30}}")
+    launch = _launch_file(tmp_path, f"{{type: dynamixel_pan_tilt, port: {link}, latency_timer_ms: 100}}")
     with ServoEmulator(link=link) as emu:
         proc = subprocess.Popen(
             [sys.executable, "-m", "aes_planner", "launch", launch],
@@ -81,6 +81,7 @@ def test_signals_leave_torque_off_and_exit_with_the_first(tmp_path, signals, gap
             if proc.poll() is None:
                 proc.kill()
                 proc.communicate()
+        assert emu.wait_idle(), "the emulator did not catch up with what the launch sent"
         assert _torque(emu) == [False, False], err
     assert proc.returncode == 128 + signals[0], (proc.returncode, err)  # not 0: a script can tell
     assert f"stopped by {signal.Signals(signals[0]).name}" in out
@@ -101,7 +102,7 @@ def _supervised(launch) -> subprocess.Popen:
 def test_two_sigterms_to_a_supervised_launch(tmp_path):
     """``--processes``: the supervisor stops its children (the gimbal's torque-off) whatever follows."""
     link = tmp_path / "ttyDXL"
-    launch = _launch_file(tmp_path, f"{{type: dynamixel_pan_tilt, port: {link}, latency_timer_ms: 30}}")
+    launch = _launch_file(tmp_path, f"{{type: dynamixel_pan_tilt, port: {link}, latency_timer_ms: 100}}")
     with ServoEmulator(link=link) as emu:
         proc = _supervised(launch)
         try:
@@ -110,6 +111,7 @@ def test_two_sigterms_to_a_supervised_launch(tmp_path):
             if proc.poll() is None:
                 proc.kill()
                 proc.communicate()
+        assert emu.wait_idle(), "the emulator did not catch up with what the launch sent"
         assert _torque(emu) == [False, False], out + err
     assert proc.returncode == 143, (proc.returncode, out, err)
     # the gimbal's process stopped by itself, cleanly (a planner busy in a suggestion on a loaded host
@@ -123,7 +125,7 @@ def test_two_sigterms_to_the_gimbal_process_of_a_supervised_launch(tmp_path):
     """A node process signalled directly (a user's ``kill PID``, twice): it finishes its torque-off,
     exits 143, and the supervisor reports it gone and ends the launch."""
     link = tmp_path / "ttyDXL"
-    launch = _launch_file(tmp_path, f"{{type: dynamixel_pan_tilt, port: {link}, latency_timer_ms: 30}}")
+    launch = _launch_file(tmp_path, f"{{type: dynamixel_pan_tilt, port: {link}, latency_timer_ms: 100}}")
     with ServoEmulator(link=link) as emu:
         proc = _supervised(launch)
         lines: list[str] = []
@@ -143,6 +145,7 @@ def test_two_sigterms_to_the_gimbal_process_of_a_supervised_launch(tmp_path):
             if proc.poll() is None:
                 proc.kill()
                 proc.communicate()
+        assert emu.wait_idle(), "the emulator did not catch up with what the launch sent"
         assert _torque(emu) == [False, False], "".join(lines) + err
     out = "".join(lines)
     assert "gimbal died (exit code 143)" in out and "ending the launch: gimbal is gone" in out, out
@@ -152,7 +155,7 @@ def test_two_sigterms_to_the_gimbal_process_of_a_supervised_launch(tmp_path):
 def test_two_sigterms_with_the_emulator_in_a_child_process(tmp_path):
     """``emulate: true`` (the shipped sim launch's gimbal): the driver's torque-off reaches the
     emulator before it stops, and the emulator reports the servos' torque as it exits."""
-    launch = _launch_file(tmp_path, "{type: dynamixel_pan_tilt, latency_timer_ms: 30}, emulate: true")
+    launch = _launch_file(tmp_path, "{type: dynamixel_pan_tilt, latency_timer_ms: 100}, emulate: true")
     proc = subprocess.Popen(
         [sys.executable, "-m", "aes_planner", "-v", "launch", launch],
         stdout=subprocess.PIPE,

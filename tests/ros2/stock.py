@@ -67,7 +67,7 @@ def _annotation(spec):
     sub, n = rest
     if kind == Nodetype.ARRAY:
         return t.array[_annotation(sub), n]
-    return t.sequence[_annotation(sub)]
+    return t.sequence[_annotation(sub), n] if n else t.sequence[_annotation(sub)]  # T[<=n]: sequence<T, n>
 
 
 def idl_class(name: str) -> type:

@@ -63,6 +63,8 @@ def test_export_reads_back_with_stock_jazzy_types(recording, tmp_path, capsys):
     assert cv2.imdecode(np.frombuffer(img.data.tobytes(), np.uint8), cv2.IMREAD_COLOR).shape == (6, 8, 3)
     ((_, vs),) = seen["/planner/view_suggestion"]
     assert len(vs.candidates) == 2 and list(vs.candidates[0].term_names) == ["thirds", "balance"]
+    assert vs.has_covered_fraction and vs.covered_fraction == pytest.approx(0.625)
+    assert len(vs.explore) == 1 and vs.explore[0].has_joints and vs.explore[0].pan == pytest.approx(2.5)
 
 
 def test_the_mcap_is_a_ros2_profile_chunked_indexed_file(recording, tmp_path):

@@ -94,6 +94,12 @@ def test_suggestion_topics_carry_the_best_pose_the_ranked_list_and_everything_el
     assert c0.has_joints and (c0.pan, c0.tilt) == pytest.approx((0.3, -0.1)) and not c1.has_joints
     assert dict(zip(c0.term_names, c0.term_values)) == pytest.approx({"thirds": 0.4, "balance": -0.1})
     assert (c0.yaw, c0.pitch) == pytest.approx(tuple(msg.candidates[0].view[3:]))
+    # schema 3's coverage and exploratory candidate: a flag beside the value, a sequence of at most one
+    assert vs.has_covered_fraction and vs.covered_fraction == pytest.approx(0.625)
+    (ex,) = vs.explore
+    assert (ex.rank, ex.score, ex.coverage) == pytest.approx((0, 0.3, 0.2))
+    assert ex.has_joints and (ex.pan, ex.tilt) == pytest.approx((2.5, 0.1))
+    assert _rotation(ex.pose.orientation) == pytest.approx(msg.explore.cam2world[:3, :3], abs=1e-9)
 
 
 def _rotation(q) -> np.ndarray:
@@ -290,6 +296,7 @@ def test_a_drones_waypoint_is_told_apart_and_kept_off_the_suggestion_topics(brid
         "aes_planner_msgs/msg/ViewSuggestion",
     )
     assert (vs[-1].kind, vs[-1].mode, vs[-1].sequence_number) == (1, 1, 3)
+    assert not vs[-1].has_covered_fraction and vs[-1].covered_fraction == 0.0 and list(vs[-1].explore) == []
 
 
 def test_images_are_best_effort_and_volatile(bridge, peer):

@@ -71,3 +71,13 @@ def test_a_killed_peer_comes_back(endpoint, peer_mode):
             assert sub.rejected == 0
         finally:
             kill(second)
+
+
+def test_test_endpoints_lie_below_the_ephemeral_range():
+    """A restarted peer's port must not be one an outgoing connection can take as its local port
+    (the survivor's reconnects would then connect to themselves and hold it: a flake seen under load)."""
+    from .conftest import ephemeral_low, free_port
+
+    ports = {free_port() for _ in range(50)}
+    assert all(20000 <= p < ephemeral_low() for p in ports)
+    assert len(ports) > 1  # drawn, not fixed: concurrent suites do not queue on one port

@@ -1,6 +1,8 @@
 """MCAP recordings: our exact bytes beside Foxglove's types; replay feeds a bus the same bytes."""
 
+import dataclasses
 import json
+import struct
 
 import numpy as np
 import pytest
@@ -50,16 +52,25 @@ def test_recording_holds_our_bytes_and_foxglove_types(tmp_path):
     best = samples["ViewSuggestion"].best
     assert scores[0]["best"]["score"] == best.score and scores[0]["best"]["terms"] == best.terms
     assert scores[0]["scores"] == [c.score for c in samples["ViewSuggestion"].candidates]
+    assert scores[0]["covered_fraction"] == samples["ViewSuggestion"].covered_fraction == 0.625
+    assert scores[0]["explore"]["score"] == samples["ViewSuggestion"].explore.score
 
 
 def test_scene_update_colours_frustums_by_score(tmp_path):
     from foxglove.messages import SceneUpdate  # noqa: F401 (the schema the file names)
 
-    from aes_planner.transport.foxglove_view import foxglove_view, score_color
+    from aes_planner.transport.foxglove_view import EXPLORE_COLOR, foxglove_view, score_color
 
-    views = foxglove_view("planner/suggestion", sample_messages()["ViewSuggestion"], 1_000)
+    msg = sample_messages()["ViewSuggestion"]
+    views = foxglove_view("planner/suggestion", msg, 1_000)
     assert {v.topic for v in views} == {"/planner/suggestion/scene", "/tf", "/planner/suggestion/scores"}
     assert score_color(1.0, 0.0, 1.0)[1] == 1.0 and score_color(0.0, 0.0, 1.0)[0] == 1.0
+    scene = next(v for v in views if v.topic == "/planner/suggestion/scene").data  # protobuf bytes
+    # the exploratory candidate drawn apart: its own entity id and label, in its blue (Color's doubles)
+    assert b"candidate_1" in scene and b"explore" in scene and b"explore 0.300" in scene
+    assert struct.pack("<d", EXPLORE_COLOR[0]) in scene and struct.pack("<d", EXPLORE_COLOR[1]) in scene
+    bare = foxglove_view("planner/suggestion", dataclasses.replace(msg, explore=None, covered_fraction=None), 1_000)
+    assert b"explore" not in next(v for v in bare if v.topic == "/planner/suggestion/scene").data
 
 
 def test_replay_feeds_a_fresh_bus_the_same_bytes(tmp_path):

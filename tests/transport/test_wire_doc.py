@@ -280,3 +280,47 @@ def test_docs_wire_md_tables_are_the_field_tables():
     assert replace_regions(doc, regions("wire")) == doc, "run: aes-planner docs wire --update docs/wire.md"
     for name, cls in MESSAGE_TYPES.items():
         assert f"### {name}\n\nSchema version {cls.SCHEMA_VERSION}." in doc, name
+
+
+def decode_as_older(description: dict, data: bytes, known_version: int) -> dict:
+    """A reader written for ``known_version`` of a type, as docs/wire.md's versioning rules allow
+    one in another language: it decodes the fields it knows (``since`` at most its version) of a
+    message of any later version and skips the rest of the payload (the header gives its length)."""
+    magic, fmt, name_len, version, payload_len = struct.unpack_from("<4sBBHI", data, 0)
+    if magic != b"AESM" or fmt != description["format_version"] or len(data) != 12 + name_len + payload_len:
+        raise WireError("header")
+    known = [f for f in description["fields"] if f.get("since", 1) <= known_version]
+    codes = {int(k): v for k, v in description["array_dtypes"].items()}
+    c = Cursor(data[12 + name_len :])
+    out = read_fields(c, known, codes, min(version, known_version))
+    if c.pos > payload_len:
+        raise WireError("read past the payload")
+    return {"version": version, "skipped": payload_len - c.pos, **out}
+
+
+@pytest.mark.parametrize("known_version", [1, 2])
+def test_a_reader_of_an_older_version_decodes_a_version_3_suggestion(recording, known_version):
+    """Schema 3 appended ``covered_fraction`` and ``explore``: a consumer built for version 1 or 2
+    reads a version-3 suggestion's fields it knows unchanged and skips the appended ones."""
+    from aes_planner.messages import ViewSuggestion, encode
+    from aes_planner.messages.samples import sample_messages
+
+    path, _ = recording
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary().schemas.values()
+        schemas = {s.name: json.loads(s.data) for s in summary if s.encoding == "aes-planner"}
+    description = schemas["aes_planner.ViewSuggestion"]
+    msg = sample_messages()["ViewSuggestion"]
+    assert ViewSuggestion.SCHEMA_VERSION == 3 and msg.covered_fraction is not None and msg.explore is not None
+    data = encode(msg)
+    got = decode_as_older(description, data, known_version)
+    assert got["version"] == 3 and "covered_fraction" not in got and "explore" not in got
+    assert got["skipped"] > 8 + 1  # the two flags, the f64 and the explore candidate's bytes
+    known = [f for f in description["fields"] if f.get("since", 1) <= known_version]
+    if known_version == 1:  # kind (version 2) is not known either: skipped with the rest
+        assert "kind" not in got
+    assert_matches(got, msg, known)
+    # what it skipped is exactly what version 3 appended: the full decoder reads them there
+    full = decode_with(description, data)
+    assert full["covered_fraction"] == msg.covered_fraction
+    assert_matches(full["explore"], msg.explore, description["fields"][-1]["value"]["fields"])
