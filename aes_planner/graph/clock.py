@@ -129,6 +129,9 @@ class Lockstep:
         # (a node that joins a running graph, respawned, does not wait for what came before it)
         self.expected = {name: sub.received for name, sub in self.subs.items()}
         self.started = False
+        # joined a running graph (a respawn: its first tick is a latched one past 1): the next
+        # tick's counts include what the others sent before this node subscribed, lost to it
+        self.rejoined = False
         self.tick = 0
         self.now_ns = 0
         self.stalls = 0
@@ -147,6 +150,12 @@ class Lockstep:
                     for c in new:
                         for name in self.subs:
                             self.expected[name] += c.sent.get(self.topics[name], 0)
+                    if self.rejoined:  # count only what reached it: waiting for the lost would stop time
+                        self.rejoined = False
+                        for name, sub in self.subs.items():
+                            self.expected[name] = min(self.expected[name], sub.received)
+                else:
+                    self.rejoined = new[0].tick > 1
                 self.started = True
                 self.tick, self.now_ns = new[-1].tick, new[-1].stamp_ns
                 return new[-1]

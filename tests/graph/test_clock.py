@@ -157,6 +157,41 @@ def test_a_node_takes_only_what_was_published_before_its_tick():
     bus.close()
 
 
+def test_a_respawned_node_does_not_wait_for_what_was_sent_before_it_subscribed():
+    """A node that joins a running graph (respawned) sees the latched tick N; tick N + 1 counts
+    what the others sent during tick N, some of it before the node subscribed: it must go on with
+    what reached it, not stop time (a supervisor test hung so once), and wait as usual after."""
+    bus = InProcessBus()
+    pub = bus.publisher("toy/tick", Diagnostics)
+    clock_pub = bus.publisher(CLOCK_TOPIC, Clock, latched=True)
+    clock_pub.publish(Clock(70_000_000, 7, {"toy/tick": 1}))  # time ran before this node came
+    pub.publish(Diagnostics(0.07, "ticker", counters={"n": 1}))  # tick 7's, before it subscribed: lost
+    sub = bus.subscribe("toy/tick", Diagnostics, depth=16)
+    ls = Lockstep(bus, "echo", {"toy/tick": sub}, {"toy/tick": "toy/tick"})
+    stop = threading.Event()
+    assert ls.next_tick(stop).tick == 7
+    assert ls.inputs(stop) == {"toy/tick": []}
+    pub.publish(Diagnostics(0.07, "ticker", counters={"n": 2}))  # tick 7's, after it subscribed
+    clock_pub.publish(Clock(80_000_000, 8, {"toy/tick": 2}))  # both counted
+    assert ls.next_tick(stop).tick == 8
+    got = []
+    waiter = threading.Thread(target=lambda: got.append(ls.inputs(stop)))
+    waiter.start()
+    waiter.join(10)
+    assert not waiter.is_alive() and [m.counters["n"] for m in got[0]["toy/tick"]] == [2]
+    clock_pub.publish(Clock(90_000_000, 9, {"toy/tick": 1}))  # from here on it waits as any node
+    assert ls.next_tick(stop).tick == 9
+    got.clear()
+    waiter = threading.Thread(target=lambda: got.append(ls.inputs(stop)))
+    waiter.start()
+    waiter.join(0.3)
+    assert waiter.is_alive()
+    pub.publish(Diagnostics(0.08, "ticker", counters={"n": 3}))
+    waiter.join(10)
+    assert [m.counters["n"] for m in got[0]["toy/tick"]] == [3]
+    bus.close()
+
+
 def test_the_master_waits_for_every_node_before_time_starts_and_between_ticks():
     bus = InProcessBus()
     clocks = bus.subscribe(CLOCK_TOPIC, Clock, depth=64)
