@@ -16,7 +16,9 @@
     polishing  first one capture of the search's best predicted view on each of up to
                ``verify_hills`` hills no capture lies on (ranked by hope), then
                a coarse-to-fine compass search with real captures around the best captured view,
-               then around up to ``polish_starts - 1`` other captured hills nearly as good:
+               then around up to ``polish_starts - 1`` other captured hills nearly as good (more
+               of them than climbs, up to ``polish_hills``: one coarsest round on each first, and
+               the climbs go to the hills whose rounds found the most):
                its four neighbours ``polish_step_deg * 2**k`` away (pan/tilt; a drone: yaw/pitch;
                k from ``polish_scales - 1`` down to 0), moving to a better one, halving the step
                when none is better, up to ``polish_captures`` (composition peaks are a few degrees
@@ -113,10 +115,21 @@ class ActiveLoop:
                 self._check_arrival(now, out)
                 return
             frame = self._frame
+            waited = now - self._target.arrived_s
             if frame is None or frame.stamp_s < self._target.arrived_s + self.config.settle_s:
-                if now - self._target.arrived_s > self.config.settle_s + self.config.move_timeout_s:
+                if waited > self.config.settle_s + self.config.move_timeout_s:
                     self._capture_timeout(now)
                 return
+            if not self.motion.holds(self._target, frame, self.config):
+                # a drone that arrived while passing through the target view: the capture is a
+                # frame that shows it there (for half a move's timeout; then the frame there is)
+                if waited <= self.config.settle_s + 0.5 * self.config.move_timeout_s:
+                    return
+                log.warning(
+                    "%s: the %s capture is not at its target (the camera did not hold it)",
+                    self.node_id,
+                    self._target.kind,
+                )
             self._record_capture(self._target, frame)
             finished_target = self._target
             self._target = None
@@ -287,14 +300,68 @@ class ActiveLoop:
 
     def _begin_climbs(self) -> None:
         """The best hill and the runners-up nearly as good, each climbed in turn: a hill captured
-        second (or on its flank, or only verified) is not lost to the local optimum captured first."""
+        second (or on its flank, or only verified) is not lost to the local optimum captured first.
+        More such hills than climbs (up to ``polish_hills``): first one coarsest round on each
+        (queued here), and the climbs go to the hills whose rounds found the most
+        (:meth:`_rank_probed`): a capture on a hill's flank says little of its peak."""
         c = self.config
         step_deg = c.polish_step_deg * 2.0 ** (c.polish_scales - 1)
-        self._climbs = self._polish_starts(2.0 * step_deg)
-        self._climb_budget = max(self._polish_left // max(len(self._climbs), 1), 1)
+        hills = self._polish_starts(2.0 * step_deg, max(c.polish_starts, c.polish_hills))
+        if len(hills) > c.polish_starts:
+            probes: list[Target] = []
+            for hill in hills:
+                for t in self.motion.polish(
+                    hill, math.radians(step_deg), c.polish_step_m * 2.0 ** (c.polish_scales - 1)
+                ):
+                    if not near_captured(self.captures, t.cam2world, 0.5 * step_deg, c.min_move_m) and not any(
+                        view_angle_deg(t.cam2world, q.cam2world) < 0.5 * step_deg for q in probes
+                    ):
+                        probes.append(t)
+            probes = probes[: self._polish_left]
+            if probes:
+                log.info(
+                    "%s: %d hills nearly as good as the best: one coarse round on each first", self.node_id, len(hills)
+                )
+                self._polish_left -= len(probes)
+                self._probed = (hills, len(self.captures))
+                self._queue = probes
+                self._climbs = []
+                return
+        self._set_climbs(hills[: c.polish_starts])
 
-    def _polish_starts(self, apart_deg: float) -> list[Capture]:
-        """The best capture, then up to ``polish_starts - 1`` others scoring within
+    def _set_climbs(self, starts: list[Capture]) -> None:
+        self._climbs = starts
+        self._climb_budget = max(self._polish_left // max(len(starts), 1), 1)
+
+    def _rank_probed(self) -> None:
+        """After the hills' coarse rounds: each round's captures go to the hill they lie nearest
+        (view direction, then position); the ``polish_starts`` hills whose best capture (the
+        hill's own or its round's) scored highest are climbed, best first, each from that capture."""
+        hills, first = self._probed
+        self._probed = None
+        best = list(hills)
+        for cap in self.captures[first:]:
+            j = min(
+                range(len(hills)),
+                key=lambda k: (
+                    view_angle_deg(cap.cam2world, hills[k].cam2world)
+                    + 100.0 * float(np.linalg.norm(cap.cam2world[:3, 3] - hills[k].cam2world[:3, 3]))
+                ),
+            )
+            if cap.score > best[j].score + self.config.tie_tolerance:
+                best[j] = cap
+        order = sorted(range(len(hills)), key=lambda k: -best[k].score)  # stable: the hill ranked first on a tie
+        chosen = [best[k] for k in order[: self.config.polish_starts]]
+        log.info(
+            "%s: hills after their coarse rounds: %s; climbing %d",
+            self.node_id,
+            ", ".join(f"{hills[k].score:.3f} -> {best[k].score:.3f}" for k in order),
+            len(chosen),
+        )
+        self._set_climbs(chosen)
+
+    def _polish_starts(self, apart_deg: float, most: int) -> list[Capture]:
+        """The best capture, then up to ``most - 1`` others scoring within
         ``polish_start_gap`` of it, each at least ``apart_deg`` from those before (other hills).
         A verification is a start only when it is the best capture: one real sample of a hill
         does not displace a runner-up the moves found (and the field's ranking of the two is
@@ -306,7 +373,7 @@ class ActiveLoop:
         for cap in ranked:
             if cap.kind is CaptureKind.VERIFY:
                 continue
-            if len(starts) >= c.polish_starts or cap.score < best.score - c.polish_start_gap:
+            if len(starts) >= most or cap.score < best.score - c.polish_start_gap:
                 break
             if all(view_angle_deg(cap.cam2world, s.cam2world) >= apart_deg for s in starts):
                 starts.append(cap)
@@ -322,6 +389,10 @@ class ActiveLoop:
         c = self.config
         if self._climbs is None:
             self._begin_climbs()
+            if self._queue:  # the hills' coarse rounds go first
+                return
+        if self._probed is not None:
+            self._rank_probed()
         while self._polish_left > 0:
             if self._polish_centre is None:  # the next climb
                 if not self._climbs:

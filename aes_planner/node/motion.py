@@ -81,6 +81,11 @@ class Motion(ABC):
     def explore(self, n: int, frame: PosedFrame, captures: list[Capture]) -> list[Target]:
         """``n`` exploration targets."""
 
+    def holds(self, target: Target, frame: PosedFrame, config) -> bool:
+        """Whether ``frame``, after the arrival, still shows ``target`` (a capture is taken of a
+        frame that does); a rig's arrival already waited for the joints to stand still."""
+        return True
+
     def explore_positions(self, n: int, captures: list[Capture]) -> list[Target]:
         """Captures away from the start after the exploration's turn (a drone); none on a rig."""
         return []
@@ -289,6 +294,13 @@ class DroneMotion(Motion):
         cand = Candidate(target.cam2world, target.predicted if target.predicted is not None else 0.0)
         out["planner/suggestion"].append(node.waypoint(cand, now))
         return True
+
+    def holds(self, target, frame, config):
+        """The frame's pose within the arrival tolerances of the target: a drone can reach them
+        while still turning (its frame 0.05 s later up to ~6 deg on), so arriving is not holding."""
+        return self.platform.arrived(
+            frame.cam2world, target.cam2world, config.arrival_tolerance_deg, config.arrival_tolerance_m
+        )
 
     def arrived(self, target, now, frame, gimbal, config):
         if frame is None or frame.stamp_s <= target.sent_s:

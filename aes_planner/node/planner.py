@@ -132,6 +132,7 @@ class PlannerNode(ActiveLoop, Node):
         self._polish_previous: Capture | None = None
         self._climbs: list[Capture] | None = []  # None: chosen after the hills' verifications
         self._climb_budget = 0
+        self._probed: tuple[list[Capture], int] | None = None  # (hills, first probe capture): rounds to rank
         self._climb_left = 0
         self._round_from: int | None = None
         self._polish_centre: Capture | None = None

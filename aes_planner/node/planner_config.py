@@ -49,6 +49,12 @@ class PlannerConfig:
       captured second is not lost to the local optimum captured first; three, because on dev
       tabletop:202 the oracle's hill was the third captured, touched only on its flank); the loop
       settles on the best view of all.
+    * ``polish_hills``: when more captured hills than ``polish_starts`` lie within
+      ``polish_start_gap`` of the best (up to this many), each first gets one round at the
+      coarsest step, and the ``polish_starts`` hills whose rounds found the most are climbed
+      (the captures are the polish's): a move that caught the best hill on its flank (dev
+      tabletop:202: 0.68, 12 deg below a 0.80 peak) ranks below hills captured nearer their
+      lower peaks. <= ``polish_starts``: the captured scores alone choose.
     * ``verify_hills``: before the climbs, up to this many captures (on top of
       ``polish_captures``) of the search's best predicted views on hills no capture lies on
       (a coarsest polish step or more from every capture; ranked by hope, each hoping for at
@@ -125,6 +131,7 @@ class PlannerConfig:
     polish_scales: int = 4
     polish_starts: int = 3
     polish_start_gap: float = 0.1
+    polish_hills: int = 5
     verify_hills: int = 2
     tie_tolerance: float = 0.002
     polish_coarse_gain: float = 0.02
@@ -180,6 +187,7 @@ class PlannerConfig:
             "polish_scales",
             "polish_starts",
             "explore_moves",
+            "polish_hills",
             "verify_hills",
         ):
             v = getattr(self, name)
@@ -199,6 +207,7 @@ class PlannerConfig:
             ("polish_starts", 8),
             ("explore_moves", 64),
             ("verify_hills", 16),
+            ("polish_hills", 16),
             ("max_moves", 10_000),
             ("max_frames", 1024),
             ("threads", MAX_THREADS),

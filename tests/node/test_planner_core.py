@@ -492,7 +492,7 @@ def test_polish_probes_a_second_hill_before_it_climbs():
     for starts in (1, 2):
         prop = _TwoHills()
         _one_candidate(prop, 0.6, 0.2)
-        node = make(prop, explore_views=2, max_moves=1, polish_captures=16, polish_starts=starts)
+        node = make(prop, explore_views=2, max_moves=1, polish_captures=16, polish_starts=starts, polish_hills=starts)
         drive(node, SimRig(prop))
         assert node.state == "done" and node.moves == 1
         finals[starts] = node.captures[-1].score
@@ -559,6 +559,7 @@ def test_a_coarse_polish_step_does_not_pull_the_climb_off_a_narrow_peak():
             max_moves=1,
             polish_captures=24,
             polish_starts=1,
+            polish_hills=1,
             verify_hills=0,
             polish_coarse_gain=gain,
         )
@@ -585,13 +586,22 @@ class _ThreeHills(ScriptedProposer):
 def test_the_polish_climbs_a_third_hill_the_moves_touched_on_its_flank():
     """Dev tabletop:202: the moves capture the tops of two lower hills and the oracle's hill only
     on its flank (0.68-0.72, third best); climbing the best two captured hills ends on a top of
-    0.75, climbing the third too reaches the higher hill (the default ``polish_starts``)."""
+    0.75, climbing the third too reaches the higher hill (the default ``polish_starts``; no hill probed
+    beyond the climbs: ``polish_hills`` = ``polish_starts``)."""
     finals = {}
     for starts in (2, PlannerConfig().polish_starts):
         prop = _ThreeHills()
         flank = (prop.C[0] + math.radians(6.0), prop.C[1])
         prop.fixed = lambda p=prop, f=flank: [Candidate(p.rig.forward(*at), 10.0, 1.0, *at) for at in (p.A, p.B, f)]
-        node = make(prop, explore_views=2, max_moves=3, polish_captures=48, polish_starts=starts, verify_hills=0)
+        node = make(
+            prop,
+            explore_views=2,
+            max_moves=3,
+            polish_captures=48,
+            polish_starts=starts,
+            polish_hills=starts,
+            verify_hills=0,
+        )
         drive(node, SimRig(prop), steps=2000)
         assert node.state == "done" and node.moves == 3
         moves = sorted(c.score for c in node.captures if c.kind == "move")
@@ -600,3 +610,37 @@ def test_the_polish_climbs_a_third_hill_the_moves_touched_on_its_flank():
         finals[starts] = node.captures[-1].score
     assert finals[2] == pytest.approx(0.75, abs=0.01)
     assert finals[PlannerConfig().polish_starts] > 0.95
+
+
+class _FourHills(_ThreeHills):
+    """Three narrow hills whose tops the moves capture (0.75, 0.74, 0.73) and a higher, broader one
+    (1.0) captured only on its flank (0.68): more hills within ``polish_start_gap`` than climbs."""
+
+    D = (-0.5, -0.5)
+
+    def value(self, pan, tilt):
+        d = 0.73 * math.exp(-((pan - self.D[0]) ** 2 + (tilt - self.D[1]) ** 2) / (2 * self.SN**2))
+        return float(max(super().value(pan, tilt), d))
+
+
+def test_the_polish_probes_every_hill_before_it_chooses_which_to_climb():
+    """Dev tabletop:202 `base`: the oracle's hill is captured fourth, on its flank (0.68), below
+    three lower tops; three climbs of the best three captured never reach it. One coarse round on
+    each of the four (``polish_hills``) finds the flank's uphill neighbour the best capture, and
+    its hill is climbed."""
+    finals = {}
+    for hills in (3, PlannerConfig().polish_hills):
+        prop = _FourHills()
+        flank = (prop.C[0] + math.radians(6.5), prop.C[1])
+        prop.fixed = lambda p=prop, f=flank: [
+            Candidate(p.rig.forward(*at), 10.0, 1.0, *at) for at in (p.A, p.B, p.D, f)
+        ]
+        node = make(prop, explore_views=2, max_moves=4, polish_captures=48, polish_hills=hills, verify_hills=0)
+        drive(node, SimRig(prop), steps=2500)
+        assert node.state == "done" and node.moves == 4
+        moves = sorted(c.score for c in node.captures if c.kind == "move")
+        assert moves[0] == pytest.approx(0.68, abs=0.01) and moves[-1] == pytest.approx(0.75, abs=0.01)
+        assert sum(c.kind == "polish" for c in node.captures) <= 48
+        finals[hills] = node.captures[-1].score
+    assert finals[3] == pytest.approx(0.75, abs=0.01)
+    assert finals[PlannerConfig().polish_hills] > 0.95
