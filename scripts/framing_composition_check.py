@@ -1,0 +1,105 @@
+"""Does the subject's size or placement in a framed view explain the teacher's score, and does a
+composition prior break the field's near-ties better (docs/results/framing_composition_dev.md)?
+
+Reads the per-view arrays of ``scripts/framing_gap_check.py`` (the oracle's 5-degree grid, which
+views truly hold the subject, their normalised ground-truth teacher scores, the field's
+objective), lifts each case's subject again with the default ``FramingConfig`` and writes, per
+grid view, the composition of the subject in it to ``FOLDER/comp_<case>.npz``:
+
+* ``lift_area`` / ``true_area``: the share of the frame covered by the bounding rectangle of the
+  lifted box's / the true object's projection;
+* ``true_h``: the true object's projected height share; ``cx``, ``cy``: the true object's projected
+  centre (0..1); ``centre_d`` / ``thirds_d``: its distance to the image centre / to the nearest
+  thirds crossing (as ``Framing.placement`` measures it, on the lifted box);
+* ``slack``: how far the lifted box's nearest corner is inside the shrunk frame (0 on the
+  constraint's edge), ``kept``: the search's feasibility (lifted box, 5 % margin).
+
+Then it prints, per case, the Spearman correlation of the teacher with each feature over the kept
+views, and where the field's pick and the best kept view sit.
+
+    .venv/bin/python scripts/framing_composition_check.py tabletop:3,indoor:4 0,1 /tmp/framing_gap
+"""
+
+import json
+import sys
+
+import numpy as np
+import torch
+from framing_gap_check import arrays_path  # scripts/ is on the path when run
+from framing_loss_check import spearman
+
+from aes_planner.eval.framing import FramingEvalConfig, object_points, pick_subject
+from aes_planner.eval.search import _inputs, _mode_platform, _source
+from aes_planner.search import SearchConfig, build_search_scorer
+from aes_planner.search.framing import FramingError, build_framing, project_corners
+
+
+def rect(u: np.ndarray, v: np.ndarray) -> tuple:  # [B, P] normalised -> bounding rectangles
+    return u.min(-1), u.max(-1), v.min(-1), v.max(-1)
+
+
+def features(framing, points: np.ndarray, poses: np.ndarray, k) -> dict[str, np.ndarray]:
+    p = torch.as_tensor(poses)
+    u, v, _ = project_corners(framing._keep, p, framing.intrinsics)  # [B, 1, 8]
+    u0, u1, v0, v1 = (x[:, 0] for x in rect(u.numpy(), v.numpy()))
+    m = framing.cfg.margin_frac
+    slack = np.minimum.reduce([u0 - m, (1 - m) - u1, v0 - m, (1 - m) - v1])
+    tu, tv, _ = project_corners(torch.as_tensor(points)[None], p, k)  # [B, 1, P]
+    a0, a1, b0, b1 = (x[:, 0] for x in rect(tu.numpy(), tv.numpy()))
+    cx, cy = 0.5 * (a0 + a1), 0.5 * (b0 + b1)
+    thirds = np.array([1 / 3, 2 / 3])
+    du = np.abs(cx[:, None] - thirds).min(-1)
+    dv = np.abs(cy[:, None] - thirds).min(-1)
+    return {
+        "lift_area": (u1 - u0) * (v1 - v0), "true_area": (a1 - a0) * (b1 - b0), "true_h": b1 - b0,
+        "true_w": a1 - a0, "cx": cx, "cy": cy, "centre_d": np.hypot(cx - 0.5, cy - 0.5),
+        "thirds_d": np.hypot(du, dv), "slack": slack,
+    }  # fmt: skip
+
+
+def main(scenes: list[str], seeds: list[int], folder: str) -> None:
+    cfg = FramingEvalConfig(scenes=scenes, seeds=seeds)
+    for spec in scenes:
+        source = _source(spec, cfg)
+        platform = _mode_platform(source, cfg.mode, cfg.free_box_m)
+        inputs = _inputs(source, platform, cfg.views)
+        frames = [source.capture(p) for p in inputs]
+        k, scorer = platform.intrinsics, None
+        scfg = SearchConfig.preset(cfg.preset, mode=platform.kind)
+        named = {f"view{i}": (f.cam2world, f.intrinsics, (f.intrinsics.width, f.intrinsics.height))
+                 for i, f in enumerate(frames)}  # fmt: skip
+        for seed in seeds:
+            try:
+                d = np.load(arrays_path(folder, spec, seed))
+            except FileNotFoundError:
+                continue
+            picked = pick_subject(source.scene, inputs, frames[0].intrinsics, seed, cfg)
+            scorer = scorer or build_search_scorer("field", frames, scfg)
+            points = object_points(source.scene.objects[picked[0]])
+            try:
+                framing = build_framing(scorer, named, [picked[2]], [], k, cfg.framing())
+            except FramingError:
+                continue
+            poses = d["poses"]
+            kept = framing.feasible(torch.as_tensor(poses)).numpy()
+            f = features(framing, points, poses, k)
+            t, obj, true = d["t"], d["obj"], d["true"]
+            np.savez_compressed(f"{folder}/comp_{spec.replace(':', '_')}_{seed}.npz", kept=kept, t=t, obj=obj,
+                                true=true, **f)  # fmt: skip
+            m = kept & true & np.isfinite(t)
+            if m.sum() < 3:
+                print("ROW", json.dumps({"case": f"{spec}/{seed}", "kept": int(m.sum())}), flush=True)
+                continue
+            i_pick = np.flatnonzero(m)[int(np.argmax(obj[m]))]
+            i_best = np.flatnonzero(m)[int(np.nanargmax(t[m]))]
+            row = {"case": f"{spec}/{seed}", "kept": int(m.sum()), "pick_t": float(t[i_pick]),
+                   "best_t": float(t[i_best])}  # fmt: skip
+            for name, x in f.items():
+                row[f"rho_{name}"] = spearman(x[m], t[m])
+                row[f"pick_{name}"], row[f"best_{name}"] = float(x[i_pick]), float(x[i_best])
+                row[f"med_{name}"] = float(np.median(x[m]))
+            print("ROW", json.dumps(row), flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1].split(","), [int(s) for s in sys.argv[2].split(",")], sys.argv[3])
