@@ -15,9 +15,14 @@ grid view, the composition of the subject in it to ``FOLDER/comp_<case>.npz``:
   constraint's edge), ``kept``: the search's feasibility (lifted box, 5 % margin).
 
 Then it prints, per case, the Spearman correlation of the teacher with each feature over the kept
-views, and where the field's pick and the best kept view sit.
+views, where the field's pick and the best kept view sit, and (with an ``eval framing`` JSON of
+the same cases) the composition of the suggestion itself. Last, the tie-breakers: among the kept
+views whose field objective is within ``tau`` of the kept maximum, each rule picks one (rules and
+bands fixed before they were run): the field itself, the subject nearest the centre, nearest a
+thirds crossing, furthest inside the shrunk frame, largest, lowest in the frame; and the field's
+pick when the margin is 0.
 
-    .venv/bin/python scripts/framing_composition_check.py tabletop:3,indoor:4 0,1 /tmp/framing_gap
+    .venv/bin/python scripts/framing_composition_check.py tabletop:3,indoor:4 0,1 /tmp/framing_gap [EVAL_JSON]
 """
 
 import json
@@ -57,8 +62,47 @@ def features(framing, points: np.ndarray, poses: np.ndarray, k) -> dict[str, np.
     }  # fmt: skip
 
 
-def main(scenes: list[str], seeds: list[int], folder: str) -> None:
+RULES = {
+    "field": lambda f: f["obj"],
+    "centre": lambda f: -f["centre_d"],
+    "thirds": lambda f: -f["thirds_d"],
+    "inside the frame": lambda f: f["slack"],
+    "larger": lambda f: f["lift_area"],
+    "lower in the frame": lambda f: f["cy"],
+}
+
+
+def tie_breakers(comps: list[dict]) -> None:
+    """Median / mean / count >= 0.85 of each rule's pick (normalised teacher) over the cases."""
+    res: dict[str, list[float]] = {}
+    for f in comps:
+        m = f["kept"] & np.isfinite(f["t"])
+        if not m.any():
+            continue
+        res.setdefault("best kept view", []).append(float(np.nanmax(np.where(m, f["t"], np.nan))))
+        m0 = f["kept_m0"] & np.isfinite(f["t"])
+        res.setdefault("field, margin 0", []).append(float(f["t"][int(np.argmax(np.where(m0, f["obj"], -np.inf)))]))
+        for tau in (0.01, 0.02, 0.05):
+            band = m & (f["obj"] >= f["obj"][m].max() - tau)
+            res.setdefault(f"band {tau}: views in it (median)", []).append(float(band.sum()))
+            for name, rule in RULES.items():
+                res.setdefault(f"band {tau}: {name}", []).append(
+                    float(f["t"][int(np.argmax(np.where(band, rule(f), -np.inf)))])
+                )
+    for name, v in res.items():
+        a = np.array(v)
+        print(
+            f"TIE {name:38s} median {np.median(a):5.2f} mean {a.mean():5.2f} >=0.85 {int((a >= 0.85).sum())} of {len(a)}"
+        )
+
+
+def main(scenes: list[str], seeds: list[int], folder: str, eval_json: str | None = None) -> None:
     cfg = FramingEvalConfig(scenes=scenes, seeds=seeds)
+    suggested = {}
+    if eval_json:
+        with open(eval_json) as fh:
+            suggested = {f"{r['scene']}/{r['seed']}": r for r in json.load(fh)["rows"] if r.get("cam2world")}
+    comps = []
     for spec in scenes:
         source = _source(spec, cfg)
         platform = _mode_platform(source, cfg.mode, cfg.free_box_m)
@@ -82,24 +126,33 @@ def main(scenes: list[str], seeds: list[int], folder: str) -> None:
                 continue
             poses = d["poses"]
             kept = framing.feasible(torch.as_tensor(poses)).numpy()
+            kept_m0 = framing.with_margin(0.0).feasible(torch.as_tensor(poses)).numpy()
             f = features(framing, points, poses, k)
             t, obj, true = d["t"], d["obj"], d["true"]
-            np.savez_compressed(f"{folder}/comp_{spec.replace(':', '_')}_{seed}.npz", kept=kept, t=t, obj=obj,
-                                true=true, **f)  # fmt: skip
+            comps.append({"kept": kept, "kept_m0": kept_m0, "t": t, "obj": obj, **f})
+            np.savez_compressed(f"{folder}/comp_{spec.replace(':', '_')}_{seed}.npz", kept=kept, kept_m0=kept_m0,
+                                t=t, obj=obj, true=true, **f)  # fmt: skip
             m = kept & true & np.isfinite(t)
+            row = {"case": f"{spec}/{seed}", "kept": int(m.sum())}
+            s = suggested.get(row["case"])
+            if s is not None:
+                sf = features(framing, points, np.asarray(s["cam2world"])[None], k)
+                row.update(
+                    {"suggestion_t": s["normalized_teacher"], **{f"sug_{n}": float(x[0]) for n, x in sf.items()}}
+                )
             if m.sum() < 3:
-                print("ROW", json.dumps({"case": f"{spec}/{seed}", "kept": int(m.sum())}), flush=True)
+                print("ROW", json.dumps(row), flush=True)
                 continue
             i_pick = np.flatnonzero(m)[int(np.argmax(obj[m]))]
             i_best = np.flatnonzero(m)[int(np.nanargmax(t[m]))]
-            row = {"case": f"{spec}/{seed}", "kept": int(m.sum()), "pick_t": float(t[i_pick]),
-                   "best_t": float(t[i_best])}  # fmt: skip
+            row.update(pick_t=float(t[i_pick]), best_t=float(t[i_best]))
             for name, x in f.items():
                 row[f"rho_{name}"] = spearman(x[m], t[m])
                 row[f"pick_{name}"], row[f"best_{name}"] = float(x[i_pick]), float(x[i_best])
                 row[f"med_{name}"] = float(np.median(x[m]))
             print("ROW", json.dumps(row), flush=True)
+    tie_breakers(comps)
 
 
 if __name__ == "__main__":
-    main(sys.argv[1].split(","), [int(s) for s in sys.argv[2].split(",")], sys.argv[3])
+    main(sys.argv[1].split(","), [int(s) for s in sys.argv[2].split(",")], sys.argv[3], *sys.argv[4:5])

@@ -91,7 +91,8 @@ def test_a_thin_subject_is_lifted_at_its_own_depth_not_at_the_wall_that_fills_it
 
 
 def test_a_subject_that_fills_its_box_is_lifted_as_before():
-    """The ring changes nothing when the box's heaviest depth is also its figure (a tight box)."""
+    """The ring changes nothing when the box's heaviest depth is also its figure (a tight box), or
+    when the box is the whole image (no ring to compare with)."""
     cam = np.asarray(look_at(np.zeros(3), np.array([1.0, 0.0, 0.0])))
     k = Intrinsics.from_fov(64, 48, 60.0)
     depth = np.full((48, 64), 3.0)
@@ -101,6 +102,10 @@ def test_a_subject_that_fills_its_box_is_lifted_as_before():
          for r in (0.0, 0.25)]  # fmt: skip
     np.testing.assert_allclose(z[0].centre_m, z[1].centre_m)
     np.testing.assert_allclose(z[0].size_m, z[1].size_m)
+    whole = Region("a.png", 0, 0, 64, 48)  # no ring inside the image: the rule as without it
+    z = [lift_region(np.zeros((0, 3)), np.zeros(0), cam, k, whole, FramingConfig(ring_frac=r), depth_map=depth)
+         for r in (0.0, 0.25)]  # fmt: skip
+    np.testing.assert_allclose(z[0].centre_m, z[1].centre_m)
 
 
 def test_nothing_behind_the_box_is_an_error():
