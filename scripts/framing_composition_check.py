@@ -31,11 +31,8 @@ import sys
 import numpy as np
 import torch
 from framing_gap_check import arrays_path  # scripts/ is on the path when run
-from framing_loss_check import spearman
+from framing_loss_check import spearman, subjects
 
-from aes_planner.eval.framing import FramingEvalConfig, object_points, pick_subject
-from aes_planner.eval.search import _inputs, _mode_platform, _source
-from aes_planner.search import SearchConfig, build_search_scorer
 from aes_planner.search.framing import FramingError, build_framing, project_corners
 
 
@@ -97,52 +94,31 @@ def tie_breakers(comps: list[dict]) -> None:
 
 
 def main(scenes: list[str], seeds: list[int], folder: str, eval_json: str | None = None) -> None:
-    cfg = FramingEvalConfig(scenes=scenes, seeds=seeds)
     suggested = {}
     if eval_json:
         with open(eval_json) as fh:
             suggested = {f"{r['scene']}/{r['seed']}": r for r in json.load(fh)["rows"] if r.get("cam2world")}
     comps = []
-    for spec in scenes:
-        source = _source(spec, cfg)
-        platform = _mode_platform(source, cfg.mode, cfg.free_box_m)
-        inputs = _inputs(source, platform, cfg.views)
-        frames = [source.capture(p) for p in inputs]
-        k, scorer = platform.intrinsics, None
-        scfg = SearchConfig.preset(cfg.preset, mode=platform.kind)
-        named = {f"view{i}": (f.cam2world, f.intrinsics, (f.intrinsics.width, f.intrinsics.height))
-                 for i, f in enumerate(frames)}  # fmt: skip
-        for seed in seeds:
-            try:
-                d = np.load(arrays_path(folder, spec, seed))
-            except FileNotFoundError:
-                continue
-            picked = pick_subject(source.scene, inputs, frames[0].intrinsics, seed, cfg)
-            scorer = scorer or build_search_scorer("field", frames, scfg)
-            points = object_points(source.scene.objects[picked[0]])
-            try:
-                framing = build_framing(scorer, named, [picked[2]], [], k, cfg.framing())
-            except FramingError:
-                continue
-            poses = d["poses"]
-            kept = framing.feasible(torch.as_tensor(poses)).numpy()
-            kept_m0 = framing.with_margin(0.0).feasible(torch.as_tensor(poses)).numpy()
-            f = features(framing, points, poses, k)
-            t, obj, true = d["t"], d["obj"], d["true"]
-            comps.append({"kept": kept, "kept_m0": kept_m0, "t": t, "obj": obj, **f})
-            np.savez_compressed(f"{folder}/comp_{spec.replace(':', '_')}_{seed}.npz", kept=kept, kept_m0=kept_m0,
-                                t=t, obj=obj, true=true, **f)  # fmt: skip
-            m = kept & true & np.isfinite(t)
-            row = {"case": f"{spec}/{seed}", "kept": int(m.sum())}
-            s = suggested.get(row["case"])
-            if s is not None:
-                sf = features(framing, points, np.asarray(s["cam2world"])[None], k)
-                row.update(
-                    {"suggestion_t": s["normalized_teacher"], **{f"sug_{n}": float(x[0]) for n, x in sf.items()}}
-                )
-            if m.sum() < 3:
-                print("ROW", json.dumps(row), flush=True)
-                continue
+    for c in subjects(scenes, seeds):
+        try:
+            d = np.load(arrays_path(folder, c.spec, c.seed))
+            framing = build_framing(c.scorer, c.named, [c.picked[2]], [], c.k, c.cfg.framing())
+        except (FileNotFoundError, FramingError):
+            continue
+        poses, t, obj, true = d["poses"], d["t"], d["obj"], d["true"]
+        kept = framing.feasible(torch.as_tensor(poses)).numpy()
+        kept_m0 = framing.with_margin(0.0).feasible(torch.as_tensor(poses)).numpy()
+        f = features(framing, c.points, poses, c.k)
+        comps.append({"kept": kept, "kept_m0": kept_m0, "t": t, "obj": obj, **f})
+        np.savez_compressed(f"{folder}/comp_{c.spec.replace(':', '_')}_{c.seed}.npz", kept=kept, kept_m0=kept_m0,
+                            t=t, obj=obj, true=true, **f)  # fmt: skip
+        m = kept & true & np.isfinite(t)
+        row = {"case": f"{c.spec}/{c.seed}", "kept": int(m.sum())}
+        s = suggested.get(row["case"])
+        if s is not None:
+            sf = features(framing, c.points, np.asarray(s["cam2world"])[None], c.k)
+            row.update({"suggestion_t": s["normalized_teacher"], **{f"sug_{n}": float(x[0]) for n, x in sf.items()}})
+        if m.sum() >= 3:
             i_pick = np.flatnonzero(m)[int(np.argmax(obj[m]))]
             i_best = np.flatnonzero(m)[int(np.nanargmax(t[m]))]
             row.update(pick_t=float(t[i_pick]), best_t=float(t[i_best]))
@@ -150,7 +126,7 @@ def main(scenes: list[str], seeds: list[int], folder: str, eval_json: str | None
                 row[f"rho_{name}"] = spearman(x[m], t[m])
                 row[f"pick_{name}"], row[f"best_{name}"] = float(x[i_pick]), float(x[i_best])
                 row[f"med_{name}"] = float(np.median(x[m]))
-            print("ROW", json.dumps(row), flush=True)
+        print("ROW", json.dumps(row), flush=True)
     tie_breakers(comps)
 
 

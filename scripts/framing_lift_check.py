@@ -15,49 +15,31 @@ import json
 import sys
 
 import numpy as np
+from framing_loss_check import subjects  # scripts/ is on the path when run
 
-from aes_planner.eval.framing import FramingEvalConfig, object_points, pick_subject
-from aes_planner.eval.search import _inputs, _mode_platform, _source
-from aes_planner.search import SearchConfig, build_search_scorer
 from aes_planner.search.framing import FramingError, build_framing
 
 
 def main(scenes: list[str], seeds: list[int], variants: list[dict]) -> None:
-    cfg = FramingEvalConfig(scenes=scenes, seeds=seeds)
-    for spec in scenes:
-        source = _source(spec, cfg)
-        platform = _mode_platform(source, cfg.mode, cfg.free_box_m)
-        inputs = _inputs(source, platform, cfg.views)
-        frames = [source.capture(p) for p in inputs]
-        k, scorer = platform.intrinsics, None
-        scfg = SearchConfig.preset(cfg.preset, mode=platform.kind)
-        named = {f"view{i}": (f.cam2world, f.intrinsics, (f.intrinsics.width, f.intrinsics.height))
-                 for i, f in enumerate(frames)}  # fmt: skip
-        for seed in seeds:
-            picked = pick_subject(source.scene, inputs, frames[0].intrinsics, seed, cfg)
-            if picked is None:
-                continue
-            scorer = scorer or build_search_scorer("field", frames, scfg)
-            obj = source.scene.objects[picked[0]]
-            pts = object_points(obj)
-            lo, hi = pts.min(0), pts.max(0)
-            for v in variants:
-                row = {"case": f"{spec}/{seed}", "subject": obj.name, "box": picked[2].text(), "variant": v,
-                       "true": np.round(hi - lo, 3).tolist(),
-                       "thin": round(float(min(hi[:2] - lo[:2]) / max(hi[2] - lo[2], 1e-6)), 3)}  # fmt: skip
-                try:
-                    s = build_framing(scorer, named, [picked[2]], [], k, dataclasses.replace(cfg.framing(), **v)).keep[
-                        0
-                    ]
-                except FramingError as e:
-                    row["error"] = str(e)
-                    print(json.dumps(row), flush=True)
-                    continue
-                local = (pts - s.centre_m) @ s.axes.T
-                row.update(inside=float(np.mean(np.all(np.abs(local) <= s.half_extent_m + 1e-6, -1))),
-                           centre_err_m=round(float(np.linalg.norm(s.centre_m - 0.5 * (lo + hi))), 3),
-                           size=np.round(s.size_m, 3).tolist(), slab_m=np.round(s.depth_range_m, 2).tolist())  # fmt: skip
+    for c in subjects(scenes, seeds):
+        obj, pts = c.source.scene.objects[c.picked[0]], c.points
+        lo, hi = pts.min(0), pts.max(0)
+        for v in variants:
+            row = {"case": f"{c.spec}/{c.seed}", "subject": obj.name, "box": c.picked[2].text(), "variant": v,
+                   "true": np.round(hi - lo, 3).tolist(),
+                   "thin": round(float(min(hi[:2] - lo[:2]) / max(hi[2] - lo[2], 1e-6)), 3)}  # fmt: skip
+            try:
+                fc = dataclasses.replace(c.cfg.framing(), **v)
+                s = build_framing(c.scorer, c.named, [c.picked[2]], [], c.k, fc).keep[0]
+            except FramingError as e:
+                row["error"] = str(e)
                 print(json.dumps(row), flush=True)
+                continue
+            local = (pts - s.centre_m) @ s.axes.T
+            row.update(inside=float(np.mean(np.all(np.abs(local) <= s.half_extent_m + 1e-6, -1))),
+                       centre_err_m=round(float(np.linalg.norm(s.centre_m - 0.5 * (lo + hi))), 3),
+                       size=np.round(s.size_m, 3).tolist(), slab_m=np.round(s.depth_range_m, 2).tolist())  # fmt: skip
+            print(json.dumps(row), flush=True)
 
 
 if __name__ == "__main__":
