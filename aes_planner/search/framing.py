@@ -329,9 +329,9 @@ def _ring_depths(depth_map: np.ndarray, region: Region, pad: float) -> np.ndarra
 def _figure_bins(
     p_in: np.ndarray, ring_z: np.ndarray, ring_w: np.ndarray, lo: float, n_bins: int, bin_w: float
 ) -> np.ndarray:  # [n_bins] smoothed shares inside the box -> [n_bins] bool
-    """The log-depth bins that hold more of the box's inside than of the ring around it: the
-    figure, as against the ground the box was drawn on (outside a box is background, as GrabCut
-    takes it). A thin subject (a table leg) covers a minority of its box, so the heaviest depth
+    """The log-depth bins that hold no larger a share of the ring around the box than of its
+    inside: the figure, as against the ground the box was drawn on (outside a box is background,
+    as GrabCut takes it). A thin subject (a table leg) covers a minority of its box, so the heaviest depth
     inside can be the floor behind it; the floor fills the ring more than the box, the leg the
     reverse. All bins when the ring has too little to compare with, or when no bin passes."""
     if len(ring_z) < 4 or ring_w.sum() <= 0:
@@ -341,7 +341,7 @@ def _figure_bins(
     idx = np.clip(((rz[ok] - lo) / bin_w).astype(np.int64), 0, n_bins - 1)
     hist = np.bincount(idx, weights=ring_w[ok], minlength=n_bins)
     p_out = np.convolve(np.pad(hist, 1), [1.0, 2.0, 1.0], mode="valid") / (4.0 * ring_w.sum())
-    figure = p_in > p_out
+    figure = ~(p_out > p_in)  # an empty bin is not ground: the slab may bridge it
     return figure if figure.any() else np.ones(n_bins, bool)
 
 

@@ -108,6 +108,18 @@ def test_a_subject_that_fills_its_box_is_lifted_as_before():
     np.testing.assert_allclose(z[0].centre_m, z[1].centre_m)
 
 
+def test_only_what_the_ring_holds_more_of_is_ground():
+    """A bin is ground when the ring holds a larger share of it than the box; an empty bin is not
+    (the slab still bridges one), and a ring with too little to compare with leaves all figure."""
+    from aes_planner.search.framing import _figure_bins
+
+    p_in = np.array([0.5, 0.0, 0.3, 0.2, 0.0])
+    ring = np.exp(np.full(4, 3.5) * 0.04)  # all in bin 3 (from lo = 0); smoothed: 0.25 / 0.5 / 0.25 in bins 2-4
+    fig = _figure_bins(p_in, ring, np.ones(4), 0.0, 5, 0.04)
+    assert fig.tolist() == [True, True, True, False, False]
+    assert _figure_bins(p_in, ring[:3], np.ones(3), 0.0, 5, 0.04).all()
+
+
 def test_nothing_behind_the_box_is_an_error():
     cam = look_at(np.zeros(3), np.array([1.0, 0.0, 0.0]))
     with pytest.raises(FramingError, match="nothing behind this box"):
