@@ -296,8 +296,9 @@ class DroneMotion(Motion):
         return True
 
     def holds(self, target, frame, config):
-        """The frame's pose within the arrival tolerances of the target: a drone can reach them
-        while still turning (its frame 0.05 s later up to ~6 deg on), so arriving is not holding."""
+        """The frame's pose within the arrival tolerances of the target: a drone's arrival is
+        one frame within them, and a frame ``settle_s`` later can show it elsewhere (still
+        turning: up to ~6 deg on at 120 deg/s), so arriving is not holding."""
         return self.platform.arrived(
             frame.cam2world, target.cam2world, config.arrival_tolerance_deg, config.arrival_tolerance_m
         )
