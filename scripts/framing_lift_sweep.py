@@ -16,42 +16,28 @@ import sys
 import numpy as np
 import torch
 from framing_gap_check import arrays_path  # scripts/ is on the path when run
+from framing_loss_check import subjects
 
-from aes_planner.eval.framing import FramingEvalConfig, pick_subject
-from aes_planner.eval.search import _inputs, _mode_platform, _source
-from aes_planner.search import SearchConfig, build_search_scorer
 from aes_planner.search.framing import FramingError, build_framing
 
 
 def main(scenes: list[str], seeds: list[int], folder: str, variants: list[dict]) -> None:
-    cfg = FramingEvalConfig(scenes=scenes, seeds=seeds)
     rows: dict[int, list] = {i: [] for i in range(len(variants))}
-    for spec in scenes:
-        source = _source(spec, cfg)
-        platform = _mode_platform(source, cfg.mode, cfg.free_box_m)
-        inputs = _inputs(source, platform, cfg.views)
-        frames = [source.capture(p) for p in inputs]
-        k, scorer = platform.intrinsics, None
-        scfg = SearchConfig.preset(cfg.preset, mode=platform.kind)
-        named = {f"view{i}": (f.cam2world, f.intrinsics, (f.intrinsics.width, f.intrinsics.height))
-                 for i, f in enumerate(frames)}  # fmt: skip
-        for seed in seeds:
+    for c in subjects(scenes, seeds):
+        try:
+            d = np.load(arrays_path(folder, c.spec, c.seed))
+        except FileNotFoundError:
+            continue
+        poses, t, true = torch.as_tensor(d["poses"]), d["t"], d["true"]
+        for i, v in enumerate(variants):
             try:
-                d = np.load(arrays_path(folder, spec, seed))
-            except FileNotFoundError:
-                continue
-            picked = pick_subject(source.scene, inputs, frames[0].intrinsics, seed, cfg)
-            scorer = scorer or build_search_scorer("field", frames, scfg)
-            poses, t, true = torch.as_tensor(d["poses"]), d["t"], d["true"]
-            for i, v in enumerate(variants):
-                try:
-                    fc = dataclasses.replace(cfg.framing(), **v)
-                    kept = build_framing(scorer, named, [picked[2]], [], k, fc).feasible(poses).numpy()
-                except FramingError:
-                    kept = np.zeros(len(poses), bool)
-                best = float(np.nanmax(t[kept & true])) if (kept & true).any() else None
-                rows[i].append((f"{spec}/{seed}", int(kept.sum()), float((kept & true).sum() / max(true.sum(), 1)),
-                                int((kept & ~true).sum()), best))  # fmt: skip
+                fc = dataclasses.replace(c.cfg.framing(), **v)
+                kept = build_framing(c.scorer, c.named, [c.picked[2]], [], c.k, fc).feasible(poses).numpy()
+            except FramingError:
+                kept = np.zeros(len(poses), bool)
+            best = float(np.nanmax(t[kept & true])) if (kept & true).any() else None
+            rows[i].append((f"{c.spec}/{c.seed}", int(kept.sum()), float((kept & true).sum() / max(true.sum(), 1)),
+                            int((kept & ~true).sum()), best))  # fmt: skip
     for i, v in enumerate(variants):
         r = rows[i]
         best = np.array([np.nan if x[4] is None else x[4] for x in r])

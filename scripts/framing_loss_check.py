@@ -30,35 +30,41 @@ def spearman(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.corrcoef(np.argsort(np.argsort(a)), np.argsort(np.argsort(b)))[0, 1])
 
 
-def cases(scenes: list[str], seeds: list[int]):
-    """The cases of ``aes-planner eval framing`` with a constrained oracle, one namespace each:
-    cfg, spec, seed, platform, inputs, k (intrinsics), judge, scfg, space, scorer (the field,
-    built once per scene), named (the input frames by region name), frames (the input frames),
-    picked, points, oracle."""
+def subjects(scenes: list[str], seeds: list[int]):
+    """The subjects of ``aes-planner eval framing``, one namespace each: cfg, spec, seed, source,
+    platform, inputs, frames (the input frames), k (intrinsics), scfg, named (the input frames by
+    region name), scorer (the field, built once per scene), picked, points (the object's)."""
     cfg = FramingEvalConfig(scenes=scenes, seeds=seeds)
-    teacher, evaluator = get_teacher(), CompositionEvaluator()
     for spec in scenes:
         source = _source(spec, cfg)
         platform = _mode_platform(source, cfg.mode, cfg.free_box_m)
         inputs = _inputs(source, platform, cfg.views)
         frames = [source.capture(p) for p in inputs]
-        k, judge = platform.intrinsics, Judge(source, teacher, evaluator)
-        scfg = SearchConfig.preset(cfg.preset, mode=platform.kind)
-        space, scorer = space_for(platform, scfg), None
+        scfg, scorer = SearchConfig.preset(cfg.preset, mode=platform.kind), None
         named = {f"view{i}": (f.cam2world, f.intrinsics, (f.intrinsics.width, f.intrinsics.height))
                  for i, f in enumerate(frames)}  # fmt: skip
         for seed in seeds:
             picked = pick_subject(source.scene, inputs, frames[0].intrinsics, seed, cfg)
             if picked is None:
                 continue
-            points = object_points(source.scene.objects[picked[0]])
-            oracle = constrained_oracle(space, judge, points, k, cfg)
-            if oracle is None:
-                continue
             scorer = scorer or build_search_scorer("field", frames, scfg)
-            yield SimpleNamespace(cfg=cfg, spec=spec, seed=seed, platform=platform, inputs=inputs, k=k, judge=judge,
-                                  scfg=scfg, space=space, scorer=scorer, named=named, frames=frames, picked=picked, points=points,
-                                  oracle=oracle)  # fmt: skip
+            yield SimpleNamespace(cfg=cfg, spec=spec, seed=seed, source=source, platform=platform, inputs=inputs,
+                                  frames=frames, k=platform.intrinsics, scfg=scfg, named=named, scorer=scorer,
+                                  picked=picked, points=object_points(source.scene.objects[picked[0]]))  # fmt: skip
+
+
+def cases(scenes: list[str], seeds: list[int]):
+    """:func:`subjects` with a constrained oracle, one namespace each: those keys and judge, space,
+    oracle."""
+    teacher, evaluator = get_teacher(), CompositionEvaluator()
+    scene: dict = {}
+    for s in subjects(scenes, seeds):
+        if s.spec not in scene:
+            scene = {s.spec: (Judge(s.source, teacher, evaluator), space_for(s.platform, s.scfg))}
+        judge, space = scene[s.spec]
+        oracle = constrained_oracle(space, judge, s.points, s.k, s.cfg)
+        if oracle is not None:
+            yield SimpleNamespace(**vars(s), judge=judge, space=space, oracle=oracle)
 
 
 def framed_search(c: SimpleNamespace) -> SimpleNamespace | None:

@@ -214,6 +214,7 @@ class VehicleEmulator:
         self._stop = threading.Event()
         self._lock = threading.Lock()
         self._t0 = 0.0
+        self._cuts: list[tuple[float, float]] = []  # cut_link()'s windows, as link_loss's
         self._boot = time.monotonic()
 
     # ------------------------------------------------------------------------- lifecycle
@@ -233,6 +234,18 @@ class VehicleEmulator:
             self._conn.close()
             self._conn = None
 
+    def cut_link(self, duration_s: float) -> None:
+        """Lose the link from now for ``duration_s`` (nothing in or out), as a ``link_loss`` window
+        does: for a test or a demo that needs the loss at a moment of its own (a window counted
+        from the emulator's start may fall before the vehicle flies on a loaded machine)."""
+        require(
+            isinstance(duration_s, (int, float)) and math.isfinite(duration_s) and 0.0 < duration_s <= MAX_RUN_S,
+            "duration_s",
+            f"expected seconds in (0, {MAX_RUN_S:g}] for the link to stay cut, got {short_repr(duration_s)}",
+        )
+        with self._lock:
+            self._cuts.append((time.time() - self._t0, float(duration_s)))
+
     def __enter__(self) -> VehicleEmulator:
         return self.start()
 
@@ -242,7 +255,9 @@ class VehicleEmulator:
     # -------------------------------------------------------------------------- the loop
     def _link_down(self, now: float) -> bool:
         t = now - self._t0
-        return any(s <= t < s + d for s, d in self.config.link_loss)
+        with self._lock:
+            windows = [*self.config.link_loss, *self._cuts]
+        return any(s <= t < s + d for s, d in windows)
 
     def _run(self) -> None:
         c = self.config

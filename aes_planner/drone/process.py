@@ -213,9 +213,11 @@ def _emulator_main(config, pipe, log_level: int) -> None:
         pipe.send(("started", None))
         while True:
             try:
-                kind, _ = pipe.recv()
+                kind, value = pipe.recv()
             except EOFError:
                 return
+            if kind == "cut_link":
+                emu.cut_link(value)
             pipe.send(("report", emu.report()))
             if kind == "stop":
                 return
@@ -265,6 +267,18 @@ class EmulatorProcess:
                         self.last_report = self._pipe.recv()[1]
                 except (BrokenPipeError, EOFError, OSError):
                     pass
+            return self.last_report
+
+    def cut_link(self, duration_s: float) -> dict:
+        """Cut the vehicle's link from now for ``duration_s`` (:meth:`VehicleEmulator.cut_link`);
+        returns the report the emulator sent once the cut was in place."""
+        with self._lock:
+            if self._pipe is None:
+                raise DroneProcessError("the vehicle emulator is not running: start() it before cutting its link")
+            self._pipe.send(("cut_link", float(duration_s)))
+            if not self._pipe.poll(30.0):
+                raise DroneProcessError("the vehicle emulator did not answer within 30 s; is the machine overloaded?")
+            self.last_report = self._pipe.recv()[1]
             return self.last_report
 
     def stop(self) -> None:

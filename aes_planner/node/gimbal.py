@@ -144,6 +144,7 @@ class GimbalNode(Node):
                 "hardware_errors",
                 "reboots",
                 "states",
+                "emulator_restarts",
             ),
             0,
         )
@@ -201,22 +202,56 @@ class GimbalNode(Node):
             else:
                 self.device.use_clock(self.sim_clock)
         if self.config.emulate:
-            import dataclasses
-
-            from aes_planner.drivers.emulator import EmulatorProcess
-
-            dev = self.device
-            self.emulator = EmulatorProcess(
-                tuple(getattr(dev.config, "models", ("xm430-w350", "xm430-w350"))),
-                baud=dev.config.baud,
-                args=[*self.config.emulator_args, *clock_args],
-            ).__enter__()
-            dev.config = dataclasses.replace(dev.config, port=self.emulator.port)
+            self._emulator_args = [*self.config.emulator_args, *clock_args]
+            self._start_emulator()
         try:
             self.device.connect()
         except BaseException:
             self.stop()
             raise
+        self.status = "ok"
+
+    def _start_emulator(self) -> None:
+        """Start the servo emulator's process and point the driver at the pty it opened."""
+        import dataclasses
+
+        from aes_planner.drivers.emulator import EmulatorProcess
+
+        dev = self.device
+        self.emulator = EmulatorProcess(
+            tuple(getattr(dev.config, "models", ("xm430-w350", "xm430-w350"))),
+            baud=dev.config.baud,
+            args=self._emulator_args,
+        ).__enter__()
+        dev.config = dataclasses.replace(dev.config, port=self.emulator.port)
+
+    def _replace_dead_emulator(self) -> None:
+        """The emulator's process ended while the node runs (killed, crashed): start another.
+
+        Its pty's number is free for the next pty any process opens (another node's emulator), so
+        the driver must not reopen that path as it would a real adapter's: it would drive someone
+        else's servos. The new emulator's servos start where a powered-up rig's do, torque off; the
+        driver takes control again on connecting, and a move the node still holds is sent again."""
+        if self.emulator is not None:  # else the last try to start one failed
+            code = self.emulator.stop()
+            self.emulator = None
+            self.counters["emulator_restarts"] += 1
+            log.error("%s: the servo emulator exited (status %s); starting another", self.node_id, code)
+        try:
+            self.device.disconnect()
+        except DeviceError as exc:
+            log.warning("%s: closing the dead emulator's port: %s", self.node_id, exc)
+        try:
+            self._start_emulator()
+            self.device.connect()
+        except DeviceError as exc:
+            self.counters["comm_errors"] += 1
+            self.status = "port_lost"
+            log.error("%s: the new servo emulator did not come up (%s); trying again next step", self.node_id, exc)
+            if self.emulator is not None:
+                self.emulator.stop()
+                self.emulator = None
+            return
         self.status = "ok"
 
     def stop(self) -> None:
@@ -236,6 +271,8 @@ class GimbalNode(Node):
         out: Outputs = {"gimbal/state": [], "gimbal/diagnostics": []}
         if self.sim_clock is not None:
             self.sim_clock.set(now)  # before any exchange: the servos move to this time
+        if self.config.emulate and (self.emulator is None or self.emulator.proc.poll() is not None):
+            self._replace_dead_emulator()
         commands = inputs.get("gimbal/command", ())
         for cmd in commands:
             self.counters["commands_in"] += 1

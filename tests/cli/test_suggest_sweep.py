@@ -174,6 +174,7 @@ def _photos(src: Path, dst: Path, width: int, height: int, count: int | None = N
     return dst
 
 
+@pytest.mark.slow  # three processes; the reduced decode itself: tests/dataset/test_dataset.py
 def test_suggest_on_full_resolution_photos_is_downscaled_and_bounded(folders, tmp_path):
     """Three 12 MP photos (and two of 24 MP, over a frame's size cap): decoded reduced and
     downscaled as read, so the command's peak RSS is that of the same suggestion on 640x480 photos

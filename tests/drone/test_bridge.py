@@ -109,11 +109,14 @@ def test_offboard_refused_sends_only_hold_setpoints():
 
 def test_link_loss_pauses_and_resumes_on_fresh_telemetry():
     port = free_port()
-    n = node(port, emulate=True, emulator={"link_loss": [[4.0, 3.0]]})
+    n = node(port, emulate=True)
     n.start()
     try:
-        assert wait_for(lambda: n.step({}, time.time()) is not None and n.link.status == "flying", 20)
+        assert wait_for(lambda: n.step({}, time.time()) is not None and n.link.status == "flying", 60)
         n.link.set_view_goal([-1.0, 1.0, 1.0, 1.0, 0.0], time.time())
+        # cut once flying: a link_loss window counted from the emulator's start fell before the
+        # vehicle flew when the machine was loaded (the process took seconds to come up)
+        n.emulator.cut_link(3.0)
         assert wait_for(lambda: n.step({}, time.time()) is not None and n.link.status == "link_lost", 20)
         states = n.step({}, time.time())["drone/state"]
         assert all(s.link == "lost" for s in states)
@@ -229,3 +232,13 @@ def test_no_setpoint_outside_the_box_and_no_nan_whatever_the_suggestion():
         assert rep["rejected"]["fence"] == 0 and rep["rejected"]["nan"] == 0 and rep["max_outside_fence_m"] == 0.0
     finally:
         n.stop()
+
+
+@pytest.mark.parametrize("duration_s", [0.0, -1.0, math.nan, math.inf, 1e12, "3"])
+def test_cut_link_refuses_a_duration_it_cannot_keep(duration_s):
+    from aes_planner.drone.emulator import EmulatorConfig, VehicleEmulator
+
+    emu = VehicleEmulator(EmulatorConfig())  # not started: the check comes first
+    with pytest.raises(ConfigError, match="duration_s"):
+        emu.cut_link(duration_s)
+    assert emu._cuts == []

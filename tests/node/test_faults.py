@@ -119,6 +119,7 @@ def test_overload_mid_loop_stops_safely_with_torque_off(tmp_path):
         assert not any(s.torque_on for s in emu.servos.values())
 
 
+@pytest.mark.slow  # the node riding through a lost port: tests/drivers/test_dxl_reconnect.py in `make test`
 def test_port_that_vanishes_and_returns_mid_loop(tmp_path):
     launch, gimbal, planner = build(tmp_path)
     with launch:
@@ -141,6 +142,7 @@ def test_port_that_vanishes_and_returns_mid_loop(tmp_path):
         assert not any(s.torque_on for s in emu.servos.values())
 
 
+@pytest.mark.slow  # every loop of `make test` checks its goals (goals_within_limits: NaN fails it)
 @pytest.mark.parametrize("n", [1])
 def test_no_nan_reaches_the_servos(tmp_path, n):
     launch, gimbal, planner = build(tmp_path, max_moves=n)

@@ -183,3 +183,104 @@ def test_on_a_simulated_clock_a_move_takes_effect_at_the_step_that_sent_it(monke
         node.stop()
     assert handled_at[0] == 1.01
     assert node.counters["comm_errors"] == 0 and node.counters["moves"] == 1
+
+
+class _ThreadEmulatorProcess:
+    """``EmulatorProcess``'s interface over an in-thread :class:`ServoEmulator`: ``kill()`` closes
+    its pty as a dead process's does, and ``proc.poll()`` reports it (starts in milliseconds)."""
+
+    started: list = []
+
+    def __init__(self, models, baud, args=()):
+        from aes_planner.drivers.emulator import ServoEmulator
+
+        self.emu = ServoEmulator(models, baud=baud)
+        self.proc = SimpleNamespace(pid=len(self.started) + 1, returncode=None)
+        self.proc.poll = lambda: self.proc.returncode
+
+    def __enter__(self):
+        self.emu.start()
+        self.port = self.emu.port
+        self.started.append(self)
+        return self
+
+    def kill(self):
+        self.emu.stop()
+        self.proc.returncode = -9
+
+    def stop(self):
+        if self.proc.returncode is None:
+            self.emu.stop()
+            self.proc.returncode = 0
+        return self.proc.returncode
+
+
+def _emulating_node(rate_hz: float = 10.0) -> GimbalNode:
+    cfg = GimbalNodeConfig(
+        rate_hz=rate_hz,
+        device={"type": "dynamixel_pan_tilt", "latency_timer_ms": 100.0, "profile_velocity_deg_s": 360.0},
+        emulate=True,
+    )
+    return GimbalNode(cfg)
+
+
+def _wait_until_at(node: GimbalNode, pan_rad: float, tilt_rad: float) -> None:
+    from tests.helpers import wait_for
+
+    def arrived() -> bool:
+        node.step({}, time.monotonic())
+        s = node.last_state
+        return s is not None and abs(s.pan_rad - pan_rad) < 0.01 and abs(s.tilt_rad - tilt_rad) < 0.01
+
+    wait_for(arrived, timeout_s=60.0)
+
+
+def test_a_dead_emulator_is_replaced_not_its_pty_reopened(monkeypatch):
+    """``emulate: true``: when the emulator's process dies, its pty's number is free for the next
+    pty any process opens (another node's emulator in a shared CI). The node must not let the
+    driver reopen that path as a returning adapter's: it starts a new emulator, counts it, and the
+    next move reaches the new servos. (The emulator runs in a thread here; the slow test below
+    kills a real process.)"""
+    import aes_planner.drivers.emulator as emulator
+
+    monkeypatch.setattr(emulator, "EmulatorProcess", _ThreadEmulatorProcess)
+    monkeypatch.setattr(_ThreadEmulatorProcess, "started", [])
+    node = _emulating_node()
+    node.start()
+    try:
+        first = node.emulator
+        first.kill()
+        node.step({"gimbal/command": [GimbalCommand("move", 0.3, 0.1)]}, 1.0)
+        assert node.counters["emulator_restarts"] == 1 and len(_ThreadEmulatorProcess.started) == 2
+        assert node.emulator is _ThreadEmulatorProcess.started[1]
+        assert node.device.config.port == node.emulator.port
+        _wait_until_at(node, 0.3, 0.1)
+        assert node.status == "ok" and node.counters["emulator_restarts"] == 1
+        with node.emulator.emu.lock:
+            assert node.emulator.emu.goal_log and not first.emu.goal_log
+    finally:
+        node.stop()
+    assert node.emulator is None
+
+
+@pytest.mark.slow
+def test_a_killed_emulator_process_is_replaced():
+    """The same with the real child process, killed with SIGKILL (two emulator start-ups: slow)."""
+    import os
+    import signal
+
+    node = _emulating_node()
+    node.start()
+    try:
+        first = node.emulator.proc
+        os.kill(first.pid, signal.SIGKILL)
+        first.wait(30)
+        node.step({"gimbal/command": [GimbalCommand("move", 0.3, 0.1)]}, 1.0)
+        assert node.counters["emulator_restarts"] == 1
+        assert node.emulator is not None and node.emulator.proc.pid != first.pid
+        assert node.device.config.port == node.emulator.port
+        _wait_until_at(node, 0.3, 0.1)
+        assert node.status == "ok" and node.counters["emulator_restarts"] == 1
+    finally:
+        node.stop()
+    assert node.emulator is None

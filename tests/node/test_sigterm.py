@@ -58,7 +58,8 @@ def _signal_when_torque_on(proc, emu, signals, gap_s=0.1):
 @pytest.mark.parametrize(
     ("signals", "gap_s"),
     [
-        ((signal.SIGTERM,), 0.0),
+        # one SIGTERM is the first half of the next case: `make bench`
+        pytest.param((signal.SIGTERM,), 0.0, marks=pytest.mark.slow),
         ((signal.SIGTERM, signal.SIGTERM), 0.1),  # a script's kill, kill
         ((signal.SIGINT, signal.SIGINT), 0.1),  # Ctrl-C, Ctrl-C
         ((signal.SIGTERM, signal.SIGINT, signal.SIGTERM), 0.005),  # landing inside the clean-up

@@ -216,10 +216,11 @@ def _rss_bytes() -> int:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
 
 
-def test_streaming_1000_frames_stays_under_budget_with_flat_memory(analytic_scene):
-    """A rig wandering over its joint range for 1,000 frames (32 x 24, with depth): after every
+def test_streaming_500_frames_stays_under_budget_with_flat_memory(analytic_scene):
+    """A rig wandering over its joint range for 500 frames (32 x 24, with depth): after every
     frame the count is within the budget and the cap; the state (map plus recent frames) stays
-    the size of the budget, and the process grows by less than 30 MB after the first 200 frames."""
+    the size of the budget, and the process grows by less than 30 MB after the first 150 frames
+    (the state is full long before: the budget is reached within the first tens of frames)."""
     from aes_planner.sim import render
 
     kin = analytic_scene.rig.kinematics()
@@ -231,15 +232,15 @@ def test_streaming_1000_frames_stays_under_budget_with_flat_memory(analytic_scen
     cfg = ReconstructConfig(max_gaussians=3000, sharpen_iterations=0, budget_slack=0.3)
     rec = Reconstructor(cfg)
     sizes = []
-    for i in range(1000):
+    for i in range(500):
         c2w = kin.forward(rng.uniform(plo, phi), rng.uniform(tlo, thi))
         out = render(analytic_scene, c2w, k)
         rec.add_frame(PosedFrame(out.rgb, k, c2w, float(i), out.depth_m))
         assert len(rec) <= rec.budget <= cfg.max_gaussians
         sizes.append(rec.splats.nbytes)
-        if i == 199:
+        if i == 149:
             rss_warm = _rss_bytes()
-    assert rec.frames_added == 1000 and rec.mode_counts == {"depth": 1000}
+    assert rec.frames_added == 500 and rec.mode_counts == {"depth": 500}
     assert len(rec) > 500  # the scene is still there
     per_splat = rec.splats.nbytes / len(rec)
     assert max(sizes) <= cfg.max_gaussians * per_splat * 1.01

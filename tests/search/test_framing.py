@@ -72,6 +72,54 @@ def test_the_lift_keeps_the_subject_not_the_wall_behind_it():
     assert bool(framing.feasible(torch.as_tensor(np.asarray(cam))[None])[0])
 
 
+def test_a_thin_subject_is_lifted_at_its_own_depth_not_at_the_wall_that_fills_its_box():
+    """A pole 2 m away, 4 px wide in a box 14 px wide: the wall 3 m behind it fills most of the
+    box, and the heaviest depth inside is the wall's. The ring just outside the box is all wall,
+    so the pole's depth is the figure; without the ring (``ring_frac=0``) the lift takes the wall."""
+    cam = np.asarray(look_at(np.zeros(3), np.array([1.0, 0.0, 0.0])))
+    k = Intrinsics.from_fov(64, 48, 60.0)
+    depth = np.full((48, 64), 3.0)
+    depth[6:42, 30:34] = 2.0  # the pole, the box's full height
+    region = Region("a.png", 25, 6, 39, 42)
+    means, opac = np.zeros((0, 3)), np.zeros(0)  # the rendered depth decides; no Gaussians needed
+    for ring, (lo_m, hi_m) in ((0.25, (1.8, 2.2)), (0.0, (2.8, 3.2))):
+        s = lift_region(means, opac, cam, k, region, FramingConfig(ring_frac=ring), depth_map=depth)
+        assert lo_m < s.centre_m[0] < hi_m, (ring, s.centre_m)
+    s = lift_region(means, opac, cam, k, region, depth_map=depth)
+    x = s.corners_m[:, 0]
+    assert x.max() - x.min() < 0.3  # the slab holds the pole, not the wall 1 m behind it
+
+
+def test_a_subject_that_fills_its_box_is_lifted_as_before():
+    """The ring changes nothing when the box's heaviest depth is also its figure (a tight box), or
+    when the box is the whole image (no ring to compare with)."""
+    cam = np.asarray(look_at(np.zeros(3), np.array([1.0, 0.0, 0.0])))
+    k = Intrinsics.from_fov(64, 48, 60.0)
+    depth = np.full((48, 64), 3.0)
+    depth[10:38, 20:44] = np.linspace(1.9, 2.1, 24)[None]  # a slanted face filling the box
+    region = Region("a.png", 20, 10, 44, 38)
+    z = [lift_region(np.zeros((0, 3)), np.zeros(0), cam, k, region, FramingConfig(ring_frac=r), depth_map=depth)
+         for r in (0.0, 0.25)]  # fmt: skip
+    np.testing.assert_allclose(z[0].centre_m, z[1].centre_m)
+    np.testing.assert_allclose(z[0].size_m, z[1].size_m)
+    whole = Region("a.png", 0, 0, 64, 48)  # no ring inside the image: the rule as without it
+    z = [lift_region(np.zeros((0, 3)), np.zeros(0), cam, k, whole, FramingConfig(ring_frac=r), depth_map=depth)
+         for r in (0.0, 0.25)]  # fmt: skip
+    np.testing.assert_allclose(z[0].centre_m, z[1].centre_m)
+
+
+def test_only_what_the_ring_holds_more_of_is_ground():
+    """A bin is ground when the ring holds a larger share of it than the box; an empty bin is not
+    (the slab still bridges one), and a ring with too little to compare with leaves all figure."""
+    from aes_planner.search.framing import _figure_bins
+
+    p_in = np.array([0.5, 0.0, 0.3, 0.2, 0.0])
+    ring = np.exp(np.full(4, 3.5) * 0.04)  # all in bin 3 (from lo = 0); smoothed: 0.25 / 0.5 / 0.25 in bins 2-4
+    fig = _figure_bins(p_in, ring, np.ones(4), 0.0, 5, 0.04)
+    assert fig.tolist() == [True, True, True, False, False]
+    assert _figure_bins(p_in, ring[:3], np.ones(3), 0.0, 5, 0.04).all()
+
+
 def test_nothing_behind_the_box_is_an_error():
     cam = look_at(np.zeros(3), np.array([1.0, 0.0, 0.0]))
     with pytest.raises(FramingError, match="nothing behind this box"):
