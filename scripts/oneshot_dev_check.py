@@ -6,7 +6,8 @@ seed, every variant of the search runs once on the field; the script prints one 
 (scene, seed, variant), prefixed ROW: the oracle-normalised true score of the pick and of every
 refined suggestion, their field scores and coverage, and, for the variant's stage-1 candidates,
 the true score of the 24 best by the field's objective (the pool a re-ranking could choose from).
-Variants are ``NAME=PRESET[,key=value...]`` (SearchConfig fields, ints or floats);
+Variants are ``NAME=PRESET[,key=value...]`` (SearchConfig fields, ints or floats, and the
+field's ``unseen_cells``);
 ``--rescore=NAME`` also scores that variant's pool with the field at 32, 48 and 64 px and
 averaged over 8 jitters of 2 and 4 deg (``pool_f32`` ... ``pool_jit4``).
 
@@ -37,6 +38,7 @@ from aes_planner.teachers import get_teacher
 from aes_planner.teachers.evaluator import CompositionEvaluator
 
 ROOT = Path(__file__).resolve().parents[1]
+SCORER_KNOBS = ("unseen_cells",)  # ScorerConfig fields a variant may set (the rest are SearchConfig's)
 HELD_OUT = {"indoor:100", "outdoor:101", "tabletop:102", "gallery:103", "indoor:104", "outdoor:105"}
 
 
@@ -74,14 +76,21 @@ def variant(text: str) -> tuple[str, str, dict]:
     overrides = {}
     for pair in pairs:
         key, _, value = pair.partition("=")
-        overrides[key] = float(value) if "." in value else int(value)
+        overrides[key] = (
+            value
+            if not value.lstrip("-").replace(".", "", 1).isdigit()
+            else float(value)
+            if "." in value
+            else int(value)
+        )
     return name, preset, overrides
 
 
 def main(scenes: list[str], seeds: list[int], variants: list[tuple[str, str, dict]], rescore=()) -> None:
     teacher = get_teacher()
     evaluator = CompositionEvaluator()
-    tmp = Path(tempfile.mkdtemp(prefix="oneshot_dev_"))
+    tmp = Path(tempfile.gettempdir()) / "oneshot_textured"  # one path per scene: its oracle is cached
+    tmp.mkdir(exist_ok=True)
     for spec in scenes:
         if spec in HELD_OUT or "loop_heldout" in spec or spec.endswith("_rig.yaml") or "showcase" in spec:
             raise SystemExit(f"{spec} is held out: never tune on it")
@@ -103,8 +112,11 @@ def main(scenes: list[str], seeds: list[int], variants: list[tuple[str, str, dic
                 "best_input": max(norm(inputs))}  # fmt: skip
         for seed in seeds:
             for name, preset, overrides in variants:
+                knobs = {k: overrides.pop(k) for k in list(overrides) if k in SCORER_KNOBS}
                 scfg = SearchConfig.preset(preset, mode="rig", seed=seed, **overrides)
+                overrides.update(knobs)
                 scorer = build_search_scorer("field", frames, scfg, teacher)
+                scorer.config = dataclasses.replace(scorer.config, **knobs)  # e.g. unseen_cells=decoder
                 result = search_views(scorer, inputs, platform, scfg)
                 sugg = result.suggestions
                 row = {**head, "seed": seed, "variant": name,

@@ -19,7 +19,10 @@ from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.poses import LocalFrame, rigid_inverse
 from aes_planner.reconstruct import ReconstructConfig
 
-__all__ = ["ScorerConfig", "local_world2cam", "render_intrinsics"]
+__all__ = ["UNSEEN_CELLS", "ScorerConfig", "local_world2cam", "render_intrinsics"]
+
+#: What the field puts into a view's unseen cells when it scores (``ScorerConfig.unseen_cells``).
+UNSEEN_CELLS = ("inputs", "decoder")
 
 
 @dataclass
@@ -30,12 +33,21 @@ class ScorerConfig:
       frames' aspect ratio): the speed/accuracy knob of scoring.
     * ``max_gaussians``: the reconstruction's Gaussian budget cap (memory stays flat below it).
     * ``background``: RGB the rendered colour is composited over where nothing was observed.
+    * ``unseen_cells`` (the field): what a view's cells that no input saw hold when it is scored.
+      ``"decoder"`` (default): the decoder's own guess, a smooth map the head reads as empty
+      frame edges and a clean horizon, which over-rates the views a search picks.
+      ``"inputs"``: the mean over the input views of the teacher's head on the field's map
+      blended, cell by cell with the rendered alpha, into that input's own map (what the scene
+      holds where the inputs looked, at the same place in the frame). It removes most of the
+      over-rating but ranks no better and the searches and the demo pick no better: tried, not
+      the default (docs/results/oneshot/rank_diagnosis.md).
     * ``reconstruct``: every other reconstruction knob.
     """
 
     render_width_px: int = 48
     max_gaussians: int = 20_000
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    unseen_cells: str = "decoder"
     reconstruct: ReconstructConfig = field(default_factory=ReconstructConfig)
 
     def __post_init__(self):
@@ -58,6 +70,11 @@ class ScorerConfig:
             f"must be a positive integer, got {self.max_gaussians!r}",
         )
         require(len(self.background) == 3, "background", f"must be 3 numbers (RGB), got {self.background!r}")
+        require(
+            self.unseen_cells in UNSEEN_CELLS,
+            "unseen_cells",
+            f"must be one of {list(UNSEEN_CELLS)}, got {self.unseen_cells!r}",
+        )
 
     def reconstruct_config(self) -> ReconstructConfig:
         """The reconstruction config with this config's budget cap, aiming its splat stride at the
