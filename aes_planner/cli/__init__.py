@@ -51,7 +51,13 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, error_line(f"error: {self.prog}: {message} (see {self.prog} --help)") + "\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+#: Top-level commands registered by a module of another name (every other command ``X`` is
+#: registered by ``aes_planner.cli.X``).
+COMMAND_MODULES = {name: "aes_planner.cli.bus" for name in ("echo", "topics", "record", "replay", "foxglove")}
+
+
+def build_parser(modules: list[str] | None = None) -> argparse.ArgumentParser:
+    """The CLI's parser with the commands of ``modules`` (default: all of :data:`COMMANDS`)."""
     parser = _Parser(
         prog="aes-planner",
         description="Camera viewpoint suggestion with a 3D aesthetic field.",
@@ -59,9 +65,23 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"aes-planner {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMANDS:
+    for name in COMMANDS if modules is None else modules:
         importlib.import_module(name).register(sub)
     return parser
+
+
+def command_module(argv: list[str]) -> str | None:
+    """The one module whose parser ``argv`` needs: that of the command it names after the global
+    ``-v`` flags; None for anything else (``--help``, ``--version``, no command, an unknown one),
+    which gets the whole parser and its list of commands. Building every command's parser imports
+    what their options list (the platforms, the presets, the scorers, and torch with them): 2-5 s
+    of a start on a loaded machine, paid by every ``gimbal emulate`` a simulated launch starts."""
+    for token in argv:
+        if token == "--verbose" or (len(token) > 1 and token[0] == "-" and set(token[1:]) == {"v"}):
+            continue
+        name = COMMAND_MODULES.get(token, f"aes_planner.cli.{token}")
+        return name if name in COMMANDS else None
+    return None
 
 
 def drives_servos(run):
@@ -152,7 +172,8 @@ def main(argv: list[str] | None = None) -> int:
     if empty is not None:  # `--teacher ''` would otherwise mean "the default" to `args.x or DEFAULT`
         print(f"error: {empty}: an empty value; give one, or leave the option out for its default", file=sys.stderr)
         return 2
-    parser = build_parser()
+    module = command_module([str(a) for a in (sys.argv[1:] if argv is None else argv)])
+    parser = build_parser(None if module is None else [module])
     args = parser.parse_args(argv)
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")

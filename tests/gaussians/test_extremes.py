@@ -1,6 +1,7 @@
 """Extreme inputs (hypothesis): every output and gradient finite, and the fast backends still
 agree with the dense reference in float64."""
 
+import contextlib
 import math
 
 import numpy as np
@@ -66,8 +67,29 @@ def scenes(draw):
     return g, world2cam, K, width, height
 
 
+@contextlib.contextmanager
+def one_torch_thread():
+    """torch (and MKL) on one thread inside the block. The torch backend composites each 16 x 16
+    tile with a [256, M] @ [M, C] product; MKL splits even that over both cores, and on a loaded
+    machine each such product waits 2-35 ms for the other thread (2 us on one): a 4096 x 1 image
+    took 16-24 s to render and differentiate on two threads at load 14, 0.7-2 s on one. This
+    test is about the values, which hold on any thread count (the numba kernels keep their own
+    threads: torch's count does not reach them)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
 @given(scene=scenes())  # examples per the hypothesis profile (tests/conftest.py)
 def test_extremes_are_finite_and_match_reference(scene):
+    with one_torch_thread():
+        _check_extremes(scene)
+
+
+def _check_extremes(scene):
     g, world2cam, K, width, height = scene
     background = torch.tensor([0.1, 0.2, 0.3], dtype=g.dtype)
     ref = None

@@ -193,3 +193,38 @@ def test_raster_backward_matches_twin(stages, by_camera, need_values):
         assert_close(t(g2d.sum(0)[..., i]), ref, 10 * rtol, 10 * atol, f"{s.name} raster_bwd d/d{name}")
     if need_values:
         assert_close(t(gvals.sum(0)), ref_gvals, 10 * rtol, 10 * atol, f"{s.name} raster_bwd d/dvalues")
+
+
+def test_backward_buffers_do_not_depend_on_the_threads():
+    """Each worker's gradient buffer holds the same sums, to the bit, whether one thread or two run
+    the workers: a buffer per running thread made the sums' order, and the gradients' last bits,
+    change from call to call (a float64 gradcheck's reentrancy check failed under load)."""
+    k = _kernels()
+    if k.numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("needs two numba threads")  # the comparison is between one thread and two
+    s = Stages(*SCENES[1])  # 3 cameras: by tile, so the raster's g2d is per worker too
+    v_rgb, v_feat, v_dep, v_t = s.cotangents(seed=9)
+    dt, n, workers = s.values.dtype, s.proj.shape[1], 3  # more workers than threads: a thread runs several
+
+    def backward():
+        g2d = np.zeros((workers, s.n_cam, n, k.NGRAD), dt)
+        gvals = np.zeros((workers, n, s.values.shape[1]), dt)
+        k.raster_bwd(
+            s.proj, s.box, s.values, s.offsets, s.lists, s.tiles_x, s.width, s.height, np.array(k.CONSTS, dt),
+            s.out[3], s.out[4], v_rgb, v_feat, v_dep, v_t, False, workers, g2d, gvals, True,
+        )  # fmt: skip
+        outs = [np.zeros_like(a) for a in s.inputs] + [np.zeros((workers, s.n_cam, k.G_CAM_STRIDE))]
+        k.project_bwd(*s.inputs[:3], s.cov, s.cams, s.box, g2d, *outs, True)
+        return g2d, gvals, outs[-1]
+
+    before = k.numba.get_num_threads()
+    try:
+        k.numba.set_num_threads(1)
+        one = backward()
+        k.numba.set_num_threads(2)
+        two = backward()
+    finally:
+        k.numba.set_num_threads(before)
+    for name, a, b in zip(("raster g2d", "raster value gradients", "pose gradients"), one, two, strict=True):
+        assert all(a[w].any() for w in range(workers)), f"{name}: a worker's buffer is empty"
+        assert np.array_equal(a, b), f"{name}: a worker's buffer differs between one thread and two"

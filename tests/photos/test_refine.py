@@ -36,6 +36,21 @@ def cc0_walk(tmp_path_factory):
     return images, truth, load_scene(scene_file, allow_outside=True)
 
 
+@pytest.fixture(scope="module")
+def refined(cc0_walk):
+    """``refined(cfg)``: the walk refined with the composition teacher under ``cfg``, computed once
+    per config for the module (each is 5-9 s at load 10; tests asking the same question share it)."""
+    images, truth, scene = cc0_walk
+    found = {}
+
+    def run(cfg: RefineConfig):
+        if cfg not in found:
+            found[cfg] = refine_at_best_photo(get_teacher(), truth, images, scene.intrinsics(), cfg)
+        return found[cfg]
+
+    return run
+
+
 def _teacher_scores(teacher, images) -> np.ndarray:
     import torch
 
@@ -86,11 +101,11 @@ def test_the_pick_beats_the_best_photo_on_the_true_render(cc0_walk):
     assert true[0] > true_photos.max() + 0.01, (true[0], true_photos.max())
 
 
-def test_not_trusted_gives_the_best_photo_as_taken(cc0_walk):
+def test_not_trusted_gives_the_best_photo_as_taken(cc0_walk, refined):
     images, truth, scene = cc0_walk
     teacher = get_teacher()
     # no refined view clears the best photo by 0.5 after its expected error: the photo itself, as taken
-    found = refine_at_best_photo(teacher, truth, images, scene.intrinsics(), RefineConfig(min_gain=0.5))
+    found = refined(RefineConfig(min_gain=0.5))
     assert found.suggestions and not found.confident
     pick = found.pick
     np.testing.assert_array_equal(pick.cam2world, truth[found.best_photo])  # with its roll
@@ -114,7 +129,7 @@ def _grid_of(rot, rb, cfg) -> tuple[float, float] | None:
     return next(((dy, dp) for dy in steps for dp in steps if np.allclose(rot, _turned(rb, dy, dp), atol=1e-9)), None)
 
 
-def test_keep_roll_turns_the_photo_as_it_was_taken(cc0_walk):
+def test_keep_roll_turns_the_photo_as_it_was_taken(cc0_walk, refined):
     images, truth, scene = cc0_walk
     cfg = RefineConfig(keep_roll=True, forward_fracs=(0.0,), around_best=1)
     found = refine_at_best_photo(get_teacher(), truth, images, scene.intrinsics(), cfg)
@@ -129,11 +144,11 @@ def test_keep_roll_turns_the_photo_as_it_was_taken(cc0_walk):
     assert all(np.allclose(c.position_m, truth[b, :3, 3]) for c in found.suggestions)
     # the pure turns keep the photo's roll (its right axis's height); the levelled grid's are level
     assert all(np.isclose(c.cam2world[2, 0], rb[2, 0]) for c, (_, dp) in zip(found.suggestions, grid) if dp == 0)
-    levelled = refine_at_best_photo(get_teacher(), truth, images, scene.intrinsics(), RefineConfig(around_best=1))
+    levelled = refined(RefineConfig(around_best=1))
     assert all(abs(c.cam2world[2, 0]) < 1e-9 for c in levelled.suggestions)
 
 
-def test_the_fallback_turn_is_the_best_photo_turned_on_the_spot(cc0_walk):
+def test_the_fallback_turn_is_the_best_photo_turned_on_the_spot(cc0_walk, refined):
     images, truth, scene = cc0_walk
     teacher = get_teacher()
     # nothing is trusted (min_gain 0.5): the fall-back turns the best photo as taken on the spot
@@ -149,7 +164,7 @@ def test_the_fallback_turn_is_the_best_photo_turned_on_the_spot(cc0_walk):
     assert all(abs(c.cam2world[2, 0]) < 1e-9 for c in found.suggestions)
     # without it, or when no turn clears the best photo by fallback_min_gain: the photo as taken
     for strict in (RefineConfig(min_gain=0.5), RefineConfig(min_gain=0.5, fallback_turn=True, fallback_min_gain=0.5)):
-        none = refine_at_best_photo(teacher, truth, images, scene.intrinsics(), strict)
+        none = refined(strict)
         assert none.kind == "as_taken" and none.turn is None and none.pick is none.as_taken
     # trusted: the refined view, whatever the fall-back
     bold = refine_at_best_photo(teacher, truth, images, scene.intrinsics(), RefineConfig(fallback_turn=True))
@@ -171,11 +186,10 @@ def test_off_or_photos_of_two_sizes_gives_nothing(cc0_walk):
     assert refine_at_best_photo(teacher, truth, mixed, scene.intrinsics(), RefineConfig()).suggestions == []
 
 
-def test_refining_at_one_or_three_photos(cc0_walk):
-    images, truth, scene = cc0_walk
-    one = refine_at_best_photo(get_teacher(), truth, images, scene.intrinsics(), RefineConfig(around_best=1))
+def test_refining_at_one_or_three_photos(refined):
+    one = refined(RefineConfig(around_best=1))
     assert set(one.photo_of.tolist()) == {one.best_photo}
-    found = refine_at_best_photo(get_teacher(), truth, images, scene.intrinsics(), RefineConfig(around_best=3))
+    found = refined(RefineConfig(around_best=3))
     three = np.argsort(-found.photo_scores)[:3]
     assert set(found.photo_of.tolist()) == set(three.tolist())
     gains = [s.terms["photo_gain"] for s in found.suggestions]

@@ -18,10 +18,11 @@ Pipeline per call (B cameras, N Gaussians, Cv = 3 + C value channels, tiles of T
 5. ``raster_bwd``: the same traversal in reverse from the stored final transmittance (gsplat's
    backward), accumulating per-lane gradient terms that are reduced once per Gaussian; channels
    lane-wise up to 7, per contributing pixel from 8 (through one dot product per pixel). Parallel
-   over cameras when there are enough of them (no write conflicts), else over tiles with
-   per-thread buffers.
+   over cameras when there are enough of them (no write conflicts), else over tiles with a
+   buffer per worker (a fixed share of the items, whichever thread runs it: the sums' order, and
+   so every bit of the gradients, is the same from call to call).
 6. ``project_bwd``: per Gaussian, the chain rule through projection and covariance for every
-   camera; camera-pose gradients go to per-thread buffers.
+   camera; camera-pose gradients go to a buffer per worker (a fixed block of Gaussians).
 
 Everything geometric is float64; image-space parameters and outputs are in the Gaussians' dtype.
 

@@ -149,9 +149,10 @@ def _exp_neg_impl(s):
             p = p * x + f(0.5)
             p = p * x + f(1.0)
             p = p * x + f(1.0)
-            # numba widens int32 arithmetic to int64, which halves the vector width: cast back.
-            shift = np.int32(np.int32(24) - n)
-            return p * (f(np.int32(np.int32(1) << shift)) * f(5.9604644775390625e-08))
+            # 2^-n built from its float32 bits (exponent 127 - n; n <= 23 here): exact, as the
+            # product p 2^-n is. A shift by the variable n (1 << (24 - n)) ran as 64-bit shifts on
+            # widened lanes, numba widening int32 arithmetic to int64; a shift by a constant narrows.
+            return p * np.int32(np.int32(np.int32(127) - n) << np.int32(23)).view(np.float32)
 
         return impl32
 

@@ -1,6 +1,5 @@
 from __future__ import annotations
 
-import numba
 import numpy as np
 from numba import njit, prange
 
@@ -24,7 +23,7 @@ from aes_planner.gaussians.kernels.common import (
     _opts,
     exp_neg,
 )
-from aes_planner.gaussians.kernels.tiles import _interleaved, _row_terms, _row_window, _splat, _tile_origin, _tile_rows
+from aes_planner.gaussians.kernels.tiles import _row_terms, _row_window, _splat, _tile_origin, _tile_rows
 from aes_planner.gaussians.numerics import TILE
 
 # Many channels (pixel-major): the values of the Gaussians behind a pixel enter d loss / d alpha
@@ -326,19 +325,24 @@ def raster_bwd(
     splats = (proj, box, vals, offsets, lists)
     image = (tiles_x, width, height, consts)
     upstream = (t_final, last, v_rgb, v_feat, v_dep, v_t)
-    for item in prange(threads * -(-n_items // threads)):
-        real = _interleaved(item, n_items, threads)
-        if real < 0:
-            continue
-        tid = numba.get_thread_id()
-        # by camera: one item is a whole camera (all its tiles on this thread, so one shared g2d
-        # buffer is race-free); by tile: one item is one tile, into this thread's own buffer
-        cam = real if by_camera else real // n_tiles
-        first = 0 if by_camera else real % n_tiles
-        stop = n_tiles if by_camera else first + 1
-        buf = 0 if by_camera else tid
-        for tile in range(first, stop):
-            if many:
-                _raster_tile_bwd_many(cam, tile, splats, image, upstream, g2d[buf], gvals[tid], need_values)
-            else:
-                _raster_tile_bwd(cam, tile, splats, image, upstream, g2d[buf], gvals[tid], need_values)
+    # Items interleaved over the workers as in the forward (``_interleaved``); worker w's value
+    # gradients, and by tile its g2d, go to buffer w, not to the running thread's: which thread
+    # runs which worker's items varies from call to call, and with it the order of the sums.
+    per = -(-n_items // threads)
+    for worker in prange(threads):
+        w = np.int64(worker)  # prange's index can be unsigned: int64 keeps the mixed arithmetic integral
+        for j in range(per):
+            real = j * threads + w
+            if real >= n_items:
+                break
+            # by camera: one item is a whole camera (all its tiles on this worker, so one shared
+            # g2d buffer is race-free); by tile: one item is one tile, into this worker's buffer
+            cam = real if by_camera else real // n_tiles
+            first = 0 if by_camera else real % n_tiles
+            stop = n_tiles if by_camera else first + 1
+            buf = 0 if by_camera else w
+            for tile in range(first, stop):
+                if many:
+                    _raster_tile_bwd_many(cam, tile, splats, image, upstream, g2d[buf], gvals[w], need_values)
+                else:
+                    _raster_tile_bwd(cam, tile, splats, image, upstream, g2d[buf], gvals[w], need_values)
