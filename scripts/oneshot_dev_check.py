@@ -86,10 +86,24 @@ def variant(text: str) -> tuple[str, str, dict]:
     return name, preset, overrides
 
 
-def main(scenes: list[str], seeds: list[int], variants: list[tuple[str, str, dict]], rescore=()) -> None:
-    teacher = get_teacher()
-    evaluator = CompositionEvaluator()
-    tmp = Path(tempfile.gettempdir()) / "oneshot_textured"  # one path per scene: its oracle is cached
+@dataclasses.dataclass
+class DevCase:
+    """One dev scene as the one-shot checks use it: its rig, its oracle and 4 input frames."""
+
+    path: str
+    source: object
+    platform: object
+    oracle_score: float
+    oracle_pose: object
+    oracle_extra: dict
+    inputs: object
+    frames: list
+
+
+def dev_cases(scenes: list[str], teacher):
+    """Each dev scene (held-out ones refused) with its cached oracle and the rig's 4 inputs; image-
+    textured scenes are written once to one path per scene, so their oracles are cached too."""
+    tmp = Path(tempfile.gettempdir()) / "oneshot_textured"
     tmp.mkdir(exist_ok=True)
     for spec in scenes:
         if spec in HELD_OUT or "loop_heldout" in spec or spec.endswith("_rig.yaml") or "showcase" in spec:
@@ -99,10 +113,19 @@ def main(scenes: list[str], seeds: list[int], variants: list[tuple[str, str, dic
         source = _source(load_scene(path), cfg)
         platform = source.platform
         o_score, o_pose, o_extra = scene_oracle(path, source, teacher, platform, cfg)
-        m = o_extra["mean_random"]
-        judge = Judge(source, teacher, evaluator)
         inputs = _inputs(source, platform, 4)
         frames = [source.capture(p) for p in inputs]
+        yield spec, DevCase(path, source, platform, o_score, o_pose, o_extra, inputs, frames)
+
+
+def main(scenes: list[str], seeds: list[int], variants: list[tuple[str, str, dict]], rescore=()) -> None:
+    teacher = get_teacher()
+    evaluator = CompositionEvaluator()
+    for spec, case in dev_cases(scenes, teacher):
+        source, platform, inputs, frames = case.source, case.platform, case.inputs, case.frames
+        o_score, o_pose, o_extra = case.oracle_score, case.oracle_pose, case.oracle_extra
+        m = o_extra["mean_random"]
+        judge = Judge(source, teacher, evaluator)
 
         def norm(poses: np.ndarray) -> list[float]:
             return [normalized(float(t), o_score, m) for t in judge.measure(poses)[0]]  # noqa: B023

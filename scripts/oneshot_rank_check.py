@@ -26,20 +26,18 @@ held-out scenes are refused.
 import dataclasses
 import json
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from oneshot_dev_check import HELD_OUT, textured_scene  # scripts/ is on the path when run
+from oneshot_dev_check import dev_cases  # scripts/ is on the path when run
 
-from aes_planner.eval.search import Judge, SearchEvalConfig, _inputs, _source, scene_oracle
+from aes_planner.eval.search import Judge
 from aes_planner.field.common import render_intrinsics
 from aes_planner.field.model import render_pooled
 from aes_planner.field.splat import SplatScorer
 from aes_planner.search import GroundTruthScorer, SearchConfig, build_search_scorer, normalized, search_views
-from aes_planner.sim.scene import load_scene
 from aes_planner.teachers import get_teacher
 from aes_planner.teachers.evaluator import CompositionEvaluator
 
@@ -50,21 +48,12 @@ SEEN_ALPHA = 0.5
 def main(scenes: list[str], seeds: list[int], out: Path, preset: str = "balanced") -> None:
     teacher = get_teacher()
     evaluator = CompositionEvaluator()
-    tmp = Path(tempfile.gettempdir()) / "oneshot_textured"  # one path per scene: its oracle is cached
-    tmp.mkdir(exist_ok=True)
     out.mkdir(parents=True, exist_ok=True)
-    for spec in scenes:
-        if spec in HELD_OUT or "loop_heldout" in spec or spec.endswith("_rig.yaml") or "showcase" in spec:
-            raise SystemExit(f"{spec} is held out: never tune on it")
-        path = textured_scene(spec, tmp) if spec.startswith("textured:") else spec
-        cfg = SearchEvalConfig(scenes=[path], modes=["rig"])
-        source = _source(load_scene(path), cfg)
-        platform = source.platform
-        o_score, _, o_extra = scene_oracle(path, source, teacher, platform, cfg)
+    for spec, case in dev_cases(scenes, teacher):
+        source, platform, inputs, frames = case.source, case.platform, case.inputs, case.frames
+        o_score, o_extra = case.oracle_score, case.oracle_extra
         m = o_extra["mean_random"]
         judge = Judge(source, teacher, evaluator)
-        inputs = _inputs(source, platform, 4)
-        frames = [source.capture(p) for p in inputs]
         for seed in seeds:
             scfg = SearchConfig.preset(preset, mode="rig", seed=seed)
             field = build_search_scorer("field", frames, scfg, teacher)
