@@ -23,7 +23,7 @@ from aes_planner.gaussians.kernels.common import (
     _opts,
     exp_neg,
 )
-from aes_planner.gaussians.kernels.tiles import _row_terms, _row_window, _splat, _tile_origin, _tile_rows
+from aes_planner.gaussians.kernels.tiles import _interleaved, _row_terms, _row_window, _splat, _tile_origin, _tile_rows
 from aes_planner.gaussians.numerics import TILE
 
 # Many channels (pixel-major): the values of the Gaussians behind a pixel enter d loss / d alpha
@@ -325,15 +325,16 @@ def raster_bwd(
     splats = (proj, box, vals, offsets, lists)
     image = (tiles_x, width, height, consts)
     upstream = (t_final, last, v_rgb, v_feat, v_dep, v_t)
-    # Items interleaved over the workers as in the forward (``_interleaved``); worker w's value
-    # gradients, and by tile its g2d, go to buffer w, not to the running thread's: which thread
-    # runs which worker's items varies from call to call, and with it the order of the sums.
+    # Items interleaved over the workers as in the forward (``_interleaved``: worker w's share is
+    # its chunk of prange's items); worker w's value gradients, and by tile its g2d, go to buffer
+    # w, not to the running thread's: which thread runs which worker's items varies from call to
+    # call, and with it the order of the sums.
     per = -(-n_items // threads)
     for worker in prange(threads):
         w = np.int64(worker)  # prange's index can be unsigned: int64 keeps the mixed arithmetic integral
         for j in range(per):
-            real = j * threads + w
-            if real >= n_items:
+            real = _interleaved(w * per + j, n_items, threads)
+            if real < 0:
                 break
             # by camera: one item is a whole camera (all its tiles on this worker, so one shared
             # g2d buffer is race-free); by tile: one item is one tile, into this worker's buffer
