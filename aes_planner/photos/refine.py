@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from aes_planner.config import require, require_finite
+from aes_planner.geometry.rotations import rot_x, rot_z
 from aes_planner.search.photo_warp import photo_composite
 
 if TYPE_CHECKING:
@@ -179,16 +180,6 @@ def subject_distance(photos_c2w: np.ndarray, index: int) -> float | None:
     return d if d > max(spread, 1e-9) * 0.1 else None
 
 
-def _rot_z(a: float) -> np.ndarray:  # [3, 3] a turn by ``a`` rad about world +z (left: positive)
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _rot_x(a: float) -> np.ndarray:  # [3, 3] about a camera's own x (right) axis: positive tilts an OpenCV camera up
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
 def estimate_error(step_frac, own_cover):
     """Expected error (standard deviation, teacher-score units) of a candidate's photo-warped
     score, for its step towards the subject (fraction of the subject's distance) and the share of
@@ -311,7 +302,9 @@ def refine_at_best_photo(
                         if not frac and dy == 0 and dp == 0:
                             continue  # the photo itself: its score is exact, it is the as-taken answer
                         c2w = np.eye(4)
-                        c2w[:3, :3] = _rot_z(math.radians(dy)) @ photos_c2w[b, :3, :3] @ _rot_x(math.radians(dp))
+                        # turned about world +z (left positive), tilted about the camera's own x
+                        # (right) axis: positive tilts an OpenCV camera up
+                        c2w[:3, :3] = rot_z(math.radians(dy)) @ photos_c2w[b, :3, :3] @ rot_x(math.radians(dp))
                         c2w[:3, 3] = xyz
                         pitch = float(np.degrees(cam2world_to_view(c2w)[4]))
                     else:
