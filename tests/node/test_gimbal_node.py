@@ -239,8 +239,8 @@ def test_a_dead_emulator_is_replaced_not_its_pty_reopened(monkeypatch):
     """``emulate: true``: when the emulator's process dies, its pty's number is free for the next
     pty any process opens (another node's emulator in a shared CI). The node must not let the
     driver reopen that path as a returning adapter's: it starts a new emulator, counts it, and the
-    next move reaches the new servos. (The emulator runs in a thread here; the slow test below
-    kills a real process.)"""
+    next move reaches the new servos. (The emulator runs in a thread here; the test below kills
+    a real process.)"""
     import aes_planner.drivers.emulator as emulator
 
     monkeypatch.setattr(emulator, "EmulatorProcess", _ThreadEmulatorProcess)
@@ -263,9 +263,8 @@ def test_a_dead_emulator_is_replaced_not_its_pty_reopened(monkeypatch):
     assert node.emulator is None
 
 
-@pytest.mark.slow
 def test_a_killed_emulator_process_is_replaced():
-    """The same with the real child process, killed with SIGKILL (two emulator start-ups: slow)."""
+    """The same with the real child process, killed with SIGKILL."""
     import os
     import signal
 
