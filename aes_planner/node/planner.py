@@ -171,6 +171,7 @@ class PlannerNode(ActiveLoop, Node):
             from aes_planner.gaussians.warmup import warm_kernels
 
             warm_kernels()
+            self.teacher.warm()  # the composition head's compiled kernel, likewise
             self._kernels_warm = True
 
     # ----------------------------------------------------------------------------------- step
