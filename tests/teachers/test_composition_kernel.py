@@ -2,6 +2,10 @@
 in the search: the same terms, the score's gradient autograd computes, and no NaN or Inf for any
 finite map."""
 
+import json
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 import torch
@@ -144,3 +148,16 @@ def test_terms_stay_in_their_ranges():
     for k, v in got.items():
         assert bool(((v >= 0) & (v <= 1)).all()), k
     assert np.isclose(float(got["score"][4]), 0.0, atol=1e-6)  # the all-zero map: nothing to look at
+
+
+def test_a_second_process_loads_the_kernel_from_numbas_cache():
+    _T32.warm()  # this process compiles (or loads) it and writes the cache
+    snippet = (
+        "import json; from aes_planner.teachers import CompositionTeacher, composition_kernel as k; "
+        "CompositionTeacher().warm(); s = k.head.stats; "
+        "print(json.dumps([s.cache_hits.total(), s.cache_misses.total()]))"
+    )
+    out = subprocess.run([sys.executable, "-c", snippet], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    hits, misses = json.loads(out.stdout.strip().splitlines()[-1])
+    assert hits >= 1 and misses == 0  # a cold `suggest` loads it; it never compiles
