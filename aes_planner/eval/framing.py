@@ -156,6 +156,15 @@ def _silhouette_px(points: np.ndarray, pose: np.ndarray, intrinsics) -> float:
     return float(cv2.contourArea(cv2.convexHull(uv.astype(np.float32))))
 
 
+def _shown(scene, obj_i: int, pose: np.ndarray, intrinsics) -> float:
+    """The share of object ``obj_i``'s true silhouette that its pixels at ``pose`` cover (what
+    the frame's border and the objects in front leave of it)."""
+    from aes_planner.sim import render
+
+    n = int((render(scene, pose, intrinsics, supersample=1).instance_id == obj_i + 1).sum())
+    return n / max(_silhouette_px(object_points(scene.objects[obj_i]), pose, intrinsics), 1.0)
+
+
 def pick_subject(scene, inputs: np.ndarray, intrinsics, seed: int, cfg: FramingEvalConfig, name: str | None = None):
     """``(object index, input view index, Region)`` of the ``seed``-th eligible object, largest first (none once
     the eligible objects run out); with ``name``, the object of that name instead, whatever the rules say, in
@@ -340,6 +349,10 @@ def run_framing_eval(cfg: FramingEvalConfig, progress=None, figure: str | None =
             points = object_points(obj)
             row: dict[str, Any] = {"scene": spec, "seed": seed, "subject": obj.name or f"object {obj_i + 1}",
                                    "view": view, "box": [region.x0, region.y0, region.x1, region.y1], "object": obj_i}  # fmt: skip
+            row["shown"] = _shown(source.scene, obj_i, inputs[view], k)
+            if name is not None and row["shown"] < cfg.min_shown:
+                log.warning("%s: view %d shows %.0f%% of %r; the rest is unknown to the lift",
+                            spec, view, 100 * row["shown"], name)  # fmt: skip
             oracle = constrained_oracle(space, judge, points, k, cfg)
             if oracle is None:
                 row["error"] = "no grid view holds the subject"

@@ -154,6 +154,16 @@ class FramingConfig:
     figure-ground test off: on the dev scenes it put the two table legs' boxes 5-9 cm from the leg
     instead of 28-30 cm, and raised the framed suggestion's median from 0.41 to 0.52;
     docs/results/framing_composition_dev.md).
+    ``hold_by``: what a view must hold of a kept subject, inside the frame shrunk by the margin:
+    ``points`` (the default), the outline of the points the subject was lifted from (their extreme
+    points in ``outline_dirs`` directions, vertices of their convex hull), or ``box``, the corners
+    of its oriented 3D box (the rule before 2026-11-29). The box's corners are empty space: on the
+    dev scenes they kept a median 69 % of the grid views that truly hold the subject (best kept
+    view 0.84 of the constrained oracle), the outline 75 % (0.87), and neither kept a view that
+    cuts a subject (docs/results/framing_lift_views_dev.md). ``occluded_max``: a subject whose box
+    has more than this share of its pixels nearer than the subject (something hides part of it,
+    and it may go on behind) is held by its box all the same; on the dev scenes the two table legs
+    behind a table top (0.26-0.35) would otherwise have kept views that cut the hidden part.
     ``feasibility_samples``: extra random views tried (geometry only, cheap) before saying that
     no reachable view holds the subject. ``explore_samples``: random views (and the same turned to
     the subject) checked every search; at most ``explore_keep`` of those that hold the subject join

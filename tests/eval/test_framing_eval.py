@@ -61,6 +61,7 @@ def test_one_case_holds_its_subject_and_is_measured_against_the_constrained_orac
     doc = run_framing_eval(cfg)
     (row,) = doc["rows"]
     assert row["subject"] == "candle" and row["holds"] is True
+    assert 0.6 <= row["shown"] <= 1.01  # the rules ask the view to show at least 60 % of it
     assert 0 < row["holding_views"] < row["grid_views"]
     assert row["best_teacher"] >= row["mean_teacher"] and np.isfinite(row["teacher"])
     s = doc["summary"]
