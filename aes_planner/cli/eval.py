@@ -187,6 +187,9 @@ def register_framing(esub: argparse._SubParsersAction) -> None:
     f.add_argument("--photo-rank", action=argparse.BooleanOptionalAction, default=None,
                    help="rank the views that hold the subject by the teacher on the input images warped into them "
                    "(default: FramingConfig's, off: on the held-out scenes it lowered the teacher's score; docs/guides/framing.md)")  # fmt: skip
+    f.add_argument("--hold-by", default=None, choices=["points", "box"],
+                   help="what a view must hold of the subject: the lifted points' outline (default) or the corners "
+                   "of its 3D box (the rule before 2026-11-29; docs/results/framing_lift_views_dev.md)")  # fmt: skip
     f.add_argument("--json", metavar="OUT", help="write the results as JSON")
     f.add_argument("--figure", metavar="PNG", help="write a figure: input box, suggestion, constrained oracle per case")
     f.set_defaults(func=run_framing)
@@ -212,7 +215,7 @@ def run_framing(args: argparse.Namespace) -> int:
         scenes=scenes, seeds=args.seeds, subjects=args.subject or [], mode=args.mode, preset=args.preset, keep_margin=args.keep_margin,
         verify_top=args.verify_top, verify_weight=args.verify_weight,
         **{k: v for k, v in (("coverage_min", args.coverage_min), ("coverage_penalty", args.coverage_penalty),
-                             ("photo_rank", args.photo_rank)) if v is not None},
+                             ("photo_rank", args.photo_rank), ("hold_by", args.hold_by)) if v is not None},
     )  # fmt: skip
     doc = run_framing_eval(cfg, progress=lambda text: log.info("eval framing: %s", text), figure=args.figure)
     print(markdown(doc))

@@ -63,6 +63,7 @@ class FramingEvalConfig:
     coverage_min: float = FramingConfig.coverage_min
     coverage_penalty: float = FramingConfig.coverage_penalty
     photo_rank: bool = FramingConfig.photo_rank
+    hold_by: str = FramingConfig.hold_by
     min_frac: float = 0.01
     max_frac: float = 0.4
     min_shown: float = 0.6
@@ -94,7 +95,7 @@ class FramingEvalConfig:
         """The framing constraint the searches run with."""
         return FramingConfig(margin_frac=self.keep_margin, verify_top=self.verify_top, verify_weight=self.verify_weight,
                              coverage_min=self.coverage_min, coverage_penalty=self.coverage_penalty,
-                             photo_rank=self.photo_rank)  # fmt: skip
+                             photo_rank=self.photo_rank, hold_by=self.hold_by)  # fmt: skip
 
 
 class FramingEvalError(AesPlannerError, ValueError):

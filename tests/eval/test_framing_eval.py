@@ -30,6 +30,10 @@ def test_cfg_is_checked():
         FramingEvalConfig(min_frac=0.5, max_frac=0.2)
     with pytest.raises(Exception, match="subjects"):
         FramingEvalConfig(subjects=[""])
+    with pytest.raises(Exception, match="hold_by"):
+        FramingEvalConfig(hold_by="hull")
+    assert FramingEvalConfig().framing().hold_by == "points"  # the search's own default
+    assert FramingEvalConfig(hold_by="box").framing().hold_by == "box"  # the rule before, for comparisons
 
 
 def test_a_named_subject_is_boxed_in_the_view_that_shows_most_of_it_whatever_the_rules():
