@@ -312,6 +312,7 @@ class Subject:
     depth_range_m: tuple[float, float] = (0.0, 0.0)  # the slab, camera depth in the region's frame
     outline_m: np.ndarray | None = None  # [P, 3] world: the lifted points' extreme points (vertices of their hull)
     occluded_frac: float = 0.0  # share of the box's pixels nearer than the subject: something hides part of it
+    cut_by_frame: bool = False  # the box touches its image's border: the subject may go on beyond it
 
     @property
     def corners_m(self) -> np.ndarray:  # -> [8, 3] world
@@ -504,7 +505,13 @@ def lift_region(
         "%s %s: %d Gaussians and %d pixels at %.2f-%.2f m (mode %.2f m) -> a box %s m",
         key, region.text(), n_gauss, len(pts) - n_gauss, z_lo, z_hi, z_mode, np.round(2 * half, 2).tolist(),
     )  # fmt: skip
-    return Subject(region, centre, axes, half, int(n_gauss), (z_lo, z_hi), outline, occluded)
+    edge = 1e-6  # px: a box scaled to the reconstruction's resolution may miss the border by rounding
+    cut = (
+        min(region.x0, region.y0) <= edge
+        or region.x1 >= intrinsics.width - edge
+        or region.y1 >= intrinsics.height - edge
+    )
+    return Subject(region, centre, axes, half, int(n_gauss), (z_lo, z_hi), outline, occluded, bool(cut))
 
 
 def render_depth(scorer: Scorer, cam2world: np.ndarray, intrinsics: Intrinsics) -> np.ndarray | None:
@@ -733,6 +740,15 @@ class Framing:
         if not far.any():
             return np.zeros((0, 4, 4))
         return np.asarray(look_at(eyes[far], np.broadcast_to(target, eyes[far].shape).copy()), dtype=np.float64)
+
+    def notes(self) -> list[str]:
+        """What the suggestions cannot promise, one line per kept subject concerned (the search's warnings)."""
+        return [
+            f"--keep {s.region.text()}: the box touches its image's border, so the subject may go on beyond it; "
+            "the suggestions hold what that image shows of it: draw the box in a view that shows all of it"
+            for s in self.keep
+            if s.cut_by_frame
+        ]
 
     def with_margin(self, margin_frac: float) -> Framing:
         """The same subjects and regions, held with ``margin_frac`` of the frame instead."""

@@ -174,6 +174,17 @@ def test_a_subject_partly_hidden_is_held_by_its_box():
     np.testing.assert_allclose(framing._keep[0].numpy(), s.corners_m)
 
 
+def test_a_box_cut_by_its_image_border_is_said_to_hold_only_what_the_image_shows():
+    cam, k, depth, region = _downward_face()
+    inside = lift_region(np.zeros((0, 3)), np.zeros(0), cam, k, region, depth_map=depth)
+    depth[12:48, 22:42] = 2.5  # the face runs on past the bottom of the image
+    cut = lift_region(np.zeros((0, 3)), np.zeros(0), cam, k, Region("a.png", 22, 12, 42, 48), depth_map=depth)
+    assert not inside.cut_by_frame and cut.cut_by_frame
+    assert Framing([inside], [], k, FramingConfig()).notes() == []
+    (note,) = Framing([inside, cut], [], k, FramingConfig()).notes()
+    assert "--keep a.png:22,12,42,48" in note and "border" in note
+
+
 @pytest.mark.parametrize("kw, word", [({"hold_by": "hull"}, "hold_by"), ({"occluded_max": 1.5}, "occluded_max"),
                                       ({"outline_dirs": 2}, "outline_dirs")])  # fmt: skip
 def test_the_hold_rule_is_checked(kw, word):
@@ -267,11 +278,13 @@ def test_a_subject_held_only_near_the_edge_is_held_with_a_smaller_margin_and_sai
     bearing = math.radians(57.0)
     base = np.asarray(platform.rig.base_xyz_m, float)
     subject = subject_at(base + 4.0 * np.array([math.cos(bearing), math.sin(bearing), 0.0]), (0.05, 0.05, 0.05))
+    subject.cut_by_frame = True  # and its box touched its image's border: the search says that too
     framing = Framing([subject], [], platform.intrinsics, FramingConfig(margin_frac=0.05))
     result = search_views(
         AimScorer([1.0, 0.0, 0.0]), rig_inputs(platform), platform, SearchConfig.preset("fast"), framing=framing
     )
     assert result.suggestions and any("5% margin asked" in w and "2.5% margin" in w for w in result.warnings)
+    assert any("touches its image's border" in w for w in result.warnings)
     half = framing.with_margin(0.025)
     for s in result.suggestions:
         pose = torch.as_tensor(s.cam2world[None])
