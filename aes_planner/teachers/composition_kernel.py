@@ -1,8 +1,8 @@
 """The composition teacher's head as one compiled kernel: its terms and the analytic gradient of
 its score with respect to the map, in one pass per map (numba; imported only where numba is).
 
-Why: the torch head is ~100 tensor operators forward and ~150 autograd nodes backward on maps of
-``[B, 4, 16, 16]``: at a stage-2 step (2 maps) 4.0 ms of CPU, a third of the step, for ~0.3 M
+Why: the torch head is 643 aten calls forward and ~220 autograd nodes backward on maps of
+``[2, 4, 16, 16]``: at a stage-2 step (2 maps) 4.0 ms of CPU, a third of the step, for ~0.3 M
 floating-point operations (docs/benchmarks.md, "perf-2, seventh round"). Here the same
 formulas, in the same order, are written out over the 16 x 16 cells, with every intermediate in
 float64; the backward is the chain rule of :meth:`CompositionTeacher._terms` written by hand,

@@ -113,7 +113,7 @@ def test_without_numba_it_is_the_torch_head(monkeypatch):
 _SPECIAL = st.sampled_from([0.0, -0.0, 1e-30, -1e-30, 1e-12, 1e3, -1e3, 1e30, -1e30, 3.4e38, -3.4e38])
 
 
-@settings(max_examples=60)
+@settings(max_examples=30)  # ~0.1-0.3 s an example (torch's float64 autograd dominates)
 @given(
     scale=st.sampled_from([0.0, 1e-30, 1e-12, 1e-3, 1.0, 1e3, 1e12, 1e30]),
     signed=st.booleans(),
