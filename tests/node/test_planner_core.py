@@ -255,6 +255,9 @@ def test_config_errors_name_the_key():
     for bad in (-1, 65, 2.0):
         with pytest.raises(ConfigError, match="polish_captures"):
             PlannerConfig(polish_captures=bad)
+    for bad in (-1, 65, 2.0, True):
+        with pytest.raises(ConfigError, match="polish_fine_captures"):
+            PlannerConfig(polish_fine_captures=bad)
     for bad in (0.0, -1.0, float("nan"), 45.0):
         with pytest.raises(ConfigError, match="polish_step_deg"):
             PlannerConfig(polish_step_deg=bad)
