@@ -43,6 +43,10 @@ class PlannerConfig:
       0 = settle at once. ``polish_step_deg`` should exceed ``arrival_tolerance_deg``.
       ``polish_step_m``: a drone only: its polish also moves ``polish_step_m * 2**k`` to either
       side and forward and back (0 = turns only); should exceed ``arrival_tolerance_m``.
+    * ``polish_fine_captures``: after the climbs, up to this many more captures (on top of
+      ``polish_captures``): the four neighbours ``polish_step_deg / 2`` from the best captured
+      view, and again around a better one; only when that half step exceeds
+      ``arrival_tolerance_deg`` (a rig; a drone's tolerance is wider). 0 = none.
     * ``polish_starts``: hills the polish climbs, one after the other, each with an equal share of
       ``polish_captures``: the best captured view and up to ``polish_starts - 1`` others within
       ``polish_start_gap`` (teacher units) of it, at least two coarsest steps apart (a hill
@@ -129,6 +133,7 @@ class PlannerConfig:
     polish_step_deg: float = 1.25
     polish_step_m: float = 0.0
     polish_scales: int = 4
+    polish_fine_captures: int = 8
     polish_starts: int = 3
     polish_start_gap: float = 0.1
     polish_hills: int = 5
@@ -184,6 +189,7 @@ class PlannerConfig:
             "max_frames",
             "threads",
             "polish_captures",
+            "polish_fine_captures",
             "polish_scales",
             "polish_starts",
             "explore_moves",
@@ -203,6 +209,7 @@ class PlannerConfig:
             ("explore_views", 64),
             ("explore_positions", 64),
             ("polish_captures", 64),
+            ("polish_fine_captures", 64),
             ("polish_scales", 6),
             ("polish_starts", 8),
             ("explore_moves", 64),

@@ -15,6 +15,7 @@ from .nodekit import RIG, FakeTeacher, ScriptedProposer, SimRig, frame_at
 
 
 def make(proposer=None, **kw):
+    kw.setdefault("polish_fine_captures", 0)  # the climbs' tests count their budget; the fine rounds have their own
     cfg = PlannerConfig(platform=RigPlatformConfig(RIG), settle_s=0.0, **kw)
     return PlannerNode(cfg, proposer=proposer or ScriptedProposer(), teacher=FakeTeacher())
 
@@ -254,6 +255,9 @@ def test_config_errors_name_the_key():
     for bad in (-1, 65, 2.0):
         with pytest.raises(ConfigError, match="polish_captures"):
             PlannerConfig(polish_captures=bad)
+    for bad in (-1, 65, 2.0, True):
+        with pytest.raises(ConfigError, match="polish_fine_captures"):
+            PlannerConfig(polish_fine_captures=bad)
     for bad in (0.0, -1.0, float("nan"), 45.0):
         with pytest.raises(ConfigError, match="polish_step_deg"):
             PlannerConfig(polish_step_deg=bad)
@@ -646,3 +650,40 @@ def test_the_polish_probes_every_hill_before_it_chooses_which_to_climb():
         finals[hills] = node.captures[-1].score
     assert finals[3] == pytest.approx(0.75, abs=0.01)
     assert finals[PlannerConfig().polish_hills] > 0.95
+
+
+def test_fine_rounds_find_a_peak_between_the_finest_steps_only_where_the_camera_can_tell():
+    """The move lands 3.75 deg off the peak: a climb in 2.5-deg steps stops 1.25 deg off it (its
+    neighbours there are 1.25 and 3.75 off); the rounds at half that step reach the peak. A camera
+    whose arrival tolerance exceeds the half step (a drone's 2 deg) cannot tell such a view from
+    the one it is at: no fine rounds; nor with polish_captures 0 (settle at once)."""
+    peak = (0.6, 0.2)
+    off = {}
+    for fine, tol in ((0, 0.6), (8, 0.6), (8, 1.5)):
+        prop = ScriptedProposer(peak=peak)
+        _one_candidate(prop, peak[0] + math.radians(3.75), peak[1])
+        node = make(
+            prop,
+            explore_views=2,
+            max_moves=1,
+            polish_captures=8,
+            polish_step_deg=2.5,
+            polish_scales=1,
+            polish_fine_captures=fine,
+            arrival_tolerance_deg=tol,
+        )
+        drive(node, SimRig(prop))
+        assert node.state == "done" and node.captures[-1].kind == "settle"
+        polish = [c for c in node.captures if c.kind == "polish"]
+        assert len(polish) <= 8 + fine
+        off[fine, tol] = math.degrees(
+            math.hypot(node.captures[-1].pan_rad - peak[0], node.captures[-1].tilt_rad - peak[1])
+        )
+    assert off[0, 0.6] == pytest.approx(1.25, abs=0.1)
+    assert off[8, 0.6] < 0.1  # the half step reached it
+    assert off[8, 1.5] == pytest.approx(1.25, abs=0.1)  # the gate: a tolerance wider than the half step
+    prop = ScriptedProposer(peak=peak)
+    _one_candidate(prop, peak[0] + math.radians(3.75), peak[1])
+    node = make(prop, explore_views=2, max_moves=1, polish_captures=0, polish_fine_captures=8)
+    drive(node, SimRig(prop))
+    assert not any(c.kind == "polish" for c in node.captures)
