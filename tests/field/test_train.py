@@ -261,6 +261,13 @@ def test_listwise_and_init_from_knobs_are_checked():
         load_config({**TINY, "listwise_temperature": 0.0})
     with pytest.raises(ConfigError, match="listwise_weight"):
         load_config({**TINY, "listwise_weight": -1.0})
+    for bad in ({"hard_top": 0, "hard_random": 0}, {"hard_top": -1}, {"hard_random": 1001}):
+        with pytest.raises(ConfigError, match="hard_top"):
+            load_config({**TINY, **bad})
+    with pytest.raises(ConfigError, match="hard_views"):
+        load_config({**TINY, "hard_views": 0})
+    with pytest.raises(ConfigError, match="hard_samples"):
+        load_config({**TINY, "hard_samples": -1})
 
 
 def test_init_from_starts_at_the_checkpoints_weights(cache, tmp_path):
