@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
         output_folder(args.out, "--out")
     make_source = functools.partial(SimSource, supersample=config.gt_supersample)  # picklable for the workers
     set_threads(config.threads)
-    propose = SearchProposer(config.hard_preset, config.init_from) if config.hard_samples else None
+    propose = SearchProposer(config.hard_preset, config.hard_field or config.init_from) if config.hard_samples else None
     samples, val, hard = (
         build_cache(
             config,

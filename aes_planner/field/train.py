@@ -111,7 +111,9 @@ class TrainConfig:
       (RGB only, as ``eval search``), and its targets are the ``hard_top`` best stage-1 candidates
       by the search's objective, the search's suggestions, and ``hard_random`` other candidates
       drawn at random (the contrast the within-scene rank needs). The search is the caller's
-      ``propose`` (:data:`Proposer`; the CLI runs ``hard_preset`` over the ``init_from`` field).
+      ``propose`` (:data:`Proposer`; the CLI runs ``hard_preset`` over the ``hard_field``
+      checkpoint, by default the ``init_from`` one: a second round takes the picks of the field
+      the first round made).
     * ``checkpoint_every``: steps between checkpoints; ``seed``: everything random.
     * ``scorer``: render width and Gaussian budget (what the field is used with).
     * ``model``: the architecture.
@@ -146,6 +148,7 @@ class TrainConfig:
     hard_top: int = 24
     hard_random: int = 24
     hard_preset: str = "balanced"
+    hard_field: str | None = None
     checkpoint_every: int = 250
     seed: int = 0
     gt_supersample: int = 2
