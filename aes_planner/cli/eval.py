@@ -169,6 +169,9 @@ def register_framing(esub: argparse._SubParsersAction) -> None:
     f.add_argument("--scene", action="append", metavar="FILE_OR_FAMILY:SEED", help="a scene (repeatable)")
     f.add_argument("--scenes", type=int, default=4, help="number of held-out scenes when no --scene (default 4)")
     f.add_argument("--seeds", type=_int_list, default=[0, 1], help="subjects per scene: 0,1 = the two largest")
+    f.add_argument("--subject", action="append", metavar="NAME",
+                   help="the scene object of this name as the subject (repeatable), boxed in the input view that "
+                   "shows most of it, whatever the subject rules say; replaces --seeds")  # fmt: skip
     f.add_argument("--mode", default="rig", choices=KIND_WORDS, help="platform (default rig)")
     f.add_argument("--preset", default="balanced", choices=list(PRESETS), help="search preset")
     f.add_argument("--keep-margin", type=float, default=0.05, metavar="FRAC", help="as suggest --keep-margin")
@@ -184,6 +187,9 @@ def register_framing(esub: argparse._SubParsersAction) -> None:
     f.add_argument("--photo-rank", action=argparse.BooleanOptionalAction, default=None,
                    help="rank the views that hold the subject by the teacher on the input images warped into them "
                    "(default: FramingConfig's, off: on the held-out scenes it lowered the teacher's score; docs/guides/framing.md)")  # fmt: skip
+    f.add_argument("--hold-by", default=None, choices=["points", "box"],
+                   help="what a view must hold of the subject: the lifted points' outline (default) or the corners "
+                   "of its 3D box (the rule before 2026-11-29; docs/results/framing_lift_views_dev.md)")  # fmt: skip
     f.add_argument("--json", metavar="OUT", help="write the results as JSON")
     f.add_argument("--figure", metavar="PNG", help="write a figure: input box, suggestion, constrained oracle per case")
     f.set_defaults(func=run_framing)
@@ -206,10 +212,10 @@ def run_framing(args: argparse.Namespace) -> int:
     if args.figure:
         output_file(args.figure, "--figure")
     cfg = FramingEvalConfig(
-        scenes=scenes, seeds=args.seeds, mode=args.mode, preset=args.preset, keep_margin=args.keep_margin,
+        scenes=scenes, seeds=args.seeds, subjects=args.subject or [], mode=args.mode, preset=args.preset, keep_margin=args.keep_margin,
         verify_top=args.verify_top, verify_weight=args.verify_weight,
         **{k: v for k, v in (("coverage_min", args.coverage_min), ("coverage_penalty", args.coverage_penalty),
-                             ("photo_rank", args.photo_rank)) if v is not None},
+                             ("photo_rank", args.photo_rank), ("hold_by", args.hold_by)) if v is not None},
     )  # fmt: skip
     doc = run_framing_eval(cfg, progress=lambda text: log.info("eval framing: %s", text), figure=args.figure)
     print(markdown(doc))

@@ -53,6 +53,7 @@ class FramingEvalConfig:
 
     scenes: list[str] = dataclasses.field(default_factory=lambda: HELD_OUT_SCENES[:4])
     seeds: list[int] = dataclasses.field(default_factory=lambda: [0, 1])
+    subjects: list[str] = dataclasses.field(default_factory=list)
     views: int = 4
     mode: str = "rig"
     preset: str = "balanced"
@@ -62,6 +63,7 @@ class FramingEvalConfig:
     coverage_min: float = FramingConfig.coverage_min
     coverage_penalty: float = FramingConfig.coverage_penalty
     photo_rank: bool = FramingConfig.photo_rank
+    hold_by: str = FramingConfig.hold_by
     min_frac: float = 0.01
     max_frac: float = 0.4
     min_shown: float = 0.6
@@ -80,6 +82,11 @@ class FramingEvalConfig:
         self.mode = parse_kind(self.mode, "mode")
         require(bool(self.scenes), "scenes", "give at least one scene (FAMILY:SEED or a YAML file)")
         require(bool(self.seeds) and all(isinstance(s, int) and s >= 0 for s in self.seeds), "seeds", "must be >= 0")
+        require(
+            all(isinstance(n, str) and n.strip() for n in self.subjects),
+            "subjects",
+            "must be object names of the scenes (non-empty strings)",
+        )
         require(isinstance(self.views, int) and 1 <= self.views <= 16, "views", f"must be in [1, 16], got {self.views}")
         require(0 < self.min_frac < self.max_frac <= 1, "min_frac", "must satisfy 0 < min_frac < max_frac <= 1")
         self.framing()  # the margin's and the verification's own checks
@@ -88,7 +95,7 @@ class FramingEvalConfig:
         """The framing constraint the searches run with."""
         return FramingConfig(margin_frac=self.keep_margin, verify_top=self.verify_top, verify_weight=self.verify_weight,
                              coverage_min=self.coverage_min, coverage_penalty=self.coverage_penalty,
-                             photo_rank=self.photo_rank)  # fmt: skip
+                             photo_rank=self.photo_rank, hold_by=self.hold_by)  # fmt: skip
 
 
 class FramingEvalError(AesPlannerError, ValueError):
@@ -150,8 +157,19 @@ def _silhouette_px(points: np.ndarray, pose: np.ndarray, intrinsics) -> float:
     return float(cv2.contourArea(cv2.convexHull(uv.astype(np.float32))))
 
 
-def pick_subject(scene, inputs: np.ndarray, intrinsics, seed: int, cfg: FramingEvalConfig):
-    """``(object index, input view index, Region)`` of the ``seed``-th eligible object, largest first (none once the eligible objects run out)."""
+def _shown(scene, obj_i: int, pose: np.ndarray, intrinsics) -> float:
+    """The share of object ``obj_i``'s true silhouette that its pixels at ``pose`` cover (what
+    the frame's border and the objects in front leave of it)."""
+    from aes_planner.sim import render
+
+    n = int((render(scene, pose, intrinsics, supersample=1).instance_id == obj_i + 1).sum())
+    return n / max(_silhouette_px(object_points(scene.objects[obj_i]), pose, intrinsics), 1.0)
+
+
+def pick_subject(scene, inputs: np.ndarray, intrinsics, seed: int, cfg: FramingEvalConfig, name: str | None = None):
+    """``(object index, input view index, Region)`` of the ``seed``-th eligible object, largest first (none once
+    the eligible objects run out); with ``name``, the object of that name instead, whatever the rules say, in
+    the input view that shows most of it (none when no input view shows it)."""
     from aes_planner.sim import render
 
     counts, boxes = {}, {}
@@ -165,6 +183,13 @@ def pick_subject(scene, inputs: np.ndarray, intrinsics, seed: int, cfg: FramingE
             if len(xs) > counts.get(i, (0, 0))[0]:
                 counts[i] = (len(xs), v)
                 boxes[i] = (xs.min(), ys.min(), xs.max() + 1, ys.max() + 1)
+    if name is not None:
+        named = [i for i in counts if scene.objects[i - 1].name == name]
+        if not named:
+            return None
+        i = max(named, key=lambda j: counts[j][0])
+        x0, y0, x1, y1 = boxes[i]
+        return i - 1, counts[i][1], Region(f"view{counts[i][1]}", float(x0), float(y0), float(x1), float(y1))
     eligible = []
     for i, (n, v) in counts.items():
         x0, y0, x1, y1 = boxes[i]
@@ -309,18 +334,26 @@ def run_framing_eval(cfg: FramingEvalConfig, progress=None, figure: str | None =
         scfg = SearchConfig.preset(cfg.preset, mode=platform.kind)
         space = space_for(platform, scfg)
         scorer = None
-        for seed in cfg.seeds:
-            picked = pick_subject(source.scene, inputs, frames[0].intrinsics, seed, cfg)
+        picks = list(enumerate(cfg.subjects)) if cfg.subjects else [(seed, None) for seed in cfg.seeds]
+        for seed, name in picks:
+            picked = pick_subject(source.scene, inputs, frames[0].intrinsics, seed, cfg, name)
             if progress:
-                progress(f"{spec} seed {seed}")
+                progress(f"{spec} seed {seed}" if name is None else f"{spec} subject {name}")
             if picked is None:
-                log.warning("%s: no object fits the subject rules; skipped", spec)
+                if name is None:
+                    log.warning("%s: no object fits the subject rules; skipped", spec)
+                else:
+                    log.warning("%s: no input view shows an object named %r; skipped", spec, name)
                 continue
             obj_i, view, region = picked
             obj = source.scene.objects[obj_i]
             points = object_points(obj)
             row: dict[str, Any] = {"scene": spec, "seed": seed, "subject": obj.name or f"object {obj_i + 1}",
                                    "view": view, "box": [region.x0, region.y0, region.x1, region.y1], "object": obj_i}  # fmt: skip
+            row["shown"] = _shown(source.scene, obj_i, inputs[view], k)
+            if name is not None and row["shown"] < cfg.min_shown:
+                log.warning("%s: view %d shows %.0f%% of %r; the rest is unknown to the lift",
+                            spec, view, 100 * row["shown"], name)  # fmt: skip
             oracle = constrained_oracle(space, judge, points, k, cfg)
             if oracle is None:
                 row["error"] = "no grid view holds the subject"

@@ -342,6 +342,7 @@ def _search_views(
         from aes_planner.search.framing import feasible_candidates
 
         asked = framing.cfg.margin_frac
+        warnings.extend(framing.notes())
         candidates, framing = feasible_candidates(framing, space, candidates, trajectory, cfg, rng)
         if framing.cfg.margin_frac < asked:
             warnings.append(

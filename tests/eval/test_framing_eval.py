@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aes_planner.eval.framing import FramingEvalConfig, object_points, run_framing_eval, true_holds
+from aes_planner.eval.framing import FramingEvalConfig, object_points, pick_subject, run_framing_eval, true_holds
 from aes_planner.geometry import Intrinsics
 from aes_planner.geometry.poses import look_at
 from aes_planner.sim.spec import BoxSpec, SphereSpec
@@ -28,6 +28,34 @@ def test_cfg_is_checked():
         FramingEvalConfig(keep_margin=0.9)
     with pytest.raises(Exception, match="min_frac"):
         FramingEvalConfig(min_frac=0.5, max_frac=0.2)
+    with pytest.raises(Exception, match="subjects"):
+        FramingEvalConfig(subjects=[""])
+    with pytest.raises(Exception, match="hold_by"):
+        FramingEvalConfig(hold_by="hull")
+    assert FramingEvalConfig().framing().hold_by == "points"  # the search's own default
+    assert FramingEvalConfig(hold_by="box").framing().hold_by == "box"  # the rule before, for comparisons
+
+
+def test_a_named_subject_is_boxed_in_the_view_that_shows_most_of_it_whatever_the_rules():
+    """``--subject NAME``: the check's own subject (a photograph on a wall may touch the border of
+    the view that shows most of it, which the rules refuse), boxed as the rules would box it."""
+    from aes_planner.eval.search import _inputs, _mode_platform, _source
+    from aes_planner.sim import render
+
+    cfg = FramingEvalConfig(scenes=["sim/scenes/loop_dev/picture_wall_dev.yaml"])
+    source = _source(cfg.scenes[0], cfg)
+    platform = _mode_platform(source, cfg.mode, cfg.free_box_m)
+    inputs, k = _inputs(source, platform, cfg.views), platform.intrinsics
+    by_rules = [pick_subject(source.scene, inputs, k, s, cfg) for s in range(3)]
+    names = [source.scene.objects[p[0]].name for p in by_rules if p is not None]
+    assert "picture1" not in names  # it touches the border of the view that shows most of it
+    obj, view, region = pick_subject(source.scene, inputs, k, 0, cfg, "picture1")
+    assert source.scene.objects[obj].name == "picture1"
+    ids = render(source.scene, inputs[view], k, supersample=1).instance_id
+    ys, xs = np.nonzero(ids == obj + 1)
+    assert (region.x0, region.y0, region.x1, region.y1) == (xs.min(), ys.min(), xs.max() + 1, ys.max() + 1)
+    assert region.y0 == 0 and region.frame == f"view{view}"
+    assert pick_subject(source.scene, inputs, k, 0, cfg, "no_such_object") is None
 
 
 def test_one_case_holds_its_subject_and_is_measured_against_the_constrained_oracle():
@@ -37,6 +65,7 @@ def test_one_case_holds_its_subject_and_is_measured_against_the_constrained_orac
     doc = run_framing_eval(cfg)
     (row,) = doc["rows"]
     assert row["subject"] == "candle" and row["holds"] is True
+    assert 0.6 <= row["shown"] <= 1.01  # the rules ask the view to show at least 60 % of it
     assert 0 < row["holding_views"] < row["grid_views"]
     assert row["best_teacher"] >= row["mean_teacher"] and np.isfinite(row["teacher"])
     s = doc["summary"]
