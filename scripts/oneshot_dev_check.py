@@ -8,6 +8,7 @@ refined suggestion, their field scores and coverage, and, for the variant's stag
 the true score of the 24 best by the field's objective (the pool a re-ranking could choose from).
 Variants are ``NAME=PRESET[,key=value...]`` (SearchConfig fields, ints or floats, and the
 field's ``unseen_cells``);
+``--model=FILE`` searches over that field checkpoint instead of the shipped one (every variant);
 ``--rescore=NAME`` also scores that variant's pool with the field at 32, 48 and 64 px and
 averaged over 8 jitters of 2 and 4 deg (``pool_f32`` ... ``pool_jit4``).
 
@@ -175,8 +176,18 @@ def main(scenes: list[str], seeds: list[int], variants: list[tuple[str, str, dic
                 print("ROW", json.dumps(row, default=float), flush=True)
 
 
+def use_model(path: str) -> None:
+    """Every field built without a model of its own (the search's) scores with ``path``."""
+    from aes_planner.field.model import DEFAULT_CHECKPOINT, _shared_models, load_model
+
+    _shared_models[DEFAULT_CHECKPOINT] = load_model(path).eval().requires_grad_(False)
+
+
 if __name__ == "__main__":
     torch.set_grad_enabled(True)
-    args = [a for a in sys.argv[3:] if not a.startswith("--rescore=")]
+    for a in sys.argv[3:]:
+        if a.startswith("--model="):
+            use_model(a.split("=", 1)[1])
+    args = [a for a in sys.argv[3:] if not a.startswith(("--rescore=", "--model="))]
     rescore = [a.split("=", 1)[1] for a in sys.argv[3:] if a.startswith("--rescore=")]
     main(sys.argv[1].split(","), [int(s) for s in sys.argv[2].split(",")], [variant(v) for v in args], rescore)

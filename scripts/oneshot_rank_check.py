@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
-from oneshot_dev_check import dev_cases  # scripts/ is on the path when run
+from oneshot_dev_check import dev_cases, use_model  # scripts/ is on the path when run
 
 from aes_planner.eval.search import Judge
 from aes_planner.field.common import render_intrinsics
@@ -143,5 +143,8 @@ if __name__ == "__main__":
         summary(sys.argv[2:])
         raise SystemExit(0)
     torch.set_grad_enabled(True)
+    for a in [a for a in sys.argv if a.startswith("--model=")]:  # search over another field checkpoint
+        use_model(a.split("=", 1)[1])
+        sys.argv.remove(a)
     preset = sys.argv[4] if len(sys.argv) > 4 else "balanced"
     main(sys.argv[1].split(","), [int(s) for s in sys.argv[2].split(",")], Path(sys.argv[3]), preset)

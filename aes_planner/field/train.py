@@ -41,6 +41,7 @@ from aes_planner.field.model import FieldInputs, FieldModel, FieldModelConfig, e
 from aes_planner.field.protocol import SOURCES, plan_views
 from aes_planner.geometry.camera import Intrinsics
 from aes_planner.geometry.poses import LocalFrame
+from aes_planner.platform import Platform
 from aes_planner.reconstruct import SplatSet
 from aes_planner.runtime import MAX_THREADS, set_threads
 from aes_planner.sources import SceneSource
@@ -51,8 +52,11 @@ __all__ = [
     "TRAIN_SEED_START",
     "TrainConfig",
     "TrainingDivergedError",
+    "Proposer",
     "build_cache",
+    "hard_targets",
     "load_sample",
+    "make_hard_sample",
     "train",
 ]
 
@@ -65,6 +69,9 @@ EVAL_SEED_START = 0
 VAL_SEED_START = 500
 TRAIN_SEED_START = 1000
 EVAL_SEED_END = VAL_SEED_START
+#: Hard samples' scenes start this far above the training seeds (training scenes the spread-out
+#: samples do not use).
+HARD_SEED_OFFSET = 50_000
 FAMILIES = ("indoor", "outdoor", "tabletop", "gallery")
 
 
@@ -98,6 +105,15 @@ class TrainConfig:
       0.5 over-estimates cost more, so the field learns a cautious score where it is unsure).
     * ``init_from``: a model checkpoint (``model.npz``) to start from, or ``default`` for the
       shipped one (fine-tuning); None starts from scratch.
+    * ``hard_samples``: extra samples whose targets are a viewpoint search's own candidates (hard
+      examples: the views a search over the field ranks highest are those it over-rates most),
+      mixed with the ``samples``; each takes ``hard_views`` input views of the rig's survey sweep
+      (RGB only, as ``eval search``), and its targets are the ``hard_top`` best stage-1 candidates
+      by the search's objective, the search's suggestions, and ``hard_random`` other candidates
+      drawn at random (the contrast the within-scene rank needs). The search is the caller's
+      ``propose`` (:data:`Proposer`; the CLI runs ``hard_preset`` over the ``hard_field``
+      checkpoint, by default the ``init_from`` one: a second round takes the picks of the field
+      the first round made).
     * ``checkpoint_every``: steps between checkpoints; ``seed``: everything random.
     * ``scorer``: render width and Gaussian budget (what the field is used with).
     * ``model``: the architecture.
@@ -127,6 +143,12 @@ class TrainConfig:
     listwise_temperature: float = 0.5
     expectile: float = 0.5
     init_from: str | None = None
+    hard_samples: int = 0
+    hard_views: int = 4
+    hard_top: int = 24
+    hard_random: int = 24
+    hard_preset: str = "balanced"
+    hard_field: str | None = None
     checkpoint_every: int = 250
     seed: int = 0
     gt_supersample: int = 2
@@ -160,6 +182,15 @@ class TrainConfig:
             "expectile",
             f"must be in (0, 1) (0.5 = the plain squared error), got {self.expectile}",
         )
+        require(
+            0 <= self.hard_samples <= 1_000_000, "hard_samples", f"must be in [0, 1000000], got {self.hard_samples}"
+        )
+        require(1 <= self.hard_views <= 16, "hard_views", f"must be in [1, 16], got {self.hard_views}")
+        require(
+            0 <= self.hard_top <= 1000 and 0 <= self.hard_random <= 1000 and self.hard_top + self.hard_random >= 1,
+            "hard_top",
+            f"hard_top and hard_random must be in [0, 1000], together >= 1, got {self.hard_top}, {self.hard_random}",
+        )
         require(self.search_targets >= 0, "search_targets", f"must be >= 0, got {self.search_targets}")
         require(self.checkpoint_every >= 1, "checkpoint_every", "must be >= 1")
         require(1 <= self.gt_supersample <= 4, "gt_supersample", f"must be in [1, 4], got {self.gt_supersample}")
@@ -184,11 +215,19 @@ class TrainConfig:
 
     def sample_spec(self, index: int, split: str = "train") -> tuple[str, str, int, int]:
         """(scene name, source, views, rng seed) of cached sample ``index`` of ``split``
-        (``train`` or ``val``): families round-robin, a new scene seed per round, sources
-        alternating."""
+        (``train``, ``val`` or ``hard``): families round-robin, a new scene seed per round, sources
+        alternating. Hard samples are training scenes of their own (seeds from
+        ``TRAIN_SEED_START + HARD_SEED_OFFSET``), the survey sweep's ``hard_views`` views."""
         fam = self.families[index % len(self.families)]
-        start = TRAIN_SEED_START + self.seed * 100_000 if split == "train" else VAL_SEED_START
+        start = {
+            "train": TRAIN_SEED_START + self.seed * 100_000,
+            "val": VAL_SEED_START,
+            "hard": TRAIN_SEED_START + self.seed * 100_000 + HARD_SEED_OFFSET,
+        }[split]
         seed = start + index // len(self.families)
+        if split == "hard":
+            rng = np.random.default_rng([self.seed, index, 1])
+            return f"{fam}:{seed}", "sweep", self.hard_views, int(rng.integers(2**31))
         source = self.sources[(index // len(self.families)) % len(self.sources)]
         rng = np.random.default_rng([self.seed, index])
         views = int(rng.integers(self.min_views, self.max_views + 1))
@@ -209,6 +248,18 @@ def make_sample(
     frames = [source.capture(p, depth=plan.depth) for p in plan.inputs]
     inputs = FieldInputs.from_frames(frames, teacher, config.scorer.reconstruct_config())
     targets = plan.targets if plan.search_targets is None else np.concatenate([plan.targets, plan.search_targets])
+    maps, scores = _teacher_targets(source, targets, teacher)
+    return {
+        **inputs_to_arrays(inputs),
+        "targets": targets,
+        "search_targets": np.array(0 if plan.search_targets is None else len(plan.search_targets)),
+        "target_maps": maps,
+        "target_scores": scores,
+    }
+
+
+def _teacher_targets(source: SceneSource, targets: np.ndarray, teacher: Teacher) -> tuple[np.ndarray, np.ndarray]:
+    """The teacher's maps ``[T, C, fh, fw]`` and scores ``[T]`` of the ground truth at ``targets [T, 4, 4]``."""
     maps_list, scores_list = [], []
     for i in range(0, len(targets), TARGET_CHUNK):  # renders in chunks: 10,000 at once would be gigabytes
         gt = torch.from_numpy(source.render_rgb(targets[i : i + TARGET_CHUNK])).permute(0, 3, 1, 2)  # [t, 3, H, W]
@@ -216,13 +267,56 @@ def make_sample(
             maps_list.append(teacher.features(gt))
             scores_list.append(teacher.head(maps_list[-1]))
         del gt
-    maps, scores = torch.cat(maps_list), torch.cat(scores_list)  # [T + S, C, fh, fw], [T + S]
+    return torch.cat(maps_list).numpy(), torch.cat(scores_list).numpy()
+
+
+#: A viewpoint search over the field, as training's hard examples take it: ``propose(frames,
+#: inputs_cam2world [V, 4, 4], platform, seed) -> (candidates [C, 4, 4], objective [C],
+#: suggestions [S, 4, 4])``: the search's stage-1 candidates with the objective it ranks them by,
+#: and the views it suggests (world frame, float64). The field does not import the search (it sits
+#: a floor above): the caller passes it (``aes-planner train`` runs a preset's search).
+Proposer = Callable[[list, np.ndarray, Platform, int], tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+
+def hard_targets(
+    candidates: np.ndarray, objective: np.ndarray, suggestions: np.ndarray, top: int, n_random: int, rng
+) -> np.ndarray:
+    """The targets of a hard sample ``[K, 4, 4]``: the search's ``suggestions``, the ``top``
+    candidates by ``objective`` (best first; those the argmax over a noisy field picks among, so
+    those it over-rates), then ``n_random`` of the other candidates drawn at random (the
+    contrast: a within-scene rank needs views the field should rate lower)."""
+    candidates, objective = np.asarray(candidates, np.float64), np.asarray(objective, np.float64)
+    require(
+        candidates.ndim == 3 and candidates.shape[1:] == (4, 4) and objective.shape == (len(candidates),),
+        "candidates",
+        f"need [C, 4, 4] poses and [C] objective values, got {candidates.shape} and {objective.shape}",
+    )
+    order = np.argsort(-objective, kind="stable")  # [C]
+    rest = order[top:]
+    picked = rng.choice(rest, size=min(n_random, len(rest)), replace=False) if len(rest) else rest
+    suggestions = np.asarray(suggestions, np.float64).reshape(-1, 4, 4)
+    return np.concatenate([suggestions, candidates[order[:top]], candidates[np.sort(picked)]])
+
+
+def make_hard_sample(
+    source: SceneSource, n_views: int, seed: int, teacher: Teacher, config: TrainConfig, propose: Proposer
+) -> dict[str, np.ndarray]:
+    """One hard sample: the rig's survey sweep of ``n_views`` RGB frames (as ``eval search``
+    takes them), the search ``propose`` runs on them, and the teacher's maps at
+    :func:`hard_targets` of its result."""
+    plan = plan_views(source.platform, "sweep", n_views, 1, np.random.default_rng(seed))
+    frames = [source.capture(p, depth=False) for p in plan.inputs]
+    inputs = FieldInputs.from_frames(frames, teacher, config.scorer.reconstruct_config())
+    candidates, objective, suggestions = propose(frames, plan.inputs, source.platform, seed)
+    rng = np.random.default_rng([seed, 1])
+    targets = hard_targets(candidates, objective, suggestions, config.hard_top, config.hard_random, rng)
+    maps, scores = _teacher_targets(source, targets, teacher)
     return {
         **inputs_to_arrays(inputs),
         "targets": targets,
-        "search_targets": np.array(0 if plan.search_targets is None else len(plan.search_targets)),
-        "target_maps": maps.numpy(),
-        "target_scores": scores.numpy(),
+        "search_targets": np.array(0),
+        "target_maps": maps,
+        "target_scores": scores,
     }
 
 
@@ -362,19 +456,31 @@ def build_cache(
     progress: Callable[[Iterable], Iterable] = lambda it: it,
     split: str = "train",
     workers: int = 1,
+    propose: Proposer | None = None,
+    propose_tag: str = "",
 ) -> list[Path]:
-    """Render every sample of ``split`` (``train``: ``samples``, ``val``: ``val_samples``) that
-    is not yet in ``cache_dir``; returns the sample files in order.
+    """Render every sample of ``split`` (``train``: ``samples``, ``val``: ``val_samples``,
+    ``hard``: ``hard_samples``, which needs the search ``propose`` and a ``propose_tag`` naming
+    the field it searches over) that is not yet in ``cache_dir``; returns the sample files in order.
     The file name holds everything the sample depends on, so a changed config never reuses a
-    stale sample. ``workers > 1`` renders in that many processes (``make_source`` must then be
-    picklable, e.g. a class or a ``functools.partial``; each process loads its own teacher)."""
+    stale sample. ``workers > 1`` renders in that many processes (``make_source`` and ``propose``
+    must then be picklable, e.g. a class or a ``functools.partial``; each process loads its own teacher)."""
+    require(split in ("train", "val", "hard"), "split", f"must be train, val or hard, got {split!r}")
+    require(
+        split != "hard" or propose is not None or not config.hard_samples,
+        "propose",
+        "hard samples need a search to propose their targets",
+    )
     check_sample_size(config, teacher)
     cache_dir.mkdir(parents=True, exist_ok=True)
     sc = config.scorer
     tag = f"{teacher.name}_w{sc.render_width_px}_g{sc.max_gaussians}_t{config.targets}_s{config.gt_supersample}"
     if config.search_targets:
         tag += f"_q{config.search_targets}"
-    count = config.samples if split == "train" else config.val_samples
+    if split == "hard":  # the targets depend on the search and the field it ran over
+        tag = f"{teacher.name}_w{sc.render_width_px}_g{sc.max_gaussians}_s{config.gt_supersample}"
+        tag += f"_hard{config.hard_top}+{config.hard_random}_{config.hard_preset}_{propose_tag}"
+    count = {"train": config.samples, "val": config.val_samples, "hard": config.hard_samples}[split]
     jobs = []
     for i in range(count):
         name, kind, views, seed = config.sample_spec(i, split)
@@ -389,27 +495,34 @@ def build_cache(
         if p.exists() and not p.is_file():
             raise CacheError(f"{p}: not a file; remove it and the cache renders the sample again")
     missing = [job for job in jobs if not job[-1].exists()]
+    hard = propose if split == "hard" else None
     if workers > 1 and len(missing) > 1:
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
 
         ctx = multiprocessing.get_context("spawn")  # no fork of a process holding torch/numba threads
         with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-            futures = [pool.submit(_cache_sample, make_source, None, config, *job) for job in missing]
+            futures = [pool.submit(_cache_sample, make_source, None, config, *job, hard) for job in missing]
             for fut in progress(futures):
                 fut.result()
     else:
         for job in progress(missing):
-            _cache_sample(make_source, teacher, config, *job)
+            _cache_sample(make_source, teacher, config, *job, hard)
     return [job[-1] for job in jobs]
 
 
-def _cache_sample(make_source, teacher, config: TrainConfig, name: str, kind: str, views: int, seed: int, path: Path):
-    """Render one sample into ``path`` (atomically); a worker process loads its own ``teacher``."""
+def _cache_sample(
+    make_source, teacher, config: TrainConfig, name: str, kind: str, views: int, seed: int, path: Path, propose=None
+):
+    """Render one sample into ``path`` (atomically); a worker process loads its own ``teacher``.
+    With ``propose`` it is a hard sample (:func:`make_hard_sample`)."""
     if teacher is None:
         set_threads(1)
         teacher = config.make_teacher()
-    arrays = make_sample(make_source(name), kind, views, seed, teacher, config)
+    if propose is None:
+        arrays = make_sample(make_source(name), kind, views, seed, teacher, config)
+    else:
+        arrays = make_hard_sample(make_source(name), views, seed, teacher, config, propose)
     tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
     np.savez_compressed(tmp, **arrays)
     tmp.replace(path)

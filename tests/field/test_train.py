@@ -261,6 +261,13 @@ def test_listwise_and_init_from_knobs_are_checked():
         load_config({**TINY, "listwise_temperature": 0.0})
     with pytest.raises(ConfigError, match="listwise_weight"):
         load_config({**TINY, "listwise_weight": -1.0})
+    for bad in ({"hard_top": 0, "hard_random": 0}, {"hard_top": -1}, {"hard_random": 1001}):
+        with pytest.raises(ConfigError, match="hard_top"):
+            load_config({**TINY, **bad})
+    with pytest.raises(ConfigError, match="hard_views"):
+        load_config({**TINY, "hard_views": 0})
+    with pytest.raises(ConfigError, match="hard_samples"):
+        load_config({**TINY, "hard_samples": -1})
 
 
 def test_init_from_starts_at_the_checkpoints_weights(cache, tmp_path):
@@ -344,3 +351,57 @@ def test_a_non_finite_checkpoint_is_never_written(tmp_path):
     with pytest.raises(ModelError, match="NaN or Inf"):
         write_checkpoint(tmp_path / "m.npz", ckpt)
     assert not list(tmp_path.iterdir())
+
+
+def test_hard_targets_are_the_suggestions_the_search_top_and_random_others():
+    from aes_planner.field.train import hard_targets
+
+    rng = np.random.default_rng(0)
+    poses = np.repeat(np.eye(4)[None], 10, 0)
+    poses[:, 0, 3] = np.arange(10)  # candidate i sits at x = i
+    objective = np.array([0.1, 0.9, 0.3, 0.8, 0.2, 0.7, 0.0, 0.6, 0.5, 0.4])
+    sugg = np.eye(4)[None].copy()
+    sugg[0, 1, 3] = 5.0
+    got = hard_targets(poses, objective, sugg, top=3, n_random=4, rng=rng)  # [1 + 3 + 4, 4, 4]
+    x = got[:, 0, 3]
+    assert got.shape == (8, 4, 4) and got[0, 1, 3] == 5.0  # the suggestion first
+    assert list(x[1:4]) == [1, 3, 5]  # then the best three by the objective, best first
+    rest = set(x[4:])
+    assert len(rest) == 4 and rest <= {0, 2, 4, 6, 7, 8, 9}  # four others, none repeated
+    # fewer candidates than asked: all of them, once
+    few = hard_targets(poses[:3], objective[:3], np.zeros((0, 4, 4)), top=2, n_random=5, rng=rng)
+    assert sorted(few[:, 0, 3]) == [0, 1, 2]
+    with pytest.raises(ConfigError, match="candidates"):
+        hard_targets(poses, objective[:4], sugg, 3, 4, rng)
+
+
+def test_hard_samples_take_the_survey_sweep_and_the_teacher_at_the_searchs_views(tmp_path):
+    from aes_planner.field.train import HARD_SEED_OFFSET, hard_targets
+
+    calls = []
+
+    def propose(frames, inputs, platform, seed):  # a stand-in search: 6 candidates near the first input
+        calls.append((len(frames), inputs.copy(), seed))
+        assert all(f.depth_m is None for f in frames)  # RGB only, as a real rig
+        cands = np.repeat(inputs[:1], 6, 0)
+        cands[:, :3, 3] += np.linspace(0, 0.3, 6)[:, None]
+        return cands, np.arange(6.0), cands[-1:]
+
+    cfg = load_config({**TINY, "hard_samples": 1, "hard_views": 3, "hard_top": 2, "hard_random": 2})
+    teacher = get_teacher()
+    with pytest.raises(ConfigError, match="propose"):
+        build_cache(cfg, tmp_path, _source, teacher, split="hard")
+    (path,) = build_cache(cfg, tmp_path, _source, teacher, split="hard", propose=propose, propose_tag="abc")
+    assert "hard2+2" in path.name and path.name.endswith("_abc.npz")
+    name, kind, views, seed = cfg.sample_spec(0, "hard")
+    assert kind == "sweep" and views == 3 and int(name.split(":")[1]) >= TRAIN_SEED_START + HARD_SEED_OFFSET
+    d = load_sample(path)
+    ((n, inputs, s),) = calls
+    assert n == 3 and s == seed and len(d["images"]) == 3
+    cands = np.repeat(inputs[:1], 6, 0)
+    cands[:, :3, 3] += np.linspace(0, 0.3, 6)[:, None]
+    want = hard_targets(cands, np.arange(6.0), cands[-1:], 2, 2, np.random.default_rng([seed, 1]))
+    assert np.allclose(d["targets"], want) and len(d["targets"]) == 5
+    gt = torch.from_numpy(_source(name).render_rgb(want)).permute(0, 3, 1, 2)
+    assert np.allclose(d["target_scores"], teacher.score(gt).numpy(), atol=1e-5)
+    assert int(d["search_targets"]) == 0  # the same arrays as a usual sample: they mix in one list
