@@ -583,6 +583,20 @@ class _ThreeHills(ScriptedProposer):
         return float(max(hill(0.75, self.A, self.SN), hill(0.74, self.B, self.SN), hill(1.0, self.C, self.SC)))
 
 
+def _three_hills_loop(**kw) -> PlannerNode:
+    """Three moves to _ThreeHills' two tops and the higher hill's flank (6 deg off), then the polish (48 captures)."""
+    prop = _ThreeHills()
+    flank = (prop.C[0] + math.radians(6.0), prop.C[1])
+    prop.fixed = lambda p=prop, f=flank: [Candidate(p.rig.forward(*at), 10.0, 1.0, *at) for at in (p.A, p.B, f)]
+    node = make(prop, explore_views=2, max_moves=3, polish_captures=48, verify_hills=0, **kw)
+    drive(node, SimRig(prop), steps=2000)
+    assert node.state == "done" and node.moves == 3
+    moves = sorted(c.score for c in node.captures if c.kind == "move")
+    assert moves[0] == pytest.approx(0.72, abs=0.01) and moves[-1] == pytest.approx(0.75, abs=0.01)
+    assert sum(c.kind == "polish" for c in node.captures) <= 48
+    return node
+
+
 def test_the_polish_climbs_a_third_hill_the_moves_touched_on_its_flank():
     """Dev tabletop:202: the moves capture the tops of two lower hills and the oracle's hill only
     on its flank (0.68-0.72, third best); climbing the best two captured hills ends on a top of
@@ -590,24 +604,7 @@ def test_the_polish_climbs_a_third_hill_the_moves_touched_on_its_flank():
     beyond the climbs: ``polish_hills`` = ``polish_starts``)."""
     finals = {}
     for starts in (2, PlannerConfig().polish_starts):
-        prop = _ThreeHills()
-        flank = (prop.C[0] + math.radians(6.0), prop.C[1])
-        prop.fixed = lambda p=prop, f=flank: [Candidate(p.rig.forward(*at), 10.0, 1.0, *at) for at in (p.A, p.B, f)]
-        node = make(
-            prop,
-            explore_views=2,
-            max_moves=3,
-            polish_captures=48,
-            polish_starts=starts,
-            polish_hills=starts,
-            verify_hills=0,
-            spare_hills=0,
-        )
-        drive(node, SimRig(prop), steps=2000)
-        assert node.state == "done" and node.moves == 3
-        moves = sorted(c.score for c in node.captures if c.kind == "move")
-        assert moves[0] == pytest.approx(0.72, abs=0.01) and moves[-1] == pytest.approx(0.75, abs=0.01)
-        assert sum(c.kind == "polish" for c in node.captures) <= 48
+        node = _three_hills_loop(polish_starts=starts, polish_hills=starts, spare_hills=0)
         finals[starts] = node.captures[-1].score
     assert finals[2] == pytest.approx(0.75, abs=0.01)
     assert finals[PlannerConfig().polish_starts] > 0.95
@@ -657,24 +654,8 @@ def test_spare_polish_captures_climb_a_hill_the_climbs_left_alone():
     top. Nothing before the spare climb changes, so the run can only gain."""
     runs = {}
     for spare in (0, None):
-        prop = _ThreeHills()
-        flank = (prop.C[0] + math.radians(6.0), prop.C[1])
-        prop.fixed = lambda p=prop, f=flank: [Candidate(p.rig.forward(*at), 10.0, 1.0, *at) for at in (p.A, p.B, f)]
-        node = make(
-            prop,
-            explore_views=2,
-            max_moves=3,
-            polish_captures=48,
-            polish_starts=2,
-            polish_hills=2,
-            verify_hills=0,
-            spare_hills=spare,
-        )
-        drive(node, SimRig(prop), steps=2000)
-        assert node.state == "done" and node.moves == 3
-        polish = [c for c in node.captures if c.kind == "polish"]
-        assert len(polish) <= 48
-        runs[spare] = (node.captures[-1].score, len(polish))
+        node = _three_hills_loop(polish_starts=2, polish_hills=2, spare_hills=spare)
+        runs[spare] = (node.captures[-1].score, sum(c.kind == "polish" for c in node.captures))
     (lone, spent), (spared, _) = runs[0], runs[None]
     assert lone == pytest.approx(0.75, abs=0.01) and spent < 48  # the climbs left captures unspent
     assert spared > 0.95  # the rig's default (2 spare hills) climbs the flank
