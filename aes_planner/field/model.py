@@ -24,7 +24,8 @@ Pipeline (section 3.1 of the paper, CPU parts in brackets):
    baseline): pooling to twice the teacher's map size, a per-cell MLP, pooling to the map size, a
    3x3 convolution and one global self-attention layer (the teacher's saliency depends on what
    else is in the frame), then a 1x1 projection to ``C`` channels, scaled per channel.
-7. **Scoring**: the teacher's own ``head`` (and ``explain_map`` for the terms).
+7. **Scoring**: the teacher's own ``head`` (and its terms), through ``explain_scores`` (for the
+   composition teacher one compiled kernel, forward and gradient).
 
 :class:`FieldModel` holds the trained parts; :class:`FieldInputs` what one set of frames gives
 them; :class:`AestheticField` is the :class:`~aes_planner.field.scorer.Scorer`.
@@ -610,14 +611,15 @@ def expected_terms(teacher: Teacher, maps: Tensor, alpha: Tensor, fills: Tensor)
     candidates by +0.058 of score on dev scenes, +0.016 with the true map in the unseen cells).
     The head is not linear, so the score of a mean guess is not the mean score of the contents it
     stands for: scoring each plausible content and averaging is. Fully seen views (alpha 1) score
-    as before. Differentiable with respect to the maps and the alpha."""
+    as before. The score is differentiable with respect to the maps and the alpha, the other
+    terms are detached (:meth:`Teacher.explain_scores`)."""
     v = fills.shape[0]
     if v > MAX_UNSEEN_FILLS:
         fills = fills[torch.linspace(0, v - 1, MAX_UNSEEN_FILLS).round().long()]
         v = MAX_UNSEEN_FILLS
     b = maps.shape[0]
     blended = alpha[:, None] * maps[:, None] + (1.0 - alpha[:, None]) * fills[None].to(maps.dtype)  # [B, V, C, fh, fw]
-    terms = teacher.explain_map(blended.reshape(b * v, *maps.shape[1:]))
+    terms = teacher.explain_scores(blended.reshape(b * v, *maps.shape[1:]))
     return {k: t.reshape(b, v).mean(1) for k, t in terms.items()}
 
 
@@ -771,7 +773,7 @@ class AestheticField(Scorer):
         the cells' alpha), with the unseen cells as ``config.unseen_cells`` says."""
         fills = None if self._inputs is None else self._inputs.fmaps  # [V, C, fh, fw]
         if self.config.unseen_cells == "decoder" or fills is None or len(fills) == 0 or len(maps) == 0:
-            terms = self.teacher.explain_map(maps)
+            terms = self.teacher.explain_scores(maps)  # the score differentiable, the terms reported
         else:
             terms = expected_terms(self.teacher, maps, self.model.cell_alpha(pooled), fills)
         return ScoreOutput(terms["score"], coverage, {k: v.detach() for k, v in terms.items()})

@@ -54,5 +54,5 @@ class SplatScorer(Scorer):
             out = rasterize(self.gaussians, w2c, torch.from_numpy(k.K), k.width, k.height, validate=False)
             maps = F.adaptive_avg_pool2d(out.features, self.teacher.feature_size)
             coverage = out.alpha.detach().mean((1, 2)).clamp(0, 1).to(torch.float64)
-        terms = self.teacher.explain_map(maps)
+        terms = self.teacher.explain_scores(maps)
         return ScoreOutput(terms["score"], coverage, {k_: v.detach() for k_, v in terms.items()})

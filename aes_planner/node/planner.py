@@ -173,6 +173,9 @@ class PlannerNode(ActiveLoop, Node):
             from aes_planner.gaussians.warmup import warm_kernels
 
             warm_kernels()
+            warm = getattr(self.teacher, "warm", None)  # Teacher.warm: e.g. the composition head's kernel
+            if callable(warm):
+                warm()
             self._kernels_warm = True
 
     # ----------------------------------------------------------------------------------- step

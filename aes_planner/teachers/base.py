@@ -115,6 +115,19 @@ class Teacher(nn.Module, ABC):
         """
         return {"score": self.head(fmap)}
 
+    def explain_scores(self, fmap: Tensor) -> dict[str, Tensor]:  # [B, C, h, w] -> {name: [B]}
+        """:meth:`explain_map` where only ``"score"`` carries a gradient (the other terms detached):
+        what a search reads, which ascends the score and reports the terms. Teachers may compute
+        it faster than :meth:`explain_map` (the composition teacher: one compiled kernel)."""
+        terms = self.explain_map(fmap)
+        return {k: (v if k == "score" else v.detach()) for k, v in terms.items()}
+
+    def warm(self) -> float | None:
+        """Compile (or load from a cache) whatever the teacher compiles before its first use, so
+        that a planner's first suggestion does not wait for it; seconds taken, or None when there
+        is nothing to compile (the default)."""
+        return None
+
     def explain(self, images: Tensor) -> dict[str, Tensor]:  # [B, 3, H, W] -> {name: [B]}
         """Named terms behind each image's score; always includes ``"score"``."""
         return self.explain_map(self.features(images))

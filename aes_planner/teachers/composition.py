@@ -88,15 +88,20 @@ on random rig views of the simulator's scenes); an ordinary view of a subject 0.
 from __future__ import annotations
 
 import functools
+import logging
 import math
+import time
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
 from aes_planner.config import require, require_finite
 from aes_planner.teachers.base import Teacher, check_feature_map, check_images
+
+log = logging.getLogger(__name__)
 
 __all__ = ["CompositionConfig", "CompositionWeights", "CompositionTeacher", "TERMS", "CHANNELS"]
 
@@ -388,6 +393,57 @@ class CompositionTeacher(Teacher):
     def explain_map(self, fmap: Tensor) -> dict[str, Tensor]:  # [B, 4, n, n] -> {name: [B]}
         return self._terms(fmap)
 
+    def explain_scores(self, fmap: Tensor) -> dict[str, Tensor]:  # [B, 4, n, n] -> {name: [B]}
+        """:meth:`Teacher.explain_scores` in one compiled kernel (:mod:`composition_kernel
+        <aes_planner.teachers.composition_kernel>`: the terms and the score's analytic gradient
+        in one pass) where numba imports and the map is a float32 or float64 CPU tensor, else
+        :meth:`explain_map`. The same values as :meth:`explain_map` up to float32 rounding (its
+        intermediates in float64) and the gradient autograd computes; at a stage-2 step (2 maps)
+        ~0.1 ms instead of ~4 ms of the torch head forward and backward (docs/benchmarks.md,
+        "perf-2, seventh round")."""
+        check_feature_map(fmap, self.feature_channels, self.feature_size, "composition teacher head")
+        kernel = _compiled_head()
+        if kernel is None or fmap.device.type != "cpu" or fmap.dtype not in (torch.float32, torch.float64):
+            return super().explain_scores(fmap)
+        score, rest = _CompiledHead.apply(fmap, kernel, self._kernel_tables())
+        names = (*TERMS, "content", "subject_presence", "horizon_presence")  # the kernel's T_* columns after the score
+        return {"score": score, **{name: rest[:, i] for i, name in enumerate(names)}}
+
+    def warm(self) -> float | None:
+        """:meth:`Teacher.warm`: the compiled head for float32 maps, forward and gradient (numba
+        compiles it once per install, ~30-50 s on two cores, and loads it from its cache after)."""
+        if _compiled_head() is None:
+            return None
+        t0 = time.perf_counter()
+        fmap = torch.zeros(1, self.feature_channels, *self.feature_size, requires_grad=True)
+        with torch.enable_grad():
+            self.explain_scores(fmap)["score"].sum().backward()
+        return time.perf_counter() - t0
+
+    def _kernel_tables(self) -> tuple:
+        """The head's tables (copies) and its constants (float64), in :func:`composition_kernel.head
+        <aes_planner.teachers.composition_kernel.head>`'s order; rebuilt when a buffer changed."""
+        bufs = (self._box3, self._annulus, self._thirds, self._x, self._y, self._ring, self._rows,
+                self._row_blur, self._thirds_of_width, self._weights)  # fmt: skip
+        key = tuple((t.data_ptr(), t._version, t.dtype) for t in bufs)
+        cached = getattr(self, "_kernel_cache", None)
+        if cached is None or cached[0] != key:
+            # in the buffers' own dtype (the kernel computes in float64 whatever it reads): the
+            # float32 annulus is half the memory traffic of a float64 copy, and the same values
+            box3, annulus, *rest = (t.detach().cpu().numpy().copy() for t in bufs)
+            arrays = tuple(np.ascontiguousarray(a) for a in (box3, box3.T, annulus, annulus.T, *rest))
+            cfg = self.config
+            consts = np.array(
+                [_MAP_LIMIT, _TINY, _EPS, _OBJECT_ENERGY, _ISOLATION, _PRESENCE_MASS, _CONTENT_EDGE_FLOOR,
+                 _CONTENT_EDGE, _CONTENT_OBJECT, _LINES_CONTENT, _SAL_FLOOR, _BALANCE_SIGMA, _RING_FLOOR,
+                 _BORDER_FREE, _BORDER_SCALE, _AREA_GAIN, cfg.ideal_subject_area, _SIZE_LOG_SIGMA, _BUSY_ENERGY,
+                 _CLUTTER_MID, _CLUTTER_WIDTH, _HORIZON_ENERGY, _HORIZON_SIGMA,
+                 math.sin(math.radians(cfg.tilt_tolerance_deg))],
+                dtype=np.float64,
+            )  # fmt: skip
+            cached = self._kernel_cache = (key, (*arrays, consts))
+        return cached[1]
+
     def _terms(self, fmap: Tensor) -> dict[str, Tensor]:  # [B, 4, n, n] -> {name: [B]}
         check_feature_map(fmap, self.feature_channels, self.feature_size, "composition teacher head")
         fmap = fmap.clamp(-_MAP_LIMIT, _MAP_LIMIT)  # real maps stay within about [-1, 1]
@@ -504,3 +560,44 @@ class CompositionTeacher(Teacher):
         tol = math.sin(math.radians(self.config.tilt_tolerance_deg))
         level = torch.exp(-(sin_tilt**2) / (2 * tol * tol))
         return placement, level, presence
+
+
+_kernel_module = None
+_kernel_error: str | None = None
+
+
+def _compiled_head():
+    """:mod:`aes_planner.teachers.composition_kernel` (numba), or None where numba does not import."""
+    global _kernel_module, _kernel_error
+    if _kernel_module is None and _kernel_error is None:
+        try:
+            from aes_planner.teachers import composition_kernel
+
+            _kernel_module = composition_kernel
+        except ImportError as exc:  # numba missing or broken: the torch head
+            _kernel_error = f"{type(exc).__name__}: {exc}"
+            log.info("composition head: compiled kernel unavailable (%s); the torch head runs", _kernel_error)
+    return _kernel_module
+
+
+class _CompiledHead(torch.autograd.Function):
+    """The composition head's score (differentiable w.r.t. the map) and its other terms (not)."""
+
+    @staticmethod
+    def forward(ctx, fmap: Tensor, kernel, tables: tuple):  # [B, 4, n, n] -> [B], [B, NTERMS - 1]
+        want_grad = bool(ctx.needs_input_grad[0])
+        x = np.ascontiguousarray(fmap.detach().numpy())
+        terms = np.empty((x.shape[0], kernel.NTERMS))  # float64
+        grad = np.empty(x.shape if want_grad else (0, *x.shape[1:]), dtype=np.float64)
+        kernel.head(x, *tables, want_grad, terms, grad)
+        out = torch.from_numpy(terms).to(fmap.dtype)
+        score, rest = out[:, 0].contiguous(), out[:, 1:]
+        ctx.mark_non_differentiable(rest)
+        if want_grad:
+            ctx.save_for_backward(torch.from_numpy(grad).to(fmap.dtype))
+        return score, rest
+
+    @staticmethod
+    def backward(ctx, grad_score: Tensor, grad_rest: Tensor):  # [B], [B, NTERMS - 1] -> [B, 4, n, n]
+        (dscore,) = ctx.saved_tensors
+        return grad_score[:, None, None, None] * dscore, None, None

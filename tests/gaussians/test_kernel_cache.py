@@ -36,7 +36,8 @@ def test_warmup_command_readies_the_kernels(capsys, monkeypatch):
 
     monkeypatch.delenv("AES_PLANNER_RASTER_BACKEND", raising=False)
     assert main(["warmup"]) == 0
-    assert "rasterizer kernels ready" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "rasterizer kernels ready" in out and "composition head ready" in out
     assert warmup.warm_kernels() < warmup.COMPILED_AFTER_S  # in this process: loaded already
 
 

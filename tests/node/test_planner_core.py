@@ -438,13 +438,15 @@ def test_start_readies_the_rasterizer_once_for_the_field_and_not_for_a_stand_in(
     from aes_planner.gaussians import warmup
 
     calls = []
-    monkeypatch.setattr(warmup, "warm_kernels", lambda: calls.append(1) or 0.0)
-    node = PlannerNode(PlannerConfig(platform=RigPlatformConfig(RIG)), teacher=FakeTeacher())  # the field's proposer
+    monkeypatch.setattr(warmup, "warm_kernels", lambda: calls.append("raster") or 0.0)
+    teacher = FakeTeacher()
+    teacher.warm = lambda: calls.append("teacher") or 0.0  # Teacher.warm (the composition head's kernel)
+    node = PlannerNode(PlannerConfig(platform=RigPlatformConfig(RIG)), teacher=teacher)  # the field's proposer
     node.start()
     node.start()
-    assert len(calls) == 1  # compiled (or loaded) at start, not in the first plan
+    assert calls == ["raster", "teacher"]  # compiled (or loaded) at start, not in the first plan
     make().start()  # a scripted proposer renders nothing
-    assert len(calls) == 1
+    assert calls == ["raster", "teacher"]
 
 
 def test_step_takes_time_only_from_now(monkeypatch):
