@@ -264,6 +264,8 @@ class ActiveLoop:
         self.state = LoopState.POLISHING
         self._polish_centre = None
         self._climbs = None  # chosen once the hills' verifications are captured
+        self._stood_on = []
+        self._spares = 0
         # the hills the moves never reached: one real capture of each one's best predicted view
         # (on top of the polish's budget), so the hill climbed first is chosen on captures, not on
         # the field's (over-)estimate
@@ -300,7 +302,26 @@ class ActiveLoop:
                 continue
             log.info("%s: verify a hill: %s, pred %.3f hope %.3f", self.node_id, _where(cd), cd.score, hope[i])
             targets.append(Target(CaptureKind.VERIFY, cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=float(hope[i])))
-        return targets
+        unseen = self._unseen_target(proposal, step_deg, targets)
+        return targets + ([unseen] if unseen is not None else [])
+
+    def _unseen_target(self, proposal, step_deg: float, targets: list[Target]) -> Target | None:
+        """One verification of the search's exploratory candidate (the edge of what was seen) when
+        its inputs cover less than ``explore_below_covered`` of the space and no capture or other
+        verification lies within a coarsest polish step of it (``verify_unseen``; unset: the
+        motion's default): the moves may have spent the budget before the loop explored, and a
+        hill there is then climbed only if a capture shows it."""
+        c = self.config
+        on = self.motion.verify_unseen if c.verify_unseen is None else c.verify_unseen
+        cd, covered = proposal.explore, proposal.covered_fraction
+        if not on or cd is None or covered is None or covered >= c.explore_below_covered:
+            return None
+        if near_captured(self.captures, cd.cam2world, step_deg, c.min_move_m):
+            return None
+        if any(view_angle_deg(cd.cam2world, t.cam2world) < step_deg for t in targets):
+            return None
+        log.info("%s: verify the unseen: %s (inputs cover %.2f of the space)", self.node_id, _where(cd), covered)
+        return Target(CaptureKind.VERIFY, cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=None)
 
     def _begin_climbs(self) -> None:
         """The best hill and the runners-up nearly as good, each climbed in turn: a hill captured
@@ -364,6 +385,34 @@ class ActiveLoop:
         )
         self._set_climbs(chosen)
 
+    def _spare_climb(self) -> bool:
+        """Every climb ended with polish captures left: queue one more hill to climb with all that
+        is left (up to ``spare_hills`` such climbs; unset: the motion's default), the best capture,
+        verifications included, within ``polish_start_gap`` of the best and two coarsest steps or
+        more from every view a climb stood on. False when there is none."""
+        c = self.config
+        most = self.motion.spare_hills if c.spare_hills is None else c.spare_hills
+        if self._spares >= most or self._polish_left <= 0:
+            return False
+        apart_deg = 2.0 * c.polish_step_deg * 2.0 ** (c.polish_scales - 1)
+        floor = self._best_capture().score - c.polish_start_gap
+        for cap in sorted(self.captures, key=lambda cap: -cap.score):  # stable: earlier first on a tie
+            if cap.score < floor:
+                return False
+            if all(view_angle_deg(cap.cam2world, s.cam2world) >= apart_deg for s in self._stood_on):
+                self._spares += 1
+                log.info(
+                    "%s: %d polish captures left: climbing a spare hill (%.3f, best %.3f)",
+                    self.node_id,
+                    self._polish_left,
+                    cap.score,
+                    self._best_capture().score,
+                )
+                self._climbs = [cap]
+                self._climb_budget = self._polish_left
+                return True
+        return False
+
     def _polish_starts(self, apart_deg: float, most: int) -> list[Capture]:
         """The best capture, then up to ``most - 1`` others scoring within
         ``polish_start_gap`` of it, each at least ``apart_deg`` from those before (other hills).
@@ -399,9 +448,10 @@ class ActiveLoop:
             self._rank_probed()
         while self._polish_left > 0:
             if self._polish_centre is None:  # the next climb
-                if not self._climbs:
+                if not self._climbs and not self._spare_climb():
                     break
                 self._polish_centre = self._climbs.pop(0)
+                self._stood_on.append(self._polish_centre)
                 self._polish_scale = c.polish_scales - 1
                 self._climb_left = self._climb_budget
                 self._round_from = None
@@ -417,6 +467,7 @@ class ActiveLoop:
                 if top is not self._polish_centre:
                     previous, self._polish_centre = self._polish_centre, top
                     self._polish_previous = previous
+                    self._stood_on.append(top)
                 else:
                     self._polish_scale -= 1
                 if self._polish_scale < 0 or self._climb_left <= 0:

@@ -57,6 +57,12 @@ class Sender(Protocol):
 class Motion(ABC):
     """The platform-specific half of the active loop."""
 
+    #: ``PlannerConfig.spare_hills`` when the config leaves it unset (spare polish captures climb
+    #: this many more hills)
+    spare_hills: int = 0
+    #: ``PlannerConfig.verify_unseen`` when the config leaves it unset
+    verify_unseen: bool = False
+
     #: ``ViewSuggestion.mode``'s word for the platform (the wire format's: ``rig`` or ``free``)
     suggestion_mode: str
     platform: Platform | None = None
@@ -114,6 +120,8 @@ class Motion(ABC):
 
 class RigMotion(Motion):
     suggestion_mode = "rig"
+    spare_hills = 2  # PlannerConfig.spare_hills when unset: measured on dev rigs (docs/decisions.md)
+    verify_unseen = True  # PlannerConfig.verify_unseen when unset: measured on dev rigs
 
     def __init__(self, rig: PanTiltConfig):
         self.rig = rig
@@ -198,6 +206,8 @@ class RigMotion(Motion):
 
 class DroneMotion(Motion):
     suggestion_mode = "free"
+    spare_hills = 0  # not measured on drones yet: their polish is unchanged
+    verify_unseen = False  # nor this
 
     def __init__(self, box: DroneBox, search_config):
         self.box = box

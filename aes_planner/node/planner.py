@@ -131,6 +131,8 @@ class PlannerNode(ActiveLoop, Node):
         self._polish_scale = 0
         self._polish_previous: Capture | None = None
         self._climbs: list[Capture] | None = []  # None: chosen after the hills' verifications
+        self._stood_on: list[Capture] = []  # every centre a climb stood on (spare hills lie away from them)
+        self._spares = 0  # spare hills climbed (PlannerConfig.spare_hills)
         self._climb_budget = 0
         self._probed: tuple[list[Capture], int] | None = None  # (hills, first probe capture): rounds to rank
         self._climb_left = 0

@@ -64,6 +64,21 @@ class PlannerConfig:
       (a coarsest polish step or more from every capture; ranked by hope, each hoping for at
       least the best captured score minus ``polish_start_gap``): a verification that beats every
       capture is the first hill climbed, whichever hills the moves happened to visit. 0 = none.
+    * ``spare_hills``: when every climb ended with polish captures left (a climb that reached its
+      finest step early), the rest climb up to this many more hills, one after the other, each
+      with what is left: the best capture (verifications included) within ``polish_start_gap`` of
+      the best that lies two coarsest polish steps or more from every view a climb stood on. A
+      run's path up to there is unchanged and it settles on its best capture, so the figure can
+      only rise (dev tabletop:202 ``seed:2``: two climbs spent 30 of 48 captures while a
+      verified hill 0.02 below the best was never climbed). Unset: the platform's default (a rig
+      2; a drone 0, not measured there).
+    * ``verify_unseen``: with the hills' verifications, one capture of the search's exploratory
+      candidate (the edge of what the inputs saw) when they cover less than
+      ``explore_below_covered`` and no capture lies within a coarsest polish step of it: four
+      moves spent on predicted hills leave the loop no move to explore with (dev tabletop:213:
+      the oracle's view lay 4.5 deg from the exploratory candidate, never captured). A capture
+      there that beats every capture is climbed first; nearly as good, a spare hill. Unset: the
+      platform's default (a rig true; a drone false, not measured there).
     * ``tie_tolerance``: a capture displaces the best captured view (the polish's centre, the
       view settled on) only when it scored more than this higher (teacher units).
     * ``polish_coarse_gain``: at a polish step coarser than the finest, a neighbour displaces the
@@ -138,6 +153,8 @@ class PlannerConfig:
     polish_start_gap: float = 0.1
     polish_hills: int = 5
     verify_hills: int = 2
+    spare_hills: int | None = None
+    verify_unseen: bool | None = None
     tie_tolerance: float = 0.002
     polish_coarse_gain: float = 0.02
     hope_quantum: float = 0.005
@@ -200,6 +217,21 @@ class PlannerConfig:
             require(
                 isinstance(v, int) and not isinstance(v, bool) and v >= 0, name, f"must be an integer >= 0, got {v!r}"
             )
+        require(
+            self.spare_hills is None
+            or (
+                isinstance(self.spare_hills, int)
+                and not isinstance(self.spare_hills, bool)
+                and 0 <= self.spare_hills <= 16
+            ),
+            "spare_hills",
+            f"must be an integer in [0, 16], or unset for the platform's default, got {self.spare_hills!r}",
+        )
+        require(
+            self.verify_unseen is None or isinstance(self.verify_unseen, bool),
+            "verify_unseen",
+            f"must be true or false, or unset for the platform's default, got {self.verify_unseen!r}",
+        )
         require(self.top_k >= 1, "top_k", f"must be >= 1, got {self.top_k}")
         from aes_planner.messages.suggestion import MAX_CANDIDATES
 

@@ -589,6 +589,20 @@ class _ThreeHills(ScriptedProposer):
         return float(max(hill(0.75, self.A, self.SN), hill(0.74, self.B, self.SN), hill(1.0, self.C, self.SC)))
 
 
+def _three_hills_loop(**kw) -> PlannerNode:
+    """Three moves to _ThreeHills' two tops and the higher hill's flank (6 deg off), then the polish (48 captures)."""
+    prop = _ThreeHills()
+    flank = (prop.C[0] + math.radians(6.0), prop.C[1])
+    prop.fixed = lambda p=prop, f=flank: [Candidate(p.rig.forward(*at), 10.0, 1.0, *at) for at in (p.A, p.B, f)]
+    node = make(prop, explore_views=2, max_moves=3, polish_captures=48, verify_hills=0, **kw)
+    drive(node, SimRig(prop), steps=2000)
+    assert node.state == "done" and node.moves == 3
+    moves = sorted(c.score for c in node.captures if c.kind == "move")
+    assert moves[0] == pytest.approx(0.72, abs=0.01) and moves[-1] == pytest.approx(0.75, abs=0.01)
+    assert sum(c.kind == "polish" for c in node.captures) <= 48
+    return node
+
+
 def test_the_polish_climbs_a_third_hill_the_moves_touched_on_its_flank():
     """Dev tabletop:202: the moves capture the tops of two lower hills and the oracle's hill only
     on its flank (0.68-0.72, third best); climbing the best two captured hills ends on a top of
@@ -596,23 +610,7 @@ def test_the_polish_climbs_a_third_hill_the_moves_touched_on_its_flank():
     beyond the climbs: ``polish_hills`` = ``polish_starts``)."""
     finals = {}
     for starts in (2, PlannerConfig().polish_starts):
-        prop = _ThreeHills()
-        flank = (prop.C[0] + math.radians(6.0), prop.C[1])
-        prop.fixed = lambda p=prop, f=flank: [Candidate(p.rig.forward(*at), 10.0, 1.0, *at) for at in (p.A, p.B, f)]
-        node = make(
-            prop,
-            explore_views=2,
-            max_moves=3,
-            polish_captures=48,
-            polish_starts=starts,
-            polish_hills=starts,
-            verify_hills=0,
-        )
-        drive(node, SimRig(prop), steps=2000)
-        assert node.state == "done" and node.moves == 3
-        moves = sorted(c.score for c in node.captures if c.kind == "move")
-        assert moves[0] == pytest.approx(0.72, abs=0.01) and moves[-1] == pytest.approx(0.75, abs=0.01)
-        assert sum(c.kind == "polish" for c in node.captures) <= 48
+        node = _three_hills_loop(polish_starts=starts, polish_hills=starts, spare_hills=0)
         finals[starts] = node.captures[-1].score
     assert finals[2] == pytest.approx(0.75, abs=0.01)
     assert finals[PlannerConfig().polish_starts] > 0.95
@@ -641,7 +639,9 @@ def test_the_polish_probes_every_hill_before_it_chooses_which_to_climb():
         prop.fixed = lambda p=prop, f=flank: [
             Candidate(p.rig.forward(*at), 10.0, 1.0, *at) for at in (p.A, p.B, p.D, f)
         ]
-        node = make(prop, explore_views=2, max_moves=4, polish_captures=48, polish_hills=hills, verify_hills=0)
+        node = make(
+            prop, explore_views=2, max_moves=4, polish_captures=48, polish_hills=hills, verify_hills=0, spare_hills=0
+        )
         drive(node, SimRig(prop), steps=2500)
         assert node.state == "done" and node.moves == 4
         moves = sorted(c.score for c in node.captures if c.kind == "move")
@@ -687,3 +687,62 @@ def test_fine_rounds_find_a_peak_between_the_finest_steps_only_where_the_camera_
     node = make(prop, explore_views=2, max_moves=1, polish_captures=0, polish_fine_captures=8)
     drive(node, SimRig(prop))
     assert not any(c.kind == "polish" for c in node.captures)
+
+
+def test_spare_polish_captures_climb_a_hill_the_climbs_left_alone():
+    """Dev tabletop:202 ``seed:2``: two climbs reached their finest steps on two lower tops (0.75,
+    0.74) after 30 of the 48 polish captures, and the hill the oracle's view lies on, captured on its
+    flank (0.72, within ``polish_start_gap`` of the best), was never climbed. With no spare hills
+    the run ends at 0.75 with captures unspent; the spare captures climb the flank to the higher
+    top. Nothing before the spare climb changes, so the run can only gain."""
+    runs = {}
+    for spare in (0, None):
+        node = _three_hills_loop(polish_starts=2, polish_hills=2, spare_hills=spare)
+        runs[spare] = (node.captures[-1].score, sum(c.kind == "polish" for c in node.captures))
+    (lone, spent), (spared, _) = runs[0], runs[None]
+    assert lone == pytest.approx(0.75, abs=0.01) and spent < 48  # the climbs left captures unspent
+    assert spared > 0.95  # the rig's default (2 spare hills) climbs the flank
+
+
+def test_spare_hills_default_is_the_platforms_and_is_checked():
+    from aes_planner.node.motion import DroneMotion, RigMotion
+
+    assert PlannerConfig().spare_hills is None
+    assert RigMotion.spare_hills == 2 and DroneMotion.spare_hills == 0  # drones: not measured, unchanged
+    for bad in (-1, 17, 1.5, True):
+        with pytest.raises(ConfigError, match="spare_hills"):
+            PlannerConfig(spare_hills=bad)
+
+
+class _UnseenHill(_FarHill):
+    """_FarHill's search, which says its inputs cover 0.6 of the space and offers an exploratory
+    candidate at the edge of what they saw, near the higher hill (1.0 at (-1.0, 0))."""
+
+    EXPLORE = (-0.96, 0.03)
+
+    def propose(self, platform, captured, top_k, keep_near=None):
+        p = super().propose(platform, captured, top_k, keep_near)
+        p.covered_fraction = 0.6
+        p.explore = Candidate(self.rig.forward(*self.EXPLORE), 0.5, 0.0, *self.EXPLORE)
+        return p
+
+
+def test_the_loop_verifies_the_unseen_before_it_polishes():
+    """Dev tabletop:213 ``base``: four moves went to predicted hills, none was left to explore,
+    and the oracle's view lay 4.5 deg from the search's exploratory candidate, never captured
+    (0.865 of the oracle). Without ``verify_unseen`` the run climbs the hill it has (0.75); with
+    it (a rig's default) one capture of the exploratory candidate finds the higher hill, which
+    beats every capture and is climbed first."""
+    finals = {}
+    for unseen in (False, None):
+        prop = _UnseenHill()
+        _one_candidate(prop, 0.6, 0.2)
+        node = make(prop, explore_views=2, max_moves=1, polish_captures=16, verify_hills=2, verify_unseen=unseen)
+        drive(node, SimRig(prop), steps=800)
+        assert node.state == "done" and node.moves == 1
+        assert [c.kind for c in node.captures].count("verify") == (0 if unseen is False else 1)
+        finals[unseen] = node.captures[-1].score
+    assert finals[False] == pytest.approx(0.75, abs=0.01)
+    assert finals[None] > 0.95
+    with pytest.raises(ConfigError, match="verify_unseen"):
+        PlannerConfig(verify_unseen=1)
