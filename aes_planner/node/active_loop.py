@@ -281,7 +281,7 @@ class ActiveLoop:
         c = self.config
         if c.verify_hills <= 0 or c.polish_captures <= 0 or not self.captures:
             return []
-        step_deg = c.polish_step_deg * 2.0 ** (c.polish_scales - 1)  # the polish's coarsest step
+        step_deg = self._coarsest_step_deg()
         captured = np.stack([cap.cam2world for cap in self.captures])  # [M, 4, 4]
         try:
             proposal = self._propose(captured, max(c.top_k, c.verify_hills + 2))
@@ -330,7 +330,7 @@ class ActiveLoop:
         (queued here), and the climbs go to the hills whose rounds found the most
         (:meth:`_rank_probed`): a capture on a hill's flank says little of its peak."""
         c = self.config
-        step_deg = c.polish_step_deg * 2.0 ** (c.polish_scales - 1)
+        step_deg = self._coarsest_step_deg()
         hills = self._polish_starts(2.0 * step_deg, max(c.polish_starts, c.polish_hills))
         if len(hills) > c.polish_starts:
             probes: list[Target] = []
@@ -353,6 +353,10 @@ class ActiveLoop:
                 self._climbs = []
                 return
         self._set_climbs(hills[: c.polish_starts])
+
+    def _coarsest_step_deg(self) -> float:
+        """The polish's coarsest step: ``polish_step_deg * 2**(polish_scales - 1)``."""
+        return self.config.polish_step_deg * 2.0 ** (self.config.polish_scales - 1)
 
     def _set_climbs(self, starts: list[Capture]) -> None:
         self._climbs = starts
@@ -394,7 +398,7 @@ class ActiveLoop:
         most = self.motion.spare_hills if c.spare_hills is None else c.spare_hills
         if self._spares >= most or self._polish_left <= 0:
             return False
-        apart_deg = 2.0 * c.polish_step_deg * 2.0 ** (c.polish_scales - 1)
+        apart_deg = 2.0 * self._coarsest_step_deg()
         floor = self._best_capture().score - c.polish_start_gap
         for cap in sorted(self.captures, key=lambda cap: -cap.score):  # stable: earlier first on a tie
             if cap.score < floor:
@@ -408,8 +412,7 @@ class ActiveLoop:
                     cap.score,
                     self._best_capture().score,
                 )
-                self._climbs = [cap]
-                self._climb_budget = self._polish_left
+                self._set_climbs([cap])  # the whole of what is left (one climb)
                 return True
         return False
 
