@@ -78,11 +78,8 @@ __all__ = [
 
 #: Placement terms ``--keep-at`` takes.
 KEEP_AT = ("centre", "thirds")
-DRAWN_DEPTH = ("mode", "plane", "none")
-HOLD_BY = (
-    "box",
-    "points",
-)  # what a view must hold of a kept subject (FramingConfig.hold_by)  # where the drawn box is placed in depth (FramingConfig.drawn_depth)
+#: What a view must hold of a kept subject (``FramingConfig.hold_by``).
+HOLD_BY = ("box", "points")
 #: Nearest camera depth a subject's corner may have (metres): behind it a corner is "not in view".
 NEAR_M = 0.05
 
