@@ -17,7 +17,10 @@ the search as ``--keep`` would give it, and the suggestion is measured with the 
   renders, then a compass search from the best of them that never leaves that set.
   ``normalized_*`` = ``(score - mean) / (best - mean)``, with ``mean`` the mean over the grid's
   views that hold the object (the "mean view" of the constrained problem): 1 = the best view
-  that holds it, 0 = an average view that holds it.
+  that holds it, 0 = an average view that holds it;
+* whether the two judges agree on the grid's views that hold the object: ``judges_rank_corr``
+  (Spearman of the teacher's and the evaluator's scores) and ``evaluator_at_teacher_best`` (the
+  evaluator's normalised score of the teacher's best grid view).
 """
 
 from __future__ import annotations
@@ -234,7 +237,21 @@ def constrained_oracle(space, judge: Judge, points: np.ndarray, intrinsics, cfg:
         pattern_search(_Measured(judge, key, best), space, grid[i], float(scores[i]), steps, min_scale, holds)
     best_t, best_e, best_pose = best["teacher"], best["evaluator"], best["pose"]
     return {"best_teacher": best_t, "best_evaluator": best_e, "mean_teacher": mean_t, "mean_evaluator": mean_e,
-            "holding_views": int(ok.sum()), "grid_views": int(len(ok)), "best_cam2world": best_pose.tolist()}  # fmt: skip
+            "holding_views": int(ok.sum()), "grid_views": int(len(ok)), "best_cam2world": best_pose.tolist(),
+            **_judges_agree(np.asarray(teacher, float), np.asarray(evaluator, float), mean_e, best_e)}  # fmt: skip
+
+
+def _judges_agree(teacher: np.ndarray, evaluator: np.ndarray, mean_e: float, best_e: float) -> dict[str, float]:
+    """Whether the teacher and the independent evaluator agree on the grid's views that hold the
+    subject (``teacher``, ``evaluator``: ``[G]``): ``judges_rank_corr``, their Spearman correlation,
+    and ``evaluator_at_teacher_best``, the evaluator's normalised score of the teacher's best grid
+    view (1: the evaluator's best too; 0: an average view to the evaluator)."""
+    i = int(np.argmax(teacher))
+    out = {"evaluator_at_teacher_best": _norm(float(evaluator[i]), mean_e, best_e), "judges_rank_corr": 0.0}
+    if len(teacher) >= 3 and np.std(teacher) > 0 and np.std(evaluator) > 0:
+        rt, re = np.argsort(np.argsort(teacher)), np.argsort(np.argsort(evaluator))
+        out["judges_rank_corr"] = float(np.corrcoef(rt, re)[0, 1])
+    return out
 
 
 class _Measured(Scorer):
@@ -431,7 +448,9 @@ def summarize(rows: list[dict]) -> dict[str, Any]:
         out[f"{name}_at_least_0.85"] = float(np.mean(vals >= 0.85))
     out["latency_ms_median"] = float(np.median([r["latency_ms"] for r in done]))
     out["verify_ms_median"] = float(np.median([r.get("verify_ms", 0.0) for r in done]))
-    for name in ("pool_best", "pool_pick", "pool_rank_corr"):  # the loss breakdown (_stage1_pool)
+    loss = ("pool_best", "pool_pick", "pool_rank_corr")  # the loss breakdown (_stage1_pool)
+    judges = ("evaluator_at_teacher_best", "judges_rank_corr")  # do the two judges agree (_judges_agree)
+    for name in loss + judges:
         vals = [r[name] for r in done if name in r]
         if vals:
             out[f"{name}_median"] = float(np.median(vals))
@@ -459,5 +478,10 @@ def markdown(doc: dict[str, Any]) -> str:
             f"held whole in {s['hold_rate']:.0%} of {s['searched']} cases; normalised score (evaluator) median "
             f"{s['normalized_evaluator_median']:.2f}, min {s['normalized_evaluator_min']:.2f}; (teacher) median "
             f"{s['normalized_teacher_median']:.2f}; median latency {s['latency_ms_median']:.0f} ms"
+        )
+    if "judges_rank_corr_median" in s:
+        lines.append(
+            f"teacher and evaluator over the views that hold the subject: Spearman {s['judges_rank_corr_median']:.2f} "
+            f"(median); the teacher's best grid view scores {s['evaluator_at_teacher_best_median']:.2f} on the evaluator"
         )
     return "\n".join(lines)

@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aes_planner.eval.framing import FramingEvalConfig, object_points, pick_subject, run_framing_eval, true_holds
+from aes_planner.eval.framing import (
+    FramingEvalConfig,
+    markdown,
+    object_points,
+    pick_subject,
+    run_framing_eval,
+    true_holds,
+)
 from aes_planner.geometry import Intrinsics
 from aes_planner.geometry.poses import look_at
 from aes_planner.sim.spec import BoxSpec, SphereSpec
@@ -74,3 +81,21 @@ def test_one_case_holds_its_subject_and_is_measured_against_the_constrained_orac
     assert 2 <= row["pool_n"] <= 16
     assert row["pool_best"] >= row["pool_pick"] and -1.0 <= row["pool_rank_corr"] <= 1.0
     assert s["pool_best_median"] == row["pool_best"]
+    # the two judges on the grid's views that hold the subject
+    assert -1.0 <= row["judges_rank_corr"] <= 1.0 and row["evaluator_at_teacher_best"] <= 1.0 + 1e-9
+    assert s["judges_rank_corr_median"] == row["judges_rank_corr"]
+    assert f"Spearman {row['judges_rank_corr']:.2f}" in markdown(doc)
+
+
+def test_the_judges_agreement_is_their_rank_correlation_and_the_evaluator_at_the_teachers_best():
+    from aes_planner.eval.framing import _judges_agree
+
+    t = np.array([0.1, 0.2, 0.3, 0.4])
+    agree = _judges_agree(t, t * 2, mean_e=0.5, best_e=0.8)
+    assert agree["judges_rank_corr"] == pytest.approx(1.0)
+    assert agree["evaluator_at_teacher_best"] == pytest.approx(1.0)  # (0.8 - 0.5) / (0.8 - 0.5)
+    against = _judges_agree(t, t[::-1].copy(), mean_e=0.25, best_e=0.4)
+    assert against["judges_rank_corr"] == pytest.approx(-1.0)
+    assert against["evaluator_at_teacher_best"] == pytest.approx((0.1 - 0.25) / (0.4 - 0.25))
+    flat = _judges_agree(t, np.full(4, 0.3), mean_e=0.3, best_e=0.3)
+    assert flat == {"evaluator_at_teacher_best": 0.0, "judges_rank_corr": 0.0}
