@@ -563,9 +563,7 @@ def _explore(scorer: Scorer, space: SearchSpace, cfg: SearchConfig, rng: np.rand
     if cfg.explore_points == 0:
         return None, None, 0
     n = cfg.explore_points if framing is None or not framing.keep else framing.cfg.explore_samples
-    spread = space.grid(n)  # [G, D]
-    if len(spread) == 0:  # free flight: too large to grid, drawn after every stage-1 sample
-        spread = space.random(n, rng)
+    spread = space.spread(n, rng)  # [G, D]; free flight: drawn after every stage-1 sample
     poses = space.to_poses(spread).detach()  # [G, 4, 4]
     if framing is not None and framing.keep:  # only the views that hold the kept subjects
         held = framing.feasible(poses)
