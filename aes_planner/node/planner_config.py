@@ -32,7 +32,8 @@ class PlannerConfig:
       many places of a lattice of the box (height included) farthest from every capture, each
       looking at what the best capture looks at; they feed the field but not the search's input
       trajectory (stage 1 samples along the captures' path; ``search_grid_points`` proposes views
-      from the lattice). Unset: the platform's default (a drone TBD; a rig none).
+      from the lattice). Unset: the platform's default (0 on both: 4 such places with the grid
+      measured worse on dev drones than the grid alone, docs/benchmarks.md).
     * ``max_moves``: suggestion-driven moves at most; ``margin``: the gain (teacher units) a
       suggestion must promise over the best captured view to be worth a move. The promise is the
       scorer's prediction calibrated on the captures (their true teacher scores: ``true = pred +
@@ -89,7 +90,8 @@ class PlannerConfig:
       independent of the captures (a drone: places on a lattice of its box, each looking several
       ways, :meth:`~aes_planner.search.space.FreeSpace.grid`), so a view from a place nobody
       visited can be proposed (and is verified by a capture before it is trusted). Unset: the
-      platform's default (a drone TBD; a rig 0, its stage 1 unchanged).
+      platform's default (a drone 216: 9 places x 8 yaws x 3 pitch bands, measured on dev drones,
+      docs/decisions.md; a rig 0, its stage 1 unchanged).
     * ``tie_tolerance``: a capture displaces the best captured view (the polish's centre, the
       view settled on) only when it scored more than this higher (teacher units).
     * ``polish_coarse_gain``: at a polish step coarser than the finest, a neighbour displaces the
