@@ -86,10 +86,10 @@ class PlannerConfig:
       there that beats every capture is climbed first; nearly as good, a spare hill. Unset: the
       platform's default (a rig true; a drone false, not measured there).
     * ``search_grid_points``: the search's ``grid_points`` (:class:`~aes_planner.search.SearchConfig`)
-      in the active loop's searches (passive mode keeps the preset's): about this many stage-1 candidates spread over the whole space,
-      independent of the captures (a drone: places on a lattice of its box, each looking several
-      ways, :meth:`~aes_planner.search.space.FreeSpace.grid`), so a view from a place nobody
-      visited can be proposed (and is verified by a capture before it is trusted). Unset: the
+      in the active loop's searches (passive mode keeps the preset's): about this many stage-1
+      candidates spread over the whole space, independent of the captures (a drone: places on a
+      lattice of its box, each looking several ways, :meth:`~aes_planner.search.space.FreeSpace.grid`),
+      so a view from a place nobody visited can be proposed (and is verified by a capture before it is trusted). Unset: the
       platform's default (a drone 216: 9 places x 8 yaws x 3 pitch bands, measured on dev drones,
       docs/decisions.md; a rig 0, its stage 1 unchanged).
     * ``tie_tolerance``: a capture displaces the best captured view (the polish's centre, the

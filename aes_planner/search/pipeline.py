@@ -4,8 +4,9 @@
    positions: :func:`aes_planner.geometry.interpolate_poses`), sampled ``S`` times per segment and
    projected into the search space (rig: the joints that aim the camera there; free: the 5-DoF
    view, inside the box). Around each sample ``N`` neighbours are drawn (direction jitter; in free
-   mode also in-plane shifts along the image axes); on a rig, ``grid_points`` more spread over the
-   joint range join them (views far from the inputs compete too). Every candidate is scored in batches; the
+   mode also in-plane shifts along the image axes); ``grid_points`` more spread over the whole
+   space join them (a rig's joint range; a drone's box, from a lattice of places), so views far
+   from the inputs compete too. Every candidate is scored in batches; the
    top ``K`` by objective survive a distance-based duplicate check.
 2. **Refinement.** Each survivor is refined by Adam on its parameters (lr 0.01, 25 steps by
    default), projected into the joint limits / box after every step. The best iterate of each is

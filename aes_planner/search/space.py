@@ -296,6 +296,9 @@ class HandHeldSpace(FreeSpace):
         factor = torch.where(d > self.margin, self.margin / d.clamp_min(1e-18), torch.ones_like(d))[:, None]
         return torch.cat([q + (p[:, :3] - q) * factor, p[:, 3:]], dim=-1)
 
+    def grid(self, n: int) -> Tensor:  # [G, 5]: the box's lattice, each place moved into the walked region
+        return self.project(super().grid(n))
+
     def random(self, n: int, rng: np.random.Generator) -> Tensor:  # [n, 5], positions spread over the region
         e = rng.integers(0, len(self.seg_a), n)
         t = torch.as_tensor(rng.uniform(0, 1, n))[:, None]

@@ -581,3 +581,15 @@ def test_screen_puts_poses_near_avoided_ones_last():
     for bad in (-1, 1.5, True):
         with pytest.raises(ConfigError, match="screen_keep"):
             SearchConfig(screen_keep=bad)
+
+
+def test_hand_held_grid_stays_in_the_walked_region():
+    """A hand-held camera's grid: the box's lattice, each place moved into the region walked."""
+    from aes_planner.platform import HandHeldPlatform
+    from aes_planner.search.space import space_for
+
+    photos = view_to_cam2world(torch.tensor([[x, 0.0, 1.5, 0.0, 0.0] for x in (-2.0, 0.0, 2.0)])).numpy()
+    space = space_for(HandHeldPlatform.around_photos(K, photos, margin_m=0.3), SearchConfig())
+    g = space.grid(216)
+    assert len(g) > 0 and torch.allclose(space.project(g), g)
+    assert float(g[:, 1].abs().max()) <= 0.3 + 1e-9  # within the margin of the walked line, not the box's corners
