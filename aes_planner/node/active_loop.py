@@ -144,9 +144,12 @@ class ActiveLoop:
             self._positions_explored = False
             self.state = LoopState.EXPLORING
         if self.state is LoopState.EXPLORING and not self._queue and not self._positions_explored:
-            # after the turn (a drone): positions across the box, looking the best way seen so far
+            # after the turn (a drone): positions across the box, looking the best way seen so far,
+            # then places far from them all (their captures feed the field, off the search's path)
             self._positions_explored = True
+            places = self.motion.explore_places if self.config.explore_places is None else self.config.explore_places
             self._queue = self.motion.explore_positions(self.config.explore_positions, self.captures)
+            self._queue += self.motion.far_places(places, self.captures, [t.cam2world[:3, 3] for t in self._queue])
         if self.state is LoopState.EXPLORING and not self._queue:
             self.state = LoopState.PLANNING
         if self.state is LoopState.PLANNING:
@@ -629,7 +632,7 @@ class ActiveLoop:
         self.captures.append(cap)
         self.counters["captures"] += 1
         self.counters["frames_used"] += 1
-        self.proposer.add_frame(frame, keep=True)
+        self.proposer.add_frame(frame, keep=True, **({} if target.on_path else {"on_path": False}))
         log.info(
             "%s: captured (%s) score %.3f%s",
             self.node_id,

@@ -68,6 +68,7 @@ class Target:
     sent_s: float = -1.0
     arrived_s: float | None = None
     resent: bool = False
+    on_path: bool = True  # its capture joins the search's input trajectory (False: the field only)
 
     def __post_init__(self):
         self.kind = CaptureKind(self.kind)

@@ -28,7 +28,7 @@ from aes_planner.graph.base import Outputs
 from aes_planner.messages import Candidate, GimbalCommand, GimbalState, MessageError, PosedFrame, ViewSuggestion
 from aes_planner.node.captures import Capture, CaptureKind, Target
 from aes_planner.platform import DroneBox, DronePlatform, Platform, RigPlatform
-from aes_planner.search.space import space_for
+from aes_planner.search.space import lattice_places, space_for
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +36,8 @@ __all__ = ["DroneMotion", "Motion", "RigMotion", "Sender"]
 
 #: How far along the way to the box's wall a drone's exploration positions go.
 EXPLORE_REACH = 0.7
+#: The lattice cells of the box a drone's exploration places are chosen among (DroneMotion.explore_places).
+EXPLORE_LATTICE = 18
 
 
 class Sender(Protocol):
@@ -62,6 +64,10 @@ class Motion(ABC):
     spare_hills: int = 0
     #: ``PlannerConfig.verify_unseen`` when the config leaves it unset
     verify_unseen: bool = False
+    #: ``PlannerConfig.search_grid_points`` when the config leaves it unset
+    search_grid_points: int = 0
+    #: ``PlannerConfig.explore_places`` when the config leaves it unset
+    explore_places: int = 0
 
     #: ``ViewSuggestion.mode``'s word for the platform (the wire format's: ``rig`` or ``free``)
     suggestion_mode: str
@@ -94,6 +100,11 @@ class Motion(ABC):
 
     def explore_positions(self, n: int, captures: list[Capture]) -> list[Target]:
         """Captures away from the start after the exploration's turn (a drone); none on a rig."""
+        return []
+
+    def far_places(self, n: int, captures: list[Capture], queued_m=()) -> list[Target]:
+        """Captures from places far from every capture and from the places ``queued_m`` (``[3]``
+        each) still to be captured, after the exploration's positions (a drone); none on a rig."""
         return []
 
     @abstractmethod
@@ -208,6 +219,9 @@ class DroneMotion(Motion):
     suggestion_mode = "free"
     spare_hills = 0  # not measured on drones yet: their polish is unchanged
     verify_unseen = False  # nor this
+    # PlannerConfig.search_grid_points when unset: 9 places of the box x 24 views (docs/decisions.md);
+    # dev drones, 21 paired runs: mean 0.922 -> 0.937, below 0.9 5 -> 4 (432: 0.933, 6 below)
+    search_grid_points = 216
 
     def __init__(self, box: DroneBox, search_config):
         self.box = box
@@ -250,14 +264,12 @@ class DroneMotion(Motion):
             return []
         start = captures[0].cam2world[:3, 3]
         best = max(captures, key=lambda cap: cap.score)  # stable: the earliest on a tie
-        _, _, _, yaw, pitch = (float(v) for v in cam2world_to_view(best.cam2world))
+        yaw = float(cam2world_to_view(best.cam2world)[3])
         fwd = np.array([math.cos(yaw), math.sin(yaw), 0.0])
         side = np.array([-math.sin(yaw), math.cos(yaw), 0.0])
         lo, hi = np.asarray(self.box.bounds_min_m), np.asarray(self.box.bounds_max_m)
-        aim = None  # [3], what the best capture looks at
-        if best.look_m is not None and math.isfinite(best.look_m) and best.look_m > 0:
-            aim = best.cam2world[:3, 3] + best.look_m * best.cam2world[:3, 2]
         targets = []
+        look = self._looker(captures)
         for i in range(n):
             a = 2 * math.pi * i / n  # left, ahead, right, behind for n = 4 ...
             d = math.cos(a) * side + math.sin(a) * fwd  # [3], unit, horizontal
@@ -267,13 +279,48 @@ class DroneMotion(Motion):
             reach = EXPLORE_REACH * float(np.min(room))
             if not math.isfinite(reach) or reach <= 0.0:
                 continue
-            p = self.box.clamp(start + reach * d)  # [3]
-            if aim is not None and np.linalg.norm(aim - p) > 1e-3:
-                y_, p_ = direction_to_yaw_pitch(torch.as_tensor(aim - p))
-                lo_p, hi_p = float(self.space.lower[4]), float(self.space.upper[4])
-                targets.append(Target(CaptureKind.EXPLORE, self._pose(*p, float(y_), min(max(float(p_), lo_p), hi_p))))
-            else:
-                targets.append(Target(CaptureKind.EXPLORE, self._pose(*p, yaw, pitch)))
+            targets.append(Target(CaptureKind.EXPLORE, look(self.box.clamp(start + reach * d))))
+        return targets
+
+    def _looker(self, captures):
+        """``place [3] -> cam2world [4, 4]``: a view from ``place`` of what the best capture looks at
+        (the point its depth puts in the middle of its view; without depth, or from that very
+        point: the way it looks), its pitch inside the searched range."""
+        best = max(captures, key=lambda cap: cap.score)  # stable: the earliest on a tie
+        _, _, _, yaw, pitch = (float(v) for v in cam2world_to_view(best.cam2world))
+        aim = None  # [3], what the best capture looks at
+        if best.look_m is not None and math.isfinite(best.look_m) and best.look_m > 0:
+            aim = best.cam2world[:3, 3] + best.look_m * best.cam2world[:3, 2]
+        lo_p, hi_p = float(self.space.lower[4]), float(self.space.upper[4])
+
+        def look(p: np.ndarray) -> np.ndarray:
+            if aim is None or np.linalg.norm(aim - p) <= 1e-3:
+                return self._pose(*p, yaw, pitch)
+            y_, p_ = direction_to_yaw_pitch(torch.as_tensor(aim - p))
+            return self._pose(*p, float(y_), min(max(float(p_), lo_p), hi_p))
+
+        return look
+
+    def far_places(self, n, captures, queued_m=()):
+        """``n`` captures from the places of a lattice of the box (:func:`lattice_places`, height
+        included: 18 cells of a 1.6 x 1.6 x 0.6 m box, 3 x 3 x 2) farthest from every capture so
+        far and from each other (chosen one by one; ties: the lattice's order), each looking at
+        what the best capture looks at; their captures feed the field but stay off the search's
+        input trajectory (``Target.on_path``): the search's grid proposes views from these places
+        (:meth:`FreeSpace.grid <aes_planner.search.space.FreeSpace.grid>`), and stage 1's samples
+        stay where they were (docs/benchmarks.md, "Where the drone's search can look": two far
+        captures on the path spread those samples over the box and lost tabletop:202's view)."""
+        if n <= 0 or not captures:
+            return []
+        places = lattice_places(self.box.bounds_min_m, self.box.bounds_max_m, EXPLORE_LATTICE)  # [P, 3]
+        seen = [cap.cam2world[:3, 3] for cap in captures] + [np.asarray(q, dtype=np.float64) for q in queued_m]
+        look = self._looker(captures)
+        targets = []
+        for _ in range(min(n, len(places))):
+            gap = np.min(np.linalg.norm(places[:, None, :] - np.asarray(seen)[None], axis=-1), axis=1)  # [P]
+            i = int(np.argmax(np.round(gap, 6)))  # rounded: a tie is the lattice's order, not the last bits
+            seen.append(places[i])
+            targets.append(Target(CaptureKind.EXPLORE, look(places[i]), on_path=False))
         return targets
 
     def polish(self, cap, step_rad, step_m=0.0):

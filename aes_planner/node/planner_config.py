@@ -28,6 +28,12 @@ class PlannerConfig:
       behind it, each most of the way to the box's wall), each looking the way the best capture so
       far looks: the field then has seen the scene from more than one place, and the moves and the
       polish are not bound to the start (a drone that only turned stayed within ~0.2 m of it).
+    * ``explore_places``: a drone only: after the exploration's positions, captures from this
+      many places of a lattice of the box (height included) farthest from every capture, each
+      looking at what the best capture looks at; they feed the field but not the search's input
+      trajectory (stage 1 samples along the captures' path; ``search_grid_points`` proposes views
+      from the lattice). Unset: the platform's default (0 on both: 4 such places with the grid
+      measured worse on dev drones than the grid alone, docs/benchmarks.md).
     * ``max_moves``: suggestion-driven moves at most; ``margin``: the gain (teacher units) a
       suggestion must promise over the best captured view to be worth a move. The promise is the
       scorer's prediction calibrated on the captures (their true teacher scores: ``true = pred +
@@ -79,6 +85,13 @@ class PlannerConfig:
       the oracle's view lay 4.5 deg from the exploratory candidate, never captured). A capture
       there that beats every capture is climbed first; nearly as good, a spare hill. Unset: the
       platform's default (a rig true; a drone false, not measured there).
+    * ``search_grid_points``: the search's ``grid_points`` (:class:`~aes_planner.search.SearchConfig`)
+      in the active loop's searches (passive mode keeps the preset's): about this many stage-1
+      candidates spread over the whole space, independent of the captures (a drone: places on a
+      lattice of its box, each looking several ways, :meth:`~aes_planner.search.space.FreeSpace.grid`),
+      so a view from a place nobody visited can be proposed (and is verified by a capture before it is trusted). Unset: the
+      platform's default (a drone 216: 9 places x 8 yaws x 3 pitch bands, measured on dev drones,
+      docs/decisions.md; a rig 0, its stage 1 unchanged).
     * ``tie_tolerance``: a capture displaces the best captured view (the polish's centre, the
       view settled on) only when it scored more than this higher (teacher units).
     * ``polish_coarse_gain``: at a polish step coarser than the finest, a neighbour displaces the
@@ -137,6 +150,7 @@ class PlannerConfig:
     active: bool = True
     explore_views: int = 6
     explore_positions: int = 4
+    explore_places: int | None = None
     max_moves: int = 4
     margin: float = 0.01
     optimism: float = 1.0
@@ -155,6 +169,7 @@ class PlannerConfig:
     verify_hills: int = 2
     spare_hills: int | None = None
     verify_unseen: bool | None = None
+    search_grid_points: int | None = None
     tie_tolerance: float = 0.002
     polish_coarse_gain: float = 0.02
     hope_quantum: float = 0.005
@@ -226,6 +241,26 @@ class PlannerConfig:
             ),
             "spare_hills",
             f"must be an integer in [0, 16], or unset for the platform's default, got {self.spare_hills!r}",
+        )
+        require(
+            self.explore_places is None
+            or (
+                isinstance(self.explore_places, int)
+                and not isinstance(self.explore_places, bool)
+                and 0 <= self.explore_places <= 64
+            ),
+            "explore_places",
+            f"must be an integer in [0, 64], or unset for the platform's default, got {self.explore_places!r}",
+        )
+        require(
+            self.search_grid_points is None
+            or (
+                isinstance(self.search_grid_points, int)
+                and not isinstance(self.search_grid_points, bool)
+                and 0 <= self.search_grid_points <= 10_000
+            ),
+            "search_grid_points",
+            f"must be an integer in [0, 10000], or unset for the platform's default, got {self.search_grid_points!r}",
         )
         require(
             self.verify_unseen is None or isinstance(self.verify_unseen, bool),

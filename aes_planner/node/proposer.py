@@ -77,7 +77,9 @@ class Proposer(ABC):
 
     @abstractmethod
     def add_frame(self, frame: PosedFrame, keep: bool = False) -> None:
-        """Integrate a frame; ``keep`` frames (the active loop's captures) are never evicted."""
+        """Integrate a frame; ``keep`` frames (the active loop's captures) are never evicted. A
+        proposer that keeps frames off its search's path also takes ``on_path=False`` (the loop
+        passes it only for such frames: :class:`FieldProposer`)."""
 
     @abstractmethod
     def propose(
@@ -112,10 +114,12 @@ class FieldProposer(Proposer):
         self.max_frames = max_frames
         self.seed = seed
         self._frames: deque[tuple[PosedFrame, bool]] = deque()
+        self._off_path: set[int] = set()  # ids of the frames kept off the search's trajectory (add_frame)
         self._scorer = None
         self._scorer_version = -1
         self.version = 0
         self.framing = None  # (keep, avoid, FramingConfig, {frame: view}) the searches apply: set_framing
+        self.grid_points = 0  # the search's grid_points when > 0 (PlannerConfig.search_grid_points); else the preset's
         self.framing_held: list[float] = []  # how much of each kept subject the last best suggestion held
 
     @property
@@ -124,13 +128,20 @@ class FieldProposer(Proposer):
 
     def reset(self) -> None:
         self._frames.clear()
+        self._off_path.clear()
         self._scorer = None
         self.version += 1
 
-    def add_frame(self, frame: PosedFrame, keep: bool = False) -> None:
+    def add_frame(self, frame: PosedFrame, keep: bool = False, on_path: bool = True) -> None:
+        """``on_path``: the frame is one of the search's inputs (its trajectory passes through it);
+        False: the field's only (a drone's far exploration places, ``PlannerConfig.explore_places``)."""
         self._frames.append((frame, keep))
+        if not on_path:
+            self._off_path.add(id(frame))
         while len(self._frames) > self.max_frames:
             passive = next((i for i, (_, k) in enumerate(self._frames) if not k), None)
+            gone = self._frames[passive if passive is not None else 0][0]
+            self._off_path.discard(id(gone))
             del self._frames[passive if passive is not None else 0]
         self.version += 1
 
@@ -187,9 +198,10 @@ class FieldProposer(Proposer):
 
         scorer = self.scorer()
         frames = [f for f, _ in self._frames]
-        inputs = np.stack([f.cam2world for f in frames])  # [N, 4, 4]
+        inputs = np.stack([f.cam2world for f in frames if id(f) not in self._off_path])  # [N, 4, 4]
         captured = np.asarray(captured_cam2world, dtype=np.float64).reshape(-1, 4, 4)
-        config = SearchConfig.preset(self.preset, mode=platform.kind, top_k=max(top_k, 1), seed=self.seed)
+        grid = {"grid_points": self.grid_points} if self.grid_points > 0 else {}
+        config = SearchConfig.preset(self.preset, mode=platform.kind, top_k=max(top_k, 1), seed=self.seed, **grid)
         avoid = captured if keep_near is None else np.delete(captured, keep_near, axis=0)
         framing = self._framing(scorer, platform)
         result = search_views(scorer, inputs, platform, config, avoid=avoid if len(avoid) else None, framing=framing)

@@ -47,8 +47,10 @@ class SearchConfig:
       +-jitter on yaw/pan and pitch/tilt).
     * ``shift_frac``: in-plane shift (free mode), as a fraction of the flight box's diagonal.
     * ``grid_points``: extra candidates spread evenly over the whole space, independent of the
-      inputs (rig: a pan x tilt grid of about this many; free: none, the space is too large), so
-      views away from the input trajectory compete too. 0 = the paper's stage 1.
+      inputs (rig: a pan x tilt grid of about this many; free: at most this many, the places of a
+      lattice of the box each looking 8 ways at 3 pitches, none below 24), so views away from the
+      input trajectory compete too. 0 = the paper's stage 1 (the presets; a drone's active loop
+      sets 216: ``PlannerConfig.search_grid_points``).
     * ``top_k`` (K): distinct candidates handed to stage 2.
     * ``screen_keep``: stage 1 ranks every candidate by the scorer's cheaper screen (the field:
       its splatted teacher map, the decoder left out) and scores only the screen's best

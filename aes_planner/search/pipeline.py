@@ -4,8 +4,9 @@
    positions: :func:`aes_planner.geometry.interpolate_poses`), sampled ``S`` times per segment and
    projected into the search space (rig: the joints that aim the camera there; free: the 5-DoF
    view, inside the box). Around each sample ``N`` neighbours are drawn (direction jitter; in free
-   mode also in-plane shifts along the image axes); on a rig, ``grid_points`` more spread over the
-   joint range join them (views far from the inputs compete too). Every candidate is scored in batches; the
+   mode also in-plane shifts along the image axes); ``grid_points`` more spread over the whole
+   space join them (a rig's joint range; a drone's box, from a lattice of places), so views far
+   from the inputs compete too. Every candidate is scored in batches; the
    top ``K`` by objective survive a distance-based duplicate check.
 2. **Refinement.** Each survivor is refined by Adam on its parameters (lr 0.01, 25 steps by
    default), projected into the joint limits / box after every step. The best iterate of each is
@@ -563,9 +564,7 @@ def _explore(scorer: Scorer, space: SearchSpace, cfg: SearchConfig, rng: np.rand
     if cfg.explore_points == 0:
         return None, None, 0
     n = cfg.explore_points if framing is None or not framing.keep else framing.cfg.explore_samples
-    spread = space.grid(n)  # [G, D]
-    if len(spread) == 0:  # free flight: too large to grid, drawn after every stage-1 sample
-        spread = space.random(n, rng)
+    spread = space.spread(n, rng)  # [G, D]; free flight: drawn after every stage-1 sample
     poses = space.to_poses(spread).detach()  # [G, 4, 4]
     if framing is not None and framing.keep:  # only the views that hold the kept subjects
         held = framing.feasible(poses)

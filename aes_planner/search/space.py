@@ -25,7 +25,7 @@ from torch import Tensor
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world, wrap_angle
 from aes_planner.platform import DroneBox, DronePlatform, HandHeldPlatform, Platform, RigPlatform
 
-__all__ = ["FreeSpace", "HandHeldSpace", "RigSpace", "SearchSpace", "random_poses", "space_for"]
+__all__ = ["FreeSpace", "HandHeldSpace", "RigSpace", "SearchSpace", "lattice_places", "random_poses", "space_for"]
 
 
 def _forward_dirs(cam2world: Tensor) -> Tensor:  # [M, 4, 4] -> [M, 3]
@@ -35,6 +35,30 @@ def _forward_dirs(cam2world: Tensor) -> Tensor:  # [M, 4, 4] -> [M, 3]
 def _angle_matrix(a: Tensor, b: Tensor) -> Tensor:  # [M, 3], [P, 3] unit -> [M, P] radians
     cross = torch.linalg.cross(a[:, None, :].expand(-1, b.shape[0], -1), b[None, :, :].expand(a.shape[0], -1, -1))
     return torch.atan2(cross.norm(dim=-1), a @ b.T)
+
+
+#: A drone's stage-1 grid (:meth:`FreeSpace.grid`): the ways each lattice place looks around the
+#: circle, and the bands of the searched pitch range it looks at.
+GRID_YAWS = 8
+GRID_PITCHES = 3
+
+
+def lattice_places(lo, hi, most: int) -> np.ndarray:  # [3], [3] -> [P, 3], P <= most
+    """The centres of a lattice of at most ``most`` cells of the box ``lo``-``hi`` (metres): the
+    axis with the longest cells splits next, so the cells stay about cubic (a 1.6 x 1.6 x 0.6 m
+    box: 9 places 3 x 3 x 1, 18 places 3 x 3 x 2). Ordered x, then y, then z."""
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    extent = np.maximum(hi - lo, 1e-9)  # [3]
+    if most < 1:
+        return np.zeros((0, 3))
+    counts = np.ones(3, dtype=int)  # [3] cells per axis
+    while True:
+        i = int(np.argmax(extent / counts))
+        if int(np.prod(counts)) // counts[i] * (counts[i] + 1) > most:
+            break
+        counts[i] += 1
+    axes = [lo[i] + extent[i] * (np.arange(counts[i]) + 0.5) / counts[i] for i in range(3)]
+    return np.stack([m.ravel() for m in np.meshgrid(*axes, indexing="ij")], -1)
 
 
 def _span(a: float, b: float, step: float) -> np.ndarray:  # -> [n] from a to b, at most step apart
@@ -94,8 +118,14 @@ class SearchSpace:
 
     def grid(self, n: int) -> Tensor:  # -> [G, D], G about n, spread evenly over the whole space
         """Stage-1 candidates independent of the input trajectory (``SearchConfig.grid_points``);
-        empty where the space is too large to grid (free flight)."""
+        empty for n <= 0."""
         return torch.zeros(0, self.dims, dtype=torch.float64)
+
+    def spread(self, n: int, rng: np.random.Generator) -> Tensor:  # -> [G, D], about n over the whole space
+        """The views ``explore_points`` scores to say what the inputs cover: the :meth:`grid`
+        (a rig's pan x tilt), or ``n`` drawn uniformly where the space has none."""
+        out = self.grid(n)
+        return out if len(out) else self.random(n, rng)
 
 
 class RigSpace(SearchSpace):
@@ -215,6 +245,26 @@ class FreeSpace(SearchSpace):
         lo[3], hi[3] = -math.pi, math.pi
         return torch.as_tensor(rng.uniform(lo, hi, size=(n, 5)))
 
+    def spread(self, n: int, rng: np.random.Generator) -> Tensor:  # [n, 5], drawn (what covered_fraction measured)
+        return self.random(n, rng)
+
+    def grid(self, n: int) -> Tensor:  # -> [P * GRID_YAWS * GRID_PITCHES, 5], P places, about n views in all
+        """Views from places nobody visited: the centres of a lattice of at most ``n / (GRID_YAWS *
+        GRID_PITCHES)`` cells of the flight box (:func:`lattice_places`), each place looking ``GRID_YAWS`` ways around the circle and at ``GRID_PITCHES`` pitches
+        (the centres of as many equal bands of the searched pitch range). A drone's stage 1 samples
+        only along and around the inputs' path, mostly the start's turn (docs/benchmarks.md,
+        "Where the drone's search can look"); these compete with those samples, scored by the
+        same objective (a view of what nothing saw loses to its coverage penalty)."""
+        per_place = GRID_YAWS * GRID_PITCHES
+        if n < per_place:
+            return super().grid(n)
+        lo, hi = self.lower.numpy(), self.upper.numpy()
+        places = lattice_places(lo[:3], hi[:3], n // per_place)  # [P, 3]
+        yaws = -math.pi + 2.0 * math.pi * (np.arange(GRID_YAWS) + 0.5) / GRID_YAWS
+        pitches = lo[4] + (hi[4] - lo[4]) * (np.arange(GRID_PITCHES) + 0.5) / GRID_PITCHES
+        p, y, t = np.meshgrid(np.arange(len(places)), yaws, pitches, indexing="ij")
+        return torch.as_tensor(np.concatenate([places[p.ravel()], y.reshape(-1, 1), t.reshape(-1, 1)], -1))
+
 
 class HandHeldSpace(FreeSpace):
     """5-DoF views whose position stays in the region a photographer walked: within the platform's
@@ -245,6 +295,9 @@ class HandHeldSpace(FreeSpace):
         q, d = self._nearest(p[:, :3])
         factor = torch.where(d > self.margin, self.margin / d.clamp_min(1e-18), torch.ones_like(d))[:, None]
         return torch.cat([q + (p[:, :3] - q) * factor, p[:, 3:]], dim=-1)
+
+    def grid(self, n: int) -> Tensor:  # [G, 5]: the box's lattice, each place moved into the walked region
+        return self.project(super().grid(n))
 
     def random(self, n: int, rng: np.random.Generator) -> Tensor:  # [n, 5], positions spread over the region
         e = rng.integers(0, len(self.seg_a), n)

@@ -4,8 +4,10 @@ frames it sends close the loop; every target stays in the flight box."""
 import math
 
 import numpy as np
+import pytest
 import torch
 
+from aes_planner.config import ConfigError
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world
 from aes_planner.messages import Candidate, PosedFrame
 from aes_planner.node.planner import PlannerConfig, PlannerNode
@@ -31,10 +33,13 @@ def value(c2w):
 class FreeProposer(Proposer):
     def __init__(self):
         self.version, self.frames = 0, 0
+        self.off_path = []  # the poses of the frames the loop kept off the search's path
 
-    def add_frame(self, frame, keep=False):
+    def add_frame(self, frame, keep=False, on_path=True):
         self.frames += 1
         self.version += 1
+        if not on_path:
+            self.off_path.append(frame.cam2world)
 
     def reset(self):
         self.frames = 0
@@ -91,7 +96,10 @@ def test_free_loop_flies_to_better_views_inside_the_box():
 
 def _fly(config: PlannerConfig) -> PlannerNode:
     """The loop of ``config`` on the scripted scorer, flown by a SimDrone from the box's middle."""
-    node = PlannerNode(config, proposer=FreeProposer(), teacher=FakeTeacher())
+    return _fly_node(PlannerNode(config, proposer=FreeProposer(), teacher=FakeTeacher()))
+
+
+def _fly_node(node: PlannerNode) -> PlannerNode:
     drone = SimDrone(BOX, SimDroneConfig(max_speed_m_s=3.0, max_yaw_rate_deg_s=360.0), [0, 0, 1.5, 0, 0])
     now = 0.0
     for _ in range(6000):
@@ -196,6 +204,50 @@ def test_a_drones_exploration_positions_look_at_what_the_best_view_sees():
         assert float(t.cam2world[:3, 2] @ best[:3, 2]) > math.cos(math.radians(1.0))  # parallel
 
 
+def test_a_drones_far_places_are_lattice_cells_away_from_every_capture_off_the_search_path():
+    """explore_places: after the positions, captures from the lattice cells of the box farthest
+    from every capture and queued place (height included), each looking at what the best capture
+    sees; their frames reach the proposer marked off the search's path. 0: none, the rest alike."""
+    from aes_planner.node.captures import Capture
+    from aes_planner.node.motion import EXPLORE_LATTICE, DroneMotion, RigMotion
+    from aes_planner.search.config import SearchConfig
+    from aes_planner.search.space import lattice_places
+
+    motion = DroneMotion(BOX, SearchConfig())
+    motion.bind(K)
+    start = view_to_cam2world(torch.tensor([0.0, 0.0, 1.3, 0.0, 0.0], dtype=torch.float64)).numpy()
+    caps = [Capture("initial", start, 0.6, 0.0, look_m=2.0)]
+    queued = [np.array([0.7, 0.0, 1.3]), np.array([-0.7, 0.0, 1.3])]
+    cells = lattice_places(BOX.bounds_min_m, BOX.bounds_max_m, EXPLORE_LATTICE)  # [P, 3]
+    targets = motion.far_places(4, caps, queued)
+    assert len(targets) == 4 and all(not t.on_path and t.kind == "explore" for t in targets)
+    places = np.stack([t.cam2world[:3, 3] for t in targets])  # [4, 3]
+    for p in places:
+        assert np.min(np.linalg.norm(cells - p, axis=1)) < 1e-9  # a lattice cell's centre
+        assert min(np.linalg.norm(p - q) for q in [start[:3, 3], *queued]) > 0.6
+    assert min(np.linalg.norm(a - b) for i, a in enumerate(places) for b in places[i + 1 :]) > 0.3
+    assert places[0, 2] == pytest.approx(1.75)  # height included: the lattice's upper layer is farthest
+    aim = start[:3, 3] + 2.0 * start[:3, 2]
+    for t in targets:
+        p, fwd = t.cam2world[:3, 3], t.cam2world[:3, 2]
+        assert float(fwd @ ((aim - p) / np.linalg.norm(aim - p))) > math.cos(math.radians(1.0))
+    assert motion.far_places(0, caps) == [] and RigMotion.far_places(None, 4, caps) == []
+    again = motion.far_places(4, caps, queued)  # deterministic: a lattice, not a draw
+    assert all(np.array_equal(a.cam2world, t.cam2world) for a, t in zip(again, targets))
+    # in the loop: 3 turns + 4 positions + 2 places, the places' frames off the path
+    base = dict(platform=DronePlatformConfig(BOX), explore_views=3, max_moves=0, settle_s=0.0, polish_captures=0)
+    node = PlannerNode(PlannerConfig(**base, explore_places=2), proposer=FreeProposer(), teacher=FakeTeacher())
+    node = _fly_node(node)
+    explore = [c for c in node.captures if c.kind == "explore"]
+    assert len(explore) == 3 + 4 + 2
+    off = node.proposer.off_path
+    assert len(off) == 2 and all(np.allclose(o, c.cam2world, atol=0.06) for o, c in zip(off, explore[-2:]))
+    plain = _fly(PlannerConfig(**base))
+    assert len([c for c in plain.captures if c.kind == "explore"]) == 3 + 4 and not plain.proposer.off_path
+    with pytest.raises(ConfigError, match="explore_places"):
+        PlannerConfig(explore_places=-1)
+
+
 def test_a_drone_captures_a_frame_that_shows_the_target_not_one_passing_through():
     """A drone can come within the arrival tolerances while still turning; the frame a moment
     later is then degrees past the target (dev tabletop:202@drone: a settle 4.5 deg off its best
@@ -222,3 +274,64 @@ def test_a_drone_captures_a_frame_that_shows_the_target_not_one_passing_through(
             assert not node.captures  # passing through: not captured
     assert len(node.captures) == 1
     assert np.allclose(node.captures[0].cam2world, target_pose)
+
+
+def test_the_active_loops_searches_take_the_platforms_grid(monkeypatch):
+    """``search_grid_points`` reaches the search's ``grid_points``: unset, the motion's default (a
+    rig 0: its stage 1 unchanged); set, the value; a passive planner keeps the preset's."""
+    import aes_planner.search as search
+    from aes_planner.node.motion import DroneMotion, RigMotion
+    from aes_planner.node.proposer import FieldProposer
+    from aes_planner.search.pipeline import SearchResult
+
+    assert RigMotion.search_grid_points == 0 and DroneMotion.search_grid_points >= 0
+    seen = []
+    monkeypatch.setattr(search, "build_search_scorer", lambda *a, **k: object())
+    monkeypatch.setattr(search, "search_views", lambda s, i, p, cfg, **k: seen.append(cfg) or SearchResult([], p.kind))
+    frame = PosedFrame(np.zeros((K.height, K.width, 3), np.uint8), K, view_to_cam2world(torch.zeros(5)).numpy(), 0.0)
+    drone = dict(platform=DronePlatformConfig(BOX))
+    for config, want in (
+        (PlannerConfig(**drone), DroneMotion.search_grid_points),
+        (PlannerConfig(**drone, search_grid_points=96), 96),
+        (PlannerConfig(**drone, search_grid_points=96, active=False), 0),
+    ):
+        node = PlannerNode(config, proposer=FieldProposer("rgb", "fast"), teacher=FakeTeacher())
+        node.start()
+        node.proposer.add_frame(frame, keep=True)
+        node.proposer.propose(node.motion.bind(K), np.zeros((0, 4, 4)), 2)
+        assert seen[-1].grid_points == want
+    with pytest.raises(ConfigError, match="search_grid_points"):
+        PlannerConfig(search_grid_points=-1)
+
+
+def test_frames_off_the_path_feed_the_scorer_but_not_the_search_inputs(monkeypatch):
+    """FieldProposer.add_frame(on_path=False): the frame builds the scorer, and the search's input
+    trajectory leaves it out (until it is evicted, when nothing of it stays)."""
+    import aes_planner.search as search
+    from aes_planner.node.proposer import FieldProposer
+    from aes_planner.platform import DronePlatform
+    from aes_planner.search.pipeline import SearchResult
+
+    built, inputs = [], []
+    monkeypatch.setattr(search, "build_search_scorer", lambda kind, frames, *a, **k: built.append(frames) or object())
+    monkeypatch.setattr(search, "search_views", lambda s, i, p, cfg, **k: inputs.append(i) or SearchResult([], p.kind))
+    frames = [
+        PosedFrame(
+            np.zeros((K.height, K.width, 3), np.uint8),
+            K,
+            view_to_cam2world(torch.tensor([x, 0, 1.5, 0, 0.0])).numpy(),
+            x,
+        )
+        for x in (0.0, 0.5, -0.5)
+    ]
+    prop = FieldProposer("rgb", "fast", max_frames=3)
+    prop.add_frame(frames[0], keep=True)
+    prop.add_frame(frames[1], keep=True, on_path=False)
+    prop.add_frame(frames[2], keep=True)
+    prop.propose(DronePlatform(K, BOX), np.zeros((0, 4, 4)), 1)
+    assert len(built[-1]) == 3  # the scorer sees every frame
+    assert [p[0, 3] for p in inputs[-1]] == [0.0, -0.5]  # the path leaves the off-path frame out
+    prop.add_frame(frames[0], keep=True)  # over max_frames: the oldest kept goes
+    prop.add_frame(frames[2], keep=True)  # ... and the off-path one
+    prop.propose(DronePlatform(K, BOX), np.zeros((0, 4, 4)), 1)
+    assert len(inputs[-1]) == 3 and not prop._off_path

@@ -184,7 +184,7 @@ def test_grid_points_reach_views_far_from_the_inputs():
     assert angle_to(near.best.cam2world, target) < 25.0 < angle_to(far.best.cam2world, target)
 
 
-def test_rig_grid_covers_the_range_and_free_has_none():
+def test_rig_grid_covers_the_range():
     from aes_planner.search.space import space_for
 
     space = space_for(rig_platform(pan_limits_deg=(-90.0, 90.0), tilt_limits_deg=(-30.0, 30.0)), SearchConfig())
@@ -192,9 +192,56 @@ def test_rig_grid_covers_the_range_and_free_has_none():
     assert 40 <= len(g) <= 56 and torch.all(g >= space.lower) and torch.all(g <= space.upper)
     assert len(torch.unique(g[:, 0])) > len(torch.unique(g[:, 1]))  # cells follow the range's aspect
     assert len(space.grid(0)) == 0
-    assert len(space_for(drone_platform(), SearchConfig()).grid(48)) == 0
     with pytest.raises(ConfigError, match="grid_points"):
         SearchConfig(grid_points=-1)
+
+
+def test_free_grid_is_a_lattice_of_the_box_each_place_looking_around():
+    """A drone's grid: the centres of a lattice of the box (the longer sides cut into more cells),
+    each place looking GRID_YAWS ways at GRID_PITCHES pitches inside the searched range; never more
+    than asked, and none below one place's worth."""
+    from aes_planner.search.space import GRID_PITCHES, GRID_YAWS, space_for
+
+    platform = drone_platform(lo=(-2.0, -1.0, 0.5), hi=(2.0, 1.0, 1.5))  # 4 x 2 x 1 m
+    space = space_for(platform, SearchConfig())
+    per_place = GRID_YAWS * GRID_PITCHES
+    assert len(space.grid(0)) == 0 and len(space.grid(per_place - 1)) == 0
+    assert len(space.grid(per_place)) == per_place  # one place: the box's centre
+    assert torch.allclose(space.grid(per_place)[0, :3], torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64))
+    for n in (100, 216, 1000):
+        g = space.grid(n)
+        assert 0 < len(g) <= n and len(g) % per_place == 0
+        assert torch.all(g[:, :3] > space.lower[:3]) and torch.all(g[:, :3] < space.upper[:3])  # cell centres
+        assert torch.all(g[:, 4] > space.lower[4]) and torch.all(g[:, 4] < space.upper[4])
+        xs, ys, zs = (torch.unique(g[:, i]) for i in range(3))
+        assert len(xs) >= len(ys) >= len(zs)  # 4 m, 2 m, 1 m
+        assert len(xs) * len(ys) * len(zs) * per_place == len(g)
+        yaws = torch.unique(g[:, 3])
+        assert len(yaws) == GRID_YAWS and float(torch.diff(yaws).max()) == pytest.approx(2 * math.pi / GRID_YAWS)
+    g = space.grid(1000)
+    assert len(torch.unique(g[:, 0])) > len(torch.unique(g[:, 2]))
+    # what covered_fraction scores stays drawn: the grid does not replace it
+    assert len(space.spread(16, np.random.default_rng(0))) == 16
+    assert not torch.equal(space.spread(16, np.random.default_rng(0)), space.spread(16, np.random.default_rng(1)))
+
+
+def test_free_grid_points_propose_a_place_no_input_visited():
+    """A drone that only turned at the box's middle: stage 1 samples around that place, so the
+    best view (a corner's, looking out of it) is never proposed; with grid_points a lattice
+    place near that corner is, and it beats every view from the middle."""
+    platform = drone_platform(lo=(-2.0, -2.0, 0.5), hi=(2.0, 2.0, 2.5))
+    corner = np.array([1.3, 1.3, 2.2])
+    target = np.array([math.cos(0.4), math.sin(0.4), -0.2])
+    scorer = AimScorer(target, target_pos=corner)
+    inputs = view_to_cam2world(torch.tensor([[0.0, 0.0, 1.5, y, 0.0] for y in (-2.0, -0.5, 1.0, 2.5)])).numpy()
+    plain = SearchConfig.preset("fast", mode="drone", steps=0, top_k=1)
+    gridded = SearchConfig.preset("fast", mode="drone", steps=0, top_k=1, grid_points=216)
+    near_start = search_views(scorer, inputs, platform, plain)
+    far = search_views(scorer, inputs, platform, gridded)
+    assert_inside(far, platform, gridded)
+    assert np.linalg.norm(near_start.best.position_m - corner) > 1.5  # bound to the turn's place
+    assert np.linalg.norm(far.best.position_m - corner) < 1.0
+    assert far.best.score > near_start.best.score
 
 
 def test_rig_target_outside_limits_stays_at_the_limit():
@@ -534,3 +581,15 @@ def test_screen_puts_poses_near_avoided_ones_last():
     for bad in (-1, 1.5, True):
         with pytest.raises(ConfigError, match="screen_keep"):
             SearchConfig(screen_keep=bad)
+
+
+def test_hand_held_grid_stays_in_the_walked_region():
+    """A hand-held camera's grid: the box's lattice, each place moved into the region walked."""
+    from aes_planner.platform import HandHeldPlatform
+    from aes_planner.search.space import space_for
+
+    photos = view_to_cam2world(torch.tensor([[x, 0.0, 1.5, 0.0, 0.0] for x in (-2.0, 0.0, 2.0)])).numpy()
+    space = space_for(HandHeldPlatform.around_photos(K, photos, margin_m=0.3), SearchConfig())
+    g = space.grid(216)
+    assert len(g) > 0 and torch.allclose(space.project(g), g)
+    assert float(g[:, 1].abs().max()) <= 0.3 + 1e-9  # within the margin of the walked line, not the box's corners
