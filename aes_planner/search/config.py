@@ -220,9 +220,7 @@ class SearchConfig:
 #: Preset name -> the fields it sets (everything else keeps the dataclass default).
 PRESETS: dict[str, dict[str, Any]] = {
     "fast": dict(samples_per_segment=4, neighbours=4, top_k=1, steps=10, render_width_px=32, explore_points=16),
-    # balanced: 20 Adam steps and the screen's best 96 decoded (were 25 and 128): the same picks on the
-    # validation scenes, 0.88x the CPU (docs/benchmarks.md, "perf-2, eighth round"; docs/decisions.md)
-    "balanced": dict(samples_per_segment=16, neighbours=8, top_k=2, steps=20, render_width_px=48, screen_keep=96),
+    "balanced": dict(samples_per_segment=16, neighbours=8, top_k=2, steps=25, render_width_px=48, screen_keep=128),
 }
 
 #: Presets no longer offered, and why (docs/decisions.md): each slower preset must beat the faster
@@ -237,6 +235,5 @@ REMOVED_PRESETS: dict[str, str] = {
 #: validation scenes and confirmed on the held-out and hand-written ones (docs/journal/benchmarks.md,
 #: "The closed loop's plans"): balanced 0.620 -> 0.654 and 0.637 -> 0.754 of the oracle, 0.58 -> 0.89 s.
 FREE_MODE_PRESETS: dict[str, dict[str, Any]] = {
-    # the screen and 20 steps were measured on a rig only: a drone keeps all its candidates decoded and 25 steps
-    "balanced": dict(samples_per_segment=32, top_k=3, screen_keep=0, steps=25),
+    "balanced": dict(samples_per_segment=32, top_k=3, screen_keep=0),  # the screen not measured on a drone yet
 }

@@ -90,7 +90,7 @@ def test_presets_and_overrides():
     assert fast.samples_per_segment * fast.neighbours < bal.samples_per_segment * bal.neighbours
     with pytest.raises(ConfigError, match="removed: it was not better than balanced"):
         SearchConfig.preset("accurate")  # off the front (docs/decisions.md): said, not 'unknown'
-    assert (bal.lr, bal.steps, bal.top_k, bal.samples_per_segment, bal.neighbours) == (0.01, 20, 2, 16, 8)
+    assert (bal.lr, bal.steps, bal.top_k, bal.samples_per_segment, bal.neighbours) == (0.01, 25, 2, 16, 8)
     assert SearchConfig.preset("balanced", steps=30).steps == 30
     with pytest.raises(ConfigError, match="preset"):
         SearchConfig.preset("turbo")
@@ -110,7 +110,7 @@ def test_free_mode_presets():
     from aes_planner.search import FREE_MODE_PRESETS
 
     rig, free = SearchConfig.preset("balanced"), SearchConfig.preset("balanced", mode="drone")
-    assert (rig.samples_per_segment, rig.top_k, rig.steps) == (16, 2, 20)
+    assert (rig.samples_per_segment, rig.top_k) == (16, 2)
     assert (free.samples_per_segment, free.top_k, free.neighbours, free.steps) == (32, 3, 8, 25)
     assert free.preset_name == "balanced"
     assert set(FREE_MODE_PRESETS) == {"balanced"}
@@ -516,7 +516,7 @@ def test_screen_keep_scores_only_the_screens_best_exactly():
     )
     assert len(scorer.screened) == 1 and plain.candidates_exact.all()
     assert SearchConfig().screen_keep == 0 and SearchConfig.preset("fast").screen_keep == 0
-    assert SearchConfig.preset("balanced").screen_keep == 96  # docs/benchmarks.md, perf-2 third and eighth rounds
+    assert SearchConfig.preset("balanced").screen_keep == 128  # docs/benchmarks.md, perf-2 third round
     assert SearchConfig.preset("balanced", mode="drone").screen_keep == 0  # not measured on a drone
 
 
