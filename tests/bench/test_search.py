@@ -3,8 +3,10 @@
 import pytest
 import torch
 
-from aes_planner.bench.search import CASES
+from aes_planner.bench.search import CASES, case_config
+from aes_planner.config import ConfigError
 from aes_planner.eval.search import write_pareto
+from aes_planner.search import SearchConfig
 
 
 def test_pareto_plot(tmp_path):
@@ -25,6 +27,17 @@ def test_pareto_plot_draws_the_standard_error(tmp_path):
     # inside the plot (rows 44-304; the figures are listed under it): the bar, 2 x 0.2 / 1.3 of its 260 px
     bar_px = changed[(changed[:, 0] > 44) & (changed[:, 0] < 304)]
     assert len(bar_px) and np.ptp(bar_px[:, 1]) <= 10 and np.ptp(bar_px[:, 0]) >= 75
+
+
+def test_accurate_case_is_the_removed_preset_with_the_screen():
+    """The bench times ``accurate`` (issue 38 keeps a target for it) as the preset removed in b593d3a
+    was, with ``balanced``'s stage-1 screen; asking the search for the preset still says why it went."""
+    cfg = case_config("accurate")
+    assert (cfg.samples_per_segment, cfg.neighbours, cfg.top_k, cfg.steps, cfg.render_width_px) == (32, 16, 3, 30, 64)
+    assert cfg.screen_keep == 128 and cfg.preset_name == "accurate"
+    assert case_config("rgb") == SearchConfig.preset("balanced") and case_config("fast") == SearchConfig.preset("fast")
+    with pytest.raises(ConfigError, match="removed"):
+        SearchConfig.preset("accurate")
 
 
 @pytest.mark.slow
