@@ -99,3 +99,60 @@ def test_framing_off_the_loop_settles_on_the_best_capture_as_before():
     drive(node, SimRig(prop), steps=800)
     best = max(node.captures[:-1], key=lambda c: c.score)
     assert node.captures[-1].pan_rad == best.pan_rad and node.result()["best"].score == best.score
+
+
+# ---------------------------------------------------------------- the simulated closed loop
+#: a framing dev case (eval framing's dev scenes, never the held-out ones) where the loop as it was
+#: ended on a view that cuts the kept subject: the first view's largest eligible object
+SIM_CASE = ("indoor:4", 0)
+SIM_BUDGET = {"seed": 0, "polish_captures": 24, "polish_fine_captures": 0}  # and one move
+
+
+def _framed_closed_loop(tmp_path, today: bool = False, moves: int = 1, budget=None) -> tuple[bool, dict, object]:
+    """The simulated closed loop (``aes-planner demo``'s rig) with a keep region set right after its
+    first capture: the box of the first view's ``SIM_CASE`` subject (``eval framing``'s rules);
+    ``today``: the loop's own picks ignore it (as before). Whether the final view holds the
+    subject by its true geometry, the summary, the planner."""
+    from aes_planner.cli.demo import run_demo
+    from aes_planner.eval.framing import FramingEvalConfig, object_points, pick_subject, true_holds
+    from aes_planner.field.model import clear_feature_cache
+    from aes_planner.messages import PlannerRequest
+    from aes_planner.messages.diagnostics import FramingRegion
+    from aes_planner.sim import load_scene
+
+    spec, seed = SIM_CASE
+    scene = load_scene(spec)
+    seen: dict = {}
+
+    def hook(nodes) -> None:
+        planner = next(n for n, _ in nodes if n.node_id == "planner")
+        seen["planner"] = planner
+        record = planner._record_capture
+
+        def recorded(target, frame) -> None:
+            record(target, frame)
+            if len(planner.captures) == 1:
+                obj_i, _, r = pick_subject(scene, frame.cam2world[None], frame.intrinsics, seed, FramingEvalConfig())
+                seen["object"] = obj_i
+                box = FramingRegion("latest", r.x0, r.y0, r.x1, r.y1)
+                assert planner._set_framing(PlannerRequest("suggest", set_framing=True, keep=[box]))
+                if today:
+                    planner.proposer.framed_views = lambda: None
+
+        planner._record_capture = recorded
+
+    clear_feature_cache()
+    summary = run_demo(spec, "rig", tmp_path / "run", moves, planner_overrides=budget or SIM_BUDGET, hook=hook)
+    planner = seen["planner"]
+    points = object_points(scene.objects[seen["object"]])
+    final = np.asarray(summary["final_cam2world"], dtype=np.float64)
+    return bool(true_holds(points, final[None], planner.platform.intrinsics)[0]), summary, planner
+
+
+def test_the_closed_loop_ends_on_a_view_that_holds_the_kept_subject(tmp_path):
+    """The loop as it was ended this case on a view that cuts the subject (a climb from the first
+    view walked out of the feasible set: ``_framed_closed_loop(today=True)`` holds it not)."""
+    holds, summary, planner = _framed_closed_loop(tmp_path)
+    assert summary["state"] == "done" and planner.proposer.framed_views() is not None
+    assert holds, "the final view cuts the kept subject (true geometry)"
+    assert np.isfinite(summary["final"]) and summary["final"] > 0
