@@ -188,7 +188,7 @@ class ActiveLoop:
             self._suggestion(cands[: c.top_k], proposal.field_version, now, proposal=proposal)
         )
         hope = hopes(cands, self.captures, proposal.captured_pred, c.optimism, c.min_sigma, c.residual_length_deg)
-        best_true = self._best_capture().score
+        best_true = self._value(self._best_capture())
         order = decision_order(hope, cands, c.hope_quantum)
         self._log_decision(cands, hope, order, best_true, proposal)
         for i in order:
@@ -242,12 +242,67 @@ class ActiveLoop:
 
     def _best_capture(self) -> Capture:
         """The best captured view; a later capture displaces an earlier one only by more than
-        ``tie_tolerance`` (a tie is not decided by the last bits of two scores)."""
+        ``tie_tolerance`` (a tie is not decided by the last bits of two scores). Under a framing,
+        by :meth:`_value` (a view that cuts a kept subject is never the best unless none holds it)."""
         best = self.captures[0]
+        values = self._values()
+        if values is None:
+            for cap in self.captures[1:]:
+                if cap.score > best.score + self.config.tie_tolerance:
+                    best = cap
+            return best
         for cap in self.captures[1:]:
-            if cap.score > best.score + self.config.tie_tolerance:
+            if values[id(cap)] > values[id(best)] + self.config.tie_tolerance:
                 best = cap
         return best
+
+    # -------------------------------------------------------------- the framing in force
+    def _values(self) -> dict[int, float] | None:
+        """Under a framing (the proposer's :meth:`~aes_planner.node.proposer.Proposer.framed_views`),
+        each capture's value to the loop by ``id``: its score plus the framing's soft terms when it
+        holds every kept subject (the search's rule), else -inf; None: no framing (the score)."""
+        framed = self._framed_views()
+        if framed is None or not self.captures:
+            return None
+        # the object itself (an id may be reused once it is freed), and which captures
+        key = (framed, len(self.captures), id(self.captures[0]), id(self.captures[-1]))
+        old = getattr(self, "_values_key", None)
+        if old is None or old[0] is not framed or old[1:] != key[1:]:
+            ok, soft = framed.judge(np.stack([cap.cam2world for cap in self.captures]))  # [M], [M]
+            self._values_cache = {
+                id(cap): (cap.score + float(s) if fine else -math.inf) for cap, fine, s in zip(self.captures, ok, soft)
+            }
+            self._values_key = key
+        return self._values_cache
+
+    def _framed_views(self):
+        """The proposer's :class:`~aes_planner.node.proposer.FramedViews` (None: no framing in force)."""
+        get = getattr(self.proposer, "framed_views", None)
+        return get() if get is not None else None
+
+    def _value(self, cap: Capture) -> float:
+        """A capture's score to the loop (:meth:`_values`; framing off: its score)."""
+        values = self._values()
+        return cap.score if values is None else values[id(cap)]
+
+    def reported_best(self, scored: list[Capture]) -> Capture:
+        """The best of the ``scored`` captures as the loop reports it: by score, or under a
+        framing by :meth:`_value` when one of them holds every kept subject."""
+        best = max(scored, key=lambda cap: cap.score)
+        values = self._values() if self.config.active else None
+        if values is None:
+            return best
+        held = [cap for cap in scored if values.get(id(cap), -math.inf) > -math.inf]
+        return max(held, key=lambda cap: values[id(cap)]) if held else best
+
+    def _feasible_targets(self, targets: list[Target]) -> list[Target]:
+        """The polish's targets that hold every kept subject (framing off: all of them): a
+        capture is not spent on a view the loop may not settle on."""
+        framed = self._framed_views()
+        if framed is None or not targets:
+            return targets
+        ok, _ = framed.judge(np.stack([t.cam2world for t in targets]))
+        return [t for t, fine in zip(targets, ok) if fine]
 
     def _safe_candidate(self, cd: Candidate) -> bool:
         """A finite candidate, clamped into the platform's range (refusals counted)."""
@@ -293,7 +348,7 @@ class ActiveLoop:
             return []
         cands = [cd for cd in proposal.candidates if self._safe_candidate(cd)]
         hope = hopes(cands, self.captures, proposal.captured_pred, c.optimism, c.min_sigma, c.residual_length_deg)
-        floor = self._best_capture().score - c.polish_start_gap
+        floor = self._value(self._best_capture()) - c.polish_start_gap
         targets: list[Target] = []
         for i in decision_order(hope, cands, c.hope_quantum):
             cd = cands[i]
@@ -345,7 +400,7 @@ class ActiveLoop:
                         view_angle_deg(t.cam2world, q.cam2world) < 0.5 * step_deg for q in probes
                     ):
                         probes.append(t)
-            probes = probes[: self._polish_left]
+            probes = self._feasible_targets(probes)[: self._polish_left]
             if probes:
                 log.info(
                     "%s: %d hills nearly as good as the best: one coarse round on each first", self.node_id, len(hills)
@@ -380,9 +435,9 @@ class ActiveLoop:
                     + 100.0 * float(np.linalg.norm(cap.cam2world[:3, 3] - hills[k].cam2world[:3, 3]))
                 ),
             )
-            if cap.score > best[j].score + self.config.tie_tolerance:
+            if self._value(cap) > self._value(best[j]) + self.config.tie_tolerance:
                 best[j] = cap
-        order = sorted(range(len(hills)), key=lambda k: -best[k].score)  # stable: the hill ranked first on a tie
+        order = sorted(range(len(hills)), key=lambda k: -self._value(best[k]))  # stable: the hill ranked first on a tie
         chosen = [best[k] for k in order[: self.config.polish_starts]]
         log.info(
             "%s: hills after their coarse rounds: %s; climbing %d",
@@ -402,9 +457,9 @@ class ActiveLoop:
         if self._spares >= most or self._polish_left <= 0:
             return False
         apart_deg = 2.0 * self._coarsest_step_deg()
-        floor = self._best_capture().score - c.polish_start_gap
-        for cap in sorted(self.captures, key=lambda cap: -cap.score):  # stable: earlier first on a tie
-            if cap.score < floor:
+        floor = self._value(self._best_capture()) - c.polish_start_gap
+        for cap in sorted(self.captures, key=lambda cap: -self._value(cap)):  # stable: earlier first on a tie
+            if self._value(cap) < floor or self._value(cap) == -math.inf:
                 return False
             if all(view_angle_deg(cap.cam2world, s.cam2world) >= apart_deg for s in self._stood_on):
                 self._spares += 1
@@ -427,12 +482,14 @@ class ActiveLoop:
         what it over-rates)."""
         c = self.config
         best = self._best_capture()
-        ranked = sorted(self.captures, key=lambda cap: -cap.score)  # stable: earlier first on a tie
+        ranked = sorted(self.captures, key=lambda cap: -self._value(cap))  # stable: earlier first on a tie
         starts = [best]
         for cap in ranked:
             if cap.kind is CaptureKind.VERIFY:
                 continue
-            if len(starts) >= most or cap.score < best.score - c.polish_start_gap:
+            if len(starts) >= most or self._value(cap) < self._value(best) - c.polish_start_gap:
+                break
+            if self._value(cap) == -math.inf:
                 break
             if all(view_angle_deg(cap.cam2world, s.cam2world) >= apart_deg for s in starts):
                 starts.append(cap)
@@ -467,7 +524,7 @@ class ActiveLoop:
                 # a coarse step moves the centre only on a material gain (a narrow peak beside it)
                 gain = c.tie_tolerance if self._polish_scale == 0 else max(c.tie_tolerance, c.polish_coarse_gain)
                 for cap in self.captures[self._round_from :]:
-                    if cap.score > top.score + gain:
+                    if self._value(cap) > self._value(top) + gain:
                         top = cap
                 self._round_from = None
                 if top is not self._polish_centre:
@@ -489,6 +546,7 @@ class ActiveLoop:
             half_step_deg = 0.5 * step_deg
             same_m = min(c.min_move_m, 0.5 * step_m) if step_m > 0 else c.min_move_m  # a translated neighbour is new
             targets = [t for t in neighbours if not near_captured(self.captures, t.cam2world, half_step_deg, same_m)]
+            targets = self._feasible_targets(targets)
             if not targets:  # every neighbour at this step was captured already: a finer step
                 self._polish_scale -= 1
                 if self._polish_scale < 0:
@@ -518,11 +576,13 @@ class ActiveLoop:
         if best is self._fine_centre:  # the last round found nothing better
             return False
         self._fine_centre = best
-        targets = [
-            t
-            for t in self.motion.polish(best, math.radians(step_deg))
-            if not near_captured(self.captures, t.cam2world, 0.5 * step_deg, c.min_move_m)
-        ][: self._fine_left]
+        targets = self._feasible_targets(
+            [
+                t
+                for t in self.motion.polish(best, math.radians(step_deg))
+                if not near_captured(self.captures, t.cam2world, 0.5 * step_deg, c.min_move_m)
+            ]
+        )[: self._fine_left]
         if not targets:
             return False
         self._fine_left -= len(targets)
@@ -534,7 +594,26 @@ class ActiveLoop:
             self._finish(now, LoopState.FAILED)
             return
         best = self._best_capture()
-        self._queue = [Target("settle", best.cam2world.copy(), best.pan_rad, best.tilt_rad, predicted=best.score)]
+        framed = self._framed_views()
+        if framed is None and getattr(self.proposer, "framing", None) is not None:
+            # a framing set after the last search (or no search at all): one search applies it
+            try:
+                self._propose(np.stack([cap.cam2world for cap in self.captures]), self.config.top_k)
+            except Exception:
+                log.exception("%s: the framing's search before settling failed", self.node_id)
+            framed = self._framed_views()
+        if framed is not None and self._value(best) == -math.inf and framed.fallback is not None:
+            # no capture holds every kept subject: the search's feasible suggestion, never a capture that cuts one
+            cd = framed.fallback
+            self.count("framing_settled_on_suggestion")
+            log.warning(
+                "%s: no captured view holds the kept subject; settling on the search's suggestion %s",
+                self.node_id,
+                _where(cd),
+            )
+            self._queue = [Target("settle", cd.cam2world.copy(), cd.pan_rad, cd.tilt_rad, predicted=cd.score)]
+        else:
+            self._queue = [Target("settle", best.cam2world.copy(), best.pan_rad, best.tilt_rad, predicted=best.score)]
         self.state = LoopState.SETTLING
 
     def _finish(self, now: float, state: LoopState) -> None:

@@ -432,7 +432,7 @@ class PlannerNode(ActiveLoop, Node):
         scored = [cap for cap in self.captures if math.isfinite(cap.score)]
         if scored:
             values["initial_score"] = scored[0].score
-            values["best_captured_score"] = max(cap.score for cap in scored)
+            values["best_captured_score"] = self.reported_best(scored).score  # under a framing: one that holds it
         return Diagnostics(now, self.node_id, self.state.value, dict(self.counters), values, self._next("diag"))
 
     # ------------------------------------------------------------------------------ results
@@ -441,7 +441,7 @@ class PlannerNode(ActiveLoop, Node):
         scored = [cap for cap in self.captures if math.isfinite(cap.score)]
         if not scored:
             return {"state": self.state.value, "moves": self.moves}
-        best = max(scored, key=lambda cap: cap.score)
+        best = self.reported_best(scored)  # under a framing: the best that holds the kept subjects
         final = scored[-1] if scored[-1].kind == "settle" else best
         return {
             "state": self.state.value,

@@ -24,7 +24,7 @@ from aes_planner.platform import Platform
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FieldProposer", "Proposal", "Proposer"]
+__all__ = ["FieldProposer", "FramedViews", "Proposal", "Proposer"]
 
 
 @dataclass
@@ -39,6 +39,41 @@ class Proposal:
     field_version: int
     covered_fraction: float | None = None
     explore: Candidate | None = None
+
+
+@dataclass
+class FramedViews:
+    """Which views the active loop may settle on while a framing is in force: those that hold every
+    kept subject by the last search's own rule (``framing``: the subject lifted from the
+    reconstruction of that search, at the margin its suggestions hold it with), ranked by their
+    captured score plus the framing's soft terms (avoided regions seen, placement), as the
+    search ranks its verified views; ``fallback``: that search's best suggestion (feasible), the
+    view to settle on when no capture is."""
+
+    framing: object  # aes_planner.search.framing.Framing
+    fallback: Candidate | None
+
+    def judge(self, cam2world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # [M, 4, 4] -> [M] bool, [M]
+        """Whether each view holds every kept subject, and the soft terms added to its score."""
+        poses = torch.as_tensor(np.asarray(cam2world, dtype=np.float64).reshape(-1, 4, 4))
+        with torch.no_grad():
+            ok = self.framing.feasible(poses).numpy()
+            soft = self.framing.soft_terms(poses).double().numpy()
+        return ok.astype(bool), soft
+
+
+def _held_under(framing, pose: np.ndarray):
+    """The framing a search's best suggestion ``pose [4, 4]`` holds its subjects under: ``framing``,
+    else its margin halved, then none (what the search relaxes to when nothing holds them with the
+    margin asked: :func:`~aes_planner.search.framing.feasible_candidates`)."""
+    p = torch.as_tensor(pose[None])
+    if not framing.keep or bool(framing.feasible(p)[0]):
+        return framing
+    for margin in (framing.cfg.margin_frac / 2, 0.0):
+        relaxed = framing.with_margin(margin)
+        if bool(relaxed.feasible(p)[0]):
+            return relaxed
+    return framing
 
 
 def candidate_of(s) -> Candidate:
@@ -67,6 +102,11 @@ class Proposer(ABC):
     framing = None
     framing_held: list[float] = []
     framing_boxes: list = []  # [(keep|avoid, Subject)] of the last search: their 3D boxes
+
+    def framed_views(self) -> FramedViews | None:
+        """What the active loop may settle on under the framing in force (None: framing off, or
+        no search applied it yet: any view)."""
+        return None
 
     def set_framing(self, keep, avoid, cfg) -> None:
         """Apply keep/avoid regions to the next searches (a proposer without a reconstruction cannot)."""
@@ -121,6 +161,10 @@ class FieldProposer(Proposer):
         self.framing = None  # (keep, avoid, FramingConfig, {frame: view}) the searches apply: set_framing
         self.grid_points = 0  # the search's grid_points when > 0 (PlannerConfig.search_grid_points); else the preset's
         self.framing_held: list[float] = []  # how much of each kept subject the last best suggestion held
+        self._framed: FramedViews | None = None  # the last search's framing, for the active loop
+
+    def framed_views(self) -> FramedViews | None:
+        return self._framed if self.framing is not None else None
 
     @property
     def size(self) -> int:
@@ -155,6 +199,7 @@ class FieldProposer(Proposer):
 
         if not keep and not avoid:
             self.framing, self.framing_held, self.framing_boxes = None, [], []
+            self._framed = None
             return
         frames = [f for f, _ in self._frames]
         index = frame_index(frames)
@@ -169,6 +214,7 @@ class FieldProposer(Proposer):
                 r.checked(key, k.width, k.height)
                 views[r.frame] = (frames[index[r.frame]].cam2world.copy(), k, (k.width, k.height))
         self.framing, self.framing_held, self.framing_boxes = (list(keep), list(avoid), cfg, views), [], []
+        self._framed = None  # until a search applies the new regions
 
     def _framing(self, scorer, platform):
         """The framing lifted from the present reconstruction (it changes as frames come), or None."""
@@ -212,6 +258,8 @@ class FieldProposer(Proposer):
         if framing is not None and result.suggestions:
             pose = torch.as_tensor(result.best.cam2world[None])
             self.framing_held = [float(framing.held_each(pose)[0, i]) for i in range(len(framing.keep))]
+            best = candidate_of(result.best)
+            self._framed = FramedViews(_held_under(framing, result.best.cam2world), best)
         candidates = [candidate_of(sug) for sug in result.suggestions]
         if len(captured):
             with torch.no_grad():
