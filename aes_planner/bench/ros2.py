@@ -79,6 +79,7 @@ def _measure(domain: int, key: str, make_msg, bus_topic: str, n: int, rate_hz: f
         assert sub.stdout is not None
         if sub.stdout.readline().strip() != "ready":
             raise RuntimeError("the DDS subscriber did not start")
+        _wait_matched(node, key, timeout_s=30.0)
         pub = bus.publisher(bus_topic, type(make_msg(0.0)))
         period = 1.0 / rate_hz
         next_t = time.perf_counter()
@@ -96,6 +97,19 @@ def _measure(domain: int, key: str, make_msg, bus_topic: str, n: int, rate_hz: f
         node.stop()
         runner.close()
         bus.close()
+
+
+def _wait_matched(node, key: str, timeout_s: float) -> None:
+    """Wait until the bridge's writer for ``key`` has matched the subscriber. The subscriber says
+    "ready" once its reader matched the writer; discovery runs both ways, and a volatile writer
+    drops what it writes before it has matched the reader (on a loaded host that gap lost 2 of 3
+    samples)."""
+    end = time.monotonic() + timeout_s
+    writer = node._writers[key]
+    while not writer.get_matched_subscriptions():
+        if time.monotonic() > end:
+            raise RuntimeError(f"the bridge's {key} writer matched no DDS subscriber within {timeout_s:g} s")
+        time.sleep(0.01)
 
 
 def _frame_cpu(domain: int, make_frame, seconds: float) -> float:
