@@ -68,6 +68,14 @@ from aes_planner.platform import view_angle_deg
 
 log = logging.getLogger(__name__)
 
+#: The most grid points a loop's search takes (``SearchConfig.grid_points``' limit)
+MAX_GRID_POINTS = 10_000
+#: With ``plan_grid_deg``, stage 2 refines this many distinct stage-1 views (the preset's loop
+#: search: 4): a grid puts two of them on one broad hill, which refine onto one view, and a hill
+#: nearly as good was left out (dev outdoor:201's first planning: pan 88 tilt 13, 0.78 predicted,
+#: listed from 6 on)
+PLAN_GRID_HILLS = 8
+
 __all__ = ["ActiveLoop", "LoopState"]
 
 
@@ -176,7 +184,7 @@ class ActiveLoop:
         try:
             top = self._best_capture()
             best = next(i for i, cap in enumerate(self.captures) if cap is top)
-            proposal = self._propose(captured, max(c.top_k, 4), keep_near=best)
+            proposal = self._propose(captured, max(c.top_k, 4), keep_near=best, search=self._plan_search())
         except Exception:
             log.exception("%s: planning failed; settling on the best captured view", self.node_id)
             return None
@@ -197,6 +205,22 @@ class ActiveLoop:
             log.info("%s: move %d: %s, hope %.3f", self.node_id, self.moves + 1, _where(cd), hope[i])
             return Target("move", cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=float(hope[i]))
         return self._explore_target(proposal)
+
+    def _plan_search(self) -> dict | None:
+        """The loop's stage 1 on a rig (``plan_grid_deg``; unset: the motion's default): a pan x
+        tilt grid at that spacing over the joint range, no random neighbours and
+        ``PLAN_GRID_HILLS`` views refined, as :class:`~aes_planner.search.SearchConfig` fields;
+        None: the preset's (a drone, or 0)."""
+        c = self.config
+        step_deg = self.motion.plan_grid_deg if c.plan_grid_deg is None else c.plan_grid_deg
+        kinematics = getattr(self.platform, "kinematics", None)  # a rig's; a drone has none
+        if not step_deg or kinematics is None:
+            return None
+        step_rad = math.radians(step_deg)
+        (pan_lo, pan_hi), (tilt_lo, tilt_hi) = kinematics.pan_limits_rad, kinematics.tilt_limits_rad
+        n_pan = max(math.ceil((pan_hi - pan_lo) / step_rad - 1e-9), 1)  # no cell more for a last bit
+        n_tilt = max(math.ceil((tilt_hi - tilt_lo) / step_rad - 1e-9), 1)
+        return {"grid_points": min(n_pan * n_tilt, MAX_GRID_POINTS), "neighbours": 0, "top_k": PLAN_GRID_HILLS}
 
     def _explore_target(self, proposal) -> Target | None:
         """Before stopping on the views it has: the search's exploratory candidate when its inputs
@@ -284,7 +308,7 @@ class ActiveLoop:
         step_deg = self._coarsest_step_deg()
         captured = np.stack([cap.cam2world for cap in self.captures])  # [M, 4, 4]
         try:
-            proposal = self._propose(captured, max(c.top_k, c.verify_hills + 2))
+            proposal = self._propose(captured, max(c.top_k, c.verify_hills + 2), search=self._plan_search())
         except Exception:
             log.exception("%s: the hills' verification failed; polishing the captured hills", self.node_id)
             return []

@@ -62,6 +62,8 @@ class Motion(ABC):
     spare_hills: int = 0
     #: ``PlannerConfig.verify_unseen`` when the config leaves it unset
     verify_unseen: bool = False
+    #: ``PlannerConfig.plan_grid_deg`` when the config leaves it unset (0: the preset's stage 1)
+    plan_grid_deg: float = 0.0
 
     #: ``ViewSuggestion.mode``'s word for the platform (the wire format's: ``rig`` or ``free``)
     suggestion_mode: str
@@ -122,6 +124,7 @@ class RigMotion(Motion):
     suggestion_mode = "rig"
     spare_hills = 2  # PlannerConfig.spare_hills when unset: measured on dev rigs (docs/decisions.md)
     verify_unseen = True  # PlannerConfig.verify_unseen when unset: measured on dev rigs
+    plan_grid_deg = 4.0  # PlannerConfig.plan_grid_deg when unset: measured on dev rigs
 
     def __init__(self, rig: PanTiltConfig):
         self.rig = rig
@@ -208,6 +211,7 @@ class DroneMotion(Motion):
     suggestion_mode = "free"
     spare_hills = 0  # not measured on drones yet: their polish is unchanged
     verify_unseen = False  # nor this
+    plan_grid_deg = 0.0  # a grid over free flight is too large: the preset's stage 1
 
     def __init__(self, box: DroneBox, search_config):
         self.box = box

@@ -79,6 +79,14 @@ class PlannerConfig:
       the oracle's view lay 4.5 deg from the exploratory candidate, never captured). A capture
       there that beats every capture is climbed first; nearly as good, a spare hill. Unset: the
       platform's default (a rig true; a drone false, not measured there).
+    * ``plan_grid_deg``: the active loop's searches on a rig (its plannings and the hills'
+      verification; not a passive suggestion) score a pan x tilt grid at about this spacing
+      (degrees) over the joint range in stage 1 instead of random neighbours around the inputs,
+      and refine 8 views in stage 2 (``active_loop.PLAN_GRID_HILLS``, not 4: two grid views can
+      lie on one broad hill): stage 1 then draws nothing at random, so which hills the loop sees
+      does not depend on the search's seed (dev tabletop:202: two seeds' first plannings held different hills, within
+      0.015 of hope of each other). 0 = the preset's stage 1 (random neighbours). Unset: the
+      platform's default (a rig 4; a drone 0: a grid over free flight is too large).
     * ``tie_tolerance``: a capture displaces the best captured view (the polish's centre, the
       view settled on) only when it scored more than this higher (teacher units).
     * ``polish_coarse_gain``: at a polish step coarser than the finest, a neighbour displaces the
@@ -155,6 +163,7 @@ class PlannerConfig:
     verify_hills: int = 2
     spare_hills: int | None = None
     verify_unseen: bool | None = None
+    plan_grid_deg: float | None = None
     tie_tolerance: float = 0.002
     polish_coarse_gain: float = 0.02
     hope_quantum: float = 0.005
@@ -231,6 +240,17 @@ class PlannerConfig:
             self.verify_unseen is None or isinstance(self.verify_unseen, bool),
             "verify_unseen",
             f"must be true or false, or unset for the platform's default, got {self.verify_unseen!r}",
+        )
+        require(
+            self.plan_grid_deg is None
+            or (
+                isinstance(self.plan_grid_deg, (int, float))
+                and not isinstance(self.plan_grid_deg, bool)
+                and (self.plan_grid_deg == 0 or 0.5 <= self.plan_grid_deg <= 45.0)
+            ),
+            "plan_grid_deg",
+            f"must be 0 (the preset's random stage 1) or a spacing in [0.5, 45] degrees, or unset for the "
+            f"platform's default, got {self.plan_grid_deg!r}",
         )
         require(self.top_k >= 1, "top_k", f"must be >= 1, got {self.top_k}")
         from aes_planner.messages.suggestion import MAX_CANDIDATES

@@ -390,7 +390,7 @@ class ContendedProposer(ScriptedProposer):
         node.wall_clock, node.cpu_clock = (lambda: self.now_s), (lambda: self.cpu_s)
         return node
 
-    def propose(self, platform, captured, top_k, keep_near=None):
+    def propose(self, platform, captured, top_k, keep_near=None, search=None):
         import torch
 
         took_s = self.wall_s[torch.get_num_threads()]
@@ -714,13 +714,38 @@ def test_spare_hills_default_is_the_platforms_and_is_checked():
             PlannerConfig(spare_hills=bad)
 
 
+def test_the_loops_searches_on_a_rig_grid_the_joint_range_and_draw_nothing_at_random(rig):
+    """``plan_grid_deg`` (a rig's default 4): every search of the active loop (the plannings and
+    the hills' verification) asks for a pan x tilt grid at that spacing over the joint range and
+    no random neighbours, so the search seed cannot change which hills it sees; 0 asks for the
+    preset's stage 1; a passive suggestion is never changed."""
+    from aes_planner.node.motion import DroneMotion, RigMotion
+
+    assert PlannerConfig().plan_grid_deg is None
+    assert RigMotion.plan_grid_deg == 4.0 and DroneMotion.plan_grid_deg == 0.0  # drones unchanged
+    for step_deg, expected in ((None, 45 * 15), (2.0, 90 * 30), (0.0, None)):  # RIG: pan 180 deg, tilt 60 deg
+        prop = ScriptedProposer()
+        node = make(prop, explore_views=2, max_moves=2, polish_captures=8, plan_grid_deg=step_deg)
+        drive(node, SimRig(prop), steps=800)
+        assert node.state == "done" and prop.calls >= 2
+        want = None if expected is None else {"grid_points": expected, "neighbours": 0, "top_k": 8}
+        assert prop.searches == [want] * prop.calls
+    prop = ScriptedProposer()
+    node = make(prop, active=False, min_suggest_period_s=0.01)
+    node.step({"camera/frame": [frame_at(rig, 0.0, 0.0, 1.0)]}, 1.0)
+    assert prop.searches == [None]
+    for bad in (-1.0, 0.2, 46.0, float("nan"), True, "4"):
+        with pytest.raises(ConfigError, match="plan_grid_deg"):
+            PlannerConfig(plan_grid_deg=bad)
+
+
 class _UnseenHill(_FarHill):
     """_FarHill's search, which says its inputs cover 0.6 of the space and offers an exploratory
     candidate at the edge of what they saw, near the higher hill (1.0 at (-1.0, 0))."""
 
     EXPLORE = (-0.96, 0.03)
 
-    def propose(self, platform, captured, top_k, keep_near=None):
+    def propose(self, platform, captured, top_k, keep_near=None, search=None):
         p = super().propose(platform, captured, top_k, keep_near)
         p.covered_fraction = 0.6
         p.explore = Candidate(self.rig.forward(*self.EXPLORE), 0.5, 0.0, *self.EXPLORE)
