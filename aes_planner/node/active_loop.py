@@ -285,6 +285,7 @@ class ActiveLoop:
         self._polish_left = c.polish_captures
         self._fine_left = c.polish_fine_captures
         self._fine_centre = None
+        self._fine_centres = []  # every view a fine round was centred on
         self.state = LoopState.POLISHING
         self._polish_centre = None
         self._climbs = None  # chosen once the hills' verifications are captured
@@ -526,7 +527,9 @@ class ActiveLoop:
 
     def _fine_round(self) -> bool:
         """After the climbs (on top of ``polish_captures``): the four neighbours half the finest
-        step from the best captured view, again from a better one, up to ``polish_fine_captures``;
+        step from the best captured view, again from a better one, then (nothing better) around
+        each capture within ``polish_fine_gap`` of the best that no round was centred on, up to
+        ``polish_fine_captures``;
         only where that half step exceeds ``arrival_tolerance_deg`` (a rig), else the camera
         cannot tell it from the view. Composition peaks are narrower than the finest step (dev
         tabletop:210: 0.741-0.776 within 0.5 deg), so where a climb stops on such a peak
@@ -536,19 +539,35 @@ class ActiveLoop:
         if c.polish_captures <= 0 or self._fine_left <= 0 or step_deg <= c.arrival_tolerance_deg:
             return False
         best = self._best_capture()
-        if best is self._fine_centre:  # the last round found nothing better
-            return False
-        self._fine_centre = best
-        targets = [
-            t
-            for t in self.motion.polish(best, math.radians(step_deg))
-            if not near_captured(self.captures, t.cam2world, 0.5 * step_deg, c.min_move_m)
-        ][: self._fine_left]
-        if not targets:
-            return False
-        self._fine_left -= len(targets)
-        self._queue = targets
-        return True
+        centres = [best]
+        if any(best is f for f in self._fine_centres):
+            # the last round found nothing better: a near-best capture no round was centred on
+            # (a tie at the finest step decided by a few thousandths), best first
+            centres = [
+                cap
+                for cap in sorted(self.captures, key=lambda cap: -cap.score)  # stable: earlier first on a tie
+                if cap.score >= best.score - c.polish_fine_gap and not any(cap is f for f in self._fine_centres)
+            ]
+        for centre in centres:
+            self._fine_centre = centre
+            self._fine_centres.append(centre)
+            targets = [
+                t
+                for t in self.motion.polish(centre, math.radians(step_deg))
+                if not near_captured(self.captures, t.cam2world, 0.5 * step_deg, c.min_move_m)
+            ][: self._fine_left]
+            if targets:
+                if centre is not best:
+                    log.info(
+                        "%s: fine rounds around a near-best capture (%.3f, best %.3f)",
+                        self.node_id,
+                        centre.score,
+                        best.score,
+                    )
+                self._fine_left -= len(targets)
+                self._queue = targets
+                return True
+        return False
 
     def _begin_settle(self, now: float) -> None:
         if not self.captures:
