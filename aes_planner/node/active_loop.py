@@ -284,7 +284,6 @@ class ActiveLoop:
         c = self.config
         self._polish_left = c.polish_captures
         self._fine_left = c.polish_fine_captures
-        self._fine_centre = None
         self._fine_centres = []  # every view a fine round was centred on
         self.state = LoopState.POLISHING
         self._polish_centre = None
@@ -549,7 +548,6 @@ class ActiveLoop:
                 if cap.score >= best.score - c.polish_fine_gap and not any(cap is f for f in self._fine_centres)
             ]
         for centre in centres:
-            self._fine_centre = centre
             self._fine_centres.append(centre)
             targets = [
                 t
