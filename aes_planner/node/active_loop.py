@@ -68,6 +68,14 @@ from aes_planner.platform import view_angle_deg
 
 log = logging.getLogger(__name__)
 
+#: The most grid points a loop's search takes (``SearchConfig.grid_points``' limit)
+MAX_GRID_POINTS = 10_000
+#: With ``plan_grid_deg``, stage 2 refines this many distinct stage-1 views (the preset's loop
+#: search: 4): a grid puts two of them on one broad hill, which refine onto one view, and a hill
+#: nearly as good was left out (dev outdoor:201's first planning: pan 88 tilt 13, 0.78 predicted,
+#: listed from 6 on)
+PLAN_GRID_HILLS = 8
+
 __all__ = ["ActiveLoop", "LoopState"]
 
 
@@ -179,7 +187,7 @@ class ActiveLoop:
         try:
             top = self._best_capture()
             best = next(i for i, cap in enumerate(self.captures) if cap is top)
-            proposal = self._propose(captured, max(c.top_k, 4), keep_near=best)
+            proposal = self._propose(captured, max(c.top_k, 4), keep_near=best, search=self._plan_search())
         except Exception:
             log.exception("%s: planning failed; settling on the best captured view", self.node_id)
             return None
@@ -200,6 +208,22 @@ class ActiveLoop:
             log.info("%s: move %d: %s, hope %.3f", self.node_id, self.moves + 1, _where(cd), hope[i])
             return Target("move", cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=float(hope[i]))
         return self._explore_target(proposal)
+
+    def _plan_search(self) -> dict | None:
+        """The loop's stage 1 on a rig (``plan_grid_deg``; unset: the motion's default): a pan x
+        tilt grid at that spacing over the joint range, no random neighbours and
+        ``PLAN_GRID_HILLS`` views refined, as :class:`~aes_planner.search.SearchConfig` fields;
+        None: the preset's (a drone, or 0)."""
+        c = self.config
+        step_deg = self.motion.plan_grid_deg if c.plan_grid_deg is None else c.plan_grid_deg
+        kinematics = getattr(self.platform, "kinematics", None)  # a rig's; a drone has none
+        if not step_deg or kinematics is None:
+            return None
+        step_rad = math.radians(step_deg)
+        (pan_lo, pan_hi), (tilt_lo, tilt_hi) = kinematics.pan_limits_rad, kinematics.tilt_limits_rad
+        n_pan = max(math.ceil((pan_hi - pan_lo) / step_rad - 1e-9), 1)  # no cell more for a last bit
+        n_tilt = max(math.ceil((tilt_hi - tilt_lo) / step_rad - 1e-9), 1)
+        return {"grid_points": min(n_pan * n_tilt, MAX_GRID_POINTS), "neighbours": 0, "top_k": PLAN_GRID_HILLS}
 
     def _explore_target(self, proposal) -> Target | None:
         """Before stopping on the views it has: the search's exploratory candidate when its inputs
@@ -318,7 +342,7 @@ class ActiveLoop:
         c = self.config
         self._polish_left = c.polish_captures
         self._fine_left = c.polish_fine_captures
-        self._fine_centre = None
+        self._fine_centres = []  # every view a fine round was centred on
         self.state = LoopState.POLISHING
         self._polish_centre = None
         self._climbs = None  # chosen once the hills' verifications are captured
@@ -342,7 +366,7 @@ class ActiveLoop:
         step_deg = self._coarsest_step_deg()
         captured = np.stack([cap.cam2world for cap in self.captures])  # [M, 4, 4]
         try:
-            proposal = self._propose(captured, max(c.top_k, c.verify_hills + 2))
+            proposal = self._propose(captured, max(c.top_k, c.verify_hills + 2), search=self._plan_search())
         except Exception:
             log.exception("%s: the hills' verification failed; polishing the captured hills", self.node_id)
             return []
@@ -563,7 +587,9 @@ class ActiveLoop:
 
     def _fine_round(self) -> bool:
         """After the climbs (on top of ``polish_captures``): the four neighbours half the finest
-        step from the best captured view, again from a better one, up to ``polish_fine_captures``;
+        step from the best captured view, again from a better one, then (nothing better) around
+        each capture within ``polish_fine_gap`` of the best that no round was centred on, up to
+        ``polish_fine_captures``;
         only where that half step exceeds ``arrival_tolerance_deg`` (a rig), else the camera
         cannot tell it from the view. Composition peaks are narrower than the finest step (dev
         tabletop:210: 0.741-0.776 within 0.5 deg), so where a climb stops on such a peak
@@ -573,21 +599,40 @@ class ActiveLoop:
         if c.polish_captures <= 0 or self._fine_left <= 0 or step_deg <= c.arrival_tolerance_deg:
             return False
         best = self._best_capture()
-        if best is self._fine_centre:  # the last round found nothing better
-            return False
-        self._fine_centre = best
-        targets = self._feasible_targets(
-            [
-                t
-                for t in self.motion.polish(best, math.radians(step_deg))
-                if not near_captured(self.captures, t.cam2world, 0.5 * step_deg, c.min_move_m)
+        centres = [best]
+        if any(best is f for f in self._fine_centres):
+            # the last round found nothing better: a near-best capture no round was centred on
+            # (a tie at the finest step decided by a few thousandths), best first; under a framing
+            # only captures that hold the kept subjects (a finite value)
+            floor = self._value(best) - c.polish_fine_gap
+            centres = [
+                cap
+                for cap in sorted(self.captures, key=lambda cap: -self._value(cap))  # stable: earlier first on a tie
+                if math.isfinite(self._value(cap))
+                and self._value(cap) >= floor
+                and not any(cap is f for f in self._fine_centres)
             ]
-        )[: self._fine_left]
-        if not targets:
-            return False
-        self._fine_left -= len(targets)
-        self._queue = targets
-        return True
+        for centre in centres:
+            self._fine_centres.append(centre)
+            targets = self._feasible_targets(
+                [
+                    t
+                    for t in self.motion.polish(centre, math.radians(step_deg))
+                    if not near_captured(self.captures, t.cam2world, 0.5 * step_deg, c.min_move_m)
+                ]
+            )[: self._fine_left]
+            if targets:
+                if centre is not best:
+                    log.info(
+                        "%s: fine rounds around a near-best capture (%.3f, best %.3f)",
+                        self.node_id,
+                        centre.score,
+                        best.score,
+                    )
+                self._fine_left -= len(targets)
+                self._queue = targets
+                return True
+        return False
 
     def _begin_settle(self, now: float) -> None:
         if not self.captures:

@@ -68,6 +68,8 @@ class Motion(ABC):
     search_grid_points: int = 0
     #: ``PlannerConfig.explore_places`` when the config leaves it unset
     explore_places: int = 0
+    #: ``PlannerConfig.plan_grid_deg`` when the config leaves it unset (0: the preset's stage 1)
+    plan_grid_deg: float = 0.0
 
     #: ``ViewSuggestion.mode``'s word for the platform (the wire format's: ``rig`` or ``free``)
     suggestion_mode: str
@@ -133,6 +135,7 @@ class RigMotion(Motion):
     suggestion_mode = "rig"
     spare_hills = 2  # PlannerConfig.spare_hills when unset: measured on dev rigs (docs/decisions.md)
     verify_unseen = True  # PlannerConfig.verify_unseen when unset: measured on dev rigs
+    plan_grid_deg = 4.0  # PlannerConfig.plan_grid_deg when unset: measured on dev rigs
 
     def __init__(self, rig: PanTiltConfig):
         self.rig = rig
@@ -222,6 +225,7 @@ class DroneMotion(Motion):
     # PlannerConfig.search_grid_points when unset: 9 places of the box x 24 views (docs/decisions.md);
     # dev drones, 21 paired runs: mean 0.922 -> 0.937, below 0.9 5 -> 4 (432: 0.933, 6 below)
     search_grid_points = 216
+    plan_grid_deg = 0.0  # no pan x tilt grid: a drone's grid is search_grid_points' lattice of places
 
     def __init__(self, box: DroneBox, search_config):
         self.box = box

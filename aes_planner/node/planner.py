@@ -137,7 +137,7 @@ class PlannerNode(ActiveLoop, Node):
         self._probed: tuple[list[Capture], int] | None = None  # (hills, first probe capture): rounds to rank
         self._climb_left = 0
         self._fine_left = 0  # captures left for the rounds half the finest polish step (after the climbs)
-        self._fine_centre: Capture | None = None  # the view the last of those rounds was around
+        self._fine_centres: list[Capture] = []  # every view those rounds were around
         self._round_from: int | None = None
         self._polish_centre: Capture | None = None
         self._fault_since: float | None = None

@@ -53,6 +53,12 @@ class PlannerConfig:
       ``polish_captures``): the four neighbours ``polish_step_deg / 2`` from the best captured
       view, and again around a better one; only when that half step exceeds
       ``arrival_tolerance_deg`` (a rig; a drone's tolerance is wider). 0 = none.
+    * ``polish_fine_gap``: when a fine round finds nothing better, the fine rounds go on around
+      each capture within this (teacher units) of the best that no fine round was centred on,
+      best first (and again around a better one): on a peak narrower than the finest step, two
+      captures a step apart can tie within a few thousandths, and the one a hair higher is not
+      always the side the peak is on (dev wide_indoor_204: 0.821 and 0.818 2.5 deg apart, the
+      peak 0.861 0.6 deg from the lower one). 0 = only around the best.
     * ``polish_starts``: hills the polish climbs, one after the other, each with an equal share of
       ``polish_captures``: the best captured view and up to ``polish_starts - 1`` others within
       ``polish_start_gap`` (teacher units) of it, at least two coarsest steps apart (a hill
@@ -92,6 +98,16 @@ class PlannerConfig:
       so a view from a place nobody visited can be proposed (and is verified by a capture before it is trusted). Unset: the
       platform's default (a drone 216: 9 places x 8 yaws x 3 pitch bands, measured on dev drones,
       docs/decisions.md; a rig 0, its stage 1 unchanged).
+    * ``plan_grid_deg``: the active loop's searches on a rig (its plannings and the hills'
+      verification; not a passive suggestion) score a pan x tilt grid at about this spacing
+      (degrees) over the joint range in stage 1 instead of random neighbours around the inputs,
+      and refine 8 views in stage 2 (``active_loop.PLAN_GRID_HILLS``, not 4: two grid views can
+      lie on one broad hill): stage 1 then draws nothing at random, so which hills the loop sees
+      does not depend on the search's seed (dev tabletop:202: two seeds' first plannings held different hills, within
+      0.015 of hope of each other). 0 = the preset's stage 1 (random neighbours). Unset: the
+      platform's default (a rig 4: with the fine rounds' ``polish_fine_gap``, 27 dev rig runs
+      0.989 -> 0.991 of the oracle, the spread over three search seeds 0.020 -> 0.000 per scene;
+      a drone 0: a grid over free flight is too large, and a drone ignores it).
     * ``tie_tolerance``: a capture displaces the best captured view (the polish's centre, the
       view settled on) only when it scored more than this higher (teacher units).
     * ``polish_coarse_gain``: at a polish step coarser than the finest, a neighbour displaces the
@@ -162,7 +178,8 @@ class PlannerConfig:
     polish_step_deg: float = 1.25
     polish_step_m: float = 0.0
     polish_scales: int = 4
-    polish_fine_captures: int = 8
+    polish_fine_captures: int = 16
+    polish_fine_gap: float = 0.01
     polish_starts: int = 3
     polish_start_gap: float = 0.1
     polish_hills: int = 5
@@ -170,6 +187,7 @@ class PlannerConfig:
     spare_hills: int | None = None
     verify_unseen: bool | None = None
     search_grid_points: int | None = None
+    plan_grid_deg: float | None = None
     tie_tolerance: float = 0.002
     polish_coarse_gain: float = 0.02
     hope_quantum: float = 0.005
@@ -267,6 +285,17 @@ class PlannerConfig:
             "verify_unseen",
             f"must be true or false, or unset for the platform's default, got {self.verify_unseen!r}",
         )
+        require(
+            self.plan_grid_deg is None
+            or (
+                isinstance(self.plan_grid_deg, (int, float))
+                and not isinstance(self.plan_grid_deg, bool)
+                and (self.plan_grid_deg == 0 or 0.5 <= self.plan_grid_deg <= 45.0)
+            ),
+            "plan_grid_deg",
+            f"must be 0 (the preset's random stage 1) or a spacing in [0.5, 45] degrees, or unset for the "
+            f"platform's default, got {self.plan_grid_deg!r}",
+        )
         require(self.top_k >= 1, "top_k", f"must be >= 1, got {self.top_k}")
         from aes_planner.messages.suggestion import MAX_CANDIDATES
 
@@ -299,6 +328,12 @@ class PlannerConfig:
         require(self.polish_scales >= 1, "polish_scales", f"must be >= 1, got {self.polish_scales}")
         require(self.polish_starts >= 1, "polish_starts", f"must be >= 1, got {self.polish_starts}")
         require_numbers(self, ("tie_tolerance", "hope_quantum", "polish_start_gap", "polish_coarse_gain"), strict=False)
+        require_numbers(self, ("polish_fine_gap",), strict=False)
+        require(
+            self.polish_fine_gap <= 0.1,
+            "polish_fine_gap",
+            f"must be in [0, 0.1] (teacher units), got {self.polish_fine_gap}",
+        )
         require(
             self.polish_coarse_gain <= 0.5,
             "polish_coarse_gain",

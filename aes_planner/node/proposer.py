@@ -123,10 +123,16 @@ class Proposer(ABC):
 
     @abstractmethod
     def propose(
-        self, platform: Platform, captured_cam2world: np.ndarray, top_k: int, keep_near: int | None = None
+        self,
+        platform: Platform,
+        captured_cam2world: np.ndarray,
+        top_k: int,
+        keep_near: int | None = None,
+        search: dict | None = None,
     ) -> Proposal:
         """Candidates for ``platform``, avoiding the captured poses ``[M, 4, 4]`` except the
-        neighbourhood of capture ``keep_near`` (the best one: refining around it is allowed)."""
+        neighbourhood of capture ``keep_near`` (the best one: refining around it is allowed);
+        ``search``: search settings on top of the preset's (a proposer without a search ignores them)."""
 
     @abstractmethod
     def reset(self) -> None:
@@ -238,8 +244,16 @@ class FieldProposer(Proposer):
         return self._scorer
 
     def propose(
-        self, platform: Platform, captured_cam2world: np.ndarray, top_k: int, keep_near: int | None = None
+        self,
+        platform: Platform,
+        captured_cam2world: np.ndarray,
+        top_k: int,
+        keep_near: int | None = None,
+        search: dict | None = None,
     ) -> Proposal:
+        """The search over the present frames, avoiding ``captured_cam2world`` (but the one at
+        ``keep_near``); ``search``: :class:`~aes_planner.search.SearchConfig` fields set on top of
+        the preset (the active loop's stage 1 on a rig: ``PlannerConfig.plan_grid_deg``)."""
         from aes_planner.search import SearchConfig, search_views
 
         scorer = self.scorer()
@@ -247,7 +261,9 @@ class FieldProposer(Proposer):
         inputs = np.stack([f.cam2world for f in frames if id(f) not in self._off_path])  # [N, 4, 4]
         captured = np.asarray(captured_cam2world, dtype=np.float64).reshape(-1, 4, 4)
         grid = {"grid_points": self.grid_points} if self.grid_points > 0 else {}
-        config = SearchConfig.preset(self.preset, mode=platform.kind, top_k=max(top_k, 1), seed=self.seed, **grid)
+        config = SearchConfig.preset(
+            self.preset, mode=platform.kind, **{"top_k": max(top_k, 1), "seed": self.seed, **grid, **(search or {})}
+        )
         avoid = captured if keep_near is None else np.delete(captured, keep_near, axis=0)
         framing = self._framing(scorer, platform)
         result = search_views(scorer, inputs, platform, config, avoid=avoid if len(avoid) else None, framing=framing)

@@ -42,7 +42,8 @@ class SearchConfig:
       more segments get fewer per segment (at least 1), so a search over the closed loop's 14
       captures costs about what one over 4 frames (3 segments: unchanged) does. None = no cap.
     * ``neighbours`` (N): perturbed poses around each trajectory sample (direction jitter; in free
-      mode also in-plane shifts).
+      mode also in-plane shifts). 0 = none: on a rig with ``grid_points`` stage 1 then draws
+      nothing at random, and the seed does not change which views it scores.
     * ``jitter_fov``: direction jitter, as a fraction of the horizontal field of view (uniform in
       +-jitter on yaw/pan and pitch/tilt).
     * ``shift_frac``: in-plane shift (free mode), as a fraction of the flight box's diagonal.
@@ -108,11 +109,17 @@ class SearchConfig:
     preset_name: str = "custom"
 
     def __post_init__(self):
-        for name in ("samples_per_segment", "neighbours", "top_k", "batch_size", "render_width_px"):
+        for name in ("samples_per_segment", "top_k", "batch_size", "render_width_px"):
             v = getattr(self, name)
             require(
                 isinstance(v, int) and not isinstance(v, bool) and v >= 1, name, f"must be an integer >= 1, got {v!r}"
             )
+        v = self.neighbours  # 0: stage 1 draws nothing at random (the trajectory and the grid)
+        require(
+            isinstance(v, int) and not isinstance(v, bool) and v >= 0,
+            "neighbours",
+            f"must be an integer >= 0, got {v!r}",
+        )
         for name, most in _MOST.items():
             v = getattr(self, name)
             require(v <= most, name, f"must be <= {most}, got {v}")

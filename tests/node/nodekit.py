@@ -24,6 +24,7 @@ class ScriptedProposer(Proposer):
         self.version = 0
         self.fixed = candidates
         self.calls = 0
+        self.searches = []  # the search settings each call asked for
 
     def value(self, pan, tilt):
         return float(math.exp(-((pan - self.peak[0]) ** 2 + (tilt - self.peak[1]) ** 2) / 0.1))
@@ -41,8 +42,9 @@ class ScriptedProposer(Proposer):
     def size(self):
         return len(self.frames)
 
-    def propose(self, platform, captured, top_k, keep_near=None):
+    def propose(self, platform, captured, top_k, keep_near=None, search=None):
         self.calls += 1
+        self.searches.append(search)
         captured = np.asarray(captured).reshape(-1, 4, 4)
         pred = []
         for c2w in captured:

@@ -48,7 +48,7 @@ class FreeProposer(Proposer):
     def size(self):
         return self.frames
 
-    def propose(self, platform, captured, top_k, keep_near=None):
+    def propose(self, platform, captured, top_k, keep_near=None, search=None):
         rng = np.random.default_rng(self.version)
         views = rng.uniform([-3, -3, 0, -math.pi, -0.5], [3, 3, 3, math.pi, 0.5], (64, 5))  # some outside the box
         views[0] = PEAK

@@ -51,8 +51,8 @@ class FramedProposer(ScriptedProposer):
         self.framing = ([], [], None, {})  # a framing is in force (what the loop reads before any search)
         self.framed = None
 
-    def propose(self, platform, captured, top_k, keep_near=None):
-        prop = super().propose(platform, captured, 64, keep_near)
+    def propose(self, platform, captured, top_k, keep_near=None, search=None):
+        prop = super().propose(platform, captured, 64, keep_near, search)
         prop.candidates = [cd for cd in prop.candidates if self.rule.holds(cd.cam2world)][:top_k]
         self.framed = FramedViews(self.rule, prop.candidates[0] if prop.candidates else None)
         return prop

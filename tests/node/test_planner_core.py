@@ -390,7 +390,7 @@ class ContendedProposer(ScriptedProposer):
         node.wall_clock, node.cpu_clock = (lambda: self.now_s), (lambda: self.cpu_s)
         return node
 
-    def propose(self, platform, captured, top_k, keep_near=None):
+    def propose(self, platform, captured, top_k, keep_near=None, search=None):
         import torch
 
         took_s = self.wall_s[torch.get_num_threads()]
@@ -689,6 +689,62 @@ def test_fine_rounds_find_a_peak_between_the_finest_steps_only_where_the_camera_
     assert not any(c.kind == "polish" for c in node.captures)
 
 
+class _TiedSteps(ScriptedProposer):
+    """Dev wide_indoor_204: around the move (M), the finest climb round captures two views 2.5 deg
+    either side in tilt that tie within a few thousandths (0.822 below, 0.816 above), and the
+    peak (0.95, a spike 0.3 deg wide) lies 1.25 deg beyond the lower-scoring one."""
+
+    M = (0.3, 0.0)
+    SIGMA = math.radians(1.2)
+
+    def value(self, pan, tilt):
+        def bump(height, at, sigma):
+            return height * math.exp(-((pan - at[0]) ** 2 + (tilt - at[1]) ** 2) / (2 * sigma**2))
+
+        step = math.radians(2.5)
+        below = bump(0.822, (self.M[0], self.M[1] - step), self.SIGMA)
+        above = bump(0.816, (self.M[0], self.M[1] + step), self.SIGMA)
+        spike = bump(0.95, (self.M[0], self.M[1] + 1.5 * step), math.radians(0.3))
+        return float(max(below, above, spike))
+
+
+def test_fine_rounds_go_on_around_a_near_best_capture_when_the_best_has_nothing_better():
+    """With ``polish_fine_gap`` 0 the fine rounds circle only the best capture (0.822), whose
+    neighbours are all lower, and the run settles there; with the default (0.01) they go on around
+    the capture that tied it within 0.01 (0.816) and find the peak beside it (0.95). A capture
+    further below the best than the gap gets no round (0.003: the two differ by 0.004 in 8-bit
+    pixels)."""
+    finals, fine = {}, {}
+    for gap in (0.0, 0.003, None):
+        prop = _TiedSteps()
+        _one_candidate(prop, *prop.M)
+        kw = {} if gap is None else {"polish_fine_gap": gap}
+        node = make(
+            prop,
+            explore_views=2,
+            max_moves=1,
+            polish_captures=8,
+            polish_step_deg=2.5,
+            polish_scales=1,
+            polish_fine_captures=PlannerConfig().polish_fine_captures,
+            verify_hills=0,
+            spare_hills=0,
+            verify_unseen=False,
+            **kw,
+        )
+        drive(node, SimRig(prop), steps=1500)
+        assert node.state == "done" and node.moves == 1
+        finals[gap] = node.captures[-1].score
+        fine[gap] = sum(c.kind == "polish" for c in node.captures)
+    assert PlannerConfig().polish_fine_gap == 0.01
+    assert finals[0.0] == pytest.approx(0.822, abs=0.005) and finals[0.003] == pytest.approx(0.822, abs=0.005)
+    assert finals[None] > 0.94
+    assert fine[0.0] == fine[0.003] < fine[None] <= 8 + PlannerConfig().polish_fine_captures
+    for bad in (-0.01, 0.2, float("nan")):
+        with pytest.raises(ConfigError, match="polish_fine_gap"):
+            PlannerConfig(polish_fine_gap=bad)
+
+
 def test_spare_polish_captures_climb_a_hill_the_climbs_left_alone():
     """Dev tabletop:202 ``seed:2``: two climbs reached their finest steps on two lower tops (0.75,
     0.74) after 30 of the 48 polish captures, and the hill the oracle's view lies on, captured on its
@@ -714,13 +770,38 @@ def test_spare_hills_default_is_the_platforms_and_is_checked():
             PlannerConfig(spare_hills=bad)
 
 
+def test_the_loops_searches_on_a_rig_grid_the_joint_range_and_draw_nothing_at_random(rig):
+    """``plan_grid_deg`` (a rig's default 4): every search of the active loop (the plannings and
+    the hills' verification) asks for a pan x tilt grid at that spacing over the joint range and
+    no random neighbours, so the search seed cannot change which hills it sees; 0 asks for the
+    preset's stage 1; a passive suggestion is never changed."""
+    from aes_planner.node.motion import DroneMotion, RigMotion
+
+    assert PlannerConfig().plan_grid_deg is None
+    assert RigMotion.plan_grid_deg == 4.0 and DroneMotion.plan_grid_deg == 0.0  # drones unchanged
+    for step_deg, expected in ((None, 45 * 15), (2.0, 90 * 30), (0.0, None)):  # RIG: pan 180 deg, tilt 60 deg
+        prop = ScriptedProposer()
+        node = make(prop, explore_views=2, max_moves=2, polish_captures=8, plan_grid_deg=step_deg)
+        drive(node, SimRig(prop), steps=800)
+        assert node.state == "done" and prop.calls >= 2
+        want = None if expected is None else {"grid_points": expected, "neighbours": 0, "top_k": 8}
+        assert prop.searches == [want] * prop.calls
+    prop = ScriptedProposer()
+    node = make(prop, active=False, min_suggest_period_s=0.01)
+    node.step({"camera/frame": [frame_at(rig, 0.0, 0.0, 1.0)]}, 1.0)
+    assert prop.searches == [None]
+    for bad in (-1.0, 0.2, 46.0, float("nan"), True, "4"):
+        with pytest.raises(ConfigError, match="plan_grid_deg"):
+            PlannerConfig(plan_grid_deg=bad)
+
+
 class _UnseenHill(_FarHill):
     """_FarHill's search, which says its inputs cover 0.6 of the space and offers an exploratory
     candidate at the edge of what they saw, near the higher hill (1.0 at (-1.0, 0))."""
 
     EXPLORE = (-0.96, 0.03)
 
-    def propose(self, platform, captured, top_k, keep_near=None):
+    def propose(self, platform, captured, top_k, keep_near=None, search=None):
         p = super().propose(platform, captured, top_k, keep_near)
         p.covered_fraction = 0.6
         p.explore = Candidate(self.rig.forward(*self.EXPLORE), 0.5, 0.0, *self.EXPLORE)

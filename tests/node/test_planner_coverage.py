@@ -22,7 +22,7 @@ class ExploringProposer(ScriptedProposer):
         super().__init__()
         self.explore_joints, self.covered = explore_joints, covered
 
-    def propose(self, platform, captured, top_k, keep_near=None):
+    def propose(self, platform, captured, top_k, keep_near=None, search=None):
         p = super().propose(platform, captured, top_k, keep_near)
         pan, tilt = self.explore_joints
         explore = Candidate(self.rig.forward(pan, tilt), 0.2, 0.1, pan, tilt)
@@ -84,7 +84,7 @@ class SightProposer(ScriptedProposer):
         d = math.degrees(pan)
         return max(h * math.exp(-(((d - p) / w) ** 2)) for p, h, w in self.peaks) * math.exp(-(tilt**2) / 0.1)
 
-    def propose(self, platform, captured, top_k, keep_near=None):
+    def propose(self, platform, captured, top_k, keep_near=None, search=None):
         seen = [math.degrees(math.atan2(c[1, 2], c[0, 2])) for c in np.asarray(captured).reshape(-1, 4, 4)]
         grid = np.arange(-90.0, 90.5, 1.0)
         near = np.array([min(abs(g - s) for s in seen) for g in grid])

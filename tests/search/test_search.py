@@ -593,3 +593,26 @@ def test_hand_held_grid_stays_in_the_walked_region():
     g = space.grid(216)
     assert len(g) > 0 and torch.allclose(space.project(g), g)
     assert float(g[:, 1].abs().max()) <= 0.3 + 1e-9  # within the margin of the walked line, not the box's corners
+
+
+def test_a_grid_without_neighbours_draws_nothing_at_random():
+    """The active loop's stage 1 on a rig (``PlannerConfig.plan_grid_deg``): a grid and no random
+    neighbours, so the search seed does not change the result; with the neighbours it does."""
+    platform = rig_platform(pan_limits_deg=(-150.0, 150.0), tilt_limits_deg=(-60.0, 60.0))
+    target = [math.cos(0.7), math.sin(0.7), 0.2]
+    scorer = AimScorer(target)
+    inputs = rig_inputs(platform)
+
+    def best(seed, **kw):
+        cfg = SearchConfig.preset("fast", steps=0, top_k=2, seed=seed, **kw)
+        result = search_views(scorer, inputs, platform, cfg)
+        assert_inside(result, platform, cfg)
+        return np.stack([s.cam2world for s in result.suggestions])
+
+    drawn = [best(seed) for seed in range(4)]
+    assert any(not np.array_equal(drawn[0], d) for d in drawn[1:])  # the seed moves the random samples
+    gridded = [best(seed, neighbours=0, grid_points=300) for seed in range(4)]
+    assert all(np.array_equal(gridded[0], g) for g in gridded[1:])
+    assert angle_to(gridded[0][0], target) < 10.0  # the grid finds the hill
+    with pytest.raises(ConfigError, match="neighbours"):
+        SearchConfig(neighbours=-1)
