@@ -96,7 +96,8 @@ def test_lost_corrupt_and_delayed_packets_mid_loop_recover(tmp_path):
                 emu.faults.delay_s = 0.02
 
         inject_when(planner, 2, flaky)
-        assert launch.run(timeout_s=90)
+        # a guard against a hang, not a speed check: ~30 s idle, 96-98 s at load 20+ (session 25)
+        assert launch.run(timeout_s=300)
         assert goals_within_limits(emu)
         comm = gimbal.counters["comm_errors"]
     assert planner.state == "done" and planner.captures[-1].kind == "settle"
