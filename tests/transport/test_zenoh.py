@@ -65,8 +65,19 @@ def test_latched_value_reaches_late_subscriber_and_late_publisher(zenoh_pair, en
 
     hub, peer = zenoh_pair
     pub = hub.publisher("planner/suggestion", ViewSuggestion, latched=True)
+    # a witness on the peer sees both puts arrive before the late subscriber is declared: a put
+    # still in flight on the link when a subscriber is declared reaches it live (on a loaded host
+    # the late one got [1, 2]), which is not what "late" tests
+    witness = peer.subscribe("planner/suggestion", ViewSuggestion)
     pub.publish(ViewSuggestion(1.0, sequence=1))
     pub.publish(ViewSuggestion(2.0, sequence=2))
+    seen: list[int] = []  # live or by the witness's own catch-up: 2 comes after both puts on the link
+
+    def witness_has_two() -> bool:
+        seen.extend(m.sequence for m in witness.take())
+        return 2 in seen
+
+    assert wait_for(witness_has_two)
     late = peer.subscribe("planner/suggestion", ViewSuggestion)
     assert wait_for(lambda: late.received >= 1)
     time.sleep(0.3)
