@@ -79,6 +79,9 @@ class SearchConfig:
     uniform at random) are scored once more after stage 2 to say how much of the reachable space the
     inputs cover (``SearchResult.covered_fraction``) and to offer a second, exploratory candidate
     (``SearchResult.explore``): the best-scored view at the edge of what the inputs saw. 0 = neither.
+    ``explore_keep``: of the partly covered views, only the best ``explore_keep`` by the scorer's
+    screen are scored exactly, and the exploratory candidate is the best of those
+    (:meth:`~aes_planner.field.scorer.Scorer.score_screened`); 0 = every partly covered view.
 
     ``pitch_limits_deg``: the pitch range searched in free mode (a drone gimbal's range).
     ``batch_size``: poses per scorer call in stage 1. ``seed``: the sampling seed.
@@ -89,6 +92,7 @@ class SearchConfig:
     neighbours: int = 8
     grid_points: int = 0
     explore_points: int = 64
+    explore_keep: int = 0
     top_k: int = 2
     screen_keep: int = 0
     steps: int = 25
@@ -129,6 +133,13 @@ class SearchConfig:
             and 0 <= self.explore_points <= 4096,
             "explore_points",
             f"must be an integer in [0, 4096], got {self.explore_points!r}",
+        )
+        require(
+            isinstance(self.explore_keep, int)
+            and not isinstance(self.explore_keep, bool)
+            and 0 <= self.explore_keep <= 4096,
+            "explore_keep",
+            f"must be an integer in [0, 4096] (0 = score every partly covered view exactly), got {self.explore_keep!r}",
         )
         require(
             isinstance(self.screen_keep, int)

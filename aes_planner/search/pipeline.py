@@ -576,8 +576,13 @@ def _explore(scorer: Scorer, space: SearchSpace, cfg: SearchConfig, rng: np.rand
         cov = coverage.double()
         return (cov > 0.0) & (cov < cfg.coverage_min)
 
-    # only the partly covered views' scores are read: a field decodes those alone (Scorer.score_where)
-    out, _ = scorer.score_where(poses, cfg.batch_size, partly_covered)
+    def screen_rank(o: ScoreOutput) -> Tensor:  # the partly covered views by their screened score
+        return torch.where(partly_covered(o.coverage), o.score.double(), -math.inf)
+
+    if cfg.explore_keep > 0:  # the screen's best explore_keep partly covered views decoded, no more
+        out, exact = scorer.score_screened(poses, cfg.batch_size, cfg.explore_keep, screen_rank)
+    else:  # only the partly covered views' scores are read: a field decodes those alone (Scorer.score_where)
+        out, exact = scorer.score_where(poses, cfg.batch_size, partly_covered)
     cov = out.coverage.double()  # [G]
     covered = cov >= cfg.coverage_min
     fraction = float(covered.double().mean())
@@ -586,7 +591,7 @@ def _explore(scorer: Scorer, space: SearchSpace, cfg: SearchConfig, rng: np.rand
     partly = (cov > 0.0) & ~covered
     if bool(partly.any()):
         score = torch.nan_to_num(out.score.double(), nan=-math.inf)
-        i = int(torch.argmax(torch.where(partly, score, -math.inf)))
+        i = int(torch.argmax(torch.where(partly & exact, score, -math.inf)))
     else:  # none partly covered: the least covered, scored exactly on its own
         i = int(torch.argmin(cov))
         with torch.no_grad():

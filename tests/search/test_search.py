@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -509,6 +510,54 @@ def test_explore_says_what_the_inputs_cover_and_where_to_look_next():
     assert plain.covered_fraction is None and plain.explore is None
     assert [s.pan_rad for s in plain.suggestions] == [s.pan_rad for s in result.suggestions]
     assert result.scored == plain.scored + len(space.grid(64))
+
+
+class ScreenedEdgeScorer(EdgeScorer):
+    """An :class:`EdgeScorer` whose cheaper screen aims at ``screen_dir`` instead (same coverage;
+    records the ``keep`` of its calls)."""
+
+    def __init__(self, target_dir, screen_dir):
+        super().__init__(target_dir)
+        self.screen = EdgeScorer(screen_dir)
+        self.screened: list[int] = []
+
+    def score_screened(self, cam2world, batch_size, keep, rank, eligible=None):
+        self.screened.append(keep)
+        out = self.screen.score_batched(cam2world, batch_size)
+        exact = torch.zeros(len(cam2world), dtype=torch.bool)
+        exact[torch.argsort(torch.nan_to_num(rank(out).double(), nan=-math.inf), descending=True)[:keep]] = True
+        true = self.score_batched(cam2world[exact], batch_size)
+        out.score[exact], out.terms["score"][exact] = true.score, true.score
+        return out, exact
+
+
+def test_explore_keep_scores_only_the_screens_best_partly_covered_views():
+    """``explore_keep``: the explore pass ranks its partly covered views by the scorer's screen,
+    scores the best ``explore_keep`` exactly and offers the best of those; what the inputs cover
+    is the same. 0: every partly covered view scored (the screen never asked)."""
+    from aes_planner.search.space import space_for
+
+    platform = rig_platform(pan_limits_deg=(-170.0, 170.0), tilt_limits_deg=(-40.0, 40.0))
+    target, screen_dir = [0.0, 1.0, 0.0], [0.0, -1.0, 0.0]  # the screen likes the other edge
+    cfg = SearchConfig.preset("fast", explore_points=64)  # fast: no stage-1 screen
+    full = search_views(EdgeScorer(target), rig_inputs(platform), platform, cfg)
+    unscreened = ScreenedEdgeScorer(target, screen_dir)
+    same = search_views(unscreened, rig_inputs(platform), platform, cfg)
+    assert unscreened.screened == [] and same.explore.score == full.explore.score
+    scorer = ScreenedEdgeScorer(target, screen_dir)
+    result = search_views(scorer, rig_inputs(platform), platform, dataclasses.replace(cfg, explore_keep=4))
+    assert scorer.screened == [4]
+    assert result.covered_fraction == full.covered_fraction
+    space = space_for(platform, cfg)
+    poses = space.to_poses(space.grid(64))
+    true, screen = EdgeScorer(target).score(poses), EdgeScorer(screen_dir).score(poses)
+    partly = (true.coverage > 0) & (true.coverage < cfg.coverage_min)
+    best4 = torch.argsort(torch.where(partly, screen.score, -math.inf), descending=True)[:4]
+    assert bool(partly[best4].all())
+    assert result.explore.score == pytest.approx(float(true.score[best4].max()), abs=1e-12)
+    assert result.explore.score < full.explore.score - 0.1  # the screen left the true best out
+    with pytest.raises(ConfigError, match="explore_keep"):
+        SearchConfig(explore_keep=-1)
 
 
 def test_explore_on_a_drone_and_when_everything_was_seen():
