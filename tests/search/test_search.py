@@ -91,7 +91,8 @@ def test_presets_and_overrides():
     assert fast.samples_per_segment * fast.neighbours < bal.samples_per_segment * bal.neighbours
     with pytest.raises(ConfigError, match="removed: it was not better than balanced"):
         SearchConfig.preset("accurate")  # off the front (docs/decisions.md): said, not 'unknown'
-    assert (bal.lr, bal.steps, bal.top_k, bal.samples_per_segment, bal.neighbours) == (0.01, 25, 2, 16, 8)
+    # one shot: 20 steps (the planner's searches keep 25: PLANNER_PRESETS; docs/decisions.md)
+    assert (bal.lr, bal.steps, bal.top_k, bal.samples_per_segment, bal.neighbours) == (0.01, 20, 2, 16, 8)
     assert SearchConfig.preset("balanced", steps=30).steps == 30
     with pytest.raises(ConfigError, match="preset"):
         SearchConfig.preset("turbo")
@@ -595,7 +596,7 @@ class ScreenedAimScorer(AimScorer):
 
 def test_screen_keep_scores_only_the_screens_best_exactly():
     platform = rig_platform()
-    cfg = SearchConfig.preset("balanced", steps=0, screen_keep=12)
+    cfg = SearchConfig.preset("balanced", steps=0, screen_keep=12, explore_keep=0)
     scorer = ScreenedAimScorer([1.0, 0.0, 0.0], screen_dir=[1.0, -0.4, 0.3])
     result = search_views(scorer, rig_inputs(platform), platform, cfg)
     ((n, keep, _),) = scorer.screened
@@ -608,7 +609,7 @@ def test_screen_keep_scores_only_the_screens_best_exactly():
     assert true[exact].max() < true.max()  # the screen left the true best out: the picks come from its keep
     # screen_keep = 0: no screen, every candidate exact
     plain = search_views(
-        scorer, rig_inputs(platform), platform, SearchConfig.preset("balanced", steps=0, screen_keep=0)
+        scorer, rig_inputs(platform), platform, SearchConfig.preset("balanced", steps=0, screen_keep=0, explore_keep=0)
     )
     assert len(scorer.screened) == 1 and plain.candidates_exact.all()
     assert SearchConfig().screen_keep == 0 and SearchConfig.preset("fast").screen_keep == 0
@@ -618,7 +619,7 @@ def test_screen_keep_scores_only_the_screens_best_exactly():
 
 def test_screen_puts_poses_near_avoided_ones_last():
     platform = rig_platform()
-    cfg = SearchConfig.preset("balanced", steps=0, screen_keep=8)
+    cfg = SearchConfig.preset("balanced", steps=0, screen_keep=8, explore_keep=0)
     scorer = ScreenedAimScorer([1.0, 0.2, 0.0], screen_dir=[1.0, 0.2, 0.0])
     first = search_views(scorer, rig_inputs(platform), platform, cfg)
     second = search_views(scorer, rig_inputs(platform), platform, cfg, avoid=first.best.cam2world[None])
