@@ -532,6 +532,17 @@ class ScreenedEdgeScorer(EdgeScorer):
         return out, exact
 
 
+class NanScreenEdgeScorer(EdgeScorer):
+    """An :class:`EdgeScorer` whose screen scores NaN and decodes covered views only."""
+
+    def score_screened(self, cam2world, batch_size, keep, rank, eligible=None):
+        out = self.score_batched(cam2world, batch_size)
+        exact = torch.zeros(len(cam2world), dtype=torch.bool)
+        exact[torch.nonzero(out.coverage >= 0.7).flatten()[:keep]] = True
+        score = torch.where(exact, out.score, math.nan)
+        return ScoreOutput(score, out.coverage, {"score": score}), exact
+
+
 def test_explore_keep_scores_only_the_screens_best_partly_covered_views():
     """``explore_keep``: the explore pass ranks its partly covered views by the scorer's screen,
     scores the best ``explore_keep`` exactly and offers the best of those; what the inputs cover
@@ -557,6 +568,13 @@ def test_explore_keep_scores_only_the_screens_best_partly_covered_views():
     assert bool(partly[best4].all())
     assert result.explore.score == pytest.approx(float(true.score[best4].max()), abs=1e-12)
     assert result.explore.score < full.explore.score - 0.1  # the screen left the true best out
+    # a screen of NaNs ranks nothing and its keep lands on covered views: the candidate is still a
+    # partly covered view
+    odd = search_views(
+        NanScreenEdgeScorer(target), rig_inputs(platform), platform, dataclasses.replace(cfg, explore_keep=4)
+    )
+    assert 0.0 < odd.explore.coverage < cfg.coverage_min and np.all(np.isfinite(odd.explore.cam2world))
+    assert odd.covered_fraction == full.covered_fraction
     with pytest.raises(ConfigError, match="explore_keep"):
         SearchConfig(explore_keep=-1)
 
