@@ -199,25 +199,59 @@ class ActiveLoop:
         best_true = self._value(self._best_capture())
         order = decision_order(hope, cands, c.hope_quantum)
         self._log_decision(cands, hope, order, best_true, proposal)
+        far_left = self._far_moves_left()
         for i in order:
             cd = cands[i]
             if hope[i] - best_true < c.margin:
                 break  # in order of hope: no later one promises more
             if near_captured(self.captures, cd.cam2world, c.min_move_deg, c.min_move_m):
                 continue
+            far = self._unvisited(cd.cam2world)
+            if far and far_left <= 0:
+                log.info(
+                    "%s: not moving to %s (hope %.3f): no capture within %.2f m, and %d such moves missed",
+                    self.node_id,
+                    _where(cd),
+                    hope[i],
+                    c.far_m,
+                    self.far_misses,
+                )
+                continue
             log.info("%s: move %d: %s, hope %.3f", self.node_id, self.moves + 1, _where(cd), hope[i])
-            return Target("move", cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=float(hope[i]))
+            target = Target("move", cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=float(hope[i]))
+            if far:  # its capture is compared with the best captured view then (_record_capture)
+                target.far_best = best_true
+            return target
         return self._explore_target(proposal)
+
+    def _far_moves_left(self) -> float:
+        """How many more moves may go to a place no capture was taken at or near (``far_moves``;
+        unset: the motion's default, None = no limit) before one of them has to beat the best
+        captured view: the field's prediction from such a place is checked once before the moves
+        trust it again."""
+        most = self.motion.far_moves if self.config.far_moves is None else self.config.far_moves
+        return math.inf if most is None else most - self.far_misses
+
+    def _unvisited(self, cam2world: np.ndarray) -> bool:  # [4, 4]
+        """Whether a view's place is farther than ``far_m`` from every capture's (a drone's)."""
+        if not self.captures:
+            return False
+        places = np.stack([cap.cam2world[:3, 3] for cap in self.captures])  # [M, 3]
+        return bool(np.min(np.linalg.norm(places - cam2world[:3, 3], axis=1)) > self.config.far_m)
 
     def _plan_search(self) -> dict | None:
         """The loop's stage 1 on a rig (``plan_grid_deg``; unset: the motion's default): a pan x
         tilt grid at that spacing over the joint range, no random neighbours and
         ``PLAN_GRID_HILLS`` views refined, as :class:`~aes_planner.search.SearchConfig` fields;
-        None: the preset's (a drone, or 0)."""
+        on a drone with ``plan_draws`` false: the neighbours and coverage points of a fixed
+        pattern (``fixed_draws``); None: the preset's."""
         c = self.config
         step_deg = self.motion.plan_grid_deg if c.plan_grid_deg is None else c.plan_grid_deg
         kinematics = getattr(self.platform, "kinematics", None)  # a rig's; a drone has none
-        if not step_deg or kinematics is None:
+        if kinematics is None:
+            draws = self.motion.plan_draws if c.plan_draws is None else c.plan_draws
+            return None if draws else {"fixed_draws": True}
+        if not step_deg:
             return None
         step_rad = math.radians(step_deg)
         (pan_lo, pan_hi), (tilt_lo, tilt_hi) = kinematics.pan_limits_rad, kinematics.tilt_limits_rad
@@ -753,6 +787,9 @@ class ActiveLoop:
             frame.image,
             look_distance_m(frame.depth_m),
         )
+        far_best = getattr(target, "far_best", None)
+        if far_best is not None and score <= far_best + self.config.tie_tolerance:
+            self.far_misses += 1  # a move to an unvisited place that did not beat the best
         self.captures.append(cap)
         self.counters["captures"] += 1
         self.counters["frames_used"] += 1

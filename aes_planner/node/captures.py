@@ -69,6 +69,7 @@ class Target:
     arrived_s: float | None = None
     resent: bool = False
     on_path: bool = True  # its capture joins the search's input trajectory (False: the field only)
+    far_best: float | None = None  # a move to an unvisited place: the best captured score when it was chosen
 
     def __post_init__(self):
         self.kind = CaptureKind(self.kind)

@@ -70,6 +70,10 @@ class Motion(ABC):
     explore_places: int = 0
     #: ``PlannerConfig.plan_grid_deg`` when the config leaves it unset (0: the preset's stage 1)
     plan_grid_deg: float = 0.0
+    #: ``PlannerConfig.far_moves`` when the config leaves it unset (None: no limit)
+    far_moves: int | None = None
+    #: ``PlannerConfig.plan_draws`` when the config leaves it unset
+    plan_draws: bool = True
 
     #: ``ViewSuggestion.mode``'s word for the platform (the wire format's: ``rig`` or ``free``)
     suggestion_mode: str

@@ -108,6 +108,19 @@ class PlannerConfig:
       platform's default (a rig 4: with the fine rounds' ``polish_fine_gap``, 27 dev rig runs
       0.989 -> 0.991 of the oracle, the spread over three search seeds 0.020 -> 0.000 per scene;
       a drone 0: a grid over free flight is too large, and a drone ignores it).
+    * ``far_moves`` / ``far_m``: a drone only: at most ``far_moves`` moves to a place farther
+      than ``far_m`` (metres) from every capture whose capture did not beat the best captured view
+      (a miss); after that many misses the moves go only to candidates from places a capture was
+      taken at or near. The field's prediction from a place nothing was captured at is its least
+      trustworthy (dev tabletop:208@drone: the unvisited places it ranked first scored 0.37-0.59
+      against a hope of 0.70-0.73), and one such capture calibrates it before more moves go on
+      its word. Unset: the platform's default (no limit on both); a rig never leaves its base.
+    * ``plan_draws``: a drone only: the active loop's searches draw stage 1's neighbours and the
+      coverage points at random from the search's ``seed`` (true, the preset's), or take both from
+      a fixed low-discrepancy pattern (false; :class:`~aes_planner.search.SearchConfig`
+      ``fixed_draws``), so that which views a planning sees does not depend on the seed. Unset:
+      the platform's default (a drone true; a rig's loop searches draw nothing anyway, its
+      ``plan_grid_deg``).
     * ``tie_tolerance``: a capture displaces the best captured view (the polish's centre, the
       view settled on) only when it scored more than this higher (teacher units).
     * ``polish_coarse_gain``: at a polish step coarser than the finest, a neighbour displaces the
@@ -188,6 +201,9 @@ class PlannerConfig:
     verify_unseen: bool | None = None
     search_grid_points: int | None = None
     plan_grid_deg: float | None = None
+    far_moves: int | None = None
+    far_m: float = 0.3
+    plan_draws: bool | None = None
     tie_tolerance: float = 0.002
     polish_coarse_gain: float = 0.02
     hope_quantum: float = 0.005
@@ -295,6 +311,19 @@ class PlannerConfig:
             "plan_grid_deg",
             f"must be 0 (the preset's random stage 1) or a spacing in [0.5, 45] degrees, or unset for the "
             f"platform's default, got {self.plan_grid_deg!r}",
+        )
+        require(
+            self.far_moves is None
+            or (isinstance(self.far_moves, int) and not isinstance(self.far_moves, bool) and 0 <= self.far_moves <= 64),
+            "far_moves",
+            f"must be an integer in [0, 64], or unset for the platform's default (no limit), got {self.far_moves!r}",
+        )
+        require_numbers(self, ("far_m",))
+        require(self.far_m <= 10.0, "far_m", f"must be in (0, 10] metres, got {self.far_m}")
+        require(
+            self.plan_draws is None or isinstance(self.plan_draws, bool),
+            "plan_draws",
+            f"must be true or false, or unset for the platform's default, got {self.plan_draws!r}",
         )
         require(self.top_k >= 1, "top_k", f"must be >= 1, got {self.top_k}")
         from aes_planner.messages.suggestion import MAX_CANDIDATES

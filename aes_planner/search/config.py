@@ -82,6 +82,10 @@ class SearchConfig:
 
     ``pitch_limits_deg``: the pitch range searched in free mode (a drone gimbal's range).
     ``batch_size``: poses per scorer call in stage 1. ``seed``: the sampling seed.
+    ``fixed_draws``: stage 1's neighbours and the coverage points come from a fixed
+    low-discrepancy pattern (:class:`~aes_planner.search.space.FixedPattern`, a Kronecker sequence), not from a
+    generator seeded with ``seed``: the search then scores the same views whatever its seed (a
+    drone's active loop: ``PlannerConfig.plan_draws``).
     """
 
     samples_per_segment: int = 16
@@ -106,6 +110,7 @@ class SearchConfig:
     pitch_limits_deg: tuple[float, float] = (-60.0, 30.0)
     batch_size: int = 64
     seed: int = 0
+    fixed_draws: bool = False
     preset_name: str = "custom"
 
     def __post_init__(self):
@@ -154,6 +159,7 @@ class SearchConfig:
             "seed",
             f"must be an integer >= 0, got {self.seed!r}",
         )
+        require(isinstance(self.fixed_draws, bool), "fixed_draws", f"must be true or false, got {self.fixed_draws!r}")
         if self.segment_budget is not None:
             require(
                 isinstance(self.segment_budget, int)

@@ -616,3 +616,34 @@ def test_a_grid_without_neighbours_draws_nothing_at_random():
     assert angle_to(gridded[0][0], target) < 10.0  # the grid finds the hill
     with pytest.raises(ConfigError, match="neighbours"):
         SearchConfig(neighbours=-1)
+
+
+def test_fixed_draws_score_the_same_views_whatever_the_seed():
+    """``SearchConfig.fixed_draws`` (a drone's active loop, ``PlannerConfig.plan_draws``): stage
+    1's neighbours and the coverage points come from a fixed pattern, so every seed scores the same
+    views and finds the same coverage; drawn, the seed moves both. The pattern keeps the draws'
+    count and bounds (shifts and turns within their ranges, not all on one line)."""
+    from aes_planner.search.space import FixedPattern
+
+    platform = drone_platform()
+    inputs = view_to_cam2world(np.array([[-1.0, -1.0, 1.5, 0.0, 0.0], [1.0, 1.0, 1.5, -1.5, -0.2]]))
+    scorer = AimScorer([0.3, -1.0, -0.3], unseen_dir=[-1.0, 0.0, 0.0])
+
+    def run(seed, fixed):
+        cfg = SearchConfig.preset("fast", mode="drone", steps=0, seed=seed, fixed_draws=fixed)
+        return search_views(scorer, inputs, platform, cfg)
+
+    drawn = [run(seed, False) for seed in range(3)]
+    assert any(not np.array_equal(drawn[0].candidates_cam2world, d.candidates_cam2world) for d in drawn[1:])
+    fixed = [run(seed, True) for seed in range(3)]
+    for f in fixed[1:]:
+        np.testing.assert_array_equal(fixed[0].candidates_cam2world, f.candidates_cam2world)
+        assert f.covered_fraction == fixed[0].covered_fraction
+        np.testing.assert_array_equal(fixed[0].explore.cam2world, f.explore.cam2world)
+    assert len(fixed[0].candidates_cam2world) == len(drawn[0].candidates_cam2world)
+    assert 0.0 < fixed[0].covered_fraction < 1.0
+    u = FixedPattern().uniform(-1.0, 1.0, size=(5, 8, 4))  # [M, n, 4]: neighbours' shifts and turns
+    assert np.all(np.abs(u) < 1.0) and abs(float(np.corrcoef(u.reshape(-1, 4).T)[0, 2])) < 0.3
+    np.testing.assert_array_equal(u, FixedPattern().uniform(-1.0, 1.0, size=(5, 8, 4)))
+    with pytest.raises(ConfigError, match="fixed_draws"):
+        SearchConfig(fixed_draws=1)
