@@ -209,11 +209,12 @@ class ActiveLoop:
             far = self._unvisited(cd.cam2world)
             if far and far_left <= 0:
                 log.info(
-                    "%s: not moving to %s (hope %.3f): no capture within %.2f m, and %d such moves missed",
+                    "%s: not moving to %s (hope %.3f): no capture within %.2f m and %.0f deg, and %d such moves missed",
                     self.node_id,
                     _where(cd),
                     hope[i],
                     c.far_m,
+                    c.far_deg,
                     self.far_misses,
                 )
                 continue
@@ -233,11 +234,14 @@ class ActiveLoop:
         return math.inf if most is None else most - self.far_misses
 
     def _unvisited(self, cam2world: np.ndarray) -> bool:  # [4, 4]
-        """Whether a view's place is farther than ``far_m`` from every capture's (a drone's)."""
-        if not self.captures:
-            return False
-        places = np.stack([cap.cam2world[:3, 3] for cap in self.captures])  # [M, 3]
-        return bool(np.min(np.linalg.norm(places - cam2world[:3, 3], axis=1)) > self.config.far_m)
+        """Whether no capture was taken within ``far_m`` of a view's place looking within
+        ``far_deg`` of its way (a drone's; 180: any way)."""
+        c = self.config
+        return bool(self.captures) and not any(
+            np.linalg.norm(cap.cam2world[:3, 3] - cam2world[:3, 3]) <= c.far_m
+            and (c.far_deg >= 180.0 or view_angle_deg(cap.cam2world, cam2world) < c.far_deg)
+            for cap in self.captures
+        )
 
     def _plan_search(self) -> dict | None:
         """The loop's stage 1 on a rig (``plan_grid_deg``; unset: the motion's default): a pan x

@@ -108,10 +108,10 @@ class PlannerConfig:
       platform's default (a rig 4: with the fine rounds' ``polish_fine_gap``, 27 dev rig runs
       0.989 -> 0.991 of the oracle, the spread over three search seeds 0.020 -> 0.000 per scene;
       a drone 0: a grid over free flight is too large, and a drone ignores it).
-    * ``far_moves`` / ``far_m``: a drone only: at most ``far_moves`` moves to a place farther
-      than ``far_m`` (metres) from every capture whose capture did not beat the best captured view
-      (a miss); after that many misses the moves go only to candidates from places a capture was
-      taken at or near. The field's prediction from a place nothing was captured at is its least
+    * ``far_moves`` / ``far_m`` / ``far_deg``: a drone only: at most ``far_moves`` moves to an
+      unvisited view (no capture within ``far_m`` metres of its place looking within ``far_deg``
+      of its way; 180: any way) whose capture did not beat the best captured view (a miss); after
+      that many misses the moves go only to candidates near a capture. The field's prediction from a place nothing was captured at is its least
       trustworthy (dev tabletop:208@drone: the unvisited places it ranked first scored 0.37-0.59
       against a hope of 0.70-0.73), and one such capture calibrates it before more moves go on
       its word. Unset: the platform's default (no limit on both); a rig never leaves its base.
@@ -203,6 +203,7 @@ class PlannerConfig:
     plan_grid_deg: float | None = None
     far_moves: int | None = None
     far_m: float = 0.3
+    far_deg: float = 180.0
     plan_draws: bool | None = None
     tie_tolerance: float = 0.002
     polish_coarse_gain: float = 0.02
@@ -320,6 +321,8 @@ class PlannerConfig:
         )
         require_numbers(self, ("far_m",))
         require(self.far_m <= 10.0, "far_m", f"must be in (0, 10] metres, got {self.far_m}")
+        require_numbers(self, ("far_deg",))
+        require(self.far_deg <= 180.0, "far_deg", f"must be in (0, 180] degrees, got {self.far_deg}")
         require(
             self.plan_draws is None or isinstance(self.plan_draws, bool),
             "plan_draws",

@@ -384,7 +384,24 @@ def test_a_drone_verifies_one_unvisited_place_before_more_moves_go_on_the_fields
     once = _fly_node(PlannerNode(PlannerConfig(**base, far_moves=1), proposer=LureProposer(), teacher=FakeTeacher()))
     assert once.moves == 3 and far_moves(once) == 1 and once.far_misses == 1
     assert max(c.score for c in once.captures) > max(c.score for c in free.captures) + 0.1
+
+    # lures from the start's place looking ways no capture looked (the turn's: 0, +-120 deg): visited
+    # by position (far_deg 180), not within 30 deg of any capture's way
+    class TurnLures(LureProposer):
+        LURES = [[0.0, 0.0, 1.5, yaw, -0.1] for yaw in (-1.0, 3.0)]
+
+    def lure_moves(node):
+        yaws = [float(cam2world_to_view(c.cam2world)[3]) for c in node.captures if c.kind == "move"]
+        return sum(min(abs(math.remainder(y - lure[3], math.tau)) for lure in TurnLures.LURES) < 0.05 for y in yaws)
+
+    turns = dict(base, far_moves=1)
+    by_place = _fly_node(PlannerNode(PlannerConfig(**turns), proposer=TurnLures(), teacher=FakeTeacher()))
+    by_way = _fly_node(PlannerNode(PlannerConfig(**turns, far_deg=30.0), proposer=TurnLures(), teacher=FakeTeacher()))
+    assert by_place.far_misses == 0 and lure_moves(by_place) == 2
+    assert by_way.far_misses == 1 and lure_moves(by_way) == 1
     with pytest.raises(ConfigError, match="far_moves"):
         PlannerConfig(far_moves=-1)
+    with pytest.raises(ConfigError, match="far_deg"):
+        PlannerConfig(far_deg=200.0)
     with pytest.raises(ConfigError, match="far_m"):
         PlannerConfig(far_m=0.0)
