@@ -248,13 +248,15 @@ class ActiveLoop:
         tilt grid at that spacing over the joint range, no random neighbours and
         ``PLAN_GRID_HILLS`` views refined, as :class:`~aes_planner.search.SearchConfig` fields;
         on a drone with ``plan_draws`` false: the neighbours and coverage points of a fixed
-        pattern (``fixed_draws``); None: the preset's."""
+        pattern (``fixed_draws``), and ``plan_adam_eps`` as stage 2's ``adam_eps``; None: the preset's."""
         c = self.config
         step_deg = self.motion.plan_grid_deg if c.plan_grid_deg is None else c.plan_grid_deg
         kinematics = getattr(self.platform, "kinematics", None)  # a rig's; a drone has none
         if kinematics is None:
             draws = self.motion.plan_draws if c.plan_draws is None else c.plan_draws
-            return None if draws else {"fixed_draws": True}
+            eps = self.motion.plan_adam_eps if c.plan_adam_eps is None else c.plan_adam_eps
+            fields = ({} if draws else {"fixed_draws": True}) | ({} if eps is None else {"adam_eps": eps})
+            return fields or None
         if not step_deg:
             return None
         step_rad = math.radians(step_deg)

@@ -74,6 +74,8 @@ class Motion(ABC):
     far_moves: int | None = None
     #: ``PlannerConfig.plan_draws`` when the config leaves it unset
     plan_draws: bool = True
+    #: ``PlannerConfig.plan_adam_eps`` when the config leaves it unset (None: the preset's)
+    plan_adam_eps: float | None = None
 
     #: ``ViewSuggestion.mode``'s word for the platform (the wire format's: ``rig`` or ``free``)
     suggestion_mode: str

@@ -121,6 +121,10 @@ class PlannerConfig:
       ``fixed_draws``), so that which views a planning sees does not depend on the seed. Unset:
       the platform's default (a drone true; a rig's loop searches draw nothing anyway, its
       ``plan_grid_deg``).
+    * ``plan_adam_eps``: a drone only: Adam's epsilon in the active loop's stage 2
+      (:class:`~aes_planner.search.SearchConfig` ``adam_eps``; the preset's 1e-8): with a larger
+      one a nearly flat direction (a slope well below it) is not stepped a full ``lr`` each step,
+      whose sign the last bits decide. Unset: the platform's default (the preset's).
     * ``tie_tolerance``: a capture displaces the best captured view (the polish's centre, the
       view settled on) only when it scored more than this higher (teacher units).
     * ``polish_coarse_gain``: at a polish step coarser than the finest, a neighbour displaces the
@@ -205,6 +209,7 @@ class PlannerConfig:
     far_m: float = 0.3
     far_deg: float = 180.0
     plan_draws: bool | None = None
+    plan_adam_eps: float | None = None
     tie_tolerance: float = 0.002
     polish_coarse_gain: float = 0.02
     hope_quantum: float = 0.005
@@ -328,6 +333,9 @@ class PlannerConfig:
             "plan_draws",
             f"must be true or false, or unset for the platform's default, got {self.plan_draws!r}",
         )
+        if self.plan_adam_eps is not None:
+            require_numbers(self, ("plan_adam_eps",))
+            require(self.plan_adam_eps <= 1.0, "plan_adam_eps", f"must be in (0, 1], got {self.plan_adam_eps}")
         require(self.top_k >= 1, "top_k", f"must be >= 1, got {self.top_k}")
         from aes_planner.messages.suggestion import MAX_CANDIDATES
 

@@ -66,6 +66,10 @@ class SearchConfig:
     with central finite differences of step ``fd_step`` (``nondiff_refine = "fd"``) or not at all
     (``"skip"``).
 
+    ``adam_eps``: Adam's epsilon in stage 2 (torch's default 1e-8): a parameter whose slope is
+    much below it moves by much less than ``lr`` a step, instead of a full step whose sign the
+    last bits of a nearly flat slope decide.
+
     Coverage: the objective is ``score - coverage_penalty * max(0, coverage_min - coverage)``; final
     suggestions with coverage below ``coverage_min`` are dropped unless nothing else is left (then
     the result says so in ``warnings``).
@@ -97,6 +101,7 @@ class SearchConfig:
     screen_keep: int = 0
     steps: int = 25
     lr: float = 0.01
+    adam_eps: float = 1e-8
     jitter_fov: float = 0.35
     shift_frac: float = 0.05
     dedup_fov: float = 0.2
@@ -184,6 +189,8 @@ class SearchConfig:
         require(
             8 <= self.render_width_px <= 4096, "render_width_px", f"must be in [8, 4096] px, got {self.render_width_px}"
         )
+        require_finite(self.adam_eps, "adam_eps")
+        require(0.0 < self.adam_eps <= 1.0, "adam_eps", f"must be in (0, 1], got {self.adam_eps}")
         require(self.lr <= 1.0, "lr", f"must be in (0, 1] (radians or metres per step), got {self.lr}")
         require(
             self.nondiff_refine in ("fd", "skip"),

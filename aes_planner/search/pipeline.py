@@ -227,7 +227,7 @@ def _refine(scorer: Scorer, space: SearchSpace, start: Tensor, start_obj: Tensor
     best_out = None if start_out is None else _copy_out(start_out)
     if cfg.steps == 0 or not (differentiable or cfg.nondiff_refine == "fd"):
         return params, best_params, best_obj, best_out
-    adam = Adam(params, cfg.lr)
+    adam = Adam(params, cfg.lr, eps=cfg.adam_eps)
     for _ in range(cfg.steps):
         obj, out, grad = _gradient(scorer, space, params, cfg, differentiable)
         better = obj.double() > best_obj

@@ -405,3 +405,31 @@ def test_a_drone_verifies_one_unvisited_place_before_more_moves_go_on_the_fields
         PlannerConfig(far_deg=200.0)
     with pytest.raises(ConfigError, match="far_m"):
         PlannerConfig(far_m=0.0)
+
+
+def test_a_drones_loop_searches_take_the_fixed_pattern_and_adam_eps_and_a_rigs_do_not():
+    """``plan_draws`` false and ``plan_adam_eps`` reach a drone's loop searches as
+    ``fixed_draws`` and ``adam_eps``; unset (the defaults) the preset's; a rig's loop searches
+    (its pan x tilt grid) take neither."""
+    from aes_planner.platform import RigPlatformConfig
+
+    from .nodekit import RIG
+
+    def fields(config):
+        node = PlannerNode(config, proposer=FreeProposer(), teacher=FakeTeacher())
+        node.motion.bind(K)
+        node.platform = node.motion.platform
+        return node._plan_search()
+
+    drone = dict(platform=DronePlatformConfig(BOX))
+    assert fields(PlannerConfig(**drone)) is None
+    assert fields(PlannerConfig(**drone, plan_draws=False, plan_adam_eps=1e-3)) == {
+        "fixed_draws": True,
+        "adam_eps": 1e-3,
+    }
+    rig = fields(PlannerConfig(platform=RigPlatformConfig(RIG), plan_draws=False, plan_adam_eps=1e-3))
+    assert rig["neighbours"] == 0 and "fixed_draws" not in rig and "adam_eps" not in rig
+    with pytest.raises(ConfigError, match="plan_adam_eps"):
+        PlannerConfig(plan_adam_eps=0.0)
+    with pytest.raises(ConfigError, match="plan_draws"):
+        PlannerConfig(plan_draws="no")

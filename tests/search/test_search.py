@@ -647,3 +647,39 @@ def test_fixed_draws_score_the_same_views_whatever_the_seed():
     np.testing.assert_array_equal(u, FixedPattern().uniform(-1.0, 1.0, size=(5, 8, 4)))
     with pytest.raises(ConfigError, match="fixed_draws"):
         SearchConfig(fixed_draws=1)
+
+
+class TiltedScorer(AimScorer):
+    """AimScorer plus a nearly flat slope along world x (``slope`` per metre)."""
+
+    def __init__(self, target_dir, slope):
+        super().__init__(target_dir)
+        self.slope = slope
+
+    def score(self, cam2world):
+        out = super().score(cam2world)
+        s = out.score + self.slope * cam2world[:, 0, 3]
+        return ScoreOutput(s, out.coverage, {"score": s.detach(), "aim": s.detach()})
+
+
+def test_adam_eps_keeps_stage_2_from_full_steps_along_a_nearly_flat_slope():
+    """``SearchConfig.adam_eps`` (a drone's loop: ``PlannerConfig.plan_adam_eps``): with torch's
+    1e-8, Adam steps a full ``lr`` along a slope of 1e-7 per metre (its sign, i.e. the last bits
+    of a flat direction, decides where the view ends up: 0.25 m over 25 steps); with 1e-3 it
+    hardly moves there, and the aim it climbs is reached as before."""
+    platform = drone_platform()
+    start = view_to_cam2world(np.array([[0.0, 0.0, 1.5, 0.0, 0.0]]))
+    target = [math.cos(0.3), math.sin(0.3), 0.0]
+
+    def refined(eps, slope):
+        cfg = SearchConfig.preset("fast", mode="drone", neighbours=0, top_k=1, steps=25, adam_eps=eps)
+        return search_views(TiltedScorer(target, slope), start, platform, cfg).best
+
+    for slope in (1e-7, -1e-7):
+        loose = refined(1e-8, slope)
+        assert abs(loose.position_m[0]) > 0.2 and np.sign(loose.position_m[0]) == np.sign(slope)
+        tight = refined(1e-3, slope)
+        assert abs(tight.position_m[0]) < 1e-3
+        assert abs(tight.yaw_rad - loose.yaw_rad) < 0.02  # the aim is climbed the same
+    with pytest.raises(ConfigError, match="adam_eps"):
+        SearchConfig(adam_eps=0.0)
