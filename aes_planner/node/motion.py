@@ -232,6 +232,11 @@ class DroneMotion(Motion):
     # dev drones, 21 paired runs: mean 0.922 -> 0.937, below 0.9 5 -> 4 (432: 0.933, 6 below)
     search_grid_points = 216
     plan_grid_deg = 0.0  # no pan x tilt grid: a drone's grid is search_grid_points' lattice of places
+    # PlannerConfig.far_moves / plan_draws when unset: one unvisited view that misses, then only views
+    # near a capture; no random draws in the loop's searches (docs/decisions.md; dev drones, 39 paired
+    # runs: mean 0.917 -> 0.924, below 0.9 12 -> 11, spread per scene 0.052 -> 0.013)
+    far_moves = 1
+    plan_draws = False
 
     def __init__(self, box: DroneBox, search_config):
         self.box = box

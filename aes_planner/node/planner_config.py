@@ -113,14 +113,17 @@ class PlannerConfig:
       of its way; 180: any way) whose capture did not beat the best captured view (a miss); after
       that many misses the moves go only to candidates near a capture. The field's prediction from a place nothing was captured at is its least
       trustworthy (dev tabletop:208@drone: the unvisited places it ranked first scored 0.37-0.59
-      against a hope of 0.70-0.73), and one such capture calibrates it before more moves go on
-      its word. Unset: the platform's default (no limit on both); a rig never leaves its base.
+      against a hope of 0.70-0.73, from places the exploration had visited looking other ways),
+      and one such capture calibrates it before more moves go on its word. 30 deg: about two
+      ``residual_length_deg``, beyond which the hope has no local correction. Unset: the
+      platform's default (a drone 1, measured with ``plan_draws`` false on 39 dev drone runs:
+      docs/decisions.md; a rig no limit: it never leaves its base).
     * ``plan_draws``: a drone only: the active loop's searches draw stage 1's neighbours and the
       coverage points at random from the search's ``seed`` (true, the preset's), or take both from
       a fixed low-discrepancy pattern (false; :class:`~aes_planner.search.SearchConfig`
       ``fixed_draws``), so that which views a planning sees does not depend on the seed. Unset:
-      the platform's default (a drone true; a rig's loop searches draw nothing anyway, its
-      ``plan_grid_deg``).
+      the platform's default (a drone false, with ``far_moves`` 1; a rig's loop searches draw
+      nothing anyway, its ``plan_grid_deg``).
     * ``plan_adam_eps``: a drone only: Adam's epsilon in the active loop's stage 2
       (:class:`~aes_planner.search.SearchConfig` ``adam_eps``; the preset's 1e-8): with a larger
       one a nearly flat direction (a slope well below it) is not stepped a full ``lr`` each step,
@@ -207,7 +210,7 @@ class PlannerConfig:
     plan_grid_deg: float | None = None
     far_moves: int | None = None
     far_m: float = 0.3
-    far_deg: float = 180.0
+    far_deg: float = 30.0
     plan_draws: bool | None = None
     plan_adam_eps: float | None = None
     tie_tolerance: float = 0.002

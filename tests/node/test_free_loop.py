@@ -354,11 +354,12 @@ class LureProposer(FreeProposer):
 
 
 def test_a_drone_verifies_one_unvisited_place_before_more_moves_go_on_the_fields_word():
-    """``far_moves``: after a move to a place farther than ``far_m`` from every capture that did
-    not beat the best capture, the moves go to candidates from places captured at (the field's
-    prediction from nowhere it has been is its least trustworthy: dev tabletop:208@drone spent its
-    moves on unvisited places predicted 0.70-0.73 that scored 0.37-0.59). Unset (the default):
-    no limit, and every move goes to a lure."""
+    """``far_moves`` (a drone's default 1): after a move to an unvisited view (no capture within
+    ``far_m`` and ``far_deg``) that did not beat the best capture, the moves go to candidates near
+    a capture (the field's prediction from where it has not looked is its least trustworthy: dev
+    tabletop:208@drone spent its moves on views predicted 0.70-0.73 that scored 0.42-0.53). With no
+    limit (64) every move goes to a lure; ``far_deg`` 180 counts a place visited whichever way a
+    capture there looked."""
     base = dict(
         platform=DronePlatformConfig(BOX),
         explore_views=2,
@@ -379,9 +380,9 @@ def test_a_drone_verifies_one_unvisited_place_before_more_moves_go_on_the_fields
             seen.append(cap.cam2world[:3, 3])
         return out
 
-    free = _fly_node(PlannerNode(PlannerConfig(**base), proposer=LureProposer(), teacher=FakeTeacher()))
+    free = _fly_node(PlannerNode(PlannerConfig(**base, far_moves=64), proposer=LureProposer(), teacher=FakeTeacher()))
     assert free.moves == 3 and far_moves(free) == 3 and free.far_misses == 3
-    once = _fly_node(PlannerNode(PlannerConfig(**base, far_moves=1), proposer=LureProposer(), teacher=FakeTeacher()))
+    once = _fly_node(PlannerNode(PlannerConfig(**base), proposer=LureProposer(), teacher=FakeTeacher()))  # a drone: 1
     assert once.moves == 3 and far_moves(once) == 1 and once.far_misses == 1
     assert max(c.score for c in once.captures) > max(c.score for c in free.captures) + 0.1
 
@@ -395,7 +396,9 @@ def test_a_drone_verifies_one_unvisited_place_before_more_moves_go_on_the_fields
         return sum(min(abs(math.remainder(y - lure[3], math.tau)) for lure in TurnLures.LURES) < 0.05 for y in yaws)
 
     turns = dict(base, far_moves=1)
-    by_place = _fly_node(PlannerNode(PlannerConfig(**turns), proposer=TurnLures(), teacher=FakeTeacher()))
+    by_place = _fly_node(
+        PlannerNode(PlannerConfig(**turns, far_deg=180.0), proposer=TurnLures(), teacher=FakeTeacher())
+    )
     by_way = _fly_node(PlannerNode(PlannerConfig(**turns, far_deg=30.0), proposer=TurnLures(), teacher=FakeTeacher()))
     assert by_place.far_misses == 0 and lure_moves(by_place) == 2
     assert by_way.far_misses == 1 and lure_moves(by_way) == 1
@@ -422,7 +425,8 @@ def test_a_drones_loop_searches_take_the_fixed_pattern_and_adam_eps_and_a_rigs_d
         return node._plan_search()
 
     drone = dict(platform=DronePlatformConfig(BOX))
-    assert fields(PlannerConfig(**drone)) is None
+    assert fields(PlannerConfig(**drone)) == {"fixed_draws": True}  # the drone's default
+    assert fields(PlannerConfig(**drone, plan_draws=True)) is None
     assert fields(PlannerConfig(**drone, plan_draws=False, plan_adam_eps=1e-3)) == {
         "fixed_draws": True,
         "adam_eps": 1e-3,
