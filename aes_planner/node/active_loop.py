@@ -197,12 +197,15 @@ class ActiveLoop:
         )
         hope = hopes(cands, self.captures, proposal.captured_pred, c.optimism, c.min_sigma, c.residual_length_deg)
         best_true = self._value(self._best_capture())
-        order = decision_order(hope, cands, c.hope_quantum)
+        order = decision_order(hope, cands, c.hope_quantum, self._tie_margin())
         self._log_decision(cands, hope, order, best_true, proposal)
         far_left = self._far_moves_left()
+        tied = self._tie_margin() > 0  # the order within a tie is by place: a later one may promise more
         for i in order:
             cd = cands[i]
             if hope[i] - best_true < c.margin:
+                if tied:
+                    continue
                 break  # in order of hope: no later one promises more
             if near_captured(self.captures, cd.cam2world, c.min_move_deg, c.min_move_m):
                 continue
@@ -224,6 +227,11 @@ class ActiveLoop:
                 target.far_best = best_true
             return target
         return self._explore_target(proposal)
+
+    def _tie_margin(self) -> float:
+        """``hope_tie_margin`` (unset: the motion's default)."""
+        m = self.config.hope_tie_margin
+        return self.motion.hope_tie_margin if m is None else m
 
     def _far_moves_left(self) -> float:
         """How many more moves may go to a place no capture was taken at or near (``far_moves``;
@@ -414,9 +422,14 @@ class ActiveLoop:
         hope = hopes(cands, self.captures, proposal.captured_pred, c.optimism, c.min_sigma, c.residual_length_deg)
         floor = self._value(self._best_capture()) - c.polish_start_gap
         targets: list[Target] = []
-        for i in decision_order(hope, cands, c.hope_quantum):
+        tied = self._tie_margin() > 0
+        for i in decision_order(hope, cands, c.hope_quantum, self._tie_margin()):
             cd = cands[i]
-            if len(targets) >= c.verify_hills or hope[i] < floor:
+            if len(targets) >= c.verify_hills:
+                break
+            if hope[i] < floor:
+                if tied:
+                    continue
                 break
             if near_captured(self.captures, cd.cam2world, step_deg, c.min_move_m):
                 continue  # within a coarse polish step of a capture: its climb can reach it

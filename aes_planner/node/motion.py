@@ -76,6 +76,8 @@ class Motion(ABC):
     plan_draws: bool = True
     #: ``PlannerConfig.plan_adam_eps`` when the config leaves it unset (None: the preset's)
     plan_adam_eps: float | None = None
+    #: ``PlannerConfig.hope_tie_margin`` when the config leaves it unset (0: quanta alone)
+    hope_tie_margin: float = 0.0
 
     #: ``ViewSuggestion.mode``'s word for the platform (the wire format's: ``rig`` or ``free``)
     suggestion_mode: str

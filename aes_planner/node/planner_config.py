@@ -138,6 +138,11 @@ class PlannerConfig:
     * ``hope_quantum``: candidates are ranked by their hope rounded to this (teacher units), ties
       by where they look, so that near-equal predictions do not pick the move by their last bits
       (which differ between processors, backends and thread counts).
+    * ``hope_tie_margin``: candidates whose hope is within this (teacher units) of the best are
+      one tie with it, ranked by where they look: two hopes a thousandth apart on either side of a
+      ``hope_quantum`` edge are not ranked by that edge (dev tabletop:217@drone: 0.751 / 0.752
+      under numba, 0.753 / 0.752 under torch, and the first move went to the other place). 0 =
+      the quanta alone. Unset: the platform's default (0 on both).
     * ``explore_below_covered`` / ``explore_moves``: when the search says its inputs cover less
       than this share of the space (the suggestion's ``covered_fraction``), the best predicted
       view is unverified where nothing was seen: before the loop stops on what it has (no
@@ -216,6 +221,7 @@ class PlannerConfig:
     tie_tolerance: float = 0.002
     polish_coarse_gain: float = 0.02
     hope_quantum: float = 0.005
+    hope_tie_margin: float | None = None
     explore_below_covered: float = 0.9
     explore_moves: int = 1
     top_k: int = 3
@@ -339,6 +345,13 @@ class PlannerConfig:
         if self.plan_adam_eps is not None:
             require_numbers(self, ("plan_adam_eps",))
             require(self.plan_adam_eps <= 1.0, "plan_adam_eps", f"must be in (0, 1], got {self.plan_adam_eps}")
+        if self.hope_tie_margin is not None:
+            require_numbers(self, ("hope_tie_margin",), strict=False)
+            require(
+                self.hope_tie_margin <= 0.1,
+                "hope_tie_margin",
+                f"must be in [0, 0.1] (teacher units), got {self.hope_tie_margin}",
+            )
         require(self.top_k >= 1, "top_k", f"must be >= 1, got {self.top_k}")
         from aes_planner.messages.suggestion import MAX_CANDIDATES
 
