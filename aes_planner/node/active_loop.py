@@ -197,27 +197,75 @@ class ActiveLoop:
         )
         hope = hopes(cands, self.captures, proposal.captured_pred, c.optimism, c.min_sigma, c.residual_length_deg)
         best_true = self._value(self._best_capture())
-        order = decision_order(hope, cands, c.hope_quantum)
+        order = decision_order(hope, cands, c.hope_quantum, self._tie_margin())
         self._log_decision(cands, hope, order, best_true, proposal)
+        far_left = self._far_moves_left()
+        tied = self._tie_margin() > 0  # the order within a tie is by place: a later one may promise more
         for i in order:
             cd = cands[i]
             if hope[i] - best_true < c.margin:
+                if tied:
+                    continue
                 break  # in order of hope: no later one promises more
             if near_captured(self.captures, cd.cam2world, c.min_move_deg, c.min_move_m):
                 continue
+            far = self._unvisited(cd.cam2world)
+            if far and far_left <= 0:
+                log.info(
+                    "%s: not moving to %s (hope %.3f): no capture within %.2f m and %.0f deg, and %d such moves missed",
+                    self.node_id,
+                    _where(cd),
+                    hope[i],
+                    c.far_m,
+                    c.far_deg,
+                    self.far_misses,
+                )
+                continue
             log.info("%s: move %d: %s, hope %.3f", self.node_id, self.moves + 1, _where(cd), hope[i])
-            return Target("move", cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=float(hope[i]))
+            target = Target("move", cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=float(hope[i]))
+            if far:  # its capture is compared with the best captured view then (_record_capture)
+                target.far_best = best_true
+            return target
         return self._explore_target(proposal)
+
+    def _tie_margin(self) -> float:
+        """``hope_tie_margin`` (unset: the motion's default)."""
+        m = self.config.hope_tie_margin
+        return self.motion.hope_tie_margin if m is None else m
+
+    def _far_moves_left(self) -> float:
+        """How many more moves may go to a place no capture was taken at or near (``far_moves``;
+        unset: the motion's default, None = no limit) before one of them has to beat the best
+        captured view: the field's prediction from such a place is checked once before the moves
+        trust it again."""
+        most = self.motion.far_moves if self.config.far_moves is None else self.config.far_moves
+        return math.inf if most is None else most - self.far_misses
+
+    def _unvisited(self, cam2world: np.ndarray) -> bool:  # [4, 4]
+        """Whether no capture was taken within ``far_m`` of a view's place looking within
+        ``far_deg`` of its way (a drone's; 180: any way)."""
+        c = self.config
+        return bool(self.captures) and not any(
+            np.linalg.norm(cap.cam2world[:3, 3] - cam2world[:3, 3]) <= c.far_m
+            and (c.far_deg >= 180.0 or view_angle_deg(cap.cam2world, cam2world) < c.far_deg)
+            for cap in self.captures
+        )
 
     def _plan_search(self) -> dict | None:
         """The loop's stage 1 on a rig (``plan_grid_deg``; unset: the motion's default): a pan x
         tilt grid at that spacing over the joint range, no random neighbours and
         ``PLAN_GRID_HILLS`` views refined, as :class:`~aes_planner.search.SearchConfig` fields;
-        None: the preset's (a drone, or 0)."""
+        on a drone with ``plan_draws`` false: the neighbours and coverage points of a fixed
+        pattern (``fixed_draws``), and ``plan_adam_eps`` as stage 2's ``adam_eps``; None: the preset's."""
         c = self.config
         step_deg = self.motion.plan_grid_deg if c.plan_grid_deg is None else c.plan_grid_deg
         kinematics = getattr(self.platform, "kinematics", None)  # a rig's; a drone has none
-        if not step_deg or kinematics is None:
+        if kinematics is None:
+            draws = self.motion.plan_draws if c.plan_draws is None else c.plan_draws
+            eps = self.motion.plan_adam_eps if c.plan_adam_eps is None else c.plan_adam_eps
+            fields = ({} if draws else {"fixed_draws": True}) | ({} if eps is None else {"adam_eps": eps})
+            return fields or None
+        if not step_deg:
             return None
         step_rad = math.radians(step_deg)
         (pan_lo, pan_hi), (tilt_lo, tilt_hi) = kinematics.pan_limits_rad, kinematics.tilt_limits_rad
@@ -374,9 +422,14 @@ class ActiveLoop:
         hope = hopes(cands, self.captures, proposal.captured_pred, c.optimism, c.min_sigma, c.residual_length_deg)
         floor = self._value(self._best_capture()) - c.polish_start_gap
         targets: list[Target] = []
-        for i in decision_order(hope, cands, c.hope_quantum):
+        tied = self._tie_margin() > 0
+        for i in decision_order(hope, cands, c.hope_quantum, self._tie_margin()):
             cd = cands[i]
-            if len(targets) >= c.verify_hills or hope[i] < floor:
+            if len(targets) >= c.verify_hills:
+                break
+            if hope[i] < floor:
+                if tied:
+                    continue
                 break
             if near_captured(self.captures, cd.cam2world, step_deg, c.min_move_m):
                 continue  # within a coarse polish step of a capture: its climb can reach it
@@ -753,6 +806,9 @@ class ActiveLoop:
             frame.image,
             look_distance_m(frame.depth_m),
         )
+        far_best = getattr(target, "far_best", None)
+        if far_best is not None and score <= far_best + self.config.tie_tolerance:
+            self.far_misses += 1  # a move to an unvisited place that did not beat the best
         self.captures.append(cap)
         self.counters["captures"] += 1
         self.counters["frames_used"] += 1

@@ -69,6 +69,7 @@ class Target:
     arrived_s: float | None = None
     resent: bool = False
     on_path: bool = True  # its capture joins the search's input trajectory (False: the field only)
+    far_best: float | None = None  # a move to an unvisited place: the best captured score when it was chosen
 
     def __post_init__(self):
         self.kind = CaptureKind(self.kind)
@@ -127,14 +128,20 @@ def hopes(
     return out
 
 
-def decision_order(hope: np.ndarray, cands: list[Candidate], quantum: float) -> list[int]:
+def decision_order(hope: np.ndarray, cands: list[Candidate], quantum: float, tie_margin: float = 0.0) -> list[int]:
     """Candidate indices best first, by hope rounded to ``quantum`` (teacher units), ties by where
     they look (pan, then tilt, in whole degrees; a drone's yaw and pitch) -- never by the last
-    bits of two nearly equal predictions, which differ between processors."""
+    bits of two nearly equal predictions, which differ between processors. ``tie_margin`` > 0:
+    every candidate within it of the best hope is one tie with the best (first, by where they
+    look): two hopes 0.001 apart on either side of a quantum's edge are not ranked by that edge."""
+    finite = [float(h) for h in hope if math.isfinite(float(h))]
+    top = max(finite) if finite and tie_margin > 0 else math.inf
 
     def key(i: int) -> tuple:
         h = float(hope[i])
         level = math.floor(h / quantum + 0.5) if quantum > 0 and math.isfinite(h) else h
+        if math.isfinite(h) and h >= top - tie_margin:
+            level = math.inf  # with the best: ranked by where it looks
         cd = cands[i]
         if cd.pan_rad is not None and cd.tilt_rad is not None:
             where = (round(math.degrees(cd.pan_rad)), round(math.degrees(cd.tilt_rad)))

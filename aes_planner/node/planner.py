@@ -92,6 +92,7 @@ class PlannerNode(ActiveLoop, Node):
         self.suggestions: list[ViewSuggestion] = []  # every suggestion published (bounded)
         self.moves = 0
         self.explored = 0  # moves spent on the search's exploratory candidate
+        self.far_misses = 0  # moves to unvisited places that did not beat the best capture (far_moves)
         self.counters = dict.fromkeys(
             (
                 "frames_in",
@@ -302,6 +303,7 @@ class PlannerNode(ActiveLoop, Node):
             self._target = None
             self.moves = 0
             self.explored = 0
+            self.far_misses = 0
             self.state = LoopState.WAITING
         elif kind == "stop" and self.config.active and not self.finished:
             self._queue.clear()

@@ -114,6 +114,26 @@ class PlannerConfig:
       25, where a one-shot ``suggest`` takes 20; the planner's explore pass also scores every
       partly covered view, a one-shot's the screen's best 8): with 20 steps the loop lost dev
       tabletop:210 (1.000 -> 0.878) and ``demo`` 0.93 -> 0.88 (docs/decisions.md).
+    * ``far_moves`` / ``far_m`` / ``far_deg``: a drone only: at most ``far_moves`` moves to an
+      unvisited view (no capture within ``far_m`` metres of its place looking within ``far_deg``
+      of its way; 180: any way) whose capture did not beat the best captured view (a miss); after
+      that many misses the moves go only to candidates near a capture. The field's prediction from a place nothing was captured at is its least
+      trustworthy (dev tabletop:208@drone: the unvisited places it ranked first scored 0.37-0.59
+      against a hope of 0.70-0.73, from places the exploration had visited looking other ways),
+      and one such capture calibrates it before more moves go on its word. 30 deg: about two
+      ``residual_length_deg``, beyond which the hope has no local correction. Unset: the
+      platform's default (a drone 1, measured with ``plan_draws`` false on 39 dev drone runs:
+      docs/decisions.md; a rig no limit: it never leaves its base).
+    * ``plan_draws``: a drone only: the active loop's searches draw stage 1's neighbours and the
+      coverage points at random from the search's ``seed`` (true, the preset's), or take both from
+      a fixed low-discrepancy pattern (false; :class:`~aes_planner.search.SearchConfig`
+      ``fixed_draws``), so that which views a planning sees does not depend on the seed. Unset:
+      the platform's default (a drone false, with ``far_moves`` 1; a rig's loop searches draw
+      nothing anyway, its ``plan_grid_deg``).
+    * ``plan_adam_eps``: a drone only: Adam's epsilon in the active loop's stage 2
+      (:class:`~aes_planner.search.SearchConfig` ``adam_eps``; the preset's 1e-8): with a larger
+      one a nearly flat direction (a slope well below it) is not stepped a full ``lr`` each step,
+      whose sign the last bits decide. Unset: the platform's default (the preset's).
     * ``tie_tolerance``: a capture displaces the best captured view (the polish's centre, the
       view settled on) only when it scored more than this higher (teacher units).
     * ``polish_coarse_gain``: at a polish step coarser than the finest, a neighbour displaces the
@@ -124,6 +144,11 @@ class PlannerConfig:
     * ``hope_quantum``: candidates are ranked by their hope rounded to this (teacher units), ties
       by where they look, so that near-equal predictions do not pick the move by their last bits
       (which differ between processors, backends and thread counts).
+    * ``hope_tie_margin``: candidates whose hope is within this (teacher units) of the best are
+      one tie with it, ranked by where they look: two hopes a thousandth apart on either side of a
+      ``hope_quantum`` edge are not ranked by that edge (dev tabletop:217@drone: 0.751 / 0.752
+      under numba, 0.753 / 0.752 under torch, and the first move went to the other place). 0 =
+      the quanta alone. Unset: the platform's default (0 on both).
     * ``explore_below_covered`` / ``explore_moves``: when the search says its inputs cover less
       than this share of the space (the suggestion's ``covered_fraction``), the best predicted
       view is unverified where nothing was seen: before the loop stops on what it has (no
@@ -195,9 +220,15 @@ class PlannerConfig:
     search_grid_points: int | None = None
     plan_grid_deg: float | None = None
     search_steps: int | None = None
+    far_moves: int | None = None
+    far_m: float = 0.3
+    far_deg: float = 30.0
+    plan_draws: bool | None = None
+    plan_adam_eps: float | None = None
     tie_tolerance: float = 0.002
     polish_coarse_gain: float = 0.02
     hope_quantum: float = 0.005
+    hope_tie_margin: float | None = None
     explore_below_covered: float = 0.9
     explore_moves: int = 1
     top_k: int = 3
@@ -309,6 +340,31 @@ class PlannerConfig:
             "search_steps",
             f"must be an integer in [0, 10000], or unset for the preset's (PLANNER_PRESETS), got {v!r}",
         )
+        require(
+            self.far_moves is None
+            or (isinstance(self.far_moves, int) and not isinstance(self.far_moves, bool) and 0 <= self.far_moves <= 64),
+            "far_moves",
+            f"must be an integer in [0, 64], or unset for the platform's default (no limit), got {self.far_moves!r}",
+        )
+        require_numbers(self, ("far_m",))
+        require(self.far_m <= 10.0, "far_m", f"must be in (0, 10] metres, got {self.far_m}")
+        require_numbers(self, ("far_deg",))
+        require(self.far_deg <= 180.0, "far_deg", f"must be in (0, 180] degrees, got {self.far_deg}")
+        require(
+            self.plan_draws is None or isinstance(self.plan_draws, bool),
+            "plan_draws",
+            f"must be true or false, or unset for the platform's default, got {self.plan_draws!r}",
+        )
+        if self.plan_adam_eps is not None:
+            require_numbers(self, ("plan_adam_eps",))
+            require(self.plan_adam_eps <= 1.0, "plan_adam_eps", f"must be in (0, 1], got {self.plan_adam_eps}")
+        if self.hope_tie_margin is not None:
+            require_numbers(self, ("hope_tie_margin",), strict=False)
+            require(
+                self.hope_tie_margin <= 0.1,
+                "hope_tie_margin",
+                f"must be in [0, 0.1] (teacher units), got {self.hope_tie_margin}",
+            )
         require(self.top_k >= 1, "top_k", f"must be >= 1, got {self.top_k}")
         from aes_planner.messages.suggestion import MAX_CANDIDATES
 

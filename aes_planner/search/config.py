@@ -67,6 +67,10 @@ class SearchConfig:
     with central finite differences of step ``fd_step`` (``nondiff_refine = "fd"``) or not at all
     (``"skip"``).
 
+    ``adam_eps``: Adam's epsilon in stage 2 (torch's default 1e-8): a parameter whose slope is
+    much below it moves by much less than ``lr`` a step, instead of a full step whose sign the
+    last bits of a nearly flat slope decide.
+
     Coverage: the objective is ``score - coverage_penalty * max(0, coverage_min - coverage)``; final
     suggestions with coverage below ``coverage_min`` are dropped unless nothing else is left (then
     the result says so in ``warnings``).
@@ -86,6 +90,10 @@ class SearchConfig:
 
     ``pitch_limits_deg``: the pitch range searched in free mode (a drone gimbal's range).
     ``batch_size``: poses per scorer call in stage 1. ``seed``: the sampling seed.
+    ``fixed_draws``: stage 1's neighbours and the coverage points come from a fixed
+    low-discrepancy pattern (:class:`~aes_planner.search.space.FixedPattern`, a Kronecker sequence), not from a
+    generator seeded with ``seed``: the search then scores the same views whatever its seed (a
+    drone's active loop: ``PlannerConfig.plan_draws``).
     """
 
     samples_per_segment: int = 16
@@ -98,6 +106,7 @@ class SearchConfig:
     screen_keep: int = 0
     steps: int = 25
     lr: float = 0.01
+    adam_eps: float = 1e-8
     jitter_fov: float = 0.35
     shift_frac: float = 0.05
     dedup_fov: float = 0.2
@@ -111,6 +120,7 @@ class SearchConfig:
     pitch_limits_deg: tuple[float, float] = (-60.0, 30.0)
     batch_size: int = 64
     seed: int = 0
+    fixed_draws: bool = False
     preset_name: str = "custom"
 
     def __post_init__(self):
@@ -166,6 +176,7 @@ class SearchConfig:
             "seed",
             f"must be an integer >= 0, got {self.seed!r}",
         )
+        require(isinstance(self.fixed_draws, bool), "fixed_draws", f"must be true or false, got {self.fixed_draws!r}")
         if self.segment_budget is not None:
             require(
                 isinstance(self.segment_budget, int)
@@ -190,6 +201,8 @@ class SearchConfig:
         require(
             8 <= self.render_width_px <= 4096, "render_width_px", f"must be in [8, 4096] px, got {self.render_width_px}"
         )
+        require_finite(self.adam_eps, "adam_eps")
+        require(0.0 < self.adam_eps <= 1.0, "adam_eps", f"must be in (0, 1], got {self.adam_eps}")
         require(self.lr <= 1.0, "lr", f"must be in (0, 1] (radians or metres per step), got {self.lr}")
         require(
             self.nondiff_refine in ("fd", "skip"),

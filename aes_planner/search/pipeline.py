@@ -46,7 +46,7 @@ from aes_planner.messages.fields import POSE_TOL
 from aes_planner.platform import Platform
 from aes_planner.runtime import suggestion_threads
 from aes_planner.search.config import SearchConfig
-from aes_planner.search.space import SearchSpace, space_for
+from aes_planner.search.space import FixedPattern, SearchSpace, space_for
 
 log = logging.getLogger(__name__)
 
@@ -227,7 +227,7 @@ def _refine(scorer: Scorer, space: SearchSpace, start: Tensor, start_obj: Tensor
     best_out = None if start_out is None else _copy_out(start_out)
     if cfg.steps == 0 or not (differentiable or cfg.nondiff_refine == "fd"):
         return params, best_params, best_obj, best_out
-    adam = Adam(params, cfg.lr)
+    adam = Adam(params, cfg.lr, eps=cfg.adam_eps)
     for _ in range(cfg.steps):
         obj, out, grad = _gradient(scorer, space, params, cfg, differentiable)
         better = obj.double() > best_obj
@@ -319,7 +319,7 @@ def _search_views(
     t_start = time.perf_counter()
     inputs = _check_inputs(inputs_cam2world)
     space = space_for(platform, cfg)
-    rng = np.random.default_rng(cfg.seed)
+    rng = FixedPattern() if cfg.fixed_draws else np.random.default_rng(cfg.seed)
     avoid_poses = None if avoid is None else _check_inputs(avoid, "avoid", allow_empty=True)
     avoid_params = space.from_poses(avoid_poses) if avoid_poses is not None and len(avoid_poses) else None
     framing = framing if framing is not None and framing.active else None

@@ -25,7 +25,17 @@ from torch import Tensor
 from aes_planner.geometry.poses import cam2world_to_view, view_to_cam2world, wrap_angle
 from aes_planner.platform import DroneBox, DronePlatform, HandHeldPlatform, Platform, RigPlatform
 
-__all__ = ["FreeSpace", "HandHeldSpace", "RigSpace", "SearchSpace", "lattice_places", "random_poses", "space_for"]
+__all__ = [
+    "FixedPattern",
+    "FreeSpace",
+    "HandHeldSpace",
+    "RigSpace",
+    "SearchSpace",
+    "kronecker",
+    "lattice_places",
+    "random_poses",
+    "space_for",
+]
 
 
 def _forward_dirs(cam2world: Tensor) -> Tensor:  # [M, 4, 4] -> [M, 3]
@@ -59,6 +69,41 @@ def lattice_places(lo, hi, most: int) -> np.ndarray:  # [3], [3] -> [P, 3], P <=
         counts[i] += 1
     axes = [lo[i] + extent[i] * (np.arange(counts[i]) + 0.5) / counts[i] for i in range(3)]
     return np.stack([m.ravel() for m in np.meshgrid(*axes, indexing="ij")], -1)
+
+
+def kronecker(n: int, dims: int) -> np.ndarray:  # -> [n, dims] in [0, 1)
+    """The points 1..n of the ``dims``-dimensional Kronecker (R-) sequence ``frac(0.5 + i * alpha)``
+    (alpha: the powers of the inverse of the root of ``x ** (dims + 1) = x + 1``): spread evenly
+    like uniform draws, consecutive points far apart, but fixed (no generator, no seed)."""
+    phi = 2.0
+    for _ in range(64):  # the generalised golden ratio, by fixed-point iteration
+        phi = (1.0 + phi) ** (1.0 / (dims + 1))
+    alpha = (1.0 / phi) ** np.arange(1, dims + 1)  # [dims]
+    i = np.arange(1, n + 1, dtype=np.float64)[:, None]  # [n, 1]
+    return (0.5 + i * alpha[None]) % 1.0
+
+
+class FixedPattern:
+    """What a search draws its stage-1 neighbours and coverage points from when
+    ``SearchConfig.fixed_draws``: a stand-in for :class:`numpy.random.Generator` whose
+    ``uniform(low, high, size)`` gives the Kronecker sequence (:func:`kronecker`) over the
+    flattened leading axes of ``size``, as many axes as its last axis has elements (a drone's
+    neighbours take their shifts and turns in one call: :meth:`FreeSpace.neighbours`); ``choice``
+    takes evenly spaced indices. The same call gives the same values in every search: which views
+    a search scores does not depend on a seed."""
+
+    def uniform(self, low=0.0, high=1.0, size=None):
+        shape = (1,) if size is None else ((size,) if isinstance(size, int) else tuple(size))
+        dims = shape[-1] if len(shape) > 1 else 1
+        n = int(np.prod(shape)) // max(dims, 1)
+        u = kronecker(n, dims).reshape(shape)
+        out = np.asarray(low) + (np.asarray(high) - np.asarray(low)) * u
+        return float(out.reshape(-1)[0]) if size is None else out
+
+    def choice(self, a: int, size: int, replace: bool = False):
+        if size > a and not replace:
+            raise ValueError(f"cannot take {size} of {a} without replacement")
+        return np.floor((np.arange(size) + 0.5) * a / size).astype(int)
 
 
 def _span(a: float, b: float, step: float) -> np.ndarray:  # -> [n] from a to b, at most step apart
@@ -218,8 +263,12 @@ class FreeSpace(SearchSpace):
         m = params.shape[0]
         poses = self.to_poses(params)  # [M, 4, 4]
         right, down = poses[:, :3, 0], poses[:, :3, 1]  # [M, 3] image axes in the world
-        shift = torch.as_tensor(rng.uniform(-self.shift_m, self.shift_m, size=(m, n, 2)))
-        jitter = torch.as_tensor(rng.uniform(-self.jitter_rad, self.jitter_rad, size=(m, n, 2)))
+        if isinstance(rng, FixedPattern):  # one 4-axis pattern: the shifts and the turns not aligned
+            u = torch.as_tensor(rng.uniform(-1.0, 1.0, size=(m, n, 4)))  # [M, n, 4]
+            shift, jitter = u[..., :2] * self.shift_m, u[..., 2:] * self.jitter_rad
+        else:
+            shift = torch.as_tensor(rng.uniform(-self.shift_m, self.shift_m, size=(m, n, 2)))
+            jitter = torch.as_tensor(rng.uniform(-self.jitter_rad, self.jitter_rad, size=(m, n, 2)))
         pos = params[:, None, :3] + shift[..., :1] * right[:, None] + shift[..., 1:] * down[:, None]  # [M, n, 3]
         ang = params[:, None, 3:] + jitter  # [M, n, 2]
         return self.project(torch.cat([pos, ang], dim=-1).reshape(-1, 5))

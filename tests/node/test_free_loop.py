@@ -335,3 +335,105 @@ def test_frames_off_the_path_feed_the_scorer_but_not_the_search_inputs(monkeypat
     prop.add_frame(frames[2], keep=True)  # ... and the off-path one
     prop.propose(DronePlatform(K, BOX), np.zeros((0, 4, 4)), 1)
     assert len(inputs[-1]) == 3 and not prop._off_path
+
+
+class LureProposer(FreeProposer):
+    """Over-estimates views from places nothing was captured at (the box's corners, predicted
+    0.99, worth ~0 to the teacher) above modest, right predictions from the start's place."""
+
+    LURES = [[x, y, 1.5, -2.4, -0.1] for x in (-0.8, 0.8) for y in (-0.8, 0.8)]  # looking away from PEAK
+
+    def propose(self, platform, captured, top_k, keep_near=None, search=None):
+        near = [[0.0, 0.0, 1.5, 0.7 + 0.1 * k, -0.1] for k in range(-4, 5)]  # from the start, towards PEAK
+        views = np.array(self.LURES + near)
+        poses = view_to_cam2world(torch.as_tensor(views)).numpy()
+        pred = np.array([0.99] * len(self.LURES) + [value(p) + 0.2 for p in poses[len(self.LURES) :]])
+        return Proposal(
+            [Candidate(p, s) for p, s in zip(poses, pred)], np.array([value(c) for c in captured]), self.version
+        )
+
+
+def test_a_drone_verifies_one_unvisited_place_before_more_moves_go_on_the_fields_word():
+    """``far_moves`` (a drone's default 1): after a move to an unvisited view (no capture within
+    ``far_m`` and ``far_deg``) that did not beat the best capture, the moves go to candidates near
+    a capture (the field's prediction from where it has not looked is its least trustworthy: dev
+    tabletop:208@drone spent its moves on views predicted 0.70-0.73 that scored 0.42-0.53). With no
+    limit (64) every move goes to a lure; ``far_deg`` 180 counts a place visited whichever way a
+    capture there looked."""
+    base = dict(
+        platform=DronePlatformConfig(BOX),
+        explore_views=2,
+        explore_positions=0,
+        max_moves=3,
+        settle_s=0.0,
+        polish_captures=0,
+        verify_hills=0,
+        explore_moves=0,
+        arrival_tolerance_deg=1.0,
+    )
+
+    def far_moves(node):
+        out, seen = 0, []
+        for cap in node.captures:
+            if cap.kind == "move" and min(np.linalg.norm(cap.cam2world[:3, 3] - s) for s in seen) > 0.3:
+                out += 1
+            seen.append(cap.cam2world[:3, 3])
+        return out
+
+    free = _fly_node(PlannerNode(PlannerConfig(**base, far_moves=64), proposer=LureProposer(), teacher=FakeTeacher()))
+    assert free.moves == 3 and far_moves(free) == 3 and free.far_misses == 3
+    once = _fly_node(PlannerNode(PlannerConfig(**base), proposer=LureProposer(), teacher=FakeTeacher()))  # a drone: 1
+    assert once.moves == 3 and far_moves(once) == 1 and once.far_misses == 1
+    assert max(c.score for c in once.captures) > max(c.score for c in free.captures) + 0.1
+
+    # lures from the start's place looking ways no capture looked (the turn's: 0, +-120 deg): visited
+    # by position (far_deg 180), not within 30 deg of any capture's way
+    class TurnLures(LureProposer):
+        LURES = [[0.0, 0.0, 1.5, yaw, -0.1] for yaw in (-1.0, 3.0)]
+
+    def lure_moves(node):
+        yaws = [float(cam2world_to_view(c.cam2world)[3]) for c in node.captures if c.kind == "move"]
+        return sum(min(abs(math.remainder(y - lure[3], math.tau)) for lure in TurnLures.LURES) < 0.05 for y in yaws)
+
+    turns = dict(base, far_moves=1)
+    by_place = _fly_node(
+        PlannerNode(PlannerConfig(**turns, far_deg=180.0), proposer=TurnLures(), teacher=FakeTeacher())
+    )
+    by_way = _fly_node(PlannerNode(PlannerConfig(**turns, far_deg=30.0), proposer=TurnLures(), teacher=FakeTeacher()))
+    assert by_place.far_misses == 0 and lure_moves(by_place) == 2
+    assert by_way.far_misses == 1 and lure_moves(by_way) == 1
+    with pytest.raises(ConfigError, match="far_moves"):
+        PlannerConfig(far_moves=-1)
+    with pytest.raises(ConfigError, match="far_deg"):
+        PlannerConfig(far_deg=200.0)
+    with pytest.raises(ConfigError, match="far_m"):
+        PlannerConfig(far_m=0.0)
+
+
+def test_a_drones_loop_searches_take_the_fixed_pattern_and_adam_eps_and_a_rigs_do_not():
+    """``plan_draws`` false and ``plan_adam_eps`` reach a drone's loop searches as
+    ``fixed_draws`` and ``adam_eps``; unset (the defaults) the preset's; a rig's loop searches
+    (its pan x tilt grid) take neither."""
+    from aes_planner.platform import RigPlatformConfig
+
+    from .nodekit import RIG
+
+    def fields(config):
+        node = PlannerNode(config, proposer=FreeProposer(), teacher=FakeTeacher())
+        node.motion.bind(K)
+        node.platform = node.motion.platform
+        return node._plan_search()
+
+    drone = dict(platform=DronePlatformConfig(BOX))
+    assert fields(PlannerConfig(**drone)) == {"fixed_draws": True}  # the drone's default
+    assert fields(PlannerConfig(**drone, plan_draws=True)) is None
+    assert fields(PlannerConfig(**drone, plan_draws=False, plan_adam_eps=1e-3)) == {
+        "fixed_draws": True,
+        "adam_eps": 1e-3,
+    }
+    rig = fields(PlannerConfig(platform=RigPlatformConfig(RIG), plan_draws=False, plan_adam_eps=1e-3))
+    assert rig["neighbours"] == 0 and "fixed_draws" not in rig and "adam_eps" not in rig
+    with pytest.raises(ConfigError, match="plan_adam_eps"):
+        PlannerConfig(plan_adam_eps=0.0)
+    with pytest.raises(ConfigError, match="plan_draws"):
+        PlannerConfig(plan_draws="no")

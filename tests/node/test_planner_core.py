@@ -874,3 +874,22 @@ def test_the_planners_searches_keep_the_loops_steps_and_explore_pass(monkeypatch
     for bad in (-1, True, 2.5):
         with pytest.raises(ConfigError, match="search_steps"):
             PlannerConfig(search_steps=bad)
+
+
+def test_hopes_a_thousandth_apart_across_a_quantum_edge_tie_within_the_margin():
+    """``hope_tie_margin``: 0.752 / 0.753 against 0.751 / 0.752 (dev tabletop:217@drone under numba and
+    torch) round to different quanta when one crosses 0.7525, and the first move changed with the
+    backend; within the margin both orders are by where the candidates look, the same for both.
+    The margin off, quanta alone; a real difference beyond it still wins."""
+    from aes_planner.node.captures import decision_order
+
+    rig = ScriptedProposer().rig
+    a = Candidate(rig.forward(0.3, 0.0), 0.5, 1.0, 0.3, 0.0)
+    b = Candidate(rig.forward(-0.4, 0.1), 0.5, 1.0, -0.4, 0.1)
+    numba, torch_ = np.array([0.7515, 0.752]), np.array([0.753, 0.752])
+    assert decision_order(numba, [a, b], 0.005) != decision_order(torch_, [a, b], 0.005)  # the edge decides
+    assert decision_order(numba, [a, b], 0.005, 0.01) == decision_order(torch_, [a, b], 0.005, 0.01) == [1, 0]
+    assert decision_order(np.array([0.78, 0.752]), [a, b], 0.005, 0.01) == [0, 1]
+    assert decision_order(np.array([0.78, np.nan]), [a, b], 0.005, 0.01)[0] == 0
+    with pytest.raises(ConfigError, match="hope_tie_margin"):
+        PlannerConfig(hope_tie_margin=0.5)

@@ -684,3 +684,70 @@ def test_a_grid_without_neighbours_draws_nothing_at_random():
     assert angle_to(gridded[0][0], target) < 10.0  # the grid finds the hill
     with pytest.raises(ConfigError, match="neighbours"):
         SearchConfig(neighbours=-1)
+
+
+def test_fixed_draws_score_the_same_views_whatever_the_seed():
+    """``SearchConfig.fixed_draws`` (a drone's active loop, ``PlannerConfig.plan_draws``): stage
+    1's neighbours and the coverage points come from a fixed pattern, so every seed scores the same
+    views and finds the same coverage; drawn, the seed moves both. The pattern keeps the draws'
+    count and bounds (shifts and turns within their ranges, not all on one line)."""
+    from aes_planner.search.space import FixedPattern
+
+    platform = drone_platform()
+    inputs = view_to_cam2world(np.array([[-1.0, -1.0, 1.5, 0.0, 0.0], [1.0, 1.0, 1.5, -1.5, -0.2]]))
+    scorer = AimScorer([0.3, -1.0, -0.3], unseen_dir=[-1.0, 0.0, 0.0])
+
+    def run(seed, fixed):
+        cfg = SearchConfig.preset("fast", mode="drone", steps=0, seed=seed, fixed_draws=fixed)
+        return search_views(scorer, inputs, platform, cfg)
+
+    drawn = [run(seed, False) for seed in range(3)]
+    assert any(not np.array_equal(drawn[0].candidates_cam2world, d.candidates_cam2world) for d in drawn[1:])
+    fixed = [run(seed, True) for seed in range(3)]
+    for f in fixed[1:]:
+        np.testing.assert_array_equal(fixed[0].candidates_cam2world, f.candidates_cam2world)
+        assert f.covered_fraction == fixed[0].covered_fraction
+        np.testing.assert_array_equal(fixed[0].explore.cam2world, f.explore.cam2world)
+    assert len(fixed[0].candidates_cam2world) == len(drawn[0].candidates_cam2world)
+    assert 0.0 < fixed[0].covered_fraction < 1.0
+    u = FixedPattern().uniform(-1.0, 1.0, size=(5, 8, 4))  # [M, n, 4]: neighbours' shifts and turns
+    assert np.all(np.abs(u) < 1.0) and abs(float(np.corrcoef(u.reshape(-1, 4).T)[0, 2])) < 0.3
+    np.testing.assert_array_equal(u, FixedPattern().uniform(-1.0, 1.0, size=(5, 8, 4)))
+    with pytest.raises(ConfigError, match="fixed_draws"):
+        SearchConfig(fixed_draws=1)
+
+
+class TiltedScorer(AimScorer):
+    """AimScorer plus a nearly flat slope along world x (``slope`` per metre)."""
+
+    def __init__(self, target_dir, slope):
+        super().__init__(target_dir)
+        self.slope = slope
+
+    def score(self, cam2world):
+        out = super().score(cam2world)
+        s = out.score + self.slope * cam2world[:, 0, 3]
+        return ScoreOutput(s, out.coverage, {"score": s.detach(), "aim": s.detach()})
+
+
+def test_adam_eps_keeps_stage_2_from_full_steps_along_a_nearly_flat_slope():
+    """``SearchConfig.adam_eps`` (a drone's loop: ``PlannerConfig.plan_adam_eps``): with torch's
+    1e-8, Adam steps a full ``lr`` along a slope of 1e-7 per metre (its sign, i.e. the last bits
+    of a flat direction, decides where the view ends up: 0.25 m over 25 steps); with 1e-3 it
+    hardly moves there, and the aim it climbs is reached as before."""
+    platform = drone_platform()
+    start = view_to_cam2world(np.array([[0.0, 0.0, 1.5, 0.0, 0.0]]))
+    target = [math.cos(0.3), math.sin(0.3), 0.0]
+
+    def refined(eps, slope):
+        cfg = SearchConfig.preset("fast", mode="drone", neighbours=0, top_k=1, steps=25, adam_eps=eps)
+        return search_views(TiltedScorer(target, slope), start, platform, cfg).best
+
+    for slope in (1e-7, -1e-7):
+        loose = refined(1e-8, slope)
+        assert abs(loose.position_m[0]) > 0.2 and np.sign(loose.position_m[0]) == np.sign(slope)
+        tight = refined(1e-3, slope)
+        assert abs(tight.position_m[0]) < 1e-3
+        assert abs(tight.yaw_rad - loose.yaw_rad) < 0.02  # the aim is climbed the same
+    with pytest.raises(ConfigError, match="adam_eps"):
+        SearchConfig(adam_eps=0.0)
