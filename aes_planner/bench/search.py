@@ -190,15 +190,15 @@ def busy_case(rec: Recorder, spec: str, teacher, kind: str, repeats: int) -> Non
     rec.record("search.balanced.busy_threads", statistics.median(threads), "threads", len(threads))
 
 
-#: What ``aes-planner suggest`` imports before it computes (aes_planner.cli.suggest.run and the
-#: modules it calls import these); the numba kernels' module imports numba and defines the kernels.
-#: The program's garbage-collector settings around them are the CLI's own (:func:`aes_planner.cli.main`:
-#: off through the start-up, the start-up frozen, everything frozen for the exit), so the difference
-#: of the two processes is the suggestion's, not a cheaper start-up credited to it.
+#: What ``aes-planner suggest`` imports before it computes: its parser's module and the modules it
+#: computes with (:data:`aes_planner.cli.suggest.PROGRAM_IMPORTS`: the numba kernels' module imports
+#: numba and defines the kernels), under the program's garbage-collector settings
+#: (:func:`aes_planner.cli.main`: off through the start-up, the start-up frozen, everything frozen for
+#: the exit), so the difference of the two processes is the suggestion's, not a cheaper start-up
+#: credited to it.
 _SUGGEST_IMPORTS = (
     "import aes_planner.cli; aes_planner.cli.collector_for_start_up(); "
-    "import aes_planner.cli, aes_planner.cli.suggest, aes_planner.dataset, aes_planner.search, "
-    "aes_planner.search.report, aes_planner.field.model, aes_planner.teachers, aes_planner.gaussians.kernels; "
+    "import importlib, aes_planner.cli.suggest as s; [importlib.import_module(m) for m in s.PROGRAM_IMPORTS]; "
     "aes_planner.cli.collector_after_start_up(); aes_planner.cli.collector_for_exit()"
 )
 

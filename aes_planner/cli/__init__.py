@@ -192,6 +192,15 @@ def collector_for_exit() -> None:
     gc.freeze()
 
 
+def _program_imports(args: argparse.Namespace) -> None:
+    """The modules the command to run lists in its module's ``PROGRAM_IMPORTS``, imported as part
+    of the program's start-up (:mod:`aes_planner.cli.suggest` says why)."""
+    func = getattr(args, "func", None)
+    module = sys.modules.get(getattr(func, "__module__", ""))
+    for name in getattr(module, "PROGRAM_IMPORTS", ()):
+        importlib.import_module(name)
+
+
 def main(argv: list[str] | None = None) -> int:
     """The CLI. Without ``argv`` it is the program (the ``aes-planner`` script, ``python -m
     aes_planner``): the process is its own, and it sets the process's garbage collector for a
@@ -217,6 +226,7 @@ def _main(argv: list[str] | None, program: bool) -> int:
     parser = build_parser(None if module is None else [module])
     args = parser.parse_args(argv)
     if program:
+        _program_imports(args)
         collector_after_start_up()
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")

@@ -44,6 +44,26 @@ def test_the_program_imports_without_collections_and_freezes_them(tmp_path):
     assert enabled
 
 
+def test_suggest_imports_its_kernels_with_the_start_up():
+    """`suggest` imports what it computes with (numba and the rasterizer's kernels among it,
+    ~230 modules) with the start-up, before anything is frozen, rather than at its first render
+    with the collector on; the probe's finder notes the freeze count when the kernels' module is
+    looked for."""
+    watch = (
+        "class Watch:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name == 'aes_planner.gaussians.kernels':\n"
+        "            print('kernels looked for, frozen', gc.get_freeze_count())\n"
+        "sys.meta_path.insert(0, Watch())\n"
+    )
+    body = (
+        "from aes_planner.cli import main\nsys.argv = ['aes-planner', 'suggest', '/nowhere/at/all']\nsys.exit(main())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", _PROBE + watch + body], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 2 and "nowhere" in out.stderr, out.stderr[-2000:]  # the folder error, after the start-up
+    assert "kernels looked for, frozen 0" in out.stdout.splitlines(), out.stdout
+
+
 def test_the_bench_imports_as_the_program_does():
     """`bench search`'s import-only process (`search.cold_suggest.imports_ms`) sets the collector as
     the program does: the difference of the two processes is the suggestion, not a start-up made
