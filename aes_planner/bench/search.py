@@ -23,7 +23,8 @@ balanced search on RGB scoring), on held-out scenes with 4 input frames of 128x9
 * ``search.cold_suggest.process_ms``: a whole ``aes-planner suggest DIR --preset balanced``
   process (4 views of ``indoor:3``, 128 x 96), start to exit; ``.imports_ms``: a process that
   only imports what that command imports (torch, cv2, the field, the search, numba and the
-  rasterizer's kernel module); ``.after_imports_ms``: their difference, the suggestion's own
+  rasterizer's kernel module), with the program's garbage-collector settings around them
+  (:func:`aes_planner.cli.main`); ``.after_imports_ms``: their difference, the suggestion's own
   cost in a cold process (numba's cached kernels loaded, the model read, the frames read, the
   field built, the search run); ``_cpu_ms`` the same in CPU time (user + system) of the children.
 
