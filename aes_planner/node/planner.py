@@ -170,6 +170,9 @@ class PlannerNode(ActiveLoop, Node):
         if self.proposer is None:
             c = self.config
             self.proposer = FieldProposer(c.scorer, c.preset, self.teacher, c.max_frames, c.seed)
+        if isinstance(self.proposer, FieldProposer):  # every search of the node, passive ones too
+            steps = self.config.search_steps
+            self.proposer.search_settings = {} if steps is None else {"steps": steps}
         if isinstance(self.proposer, FieldProposer) and self.motion is not None and self.config.active:
             grid = self.config.search_grid_points  # the active loop's searches (passive mode: not measured)
             self.proposer.grid_points = self.motion.search_grid_points if grid is None else grid

@@ -108,6 +108,12 @@ class PlannerConfig:
       platform's default (a rig 4: with the fine rounds' ``polish_fine_gap``, 27 dev rig runs
       0.989 -> 0.991 of the oracle, the spread over three search seeds 0.020 -> 0.000 per scene;
       a drone 0: a grid over free flight is too large, and a drone ignores it).
+    * ``search_steps``: the search's ``steps`` (:class:`~aes_planner.search.SearchConfig`) in
+      every search of the planner node (the active loop's plannings and verifications, a passive
+      node's suggestions). Unset: the preset's for the planner (``PLANNER_PRESETS``: ``balanced``
+      25, where a one-shot ``suggest`` takes 20; the planner's explore pass also scores every
+      partly covered view, a one-shot's the screen's best 8): with 20 steps the loop lost dev
+      tabletop:210 (1.000 -> 0.878) and ``demo`` 0.93 -> 0.88 (docs/decisions.md).
     * ``tie_tolerance``: a capture displaces the best captured view (the polish's centre, the
       view settled on) only when it scored more than this higher (teacher units).
     * ``polish_coarse_gain``: at a polish step coarser than the finest, a neighbour displaces the
@@ -188,6 +194,7 @@ class PlannerConfig:
     verify_unseen: bool | None = None
     search_grid_points: int | None = None
     plan_grid_deg: float | None = None
+    search_steps: int | None = None
     tie_tolerance: float = 0.002
     polish_coarse_gain: float = 0.02
     hope_quantum: float = 0.005
@@ -295,6 +302,12 @@ class PlannerConfig:
             "plan_grid_deg",
             f"must be 0 (the preset's random stage 1) or a spacing in [0.5, 45] degrees, or unset for the "
             f"platform's default, got {self.plan_grid_deg!r}",
+        )
+        v = self.search_steps
+        require(
+            v is None or (isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 10_000),
+            "search_steps",
+            f"must be an integer in [0, 10000], or unset for the preset's (PLANNER_PRESETS), got {v!r}",
         )
         require(self.top_k >= 1, "top_k", f"must be >= 1, got {self.top_k}")
         from aes_planner.messages.suggestion import MAX_CANDIDATES

@@ -166,6 +166,8 @@ class FieldProposer(Proposer):
         self.version = 0
         self.framing = None  # (keep, avoid, FramingConfig, {frame: view}) the searches apply: set_framing
         self.grid_points = 0  # the search's grid_points when > 0 (PlannerConfig.search_grid_points); else the preset's
+        #: SearchConfig fields over the preset's for the planner (PlannerConfig.search_steps)
+        self.search_settings: dict[str, int] = {}
         self.framing_held: list[float] = []  # how much of each kept subject the last best suggestion held
         self._framed: FramedViews | None = None  # the last search's framing, for the active loop
 
@@ -253,7 +255,9 @@ class FieldProposer(Proposer):
     ) -> Proposal:
         """The search over the present frames, avoiding ``captured_cam2world`` (but the one at
         ``keep_near``); ``search``: :class:`~aes_planner.search.SearchConfig` fields set on top of
-        the preset (the active loop's stage 1 on a rig: ``PlannerConfig.plan_grid_deg``)."""
+        the preset (the active loop's stage 1 on a rig: ``PlannerConfig.plan_grid_deg``). The preset
+        is the planner's (``SearchConfig.preset(..., planner=True)``: ``balanced`` keeps 25 steps and
+        an explore pass over every partly covered view in the loop) with ``search_settings`` over it."""
         from aes_planner.search import SearchConfig, search_views
 
         scorer = self.scorer()
@@ -262,7 +266,10 @@ class FieldProposer(Proposer):
         captured = np.asarray(captured_cam2world, dtype=np.float64).reshape(-1, 4, 4)
         grid = {"grid_points": self.grid_points} if self.grid_points > 0 else {}
         config = SearchConfig.preset(
-            self.preset, mode=platform.kind, **{"top_k": max(top_k, 1), "seed": self.seed, **grid, **(search or {})}
+            self.preset,
+            mode=platform.kind,
+            planner=True,
+            **{"top_k": max(top_k, 1), "seed": self.seed, **grid, **self.search_settings, **(search or {})},
         )
         avoid = captured if keep_near is None else np.delete(captured, keep_near, axis=0)
         framing = self._framing(scorer, platform)

@@ -2,8 +2,9 @@
 
 Presets (``fast``, ``balanced``) fix the speed/accuracy knobs; any field can be
 overridden (``SearchConfig.preset("balanced", steps=30)``); ``mode="drone"`` gives a preset's
-values for a drone's 5 DoF (``FREE_MODE_PRESETS``). Their place on the speed/accuracy
-curve is measured by ``aes-planner bench search`` and written to ``docs/benchmarks.md``.
+values for a drone's 5 DoF (``FREE_MODE_PRESETS``), ``planner=True`` the planner node's (the
+closed loop's searches: ``PLANNER_PRESETS``). Their place on the speed/accuracy curve is measured
+by ``aes-planner bench search`` and written to ``docs/benchmarks.md``.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from typing import Any
 
 from aes_planner.config import ConfigError, require, require_finite
 
-__all__ = ["FREE_MODE_PRESETS", "PRESETS", "REMOVED_PRESETS", "SearchConfig"]
+__all__ = ["FREE_MODE_PRESETS", "PLANNER_PRESETS", "PRESETS", "REMOVED_PRESETS", "SearchConfig"]
 
 from aes_planner.messages.suggestion import MAX_CANDIDATES
 
@@ -79,6 +80,9 @@ class SearchConfig:
     uniform at random) are scored once more after stage 2 to say how much of the reachable space the
     inputs cover (``SearchResult.covered_fraction``) and to offer a second, exploratory candidate
     (``SearchResult.explore``): the best-scored view at the edge of what the inputs saw. 0 = neither.
+    ``explore_keep``: of the partly covered views, only the best ``explore_keep`` by the scorer's
+    screen are scored exactly, and the exploratory candidate is the best of those
+    (:meth:`~aes_planner.field.scorer.Scorer.score_screened`); 0 = every partly covered view.
 
     ``pitch_limits_deg``: the pitch range searched in free mode (a drone gimbal's range).
     ``batch_size``: poses per scorer call in stage 1. ``seed``: the sampling seed.
@@ -89,6 +93,7 @@ class SearchConfig:
     neighbours: int = 8
     grid_points: int = 0
     explore_points: int = 64
+    explore_keep: int = 0
     top_k: int = 2
     screen_keep: int = 0
     steps: int = 25
@@ -129,6 +134,13 @@ class SearchConfig:
             and 0 <= self.explore_points <= 4096,
             "explore_points",
             f"must be an integer in [0, 4096], got {self.explore_points!r}",
+        )
+        require(
+            isinstance(self.explore_keep, int)
+            and not isinstance(self.explore_keep, bool)
+            and 0 <= self.explore_keep <= 4096,
+            "explore_keep",
+            f"must be an integer in [0, 4096] (0 = score every partly covered view exactly), got {self.explore_keep!r}",
         )
         require(
             isinstance(self.screen_keep, int)
@@ -206,10 +218,11 @@ class SearchConfig:
         return (math.radians(self.pitch_limits_deg[0]), math.radians(self.pitch_limits_deg[1]))
 
     @classmethod
-    def preset(cls, name: str = "balanced", mode: str = "rig", **overrides: Any) -> SearchConfig:
+    def preset(cls, name: str = "balanced", mode: str = "rig", planner: bool = False, **overrides: Any) -> SearchConfig:
         """The named preset for a platform kind ``mode`` (``rig`` or ``drone``, ``free`` read as
         drone: ``FREE_MODE_PRESETS`` change some presets for a drone) with ``overrides`` applied;
-        unknown names or keys are errors."""
+        ``planner``: the planner node's searches (``PLANNER_PRESETS`` on top of the one-shot
+        preset, under a drone's). Unknown names or keys are errors."""
         from aes_planner.platform import parse_kind
 
         if name in REMOVED_PRESETS:
@@ -222,14 +235,29 @@ class SearchConfig:
             if key not in known:
                 raise ConfigError(key, f"unknown search setting; expected one of: {', '.join(sorted(known))}")
         drone = FREE_MODE_PRESETS.get(name, {}) if kind in ("drone", "handheld") else {}  # both 5 DoF
-        values = {**PRESETS[name], **drone, "preset_name": name, **overrides}
+        loop = PLANNER_PRESETS.get(name, {}) if planner else {}
+        values = {**PRESETS[name], **loop, **drone, "preset_name": name, **overrides}
         return cls(**values)
 
 
-#: Preset name -> the fields it sets (everything else keeps the dataclass default).
+#: Preset name -> the fields it sets (everything else keeps the dataclass default). These are a
+#: one-shot suggestion's (``suggest``, ``eval search``); the planner node's searches take
+#: ``PLANNER_PRESETS`` on top.
 PRESETS: dict[str, dict[str, Any]] = {
     "fast": dict(samples_per_segment=4, neighbours=4, top_k=1, steps=10, render_width_px=32, explore_points=16),
-    "balanced": dict(samples_per_segment=16, neighbours=8, top_k=2, steps=25, render_width_px=48, screen_keep=128),
+    "balanced": dict(
+        samples_per_segment=16, neighbours=8, top_k=2, steps=20, render_width_px=48, screen_keep=128, explore_keep=8
+    ),
+}
+
+#: What a preset keeps in the planner node's searches (the active loop's plannings and
+#: verifications, a passive node's suggestions; ``SearchConfig.preset(..., planner=True)``,
+#: ``PlannerConfig.search_steps``). ``balanced`` one-shot takes 20 Adam steps and an explore pass
+#: that decodes 8 (the same one-shot picks and exploratory candidates, less CPU); the loop keeps 25
+#: and every partly covered view: with 20 steps dev tabletop:210 fell 1.000 -> 0.878 and ``demo``
+#: 0.93 -> 0.88 (docs/decisions.md), and the loop moves to its exploratory candidate.
+PLANNER_PRESETS: dict[str, dict[str, Any]] = {
+    "balanced": dict(steps=25, explore_keep=0),
 }
 
 #: Presets no longer offered, and why (docs/decisions.md): each slower preset must beat the faster
@@ -244,5 +272,6 @@ REMOVED_PRESETS: dict[str, str] = {
 #: validation scenes and confirmed on the held-out and hand-written ones (docs/journal/benchmarks.md,
 #: "The closed loop's plans"): balanced 0.620 -> 0.654 and 0.637 -> 0.754 of the oracle, 0.58 -> 0.89 s.
 FREE_MODE_PRESETS: dict[str, dict[str, Any]] = {
-    "balanced": dict(samples_per_segment=32, top_k=3, screen_keep=0),  # the screen not measured on a drone yet
+    # the screens not measured on a drone yet, 20 steps neither (a rig's one-shot change): 25 kept
+    "balanced": dict(samples_per_segment=32, top_k=3, screen_keep=0, steps=25, explore_keep=0),
 }

@@ -556,8 +556,9 @@ def _explore(scorer: Scorer, space: SearchSpace, cfg: SearchConfig, rng: np.rand
     """``(covered_fraction, explore, views scored)`` over ``cfg.explore_points`` views spread over
     the space (``(None, None, 0)`` when 0): the share of them the inputs cover (coverage >= ``coverage_min``)
     and the exploratory candidate: among the views only partly covered (0 < coverage <
-    ``coverage_min``), the best scored, where the scorer's guess still rests on something seen;
-    with none partly covered, the least covered; None when every view is covered. With a
+    ``coverage_min``), the best scored, where the scorer's guess still rests on something seen
+    (with ``cfg.explore_keep``, the best of the screen's ``explore_keep`` best, the only ones scored
+    exactly); with none partly covered, the least covered; None when every view is covered. With a
     ``framing`` that keeps subjects: over the views, of ``framing.cfg.explore_samples`` spread over
     the space, that hold them (the exploratory candidate holds them too; ``(None, None, 0)`` when
     none of those views does)."""
@@ -576,8 +577,13 @@ def _explore(scorer: Scorer, space: SearchSpace, cfg: SearchConfig, rng: np.rand
         cov = coverage.double()
         return (cov > 0.0) & (cov < cfg.coverage_min)
 
-    # only the partly covered views' scores are read: a field decodes those alone (Scorer.score_where)
-    out, _ = scorer.score_where(poses, cfg.batch_size, partly_covered)
+    def screen_rank(o: ScoreOutput) -> Tensor:  # the partly covered views by their screened score
+        return torch.where(partly_covered(o.coverage), o.score.double(), -math.inf)
+
+    if cfg.explore_keep > 0:  # the screen's best explore_keep partly covered views decoded, no more
+        out, exact = scorer.score_screened(poses, cfg.batch_size, cfg.explore_keep, screen_rank)
+    else:  # only the partly covered views' scores are read: a field decodes those alone (Scorer.score_where)
+        out, exact = scorer.score_where(poses, cfg.batch_size, partly_covered)
     cov = out.coverage.double()  # [G]
     covered = cov >= cfg.coverage_min
     fraction = float(covered.double().mean())
@@ -586,7 +592,9 @@ def _explore(scorer: Scorer, space: SearchSpace, cfg: SearchConfig, rng: np.rand
     partly = (cov > 0.0) & ~covered
     if bool(partly.any()):
         score = torch.nan_to_num(out.score.double(), nan=-math.inf)
-        i = int(torch.argmax(torch.where(partly, score, -math.inf)))
+        scored = partly & exact if bool((partly & exact).any()) else partly  # a screen of NaNs: its own scores
+        among = torch.nonzero(scored).flatten()  # [P]: a partly covered view even when every score is NaN
+        i = int(among[torch.argmax(score[among])])
     else:  # none partly covered: the least covered, scored exactly on its own
         i = int(torch.argmin(cov))
         with torch.no_grad():

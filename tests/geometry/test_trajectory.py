@@ -29,6 +29,34 @@ def test_endpoints_and_counts():
     assert interpolate_poses(poses[:1], 4).shape == (1, 4, 4)
 
 
+@given(
+    st.integers(1, 6),
+    st.integers(1, 40),
+    st.booleans(),
+    st.integers(0, 2**32 - 1),
+    st.sampled_from([1e-3, 1.0, 1e3]),
+)
+def test_each_sample_is_its_own_slerp_bit_for_bit(n, samples, include_end, seed, scale):
+    """The samples' rotations come from one batched conversion: each row equals a slerp and a
+    conversion of its own, bit for bit (the closed loop's searches start from these poses)."""
+    from aes_planner.geometry.trajectory import _segment_params
+
+    rng = np.random.default_rng(seed)
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, :3, :3] = quat_to_matrix(rng.normal(size=(n, 4)))
+    poses[:, :3, 3] = rng.normal(size=(n, 3)) * scale
+    quats = matrix_to_quat(poses[:, :3, :3])
+    want = []
+    for i, t in _segment_params(n, samples, include_end):
+        j = min(i + 1, n - 1)
+        m = np.eye(4)
+        m[:3, :3] = quat_to_matrix(slerp(quats[i], quats[j], t))
+        m[:3, 3] = (1.0 - t) * poses[i, :3, 3] + t * poses[j, :3, 3]
+        want.append(m)
+    got = interpolate_poses(poses, samples, include_end)
+    assert got.dtype == np.float64 and np.array_equal(got, np.stack(want))
+
+
 def test_identical_orientations_stay_put():
     pose = view_to_cam2world(np.array([0, 0, 0, 0.3, 0.1]))
     other = pose.copy()

@@ -1,6 +1,7 @@
 """The planner's step core, driven by hand (no bus): the active loop's states, its safety rules,
 passive suggestions and the bounded frame store."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -827,3 +828,49 @@ def test_the_loop_verifies_the_unseen_before_it_polishes():
     assert finals[None] > 0.95
     with pytest.raises(ConfigError, match="verify_unseen"):
         PlannerConfig(verify_unseen=1)
+
+
+def test_the_planners_searches_keep_the_loops_steps_and_explore_pass(monkeypatch):
+    """A one-shot ``balanced`` search takes 20 Adam steps and decodes 8 views in the explore pass;
+    every search of the planner node (active or passive) keeps the loop's 25 and every partly
+    covered view (``PLANNER_PRESETS``), unless ``PlannerConfig.search_steps`` says otherwise; a
+    drone keeps 25 steps, no screen and the whole explore pass either way."""
+    import aes_planner.search as search
+    from aes_planner.gaussians import warmup
+    from aes_planner.messages import PosedFrame
+    from aes_planner.node.proposer import FieldProposer
+    from aes_planner.search import SearchConfig
+    from aes_planner.search.pipeline import SearchResult
+
+    from .nodekit import K
+
+    one_shot = SearchConfig.preset("balanced")
+    assert (one_shot.steps, one_shot.screen_keep, one_shot.explore_keep) == (20, 128, 8)
+    loop = SearchConfig.preset("balanced", planner=True)
+    assert (loop.steps, loop.screen_keep, loop.explore_keep) == (25, 128, 0)
+    assert dataclasses.replace(loop, steps=20, explore_keep=8) == one_shot  # nothing else differs
+    drone = SearchConfig.preset("balanced", mode="drone")
+    assert (drone.steps, drone.screen_keep, drone.explore_keep) == (25, 0, 0)
+    assert SearchConfig.preset("balanced", mode="drone", planner=True) == drone
+    assert SearchConfig.preset("fast", planner=True) == SearchConfig.preset("fast")
+
+    seen = []
+    monkeypatch.setattr(warmup, "warm_kernels", lambda: 0.0)
+    monkeypatch.setattr(search, "build_search_scorer", lambda *a, **k: object())
+    monkeypatch.setattr(search, "search_views", lambda s, i, p, cfg, **k: seen.append(cfg) or SearchResult([], p.kind))
+    frame = PosedFrame(np.zeros((K.height, K.width, 3), np.uint8), K, np.eye(4), 0.0)
+    rig = dict(platform=RigPlatformConfig(RIG))
+    for config, want in (
+        (PlannerConfig(**rig), 25),
+        (PlannerConfig(**rig, active=False), 25),
+        (PlannerConfig(**rig, search_steps=20), 20),
+        (PlannerConfig(**rig, search_steps=0), 0),
+    ):
+        node = PlannerNode(config, proposer=FieldProposer("rgb", "balanced"), teacher=FakeTeacher())
+        node.start()
+        node.proposer.add_frame(frame, keep=True)
+        node.proposer.propose(node.motion.bind(K), np.zeros((0, 4, 4)), 2)
+        assert (seen[-1].steps, seen[-1].screen_keep, seen[-1].explore_keep) == (want, 128, 0)
+    for bad in (-1, True, 2.5):
+        with pytest.raises(ConfigError, match="search_steps"):
+            PlannerConfig(search_steps=bad)

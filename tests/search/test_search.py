@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -90,7 +91,8 @@ def test_presets_and_overrides():
     assert fast.samples_per_segment * fast.neighbours < bal.samples_per_segment * bal.neighbours
     with pytest.raises(ConfigError, match="removed: it was not better than balanced"):
         SearchConfig.preset("accurate")  # off the front (docs/decisions.md): said, not 'unknown'
-    assert (bal.lr, bal.steps, bal.top_k, bal.samples_per_segment, bal.neighbours) == (0.01, 25, 2, 16, 8)
+    # one shot: 20 steps (the planner's searches keep 25: PLANNER_PRESETS; docs/decisions.md)
+    assert (bal.lr, bal.steps, bal.top_k, bal.samples_per_segment, bal.neighbours) == (0.01, 20, 2, 16, 8)
     assert SearchConfig.preset("balanced", steps=30).steps == 30
     with pytest.raises(ConfigError, match="preset"):
         SearchConfig.preset("turbo")
@@ -511,6 +513,72 @@ def test_explore_says_what_the_inputs_cover_and_where_to_look_next():
     assert result.scored == plain.scored + len(space.grid(64))
 
 
+class ScreenedEdgeScorer(EdgeScorer):
+    """An :class:`EdgeScorer` whose cheaper screen aims at ``screen_dir`` instead (same coverage;
+    records the ``keep`` of its calls)."""
+
+    def __init__(self, target_dir, screen_dir):
+        super().__init__(target_dir)
+        self.screen = EdgeScorer(screen_dir)
+        self.screened: list[int] = []
+
+    def score_screened(self, cam2world, batch_size, keep, rank, eligible=None):
+        self.screened.append(keep)
+        out = self.screen.score_batched(cam2world, batch_size)
+        exact = torch.zeros(len(cam2world), dtype=torch.bool)
+        exact[torch.argsort(torch.nan_to_num(rank(out).double(), nan=-math.inf), descending=True)[:keep]] = True
+        true = self.score_batched(cam2world[exact], batch_size)
+        out.score[exact], out.terms["score"][exact] = true.score, true.score
+        return out, exact
+
+
+class NanScreenEdgeScorer(EdgeScorer):
+    """An :class:`EdgeScorer` whose screen scores NaN and decodes covered views only."""
+
+    def score_screened(self, cam2world, batch_size, keep, rank, eligible=None):
+        out = self.score_batched(cam2world, batch_size)
+        exact = torch.zeros(len(cam2world), dtype=torch.bool)
+        exact[torch.nonzero(out.coverage >= 0.7).flatten()[:keep]] = True
+        score = torch.where(exact, out.score, math.nan)
+        return ScoreOutput(score, out.coverage, {"score": score}), exact
+
+
+def test_explore_keep_scores_only_the_screens_best_partly_covered_views():
+    """``explore_keep``: the explore pass ranks its partly covered views by the scorer's screen,
+    scores the best ``explore_keep`` exactly and offers the best of those; what the inputs cover
+    is the same. 0: every partly covered view scored (the screen never asked)."""
+    from aes_planner.search.space import space_for
+
+    platform = rig_platform(pan_limits_deg=(-170.0, 170.0), tilt_limits_deg=(-40.0, 40.0))
+    target, screen_dir = [0.0, 1.0, 0.0], [0.0, -1.0, 0.0]  # the screen likes the other edge
+    cfg = SearchConfig.preset("fast", explore_points=64)  # fast: no stage-1 screen
+    full = search_views(EdgeScorer(target), rig_inputs(platform), platform, cfg)
+    unscreened = ScreenedEdgeScorer(target, screen_dir)
+    same = search_views(unscreened, rig_inputs(platform), platform, cfg)
+    assert unscreened.screened == [] and same.explore.score == full.explore.score
+    scorer = ScreenedEdgeScorer(target, screen_dir)
+    result = search_views(scorer, rig_inputs(platform), platform, dataclasses.replace(cfg, explore_keep=4))
+    assert scorer.screened == [4]
+    assert result.covered_fraction == full.covered_fraction
+    space = space_for(platform, cfg)
+    poses = space.to_poses(space.grid(64))
+    true, screen = EdgeScorer(target).score(poses), EdgeScorer(screen_dir).score(poses)
+    partly = (true.coverage > 0) & (true.coverage < cfg.coverage_min)
+    best4 = torch.argsort(torch.where(partly, screen.score, -math.inf), descending=True)[:4]
+    assert bool(partly[best4].all())
+    assert result.explore.score == pytest.approx(float(true.score[best4].max()), abs=1e-12)
+    assert result.explore.score < full.explore.score - 0.1  # the screen left the true best out
+    # a screen of NaNs ranks nothing and its keep lands on covered views: the candidate is still a
+    # partly covered view
+    odd = search_views(
+        NanScreenEdgeScorer(target), rig_inputs(platform), platform, dataclasses.replace(cfg, explore_keep=4)
+    )
+    assert 0.0 < odd.explore.coverage < cfg.coverage_min and np.all(np.isfinite(odd.explore.cam2world))
+    assert odd.covered_fraction == full.covered_fraction
+    with pytest.raises(ConfigError, match="explore_keep"):
+        SearchConfig(explore_keep=-1)
+
+
 def test_explore_on_a_drone_and_when_everything_was_seen():
     cfg = SearchConfig.preset("fast", mode="drone", explore_points=32)
     seen = search_views(AimScorer([1.0, 0.0, 0.0]), rig_inputs(rig_platform()), drone_platform(), cfg)
@@ -546,7 +614,7 @@ class ScreenedAimScorer(AimScorer):
 
 def test_screen_keep_scores_only_the_screens_best_exactly():
     platform = rig_platform()
-    cfg = SearchConfig.preset("balanced", steps=0, screen_keep=12)
+    cfg = SearchConfig.preset("balanced", steps=0, screen_keep=12, explore_keep=0)
     scorer = ScreenedAimScorer([1.0, 0.0, 0.0], screen_dir=[1.0, -0.4, 0.3])
     result = search_views(scorer, rig_inputs(platform), platform, cfg)
     ((n, keep, _),) = scorer.screened
@@ -559,7 +627,7 @@ def test_screen_keep_scores_only_the_screens_best_exactly():
     assert true[exact].max() < true.max()  # the screen left the true best out: the picks come from its keep
     # screen_keep = 0: no screen, every candidate exact
     plain = search_views(
-        scorer, rig_inputs(platform), platform, SearchConfig.preset("balanced", steps=0, screen_keep=0)
+        scorer, rig_inputs(platform), platform, SearchConfig.preset("balanced", steps=0, screen_keep=0, explore_keep=0)
     )
     assert len(scorer.screened) == 1 and plain.candidates_exact.all()
     assert SearchConfig().screen_keep == 0 and SearchConfig.preset("fast").screen_keep == 0
@@ -569,7 +637,7 @@ def test_screen_keep_scores_only_the_screens_best_exactly():
 
 def test_screen_puts_poses_near_avoided_ones_last():
     platform = rig_platform()
-    cfg = SearchConfig.preset("balanced", steps=0, screen_keep=8)
+    cfg = SearchConfig.preset("balanced", steps=0, screen_keep=8, explore_keep=0)
     scorer = ScreenedAimScorer([1.0, 0.2, 0.0], screen_dir=[1.0, 0.2, 0.0])
     first = search_views(scorer, rig_inputs(platform), platform, cfg)
     second = search_views(scorer, rig_inputs(platform), platform, cfg, avoid=first.best.cam2world[None])
