@@ -23,7 +23,8 @@ balanced search on RGB scoring), on held-out scenes with 4 input frames of 128x9
 * ``search.cold_suggest.process_ms``: a whole ``aes-planner suggest DIR --preset balanced``
   process (4 views of ``indoor:3``, 128 x 96), start to exit; ``.imports_ms``: a process that
   only imports what that command imports (torch, cv2, the field, the search, numba and the
-  rasterizer's kernel module); ``.after_imports_ms``: their difference, the suggestion's own
+  rasterizer's kernel module), with the program's garbage-collector settings around them
+  (:func:`aes_planner.cli.main`); ``.after_imports_ms``: their difference, the suggestion's own
   cost in a cold process (numba's cached kernels loaded, the model read, the frames read, the
   field built, the search run); ``_cpu_ms`` the same in CPU time (user + system) of the children.
 
@@ -190,11 +191,16 @@ def busy_case(rec: Recorder, spec: str, teacher, kind: str, repeats: int) -> Non
     rec.record("search.balanced.busy_threads", statistics.median(threads), "threads", len(threads))
 
 
-#: What ``aes-planner suggest`` imports before it computes (aes_planner.cli.suggest.run and the
-#: modules it calls import these); the numba kernels' module imports numba and defines the kernels.
+#: What ``aes-planner suggest`` imports before it computes: its parser's module and the modules it
+#: computes with (:data:`aes_planner.cli.suggest.PROGRAM_IMPORTS`: the numba kernels' module imports
+#: numba and defines the kernels), under the program's garbage-collector settings
+#: (:func:`aes_planner.cli.main`: off through the start-up, the start-up frozen, everything frozen for
+#: the exit), so the difference of the two processes is the suggestion's, not a cheaper start-up
+#: credited to it.
 _SUGGEST_IMPORTS = (
-    "import aes_planner.cli, aes_planner.cli.suggest, aes_planner.dataset, aes_planner.search, "
-    "aes_planner.search.report, aes_planner.field.model, aes_planner.teachers, aes_planner.gaussians.kernels"
+    "import aes_planner.cli; aes_planner.cli.collector_for_start_up(); "
+    "import importlib, aes_planner.cli.suggest as s; [importlib.import_module(m) for m in s.PROGRAM_IMPORTS]; "
+    "aes_planner.cli.collector_after_start_up(); aes_planner.cli.collector_for_exit()"
 )
 
 

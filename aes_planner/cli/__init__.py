@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import functools
+import gc
 import importlib
 import logging
 import os
@@ -167,7 +168,56 @@ def _graph_domain(domain: int | None):
             os.environ[DOMAIN_ENV] = before
 
 
+def collector_for_start_up() -> None:
+    """The program's start: the cyclic garbage collector off while it imports. Torch, numba and
+    the package are ~210k objects that live as long as the process; each full collection among the
+    imports walks all of them again (~0.1 s apiece), ~0.24 s of a cold ``suggest``'s ~1.3 s of
+    imports (CPU, 2026-11-29; docs/benchmarks.md, "cold suggest, session 26")."""
+    gc.disable()
+
+
+def collector_after_start_up() -> None:
+    """The command is about to run: what the start-up allocated goes to the collector's permanent
+    generation (:func:`gc.freeze`), which later collections do not walk, and the collector is on
+    again for the command's own garbage."""
+    gc.freeze()
+    gc.enable()
+
+
+def collector_for_exit() -> None:
+    """The command has ended: every object left is frozen, so the interpreter's shutdown does not
+    walk them again in its final collections (~0.3 s of CPU after a ``suggest``). Shutdown still
+    runs the ``atexit`` handlers and frees every module; only finalizers of objects in reference
+    cycles still alive at exit are not run, which CPython never promises at exit anyway."""
+    gc.freeze()
+
+
+def _program_imports(args: argparse.Namespace) -> None:
+    """The modules the command to run lists in its module's ``PROGRAM_IMPORTS``, imported as part
+    of the program's start-up (:mod:`aes_planner.cli.suggest` says why)."""
+    func = getattr(args, "func", None)
+    module = sys.modules.get(getattr(func, "__module__", ""))
+    for name in getattr(module, "PROGRAM_IMPORTS", ()):
+        importlib.import_module(name)
+
+
 def main(argv: list[str] | None = None) -> int:
+    """The CLI. Without ``argv`` it is the program (the ``aes-planner`` script, ``python -m
+    aes_planner``): the process is its own, and it sets the process's garbage collector for a
+    start-up of imports and a quick exit (:func:`collector_for_start_up`,
+    :func:`collector_after_start_up`, :func:`collector_for_exit`). Called with ``argv`` (tests,
+    other code) it leaves the collector alone."""
+    program = argv is None
+    if program:
+        collector_for_start_up()
+    try:
+        return _main(argv, program)
+    finally:
+        if program:
+            collector_for_exit()
+
+
+def _main(argv: list[str] | None, program: bool) -> int:
     empty = _empty_value([str(a) for a in (sys.argv[1:] if argv is None else argv)])
     if empty is not None:  # `--teacher ''` would otherwise mean "the default" to `args.x or DEFAULT`
         print(f"error: {empty}: an empty value; give one, or leave the option out for its default", file=sys.stderr)
@@ -175,6 +225,9 @@ def main(argv: list[str] | None = None) -> int:
     module = command_module([str(a) for a in (sys.argv[1:] if argv is None else argv)])
     parser = build_parser(None if module is None else [module])
     args = parser.parse_args(argv)
+    if program:
+        _program_imports(args)
+        collector_after_start_up()
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     if not getattr(args, "func", None):

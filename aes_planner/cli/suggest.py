@@ -13,6 +13,20 @@ from pathlib import Path
 
 log = logging.getLogger(__name__)
 
+#: What a suggestion computes with, imported with the program's start-up when the command runs
+#: (:func:`aes_planner.cli.main`: under the start-up's garbage-collector settings, and frozen with
+#: it; numba and the kernels would otherwise come in lazily at the first render, ~230 modules
+#: walked by the collections of the build), not for ``--help``. ``bench search``'s import-only
+#: process (``search.cold_suggest.imports_ms``) imports the same list.
+PROGRAM_IMPORTS = (
+    "aes_planner.dataset",
+    "aes_planner.search",
+    "aes_planner.search.report",
+    "aes_planner.field.model",
+    "aes_planner.teachers",
+    "aes_planner.gaussians.kernels",
+)
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     from aes_planner.photos.refine import RefineConfig
