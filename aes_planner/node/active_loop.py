@@ -18,7 +18,9 @@
                a coarse-to-fine compass search with real captures around the best captured view,
                then around up to ``polish_starts - 1`` other captured hills nearly as good (more
                of them than climbs, up to ``polish_hills``: one coarsest round on each first, and
-               the climbs go to the hills whose rounds found the most):
+               the climbs go to the hills whose rounds found the most; a rig's moves that are
+               none of those hills, a 10-deg and a 5-deg round each, on top of the budget, and
+               such a hill joins the choice when a round comes near the best: ``short_hills``):
                its four neighbours ``polish_step_deg * 2**k`` away (pan/tilt; a drone: yaw/pitch;
                k from ``polish_scales - 1`` down to 0), moving to a better one, halving the step
                when none is better, up to ``polish_captures`` (composition peaks are a few degrees
@@ -463,31 +465,70 @@ class ActiveLoop:
         second (or on its flank, or only verified) is not lost to the local optimum captured first.
         More such hills than climbs (up to ``polish_hills``): first one coarsest round on each
         (queued here), and the climbs go to the hills whose rounds found the most
-        (:meth:`_rank_probed`): a capture on a hill's flank says little of its peak."""
+        (:meth:`_rank_probed`): a capture on a hill's flank says little of its peak. Moves that
+        fell short (:meth:`_short_hills`) get a coarsest and a half-coarsest round each first
+        (on top of the budget), and join that choice when a round comes near the best."""
         c = self.config
         step_deg = self._coarsest_step_deg()
         hills = self._polish_starts(2.0 * step_deg, max(c.polish_starts, c.polish_hills))
+        probes: list[Target] = []
         if len(hills) > c.polish_starts:
-            probes: list[Target] = []
             for hill in hills:
-                for t in self.motion.polish(
-                    hill, math.radians(step_deg), c.polish_step_m * 2.0 ** (c.polish_scales - 1)
-                ):
-                    if not near_captured(self.captures, t.cam2world, 0.5 * step_deg, c.min_move_m) and not any(
-                        view_angle_deg(t.cam2world, q.cam2world) < 0.5 * step_deg for q in probes
-                    ):
-                        probes.append(t)
+                probes += self._round(hill, step_deg, c.polish_step_m * 2.0 ** (c.polish_scales - 1), probes)
             probes = self._feasible_targets(probes)[: self._polish_left]
-            if probes:
-                log.info(
-                    "%s: %d hills nearly as good as the best: one coarse round on each first", self.node_id, len(hills)
-                )
-                self._polish_left -= len(probes)
-                self._probed = (hills, len(self.captures))
-                self._queue = probes
-                self._climbs = []
-                return
+            self._polish_left -= len(probes)
+        short = self._short_hills(hills, 2.0 * step_deg)
+        extra: list[Target] = []
+        for hill in short:
+            for ring_deg in (step_deg, 0.5 * step_deg):
+                extra += self._feasible_targets(self._round(hill, ring_deg, 0.0, probes + extra))
+        if probes or extra:
+            log.info(
+                "%s: %d hills nearly as good as the best, %d moves that fell short: %d probe captures first",
+                self.node_id,
+                len(hills),
+                len(short),
+                len(probes) + len(extra),
+            )
+            self._probed = (hills + short, len(self.captures), len(hills))
+            self._queue = probes + extra
+            self._climbs = []
+            return
         self._set_climbs(hills[: c.polish_starts])
+
+    def _round(self, centre: Capture, step_deg: float, step_m: float, taken: list[Target]) -> list[Target]:
+        """The polish neighbours ``step_deg`` from ``centre`` that no capture and none of ``taken``
+        lies within half a step of."""
+        half = 0.5 * step_deg
+        return [
+            t
+            for t in self.motion.polish(centre, math.radians(step_deg), step_m)
+            if not near_captured(self.captures, t.cam2world, half, self.config.min_move_m)
+            and not any(view_angle_deg(t.cam2world, q.cam2world) < half for q in taken)
+        ]
+
+    def _short_hills(self, hills: list[Capture], apart_deg: float) -> list[Capture]:
+        """Up to ``short_hills`` (unset: the motion's default) moves that are none of ``hills``,
+        ``apart_deg`` or more from each of them and from each other, highest hope first: the
+        field expected each to beat every capture, and its one capture may have landed on the
+        flank of a peak narrower than the field sees."""
+        c = self.config
+        most = self.motion.short_hills if c.short_hills is None else c.short_hills
+        if most <= 0:
+            return []
+        moves = [
+            cap
+            for cap in self.captures
+            if cap.kind is CaptureKind.MOVE and cap.predicted is not None and math.isfinite(self._value(cap))
+        ]
+        moves.sort(key=lambda cap: -round(cap.predicted / c.hope_quantum))  # stable: earlier first on a tie
+        short: list[Capture] = []
+        for cap in moves:
+            if len(short) >= most:
+                break
+            if all(view_angle_deg(cap.cam2world, h.cam2world) >= apart_deg for h in hills + short):
+                short.append(cap)
+        return short
 
     def _coarsest_step_deg(self) -> float:
         """The polish's coarsest step: ``polish_step_deg * 2**(polish_scales - 1)``."""
@@ -500,8 +541,10 @@ class ActiveLoop:
     def _rank_probed(self) -> None:
         """After the hills' coarse rounds: each round's captures go to the hill they lie nearest
         (view direction, then position); the ``polish_starts`` hills whose best capture (the
-        hill's own or its round's) scored highest are climbed, best first, each from that capture."""
-        hills, first = self._probed
+        hill's own or its round's) scored highest are climbed, best first, each from that capture.
+        A short move's hill (:meth:`_short_hills`, listed after the others) is one of them only
+        when its best capture lies within ``polish_start_gap`` of the best capture."""
+        hills, first, regular = self._probed
         self._probed = None
         best = list(hills)
         for cap in self.captures[first:]:
@@ -514,12 +557,14 @@ class ActiveLoop:
             )
             if self._value(cap) > self._value(best[j]) + self.config.tie_tolerance:
                 best[j] = cap
-        order = sorted(range(len(hills)), key=lambda k: -self._value(best[k]))  # stable: the hill ranked first on a tie
+        floor = self._value(self._best_capture()) - self.config.polish_start_gap
+        ranked = [k for k in range(len(hills)) if k < regular or self._value(best[k]) >= floor]
+        order = sorted(ranked, key=lambda k: -self._value(best[k]))  # stable: the hill ranked first on a tie
         chosen = [best[k] for k in order[: self.config.polish_starts]]
         log.info(
             "%s: hills after their coarse rounds: %s; climbing %d",
             self.node_id,
-            ", ".join(f"{hills[k].score:.3f} -> {best[k].score:.3f}" for k in order),
+            ", ".join(f"{hills[k].score:.3f} -> {best[k].score:.3f}{'' if k < regular else ' (short)'}" for k in order),
             len(chosen),
         )
         self._set_climbs(chosen)

@@ -62,6 +62,9 @@ class Motion(ABC):
     #: ``PlannerConfig.spare_hills`` when the config leaves it unset (spare polish captures climb
     #: this many more hills)
     spare_hills: int = 0
+    #: ``PlannerConfig.short_hills`` when the config leaves it unset (moves whose capture fell
+    #: short get probe rounds before the climbs)
+    short_hills: int = 0
     #: ``PlannerConfig.verify_unseen`` when the config leaves it unset
     verify_unseen: bool = False
     #: ``PlannerConfig.search_grid_points`` when the config leaves it unset
@@ -142,6 +145,7 @@ class Motion(ABC):
 class RigMotion(Motion):
     suggestion_mode = "rig"
     spare_hills = 2  # PlannerConfig.spare_hills when unset: measured on dev rigs (docs/decisions.md)
+    short_hills = 2  # PlannerConfig.short_hills when unset: measured on dev rigs
     verify_unseen = True  # PlannerConfig.verify_unseen when unset: measured on dev rigs
     plan_grid_deg = 4.0  # PlannerConfig.plan_grid_deg when unset: measured on dev rigs
 
@@ -229,6 +233,7 @@ class RigMotion(Motion):
 class DroneMotion(Motion):
     suggestion_mode = "free"
     spare_hills = 0  # not measured on drones yet: their polish is unchanged
+    short_hills = 0  # nor this
     verify_unseen = False  # nor this
     # PlannerConfig.search_grid_points when unset: 9 places of the box x 24 views (docs/decisions.md);
     # dev drones, 21 paired runs: mean 0.922 -> 0.937, below 0.9 5 -> 4 (432: 0.933, 6 below)

@@ -135,7 +135,7 @@ class PlannerNode(ActiveLoop, Node):
         self._stood_on: list[Capture] = []  # every centre a climb stood on (spare hills lie away from them)
         self._spares = 0  # spare hills climbed (PlannerConfig.spare_hills)
         self._climb_budget = 0
-        self._probed: tuple[list[Capture], int] | None = None  # (hills, first probe capture): rounds to rank
+        self._probed: tuple[list[Capture], int, int] | None = None  # (hills, first probe, not short): to rank
         self._climb_left = 0
         self._fine_left = 0  # captures left for the rounds half the finest polish step (after the climbs)
         self._fine_centres: list[Capture] = []  # every view those rounds were around

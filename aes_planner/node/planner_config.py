@@ -84,6 +84,19 @@ class PlannerConfig:
       only rise (dev tabletop:202 ``seed:2``: two climbs spent 30 of 48 captures while a
       verified hill 0.02 below the best was never climbed). Unset: the platform's default (a rig
       2; a drone 0, not measured there).
+    * ``short_hills``: before the climbs, up to this many moves whose capture is not a hill the
+      polish climbs (it fell more than ``polish_start_gap`` short of the best, or lies on none of
+      the climbed hills), at least two coarsest polish steps from every such hill and from each
+      other, ranked by the hope that sent the move, each get one round at the coarsest polish
+      step and one at half of it (up to 8 captures each, on top of ``polish_captures``); a
+      probe that comes within ``polish_start_gap`` of the best makes its hill one the climbs
+      choose from (by what the rounds found, as ``polish_hills``), climbed from that probe. The
+      field finds a hill but not its narrow peak: a move can land on the flank, 6-15 deg off a
+      peak better than every capture (dev tabletop:217: a move at pan 9 tilt -27 scored 0.49
+      against a hope of 0.77, the peak 0.80 at tilt -12.5 on a ridge 5 deg wide), and a hill
+      whose one capture fell short was never climbed. Unset: the platform's default (a rig 2:
+      25 dev rig runs 0.975 -> 0.990 of the oracle, none lower, docs/decisions.md; a drone 0,
+      not measured there).
     * ``verify_unseen``: with the hills' verifications, one capture of the search's exploratory
       candidate (the edge of what the inputs saw) when they cover less than
       ``explore_below_covered`` and no capture lies within a coarsest polish step of it: four
@@ -216,6 +229,7 @@ class PlannerConfig:
     polish_hills: int = 5
     verify_hills: int = 2
     spare_hills: int | None = None
+    short_hills: int | None = None
     verify_unseen: bool | None = None
     search_grid_points: int | None = None
     plan_grid_deg: float | None = None
@@ -297,6 +311,16 @@ class PlannerConfig:
             ),
             "spare_hills",
             f"must be an integer in [0, 16], or unset for the platform's default, got {self.spare_hills!r}",
+        )
+        require(
+            self.short_hills is None
+            or (
+                isinstance(self.short_hills, int)
+                and not isinstance(self.short_hills, bool)
+                and 0 <= self.short_hills <= 16
+            ),
+            "short_hills",
+            f"must be an integer in [0, 16], or unset for the platform's default, got {self.short_hills!r}",
         )
         require(
             self.explore_places is None

@@ -529,7 +529,9 @@ def test_polish_verifies_a_predicted_hill_the_moves_never_reached():
             Candidate(p.rig.forward(0.6, 0.2), 10.0, 1.0, 0.6, 0.2),  # over-rated
             Candidate(p.rig.forward(-0.97, 0.03), p.value(-0.97, 0.03), 1.0, -0.97, 0.03),
         ]
-        node = make(prop, explore_views=2, max_moves=1, polish_captures=16, verify_hills=verify)
+        # short_hills 0: the over-rated move, once the verification beats it by more than the
+        # start gap, would get probe rounds of its own on top of the budget (counted below)
+        node = make(prop, explore_views=2, max_moves=1, polish_captures=16, verify_hills=verify, short_hills=0)
         drive(node, SimRig(prop), steps=800)
         assert node.state == "done" and node.moves == 1
         kinds = [c.kind for c in node.captures]
@@ -595,6 +597,7 @@ def _three_hills_loop(**kw) -> PlannerNode:
     prop = _ThreeHills()
     flank = (prop.C[0] + math.radians(6.0), prop.C[1])
     prop.fixed = lambda p=prop, f=flank: [Candidate(p.rig.forward(*at), 10.0, 1.0, *at) for at in (p.A, p.B, f)]
+    kw.setdefault("short_hills", 0)  # a flank move no climb starts from would get probe rounds of its own
     node = make(prop, explore_views=2, max_moves=3, polish_captures=48, verify_hills=0, **kw)
     drive(node, SimRig(prop), steps=2000)
     assert node.state == "done" and node.moves == 3
@@ -641,7 +644,14 @@ def test_the_polish_probes_every_hill_before_it_chooses_which_to_climb():
             Candidate(p.rig.forward(*at), 10.0, 1.0, *at) for at in (p.A, p.B, p.D, f)
         ]
         node = make(
-            prop, explore_views=2, max_moves=4, polish_captures=48, polish_hills=hills, verify_hills=0, spare_hills=0
+            prop,
+            explore_views=2,
+            max_moves=4,
+            polish_captures=48,
+            polish_hills=hills,
+            verify_hills=0,
+            spare_hills=0,
+            short_hills=0,  # the flank move (0.68) would get probe rounds of its own
         )
         drive(node, SimRig(prop), steps=2500)
         assert node.state == "done" and node.moves == 4
@@ -769,6 +779,66 @@ def test_spare_hills_default_is_the_platforms_and_is_checked():
     for bad in (-1, 17, 1.5, True):
         with pytest.raises(ConfigError, match="spare_hills"):
             PlannerConfig(spare_hills=bad)
+
+
+class _ShortMove(ScriptedProposer):
+    """A narrow top of 0.75 a move captures (A) and a higher ridge (1.0 at C, 3 deg wide in tilt,
+    broad in pan) whose one move landed 12 deg above it in tilt, where it scores ~0: the field
+    found the hill, not its peak (dev tabletop:217: a move at tilt -27 scored 0.49 against a hope
+    of 0.77, the 0.80 peak at tilt -12.5 on a ridge 5 deg wide)."""
+
+    A, C = (0.6, 0.2), (-0.5, -0.25)
+    OFF = math.radians(12.0)
+
+    def value(self, pan, tilt):
+        a = 0.75 * math.exp(-((pan - self.A[0]) ** 2 + (tilt - self.A[1]) ** 2) / (2 * math.radians(2.0) ** 2))
+        c = math.exp(
+            -(
+                (pan - self.C[0]) ** 2 / (2 * math.radians(8.0) ** 2)
+                + (tilt - self.C[1]) ** 2 / (2 * math.radians(3.0) ** 2)
+            )
+        )
+        return float(max(a, c))
+
+
+def test_a_move_that_fell_short_gets_probe_rounds_and_its_hill_is_climbed():
+    """The move to the ridge's hill scores ~0, far below the best capture (0.75), so no climb
+    starts there and the run ends on the lower top; with ``short_hills`` (a rig's default) a
+    10-deg and a 5-deg round around that move (on top of the polish budget) find the ridge's
+    flank within ``polish_start_gap`` of the best, and its climb reaches the ridge's top."""
+    runs = {}
+    for short in (0, None):
+        prop = _ShortMove()
+        flank = (prop.C[0], prop.C[1] + prop.OFF)
+        prop.fixed = lambda p=prop, f=flank: [Candidate(p.rig.forward(*at), 10.0, 1.0, *at) for at in (p.A, f)]
+        node = make(
+            prop,
+            explore_views=2,
+            max_moves=2,
+            polish_captures=48,
+            verify_hills=0,
+            verify_unseen=False,
+            short_hills=short,
+        )
+        drive(node, SimRig(prop), steps=2500)
+        assert node.state == "done" and node.moves == 2
+        moves = sorted(c.score for c in node.captures if c.kind == "move")
+        assert moves[0] < 0.05 and moves[-1] == pytest.approx(0.75, abs=0.01)
+        runs[short] = (node.captures[-1].score, sum(c.kind == "polish" for c in node.captures))
+    (lone, spent_lone), (probed, spent) = runs[0], runs[None]
+    assert lone == pytest.approx(0.75, abs=0.01)
+    assert probed > 0.95
+    assert spent_lone <= 48 and spent <= 48 + 8  # the probes come on top of the budget, 8 at most a move
+
+
+def test_short_hills_default_is_the_platforms_and_is_checked():
+    from aes_planner.node.motion import DroneMotion, RigMotion
+
+    assert PlannerConfig().short_hills is None
+    assert RigMotion.short_hills == 2 and DroneMotion.short_hills == 0  # drones: not measured, unchanged
+    for bad in (-1, 17, 1.5, True):
+        with pytest.raises(ConfigError, match="short_hills"):
+            PlannerConfig(short_hills=bad)
 
 
 def test_the_loops_searches_on_a_rig_grid_the_joint_range_and_draw_nothing_at_random(rig):
