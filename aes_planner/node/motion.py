@@ -65,6 +65,9 @@ class Motion(ABC):
     #: ``PlannerConfig.short_hills`` when the config leaves it unset (moves whose capture fell
     #: short get probe rounds before the climbs)
     short_hills: int = 0
+    #: ``PlannerConfig.verify_apart_deg`` when the config leaves it unset (None: two coarsest
+    #: polish steps, as between any two captures)
+    verify_apart_deg: float | None = None
     #: ``PlannerConfig.verify_unseen`` when the config leaves it unset
     verify_unseen: bool = False
     #: ``PlannerConfig.search_grid_points`` when the config leaves it unset

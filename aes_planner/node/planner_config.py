@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -97,6 +99,12 @@ class PlannerConfig:
       whose one capture fell short was never climbed. Unset: the platform's default (a rig 2:
       25 dev rig runs 0.975 -> 0.990 of the oracle, none lower, docs/decisions.md; a drone 0,
       not measured there).
+    * ``verify_apart_deg``: when the best capture is a verification, another capture counts as
+      a hill of its own (a polish start) from this far of it (deg), instead of two coarsest
+      polish steps: a verification lies a coarsest step or more from every capture, and a move
+      near a peak 19.5 deg beside a verified view nearly as good was taken for the same hill and
+      never climbed (dev gallery:228: the move 0.683, 3.3 deg from the oracle's 0.762; the
+      verification 0.697). Unset: the platform's default (unset both: two coarsest steps).
     * ``verify_unseen``: with the hills' verifications, one capture of the search's exploratory
       candidate (the edge of what the inputs saw) when they cover less than
       ``explore_below_covered`` and no capture lies within a coarsest polish step of it: four
@@ -230,6 +238,7 @@ class PlannerConfig:
     verify_hills: int = 2
     spare_hills: int | None = None
     short_hills: int | None = None
+    verify_apart_deg: float | None = None
     verify_unseen: bool | None = None
     search_grid_points: int | None = None
     plan_grid_deg: float | None = None
@@ -321,6 +330,17 @@ class PlannerConfig:
             ),
             "short_hills",
             f"must be an integer in [0, 16], or unset for the platform's default, got {self.short_hills!r}",
+        )
+        require(
+            self.verify_apart_deg is None
+            or (
+                isinstance(self.verify_apart_deg, (int, float))
+                and not isinstance(self.verify_apart_deg, bool)
+                and math.isfinite(self.verify_apart_deg)
+                and 0.0 < self.verify_apart_deg <= 90.0
+            ),
+            "verify_apart_deg",
+            f"must be a number of degrees in (0, 90], or unset for the platform's default, got {self.verify_apart_deg!r}",
         )
         require(
             self.explore_places is None

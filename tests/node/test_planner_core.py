@@ -963,3 +963,50 @@ def test_hopes_a_thousandth_apart_across_a_quantum_edge_tie_within_the_margin():
     assert decision_order(np.array([0.78, np.nan]), [a, b], 0.005, 0.01)[0] == 0
     with pytest.raises(ConfigError, match="hope_tie_margin"):
         PlannerConfig(hope_tie_margin=0.5)
+
+
+class _VerifiedBeside(ScriptedProposer):
+    """Dev gallery:228: a narrow hill of 0.75 at V (only predicted, then verified) and a higher,
+    narrow one of 1.0 at M, 19.5 deg beside it in pan; the one move lands 3.3 deg off M (0.68)."""
+
+    V = (-1.0, 0.0)
+    M = (-1.0 + math.radians(19.5), 0.0)
+    MOVE = (M[0], math.radians(3.3))
+
+    def value(self, pan, tilt):
+        def hill(top, at, s_deg):
+            return top * math.exp(-((pan - at[0]) ** 2 + (tilt - at[1]) ** 2) / (2 * math.radians(s_deg) ** 2))
+
+        return float(max(hill(0.75, self.V, 2.0), hill(1.0, self.M, 3.76)))
+
+
+def test_a_move_beside_a_verified_best_view_is_a_hill_of_its_own():
+    """The verification (0.75) is the best capture and the move (0.68, 3.3 deg off the higher
+    peak) lies 19.8 deg from it: under two coarsest polish steps (20 deg) both count as one hill
+    and only the verification's is climbed (0.75); from ``verify_apart_deg`` 15 the move is a
+    hill of its own, and its climb reaches the higher peak."""
+    finals = {}
+    for apart in (20.0, 15.0):
+        prop = _VerifiedBeside()
+        prop.fixed = lambda p=prop: [
+            Candidate(p.rig.forward(*p.MOVE), 10.0, 1.0, *p.MOVE),  # over-rated: the move
+            Candidate(p.rig.forward(*p.V), p.value(*p.V), 1.0, *p.V),  # verified
+        ]
+        node = make(prop, explore_views=2, max_moves=1, polish_captures=48, verify_apart_deg=apart)
+        drive(node, SimRig(prop), steps=2000)
+        assert node.state == "done" and node.moves == 1
+        kinds = [c.kind for c in node.captures]
+        assert kinds.count("verify") == 1
+        assert kinds.count("polish") <= 48
+        (move,) = [c for c in node.captures if c.kind == "move"]
+        assert move.score == pytest.approx(0.68, abs=0.01)
+        finals[apart] = node.captures[-1].score
+    assert finals[20.0] == pytest.approx(0.75, abs=0.01)
+    assert finals[15.0] > 0.95
+
+
+def test_verify_apart_deg_is_checked():
+    assert PlannerConfig().verify_apart_deg is None
+    for bad in (0.0, -5.0, 91.0, float("nan"), True, "15"):
+        with pytest.raises(ConfigError, match="verify_apart_deg"):
+            PlannerConfig(verify_apart_deg=bad)
