@@ -601,13 +601,13 @@ class ActiveLoop:
         ``polish_start_gap`` of it, each at least ``apart_deg`` from those before (other hills).
         A verification is a start only when it is the best capture: one real sample of a hill
         does not displace a runner-up the moves found (and the field's ranking of the two is
-        what it over-rates); then a capture is another hill from ``verify_apart_deg`` of it
+        what it over-rates); then a move's capture is another hill from ``verify_apart_deg`` of it
         (unset: the motion's default; unset both: ``apart_deg``)."""
         c = self.config
         best = self._best_capture()
         ranked = sorted(self.captures, key=lambda cap: -self._value(cap))  # stable: earlier first on a tie
         starts = [best]
-        # a verified best view: another hill from ``verify_apart_deg`` of it (unset: ``apart_deg``)
+        # a verified best view: a move is another hill from ``verify_apart_deg`` of it (unset: ``apart_deg``)
         verify_apart = self.motion.verify_apart_deg if c.verify_apart_deg is None else c.verify_apart_deg
         if verify_apart is None or best.kind is not CaptureKind.VERIFY:
             verify_apart = apart_deg
@@ -619,7 +619,9 @@ class ActiveLoop:
             if self._value(cap) == -math.inf:
                 break
             if all(
-                view_angle_deg(cap.cam2world, s.cam2world) >= (verify_apart if s is best else apart_deg) for s in starts
+                view_angle_deg(cap.cam2world, s.cam2world)
+                >= (verify_apart if s is best and cap.kind is CaptureKind.MOVE else apart_deg)
+                for s in starts
             ):
                 starts.append(cap)
         return starts

@@ -99,9 +99,11 @@ class PlannerConfig:
       whose one capture fell short was never climbed. Unset: the platform's default (a rig 2:
       25 dev rig runs 0.975 -> 0.990 of the oracle, none lower, docs/decisions.md; a drone 0,
       not measured there).
-    * ``verify_apart_deg``: when the best capture is a verification, another capture counts as
+    * ``verify_apart_deg``: when the best capture is a verification, a move's capture counts as
       a hill of its own (a polish start) from this far of it (deg), instead of two coarsest
-      polish steps: a verification lies a coarsest step or more from every capture, and a move
+      polish steps (the start view, explorations and polish captures keep those; with any
+      capture, dev gallery:227 fell 1.000 -> 0.885: its start view became a hill and the move
+      beside it lost its probe rounds): a verification lies a coarsest step or more from every capture, and a move
       near a peak 19.5 deg beside a verified view nearly as good was taken for the same hill and
       never climbed (dev gallery:228: the move 0.683, 3.3 deg from the oracle's 0.762; the
       verification 0.697). Unset: the platform's default (unset both: two coarsest steps).
