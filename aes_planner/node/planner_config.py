@@ -106,7 +106,9 @@ class PlannerConfig:
       beside it lost its probe rounds): a verification lies a coarsest step or more from every capture, and a move
       near a peak 19.5 deg beside a verified view nearly as good was taken for the same hill and
       never climbed (dev gallery:228: the move 0.683, 3.3 deg from the oracle's 0.762; the
-      verification 0.697). Unset: the platform's default (unset both: two coarsest steps).
+      verification 0.697). Unset: the platform's default (a rig 15: 25 dev rig runs 0.990 ->
+      0.993 of the oracle, none lower, docs/decisions.md; a drone two coarsest steps, not
+      measured there).
     * ``verify_unseen``: with the hills' verifications, one capture of the search's exploratory
       candidate (the edge of what the inputs saw) when they cover less than
       ``explore_below_covered`` and no capture lies within a coarsest polish step of it: four

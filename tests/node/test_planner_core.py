@@ -984,9 +984,9 @@ def test_a_move_beside_a_verified_best_view_is_a_hill_of_its_own():
     """The verification (0.75) is the best capture and the move (0.68, 3.3 deg off the higher
     peak) lies 19.8 deg from it: under two coarsest polish steps (20 deg) both count as one hill
     and only the verification's is climbed (0.75); from ``verify_apart_deg`` 15 the move is a
-    hill of its own, and its climb reaches the higher peak."""
+    hill of its own (the rig's default), and its climb reaches the higher peak."""
     finals = {}
-    for apart in (20.0, 15.0):
+    for apart in (20.0, None):  # None: the rig's default
         prop = _VerifiedBeside()
         prop.fixed = lambda p=prop: [
             Candidate(p.rig.forward(*p.MOVE), 10.0, 1.0, *p.MOVE),  # over-rated: the move
@@ -1002,11 +1002,14 @@ def test_a_move_beside_a_verified_best_view_is_a_hill_of_its_own():
         assert move.score == pytest.approx(0.68, abs=0.01)
         finals[apart] = node.captures[-1].score
     assert finals[20.0] == pytest.approx(0.75, abs=0.01)
-    assert finals[15.0] > 0.95
+    assert finals[None] > 0.95
 
 
-def test_verify_apart_deg_is_checked():
+def test_verify_apart_deg_default_is_the_platforms_and_is_checked():
+    from aes_planner.node.motion import DroneMotion, RigMotion
+
     assert PlannerConfig().verify_apart_deg is None
+    assert RigMotion.verify_apart_deg == 15.0 and DroneMotion.verify_apart_deg is None  # drones: unchanged
     for bad in (0.0, -5.0, 91.0, float("nan"), True, "15"):
         with pytest.raises(ConfigError, match="verify_apart_deg"):
             PlannerConfig(verify_apart_deg=bad)
