@@ -19,8 +19,10 @@ next instruction to that servo: a late reply to a READ of Firmware Version (45) 
 PING's model number 48429 (its data byte and its CRC's low byte). So every reply must have the
 length its instruction calls for (a READ's data, a PING's three bytes, none for a WRITE or a
 REBOOT), else it counts as corrupt; and after a try that went unanswered the driver clears the
-line before its next instruction: a READ of a length no other exchange uses, every status before
-its reply dropped (servos answer in order). A status with the hardware-alert bit reads
+line before its next instruction: a READ of a length no other exchange uses (and not the length
+of the clearing READ before it, whose reply may still be on its way: taken for the new one's, it
+left the new one's reply to answer the instruction after it, "Incorrect status packet" on every
+try), every status before its reply dropped (servos answer in order). A status with the hardware-alert bit reads
 Hardware Error Status, reports the fault in :class:`GimbalReading`, turns torque off on both
 servos and refuses motion until :meth:`DynamixelPanTilt.reboot`. Communication lost after every
 retry is fatal too (torque off, best effort). :meth:`DynamixelPanTilt.set_patience` makes the
@@ -141,8 +143,11 @@ class _Port(sdk.PortHandler):
 # I/O errors of a serial port that went away (pyserial raises SerialException, an OSError;
 # termios calls raise termios.error).
 _PORT_ERRORS = (OSError, termios.error)
-#: The length of the READ that clears the line after an unanswered try (no other exchange reads it).
-_SETTLE_READ_BYTES = 6
+#: The lengths of the READs that clear the line after an unanswered try, in turn (no other exchange
+#: reads them: items are 1, 2 or 4 bytes, a ping's reply 3, the state's sync read 31). In turn:
+#: a clearing READ that went unanswered too leaves its reply on the way, and the next one must not
+#: take that reply for its own (it would then leave its own reply to answer the instruction after it).
+_SETTLE_READ_LENGTHS = (5, 6, 7, 8)
 #: The longest :meth:`DynamixelPanTilt.set_patience` may make a last try wait for its reply.
 MAX_PATIENCE_S = 120.0
 
@@ -204,6 +209,7 @@ class DynamixelPanTilt(Gimbal):
         self._reopen_wait_s = 0.0
         self._next_reopen_s = 0.0  # time.monotonic() of the next reopening try
         self._late_replies = False  # a try went unanswered: its reply may still come (module docstring)
+        self._settles = 0  # clearing READs sent: picks the next one's length (_SETTLE_READ_LENGTHS)
         self.patience_s = 0.0  # how long the last try of an exchange waits for its reply (set_patience)
 
     # ------------------------------------------------------------------------------ Device
@@ -667,24 +673,26 @@ class DynamixelPanTilt(Gimbal):
 
     def _settle_line(self, port) -> int:
         """Clear the line of late replies before the next instruction (module docstring): a READ
-        of 6 bytes at address 0 (Model Number and Model Information; no other exchange of the
-        driver reads 6 bytes) to the pan servo, and every status packet before its reply is
+        at address 0 (Model Number, Model Information, ...) of 5 to 8 bytes in turn
+        (:data:`_SETTLE_READ_LENGTHS`: no other exchange of the driver reads them) to the pan servo, and every status packet before its reply is
         dropped. Servos answer in order, so once that reply is in, every late one came before it.
         ``COMM_SUCCESS`` when the line is clear, else why not (no reply in time, or only corrupt
         ones): the instruction waits for the next try."""
+        n_bytes = _SETTLE_READ_LENGTHS[self._settles % len(_SETTLE_READ_LENGTHS)]
+        self._settles += 1
         tx = [0] * 14
         tx[4], tx[5], tx[6], tx[7] = self.config.joint_id("pan"), 7, 0, sdk.INST_READ
-        tx[8:12] = [0, 0, _SETTLE_READ_BYTES, 0]
+        tx[8:12] = [0, 0, n_bytes, 0]
         sent = self._ph.txPacket(port, tx)
         if sent != sdk.COMM_SUCCESS:
             return sent
-        port.setPacketTimeout(_SETTLE_READ_BYTES + 11)
+        port.setPacketTimeout(n_bytes + 11)
         dropped, corrupt = 0, False
         for _ in range(64):  # bounded: each status packet, or the timeout, ends one rxPacket
             rx, comm = self._ph.rxPacket(port, False)
             if comm == sdk.COMM_RX_TIMEOUT:
                 break
-            if comm == sdk.COMM_SUCCESS and rx[4] == tx[4] and (rx[5] | rx[6] << 8) == _SETTLE_READ_BYTES + 4:
+            if comm == sdk.COMM_SUCCESS and rx[4] == tx[4] and (rx[5] | rx[6] << 8) == n_bytes + 4:
                 if dropped:
                     log.debug("dropped %d late replies on %s", dropped, self.config.port)
                 self._late_replies = False

@@ -292,7 +292,7 @@ def _sim_gimbal_run(delay_replies_s: float) -> tuple[list[tuple], dict]:
 
     cfg = GimbalNodeConfig(
         rate_hz=25.0,
-        device={"type": "emulated_pan_tilt", "latency_timer_ms": 1.0, "retries": 1, "profile_velocity_deg_s": 180.0},
+        device={"type": "emulated_pan_tilt", "latency_timer_ms": 1.0, "retries": 3, "profile_velocity_deg_s": 180.0},
     )
     node = GimbalNode(cfg, context=LaunchContext(clock="sim"))
     node.start()
