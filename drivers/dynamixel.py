@@ -19,11 +19,15 @@ next instruction to that servo: a late reply to a READ of Firmware Version (45) 
 PING's model number 48429 (its data byte and its CRC's low byte). So every reply must have the
 length its instruction calls for (a READ's data, a PING's three bytes, none for a WRITE or a
 REBOOT), else it counts as corrupt; and after a try that went unanswered the driver clears the
-line before its next instruction: a READ of a length no other exchange uses, every status before
-its reply dropped (servos answer in order). A status with the hardware-alert bit reads
+line before its next instruction: a READ of a length no other exchange uses (and not the length
+of the clearing READ before it, whose reply may still be on its way: taken for the new one's, it
+left the new one's reply to answer the instruction after it, "Incorrect status packet" on every
+try), every status before its reply dropped (servos answer in order). A status with the hardware-alert bit reads
 Hardware Error Status, reports the fault in :class:`GimbalReading`, turns torque off on both
 servos and refuses motion until :meth:`DynamixelPanTilt.reboot`. Communication lost after every
-retry is fatal too (torque off, best effort).
+retry is fatal too (torque off, best effort). :meth:`DynamixelPanTilt.set_patience` makes the
+last try of an exchange wait longer for its reply (the gimbal node does on a simulated clock, where
+the servos are the emulator and a late reply is the machine's load; docs/guides/clock.md).
 
 Reconnection: a port that disappears (USB cable pulled, adapter reset, emulator restarted)
 raises :class:`GimbalPortLostError`. Every later call reopens it once its path exists again (a
@@ -44,6 +48,7 @@ diagnostics).
 from __future__ import annotations
 
 import logging
+import math
 import os
 import termios
 import threading
@@ -126,17 +131,25 @@ class _Port(sdk.PortHandler):
     def __init__(self, port_name: str, latency_timer_ms: float):
         super().__init__(port_name)
         self.latency_timer_ms = latency_timer_ms
+        self.patience_ms = 0.0  # the least a reply is waited for (DynamixelPanTilt.set_patience)
 
     def setPacketTimeout(self, packet_length):
         self.packet_start_time = self.getCurrentTime()
-        self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * self.latency_timer_ms + 2.0
+        self.packet_timeout = max(
+            self.tx_time_per_byte * packet_length + 2.0 * self.latency_timer_ms + 2.0, self.patience_ms
+        )
 
 
 # I/O errors of a serial port that went away (pyserial raises SerialException, an OSError;
 # termios calls raise termios.error).
 _PORT_ERRORS = (OSError, termios.error)
-#: The length of the READ that clears the line after an unanswered try (no other exchange reads it).
-_SETTLE_READ_BYTES = 6
+#: The lengths of the READs that clear the line after an unanswered try, in turn (no other exchange
+#: reads them: items are 1, 2 or 4 bytes, a ping's reply 3, the state's sync read 31). In turn:
+#: a clearing READ that went unanswered too leaves its reply on the way, and the next one must not
+#: take that reply for its own (it would then leave its own reply to answer the instruction after it).
+_SETTLE_READ_LENGTHS = (5, 6, 7, 8)
+#: The longest :meth:`DynamixelPanTilt.set_patience` may make a last try wait for its reply.
+MAX_PATIENCE_S = 120.0
 
 
 def _open_port(port_name: str, baud: int, latency_timer_ms: float) -> _Port:
@@ -196,6 +209,8 @@ class DynamixelPanTilt(Gimbal):
         self._reopen_wait_s = 0.0
         self._next_reopen_s = 0.0  # time.monotonic() of the next reopening try
         self._late_replies = False  # a try went unanswered: its reply may still come (module docstring)
+        self._settles = 0  # clearing READs sent: picks the next one's length (_SETTLE_READ_LENGTHS)
+        self.patience_s = 0.0  # how long the last try of an exchange waits for its reply (set_patience)
 
     # ------------------------------------------------------------------------------ Device
     @property
@@ -238,6 +253,21 @@ class DynamixelPanTilt(Gimbal):
             self._release_port()
             self._connected = self._lost = self._in_control = self._resume_control = False
             self._last_goals = None
+
+    def set_patience(self, last_try_s: float) -> None:
+        """Let the last try of every exchange wait up to ``last_try_s`` (wall seconds) for its reply,
+        however short the latency timer makes the others (0: as long as they do).
+
+        On a simulated clock the servos are the emulator, whose replies always come unless a fault
+        is injected: a reply that is late is the machine's load, not the link's fault. A try that
+        times out is retried within the same step, which costs no simulated time; but an exchange
+        that failed every try would change the run (a state not published, torque off by the
+        fatal path, a move the planner sends again half a move timeout later). Waiting longer on the
+        last try makes a loaded run take the same exchanges as an idle one. A reply that comes in
+        time ends the wait, so an idle run pays nothing."""
+        if not (math.isfinite(last_try_s) and 0.0 <= last_try_s <= MAX_PATIENCE_S):
+            raise ValueError(f"last_try_s must be within [0, {MAX_PATIENCE_S:g}] s, got {last_try_s!r}")
+        self.patience_s = float(last_try_s)
 
     # ------------------------------------------------------------------------------ Gimbal
     def move_to(self, pan_rad: float, tilt_rad: float) -> tuple[float, float]:
@@ -542,6 +572,8 @@ class DynamixelPanTilt(Gimbal):
                 port = self._port
                 if port is None:
                     raise GimbalPortLostError(f"serial port {self.config.port} is not open; call connect()")
+                # the last try is patient (set_patience), unless failing is expected (a rebooting servo's poll)
+                port.patience_ms = 1000.0 * self.patience_s if attempt == retries and fatal else 0.0
                 try:
                     settled = self._settle_line(port) if self._late_replies else sdk.COMM_SUCCESS
                     if settled != sdk.COMM_SUCCESS:
@@ -554,6 +586,7 @@ class DynamixelPanTilt(Gimbal):
                     raise self._port_lost(exc) from exc
                 finally:
                     port.is_using = False
+                    port.patience_ms = 0.0
                 if comm not in (sdk.COMM_SUCCESS, sdk.COMM_NOT_AVAILABLE):
                     self._late_replies = True  # unanswered, or answered by something else: more may come
             if comm == sdk.COMM_SUCCESS:
@@ -640,24 +673,26 @@ class DynamixelPanTilt(Gimbal):
 
     def _settle_line(self, port) -> int:
         """Clear the line of late replies before the next instruction (module docstring): a READ
-        of 6 bytes at address 0 (Model Number and Model Information; no other exchange of the
-        driver reads 6 bytes) to the pan servo, and every status packet before its reply is
+        at address 0 (Model Number, Model Information, ...) of 5 to 8 bytes in turn
+        (:data:`_SETTLE_READ_LENGTHS`: no other exchange of the driver reads them) to the pan servo, and every status packet before its reply is
         dropped. Servos answer in order, so once that reply is in, every late one came before it.
         ``COMM_SUCCESS`` when the line is clear, else why not (no reply in time, or only corrupt
         ones): the instruction waits for the next try."""
+        n_bytes = _SETTLE_READ_LENGTHS[self._settles % len(_SETTLE_READ_LENGTHS)]
+        self._settles += 1
         tx = [0] * 14
         tx[4], tx[5], tx[6], tx[7] = self.config.joint_id("pan"), 7, 0, sdk.INST_READ
-        tx[8:12] = [0, 0, _SETTLE_READ_BYTES, 0]
+        tx[8:12] = [0, 0, n_bytes, 0]
         sent = self._ph.txPacket(port, tx)
         if sent != sdk.COMM_SUCCESS:
             return sent
-        port.setPacketTimeout(_SETTLE_READ_BYTES + 11)
+        port.setPacketTimeout(n_bytes + 11)
         dropped, corrupt = 0, False
         for _ in range(64):  # bounded: each status packet, or the timeout, ends one rxPacket
             rx, comm = self._ph.rxPacket(port, False)
             if comm == sdk.COMM_RX_TIMEOUT:
                 break
-            if comm == sdk.COMM_SUCCESS and rx[4] == tx[4] and (rx[5] | rx[6] << 8) == _SETTLE_READ_BYTES + 4:
+            if comm == sdk.COMM_SUCCESS and rx[4] == tx[4] and (rx[5] | rx[6] << 8) == n_bytes + 4:
                 if dropped:
                     log.debug("dropped %d late replies on %s", dropped, self.config.port)
                 self._late_replies = False

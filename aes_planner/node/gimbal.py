@@ -20,8 +20,10 @@ from the node's ``now``: the servo emulator in its own process reads it from a s
 :class:`~aes_planner.drivers.emulator.FileClock` the node sets at each step, an in-process
 emulated or simulated gimbal from the same clock, and states are stamped ``now``; a step that
 sent a command reads the device back before it ends, so that the command takes effect at ``now``
-(a move is a write the servos do not answer; see :meth:`GimbalNode._settle_commands`). A real
-gimbal cannot run on it.
+(a move is a write the servos do not answer; see :meth:`GimbalNode._settle_commands`); and the
+last try of every serial exchange waits up to :data:`SIM_LINK_PATIENCE_S` for its reply, so that
+a loaded machine's late replies fail no exchange (which would change the run). A real gimbal
+cannot run on it.
 """
 
 from __future__ import annotations
@@ -48,6 +50,14 @@ from aes_planner.messages import Diagnostics, GimbalCommand, GimbalState
 from aes_planner.node.scene import launch_scene
 
 log = logging.getLogger(__name__)
+
+#: On a simulated clock, how long the last try of a serial exchange waits for the emulator's reply
+#: (wall seconds; :meth:`~aes_planner.drivers.dynamixel.DynamixelPanTilt.set_patience`): a reply
+#: that a loaded machine delays must not fail the exchange, which would change the run.
+SIM_LINK_PATIENCE_S = 10.0
+#: How long connecting waits for a servo emulator the node started to answer the driver's first
+#: ping (wall seconds): a fresh process on a loaded machine may take a while to get the CPU.
+EMULATOR_ANSWER_TIMEOUT_S = 30.0
 
 #: No limits of the launch's own: only the finiteness check (the device clamps to its own).
 _UNLIMITED = JointLimits((-math.inf, math.inf), (-math.inf, math.inf))
@@ -205,11 +215,42 @@ class GimbalNode(Node):
             self._emulator_args = [*self.config.emulator_args, *clock_args]
             self._start_emulator()
         try:
-            self.device.connect()
+            self._connect()
         except BaseException:
             self.stop()
             raise
         self.status = "ok"
+
+    def _connect(self) -> None:
+        """Connect the device. An emulator's servos (in a process or a thread the node started)
+        get :data:`EMULATOR_ANSWER_TIMEOUT_S` to answer the first ping, however loaded the machine;
+        on a simulated clock every later exchange's last try waits up to :data:`SIM_LINK_PATIENCE_S`
+        for its reply (the link's delays are the machine's, not the simulated world's)."""
+        dev = self.device
+        patient = hasattr(dev, "set_patience")
+        emulated = self.config.emulate or self.config.device.get("type") in self.SIM_DEVICES
+        if patient and emulated:
+            dev.set_patience(EMULATOR_ANSWER_TIMEOUT_S)
+        try:
+            dev.connect()
+        except GimbalCommError as exc:
+            if not self.config.emulate or self.emulator is None:
+                raise
+            proc = self.emulator.proc
+            code = proc.poll()
+            how = (
+                f"exited with status {code}"
+                if code is not None
+                else f"is running (pid {proc.pid}) but did not answer within {EMULATOR_ANSWER_TIMEOUT_S:g} s"
+            )
+            raise GimbalCommError(
+                f"{self.node_id}: the servo emulator on {self.emulator.port} {how} to the driver's first ping; "
+                f"is the machine overloaded, or the emulator's options wrong ({' '.join(self._emulator_args) or 'none'})? "
+                f"The driver said: {exc}"
+            ) from exc
+        finally:
+            if patient:
+                dev.set_patience(SIM_LINK_PATIENCE_S if self.sim_clock is not None else 0.0)
 
     def _start_emulator(self) -> None:
         """Start the servo emulator's process and point the driver at the pty it opened."""

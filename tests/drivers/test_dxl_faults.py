@@ -2,6 +2,7 @@
 
 import logging
 import math
+import re
 import threading
 
 import dynamixel_sdk as sdk
@@ -108,7 +109,9 @@ def test_a_late_reply_never_answers_a_later_instruction(emulator, gimbal, caplog
     with caplog.at_level(logging.DEBUG, logger="aes_planner.drivers.dynamixel"):
         number, _ = gimbal._exchange("pan", "ping pan", gimbal._ping)  # the late reply comes meanwhile
     assert number == model_by_name("xm430-w350").model_number
-    assert "dropped 1 late replies" in caplog.text  # the late reply was seen, and dropped
+    # the late reply was seen and dropped (with the first clearing READ's reply, which came behind it
+    # after that READ gave up: the next clearing READ has another length and does not take it)
+    assert re.search(r"dropped [12] late replies", caplog.text)
     # and a 1-byte read after a late 1-byte reply gets its own item, not the late one
     emulator.faults.delay_next = 1
     with pytest.raises(GimbalCommError):

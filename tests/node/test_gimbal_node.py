@@ -283,3 +283,65 @@ def test_a_killed_emulator_process_is_replaced():
     finally:
         node.stop()
     assert node.emulator is None
+
+
+def _sim_gimbal_run(delay_replies_s: float) -> tuple[list[tuple], dict]:
+    """A gimbal node on a simulated clock stepped through one move; every reply of its servos
+    ``delay_replies_s`` late (what a loaded machine does to the emulator). Its states and counters."""
+    from aes_planner.graph.base import LaunchContext
+
+    cfg = GimbalNodeConfig(
+        rate_hz=25.0,
+        device={"type": "emulated_pan_tilt", "latency_timer_ms": 1.0, "retries": 3, "profile_velocity_deg_s": 180.0},
+    )
+    node = GimbalNode(cfg, context=LaunchContext(clock="sim"))
+    node.start()
+    states = []
+    try:
+        if delay_replies_s:
+            node.device.inject_comm_faults(delayed=10_000, delay_s=delay_replies_s)
+        for k in range(12):
+            now = round(0.04 * k, 6)
+            cmd = [GimbalCommand("move", 0.3, -0.1)] if k == 2 else []
+            out = node.step({"gimbal/command": cmd}, now)
+            states += [(s.stamp_s, round(s.pan_rad, 6), round(s.tilt_rad, 6), s.moving) for s in out["gimbal/state"]]
+    finally:
+        node.stop()
+    return states, dict(node.counters)
+
+
+def test_on_a_simulated_clock_late_replies_do_not_change_the_states():
+    """Issue 41 item 3: a simulated run's figures must not depend on the load. Every reply here
+    comes 30 ms late, beyond the 4 ms a 1 ms latency timer waits for it (an emulator starved of the
+    CPU): the exchanges' last tries wait for their replies (``set_patience``), so the node publishes
+    the same states at the same simulated times as with prompt replies, and counts no comm error.
+    Before, every exchange failed: no state was published and the fatal path turned torque off (the
+    planner then sent its move again half a move timeout later: a demo's stamps 10 s apart)."""
+    prompt, prompt_counters = _sim_gimbal_run(0.0)
+    late, late_counters = _sim_gimbal_run(0.03)
+    assert len(prompt) == 12 and prompt[-1][1] > prompt[3][1]  # a state each step; the pan moved
+    assert late == prompt
+    assert late_counters["comm_errors"] == prompt_counters["comm_errors"] == 0
+
+
+def test_a_silent_emulator_at_start_is_named_in_the_error(monkeypatch):
+    """The servo emulator's process started (it printed its pty) but never answers the first ping:
+    the node waits a bounded time and says what did not answer, not just the driver's message."""
+    from aes_planner.devices import GimbalCommError
+    from aes_planner.node import gimbal as gimbal_mod
+
+    class SilentProcess(_ThreadEmulatorProcess):
+        def __enter__(self):
+            super().__enter__()
+            with self.emu.lock:
+                self.emu.faults.drop_next = 10**6  # every reply lost
+            return self
+
+    monkeypatch.setattr("aes_planner.drivers.emulator.EmulatorProcess", SilentProcess)
+    monkeypatch.setattr(gimbal_mod, "EMULATOR_ANSWER_TIMEOUT_S", 0.2)
+    node = _emulating_node()
+    with pytest.raises(
+        GimbalCommError, match=r"servo emulator on .* did not answer within 0.2 s to the driver's first ping"
+    ):
+        node.start()
+    assert SilentProcess.started[-1].proc.returncode is not None  # stopped on the way out
