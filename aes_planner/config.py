@@ -112,6 +112,22 @@ def require_numbers(obj: Any, names: tuple[str, ...], *, minimum: float = 0.0, s
         )
 
 
+def require_optional_int(obj: Any, name: str, high: int, unset: str = "the platform's default") -> None:
+    """Raise unless the attribute ``name`` of ``obj`` is None or an integer within ``[0, high]``;
+    ``unset`` says what None means."""
+    v = getattr(obj, name)
+    ok = v is None or (isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= high)
+    require(ok, name, f"must be an integer in [0, {high}], or unset for {unset}, got {v!r}")
+
+
+def require_optional_bool(obj: Any, name: str) -> None:
+    """Raise unless the attribute ``name`` of ``obj`` is None (the platform's default) or a bool."""
+    v = getattr(obj, name)
+    require(
+        v is None or isinstance(v, bool), name, f"must be true or false, or unset for the platform's default, got {v!r}"
+    )
+
+
 def require_within(obj: Any, names: tuple[str, ...], low: float, high: float) -> None:
     """Raise for the first attribute of ``obj`` in ``names`` (a number, or a flat sequence of them)
     holding anything but finite numbers within ``[low, high]``, naming that attribute."""

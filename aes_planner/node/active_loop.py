@@ -721,13 +721,7 @@ class ActiveLoop:
             ]
         for centre in centres:
             self._fine_centres.append(centre)
-            targets = self._feasible_targets(
-                [
-                    t
-                    for t in self.motion.polish(centre, math.radians(step_deg))
-                    if not near_captured(self.captures, t.cam2world, 0.5 * step_deg, c.min_move_m)
-                ]
-            )[: self._fine_left]
+            targets = self._feasible_targets(self._round(centre, step_deg, 0.0, []))[: self._fine_left]
             if targets:
                 if centre is not best:
                     log.info(
@@ -860,8 +854,7 @@ class ActiveLoop:
             frame.image,
             look_distance_m(frame.depth_m),
         )
-        far_best = getattr(target, "far_best", None)
-        if far_best is not None and score <= far_best + self.config.tie_tolerance:
+        if target.far_best is not None and score <= target.far_best + self.config.tie_tolerance:
             self.far_misses += 1  # a move to an unvisited place that did not beat the best
         self.captures.append(cap)
         self.counters["captures"] += 1

@@ -171,12 +171,16 @@ class PlannerNode(ActiveLoop, Node):
         if self.proposer is None:
             c = self.config
             self.proposer = FieldProposer(c.scorer, c.preset, self.teacher, c.max_frames, c.seed)
-        if isinstance(self.proposer, FieldProposer):  # every search of the node, passive ones too
-            steps = self.config.search_steps
-            self.proposer.search_settings = {} if steps is None else {"steps": steps}
-        if isinstance(self.proposer, FieldProposer) and self.motion is not None and self.config.active:
-            grid = self.config.search_grid_points  # the active loop's searches (passive mode: not measured)
-            self.proposer.grid_points = self.motion.search_grid_points if grid is None else grid
+        if isinstance(self.proposer, FieldProposer):
+            settings = {}
+            if self.config.search_steps is not None:  # every search of the node, passive ones too
+                settings["steps"] = self.config.search_steps
+            if self.motion is not None and self.config.active:  # the active loop's (passive: not measured)
+                grid = self.config.search_grid_points
+                grid = self.motion.search_grid_points if grid is None else grid
+                if grid > 0:  # 0: the preset's
+                    settings["grid_points"] = grid
+            self.proposer.search_settings = settings
         _ = self.teacher
         if isinstance(self.proposer, FieldProposer) and not self._kernels_warm:  # now, not in the first plan
             from aes_planner.gaussians.warmup import warm_kernels

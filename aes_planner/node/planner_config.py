@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar
 
-from aes_planner.config import require, require_numbers
+from aes_planner.config import require, require_numbers, require_optional_bool, require_optional_int
 from aes_planner.geometry.plausible import MAX_STAMP_AHEAD_S
 from aes_planner.platform import DronePlatformConfig, RigPlatformConfig, parse_platform
 from aes_planner.runtime import MAX_THREADS
@@ -314,26 +314,8 @@ class PlannerConfig:
             require(
                 isinstance(v, int) and not isinstance(v, bool) and v >= 0, name, f"must be an integer >= 0, got {v!r}"
             )
-        require(
-            self.spare_hills is None
-            or (
-                isinstance(self.spare_hills, int)
-                and not isinstance(self.spare_hills, bool)
-                and 0 <= self.spare_hills <= 16
-            ),
-            "spare_hills",
-            f"must be an integer in [0, 16], or unset for the platform's default, got {self.spare_hills!r}",
-        )
-        require(
-            self.short_hills is None
-            or (
-                isinstance(self.short_hills, int)
-                and not isinstance(self.short_hills, bool)
-                and 0 <= self.short_hills <= 16
-            ),
-            "short_hills",
-            f"must be an integer in [0, 16], or unset for the platform's default, got {self.short_hills!r}",
-        )
+        require_optional_int(self, "spare_hills", 16)
+        require_optional_int(self, "short_hills", 16)
         require(
             self.verify_apart_deg is None
             or (
@@ -345,31 +327,9 @@ class PlannerConfig:
             "verify_apart_deg",
             f"must be a number of degrees in (0, 90], or unset for the platform's default, got {self.verify_apart_deg!r}",
         )
-        require(
-            self.explore_places is None
-            or (
-                isinstance(self.explore_places, int)
-                and not isinstance(self.explore_places, bool)
-                and 0 <= self.explore_places <= 64
-            ),
-            "explore_places",
-            f"must be an integer in [0, 64], or unset for the platform's default, got {self.explore_places!r}",
-        )
-        require(
-            self.search_grid_points is None
-            or (
-                isinstance(self.search_grid_points, int)
-                and not isinstance(self.search_grid_points, bool)
-                and 0 <= self.search_grid_points <= 10_000
-            ),
-            "search_grid_points",
-            f"must be an integer in [0, 10000], or unset for the platform's default, got {self.search_grid_points!r}",
-        )
-        require(
-            self.verify_unseen is None or isinstance(self.verify_unseen, bool),
-            "verify_unseen",
-            f"must be true or false, or unset for the platform's default, got {self.verify_unseen!r}",
-        )
+        require_optional_int(self, "explore_places", 64)
+        require_optional_int(self, "search_grid_points", 10_000)
+        require_optional_bool(self, "verify_unseen")
         require(
             self.plan_grid_deg is None
             or (
@@ -381,27 +341,13 @@ class PlannerConfig:
             f"must be 0 (the preset's random stage 1) or a spacing in [0.5, 45] degrees, or unset for the "
             f"platform's default, got {self.plan_grid_deg!r}",
         )
-        v = self.search_steps
-        require(
-            v is None or (isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 10_000),
-            "search_steps",
-            f"must be an integer in [0, 10000], or unset for the preset's (PLANNER_PRESETS), got {v!r}",
-        )
-        require(
-            self.far_moves is None
-            or (isinstance(self.far_moves, int) and not isinstance(self.far_moves, bool) and 0 <= self.far_moves <= 64),
-            "far_moves",
-            f"must be an integer in [0, 64], or unset for the platform's default (no limit), got {self.far_moves!r}",
-        )
+        require_optional_int(self, "search_steps", 10_000, "the preset's (PLANNER_PRESETS)")
+        require_optional_int(self, "far_moves", 64, "the platform's default (no limit)")
         require_numbers(self, ("far_m",))
         require(self.far_m <= 10.0, "far_m", f"must be in (0, 10] metres, got {self.far_m}")
         require_numbers(self, ("far_deg",))
         require(self.far_deg <= 180.0, "far_deg", f"must be in (0, 180] degrees, got {self.far_deg}")
-        require(
-            self.plan_draws is None or isinstance(self.plan_draws, bool),
-            "plan_draws",
-            f"must be true or false, or unset for the platform's default, got {self.plan_draws!r}",
-        )
+        require_optional_bool(self, "plan_draws")
         if self.plan_adam_eps is not None:
             require_numbers(self, ("plan_adam_eps",))
             require(self.plan_adam_eps <= 1.0, "plan_adam_eps", f"must be in (0, 1], got {self.plan_adam_eps}")

@@ -165,8 +165,8 @@ class FieldProposer(Proposer):
         self._scorer_version = -1
         self.version = 0
         self.framing = None  # (keep, avoid, FramingConfig, {frame: view}) the searches apply: set_framing
-        self.grid_points = 0  # the search's grid_points when > 0 (PlannerConfig.search_grid_points); else the preset's
-        #: SearchConfig fields over the preset's for the planner (PlannerConfig.search_steps)
+        #: SearchConfig fields over the preset's for the planner's searches (PlannerConfig.search_steps,
+        #: search_grid_points): set by PlannerNode.start
         self.search_settings: dict[str, int] = {}
         self.framing_held: list[float] = []  # how much of each kept subject the last best suggestion held
         self._framed: FramedViews | None = None  # the last search's framing, for the active loop
@@ -264,12 +264,11 @@ class FieldProposer(Proposer):
         frames = [f for f, _ in self._frames]
         inputs = np.stack([f.cam2world for f in frames if id(f) not in self._off_path])  # [N, 4, 4]
         captured = np.asarray(captured_cam2world, dtype=np.float64).reshape(-1, 4, 4)
-        grid = {"grid_points": self.grid_points} if self.grid_points > 0 else {}
         config = SearchConfig.preset(
             self.preset,
             mode=platform.kind,
             planner=True,
-            **{"top_k": max(top_k, 1), "seed": self.seed, **grid, **self.search_settings, **(search or {})},
+            **{"top_k": max(top_k, 1), "seed": self.seed, **self.search_settings, **(search or {})},
         )
         avoid = captured if keep_near is None else np.delete(captured, keep_near, axis=0)
         framing = self._framing(scorer, platform)
