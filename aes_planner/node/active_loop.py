@@ -440,7 +440,66 @@ class ActiveLoop:
             log.info("%s: verify a hill: %s, pred %.3f hope %.3f", self.node_id, _where(cd), cd.score, hope[i])
             targets.append(Target(CaptureKind.VERIFY, cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=float(hope[i])))
         unseen = self._unseen_target(proposal, step_deg, targets)
-        return targets + ([unseen] if unseen is not None else [])
+        targets += [unseen] if unseen is not None else []
+        return targets + self._turn_targets(proposal, step_deg, targets, floor)
+
+    def _turn_targets(self, proposal, step_deg: float, targets: list[Target], floor: float) -> list[Target]:
+        """Up to ``verify_turns`` (unset: the motion's default) captures of the field's best view
+        from a place the loop captured at, turning only (:meth:`Motion.turns`; places
+        ``min_move_m`` or more apart, in the order they were first captured at): each place's
+        best by hope, skipped within a coarsest polish step of a capture there or within two of
+        another target, the places' bests ranked by hope
+        (:func:`~aes_planner.node.captures.decision_order`), each hoping for at least ``floor``.
+        A drone's captures look one way from each place; the climbs start only where a capture
+        is (docs/benchmarks.md, "A drone looks one way from each place")."""
+        c = self.config
+        most = self.motion.verify_turns if c.verify_turns is None else c.verify_turns
+        if most <= 0:
+            return []
+        places: list[np.ndarray] = []
+        for cap in self.captures:
+            p = cap.cam2world[:3, 3]
+            if all(np.linalg.norm(p - q) >= c.min_move_m for q in places):
+                places.append(p)
+        views = [self.motion.turns(p) for p in places]  # each [V, 4, 4]
+        if not places or not sum(len(v) for v in views):
+            return []
+        try:
+            pred = self.proposer.score_views(np.concatenate(views))  # [sum V]
+        except Exception:
+            log.exception("%s: scoring the places' turns failed; no turn verified", self.node_id)
+            return []
+        if pred is None or not np.all(np.isfinite(pred)):
+            return []
+        bests: list[Candidate] = []
+        start = 0
+        for v in views:
+            cands = [Candidate(p, float(s)) for p, s in zip(v, pred[start : start + len(v)])]
+            start += len(v)
+            hope = hopes(cands, self.captures, proposal.captured_pred, c.optimism, c.min_sigma, c.residual_length_deg)
+            for i in decision_order(hope, cands, c.hope_quantum):
+                cd = cands[i]
+                if near_captured(self.captures, cd.cam2world, step_deg, c.min_move_m):
+                    continue  # a capture there looks this way already: its climb can reach it
+                if not self._safe_candidate(cd):
+                    continue
+                bests.append(cd)
+                break
+        hope = hopes(bests, self.captures, proposal.captured_pred, c.optimism, c.min_sigma, c.residual_length_deg)
+        out: list[Target] = []
+        for i in decision_order(hope, bests, c.hope_quantum):
+            cd = bests[i]
+            if len(out) >= most or hope[i] < floor:
+                break
+            if any(
+                view_angle_deg(cd.cam2world, t.cam2world) < 2.0 * step_deg
+                and np.linalg.norm(cd.cam2world[:3, 3] - t.cam2world[:3, 3]) <= c.min_move_m
+                for t in targets + out
+            ):
+                continue
+            log.info("%s: verify a turn: %s, pred %.3f hope %.3f", self.node_id, _where(cd), cd.score, hope[i])
+            out.append(Target(CaptureKind.VERIFY, cd.cam2world, None, None, predicted=float(hope[i])))
+        return self._feasible_targets(out)
 
     def _unseen_target(self, proposal, step_deg: float, targets: list[Target]) -> Target | None:
         """One verification of the search's exploratory candidate (the edge of what was seen) when

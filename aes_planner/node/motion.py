@@ -38,6 +38,10 @@ __all__ = ["DroneMotion", "Motion", "RigMotion", "Sender"]
 EXPLORE_REACH = 0.7
 #: The lattice cells of the box a drone's exploration places are chosen among (DroneMotion.explore_places).
 EXPLORE_LATTICE = 18
+#: The yaw and pitch spacing (degrees) of the views a drone's place is scored at for its best turn
+#: (``PlannerConfig.verify_turns``): 24 yaws x up to 10 pitches inside the searched range.
+TURN_YAW_DEG = 15.0
+TURN_PITCH_DEG = 10.0
 
 
 class Sender(Protocol):
@@ -84,6 +88,8 @@ class Motion(ABC):
     plan_adam_eps: float | None = None
     #: ``PlannerConfig.hope_tie_margin`` when the config leaves it unset (0: quanta alone)
     hope_tie_margin: float = 0.0
+    #: ``PlannerConfig.verify_turns`` when the config leaves it unset (0: none)
+    verify_turns: int = 0
 
     #: ``ViewSuggestion.mode``'s word for the platform (the wire format's: ``rig`` or ``free``)
     suggestion_mode: str
@@ -122,6 +128,11 @@ class Motion(ABC):
         """Captures from places far from every capture and from the places ``queued_m`` (``[3]``
         each) still to be captured, after the exploration's positions (a drone); none on a rig."""
         return []
+
+    def turns(self, place_m: np.ndarray) -> np.ndarray:  # [3] -> [V, 4, 4]
+        """The views from ``place_m`` turning only, spread over the platform's range (a drone's;
+        none on a rig, whose one place its pan x tilt grid covers)."""
+        return np.zeros((0, 4, 4))
 
     @abstractmethod
     def polish(self, cap: Capture, step_rad: float, step_m: float = 0.0) -> list[Target]:
@@ -248,6 +259,7 @@ class DroneMotion(Motion):
     # runs: mean 0.917 -> 0.924, below 0.9 12 -> 11, spread per scene 0.052 -> 0.013)
     far_moves = 1
     plan_draws = False
+    verify_turns = 0  # PlannerConfig.verify_turns when unset (being measured)
 
     def __init__(self, box: DroneBox, search_config):
         self.box = box
@@ -348,6 +360,17 @@ class DroneMotion(Motion):
             seen.append(places[i])
             targets.append(Target(CaptureKind.EXPLORE, look(places[i]), on_path=False))
         return targets
+
+    def turns(self, place_m):
+        """Views from ``place_m`` (inside the box): every ``TURN_YAW_DEG`` of yaw x every
+        ``TURN_PITCH_DEG`` of pitch inside the searched range (from its lowest), yaw fastest."""
+        lo, hi = float(self.space.lower[4]), float(self.space.upper[4])
+        step = math.radians(TURN_PITCH_DEG)
+        pitches = lo + step * np.arange(int(math.floor((hi - lo) / step + 1e-9)) + 1)  # [P]
+        yaws = np.radians(np.arange(-180.0, 180.0, TURN_YAW_DEG))  # [Y]
+        x, y, z = (float(v) for v in self.box.clamp(np.asarray(place_m, dtype=np.float64)))
+        views = torch.tensor([[x, y, z, yw, pt] for pt in pitches for yw in yaws], dtype=torch.float64)  # [P*Y, 5]
+        return view_to_cam2world(views).numpy()
 
     def polish(self, cap, step_rad, step_m=0.0):
         """Yaw and pitch ``step_rad`` away, the position kept, the pitch inside the searched range;

@@ -77,6 +77,17 @@ class PlannerConfig:
       (a coarsest polish step or more from every capture; ranked by hope, each hoping for at
       least the best captured score minus ``polish_start_gap``): a verification that beats every
       capture is the first hill climbed, whichever hills the moves happened to visit. 0 = none.
+    * ``verify_turns``: a drone only: before the climbs, up to this many more captures (on top of
+      ``polish_captures``, after the hills' verifications): from each place the loop captured at
+      (places ``min_move_m`` or more apart), the field's best view turning only (yaw every
+      15 deg x pitch every 10 deg inside the searched range), ranked by hope, each hoping for at
+      least the best captured score minus ``polish_start_gap`` and a coarsest polish step or more
+      from every capture there. A drone visits good places but looks one way from each (the
+      exploration positions all look at what the best turn saw): dev tabletop:212@drone,
+      indoor:213@drone and tabletop:217@drone had a place whose best turn scores >= 0.9 of the
+      oracle, never looked at, while the moves went to views over-rated by 0.15-0.25. A polish
+      climbs what captures found, so one real capture per place lets it start there. Unset: the
+      platform's default (a rig 0: its one place is the pan x tilt grid's).
     * ``spare_hills``: when every climb ended with polish captures left (a climb that reached its
       finest step early), the rest climb up to this many more hills, one after the other, each
       with what is left: the best capture (verifications included) within ``polish_start_gap`` of
@@ -239,6 +250,7 @@ class PlannerConfig:
     polish_start_gap: float = 0.1
     polish_hills: int = 5
     verify_hills: int = 2
+    verify_turns: int | None = None
     spare_hills: int | None = None
     short_hills: int | None = None
     verify_apart_deg: float | None = None
@@ -314,6 +326,7 @@ class PlannerConfig:
             require(
                 isinstance(v, int) and not isinstance(v, bool) and v >= 0, name, f"must be an integer >= 0, got {v!r}"
             )
+        require_optional_int(self, "verify_turns", 16)
         require_optional_int(self, "spare_hills", 16)
         require_optional_int(self, "short_hills", 16)
         require(

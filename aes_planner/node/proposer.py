@@ -134,6 +134,11 @@ class Proposer(ABC):
         neighbourhood of capture ``keep_near`` (the best one: refining around it is allowed);
         ``search``: search settings on top of the preset's (a proposer without a search ignores them)."""
 
+    def score_views(self, cam2world: np.ndarray) -> np.ndarray | None:  # [N, 4, 4] -> [N]
+        """The scorer's predictions at ``cam2world`` (teacher units), as the search sees them;
+        None: a proposer without a scorer to ask (the loop then takes no view it would rank by it)."""
+        return None
+
     @abstractmethod
     def reset(self) -> None:
         """Forget every frame."""
@@ -244,6 +249,13 @@ class FieldProposer(Proposer):
             self._scorer = build_search_scorer(self.scorer_kind, frames, cfg, teacher=self.teacher)
             self._scorer_version = self.version
         return self._scorer
+
+    def score_views(self, cam2world: np.ndarray) -> np.ndarray:  # [N, 4, 4] -> [N]
+        poses = torch.as_tensor(np.asarray(cam2world, dtype=np.float64).reshape(-1, 4, 4))  # [N, 4, 4]
+        if not len(poses):
+            return np.zeros(0)
+        with torch.no_grad():
+            return self.scorer().score_batched(poses).score.double().numpy()
 
     def propose(
         self,
