@@ -87,7 +87,8 @@ class PlannerConfig:
       indoor:213@drone and tabletop:217@drone had a place whose best turn scores >= 0.9 of the
       oracle, never looked at, while the moves went to views over-rated by 0.15-0.25. A polish
       climbs what captures found, so one real capture per place lets it start there. Unset: the
-      platform's default (a rig 0: its one place is the pan x tilt grid's).
+      platform's default (a drone 6, measured on 39 dev drone runs: docs/decisions.md; a rig 0:
+      its one place is the pan x tilt grid's). ``verify_hills`` 0 takes none either.
     * ``spare_hills``: when every climb ended with polish captures left (a climb that reached its
       finest step early), the rest climb up to this many more hills, one after the other, each
       with what is left: the best capture (verifications included) within ``polish_start_gap`` of
