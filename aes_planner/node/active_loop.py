@@ -14,7 +14,8 @@
                capture there and score the real capture with the teacher (it verifies the
                prediction and feeds the field) -> planning
     polishing  first one capture of the search's best predicted view on each of up to
-               ``verify_hills`` hills no capture lies on (ranked by hope), then
+               ``verify_hills`` hills no capture lies on (ranked by hope) and, on a drone, of the
+               field's best turn from each of up to ``verify_turns`` places captured at, then
                a coarse-to-fine compass search with real captures around the best captured view,
                then around up to ``polish_starts - 1`` other captured hills nearly as good (more
                of them than climbs, up to ``polish_hills``: one coarsest round on each first, and
