@@ -10,14 +10,15 @@ Pipeline per call (B cameras, N Gaussians, Cv = 3 + C value channels, tiles of T
    depth, then per-tile lists in that order (counting pass, prefix sum, fill): no per-tile sorts.
    Cameras go to threads; a single camera splits in two (sort beside count, then two bands of fill).
 4. ``raster_fwd``: parallel over (camera, tile), tiles interleaved across threads. Each Gaussian
-   of the tile's depth-sorted list visits only the tile rows of its ``alpha >= 1/255`` box; a row
-   is one masked 8- or 16-lane vector (sigma, exp, alpha, transmittance, stop rule), then the
-   values are accumulated lane-wise (up to 63 channels) or per contributing pixel with the
-   channels innermost (64 or more). A tile stops once all its pixels are saturated. Stores the
-   final transmittance and, per pixel, the list position after its last contributor.
+   of the tile's depth-sorted list walks the tile rows of its ``alpha >= 1/255`` box as one
+   contiguous run of pixels (rows x TILE; sigma, exp, alpha, transmittance, stop rule,
+   vectorised across rows), then accumulates its values over the run pixel-wise (up to 63
+   channels) or per contributing pixel with the channels innermost (64 or more). A tile stops
+   once all its pixels are saturated. Stores the final transmittance and, per pixel, the list
+   position after its last contributor.
 5. ``raster_bwd``: the same traversal in reverse from the stored final transmittance (gsplat's
-   backward), accumulating per-lane gradient terms that are reduced once per Gaussian; channels
-   lane-wise up to 7, per contributing pixel from 8 (through one dot product per pixel). Parallel
+   backward) over the same runs, the gradient terms reduced over each run; channels pixel-wise
+   up to 7, per contributing pixel from 8 (through one dot product per pixel). Parallel
    over cameras when there are enough of them (no write conflicts), else over tiles with a
    buffer per worker (a fixed share of the items, whichever thread runs it: the sums' order, and
    so every bit of the gradients, is the same from call to call).
@@ -28,8 +29,8 @@ Everything geometric is float64; image-space parameters and outputs are in the G
 
 Modules: ``common`` (threading layer, packed layouts, the typed constants, ``exp_neg``, 3x3
 algebra), ``covariance`` (1), ``project`` (2), ``binning`` (3), ``tiles`` (the tile traversal
-the forward and backward rasters share), ``raster_fwd`` (4), ``raster_bwd`` (5),
-``project_bwd`` (6). Their twins (plain torch, for the tests) are in
+the forward and backward rasters share: a Gaussian's run of tile pixels and its row terms),
+``raster_fwd`` (4), ``raster_bwd`` (5), ``project_bwd`` (6). Their twins (plain torch, for the tests) are in
 :mod:`aes_planner.gaussians.twins`.
 """
 

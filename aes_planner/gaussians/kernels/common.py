@@ -17,7 +17,6 @@ from aes_planner.gaussians.numerics import (
     ONE_MINUS_ALPHA_MIN,
     SIGMA_CLAMP,
     T_STOP,
-    TILE,
 )
 
 
@@ -45,10 +44,9 @@ def _choose_threading_layer() -> None:
 
 _choose_threading_layer()
 
-HALF_TILE = TILE // 2  # lanes of a narrow row window in the forward
 # Value channels + depth from which the channel loops go innermost (only contributing pixels
-# visited) instead of lanes innermost. The forward's lanes-innermost loops stayed faster up to 36
-# channels once rows became 8-lane windows; the backward's need it from 8 (2.2x at 36 channels;
+# visited) instead of pixels innermost. The forward's pixels-innermost loops stayed faster up to 36
+# channels (measured on 8-lane row windows); the backward's need it from 8 (2.2x at 36 channels;
 # docs/journal/rasterizer.md, "Alias checks, the 8-lane backward").
 FWD_PIXEL_MAJOR_MIN_CHANNELS = 64
 BWD_PIXEL_MAJOR_MIN_CHANNELS = 8

@@ -1,31 +1,42 @@
-"""Tile traversal shared by the forward and backward rasters: a tile's origin, a Gaussian's
-image-space parameters, the tile rows of its box, a row's terms and 8- or 16-lane window, and
-the interleaving of (camera, tile) items across threads."""
+"""Tile traversal shared by the forward and backward rasters: a tile's pixel centres, a Gaussian's
+image-space parameters, the run of tile pixels its box rows cover and the row terms of that run,
+and the interleaving of (camera, tile) items across threads.
+
+A tile's per-pixel state lives in sections of ``NPX = TILE * TILE`` values, row-major, so the
+rows ``[py0, py1)`` of a Gaussian's box are one contiguous run of pixels ``[py0 * TILE, py1 *
+TILE)``: the tile kernels walk that run as one loop (whole tile rows, the box's columns and the
+rest), which LLVM vectorises and pipelines across rows. Per-row loops over a window of the row
+(8 or 16 lanes) spent most of their time in per-row overhead and in each row's dependency chain
+(docs/journal/rasterizer.md, "One run per Gaussian")."""
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-from aes_planner.gaussians.kernels.common import C_HALF, HALF_TILE, P_A, P_B, P_C, P_O, P_U, P_V, P_Z, _fast, _opts
+from aes_planner.gaussians.kernels.common import C_HALF, P_A, P_B, P_C, P_O, P_U, P_V, P_Z, _fast, _opts
 from aes_planner.gaussians.numerics import TILE
 
-
-@njit(**_opts)
-def _pixel_centres(origin, n, consts):
-    out = np.empty(n, consts.dtype)
-    for i in range(n):
-        out[i] = origin + i
-        out[i] += consts[C_HALF]
-    return out
+NPX = TILE * TILE  # pixels of a tile: the length of one state section
 
 
 @njit(inline="always", **_fast)
-def _tile_origin(tile, tiles_x, consts):
-    """The tile's first pixel (tx0, ty0) and its pixel centres ys [TILE], xs [TILE]."""
-    tx0 = (tile % tiles_x) * TILE
-    ty0 = (tile // tiles_x) * TILE
-    return tx0, ty0, _pixel_centres(ty0, TILE, consts), _pixel_centres(tx0, TILE, consts)
+def _tile_xy(tile, tiles_x):
+    """The tile's first pixel (tx0, ty0)."""
+    return (tile % tiles_x) * TILE, (tile // tiles_x) * TILE
+
+
+@njit(inline="always", **_fast)
+def _fill_centres(st, o_x, o_y, tx0, ty0, consts):
+    """Pixel centres of the tile into the sections at o_x (x) and o_y (y) of st."""
+    half = consts[C_HALF]
+    for py in range(TILE):
+        for px in range(TILE):
+            p = np.uint64(py * TILE + px)
+            st[o_x + p] = tx0 + px
+            st[o_x + p] += half
+            st[o_y + p] = ty0 + py
+            st[o_y + p] += half
 
 
 @njit(inline="always", **_fast)
@@ -43,28 +54,24 @@ def _splat(proj, b, g):
 
 
 @njit(inline="always", **_fast)
-def _tile_rows(box, b, g, ty0):
-    """The tile rows [first, stop) that Gaussian g's box covers."""
-    return max(box[b, g, 2], ty0) - ty0, min(box[b, g, 3], ty0 + TILE - 1) - ty0 + 1
+def _tile_run(box, b, g, ty0):
+    """The tile pixels [p0, p1) of the rows that Gaussian g's box covers (uint64)."""
+    py0 = max(box[b, g, 2], ty0) - ty0
+    py1 = min(box[b, g, 3], ty0 + TILE - 1) - ty0 + 1
+    return np.uint64(py0 * TILE), np.uint64(max(py1, py0) * TILE)
 
 
 @njit(inline="always", **_fast)
-def _row_terms(ys, py, v, cb, hc, w0):
-    """A row's offset from the centre dy, its conic terms b dy and c dy^2 / 2, and the row's first
-    window pixel."""
-    dy = ys[py] - v
-    return dy, cb * dy, hc * dy * dy, np.uint64(py * TILE) + w0
-
-
-@njit(inline="always", **_fast)
-def _row_window(box, b, g, tx0):
-    """The lanes of a tile row walked for Gaussian g (forward and backward): HALF_TILE from
-    min(box x0, TILE - HALF_TILE) when its columns in the tile fit in them (most Gaussians), else
-    the whole row. Returns (lanes, first lane)."""
-    jb0 = max(box[b, g, 0], tx0) - tx0
-    jb1 = min(box[b, g, 1], tx0 + TILE - 1) - tx0
-    narrow = jb1 - jb0 < HALF_TILE
-    return (HALF_TILE if narrow else TILE), np.uint64(min(jb0, TILE - HALF_TILE) if narrow else 0)
+def _run_row_terms(st, o_y, o_bdy, o_crow, p0, p1, v, cb, hc):
+    """Each pixel's b dy and c dy^2 / 2 (dy from the Gaussian's centre row) into the sections at
+    o_bdy, o_crow. Stored and loaded, not recomputed where sigma is: the rounding of these two
+    products is then fixed (no fused multiply-add can absorb them), the same in the forward and
+    the backward, and the same as when they were computed once per row."""
+    for j in range(p1 - p0):
+        p = p0 + np.uint64(j)
+        dy = st[o_y + p] - v
+        st[o_bdy + p] = cb * dy
+        st[o_crow + p] = hc * dy * dy
 
 
 @njit(**_opts)
