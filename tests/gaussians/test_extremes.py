@@ -123,22 +123,38 @@ def _check_extremes(scene):
             # ~9 digits, so two float64 implementations that order the products differently agree
             # to ~1e-5 relative (found by the thorough profile: scales 1e-4 / 308 / 1.7e-4 m,
             # z = 1.8 cm, fx = 1). Ordinary scenes are held to 1e-8 in test_reference_equivalence.
+            # The same needles make a gradient as ill-conditioned as a value (a 1 x 4096 image at
+            # fx = 1e4: d/dlog_scales 3.7e-4 of its scale from the reference, found by hypothesis,
+            # the same before and after the kernels' row runs): beyond 1e-4, the bound is how far
+            # the reference's own gradient moves when its inputs move by ~1 ulp.
+            grad_spread = None
             for k in GRAD_FIELDS:
-                assert_close(grads[k], ref[1][k], 1e-4, 1e-4, f"{backend} d/d{k}")
+                try:
+                    assert_close(grads[k], ref[1][k], 1e-4, 1e-4, f"{backend} d/d{k}")
+                except AssertionError:
+                    if grad_spread is None:
+                        grad_spread = _ulp_spread(g, world2cam, K, width, height, background, ref[0], ref[1])
+                    err = float((grads[k] - ref[1][k]).abs().max())
+                    assert err <= 4 * grad_spread[k], (
+                        f"{backend} d/d{k}: error {err:.3e}, reference's own 1-ulp spread {grad_spread[k]:.3e}"
+                    )
 
 
-def _ulp_spread(g, world2cam, K, width, height, background, ref_out, rel=2.5e-16):
-    """How far the dense reference's outputs move when the Gaussians' means and log-scales move by
-    ~1 ulp (relative ``rel``, both signs): the accuracy the inputs themselves allow."""
-    spread = {k: 0.0 for k in OUTPUTS}
+def _ulp_spread(g, world2cam, K, width, height, background, ref_out, ref_grads=None, rel=2.5e-16):
+    """How far the dense reference's outputs (or, given ``ref_grads``, its gradients) move when the
+    Gaussians' means and log-scales move by ~1 ulp (relative ``rel``, both signs): the accuracy
+    the inputs themselves allow."""
+    ref = ref_out if ref_grads is None else ref_grads
+    spread = {k: 0.0 for k in ref}
     for field in ("means", "log_scales"):
         for sign in (1.0, -1.0):
             moved = g.float_tensors()
             moved[field] = moved[field] * (1.0 + sign * rel)
-            out, _ = outputs_and_grads("dense", Gaussians(**moved), world2cam, K, width, height, background)
-            for k in OUTPUTS:
-                if out[k].numel():
-                    spread[k] = max(spread[k], float((out[k] - ref_out[k]).abs().max()))
+            out, grads = outputs_and_grads("dense", Gaussians(**moved), world2cam, K, width, height, background)
+            got = out if ref_grads is None else grads
+            for k in ref:
+                if got[k] is not None and got[k].numel():
+                    spread[k] = max(spread[k], float((got[k] - ref[k]).abs().max()))
     return spread
 
 
