@@ -210,6 +210,9 @@ def main(argv: list[str] | None = None) -> int:
     program = argv is None
     if program:
         collector_for_start_up()
+        from aes_planner.runtime import start_load_window
+
+        start_load_window()  # the first suggestion's look at the load spans the start-up, not a 50 ms wait
     try:
         return _main(argv, program)
     finally:
