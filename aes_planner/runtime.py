@@ -9,7 +9,8 @@ rasterizer), how long torch's idle OpenMP threads spin, and glibc malloc's thres
   (:func:`set_threads`: ``suggest --threads N``, a node's ``threads: N``) is kept. Otherwise a
   :class:`ThreadGovernor` picks it: the node's own (``adapt_threads``), or one per process
   for the others, which starts from the cores that are idle right now (:func:`threads_for_load`,
-  a 50 ms look at ``/proc/stat``: one thread beside a busy process on two cores). A governor
+  a 50 ms look at ``/proc/stat``, or in the program a look over its own start-up:
+  :func:`start_load_window`; one thread beside a busy process on two cores). A governor
   notices when suggestions stop getting the cores they ask for, tries one thread, probes all
   of them now and then, and keeps whichever count runs them faster.
 * **OpenMP spinning.** torch's threads (GNU OpenMP) spin ``GOMP_SPINCOUNT`` rounds after each
