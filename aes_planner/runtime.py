@@ -139,7 +139,7 @@ def light_numba_cache_loads() -> bool:
     lowering registry and scans the installed packages' entry points for extensions. Only a
     compile uses them, and numba's compiler refreshes the context itself before every compile
     (``CompilerBase``); a cached kernel is machine code that needs numba's runtime (NRT) and
-    nothing else. Here a load initialises the runtime and loads: the same kernels, ~65 ms less
+    nothing else. Here a load initialises the runtime and loads: the same kernels, ~100 ms less
     CPU in a cold ``aes-planner suggest`` (docs/benchmarks.md, "perf-2, session 27"). Once per
     process; numba is left as it is when its cache class is not the one this was written for.
     Returns whether the loads are the lighter ones."""
