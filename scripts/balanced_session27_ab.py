@@ -17,12 +17,11 @@ import sys
 import time
 import types
 
-import numba
 import numpy as np
-import torch
 
 import aes_planner.field.model as fm
 from aes_planner.geometry.pantilt import PanTilt
+from aes_planner.runtime import set_threads
 from aes_planner.search import SearchConfig, build_search_scorer, search_views
 from aes_planner.sim import SimSource
 from aes_planner.teachers import get_teacher
@@ -63,8 +62,7 @@ def main(argv: list[str]) -> None:
     root, scenes, rounds = argv[0], argv[1].split(","), int(argv[2])
     threads = int(argv[3]) if len(argv) > 3 else 1
     seeds = [int(s) for s in argv[4].split(",")] if len(argv) > 4 else [0]
-    torch.set_num_threads(threads)
-    numba.set_num_threads(threads)
+    set_threads(threads)  # pinned: search_views's thread governor keeps it (torch's and numba's counts)
     patches, mm = sides(root)
     teacher = get_teacher()
     ratios_all, same_all = [], []
