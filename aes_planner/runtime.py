@@ -9,7 +9,8 @@ rasterizer), how long torch's idle OpenMP threads spin, and glibc malloc's thres
   (:func:`set_threads`: ``suggest --threads N``, a node's ``threads: N``) is kept. Otherwise a
   :class:`ThreadGovernor` picks it: the node's own (``adapt_threads``), or one per process
   for the others, which starts from the cores that are idle right now (:func:`threads_for_load`,
-  a 50 ms look at ``/proc/stat``: one thread beside a busy process on two cores). A governor
+  a 50 ms look at ``/proc/stat``, or in the program a look over its own start-up:
+  :func:`start_load_window`; one thread beside a busy process on two cores). A governor
   notices when suggestions stop getting the cores they ask for, tries one thread, probes all
   of them now and then, and keeps whichever count runs them faster.
 * **OpenMP spinning.** torch's threads (GNU OpenMP) spin ``GOMP_SPINCOUNT`` rounds after each
@@ -53,8 +54,10 @@ __all__ = [
     "ThreadGovernor",
     "available_cores",
     "idle_cores",
+    "light_numba_cache_loads",
     "reset_suggestion_governor",
     "set_threads",
+    "start_load_window",
     "suggestion_threads",
     "threads_for_load",
     "tune_malloc",
@@ -114,12 +117,62 @@ def _numba():
     ``numba.set_num_threads`` starts numba's thread pool, and started before the kernels chose
     their threading layer (``tbb``) it fell back to ``omp``, whose start reset torch's shared
     OpenMP count: a count of 1 (beside a busy process) ran torch on 2 threads and numba on the
-    layer that loses most beside a busy process (docs/benchmarks.md, perf-2)."""
+    layer that loses most beside a busy process (docs/benchmarks.md, perf-2). The first time, its
+    cached kernels' loads are made lighter (:func:`light_numba_cache_loads`)."""
     if "aes_planner.gaussians.kernels" not in sys.modules:
         return None
     import numba
 
+    light_numba_cache_loads()
     return numba
+
+
+_light_loads: bool | None = None
+
+
+def light_numba_cache_loads() -> bool:
+    """Load numba's cached kernels without first refreshing its whole target context.
+
+    Before it loads a kernel from its on-disk cache, numba (0.59-0.68, ``Cache.load_overload``)
+    refreshes its target context: it imports ~70 of its modules (numpy's linalg, random,
+    polynomials, typed containers, jitclass, cffi, scipy's BLAS), installs every typing and
+    lowering registry and scans the installed packages' entry points for extensions. Only a
+    compile uses them, and numba's compiler refreshes the context itself before every compile
+    (``CompilerBase``); a cached kernel is machine code that needs numba's runtime (NRT) and
+    nothing else. Here a load initialises the runtime and loads: the same kernels, ~100 ms less
+    CPU in a cold ``aes-planner suggest`` (docs/benchmarks.md, "perf-2, session 27"). Once per
+    process; numba is left as it is when its cache class is not the one this was written for.
+    Returns whether the loads are the lighter ones."""
+    global _light_loads
+    if _light_loads is not None:
+        return _light_loads
+    _light_loads = False
+    try:
+        from numba.core import caching
+        from numba.core.runtime import nrt
+    except ImportError:
+        return False
+    cache = caching.Cache
+    if not (
+        hasattr(cache, "_load_overload")
+        and hasattr(cache, "_guard_against_spurious_io_errors")
+        and callable(getattr(getattr(nrt, "rtsys", None), "initialize", None))
+    ):
+        log.debug("numba's cache loads left as they are (numba %s: not the expected internals)", _version("numba"))
+        return False
+
+    def load_overload(self, sig, target_context):  # numba's Cache.load_overload without the refresh
+        nrt.rtsys.initialize(target_context)
+        with self._guard_against_spurious_io_errors():
+            return self._load_overload(sig, target_context)
+
+    cache.load_overload = load_overload
+    _light_loads = True
+    return True
+
+
+def _version(module: str) -> str:
+    return getattr(sys.modules.get(module), "__version__", "?")
 
 
 def apply_pending_numba_threads() -> None:
@@ -163,13 +216,45 @@ def _cpu_ticks(cpus: set[int]) -> tuple[int, int] | None:
     return (idle, total) if total else None
 
 
+#: A look at the load started earlier (:func:`start_load_window`) serves the first
+#: :func:`idle_cores` only while it is younger than this; older, the load then is not the load now.
+LOAD_WINDOW_MAX_S = 10.0
+_load_window: tuple[float, float, tuple[int, int]] | None = None  # (wall s, own CPU s, (idle, total) ticks)
+
+
+def start_load_window() -> None:
+    """Start a look at the load now that the process's first :func:`idle_cores` reads instead of
+    waiting ``window_s`` for one of its own: the program calls it as it starts (its imports take
+    ~1 s), so a cold ``aes-planner suggest`` does not sleep 50 ms before its suggestion
+    (docs/benchmarks.md, "perf-2, session 27"). The process's own CPU time over the window is
+    counted as idle (it is the cores others leave to it). One /proc/stat read; nothing where it
+    cannot be read."""
+    global _load_window
+    ticks = _cpu_ticks(_own_cpus())
+    _load_window = None if ticks is None else (time.monotonic(), time.process_time(), ticks)
+
+
+def _own_cpus() -> set[int]:
+    try:
+        return set(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return set(range(os.cpu_count() or 1))
+
+
 def idle_cores(window_s: float = 0.05) -> float | None:
     """How many of this process's cores were idle over the next ``window_s`` (a sum of idle
-    fractions, 0..available_cores()), from /proc/stat; None where that cannot be read."""
-    try:
-        cpus = set(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        cpus = set(range(os.cpu_count() or 1))
+    fractions, 0..available_cores()), from /proc/stat; None where that cannot be read. A window
+    started by :func:`start_load_window` at least ``window_s`` and at most ``LOAD_WINDOW_MAX_S``
+    ago is read instead (once), the process's own CPU time over it counted as idle."""
+    global _load_window
+    cpus = _own_cpus()
+    started, _load_window = _load_window, None
+    if started is not None and window_s <= time.monotonic() - started[0] <= LOAD_WINDOW_MAX_S:
+        after = _cpu_ticks(cpus)
+        if after is not None and after[1] > started[2][1]:
+            own_ticks = (time.process_time() - started[1]) * _ticks_per_s()
+            share = (after[0] - started[2][0] + own_ticks) / (after[1] - started[2][1])
+            return max(0.0, min(1.0, share)) * len(cpus)
     before = _cpu_ticks(cpus)
     if before is None:
         return None
@@ -179,6 +264,14 @@ def idle_cores(window_s: float = 0.05) -> float | None:
         return None
     share = (after[0] - before[0]) / (after[1] - before[1])  # idle share of all those cores' time
     return max(0.0, min(1.0, share)) * len(cpus)
+
+
+def _ticks_per_s() -> float:
+    """/proc/stat's unit (USER_HZ, 100 on Linux)."""
+    try:
+        return float(os.sysconf("SC_CLK_TCK"))
+    except (AttributeError, ValueError, OSError):
+        return 100.0
 
 
 def threads_for_load(max_threads: int | None = None, window_s: float = 0.05) -> int:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import threading
+import time
 
 import pytest
 import torch
@@ -112,3 +113,54 @@ def test_the_library_search_runs_on_the_picked_count(monkeypatch, two_threads):
     platform = rig_platform()
     search_views(Watching([1.0, 0.0, 0.0]), rig_inputs(platform), platform, SearchConfig.preset("fast"))
     assert counts == {1} and torch.get_num_threads() == 2
+
+
+def _fake_ticks(monkeypatch, *readings):
+    """/proc/stat as ``readings`` of (idle, total) jiffies, one per read; time.sleep recorded."""
+    reads = list(readings)
+    slept = []
+    monkeypatch.setattr(runtime, "_cpu_ticks", lambda cpus: reads.pop(0))
+    monkeypatch.setattr(runtime.time, "sleep", slept.append)
+    monkeypatch.setattr(runtime, "_ticks_per_s", lambda: 100.0)
+    return slept
+
+
+def test_a_started_window_is_read_once_without_a_wait(monkeypatch):
+    """A cold `suggest` reads the load over its own start-up (started by the program) instead of
+    sleeping 50 ms; its own CPU over the window counts as idle (the cores others leave it)."""
+    cores = len(runtime._own_cpus())
+    slept = _fake_ticks(monkeypatch, (100, 200), (150, 400), (0, 0), (10, 10))
+    runtime.start_load_window()
+    wall, _, ticks = runtime._load_window
+    runtime._load_window = (wall - 1.0, time.process_time() - 0.5, ticks)  # 1 s ago, 0.5 s of own CPU since
+    # 50 idle of 200 ticks, plus the process's own 50 (0.5 s at 100 per second): half the cores
+    assert runtime.idle_cores() == pytest.approx(0.5 * cores, abs=0.02 * cores)
+    assert slept == []
+    assert runtime.idle_cores() == pytest.approx(cores)  # read once: the next look waits for its own window
+    assert slept == [0.05]
+
+
+@pytest.mark.parametrize("age_s", [0.01, runtime.LOAD_WINDOW_MAX_S + 1.0])
+def test_a_window_too_short_or_too_old_is_not_read(monkeypatch, age_s):
+    slept = _fake_ticks(monkeypatch, (100, 200), (0, 0), (10, 10))
+    runtime.start_load_window()
+    wall, cpu, ticks = runtime._load_window
+    runtime._load_window = (wall - age_s, cpu, ticks)
+    assert runtime.idle_cores() == pytest.approx(len(runtime._own_cpus()))  # its own 50 ms look: all idle
+    assert slept == [0.05] and runtime._load_window is None
+
+
+@pytest.mark.parametrize("program", [True, False])
+def test_the_program_starts_its_look_at_the_load_as_it_starts(tmp_path, program):
+    """`aes-planner suggest` (main() without argv) starts the window at its start; main([...])
+    from other code does not (its first suggestion takes its own 50 ms look). The command fails
+    on a missing folder before any suggestion reads the window."""
+    missing = str(tmp_path / "nowhere")
+    call = "main()" if program else f"main(['suggest', {missing!r}])"
+    body = (
+        "import atexit, sys\nfrom aes_planner import runtime\n"
+        "atexit.register(lambda: print('window', runtime._load_window is not None))\n"
+        f"from aes_planner.cli import main\nsys.argv = ['aes-planner', 'suggest', {missing!r}]\nsys.exit({call})\n"
+    )
+    out = subprocess.run([sys.executable, "-c", body], capture_output=True, text=True, timeout=600)
+    assert out.stdout.strip().splitlines()[-1] == f"window {program}", out.stderr

@@ -205,11 +205,15 @@ def main(argv: list[str] | None = None) -> int:
     """The CLI. Without ``argv`` it is the program (the ``aes-planner`` script, ``python -m
     aes_planner``): the process is its own, and it sets the process's garbage collector for a
     start-up of imports and a quick exit (:func:`collector_for_start_up`,
-    :func:`collector_after_start_up`, :func:`collector_for_exit`). Called with ``argv`` (tests,
-    other code) it leaves the collector alone."""
+    :func:`collector_after_start_up`, :func:`collector_for_exit`), and starts the look at the
+    machine's load its first suggestion takes (:func:`aes_planner.runtime.start_load_window`).
+    Called with ``argv`` (tests, other code) it leaves the collector and the load alone."""
     program = argv is None
     if program:
         collector_for_start_up()
+        from aes_planner.runtime import start_load_window
+
+        start_load_window()  # the first suggestion's look at the load spans the start-up, not a 50 ms wait
     try:
         return _main(argv, program)
     finally:

@@ -836,7 +836,8 @@ class AestheticField(Scorer):
         screens: list[ScoreOutput] = []
         kept_idx = torch.zeros(0, dtype=torch.long)  # [k] the best so far, by (eligible, rank)
         kept_rank = torch.zeros(0, dtype=torch.float64)  # [k]
-        kept_pooled: Tensor | None = None  # [k, C + D + 1 (+ 2), 2fh, 2fw]: only the kept stay in memory
+        kept_slot = torch.zeros(0, dtype=torch.long)  # [k] the row of held that holds each one's pooled input
+        held: Tensor | None = None  # [keep, C + D + 1 (+ 2), 2fh, 2fw]: only the kept stay in memory
         with torch.no_grad():
             for start in range(0, n, batch_size):
                 chunk = poses[start : start + batch_size]
@@ -845,10 +846,21 @@ class AestheticField(Scorer):
                 screens.append(screen)
                 idx = torch.cat([kept_idx, torch.arange(start, start + len(chunk))])
                 r = torch.cat([kept_rank, torch.nan_to_num(rank(screen).double(), nan=-math.inf)])
-                pool = pooled if kept_pooled is None else torch.cat([kept_pooled, pooled])
                 order = torch.argsort(r, descending=True, stable=True)
                 order = order[torch.argsort((~ok[idx[order]]).to(torch.uint8), stable=True)][:keep]  # eligible first
-                kept_idx, kept_rank, kept_pooled = idx[order], r[order], pool[order]
+                # only the poses of this batch that join the kept are copied, into rows that dropped out
+                # (the kept's pooled inputs concatenated with each batch and reindexed: 13-20 ms a suggestion, 1 thread)
+                if held is None:
+                    held = torch.empty((keep, *pooled.shape[1:]), dtype=pooled.dtype, memory_format=torch.channels_last)
+                old = order < len(kept_idx)  # [k'] kept before
+                free = torch.ones(keep, dtype=torch.bool)
+                free[kept_slot[order[old]]] = False
+                slot = torch.empty_like(order)
+                slot[old] = kept_slot[order[old]]
+                slot[~old] = torch.nonzero(free).flatten()[: int((~old).sum())]
+                held[slot[~old]] = pooled[order[~old] - len(kept_idx)]
+                kept_idx, kept_rank, kept_slot = idx[order], r[order], slot
+            kept_pooled = held[kept_slot]  # [k, ...] in rank order, as the decoder's batches take them
             decoded = [
                 self._explain(self.model.decode_pooled(part), torch.zeros(0), part)
                 for part in (kept_pooled[s : s + batch_size] for s in range(0, len(kept_idx), batch_size))

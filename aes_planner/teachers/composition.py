@@ -571,8 +571,10 @@ def _compiled_head():
     global _kernel_module, _kernel_error
     if _kernel_module is None and _kernel_error is None:
         try:
+            from aes_planner.runtime import light_numba_cache_loads
             from aes_planner.teachers import composition_kernel
 
+            light_numba_cache_loads()  # before its first cached load
             _kernel_module = composition_kernel
         except ImportError as exc:  # numba missing or broken: the torch head
             _kernel_error = f"{type(exc).__name__}: {exc}"
