@@ -77,6 +77,11 @@ MAX_GRID_POINTS = 10_000
 #: nearly as good was left out (dev outdoor:201's first planning: pan 88 tilt 13, 0.78 predicted,
 #: listed from 6 on)
 PLAN_GRID_HILLS = 8
+#: After the climbs, this many probes of the flanks' rounds (``PlannerConfig.flank_hills``) that
+#: beat their flank capture are climbed, best first: the best probe can be on another spike than
+#: the oracle's (dev gallery:243: 0.763 at pan -29, while the flank 4 deg beside the oracle's
+#: 0.817 rose 0.636 -> ~0.70)
+FLANK_CLIMBS = 2
 
 __all__ = ["ActiveLoop", "LoopState"]
 
@@ -400,7 +405,7 @@ class ActiveLoop:
         self._spares = 0
         self._flank_probe = None  # (flank captures, first probe's index) while their rounds are captured
         self._flank_done = False  # the flanks' rounds (and their climb) were taken, or there were none
-        self._flank_climb = False  # the climb from a flank's probe is on (no spare hill after it)
+        self._flank_climb = False  # the climbs from flanks' probes are on (no spare hill after them)
         # the hills the moves never reached: one real capture of each one's best predicted view
         # (on top of the polish's budget), so the hill climbed first is chosen on captures, not on
         # the field's (over-)estimate
@@ -693,7 +698,7 @@ class ActiveLoop:
             self._round_from = len(self.captures)
             return
         if self._flank_step():
-            if not self._queue:  # a climb from a flank's probe: its first round
+            if not self._queue:  # the climbs from flanks' probes: the first one's first round
                 self._polish_step(now)
             return
         if self._fine_round():
@@ -703,13 +708,15 @@ class ActiveLoop:
     def _flank_step(self) -> bool:
         """After the climbs (on top of the budget): up to ``flank_hills`` captures (unset: the
         motion's default) within ``polish_start_gap`` of the best, 0.75 of a coarsest step or more
-        from every view a climb stood on and from each other, highest first, get one round at half
-        the coarsest step; then the best probe that beat its own flank capture (by more than
-        ``tie_tolerance``) is climbed from a quarter of the coarsest step down with up to
-        ``flank_captures``. A coarse round's capture can lie on the flank of another peak
-        narrower than the step (dev outdoor:242: 0.731 at 4.5 deg from the oracle's 0.830, the
-        climb went the other way), and no capture came within 5 deg of it. False: nothing (more)
-        to take; True: a round was queued, or the climb set (its first round is the caller's)."""
+        from every view a climb stood on and from each other, best first, get one round at half
+        the coarsest step; then up to ``FLANK_CLIMBS`` probes that
+        beat their own flank capture (by more than ``tie_tolerance``), best first, are climbed
+        from a quarter of the coarsest step down, sharing ``flank_captures``. A coarse round's
+        capture can lie on the flank of another peak narrower than the step (dev outdoor:242:
+        0.731 at 4.5 deg from the oracle's 0.830, while the climb went the other way), and no
+        capture came within 5 deg of that peak; a move that fell short beside a climbed hill is
+        the same (dev tabletop:233: 0.609, 5 deg from the oracle's 0.760). False: nothing (more) to take; True: a round was
+        queued, or the climbs set (their first round is the caller's)."""
         c = self.config
         if self._flank_done:
             return False
@@ -734,20 +741,26 @@ class ActiveLoop:
         flanks, first = self._flank_probe
         self._flank_probe = None
         self._flank_done = True
-        top: Capture | None = None
+        risen: list[Capture] = []
         for cap in self.captures[first:]:
             j = min(range(len(flanks)), key=lambda k: view_angle_deg(cap.cam2world, flanks[k].cam2world))
-            if self._value(cap) <= self._value(flanks[j]) + c.tie_tolerance:
-                continue
-            if top is None or self._value(cap) > self._value(top):
-                top = cap
-        if top is None or c.flank_captures <= 0:
+            if self._value(cap) > self._value(flanks[j]) + c.tie_tolerance:
+                risen.append(cap)
+        risen.sort(key=lambda cap: -self._value(cap))  # stable: earlier first on a tie
+        tops = risen[:FLANK_CLIMBS]
+        if not tops or c.flank_captures <= 0:
             return False
-        log.info("%s: climbing a flank's probe (%.3f, best %.3f)", self.node_id, top.score, self._best_capture().score)
+        log.info(
+            "%s: climbing %d flanks' probes (%s; best %.3f)",
+            self.node_id,
+            len(tops),
+            ", ".join(f"{cap.score:.3f}" for cap in tops),
+            self._best_capture().score,
+        )
         self._flank_climb = True
         self._polish_left = c.flank_captures
         self._polish_centre = None
-        self._set_climbs([top])
+        self._set_climbs(tops)
         return True
 
     def _flank_hills(self) -> list[Capture]:

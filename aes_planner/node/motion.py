@@ -153,7 +153,7 @@ class RigMotion(Motion):
     spare_hills = 2  # PlannerConfig.spare_hills when unset: measured on dev rigs (docs/decisions.md)
     short_hills = 2  # PlannerConfig.short_hills when unset: measured on dev rigs
     verify_apart_deg = 15.0  # PlannerConfig.verify_apart_deg when unset: measured on dev rigs
-    flank_hills = 3  # PlannerConfig.flank_hills when unset: measured on dev rigs
+    flank_hills = 6  # PlannerConfig.flank_hills when unset: measured on dev rigs
     verify_unseen = True  # PlannerConfig.verify_unseen when unset: measured on dev rigs
     plan_grid_deg = 4.0  # PlannerConfig.plan_grid_deg when unset: measured on dev rigs
 

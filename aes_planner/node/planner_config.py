@@ -110,14 +110,15 @@ class PlannerConfig:
       measured there).
     * ``flank_hills``: after the climbs, up to this many captures within ``polish_start_gap`` of
       the best that lie 0.75 of a coarsest polish step or more from every view a climb stood on
-      (and from each other), best first, each get one round at half the coarsest step (up to 4
-      captures each, captured neighbours skipped, on top of ``polish_captures``); the best probe
-      that beat its own flank capture is then climbed from a quarter of the coarsest step down
-      with up to ``flank_captures`` more. A coarse round's capture can land on the flank of
-      another peak narrower than the step; it scores below the round's centre, the climb goes
-      elsewhere, and nothing comes within 5 deg of that peak (dev outdoor:242: 0.731 at 4.5 deg
-      from the oracle's 0.830; gallery:243: 0.636 at 4 deg from a 3-deg-wide 0.817 ridge). Unset:
-      the platform's default (a rig 3; a drone 0, not measured there). ``flank_captures``: 16.
+      (and from each other), best first, each get one round at half the coarsest step (up to 4 captures each, captured neighbours skipped, on top of
+      ``polish_captures``); up to two probes that beat their own flank capture are then climbed
+      from a quarter of the coarsest step down, sharing ``flank_captures`` more. A coarse
+      round's capture can land on the flank of another peak narrower than the step; it scores
+      below the round's centre, the climb goes elsewhere, and nothing comes within 5 deg of that
+      peak (dev outdoor:242: 0.731 at 4.5 deg from the oracle's 0.830; gallery:243: 0.636 at 4
+      deg from a 3-deg-wide 0.817 ridge); so does a move that fell short beside a climbed hill
+      (dev tabletop:233: 0.609 at 5 deg from the oracle's 0.760). Unset: the platform's default (a rig 6; a drone 0, not
+      measured there). ``flank_captures``: 16.
     * ``verify_unseen``: with the hills' verifications, one capture of the search's exploratory
       candidate (the edge of what the inputs saw) when they cover less than
       ``explore_below_covered`` and no capture lies within a coarsest polish step of it: four
