@@ -79,8 +79,8 @@ MAX_GRID_POINTS = 10_000
 PLAN_GRID_HILLS = 8
 #: After the climbs, this many probes of the flanks' rounds (``PlannerConfig.flank_hills``) that
 #: beat their flank capture are climbed, best first: the best probe can be on another spike than
-#: the oracle's (dev gallery:243: 0.763 at pan -29, while the flank 4 deg beside the oracle's
-#: 0.817 rose 0.636 -> ~0.70)
+#: the oracle's (dev gallery:243: candidate 1 climbed one probe, 0.763 at pan -29, and ended at
+#: 0.890 of the oracle; with two, 0.748 at pan -14 climbed to 0.783, 0.932)
 FLANK_CLIMBS = 2
 
 __all__ = ["ActiveLoop", "LoopState"]
@@ -709,14 +709,14 @@ class ActiveLoop:
         """After the climbs (on top of the budget): up to ``flank_hills`` captures (unset: the
         motion's default) within ``polish_start_gap`` of the best, 0.75 of a coarsest step or more
         from every view a climb stood on and from each other, best first, get one round at half
-        the coarsest step; then up to ``FLANK_CLIMBS`` probes that
-        beat their own flank capture (by more than ``tie_tolerance``), best first, are climbed
-        from a quarter of the coarsest step down, sharing ``flank_captures``. A coarse round's
-        capture can lie on the flank of another peak narrower than the step (dev outdoor:242:
-        0.731 at 4.5 deg from the oracle's 0.830, while the climb went the other way), and no
-        capture came within 5 deg of that peak; a move that fell short beside a climbed hill is
-        the same (dev tabletop:233: 0.609, 5 deg from the oracle's 0.760). False: nothing (more) to take; True: a round was
-        queued, or the climbs set (their first round is the caller's)."""
+        the coarsest step; then up to ``FLANK_CLIMBS`` probes that beat their own flank capture
+        (by more than ``tie_tolerance``), best first, are climbed from a quarter of the coarsest
+        step down, sharing ``flank_captures``. A coarse round's capture can lie on the flank of
+        another peak narrower than the step (dev outdoor:242: 0.731 at 4.5 deg from the oracle's
+        0.830, while the climb went the other way), and no capture came within 5 deg of that
+        peak; a move that fell short beside a climbed hill is the same (dev tabletop:233: 0.609,
+        5 deg from the oracle's 0.760). False: nothing (more) to take; True: a round was queued,
+        or the climbs set (their first round is the caller's)."""
         c = self.config
         if self._flank_done:
             return False
