@@ -78,6 +78,11 @@ MAX_GRID_POINTS = 10_000
 #: nearly as good was left out (dev outdoor:201's first planning: pan 88 tilt 13, 0.78 predicted,
 #: listed from 6 on)
 PLAN_GRID_HILLS = 8
+#: After the climbs, this many probes of the flanks' rounds (``PlannerConfig.flank_hills``) that
+#: beat their flank capture are climbed, best first: the best probe can be on another spike than
+#: the oracle's (dev gallery:243: candidate 1 climbed one probe, 0.763 at pan -29, and ended at
+#: 0.890 of the oracle; with two, 0.748 at pan -14 climbed to 0.783, 0.932)
+FLANK_CLIMBS = 2
 
 __all__ = ["ActiveLoop", "LoopState"]
 
@@ -399,6 +404,9 @@ class ActiveLoop:
         self._climbs = None  # chosen once the hills' verifications are captured
         self._stood_on = []
         self._spares = 0
+        self._flank_probe = None  # (flank captures, first probe's index) while their rounds are captured
+        self._flank_done = False  # the flanks' rounds (and their climb) were taken, or there were none
+        self._flank_climb = False  # the climbs from flanks' probes are on (no spare hill after them)
         # the hills the moves never reached: one real capture of each one's best predicted view
         # (on top of the polish's budget), so the hill climbed first is chosen on captures, not on
         # the field's (over-)estimate
@@ -702,11 +710,12 @@ class ActiveLoop:
             self._rank_probed()
         while self._polish_left > 0:
             if self._polish_centre is None:  # the next climb
-                if not self._climbs and not self._spare_climb():
+                if not self._climbs and (self._flank_climb or not self._spare_climb()):
                     break
                 self._polish_centre = self._climbs.pop(0)
                 self._stood_on.append(self._polish_centre)
-                self._polish_scale = c.polish_scales - 1
+                # a flank's probe is climbed from a quarter of the coarsest step (its round was at half)
+                self._polish_scale = max(c.polish_scales - 3, 0) if self._flank_climb else c.polish_scales - 1
                 self._climb_left = self._climb_budget
                 self._round_from = None
                 self._polish_previous = None
@@ -748,9 +757,87 @@ class ActiveLoop:
             self._climb_left -= len(self._queue)
             self._round_from = len(self.captures)
             return
+        if self._flank_step():
+            if not self._queue:  # the climbs from flanks' probes: the first one's first round
+                self._polish_step(now)
+            return
         if self._fine_round():
             return
         self._begin_settle(now)
+
+    def _flank_step(self) -> bool:
+        """After the climbs (on top of the budget): up to ``flank_hills`` captures (unset: the
+        motion's default) within ``polish_start_gap`` of the best, 0.75 of a coarsest step or more
+        from every view a climb stood on and from each other, best first, get one round at half
+        the coarsest step; then up to ``FLANK_CLIMBS`` probes that beat their own flank capture
+        (by more than ``tie_tolerance``), best first, are climbed from a quarter of the coarsest
+        step down, sharing ``flank_captures``. A coarse round's capture can lie on the flank of
+        another peak narrower than the step (dev outdoor:242: 0.731 at 4.5 deg from the oracle's
+        0.830, while the climb went the other way), and no capture came within 5 deg of that
+        peak; a move that fell short beside a climbed hill is the same (dev tabletop:233: 0.609,
+        5 deg from the oracle's 0.760). False: nothing (more) to take; True: a round was queued,
+        or the climbs set (their first round is the caller's)."""
+        c = self.config
+        if self._flank_done:
+            return False
+        if self._flank_probe is None:
+            flanks = self._flank_hills()
+            ring_deg = 0.5 * self._coarsest_step_deg()
+            targets: list[Target] = []
+            for flank in flanks:
+                targets += self._feasible_targets(self._round(flank, ring_deg, 0.0, targets))
+            if not targets:
+                self._flank_done = True
+                return False
+            log.info(
+                "%s: %d near-best captures beside the climbed hills: %d probe captures",
+                self.node_id,
+                len(flanks),
+                len(targets),
+            )
+            self._flank_probe = (flanks, len(self.captures))
+            self._queue = targets
+            return True
+        flanks, first = self._flank_probe
+        self._flank_probe = None
+        self._flank_done = True
+        risen: list[Capture] = []
+        for cap in self.captures[first:]:
+            j = min(range(len(flanks)), key=lambda k: view_angle_deg(cap.cam2world, flanks[k].cam2world))
+            if self._value(cap) > self._value(flanks[j]) + c.tie_tolerance:
+                risen.append(cap)
+        risen.sort(key=lambda cap: -self._value(cap))  # stable: earlier first on a tie
+        tops = risen[:FLANK_CLIMBS]
+        if not tops or c.flank_captures <= 0:
+            return False
+        log.info(
+            "%s: climbing %d flanks' probes (%s; best %.3f)",
+            self.node_id,
+            len(tops),
+            ", ".join(f"{cap.score:.3f}" for cap in tops),
+            self._best_capture().score,
+        )
+        self._flank_climb = True
+        self._polish_left = c.flank_captures
+        self._polish_centre = None
+        self._set_climbs(tops)
+        return True
+
+    def _flank_hills(self) -> list[Capture]:
+        """The captures :meth:`_flank_step` takes a round around (see there), best first."""
+        c = self.config
+        most = self.motion.flank_hills if c.flank_hills is None else c.flank_hills
+        if most <= 0 or c.polish_captures <= 0 or not self.captures:
+            return []
+        apart_deg = 0.75 * self._coarsest_step_deg()
+        floor = self._value(self._best_capture()) - c.polish_start_gap
+        flanks: list[Capture] = []
+        for cap in sorted(self.captures, key=lambda cap: -self._value(cap)):  # stable: earlier first on a tie
+            if len(flanks) >= most or self._value(cap) < floor or not math.isfinite(self._value(cap)):
+                break
+            if all(view_angle_deg(cap.cam2world, s.cam2world) >= apart_deg for s in self._stood_on + flanks):
+                flanks.append(cap)
+        return flanks
 
     def _fine_round(self) -> bool:
         """After the climbs (on top of ``polish_captures``): the four neighbours half the finest

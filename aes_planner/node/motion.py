@@ -72,6 +72,9 @@ class Motion(ABC):
     #: ``PlannerConfig.verify_apart_deg`` when the config leaves it unset (None: two coarsest
     #: polish steps, as between any two captures)
     verify_apart_deg: float | None = None
+    #: ``PlannerConfig.flank_hills`` when the config leaves it unset (near-best captures beside
+    #: the climbed hills get a round at half the coarsest step after the climbs)
+    flank_hills: int = 0
     #: ``PlannerConfig.verify_unseen`` when the config leaves it unset
     verify_unseen: bool = False
     #: ``PlannerConfig.search_grid_points`` when the config leaves it unset
@@ -161,6 +164,7 @@ class RigMotion(Motion):
     spare_hills = 2  # PlannerConfig.spare_hills when unset: measured on dev rigs (docs/decisions.md)
     short_hills = 2  # PlannerConfig.short_hills when unset: measured on dev rigs
     verify_apart_deg = 15.0  # PlannerConfig.verify_apart_deg when unset: measured on dev rigs
+    flank_hills = 6  # PlannerConfig.flank_hills when unset: measured on dev rigs
     verify_unseen = True  # PlannerConfig.verify_unseen when unset: measured on dev rigs
     plan_grid_deg = 4.0  # PlannerConfig.plan_grid_deg when unset: measured on dev rigs
 

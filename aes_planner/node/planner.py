@@ -134,6 +134,11 @@ class PlannerNode(ActiveLoop, Node):
         self._climbs: list[Capture] | None = []  # None: chosen after the hills' verifications
         self._stood_on: list[Capture] = []  # every centre a climb stood on (spare hills lie away from them)
         self._spares = 0  # spare hills climbed (PlannerConfig.spare_hills)
+        self._flank_probe: tuple[list[Capture], int] | None = (
+            None  # (flank captures, first probe): PlannerConfig.flank_hills
+        )
+        self._flank_done = False
+        self._flank_climb = False
         self._climb_budget = 0
         self._probed: tuple[list[Capture], int, int] | None = None  # (hills, first probe, not short): to rank
         self._climb_left = 0

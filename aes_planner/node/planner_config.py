@@ -120,6 +120,17 @@ class PlannerConfig:
       verification 0.697). Unset: the platform's default (a rig 15: 25 dev rig runs 0.990 ->
       0.993 of the oracle, none lower, docs/decisions.md; a drone two coarsest steps, not
       measured there).
+    * ``flank_hills``: after the climbs, up to this many captures within ``polish_start_gap`` of
+      the best that lie 0.75 of a coarsest polish step or more from every view a climb stood on
+      (and from each other), best first, each get one round at half the coarsest step (up to 4 captures each, captured neighbours skipped, on top of
+      ``polish_captures``); up to two probes that beat their own flank capture are then climbed
+      from a quarter of the coarsest step down, sharing ``flank_captures`` more. A coarse
+      round's capture can land on the flank of another peak narrower than the step; it scores
+      below the round's centre, the climb goes elsewhere, and nothing comes within 5 deg of that
+      peak (dev outdoor:242: 0.731 at 4.5 deg from the oracle's 0.830; gallery:243: 0.636 at 4
+      deg from a 3-deg-wide 0.817 ridge); so does a move that fell short beside a climbed hill
+      (dev tabletop:233: 0.609 at 5 deg from the oracle's 0.760). Unset: the platform's default (a rig 6; a drone 0, not
+      measured there). ``flank_captures``: 16.
     * ``verify_unseen``: with the hills' verifications, one capture of the search's exploratory
       candidate (the edge of what the inputs saw) when they cover less than
       ``explore_below_covered`` and no capture lies within a coarsest polish step of it: four
@@ -255,6 +266,8 @@ class PlannerConfig:
     spare_hills: int | None = None
     short_hills: int | None = None
     verify_apart_deg: float | None = None
+    flank_hills: int | None = None
+    flank_captures: int = 16
     verify_unseen: bool | None = None
     search_grid_points: int | None = None
     plan_grid_deg: float | None = None
@@ -322,6 +335,7 @@ class PlannerConfig:
             "explore_moves",
             "polish_hills",
             "verify_hills",
+            "flank_captures",
         ):
             v = getattr(self, name)
             require(
@@ -330,6 +344,7 @@ class PlannerConfig:
         require_optional_int(self, "verify_turns", 16)
         require_optional_int(self, "spare_hills", 16)
         require_optional_int(self, "short_hills", 16)
+        require_optional_int(self, "flank_hills", 16)
         require(
             self.verify_apart_deg is None
             or (

@@ -17,6 +17,7 @@ from .nodekit import RIG, FakeTeacher, ScriptedProposer, SimRig, frame_at
 
 def make(proposer=None, **kw):
     kw.setdefault("polish_fine_captures", 0)  # the climbs' tests count their budget; the fine rounds have their own
+    kw.setdefault("flank_hills", 0)  # and so do the flanks' rounds after the climbs
     cfg = PlannerConfig(platform=RigPlatformConfig(RIG), settle_s=0.0, **kw)
     return PlannerNode(cfg, proposer=proposer or ScriptedProposer(), teacher=FakeTeacher())
 
@@ -1013,3 +1014,60 @@ def test_verify_apart_deg_default_is_the_platforms_and_is_checked():
     for bad in (0.0, -5.0, 91.0, float("nan"), True, "15"):
         with pytest.raises(ConfigError, match="verify_apart_deg"):
             PlannerConfig(verify_apart_deg=bad)
+
+
+class _FlankPeak(ScriptedProposer):
+    """Dev outdoor:242: the move lands on the top of a broad hill (0.75); the climb's 10-deg
+    round puts a capture (0.66) 4 deg beside a narrow peak of 1.0 (2.5 deg wide), below the
+    centre, and the climb stays on the broad top."""
+
+    A = (math.radians(17.0), 0.0)
+    B = (math.radians(27.0), math.radians(4.0))
+
+    def value(self, pan, tilt):
+        def hill(top, at, s_deg):
+            return top * math.exp(-((pan - at[0]) ** 2 + (tilt - at[1]) ** 2) / (2 * math.radians(s_deg) ** 2))
+
+        return float(max(hill(0.75, self.A, 20.0), hill(1.0, self.B, 2.5)))
+
+
+def test_a_near_best_capture_beside_the_climbed_hill_gets_a_round_and_its_peak_is_climbed():
+    """Without ``flank_hills`` the loop ends on the broad hill's top (0.75); with the rig's
+    default the round's capture on the narrow peak's flank (0.66, within ``polish_start_gap``
+    of the best) gets a 5-deg round, its probe beats it, and the climb from that probe reaches
+    the peak, on top of the polish budget (<= 4 probes a flank, <= ``flank_captures`` climbing)."""
+    runs = {}
+    for flank in (0, None):  # None: the rig's default
+        prop = _FlankPeak()
+        prop.fixed = lambda p=prop: [Candidate(p.rig.forward(*p.A), 10.0, 1.0, *p.A)]
+        node = make(
+            prop,
+            explore_views=2,
+            max_moves=1,
+            polish_captures=48,
+            verify_hills=0,
+            verify_unseen=False,
+            flank_hills=flank,
+        )
+        drive(node, SimRig(prop), steps=3000)
+        assert node.state == "done" and node.moves == 1
+        (move,) = [c for c in node.captures if c.kind == "move"]
+        assert move.score == pytest.approx(0.75, abs=0.01)
+        runs[flank] = (node.captures[-1].score, sum(c.kind == "polish" for c in node.captures))
+    (alone, spent_alone), (flanked, spent) = runs[0], runs[None]
+    assert alone == pytest.approx(0.75, abs=0.01)
+    assert flanked > 0.95
+    assert spent_alone <= 48 and spent <= 48 + 6 * 4 + 16
+
+
+def test_flank_hills_default_is_the_platforms_and_is_checked():
+    from aes_planner.node.motion import DroneMotion, RigMotion
+
+    assert PlannerConfig().flank_hills is None and PlannerConfig().flank_captures == 16
+    assert RigMotion.flank_hills == 6 and DroneMotion.flank_hills == 0  # drones: not measured, unchanged
+    for bad in (-1, 17, 1.5, True):
+        with pytest.raises(ConfigError, match="flank_hills"):
+            PlannerConfig(flank_hills=bad)
+    for bad in (-1, 2.0, None, False):
+        with pytest.raises(ConfigError, match="flank_captures"):
+            PlannerConfig(flank_captures=bad)
