@@ -21,6 +21,7 @@ import os
 import platform
 import statistics
 import subprocess
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -160,6 +161,10 @@ def machine_info() -> dict[str, Any]:
         "platform": platform.platform(),
         "torch": torch.__version__,
         "torch_threads": torch.get_num_threads(),
+        # False under PYTHONDONTWRITEBYTECODE or -B: the cold-process figures then include
+        # compiling the package's own modules from source in every process (a user's install
+        # keeps their .pyc; docs/benchmarks.md, "perf-2 on the merged main, quiet (session 27)").
+        "python_writes_bytecode": not sys.dont_write_bytecode,
     }
 
 

@@ -221,6 +221,12 @@ def cold_case(rec: Recorder, repeats: int) -> None:
     """A cold ``suggest`` process against one that only imports (module docstring), alternated."""
     import tempfile
 
+    if sys.dont_write_bytecode:
+        log.warning(
+            "cold suggest: Python writes no bytecode here (PYTHONDONTWRITEBYTECODE or -B), so every cold "
+            "process compiles the package's modules from source; unset it to measure an installed package"
+        )
+
     with tempfile.TemporaryDirectory(prefix="aes-bench-cold-") as tmp:
         data = str(Path(tmp) / "ds")
         subprocess.run(

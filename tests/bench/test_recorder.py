@@ -32,3 +32,15 @@ def test_time_with_cpu_records_both_clocks_with_their_spread():
         assert r[f"{key}_min"]["value"] <= r[key]["value"] <= r[f"{key}_max"]["value"], key
         assert r[key]["runs"] == 3
     assert rec.results["g.case.cpu_ms_max"]["value"] > 0  # the loop used the CPU it was timed on
+
+
+@pytest.mark.parametrize("writes", [True, False])
+def test_machine_info_says_whether_python_writes_bytecode(monkeypatch, writes):
+    """The cold-process figures depend on it (PYTHONDONTWRITEBYTECODE makes every process
+    compile the package from source), so the JSON's machine block must say which it was."""
+    import sys
+
+    from aes_planner.bench import machine_info
+
+    monkeypatch.setattr(sys, "dont_write_bytecode", not writes)
+    assert machine_info()["python_writes_bytecode"] is writes
