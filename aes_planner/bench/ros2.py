@@ -19,8 +19,10 @@ from __future__ import annotations
 import json
 import math
 import os
+import queue
 import subprocess
 import sys
+import threading
 import time
 
 from aes_planner.bench import Recorder
@@ -37,6 +39,7 @@ def on_data(reader):
     for s in reader.take(64):
         if getattr(s, "header", None) is not None:
             lat.append((now - (s.header.stamp.sec + s.header.stamp.nanosec * 1e-9)) * 1e3)
+            print("got", flush=True)  # the publisher sends the next sample only after this one
     if len(lat) >= n:
         done.set()
 dds = DdsParticipant(DdsConfig(domain_id=int(domain)))
@@ -81,14 +84,29 @@ def _measure(domain: int, key: str, make_msg, bus_topic: str, n: int, rate_hz: f
             raise RuntimeError("the DDS subscriber did not start")
         _wait_matched(node, key, timeout_s=30.0)
         pub = bus.publisher(bus_topic, type(make_msg(0.0)))
+        # One sample in flight at a time: the latched profile keeps the last sample only (writer
+        # and reader), so a sample written before the subscriber took the one before may replace
+        # it; on a loaded host that lost 1 of 3 at 20 Hz. The next goes when the last arrived (or
+        # after a period and 5 s more, counted as lost).
+        lines: queue.Queue[str] = queue.Queue()
+        reader = threading.Thread(target=lambda: [lines.put(line) for line in sub.stdout], daemon=True)
+        reader.start()
         period = 1.0 / rate_hz
-        next_t = time.perf_counter()
         for _ in range(n):
+            t0 = time.perf_counter()
             pub.publish(make_msg(time.time()))
-            next_t += period
-            time.sleep(max(0.0, next_t - time.perf_counter()))
-        out, _ = sub.communicate(timeout=60)
-        return json.loads(out.strip().splitlines()[-1])
+            try:
+                while lines.get(timeout=5.0).strip() != "got":
+                    pass
+            except queue.Empty:
+                pass
+            time.sleep(max(0.0, period - (time.perf_counter() - t0)))
+        sub.wait(timeout=60)
+        reader.join(timeout=10.0)  # every line read (the process's stdout is closed)
+        out = []
+        while not lines.empty():
+            out.append(lines.get())
+        return json.loads([line for line in out if line.strip().startswith("[")][-1])
     finally:
         if sub.poll() is None:
             sub.kill()
