@@ -93,6 +93,11 @@ class Motion(ABC):
     hope_tie_margin: float = 0.0
     #: ``PlannerConfig.verify_turns`` when the config leaves it unset (0: none)
     verify_turns: int = 0
+    #: ``PlannerConfig.residual_length_m`` when the config leaves it unset (None: the hope's
+    #: residual kernel on the view direction alone)
+    residual_length_m: float | None = None
+    #: ``PlannerConfig.turns_one_by_one`` when the config leaves it unset
+    turns_one_by_one: bool = False
 
     #: ``ViewSuggestion.mode``'s word for the platform (the wire format's: ``rig`` or ``free``)
     suggestion_mode: str
