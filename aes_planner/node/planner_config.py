@@ -205,7 +205,8 @@ class PlannerConfig:
       each by a hope calibrated also on the turns verified before it (the scorer's prediction of
       each against its capture), not all from the hopes before the first: the field's errors go by
       view direction, and one miss lowers the same way's hope at the other places. Unset: the
-      platform's default.
+      platform's default (a drone true, measured on 39 dev drone runs: docs/decisions.md; a rig
+      has no turns).
     * ``explore_below_covered`` / ``explore_moves``: when the search says its inputs cover less
       than this share of the space (the suggestion's ``covered_fraction``), the best predicted
       view is unverified where nothing was seen: before the loop stops on what it has (no

@@ -169,5 +169,7 @@ def test_turns_verified_one_by_one_learn_the_fields_direction_bias_from_the_firs
         teacher=FakeTeacher(),
     )
     assert not rig._turns_one_by_one()
+    drone = PlannerNode(PlannerConfig(platform=DronePlatformConfig(BOX)), proposer=Lured(), teacher=FakeTeacher())
+    assert drone._turns_one_by_one()  # a drone's default (dev drones: docs/decisions.md)
     with pytest.raises(ConfigError, match="turns_one_by_one"):
         PlannerConfig(turns_one_by_one="yes")
