@@ -215,6 +215,17 @@ def _noisy_teacher(planner, rel: float, seed: int) -> None:
     teacher.features = features
 
 
+def _flies(scene: str, mode: str | None) -> bool:
+    """Whether a run of ``scene`` (``mode`` after its @, None: the scene's own platform) is a
+    drone's: its launch (``drone.yaml``) renders frames in the node ``drone``, not ``camera``."""
+    if mode is not None:
+        return mode in ("drone", "free")
+    from aes_planner.sim import load_scene
+    from aes_planner.sim.source import platform_of
+
+    return platform_of(load_scene(scene)).kind == "drone"
+
+
 def run_one(
     run_demo, scene_spec: str, p: Perturbation, moves: int, out: Path, sets=(), timeout_s: float = 900.0
 ) -> dict:
@@ -227,7 +238,7 @@ def run_one(
     if p.threads is not None:
         planner_overrides["threads"] = p.threads
     if p.noise_rel > 0:
-        if mode == "drone":
+        if _flies(scene, mode):
             camera = "drone"
             overrides += [
                 f"{camera}.camera.pose_noise_translation_m={p.noise_rel}",

@@ -203,7 +203,15 @@ class ActiveLoop:
         out["planner/suggestion"].append(
             self._suggestion(cands[: c.top_k], proposal.field_version, now, proposal=proposal)
         )
-        hope = hopes(cands, self.captures, proposal.captured_pred, c.optimism, c.min_sigma, c.residual_length_deg)
+        hope = hopes(
+            cands,
+            self.captures,
+            proposal.captured_pred,
+            c.optimism,
+            c.min_sigma,
+            c.residual_length_deg,
+            self._residual_length_m(),
+        )
         best_true = self._value(self._best_capture())
         order = decision_order(hope, cands, c.hope_quantum, self._tie_margin())
         self._log_decision(cands, hope, order, best_true, proposal)
@@ -235,6 +243,14 @@ class ActiveLoop:
                 target.far_best = best_true
             return target
         return self._explore_target(proposal)
+
+    def _residual_length_m(self) -> float | None:
+        """``residual_length_m`` on a drone (unset: the motion's default); None (the view direction
+        alone) on a rig, whose views share one place."""
+        if self.motion.suggestion_mode == "rig":
+            return None
+        m = self.config.residual_length_m
+        return self.motion.residual_length_m if m is None else m
 
     def _tie_margin(self) -> float:
         """``hope_tie_margin`` (unset: the motion's default)."""
@@ -407,6 +423,7 @@ class ActiveLoop:
         self._flank_probe = None  # (flank captures, first probe's index) while their rounds are captured
         self._flank_done = False  # the flanks' rounds (and their climb) were taken, or there were none
         self._flank_climb = False  # the climbs from flanks' probes are on (no spare hill after them)
+        self._turns = None  # a drone's turns verified one by one (_next_turn), while some are left
         # the hills the moves never reached: one real capture of each one's best predicted view
         # (on top of the polish's budget), so the hill climbed first is chosen on captures, not on
         # the field's (over-)estimate
@@ -430,7 +447,15 @@ class ActiveLoop:
             log.exception("%s: the hills' verification failed; polishing the captured hills", self.node_id)
             return []
         cands = [cd for cd in proposal.candidates if self._safe_candidate(cd)]
-        hope = hopes(cands, self.captures, proposal.captured_pred, c.optimism, c.min_sigma, c.residual_length_deg)
+        hope = hopes(
+            cands,
+            self.captures,
+            proposal.captured_pred,
+            c.optimism,
+            c.min_sigma,
+            c.residual_length_deg,
+            self._residual_length_m(),
+        )
         floor = self._value(self._best_capture()) - c.polish_start_gap
         targets: list[Target] = []
         tied = self._tie_margin() > 0
@@ -480,12 +505,37 @@ class ActiveLoop:
             return []
         if pred is None or not np.all(np.isfinite(pred)):
             return []
+        if self._turns_one_by_one():
+            per_place, start = [], 0
+            for v in views:
+                per_place.append([Candidate(p, float(s)) for p, s in zip(v, pred[start : start + len(v)])])
+                start += len(v)
+            self._turns = {
+                "places": per_place,
+                "captures": list(self.captures),  # calibrated by proposal.captured_pred
+                "pred": np.asarray(proposal.captured_pred, dtype=np.float64),  # [M]
+                "verified": [],  # (capture, the scorer's prediction of its view)
+                "pending": None,  # (target, its prediction, how many captures there were)
+                "left": most,
+                "step_deg": step_deg,
+                "others": list(targets),
+            }
+            first = self._next_turn()
+            return [first] if first is not None else []
         bests: list[Candidate] = []
         start = 0
         for v in views:
             cands = [Candidate(p, float(s)) for p, s in zip(v, pred[start : start + len(v)])]
             start += len(v)
-            hope = hopes(cands, self.captures, proposal.captured_pred, c.optimism, c.min_sigma, c.residual_length_deg)
+            hope = hopes(
+                cands,
+                self.captures,
+                proposal.captured_pred,
+                c.optimism,
+                c.min_sigma,
+                c.residual_length_deg,
+                self._residual_length_m(),
+            )
             for i in decision_order(hope, cands, c.hope_quantum):
                 cd = cands[i]
                 if near_captured(self.captures, cd.cam2world, step_deg, c.min_move_m):
@@ -494,7 +544,15 @@ class ActiveLoop:
                     continue
                 bests.append(cd)
                 break
-        hope = hopes(bests, self.captures, proposal.captured_pred, c.optimism, c.min_sigma, c.residual_length_deg)
+        hope = hopes(
+            bests,
+            self.captures,
+            proposal.captured_pred,
+            c.optimism,
+            c.min_sigma,
+            c.residual_length_deg,
+            self._residual_length_m(),
+        )
         out: list[Target] = []
         for i in decision_order(hope, bests, c.hope_quantum):
             cd = bests[i]
@@ -509,6 +567,77 @@ class ActiveLoop:
             log.info("%s: verify a turn: %s, pred %.3f hope %.3f", self.node_id, _where(cd), cd.score, hope[i])
             out.append(Target(CaptureKind.VERIFY, cd.cam2world, None, None, predicted=float(hope[i])))
         return self._feasible_targets(out)
+
+    def _turns_one_by_one(self) -> bool:
+        """``turns_one_by_one`` on a drone (unset: the motion's default); never on a rig (no turns)."""
+        if self.motion.suggestion_mode == "rig":
+            return False
+        on = self.config.turns_one_by_one
+        return bool(self.motion.turns_one_by_one if on is None else on)
+
+    def _next_turn(self) -> Target | None:
+        """The next turn verification when they are taken one by one (``turns_one_by_one``): the
+        places' best turns ranked as :meth:`_turn_targets` ranks them, by a hope calibrated also on
+        the turns verified so far (the scorer's prediction of each against its capture). The
+        field's errors go by view direction (dev tabletop:208@drone: its best turn at five places
+        was yaw -120 pitch 10, hope 0.64-0.65, each captured 0.32): one such miss lowers the
+        same way's hope at the other places, and the next capture looks another way. None: no
+        turn left (the count, or none hoping for the floor)."""
+        t = self._turns
+        if t is None:
+            return None
+        c = self.config
+        if t["pending"] is not None:  # the pending turn's capture, when it was taken (not: skipped)
+            target, raw, n_before = t["pending"]
+            t["pending"] = None
+            for cap in self.captures[n_before:]:
+                if (
+                    cap.kind is CaptureKind.VERIFY
+                    and np.linalg.norm(cap.cam2world[:3, 3] - target.cam2world[:3, 3]) <= c.min_move_m
+                    and view_angle_deg(cap.cam2world, target.cam2world) < c.min_move_deg
+                ):
+                    t["verified"].append((cap, raw))
+                    break
+        if t["left"] <= 0:
+            self._turns = None
+            return None
+        caps = t["captures"] + [cap for cap, _ in t["verified"]]
+        pred = np.concatenate([t["pred"], np.array([raw for _, raw in t["verified"]], dtype=np.float64)])  # [M']
+        args = (caps, pred, c.optimism, c.min_sigma, c.residual_length_deg, self._residual_length_m())
+        step_deg = t["step_deg"]
+        bests: list[Candidate] = []
+        for cands in t["places"]:
+            hope = hopes(cands, *args)
+            for i in decision_order(hope, cands, c.hope_quantum):
+                cd = cands[i]
+                if near_captured(self.captures, cd.cam2world, step_deg, c.min_move_m):
+                    continue  # a capture there looks this way already: its climb can reach it
+                if not self._safe_candidate(cd):
+                    continue
+                bests.append(cd)
+                break
+        hope = hopes(bests, *args)
+        floor = self._value(self._best_capture()) - c.polish_start_gap
+        for i in decision_order(hope, bests, c.hope_quantum):
+            cd = bests[i]
+            if hope[i] < floor:
+                break
+            if any(
+                view_angle_deg(cd.cam2world, o.cam2world) < 2.0 * step_deg
+                and np.linalg.norm(cd.cam2world[:3, 3] - o.cam2world[:3, 3]) <= c.min_move_m
+                for o in t["others"]
+            ):
+                continue
+            target = Target(CaptureKind.VERIFY, cd.cam2world, None, None, predicted=float(hope[i]))
+            if not self._feasible_targets([target]):
+                continue
+            log.info("%s: verify a turn: %s, pred %.3f hope %.3f", self.node_id, _where(cd), cd.score, hope[i])
+            t["left"] -= 1
+            t["others"].append(target)
+            t["pending"] = (target, float(cd.score), len(self.captures))  # its capture comes later
+            return target
+        self._turns = None
+        return None
 
     def _unseen_target(self, proposal, step_deg: float, targets: list[Target]) -> Target | None:
         """One verification of the search's exploratory candidate (the edge of what was seen) when
@@ -702,6 +831,11 @@ class ActiveLoop:
         finest step or its share of the budget, and the next hill's climb begins; settle when
         every climb ended."""
         c = self.config
+        if self._climbs is None and self._turns is not None:  # a drone's next turn, one by one
+            nxt = self._next_turn()
+            if nxt is not None:
+                self._queue = [nxt]
+                return
         if self._climbs is None:
             self._begin_climbs()
             if self._queue:  # the hills' coarse rounds go first

@@ -105,12 +105,15 @@ def hopes(
     optimism: float,
     min_sigma: float,
     residual_length_deg: float,
+    residual_length_m: float | None = None,
 ) -> np.ndarray:  # -> [C]
     """What each candidate may score (teacher units): the scorer's prediction corrected by its
     errors at the captures (true teacher score - prediction; the median error everywhere, the
     nearby captures' errors on top, by a Gaussian kernel of ``residual_length_deg`` on the view
-    direction), plus ``optimism`` times the errors' spread (at least ``min_sigma``), shrinking
-    near the captures."""
+    direction and, with ``residual_length_m``, of that length on the place: a capture from across
+    a drone's box looking the same way does not calibrate a view), plus ``optimism`` times the
+    errors' spread (at least ``min_sigma``), shrinking near the captures. ``residual_length_m``
+    None: the direction alone (a rig, whose views share one place)."""
     scores = np.array([cd.score for cd in cands], dtype=np.float64)
     true = np.array([cap.score for cap in captures], dtype=np.float64)
     pred = np.asarray(captured_pred, dtype=np.float64)
@@ -122,7 +125,10 @@ def hopes(
     out = np.empty(len(cands))
     for j, cd in enumerate(cands):
         ang = np.array([view_angle_deg(cd.cam2world, cap.cam2world) for cap in captures])
-        w = np.exp(-((ang / residual_length_deg) ** 2))
+        w = np.exp(-((ang / residual_length_deg) ** 2))  # [M]
+        if residual_length_m is not None:
+            dist = np.array([np.linalg.norm(cap.cam2world[:3, 3] - cd.cam2world[:3, 3]) for cap in captures])  # [M]
+            w = w * np.exp(-((dist / residual_length_m) ** 2))
         local = float(np.sum(w * (resid - offset)) / (1.0 + np.sum(w)))
         out[j] = cd.score + offset + local + optimism * sigma / math.sqrt(1.0 + float(np.sum(w)))
     return out

@@ -196,6 +196,17 @@ class PlannerConfig:
       ``hope_quantum`` edge are not ranked by that edge (dev tabletop:217@drone: 0.751 / 0.752
       under numba, 0.753 / 0.752 under torch, and the first move went to the other place). 0 =
       the quanta alone. Unset: the platform's default (0 on both).
+    * ``residual_length_m``: a drone only: the hope's correction by the errors at nearby captures
+      (``residual_length_deg``) also weighs each capture by a Gaussian of this length (metres) on
+      the distance between its place and the candidate's: a capture from across the box looking
+      the same way shows other things and does not calibrate the view. Unset: the platform's
+      default (None on both: the direction alone).
+    * ``turns_one_by_one``: a drone only: the ``verify_turns`` captures are chosen one at a time,
+      each by a hope calibrated also on the turns verified before it (the scorer's prediction of
+      each against its capture), not all from the hopes before the first: the field's errors go by
+      view direction, and one miss lowers the same way's hope at the other places. Unset: the
+      platform's default (a drone true, measured on 39 dev drone runs: docs/decisions.md; a rig
+      has no turns).
     * ``explore_below_covered`` / ``explore_moves``: when the search says its inputs cover less
       than this share of the space (the suggestion's ``covered_fraction``), the best predicted
       view is unverified where nothing was seen: before the loop stops on what it has (no
@@ -298,6 +309,8 @@ class PlannerConfig:
     threads: int = 0
     adapt_threads: bool = True
     photo_rank: bool = False
+    residual_length_m: float | None = None
+    turns_one_by_one: bool | None = None
 
     #: The keys ``platform:`` replaced, and how to rewrite each (read by :func:`~aes_planner.config.from_dict`).
     RETIRED_KEYS: ClassVar[dict[str, str]] = {
@@ -387,6 +400,14 @@ class PlannerConfig:
                 "hope_tie_margin",
                 f"must be in [0, 0.1] (teacher units), got {self.hope_tie_margin}",
             )
+        if self.residual_length_m is not None:
+            require_numbers(self, ("residual_length_m",))
+            require(
+                self.residual_length_m <= 10.0,
+                "residual_length_m",
+                f"must be in (0, 10] metres, or unset for the platform's default, got {self.residual_length_m}",
+            )
+        require_optional_bool(self, "turns_one_by_one")
         require(self.top_k >= 1, "top_k", f"must be >= 1, got {self.top_k}")
         from aes_planner.messages.suggestion import MAX_CANDIDATES
 

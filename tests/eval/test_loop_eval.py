@@ -125,3 +125,27 @@ def test_a_noise_run_draws_its_noise_by_pose_for_rig_and_drone(tmp_path):
     from aes_planner.node.sim_camera import SimCameraNodeConfig
 
     assert from_dict(SimCameraNodeConfig, cam.config, "camera")._camera.noise_by_pose is True
+
+
+def test_a_noise_run_of_a_drone_scene_file_sets_the_drones_camera(tmp_path):
+    """A scene file whose platform is a drone box (no @drone: the hand-written ``*_drone.yaml``)
+    runs ``drone.yaml``, whose camera is the node ``drone``: its noise overrides go there (they
+    went to ``camera``, a node that launch has not, and every noise run of such a scene failed)."""
+    from pathlib import Path
+
+    from aes_planner.eval.loop import run_one
+
+    got = {}
+
+    def fake_demo(scene, mode, out, moves, overrides, timeout_s, planner_overrides=None, hook=None):
+        got[scene] = list(overrides)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "captures.json").write_text("[]")
+        return {"state": "done", "normalized": 1.0, "moves": 0}
+
+    drone = str(Path(__file__).resolve().parents[1] / "scenes" / "garden_drone.yaml")
+    run_one(fake_demo, drone, parse_perturbation("noise:1e-6"), 4, tmp_path / "drone")
+    run_one(fake_demo, "indoor:200", parse_perturbation("noise:1e-6"), 4, tmp_path / "rig")
+    assert "drone.camera.noise_by_pose=true" in got[drone]
+    assert not any(o.startswith("camera.") for o in got[drone])
+    assert "camera.camera.noise_by_pose=true" in got["indoor:200"]
