@@ -209,15 +209,21 @@ def _program_background(module_name: str | None, argv: list[str]) -> None:
     """Start what the command's module runs beside the rest of the start-up, before its parser is
     built (which imports most of what it computes with): the module's ``PROGRAM_BACKGROUND_IMPORTS``
     first, in this thread (two threads importing at once can deadlock on import locks), then its
-    ``program_background()`` (``suggest``: loading numba's cached kernels). Not for ``--help``."""
+    ``program_background()`` (``suggest``: loading numba's cached kernels). Not for ``--help``; a
+    module that does not import (numba missing) starts nothing: the command meets it where it is
+    used, as before."""
     if module_name is None or any(a in _PRINT_ONLY for a in argv):
         return
     module = importlib.import_module(module_name)
     start = getattr(module, "program_background", None)
     if start is None:
         return
-    for name in getattr(module, "PROGRAM_BACKGROUND_IMPORTS", ()):
-        importlib.import_module(name)
+    try:
+        for name in getattr(module, "PROGRAM_BACKGROUND_IMPORTS", ()):
+            importlib.import_module(name)
+    except ImportError as exc:
+        logging.getLogger(__name__).debug("nothing started in the background: %s", exc)
+        return
     start()
 
 

@@ -138,3 +138,24 @@ def test_the_background_thread_imports_nothing_the_start_up_does_not():
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_a_background_whose_modules_do_not_import_starts_nothing(monkeypatch):
+    """Where a module the background thread needs does not import (numba missing), the program
+    starts nothing and goes on: the command meets the missing module where it uses it."""
+    import types
+
+    from aes_planner import cli
+
+    started = []
+    fake = types.ModuleType("aes_planner_fake_command")
+    fake.PROGRAM_BACKGROUND_IMPORTS = ("aes_planner_no_such_module",)
+    fake.program_background = lambda: started.append(True)
+    monkeypatch.setitem(sys.modules, fake.__name__, fake)
+    cli._program_background(fake.__name__, ["fake", "DIR"])
+    assert started == []
+    fake.PROGRAM_BACKGROUND_IMPORTS = ("json",)
+    cli._program_background(fake.__name__, ["fake", "--help"])
+    assert started == []  # --help: nothing
+    cli._program_background(fake.__name__, ["fake", "DIR"])
+    assert started == [True]
