@@ -151,6 +151,49 @@ def _load_average() -> list[float] | None:
         return None
 
 
+def host_counters() -> dict[str, float]:
+    """Counters that say what a group's timings ran beside, for :func:`host_delta`: the machine's
+    CPU time stolen by the hypervisor (``steal``, all cores, from /proc/stat; absent where it cannot
+    be read) and its context switches, and this process's user and system CPU time and its
+    voluntary and involuntary context switches (children excluded)."""
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    out = {
+        "process_user_s": usage.ru_utime,
+        "process_sys_s": usage.ru_stime,
+        "process_voluntary_switches": float(usage.ru_nvcsw),
+        "process_involuntary_switches": float(usage.ru_nivcsw),
+    }
+    try:
+        with open("/proc/stat") as f:
+            for line in f:
+                name, _, rest = line.partition(" ")
+                if name == "cpu":  # user nice system idle iowait irq softirq steal ...
+                    ticks = rest.split()
+                    if len(ticks) > 7:
+                        out["steal_s"] = int(ticks[7]) / _ticks_per_s()
+                elif name == "ctxt":
+                    out["machine_switches"] = float(rest)
+    except (OSError, ValueError):
+        pass
+    return out
+
+
+def host_delta(before: dict[str, float], after: dict[str, float]) -> dict[str, float]:
+    """``after - before`` of :func:`host_counters` (the keys both have), rounded. A group whose
+    kernels ran slow with ``process_sys_s`` high against ``process_user_s`` spent its time waking
+    and parking threads (futexes), not computing; ``steal_s`` above zero lost the CPU to the host."""
+    return {k: round(after[k] - before[k], 3) for k in before if k in after}
+
+
+def _ticks_per_s() -> float:
+    try:
+        return float(os.sysconf("SC_CLK_TCK"))
+    except (AttributeError, ValueError, OSError):
+        return 100.0
+
+
 def machine_info() -> dict[str, Any]:
     import torch
 
@@ -187,8 +230,10 @@ def run_groups(groups: list[str] | None, quick: bool = False) -> Recorder:
         t0 = time.perf_counter()
         load = rec.meta.setdefault("group_load_average", {})  # the machine is shared: say how busy it was
         load[name] = {"start": _load_average()}
+        counters = host_counters()
         importlib.import_module(GROUPS[name]).run(rec, quick)
         load[name]["end"] = _load_average()
+        rec.meta.setdefault("group_host", {})[name] = host_delta(counters, host_counters())
         rec.meta.setdefault("group_seconds", {})[name] = round(time.perf_counter() - t0, 2)
     return rec
 

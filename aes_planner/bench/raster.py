@@ -17,6 +17,10 @@ Keys per case (``raster.<case>.<figure>``), all per view:
   ``project``, ``bin``, ``raster_fwd``, ``raster_bwd``, ``project_bwd``; ``glue`` = the numpy
   code around them inside the autograd Function; ``outside`` = everything else of the call
   (input checks, torch autograd, the loss and its ``backward()`` call).
+* ``fwd_1thread_ms``, ``fwdbwd_1thread_ms`` (numba backend, the 10k 64x64 case): the same on one
+  numba thread, i.e. the work; ``fwd_parallel_efficiency``, ``fwdbwd_parallel_efficiency``: that over
+  the default threads' wall time times their count (a slow run with the work unchanged and the
+  efficiency down lost its time to the threads' hand-offs, not to the kernels).
 * ``dense_extrapolated``: 1 when the dense time was measured on a subset and scaled up: some
   cameras of a batch (with ``--quick`` one camera), and with ``--quick`` the top 1/32 of the rows
   when the image holds more than ``QUICK_DENSE_WHOLE_ENTRIES`` Gaussian-pixel entries (the 50k
@@ -65,6 +69,9 @@ class Case:
     # the Gaussians' O(N) checks in every call; the field checks its Gaussians once when it is
     # built and then renders with validate=False, so the search's cases leave them out as it does
     validate: bool = True
+    # also time it on one thread (numba backend): the kernels' work without the second thread's
+    # wake-ups and waits, so a slow run says whether the work or the threads' hand-offs were slow
+    one_thread: bool = False
 
 
 # The search's workload (a field search): a 4-view field of ~8k Gaussians (a 4-frame
@@ -94,7 +101,7 @@ DENSE_CHUNK_BYTES = 4 << 20  # one float32 [pixels, N] temporary of the dense re
 QUICK_DENSE_WHOLE_ENTRIES = 48_000_000  # --quick renders the whole image up to this N x pixels (0.1-0.6 s a call)
 
 CASES = {
-    "10k_64x64_c3": Case(10_000, 64, 3, 1, 1, False),
+    "10k_64x64_c3": Case(10_000, 64, 3, 1, 1, False, one_thread=True),
     "10k_32x32_c32": Case(10_000, 32, 32, 1, 1, True),
     "50k_128x128_c3": Case(50_000, 128, 3, 1, 1, False),
     "b64_10k_32x32_c32": Case(10_000, 32, 32, 64, 2, False),
@@ -174,6 +181,8 @@ def _bench_case(rec: Recorder, name: str, case: Case, quick: bool) -> None:
 
     if resolve_backend("auto") == "numba":
         _breakdown(rec, prefix, fwdbwd, runs, views)
+        if case.one_thread:
+            _one_thread(rec, prefix, fwd, fwdbwd, runs, views, fast_fwd, fast_fb)
 
     # Dense reference (float32 per-pixel maths) on the same scene, in the same run. A crop to the
     # top rows is the same camera with a smaller height (pixel centres do not depend on it).
@@ -254,6 +263,30 @@ def _breakdown(rec: Recorder, prefix: str, fwdbwd, runs: int, views: int) -> Non
     glue = per["fwd_body"] + per["bwd_body"] - sum(per[name] for name in KERNELS)
     rec.record(f"{prefix}.cpu_glue_ms", glue, "ms", runs)
     rec.record(f"{prefix}.cpu_outside_ms", total / runs / views * 1e3 - per["fwd_body"] - per["bwd_body"], "ms", runs)
+
+
+def _one_thread(
+    rec: Recorder, prefix: str, fwd, fwdbwd, runs: int, views: int, fast_fwd: float, fast_fb: float
+) -> None:
+    """The case on one numba thread (``fwd_1thread_ms``, ``fwdbwd_1thread_ms``: wall, which on one
+    thread is its CPU, the work), and the default threads' parallel efficiency against it
+    (``fwd_parallel_efficiency`` = one-thread time / (threads x wall time on them); 1 = the threads
+    split the work with nothing lost). Two runs of the same code a day apart gave this case's
+    forward 1.35 and 1.96 ms on 2 threads (docs/benchmarks.md, "perf-2, session 28"): this says
+    whether the work or the threads' hand-offs were slower."""
+    import numba
+
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        one_fwd, _ = time_wall_cpu_ms(fwd, runs)
+        one_fb, _ = time_wall_cpu_ms(fwdbwd, runs)
+    finally:
+        numba.set_num_threads(threads)
+    one_fwd_ms = rec.record_spread(f"{prefix}.fwd_1thread_ms", [v / views for v in one_fwd], "ms")
+    one_fb_ms = rec.record_spread(f"{prefix}.fwdbwd_1thread_ms", [v / views for v in one_fb], "ms")
+    rec.record(f"{prefix}.fwd_parallel_efficiency", one_fwd_ms / (threads * fast_fwd), "ratio", runs)
+    rec.record(f"{prefix}.fwdbwd_parallel_efficiency", one_fb_ms / (threads * fast_fb), "ratio", runs)
 
 
 def _subprocess_seconds(env: dict) -> tuple[float, float]:
