@@ -194,6 +194,21 @@ class FramingConfig:
     held-out scenes it lowered it from 0.57 to 0.51 (median 0.67 -> 0.60), at ten times the
     search time (four input views leave most of those views a tenth to a half uncovered;
     docs/guides/framing.md, "Ranked on the input photos").
+    ``grow_beyond_frame``: a box at its image's border grows over what the other inputs
+    reconstructed beyond it (:func:`_grow_beyond_frame`: on the subject's plane within
+    ``grow_plane_tol`` m when its points' thickness is at most ``grow_flat_ratio`` of their extent,
+    else in its depth slab; the subject's colours, not the ring's, those within ``grow_colour_tol``
+    of the ring's being the rim's background). A side past which the inputs never saw it end stays
+    open, and a view holds the subject with room beyond it: its outline shifted ``open_reach`` of its
+    extent that way (0.5, then 0.25 when no reachable view gives 0.5; 1.0 lowered the dev mean).
+    ``open_refuse``: with no view giving that room, the search fails with the closest view (no view
+    can be trusted to hold it); off, it holds what was seen, with a warning. ``hidden_frac`` /
+    ``hidden_ratio``: a side of the box along which something nearer than ``hidden_ratio`` times
+    the subject's depth covers ``hidden_frac`` of the ring is open too (1.0, off: the ground in
+    front of a standing object opened sides of 9 of 17 dev subjects). ``fill_weight``: a prior on
+    the share of the frame the subject covers, added to the score (0, off); ``smooth_dedup``: stage
+    1 ranks each feasible view by the Gaussian-weighted mean of those around it, sigma in units of
+    the duplicate distance (0, off). Neither raised the dev mean (docs/results/framing_photo_dev.md).
     """
 
     margin_frac: float = 0.05
@@ -232,6 +247,8 @@ class FramingConfig:
     hidden_frac: float = 1.0
     hidden_ratio: float = 0.8
     open_refuse: bool = True
+    fill_weight: float = 0.0
+    smooth_dedup: float = 0.0
 
     def __post_init__(self):
         require(
@@ -252,6 +269,8 @@ class FramingConfig:
         require_within(self, ("grow_plane_tol",), 0.0, 1.0)
         require_within(self, ("open_reach",), 0.0, 4.0)
         require_within(self, ("hidden_frac", "hidden_ratio"), 0.0, 1.0)
+        require_within(self, ("fill_weight",), 0.0, 10.0)
+        require_within(self, ("smooth_dedup",), 0.0, 10.0)
         require(isinstance(self.open_refuse, bool), "open_refuse", f"must be true or false, got {self.open_refuse!r}")
         for name in ("placement_weight", "avoid_weight", "edge_weight", "grow_frac", "ring_frac"):
             v = getattr(self, name)
@@ -926,10 +945,22 @@ class Framing:
             d = torch.sqrt(du**2 + dv**2 + 1e-12)
         return (1.0 - d[..., 0] / math.sqrt(0.5)).clamp(0.0, 1.0).mean(-1)
 
+    def fill(self, cam2world: Tensor) -> Tensor:  # [B, 4, 4] -> [B] in [0, 1]
+        """The share of the frame the kept subjects' projected bounding rectangles cover (mean over subjects)."""
+        if not self.keep:
+            return torch.zeros(cam2world.shape[0], dtype=torch.float64)
+        u, v, _ = project_corners(self._keep, cam2world.to(torch.float64), self.intrinsics)  # [B, S, P]
+        w = u.amax(-1).clamp(0, 1) - u.amin(-1).clamp(0, 1)
+        h = v.amax(-1).clamp(0, 1) - v.amin(-1).clamp(0, 1)
+        return (w * h).mean(-1)
+
     def soft_terms(self, cam2world: Tensor) -> Tensor:  # [B, 4, 4] -> [B] added to the score
-        return self.cfg.placement_weight * self.placement(cam2world) - self.cfg.avoid_weight * self.avoid_visible(
+        out = self.cfg.placement_weight * self.placement(cam2world) - self.cfg.avoid_weight * self.avoid_visible(
             cam2world
         )
+        if self.cfg.fill_weight:
+            out = out + self.cfg.fill_weight * self.fill(cam2world)
+        return out
 
     # ---------------------------------------------------------------- search hooks
     def aimed(self, cam2world: np.ndarray) -> np.ndarray:  # [T, 4, 4] -> [T, 4, 4]
@@ -963,7 +994,7 @@ class Framing:
         return Framing(self.keep, self.avoid, self.intrinsics, cfg, self.photos)
 
     def wrap(self, scorer: Scorer) -> Scorer:
-        return FramedScorer(scorer, self) if self.avoid or self.cfg.keep_at else scorer
+        return FramedScorer(scorer, self) if self.avoid or self.cfg.keep_at or self.cfg.fill_weight else scorer
 
     def open_error(self, best_pose: np.ndarray, best_held: float, platform_kind: str) -> FramingError:
         """No reachable view leaves room beyond a kept subject's open sides (where the inputs never

@@ -702,3 +702,38 @@ def test_an_open_subject_no_view_leaves_room_for_is_refused_with_the_closest_vie
     assert result.suggestions and any("never saw" in w for w in result.warnings)
     seen = lenient.with_margin(0.05, 0.0)
     assert all(float(seen.violation(torch.as_tensor(s.cam2world[None]))[0]) == 0.0 for s in result.suggestions)
+
+
+def test_the_fill_term_grows_as_the_subject_fills_the_frame():
+    """``fill_weight`` adds the share of the frame the subject's projected rectangle covers: more
+    from near than from far, at most 1 (the rectangle clipped to the frame), 0 with no subject."""
+    k = Intrinsics.from_fov(64, 48, 60.0)
+    s = subject_at((4.0, 0.0, 0.0), (0.3, 0.3, 0.3))
+    poses = torch.as_tensor(np.stack([np.asarray(look_at(np.array([x, 0.0, 0.0]), np.array([4.0, 0.0, 0.0])))
+                                      for x in (0.0, 2.0, 3.5)]))  # fmt: skip
+    framing = Framing([s], [], k, FramingConfig(fill_weight=0.1))
+    fill = framing.fill(poses).numpy()
+    assert 0.0 < fill[0] < fill[1] < fill[2] <= 1.0
+    np.testing.assert_allclose(framing.soft_terms(poses).numpy(), 0.1 * fill)
+    assert Framing([s], [], k, FramingConfig()).soft_terms(poses).abs().max() == 0.0
+    assert Framing([], [], k, FramingConfig(fill_weight=0.1)).fill(poses).abs().max() == 0.0
+
+
+def test_a_smoothed_stage_one_ranks_a_view_by_its_neighbourhood():
+    """``smooth_dedup``: each finite objective becomes the Gaussian-weighted mean of the finite ones
+    around it; an infeasible (-inf) candidate stays out, and a lone peak among poor neighbours
+    falls below a broad hill."""
+    from aes_planner.search.pipeline import _smoothed
+    from aes_planner.search.space import space_for
+
+    platform = rig_platform(pan_limits_deg=(-90.0, 90.0), tilt_limits_deg=(-30.0, 30.0))
+    space = space_for(platform, SearchConfig.preset("fast"))
+    step = math.radians(2.0)
+    pans = torch.tensor([-0.6, -0.6 + step, -0.6 + 2 * step, 0.6 - step, 0.6, 0.6 + step, 0.0], dtype=torch.float64)
+    cand = torch.stack([pans, torch.zeros_like(pans)], -1)
+    obj = torch.tensor([0.70, 0.72, 0.70, 0.20, 0.80, 0.20, -math.inf], dtype=torch.float64)
+    out = _smoothed(space, cand, obj, 0.25)
+    assert out[6] == -math.inf and bool(torch.isfinite(out[:6]).all())
+    assert float(out[1]) > float(out[4])  # the broad hill beats the lone peak
+    assert float(out[:6].min()) >= 0.2 and float(out[:6].max()) <= 0.8
+    np.testing.assert_allclose(_smoothed(space, cand, obj, 1e-6)[:6].numpy(), obj[:6].numpy())
