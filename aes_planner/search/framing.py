@@ -194,6 +194,21 @@ class FramingConfig:
     held-out scenes it lowered it from 0.57 to 0.51 (median 0.67 -> 0.60), at ten times the
     search time (four input views leave most of those views a tenth to a half uncovered;
     docs/guides/framing.md, "Ranked on the input photos").
+    ``grow_beyond_frame``: a box at its image's border grows over what the other inputs
+    reconstructed beyond it (:func:`_grow_beyond_frame`: on the subject's plane within
+    ``grow_plane_tol`` m when its points' thickness is at most ``grow_flat_ratio`` of their extent,
+    else in its depth slab; the subject's colours, not the ring's, those within ``grow_colour_tol``
+    of the ring's being the rim's background). A side past which the inputs never saw it end stays
+    open, and a view holds the subject with room beyond it: its outline shifted ``open_reach`` of its
+    extent that way (0.5, then 0.25 when no reachable view gives 0.5; 1.0 lowered the dev mean).
+    ``open_refuse``: with no view giving that room, the search fails with the closest view (no view
+    can be trusted to hold it); off, it holds what was seen, with a warning. ``hidden_frac`` /
+    ``hidden_ratio``: a side of the box along which something nearer than ``hidden_ratio`` times
+    the subject's depth covers ``hidden_frac`` of the ring is open too (1.0, off: the ground in
+    front of a standing object opened sides of 9 of 17 dev subjects). ``fill_weight``: a prior on
+    the share of the frame the subject covers, added to the score (0, off); ``smooth_dedup``: stage
+    1 ranks each feasible view by the Gaussian-weighted mean of those around it, sigma in units of
+    the duplicate distance (0, off). Neither raised the dev mean (docs/results/framing_photo_dev.md).
     """
 
     margin_frac: float = 0.05
@@ -224,6 +239,16 @@ class FramingConfig:
     photo_step_deg: float = 2.0
     photo_min_cover: float = 0.0
     photo_width_px: int = 160
+    grow_beyond_frame: bool = True
+    grow_plane_tol: float = 0.03
+    grow_flat_ratio: float = 0.1
+    grow_colour_tol: float = 0.1
+    open_reach: float = 0.5
+    hidden_frac: float = 1.0
+    hidden_ratio: float = 0.8
+    open_refuse: bool = True
+    fill_weight: float = 0.0
+    smooth_dedup: float = 0.0
 
     def __post_init__(self):
         require(
@@ -235,6 +260,18 @@ class FramingConfig:
             self.keep_at in (None, *KEEP_AT), "keep_at", f"must be one of {list(KEEP_AT)} or none, got {self.keep_at!r}"
         )
         require_within(self, ("occluded_max",), 0.0, 1.0)
+        require(
+            isinstance(self.grow_beyond_frame, bool),
+            "grow_beyond_frame",
+            f"must be true or false, got {self.grow_beyond_frame!r}",
+        )
+        require_within(self, ("grow_flat_ratio", "grow_colour_tol"), 0.0, 1.0)
+        require_within(self, ("grow_plane_tol",), 0.0, 1.0)
+        require_within(self, ("open_reach",), 0.0, 4.0)
+        require_within(self, ("hidden_frac", "hidden_ratio"), 0.0, 1.0)
+        require_within(self, ("fill_weight",), 0.0, 10.0)
+        require_within(self, ("smooth_dedup",), 0.0, 10.0)
+        require(isinstance(self.open_refuse, bool), "open_refuse", f"must be true or false, got {self.open_refuse!r}")
         for name in ("placement_weight", "avoid_weight", "edge_weight", "grow_frac", "ring_frac"):
             v = getattr(self, name)
             require(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0, name, f"must be >= 0, got {v!r}")
@@ -310,21 +347,31 @@ class Subject:
     outline_m: np.ndarray | None = None  # [P, 3] world: the lifted points' extreme points (vertices of their hull)
     occluded_frac: float = 0.0  # share of the box's pixels nearer than the subject: something hides part of it
     cut_by_frame: bool = False  # the box touches its image's border: the subject may go on beyond it
+    open_sides: tuple[str, ...] = ()  # borders the box touches beyond which the inputs never saw the subject end
+    grown: int = 0  # Gaussians beyond the image's border added to the subject (its continuation other views saw)
+    reach_m: np.ndarray | None = None  # [O, 3] world: per open side, the subject's extent along it (towards that side)
 
     @property
     def corners_m(self) -> np.ndarray:  # -> [8, 3] world
         signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
         return self.centre_m + (signs * self.half_extent_m) @ self.axes
 
-    def hold_points_m(self, hold_by: str = "box", occluded_max: float = 1.0) -> np.ndarray:  # -> [P, 3] world
+    def hold_points_m(
+        self, hold_by: str = "box", occluded_max: float = 1.0, reach: float = 0.0
+    ) -> np.ndarray:  # -> [P, 3] world
         """What a view must hold of this subject: the box's corners, or (``points``) the lifted
         points' outline, which a view can hold where the box's empty corners stick out. A subject
         that something hides in part (more than ``occluded_max`` of its box nearer than it) may
-        go on behind what hides it: it is held by its box."""
+        go on behind what hides it: it is held by its box. ``reach`` > 0: beyond each open side
+        (the inputs never saw the subject end there) the points are held shifted that far out too,
+        as a share of the subject's own extent along that side: room for its unseen continuation."""
+        pts = self.corners_m
         if hold_by == "points" and self.outline_m is not None and len(self.outline_m):
             if self.occluded_frac <= occluded_max:
-                return self.outline_m
-        return self.corners_m
+                pts = self.outline_m
+        if reach > 0 and self.reach_m is not None and len(self.reach_m):
+            pts = np.concatenate([pts, *(pts + reach * r for r in self.reach_m)])
+        return pts
 
     @property
     def size_m(self) -> np.ndarray:
@@ -386,6 +433,165 @@ def _sphere_dirs(n: int) -> np.ndarray:  # -> [n, 3] unit vectors spread evenly 
     return np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], -1)
 
 
+def _plane_of(
+    pts: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, float, float]:  # [M, 3] -> centre, normal, thickness, size
+    """The best-fitting plane of points: centre, unit normal, their spread across it and along it (std, m)."""
+    c = pts.mean(0)
+    vals, vecs = np.linalg.eigh(np.cov((pts - c).T) + 1e-12 * np.eye(3))
+    return c, vecs[:, 0], float(math.sqrt(max(vals[0], 0.0))), float(math.sqrt(max(vals[2], 0.0)))
+
+
+def _grow_beyond_frame(
+    means: np.ndarray,  # [N, 3] world
+    colours: np.ndarray,  # [N, 3]
+    alpha: np.ndarray,  # [N]
+    u: np.ndarray,  # [N] px in the box's view
+    v: np.ndarray,  # [N]
+    z: np.ndarray,  # [N] camera depth
+    front: np.ndarray,  # [N] bool
+    inside: np.ndarray,  # [N] bool: projects into the box
+    slab: tuple[float, float],
+    subject_pts: np.ndarray,  # [M, 3] world: what the lift found inside the box
+    region: Region,
+    intrinsics: Intrinsics,
+    touched: tuple[str, ...],
+    pad: float,
+    cfg: FramingConfig,
+) -> tuple[np.ndarray, tuple[str, ...]]:
+    """The subject's continuation beyond the image borders its box touches, from what other
+    views reconstructed: ``(points [E, 3] world, the sides still open)``.
+
+    A box cut by the frame holds only what its image shows; the subject may go on past the border,
+    where the other input views may have seen it. The candidates are the Gaussians beyond the
+    touched borders (within the box's span along them) that lie on the subject's surface: within
+    ``grow_plane_tol`` of the plane through the subject's points when it is flat (a picture seen at
+    a slant leaves the depth slab beyond the border, not its plane), else in its depth slab. They
+    are figure when their colour is nearer to the subject's own Gaussians' colours than to those
+    of the ring around the box at the subject's depth (the wall a picture hangs on), and the subject
+    grows from its Gaussians over figure candidates within a link distance (three times the median
+    spacing of its Gaussians), as a flood fill. A side stays **open** when the grown subject
+    reaches as far as anything was reconstructed there: no ground (background at its surface) was
+    seen beyond its end, so the inputs never saw where it stops."""
+    w, h = intrinsics.width, intrinsics.height
+    z_lo, z_hi = slab
+    on_slab = front & (z >= z_lo * (1 - cfg.depth_bin)) & (z <= z_hi * (1 + cfg.depth_bin)) & (alpha > 0.01)
+    own = inside & on_slab
+    if int(own.sum()) < 4:
+        return np.zeros((0, 3)), touched
+    c, normal, thick, size = _plane_of(np.concatenate([means[own], subject_pts]))
+    flat = thick <= cfg.grow_flat_ratio * size
+    tol = max(cfg.grow_plane_tol, 2.0 * thick) if flat else 0.0
+    on_surface = front & (alpha > 0.01) & ((np.abs((means - c) @ normal) <= tol) if flat else on_slab)
+    big = 1e9
+    u_lo = -big if "left" in touched else region.x0 - pad
+    u_hi = big if "right" in touched else region.x1 + pad
+    v_lo = -big if "top" in touched else region.y0 - pad
+    v_hi = big if "bottom" in touched else region.y1 + pad
+    ok_uv = np.isfinite(u) & np.isfinite(v)
+    beyond = on_surface & ok_uv & (u >= u_lo) & (u <= u_hi) & (v >= v_lo) & (v <= v_hi)
+    beyond &= (u < 0) | (u > w) | (v < 0) | (v > h)
+    # the ground: the ring around the box (inside the image) on the subject's surface
+    ring = on_surface & ok_uv & ~inside & (u >= 0) & (u <= w) & (v >= 0) & (v <= h)
+    ring &= (u >= region.x0 - pad) & (u <= region.x1 + pad) & (v >= region.y0 - pad) & (v <= region.y1 + pad)
+    if not beyond.any():
+        return np.zeros((0, 3)), touched
+    fig_c = colours[own][:: max(1, int(own.sum()) // 512)]
+    gnd_c = colours[ring][:: max(1, int(ring.sum()) // 512)]
+
+    def nearest(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # [A, 3], [B, 3] -> [A] distance to the nearest of b
+        if len(b) == 0:
+            return np.full(len(a), np.inf)
+        return torch.cdist(torch.as_tensor(a), torch.as_tensor(b)).amin(1).numpy()
+
+    idx = np.flatnonzero(beyond)
+    if len(gnd_c) >= 4:  # the box's rim shows the ground too: its colours are not the subject's
+        fig_c = fig_c[nearest(fig_c, gnd_c) > cfg.grow_colour_tol]
+        figure = nearest(colours[idx], fig_c) < nearest(colours[idx], gnd_c)
+    else:  # nothing around the box at its depth: all on its surface is the subject
+        figure = np.ones(len(idx), bool)
+    seeds = means[own]
+    sub = seeds[:: max(1, len(seeds) // 1024)]
+    d = torch.cdist(torch.as_tensor(sub), torch.as_tensor(sub))
+    d.fill_diagonal_(float("inf"))
+    link = max(3.0 * float(torch.median(d.amin(1))), cfg.grow_plane_tol)
+    # flood fill over the candidates (figure and ground alike are reached; only figure joins and spreads)
+    cand = means[idx]
+    joined = np.zeros(len(idx), bool)
+    frontier = seeds
+    while len(frontier):
+        near = np.zeros(len(idx), bool)
+        for i in range(0, len(frontier), 2048):
+            near |= nearest(cand, frontier[i : i + 2048]) <= link
+        new = near & figure & ~joined
+        joined |= new
+        frontier = cand[new]
+    grown = cand[joined]
+    # open or closed, side by side: is ground seen just beyond the grown subject's end on that side?
+    open_sides = []
+    gu, gv = u[idx][joined], v[idx][joined]
+    ground = ~figure & (nearest(cand, np.concatenate([seeds, grown])) <= 4.0 * link)  # just beyond, not far off
+    bu, bv = u[idx][ground], v[idx][ground]
+    for side in touched:
+        if side in ("left", "right"):
+            end = (gu.min() if side == "left" else gu.max()) if len(gu) else (0.0 if side == "left" else float(w))
+            past = (bu < end) if side == "left" else (bu > end)
+        else:
+            end = (gv.min() if side == "top" else gv.max()) if len(gv) else (0.0 if side == "top" else float(h))
+            past = (bv < end) if side == "top" else (bv > end)
+        if not past.any():
+            open_sides.append(side)
+    return grown, tuple(open_sides)
+
+
+def _hidden_sides(
+    depth_map: np.ndarray | None, region: Region, pad: float, nearer_m: float, frac: float, touched: tuple[str, ...]
+) -> tuple[str, ...]:
+    """The sides of ``region`` (not at the image's border) along which something nearer than the
+    subject (depth below ``nearer_m``) covers at least ``frac`` of the ring strip just outside: the
+    subject may go on behind it, where this view cannot see it end."""
+    if depth_map is None or pad <= 0 or frac >= 1.0:
+        return ()
+    h, w = depth_map.shape
+    x0, y0 = int(math.floor(region.x0)), int(math.floor(region.y0))
+    x1, y1 = int(math.ceil(region.x1)), int(math.ceil(region.y1))
+    p = max(1, int(math.ceil(pad)))
+    strips = {
+        "left": depth_map[y0:y1, max(0, x0 - p) : x0],
+        "right": depth_map[y0:y1, x1 : min(w, x1 + p)],
+        "top": depth_map[max(0, y0 - p) : y0, x0:x1],
+        "bottom": depth_map[y1 : min(h, y1 + p), x0:x1],
+    }
+    out = []
+    for side, strip in strips.items():
+        if side in touched or strip.size == 0:
+            continue
+        d = strip[np.isfinite(strip)]
+        if len(d) and float(((d > NEAR_M) & (d < nearer_m)).mean()) >= frac:
+            out.append(side)
+    return tuple(out)
+
+
+def _reach(pts: np.ndarray, cam2world: np.ndarray, sides) -> np.ndarray:  # [M, 3], [4, 4] -> [O, 3]
+    """Per open side, a vector from the subject towards that side (the box's view's image direction:
+    left, right, up or down, laid into the subject's plane when it is flat) as long as the
+    subject's extent along it."""
+    axis = {"left": -cam2world[:3, 0], "right": cam2world[:3, 0], "top": -cam2world[:3, 1], "bottom": cam2world[:3, 1]}
+    _, normal, thick, size = _plane_of(pts)
+    out = []
+    for side in sides:
+        d = axis[side].astype(np.float64)
+        if thick <= 0.1 * size:  # flat: along its plane
+            d = d - (d @ normal) * normal
+        n = float(np.linalg.norm(d))
+        if n < 1e-9:
+            continue
+        d = d / n
+        extent = float(np.ptp(pts @ d))
+        out.append(d * extent)
+    return np.asarray(out, dtype=np.float64).reshape(-1, 3)
+
+
 def lift_region(
     means_m: np.ndarray,
     opacities: np.ndarray,
@@ -395,11 +601,14 @@ def lift_region(
     cfg: FramingConfig | None = None,
     key: str = "--keep",
     depth_map: np.ndarray | None = None,
+    colours: np.ndarray | None = None,
 ) -> Subject:
     """Lift ``region`` (pixels of an image seen by ``intrinsics`` at ``cam2world``) into a
     :class:`Subject` from Gaussian centres ``means_m [N, 3]`` (world) and ``opacities [N]``;
     ``depth_map [H, W]`` (the reconstruction's depth rendered at that view, 0 where nothing was
-    drawn) gives the depth mode per pixel, else the Gaussians behind the box do."""
+    drawn) gives the depth mode per pixel, else the Gaussians behind the box do. ``colours``
+    ``[N, 3]`` (the Gaussians' RGB): where the box touches the image's border, the subject is
+    grown beyond it over what other views saw (:func:`_grow_beyond_frame`)."""
     cfg = cfg or FramingConfig()
     means = np.asarray(means_m, dtype=np.float64).reshape(-1, 3)
     alpha = np.asarray(opacities, dtype=np.float64).reshape(-1)
@@ -483,6 +692,26 @@ def lift_region(
     bv = np.array([region.y0, region.y0, region.y1, region.y1])
     cam = np.stack([(bu - intrinsics.cx) / intrinsics.fx, (bv - intrinsics.cy) / intrinsics.fy, np.ones(4)], -1)
     parts.append((cam * z_mode) @ c2w[:3, :3].T + c2w[:3, 3])
+    edge = 1e-6  # px: a box scaled to the reconstruction's resolution may miss the border by rounding
+    touched = tuple(
+        side
+        for side, hit in (
+            ("left", region.x0 <= edge),
+            ("top", region.y0 <= edge),
+            ("right", region.x1 >= intrinsics.width - edge),
+            ("bottom", region.y1 >= intrinsics.height - edge),
+        )  # fmt: skip
+        if hit
+    )
+    hidden = _hidden_sides(depth_map, region, pad, z_lo * cfg.hidden_ratio, cfg.hidden_frac, touched)
+    grown, open_sides = 0, touched
+    if touched and colours is not None and cfg.grow_beyond_frame:
+        extra, open_sides = _grow_beyond_frame(
+            means, np.asarray(colours, dtype=np.float64).reshape(-1, 3), alpha, u, v, z, front, inside,
+            (z_lo, z_hi), np.concatenate(parts[:-1]), region, intrinsics, touched, pad, cfg,
+        )  # fmt: skip
+        grown = len(extra)
+        parts.append(extra)
     pts = np.concatenate(parts)  # [M, 3] world
     if len(pts) < 4:
         raise FramingError(
@@ -502,13 +731,10 @@ def lift_region(
         "%s %s: %d Gaussians and %d pixels at %.2f-%.2f m (mode %.2f m) -> a box %s m",
         key, region.text(), n_gauss, len(pts) - n_gauss, z_lo, z_hi, z_mode, np.round(2 * half, 2).tolist(),
     )  # fmt: skip
-    edge = 1e-6  # px: a box scaled to the reconstruction's resolution may miss the border by rounding
-    cut = (
-        min(region.x0, region.y0) <= edge
-        or region.x1 >= intrinsics.width - edge
-        or region.y1 >= intrinsics.height - edge
-    )
-    return Subject(region, centre, axes, half, int(n_gauss), (z_lo, z_hi), outline, occluded, bool(cut))
+    open_sides = tuple(open_sides) + hidden
+    reach = _reach(pts, c2w, open_sides) if open_sides else None
+    return Subject(region, centre, axes, half, int(n_gauss), (z_lo, z_hi), outline, occluded, bool(touched),
+                   tuple(open_sides), grown, reach)  # fmt: skip
 
 
 def render_depth(scorer: Scorer, cam2world: np.ndarray, intrinsics: Intrinsics) -> np.ndarray | None:
@@ -649,7 +875,7 @@ class Framing:
         self.keep, self.avoid, self.intrinsics, self.cfg = list(keep), list(avoid), intrinsics, cfg
         self.photos = photos  # the input images, for FramingConfig.photo_rank
         self._keep = torch.as_tensor(
-            _stacked([s.hold_points_m(cfg.hold_by, cfg.occluded_max) for s in keep])
+            _stacked([s.hold_points_m(cfg.hold_by, cfg.occluded_max, cfg.open_reach) for s in keep])
         )  # [S, P, 3]
         self._keep_centres = torch.as_tensor(np.stack([s.centre_m for s in keep]) if keep else np.zeros((0, 3)))
         self._avoid = torch.as_tensor(np.stack([s.corners_m for s in avoid]) if avoid else np.zeros((0, 8, 3)))
@@ -719,10 +945,22 @@ class Framing:
             d = torch.sqrt(du**2 + dv**2 + 1e-12)
         return (1.0 - d[..., 0] / math.sqrt(0.5)).clamp(0.0, 1.0).mean(-1)
 
+    def fill(self, cam2world: Tensor) -> Tensor:  # [B, 4, 4] -> [B] in [0, 1]
+        """The share of the frame the kept subjects' projected bounding rectangles cover (mean over subjects)."""
+        if not self.keep:
+            return torch.zeros(cam2world.shape[0], dtype=torch.float64)
+        u, v, _ = project_corners(self._keep, cam2world.to(torch.float64), self.intrinsics)  # [B, S, P]
+        w = u.amax(-1).clamp(0, 1) - u.amin(-1).clamp(0, 1)
+        h = v.amax(-1).clamp(0, 1) - v.amin(-1).clamp(0, 1)
+        return (w * h).mean(-1)
+
     def soft_terms(self, cam2world: Tensor) -> Tensor:  # [B, 4, 4] -> [B] added to the score
-        return self.cfg.placement_weight * self.placement(cam2world) - self.cfg.avoid_weight * self.avoid_visible(
+        out = self.cfg.placement_weight * self.placement(cam2world) - self.cfg.avoid_weight * self.avoid_visible(
             cam2world
         )
+        if self.cfg.fill_weight:
+            out = out + self.cfg.fill_weight * self.fill(cam2world)
+        return out
 
     # ---------------------------------------------------------------- search hooks
     def aimed(self, cam2world: np.ndarray) -> np.ndarray:  # [T, 4, 4] -> [T, 4, 4]
@@ -741,19 +979,38 @@ class Framing:
     def notes(self) -> list[str]:
         """What the suggestions cannot promise, one line per kept subject concerned (the search's warnings)."""
         return [
-            f"--keep {s.region.text()}: the box touches its image's border, so the subject may go on beyond it; "
-            "the suggestions hold what that image shows of it: draw the box in a view that shows all of it"
+            f"--keep {s.region.text()}: the box touches its image's border ({', '.join(s.open_sides)}) and the "
+            "inputs never saw where the subject ends beyond it; the suggestions hold what they saw of it: "
+            "draw the box in a view that shows all of it"
             for s in self.keep
-            if s.cut_by_frame
+            if s.cut_by_frame and s.open_sides
         ]
 
-    def with_margin(self, margin_frac: float) -> Framing:
-        """The same subjects and regions, held with ``margin_frac`` of the frame instead."""
-        cfg = dataclasses.replace(self.cfg, margin_frac=margin_frac)
+    def with_margin(self, margin_frac: float, open_reach: float | None = None) -> Framing:
+        """The same subjects and regions, held with ``margin_frac`` of the frame instead (and
+        ``open_reach`` beyond their open sides, when given)."""
+        reach = self.cfg.open_reach if open_reach is None else open_reach
+        cfg = dataclasses.replace(self.cfg, margin_frac=margin_frac, open_reach=reach)
         return Framing(self.keep, self.avoid, self.intrinsics, cfg, self.photos)
 
     def wrap(self, scorer: Scorer) -> Scorer:
-        return FramedScorer(scorer, self) if self.avoid or self.cfg.keep_at else scorer
+        return FramedScorer(scorer, self) if self.avoid or self.cfg.keep_at or self.cfg.fill_weight else scorer
+
+    def open_error(self, best_pose: np.ndarray, best_held: float, platform_kind: str) -> FramingError:
+        """No reachable view leaves room beyond a kept subject's open sides (where the inputs never
+        saw it end): no view can be trusted to hold all of it."""
+        pos = ", ".join(f"{x:.2f}" for x in best_pose[:3, 3])
+        fwd = ", ".join(f"{x:.2f}" for x in best_pose[:3, 2])
+        where = "the rig's joint limits" if platform_kind == "rig" else "the drone's box and pitch limits"
+        opened = [s for s in self.keep if s.open_sides]
+        names = ", ".join(f"{s.region.text()} ({'/'.join(s.open_sides)})" for s in opened)
+        return FramingError(
+            f"--keep {names}: the subject goes on past its box on that side (the image's border, or something in "
+            f"front of it) where the inputs never saw it end, and no reachable view ({where}) leaves room for it "
+            f"there: no view can be trusted to hold all of it; the closest view (camera at [{pos}] m, looking along "
+            f"[{fwd}]) holds {best_held:.0%} of it with that room: draw the box in a view that shows all of the "
+            "subject, or widen the limits"
+        )
 
     def no_view_error(self, best_pose: np.ndarray, best_held: float, platform_kind: str) -> FramingError:
         pos = ", ".join(f"{x:.2f}" for x in best_pose[:3, 3])
@@ -811,6 +1068,21 @@ def _reconstruction(scorer: Scorer):
     return getattr(inner, "gaussians", None), local
 
 
+def world_colours(scorer: Scorer) -> np.ndarray | None:
+    """The RGB ``[N, 3]`` of the Gaussians :func:`world_gaussians` gives (the reconstruction's
+    colours, in the same order), or None when the scorer has none."""
+    g, _ = _reconstruction(scorer)
+    inputs = getattr(getattr(scorer, "inner", scorer), "inputs", None)
+    splats = getattr(inputs, "splats", None)
+    if g is None:
+        return None
+    if splats is not None and len(splats) == len(g):
+        return np.asarray(splats.colors, dtype=np.float64)
+    if g.colors is not None and g.colors.shape[-1] == 3 and getattr(g, "features", None) is None:
+        return g.colors.detach().double().cpu().numpy()
+    return None
+
+
 def world_gaussians(scorer: Scorer) -> tuple[np.ndarray, np.ndarray]:
     """The Gaussian centres ``[N, 3]`` (world frame) and opacities ``[N]`` behind a field or RGB scorer."""
     g, local = _reconstruction(scorer)
@@ -843,7 +1115,7 @@ def build_framing(
     ``FramingConfig.photo_rank`` (:meth:`PhotoSet.of`).
     """
     cfg = cfg or FramingConfig()
-    means = opac = None
+    means = opac = colours = None
     subjects: dict[str, list[Subject]] = {"keep": [], "avoid": []}
     for key, regions in (("keep", keep), ("avoid", avoid)):
         for region in regions:
@@ -856,9 +1128,10 @@ def build_framing(
             region.checked(flag, w, h)
             if means is None:
                 means, opac = world_gaussians(scorer)
+                colours = world_colours(scorer)
             scaled = region.scaled(k.width / w, k.height / h)
             depth = render_depth(scorer, cam2world, k)
-            subjects[key].append(lift_region(means, opac, cam2world, k, scaled, cfg, flag, depth))
+            subjects[key].append(lift_region(means, opac, cam2world, k, scaled, cfg, flag, depth, colours))
             subjects[key][-1].region = region
     photo_set = PhotoSet.of(photos) if photos and cfg.photo_rank and subjects["keep"] else None
     return Framing(subjects["keep"], subjects["avoid"], intrinsics, cfg, photo_set)
@@ -872,6 +1145,24 @@ def feasible_candidates(
     the same with the margin halved, then none (the subject held whole but closer to the frame's
     edge: :meth:`Framing.with_margin`; the caller says so). A :class:`FramingError` with the
     closest view (at the margin asked) when no view holds it even at the frame's edge."""
+    reach = framing.cfg.open_reach
+    open_subject = reach > 0 and any(s.open_sides and s.reach_m is not None and len(s.reach_m) for s in framing.keep)
+    for r in (reach, reach / 2) if open_subject else ():  # room beyond an open side, while some view gives it
+        try:
+            relaxed = framing.with_margin(framing.cfg.margin_frac, r)
+            return _feasible_pool(relaxed, space, candidates, trajectory, cfg, rng), relaxed
+        except FramingError:
+            continue
+    if open_subject:
+        roomy = framing.with_margin(framing.cfg.margin_frac, reach / 2)
+        framing = framing.with_margin(framing.cfg.margin_frac, 0.0)
+        if framing.cfg.open_refuse:  # what was seen may be held, but nothing says the rest is: say so
+            seen = _feasible_pool(framing, space, candidates, trajectory, cfg, rng)
+            poses = space.to_poses(seen).detach()
+            held = roomy.held(poses)
+            i = int(torch.argmax(held))
+            raise roomy.open_error(poses[i].numpy(), float(held[i]), space.kind)
+        log.info("framing: no reachable view leaves room beyond the subject's open sides; holding what was seen")
     try:
         return _feasible_pool(framing, space, candidates, trajectory, cfg, rng), framing
     except FramingError as asked:

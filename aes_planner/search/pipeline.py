@@ -216,6 +216,21 @@ def refine_params(
     return params, best_params, best_obj
 
 
+def _smoothed(space: SearchSpace, candidates: Tensor, obj: Tensor, sigma: float) -> Tensor:  # [C, D], [C] -> [C]
+    """Each finite objective replaced by the Gaussian-weighted mean of the finite objectives around
+    it (``sigma`` in units of the duplicate distance): a view ranked by its neighbourhood, not by
+    one sample of the field's rough landscape."""
+    ok = torch.isfinite(obj)
+    if int(ok.sum()) < 2:
+        return obj
+    idx = torch.nonzero(ok).squeeze(1)
+    d = space.distance(candidates[idx], candidates[idx]).double()  # [M, M]
+    w = torch.exp(-0.5 * (d / sigma) ** 2)
+    out = obj.clone()
+    out[idx] = (w @ obj[idx]) / w.sum(1)
+    return out
+
+
 def _refine(scorer: Scorer, space: SearchSpace, start: Tensor, start_obj: Tensor, cfg: SearchConfig, framing=None,
             start_out: ScoreOutput | None = None):  # fmt: skip
     """:func:`refine_params`, and the scores of each best iterate (a :class:`ScoreOutput` of
@@ -360,7 +375,10 @@ def _search_views(
     else:
         out1, exact = scorer.score_batched(cand_poses, cfg.batch_size), torch.ones(len(candidates), dtype=torch.bool)
     obj1 = torch.where(exact, torch.nan_to_num(_objective(out1, cfg).double(), nan=-math.inf), -math.inf)  # [C]
-    keep = _select_distinct(space, candidates, obj1, cfg.top_k, avoid_params)
+    rank1 = obj1  # what stage 1 ranks by: the objective, or under a kept subject its neighbourhood mean
+    if framing is not None and framing.cfg.smooth_dedup > 0:
+        rank1 = _smoothed(space, candidates, obj1, framing.cfg.smooth_dedup)
+    keep = _select_distinct(space, candidates, rank1, cfg.top_k, avoid_params)
     t_stage1 = time.perf_counter()
 
     # ---- stage 2: Adam on the parameters, projected into the bounds after every step
@@ -388,6 +406,8 @@ def _search_views(
     else:
         out2 = scorer.score_batched(final_poses, cfg.batch_size)
     obj2 = torch.nan_to_num(_objective(out2, cfg).double(), nan=-math.inf)
+    if rank1 is not obj1 and not refine:  # the kept candidates ranked by their neighbourhoods too
+        obj2 = torch.where(torch.isfinite(obj2), rank1[keep], obj2)
     if refine:  # per candidate, the better of its best iterate and its last one
         k = len(best_params)
         pick = torch.where(obj2[k:] > obj2[:k], torch.arange(k) + k, torch.arange(k))

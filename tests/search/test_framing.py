@@ -278,7 +278,7 @@ def test_a_subject_held_only_near_the_edge_is_held_with_a_smaller_margin_and_sai
     bearing = math.radians(57.0)
     base = np.asarray(platform.rig.base_xyz_m, float)
     subject = subject_at(base + 4.0 * np.array([math.cos(bearing), math.sin(bearing), 0.0]), (0.05, 0.05, 0.05))
-    subject.cut_by_frame = True  # and its box touched its image's border: the search says that too
+    subject.cut_by_frame, subject.open_sides = True, ("left",)  # its box touched its image's border: said too
     framing = Framing([subject], [], platform.intrinsics, FramingConfig(margin_frac=0.05))
     result = search_views(
         AimScorer([1.0, 0.0, 0.0]), rig_inputs(platform), platform, SearchConfig.preset("fast"), framing=framing
@@ -579,3 +579,161 @@ def test_the_photo_ranking_config_is_checked():
                      (dict(photo_width_px=8), "photo_width_px"), (dict(photo_top=-1), "photo_top")):  # fmt: skip
         with pytest.raises(AesPlannerError, match=name):
             FramingConfig(**kw)
+
+
+# ---------------------------------------------------------------- a box cut by the image's border
+def _picture_on_a_wall(seen_to_y: float = 3.0, picture_y=(1.0, 2.2)):
+    """A camera at the origin looking along +x at a wall 3 m away (Gaussians every 5 cm, white)
+    with a picture on it (y in ``picture_y``, z in [-0.4, 0.4], coloured): the picture runs past
+    the image's left border (world +y). Other views saw the wall up to ``seen_to_y``."""
+    cam = np.asarray(look_at(np.zeros(3), np.array([1.0, 0.0, 0.0])))
+    k = Intrinsics.from_fov(64, 48, 60.0)
+    yy, zz = np.meshgrid(np.arange(-3.0, seen_to_y + 1e-9, 0.05), np.arange(-2.0, 2.0 + 1e-9, 0.05))
+    means = np.c_[np.full(yy.size, 3.0), yy.ravel(), zz.ravel()]
+    pic = (means[:, 1] >= picture_y[0]) & (means[:, 1] <= picture_y[1]) & (np.abs(means[:, 2]) <= 0.4)
+    rng = np.random.default_rng(0)
+    colours = np.where(pic[:, None], rng.uniform([0.5, 0.0, 0.0], [1.0, 0.4, 0.3], (len(means), 3)), 0.92)
+    depth = np.full((48, 64), 3.0)
+    u_edge = k.cx - k.fx * picture_y[0] / 3.0
+    region = Region(
+        "a.png", 0, math.floor(k.cy - k.fy * 0.4 / 3.0), math.ceil(u_edge), math.ceil(k.cy + k.fy * 0.4 / 3.0)
+    )
+    return cam, k, depth, means, colours, region
+
+
+def test_a_box_cut_by_the_border_grows_over_what_other_views_saw():
+    """The picture runs 0.5 m past the left border; other views saw it and the wall beyond: the
+    subject is grown to the picture's far edge, and no side is left open."""
+    cam, k, depth, means, colours, region = _picture_on_a_wall()
+    opac = np.full(len(means), 0.9)
+    s = lift_region(means, opac, cam, k, region, depth_map=depth, colours=colours)
+    assert s.cut_by_frame and s.grown > 50 and s.open_sides == ()
+    assert 2.1 <= s.outline_m[:, 1].max() <= 2.3, s.outline_m[:, 1].max()  # the picture's far edge, not the wall's
+    bare = lift_region(means, opac, cam, k, region, depth_map=depth)  # no colours: as before
+    assert bare.grown == 0 and bare.outline_m[:, 1].max() < 1.8 and bare.open_sides == ("left",)
+    off = lift_region(means, opac, cam, k, region, FramingConfig(grow_beyond_frame=False), depth_map=depth,
+                      colours=colours)  # fmt: skip
+    assert off.grown == 0
+
+
+def test_a_cut_subject_that_no_view_saw_end_stays_open():
+    """The wall was reconstructed only up to y = 1.9 m, inside the picture: the subject grows to
+    where the reconstruction ends and its left side stays open (the inputs never saw it end)."""
+    cam, k, depth, means, colours, region = _picture_on_a_wall(seen_to_y=1.9)
+    s = lift_region(means, np.full(len(means), 0.9), cam, k, region, depth_map=depth, colours=colours)
+    assert s.open_sides == ("left",) and s.grown > 0
+    assert s.outline_m[:, 1].max() <= 1.95
+    assert "never saw" in Framing([s], [], k, FramingConfig()).notes()[0]
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    x0=st.integers(0, 40),
+    y0=st.integers(0, 30),
+    w=st.integers(1, 64),
+    h=st.integers(1, 48),
+    seen=st.floats(1.0, 3.0),
+)
+def test_boxes_at_any_border_lift_without_surprises(x0, y0, w, h, seen):
+    """Any box inside the image, at a border or not, of one pixel or the whole image: the lift
+    either refuses it with a FramingError or returns a finite subject whose open sides are among
+    the borders the box touches, grown only over points on the wall."""
+    cam, k, depth, means, colours, _ = _picture_on_a_wall(seen_to_y=seen)
+    region = Region("a.png", x0, y0, min(64, x0 + w), min(48, y0 + h))
+    try:
+        s = lift_region(means, np.full(len(means), 0.9), cam, k, region, depth_map=depth, colours=colours)
+    except FramingError:
+        return
+    touched = {side for side, hit in (("left", region.x0 == 0), ("top", region.y0 == 0),
+                                      ("right", region.x1 == 64), ("bottom", region.y1 == 48)) if hit}  # fmt: skip
+    assert set(s.open_sides) <= touched and s.cut_by_frame == bool(touched)
+    assert np.isfinite(s.outline_m).all() and np.isfinite(s.corners_m).all()
+    np.testing.assert_allclose(
+        s.outline_m[:, 0], 3.0, atol=0.13
+    )  # on the wall (the drawn box sits at the depth bin's centre)
+    if not touched:
+        assert s.grown == 0
+
+
+def test_an_open_side_is_held_with_room_beyond_it_while_a_view_gives_it():
+    """A subject open on its left (world +y here) is held with its outline and the same shifted
+    ``open_reach`` of its extent towards that side; a view that holds only what was seen of it
+    then no longer counts, and with no room anywhere the search falls back to what was seen."""
+    cam, k, depth, means, colours, region = _picture_on_a_wall(seen_to_y=1.9)
+    s = lift_region(means, np.full(len(means), 0.9), cam, k, region, depth_map=depth, colours=colours)
+    assert s.open_sides == ("left",) and s.reach_m.shape == (1, 3)
+    assert s.reach_m[0, 1] > 0.5 and abs(s.reach_m[0, 0]) < 0.1 * s.reach_m[0, 1]  # along the wall, towards +y
+    pts = s.hold_points_m("points", 0.2, 0.5)
+    assert len(pts) == 2 * len(s.outline_m)
+    np.testing.assert_allclose(
+        pts[len(s.outline_m) :] - s.outline_m, np.broadcast_to(0.5 * s.reach_m[0], s.outline_m.shape)
+    )
+    back = np.asarray(look_at(np.array([-2.0, 1.2, 0.0]), np.array([3.0, 1.5, 0.0])))  # far back, wide view
+    tight = np.asarray(look_at(np.array([1.5, 1.4, 0.0]), np.array([3.0, 1.4, 0.0])))  # close: the seen part only
+    poses = torch.as_tensor(np.stack([back, tight]))
+    seen = Framing([s], [], k, FramingConfig(open_reach=0.0)).feasible(poses).tolist()
+    room = Framing([s], [], k, FramingConfig(open_reach=0.5)).feasible(poses).tolist()
+    assert seen == [True, True] and room == [True, False]
+
+
+@pytest.mark.parametrize("kw, word", [({"open_reach": -1.0}, "open_reach"), ({"grow_colour_tol": 2.0}, "grow_colour_tol"),
+                                      ({"grow_beyond_frame": 1}, "grow_beyond_frame")])  # fmt: skip
+def test_the_growth_knobs_are_checked(kw, word):
+    with pytest.raises(AesPlannerError, match=word):
+        FramingConfig(**kw)
+
+
+def test_an_open_subject_no_view_leaves_room_for_is_refused_with_the_closest_view():
+    """A subject open on one side whose unseen continuation no reachable view could hold: no view
+    can be trusted to hold all of it, and the search says so (issue 40 item 2) with the closest
+    view, unless ``open_refuse`` is off (then it holds what was seen, and warns)."""
+    platform = rig_platform(pan_limits_deg=(-30.0, 30.0), tilt_limits_deg=(-20.0, 20.0))
+    base = np.asarray(platform.rig.base_xyz_m, float)
+    subject = subject_at(base + np.array([4.0, 0.0, 0.0]), (0.1, 0.1, 0.1))
+    subject.cut_by_frame, subject.open_sides = True, ("left",)
+    subject.reach_m = np.array([[0.0, 40.0, 0.0]])  # it may go on 40 m to the left: no view holds half of that
+    with pytest.raises(FramingError, match="no view can be trusted") as exc:
+        search_views(AimScorer([1.0, 0.0, 0.0]), rig_inputs(platform), platform, SearchConfig.preset("fast"),
+                     framing=Framing([subject], [], platform.intrinsics, FramingConfig()))  # fmt: skip
+    assert "closest view" in str(exc.value) and "(left)" in str(exc.value)
+    lenient = Framing([subject], [], platform.intrinsics, FramingConfig(open_refuse=False))
+    result = search_views(AimScorer([1.0, 0.0, 0.0]), rig_inputs(platform), platform, SearchConfig.preset("fast"),
+                          framing=lenient)  # fmt: skip
+    assert result.suggestions and any("never saw" in w for w in result.warnings)
+    seen = lenient.with_margin(0.05, 0.0)
+    assert all(float(seen.violation(torch.as_tensor(s.cam2world[None]))[0]) == 0.0 for s in result.suggestions)
+
+
+def test_the_fill_term_grows_as_the_subject_fills_the_frame():
+    """``fill_weight`` adds the share of the frame the subject's projected rectangle covers: more
+    from near than from far, at most 1 (the rectangle clipped to the frame), 0 with no subject."""
+    k = Intrinsics.from_fov(64, 48, 60.0)
+    s = subject_at((4.0, 0.0, 0.0), (0.3, 0.3, 0.3))
+    poses = torch.as_tensor(np.stack([np.asarray(look_at(np.array([x, 0.0, 0.0]), np.array([4.0, 0.0, 0.0])))
+                                      for x in (0.0, 2.0, 3.5)]))  # fmt: skip
+    framing = Framing([s], [], k, FramingConfig(fill_weight=0.1))
+    fill = framing.fill(poses).numpy()
+    assert 0.0 < fill[0] < fill[1] < fill[2] <= 1.0
+    np.testing.assert_allclose(framing.soft_terms(poses).numpy(), 0.1 * fill)
+    assert Framing([s], [], k, FramingConfig()).soft_terms(poses).abs().max() == 0.0
+    assert Framing([], [], k, FramingConfig(fill_weight=0.1)).fill(poses).abs().max() == 0.0
+
+
+def test_a_smoothed_stage_one_ranks_a_view_by_its_neighbourhood():
+    """``smooth_dedup``: each finite objective becomes the Gaussian-weighted mean of the finite ones
+    around it; an infeasible (-inf) candidate stays out, and a lone peak among poor neighbours
+    falls below a broad hill."""
+    from aes_planner.search.pipeline import _smoothed
+    from aes_planner.search.space import space_for
+
+    platform = rig_platform(pan_limits_deg=(-90.0, 90.0), tilt_limits_deg=(-30.0, 30.0))
+    space = space_for(platform, SearchConfig.preset("fast"))
+    step = math.radians(2.0)
+    pans = torch.tensor([-0.6, -0.6 + step, -0.6 + 2 * step, 0.6 - step, 0.6, 0.6 + step, 0.0], dtype=torch.float64)
+    cand = torch.stack([pans, torch.zeros_like(pans)], -1)
+    obj = torch.tensor([0.70, 0.72, 0.70, 0.20, 0.80, 0.20, -math.inf], dtype=torch.float64)
+    out = _smoothed(space, cand, obj, 0.25)
+    assert out[6] == -math.inf and bool(torch.isfinite(out[:6]).all())
+    assert float(out[1]) > float(out[4])  # the broad hill beats the lone peak
+    assert float(out[:6].min()) >= 0.2 and float(out[:6].max()) <= 0.8
+    np.testing.assert_allclose(_smoothed(space, cand, obj, 1e-6)[:6].numpy(), obj[:6].numpy())
