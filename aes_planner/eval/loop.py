@@ -62,7 +62,7 @@ _SCENES = Path(__file__).resolve().parents[1] / "sim" / "scenes"  # installed: a
 if not _SCENES.is_dir():  # an editable install maps aes_planner.sim to the repository's sim/
     _SCENES = Path(__file__).resolve().parents[2] / "sim" / "scenes"
 
-#: Scenes for tuning the loop (seeds 200-211 and ``sim/scenes/loop_dev/``): never reported as
+#: Scenes for tuning the loop (seeds 200-299 and ``sim/scenes/loop_dev/``): never reported as
 #: held-out. Seeds 207-211 (more tabletops, more drones) were added to re-decide the
 #: polish on more than two runs that differ.
 DEV_LOOP_SCENES = [
@@ -81,6 +81,39 @@ DEV_LOOP_SCENES = [
     "gallery:209@drone",
     "tabletop:210",
     "tabletop:211",
+    # session 28: hand-written rigs unlike the procedural ones (real photographs as subjects, a
+    # subject straight behind the start, near the joint limits, tilt to +-85-88 deg, a hung and a
+    # tilted base, two copies of one photograph 15 deg apart, a small far poster), procedural scenes
+    # with photographs or wider ranges (scripts/loop_dev_scenes_s28.py), and free dev seeds
+    *(
+        str(_SCENES / "loop_dev" / f"{name}.yaml")
+        for name in (
+            "photo_ring_room",
+            "photo_desk_below",
+            "skylight_rig",
+            "far_poster_field",
+            "limit_shelf_rig",
+            "twin_prints",
+            "hung_photo_rig",
+            "tilted_base_yard",
+            "behind_start_rig",
+            "photo_tabletop_271",
+            "photo_gallery_272",
+            "photo_outdoor_273",
+            "wide_indoor_274",
+            "steep_tabletop_275",
+        )
+    ),
+    "tabletop:249",
+    "indoor:250",
+    "outdoor:251",
+    "gallery:252",
+    "tabletop:253",
+    "indoor:254",
+    "outdoor:255",
+    "gallery:256",
+    "tabletop:257",
+    "gallery:260",
 ]
 
 #: The held-out set (seeds 300-311 and files written for it): never tuned on. Every family, wide-pan

@@ -424,6 +424,10 @@ class ActiveLoop:
         self._flank_done = False  # the flanks' rounds (and their climb) were taken, or there were none
         self._flank_climb = False  # the climbs from flanks' probes are on (no spare hill after them)
         self._turns = None  # a drone's turns verified one by one (_next_turn), while some are left
+        self._flank_from = None  # the first capture of the flanks' rounds (first pass)
+        self._flank_repeats = 0  # flank passes taken again (``flank_repeats``)
+        self._repeat_round = None  # the capture index the coarse round of a repeat began at
+        self._flank_among = 0  # the flanks are chosen among the captures from this index on
         # the hills the moves never reached: one real capture of each one's best predicted view
         # (on top of the polish's budget), so the hill climbed first is chosen on captures, not on
         # the field's (over-)estimate
@@ -895,6 +899,8 @@ class ActiveLoop:
             if not self._queue:  # the climbs from flanks' probes: the first one's first round
                 self._polish_step(now)
             return
+        if self._flank_repeat(now):
+            return
         if self._fine_round():
             return
         self._begin_settle(now)
@@ -930,6 +936,8 @@ class ActiveLoop:
                 len(targets),
             )
             self._flank_probe = (flanks, len(self.captures))
+            if self._flank_from is None:
+                self._flank_from = len(self.captures)
             self._queue = targets
             return True
         flanks, first = self._flank_probe
@@ -957,6 +965,39 @@ class ActiveLoop:
         self._set_climbs(tops)
         return True
 
+    def _flank_repeat(self, now: float) -> bool:
+        """After the flanks' pass (on top of the budget), up to ``flank_repeats`` times (unset: the
+        motion's default), when the best capture came from that pass (its climbs start a quarter
+        of the coarsest step out, so no coarse round was ever taken around the top they reached):
+        one round at the coarsest step around the best capture, then the flanks' pass again (its
+        rounds and climbs, :meth:`_flank_step`) over the captures that round added. A hill beside
+        the top a flank climb reached, behind a valley narrower than the coarsest step, was never
+        probed (dev photo_ring_room: the flank climb topped 0.762 at pan 76, the oracle 0.834 at
+        pan 59, the valley at pan 67.5). False: nothing (more) to take."""
+        c = self.config
+        most = self.motion.flank_repeats if c.flank_repeats is None else c.flank_repeats
+        if self._repeat_round is None:
+            if self._flank_repeats >= most or self._flank_from is None:
+                return False
+            best = self._best_capture()
+            if not any(best is cap for cap in self.captures[self._flank_from :]):
+                return False
+            self._flank_repeats += 1
+            targets = self._feasible_targets(self._round(best, self._coarsest_step_deg(), 0.0, []))
+            if not targets:
+                return False
+            log.info(
+                "%s: the flanks' climbs topped the best (%.3f): a coarse round around it", self.node_id, best.score
+            )
+            self._repeat_round = len(self.captures)
+            self._queue = targets
+            return True
+        self._flank_among, self._repeat_round = self._repeat_round, None
+        self._flank_done = False  # the flanks' pass again, over what the round added
+        self._flank_probe = None
+        self._polish_step(now)
+        return True
+
     def _flank_hills(self) -> list[Capture]:
         """The captures :meth:`_flank_step` takes a round around (see there), best first."""
         c = self.config
@@ -966,7 +1007,8 @@ class ActiveLoop:
         apart_deg = 0.75 * self._coarsest_step_deg()
         floor = self._value(self._best_capture()) - c.polish_start_gap
         flanks: list[Capture] = []
-        for cap in sorted(self.captures, key=lambda cap: -self._value(cap)):  # stable: earlier first on a tie
+        among = self.captures[self._flank_among :]  # a repeat's pass: the captures its coarse round added
+        for cap in sorted(among, key=lambda cap: -self._value(cap)):  # stable: earlier first on a tie
             if len(flanks) >= most or self._value(cap) < floor or not math.isfinite(self._value(cap)):
                 break
             if all(view_angle_deg(cap.cam2world, s.cam2world) >= apart_deg for s in self._stood_on + flanks):

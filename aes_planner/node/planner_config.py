@@ -247,6 +247,17 @@ class PlannerConfig:
       the teacher on the held frames warped into them
       (:class:`~aes_planner.search.framing.FramingConfig` ``photo_rank``, ``suggest --photo-rank``);
       about ten times the search time. Off by default.
+    * ``flank_repeats``: after the flanks' pass (``flank_hills``), when the best capture came
+      from it, up to this many times: one round at the coarsest polish step around the best
+      capture (4 captures at most), then the flanks' pass again over that round's captures, all
+      on top of ``polish_captures``. A flank climb starts a quarter of the coarsest step out, so
+      no coarse round was ever taken around the top it reached, and a higher hill beyond a valley
+      narrower than the coarsest step was never probed (dev photo_ring_room: the flank climb
+      topped 0.762 at pan 76, the oracle 0.834 at pan 59 behind a valley at pan 67.5). Unset:
+      the platform's default, 0 on both (a rig's 1 lifted that scene to 0.990 and changed no
+      other dev rig's score, but failed its ship rule's spread condition: the scene's
+      ``noise:1e-6`` run takes another path from the first move and stays 0.920; a drone's
+      ``flank_hills`` is 0 anyway; docs/benchmarks.md, session 28).
     """
 
     scorer: str = "field"
@@ -311,6 +322,7 @@ class PlannerConfig:
     photo_rank: bool = False
     residual_length_m: float | None = None
     turns_one_by_one: bool | None = None
+    flank_repeats: int | None = None
 
     #: The keys ``platform:`` replaced, and how to rewrite each (read by :func:`~aes_planner.config.from_dict`).
     RETIRED_KEYS: ClassVar[dict[str, str]] = {
@@ -358,6 +370,7 @@ class PlannerConfig:
         require_optional_int(self, "spare_hills", 16)
         require_optional_int(self, "short_hills", 16)
         require_optional_int(self, "flank_hills", 16)
+        require_optional_int(self, "flank_repeats", 4)
         require(
             self.verify_apart_deg is None
             or (

@@ -1071,3 +1071,59 @@ def test_flank_hills_default_is_the_platforms_and_is_checked():
     for bad in (-1, 2.0, None, False):
         with pytest.raises(ConfigError, match="flank_captures"):
             PlannerConfig(flank_captures=bad)
+
+
+class _BeyondTheFlank(ScriptedProposer):
+    """Dev photo_ring_room: as :class:`_FlankPeak` (a broad 0.75 top, its round's capture on the
+    flank of a narrow 0.8 peak B that the flanks' pass climbs), and a higher hill P (1.0) 14 deg
+    beyond B behind a valley: no round was ever taken 10 deg out from B's top."""
+
+    A = (math.radians(17.0), 0.0)
+    B = (math.radians(27.0), math.radians(4.0))
+    P = (math.radians(41.0), math.radians(4.0))
+
+    def value(self, pan, tilt):
+        def hill(top, at, s_deg):
+            return top * math.exp(-((pan - at[0]) ** 2 + (tilt - at[1]) ** 2) / (2 * math.radians(s_deg) ** 2))
+
+        return float(max(hill(0.75, self.A, 20.0), hill(0.8, self.B, 2.5), hill(1.0, self.P, 6.0)))
+
+
+def test_the_top_a_flank_climb_reached_gets_a_coarse_round_and_the_flanks_pass_again():
+    """Without ``flank_repeats`` (the default on both platforms) the flanks' climb tops B (0.8)
+    and the loop settles there; with one repeat, a coarsest round around that top lands on P's flank (0.8, within
+    ``polish_start_gap``), the flanks' pass again rounds it and climbs P (on top of the budget:
+    4 coarse + 4 flank-round + ``flank_captures`` more captures at most)."""
+    runs = {}
+    for repeats in (0, 1):
+        prop = _BeyondTheFlank()
+        prop.fixed = lambda p=prop: [Candidate(p.rig.forward(*p.A), 10.0, 1.0, *p.A)]
+        node = make(
+            prop,
+            explore_views=2,
+            max_moves=1,
+            polish_captures=48,
+            verify_hills=0,
+            verify_unseen=False,
+            flank_hills=None,
+            flank_repeats=repeats,
+        )
+        drive(node, SimRig(prop), steps=4000)
+        assert node.state == "done" and node.moves == 1
+        runs[repeats] = (node.captures[-1].score, sum(c.kind == "polish" for c in node.captures))
+    (once, spent_once), (again, spent) = runs[0], runs[1]
+    assert once == pytest.approx(0.8, abs=0.02)
+    assert again > 0.95
+    assert spent - spent_once <= 4 + 6 * 4 + 16
+
+
+def test_flank_repeats_default_is_the_platforms_and_is_checked():
+    from aes_planner.node.motion import DroneMotion, RigMotion
+
+    assert PlannerConfig().flank_repeats is None
+    # measured on dev rigs and not shipped (its ship rule's spread condition failed on
+    # photo_ring_room, docs/benchmarks.md, session 28): opt-in on both platforms
+    assert RigMotion.flank_repeats == 0 and DroneMotion.flank_repeats == 0
+    for bad in (-1, 5, 1.5, True):
+        with pytest.raises(ConfigError, match="flank_repeats"):
+            PlannerConfig(flank_repeats=bad)
