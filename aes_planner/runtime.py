@@ -54,11 +54,9 @@ __all__ = [
     "ThreadGovernor",
     "available_cores",
     "idle_cores",
-    "join_background",
     "light_numba_cache_loads",
     "reset_suggestion_governor",
     "set_threads",
-    "start_background",
     "start_load_window",
     "suggestion_threads",
     "threads_for_load",
@@ -130,7 +128,6 @@ def _numba():
 
 
 _light_loads: bool | None = None
-_light_loads_lock = threading.Lock()
 
 
 def light_numba_cache_loads() -> bool:
@@ -147,13 +144,9 @@ def light_numba_cache_loads() -> bool:
     process; numba is left as it is when its cache class is not the one this was written for.
     Returns whether the loads are the lighter ones."""
     global _light_loads
-    with _light_loads_lock:  # the program's loads start on a background thread (start_background)
-        if _light_loads is None:
-            _light_loads = _patch_cache_loads()
+    if _light_loads is not None:
         return _light_loads
-
-
-def _patch_cache_loads() -> bool:
+    _light_loads = False
     try:
         from numba.core import caching
         from numba.core.runtime import nrt
@@ -174,6 +167,7 @@ def _patch_cache_loads() -> bool:
             return self._load_overload(sig, target_context)
 
     cache.load_overload = load_overload
+    _light_loads = True
     return True
 
 
@@ -526,47 +520,3 @@ def tune_malloc() -> bool:
     )
     log.debug("malloc thresholds %s", "fixed" if _tuned else "left to glibc (mallopt refused)")
     return _tuned
-
-
-_background: list[threading.Thread] = []
-
-
-def start_background(name: str, *steps: Callable[[], object]) -> threading.Thread:
-    """Run ``steps`` one after another on a thread of their own, beside the caller: work the
-    program would otherwise do on first use, done ahead while the main thread does other things.
-    Meant for loads of numba's cached kernels: ~0.1 s of a cold ``aes-planner suggest`` that held
-    up its first render, started with its last imports and done by the time its search needs them
-    (docs/benchmarks.md, "perf-2, session 28"). numba's compiler lock makes a render that needs a
-    kernel the thread is loading wait for it, so nothing is loaded twice.
-
-    A step that fails is logged (debug) and the next runs: the main thread meets the same error at
-    first use, where it is reported. The thread is not a daemon: the interpreter waits for it at
-    exit, so a process never ends inside a kernel load (:func:`join_background` waits earlier)."""
-    if not steps or not all(callable(step) for step in steps):
-        raise ValueError(f"start_background {name!r}: give one or more callables, got {steps!r}")
-
-    def run() -> None:
-        for step in steps:
-            try:
-                step()
-            except Exception as exc:  # reported where the main thread meets it
-                log.debug("background %s: %s failed: %s: %s", name, _step_name(step), type(exc).__name__, exc)
-
-    thread = threading.Thread(target=run, name=f"aes-{name}")
-    _background.append(thread)
-    thread.start()
-    return thread
-
-
-def _step_name(step: Callable[[], object]) -> str:
-    return getattr(step, "__qualname__", None) or repr(step)
-
-
-def join_background(timeout_s: float | None = None) -> bool:
-    """Wait for the threads :func:`start_background` started (each up to ``timeout_s``); returns
-    whether they all ended."""
-    for thread in list(_background):
-        thread.join(timeout_s)
-        if not thread.is_alive():
-            _background.remove(thread)
-    return not _background

@@ -189,35 +189,3 @@ def test_cached_kernels_load_without_numba_refreshing_its_registries(tmp_path):
     assert run(True) == ["True", "0", "1", "[0.0, 2.0, 4.0, 6.0]"]  # from the cache, no refresh
     plain = run(False)  # numba's own load: the same kernel, after a refresh
     assert int(plain[1]) >= 1 and plain[2:] == ["1", "[0.0, 2.0, 4.0, 6.0]"]
-
-
-def test_background_steps_run_in_order_past_a_failing_one_and_join(caplog):
-    """`start_background` runs its steps one after another on another thread; a step that fails
-    is logged and the next still runs (the main thread meets the error at first use); after
-    `join_background` every step has run and no thread is left."""
-    import threading
-
-    from aes_planner.runtime import join_background, start_background
-
-    ran: list[tuple[str, str]] = []
-
-    def step(name: str):
-        return lambda: ran.append((name, threading.current_thread().name))
-
-    def broken():
-        raise RuntimeError("no kernels here")
-
-    with caplog.at_level("DEBUG", logger="aes_planner.runtime"):
-        thread = start_background("test-steps", step("first"), broken, step("last"))
-        assert join_background(timeout_s=60)
-    assert not thread.is_alive() and not thread.daemon  # the interpreter waits for it at exit
-    assert ran == [("first", "aes-test-steps"), ("last", "aes-test-steps")]
-    assert "no kernels here" in caplog.text
-
-
-@pytest.mark.parametrize("steps", [(), (1,), (print, "not callable")])
-def test_background_refuses_nonsense(steps):
-    from aes_planner.runtime import start_background
-
-    with pytest.raises(ValueError, match="callables"):
-        start_background("bad", *steps)

@@ -201,32 +201,6 @@ def _program_imports(args: argparse.Namespace) -> None:
         importlib.import_module(name)
 
 
-#: Options after which the program only prints (help, version): nothing is started in the background.
-_PRINT_ONLY = ("-h", "--help", "--version")
-
-
-def _program_background(module_name: str | None, argv: list[str]) -> None:
-    """Start what the command's module runs beside the rest of the start-up, before its parser is
-    built (which imports most of what it computes with): the module's ``PROGRAM_BACKGROUND_IMPORTS``
-    first, in this thread (two threads importing at once can deadlock on import locks), then its
-    ``program_background()`` (``suggest``: loading numba's cached kernels). Not for ``--help``; a
-    module that does not import (numba missing) starts nothing: the command meets it where it is
-    used, as before."""
-    if module_name is None or any(a in _PRINT_ONLY for a in argv):
-        return
-    module = importlib.import_module(module_name)
-    start = getattr(module, "program_background", None)
-    if start is None:
-        return
-    try:
-        for name in getattr(module, "PROGRAM_BACKGROUND_IMPORTS", ()):
-            importlib.import_module(name)
-    except ImportError as exc:
-        logging.getLogger(__name__).debug("nothing started in the background: %s", exc)
-        return
-    start()
-
-
 def main(argv: list[str] | None = None) -> int:
     """The CLI. Without ``argv`` it is the program (the ``aes-planner`` script, ``python -m
     aes_planner``): the process is its own, and it sets the process's garbage collector for a
@@ -252,10 +226,7 @@ def _main(argv: list[str] | None, program: bool) -> int:
     if empty is not None:  # `--teacher ''` would otherwise mean "the default" to `args.x or DEFAULT`
         print(f"error: {empty}: an empty value; give one, or leave the option out for its default", file=sys.stderr)
         return 2
-    words = [str(a) for a in (sys.argv[1:] if argv is None else argv)]
-    module = command_module(words)
-    if program:
-        _program_background(module, words)
+    module = command_module([str(a) for a in (sys.argv[1:] if argv is None else argv)])
     parser = build_parser(None if module is None else [module])
     args = parser.parse_args(argv)
     if program:

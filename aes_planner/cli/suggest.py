@@ -25,36 +25,7 @@ PROGRAM_IMPORTS = (
     "aes_planner.field.model",
     "aes_planner.teachers",
     "aes_planner.gaussians.kernels",
-    "aes_planner.gaussians.warmup",
-    "aes_planner.teachers.composition_kernel",
 )
-#: What :func:`program_background`'s thread runs, imported before it starts (by the program, in the
-#: main thread: two threads importing at once can deadlock on import locks). A subset of what the
-#: parser and :data:`PROGRAM_IMPORTS` import, so that the import-only process of ``bench search``
-#: imports them too.
-PROGRAM_BACKGROUND_IMPORTS = (
-    "aes_planner.gaussians.kernels",
-    "aes_planner.gaussians.warmup",
-    "aes_planner.teachers",
-    "aes_planner.teachers.composition_kernel",
-)
-
-
-def program_background() -> None:
-    """Load numba's cached kernels (the rasterizer's float32 kernels and the composition head) on a
-    background thread while the program builds its parser, reads the frames and reconstructs,
-    instead of at the first render, which waited ~0.1 s for them (docs/benchmarks.md, "perf-2,
-    session 28"). Started by :func:`aes_planner.cli.main` before the parser is built (not for
-    ``--help``), once :data:`PROGRAM_BACKGROUND_IMPORTS` are in; only where numba's cache holds the
-    kernels: a first run after an install compiles them (~40 s) where the render needs them, and a
-    command that then fails on its arguments does not wait for a compile at its exit."""
-    from aes_planner.gaussians.warmup import kernels_cached, warm_kernels
-    from aes_planner.runtime import start_background
-    from aes_planner.teachers import get_teacher
-
-    if not kernels_cached():
-        return
-    start_background("kernel-loads", warm_kernels, lambda: get_teacher("composition").warm())
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -7,7 +7,6 @@ the other, so neither imports the other back."""
 from __future__ import annotations
 
 import logging
-import os
 
 import torch
 
@@ -16,7 +15,7 @@ from aes_planner.gaussians.rasterize import resolve_backend
 
 log = logging.getLogger(__name__)
 
-__all__ = ["COMPILED_AFTER_S", "kernels_cached", "warm_kernels"]
+__all__ = ["COMPILED_AFTER_S", "warm_kernels"]
 
 #: A warm-up slower than this compiled the kernels (loading them from numba's cache takes ~0.5 s).
 COMPILED_AFTER_S = 5.0
@@ -37,18 +36,3 @@ def warm_kernels() -> float | None:
             took_s,
         )
     return took_s
-
-
-def kernels_cached() -> bool:
-    """Whether numba's on-disk cache holds the rasterizer's kernels (the index of its forward
-    kernel, where numba keeps it: beside the sources or under ``NUMBA_CACHE_DIR``), so a warm-up
-    loads rather than compiles. False where numba is missing, the torch backend runs, or numba's
-    cache is not laid out as this was written for (numba 0.59-0.68)."""
-    if resolve_backend() != "numba":
-        return False
-    try:
-        from aes_planner.gaussians import kernels
-
-        return os.path.isfile(kernels.raster_fwd._cache._cache_file._index_path)
-    except (ImportError, AttributeError, TypeError):
-        return False

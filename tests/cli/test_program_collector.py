@@ -6,8 +6,6 @@ import gc
 import subprocess
 import sys
 
-import pytest
-
 from aes_planner.bench.search import _SUGGEST_IMPORTS
 from aes_planner.cli import main
 
@@ -81,81 +79,3 @@ def test_main_with_argv_leaves_the_collector_alone(capsys):
     assert main([]) == 2  # no command: the help, status 2
     assert "usage:" in capsys.readouterr().out
     assert gc.isenabled() and gc.get_freeze_count() == before
-
-
-def _first_asks(argv: list[str]) -> tuple[subprocess.CompletedProcess, str]:
-    """Run the program with ``argv`` under a probe that notes which thread first asks numba for
-    each kernel; returns the process and the probe's line."""
-    watch = (
-        "import threading\n"
-        "import numba.core.dispatcher as d\n"
-        "first = {}\n"
-        "orig = d.Dispatcher._compile_for_args\n"
-        "def ask(self, *a, **k):\n"
-        "    first.setdefault(self.py_func.__name__, threading.current_thread().name)\n"
-        "    return orig(self, *a, **k)\n"
-        "d.Dispatcher._compile_for_args = ask\n"
-        "atexit.register(lambda: print('first', sorted(first.items())))\n"
-    )
-    body = f"from aes_planner.cli import main\nsys.argv = {['aes-planner', *argv]!r}\nsys.exit(main())\n"
-    out = subprocess.run([sys.executable, "-c", _PROBE + watch + body], capture_output=True, text=True, timeout=600)
-    return out, next((v for v in out.stdout.splitlines() if v.startswith("first")), "")
-
-
-def test_suggest_loads_its_kernels_beside_the_start_up():
-    """`suggest` loads numba's cached kernels (the rasterizer's and the composition head's) on a
-    background thread started before its parser is built; the rest of the start-up and the command
-    run meanwhile, and the exit waits for the thread. The probe notes which thread first asks numba
-    for each kernel: the background thread, not the main one; the command then fails on its missing
-    folder as before."""
-    from aes_planner.gaussians.warmup import kernels_cached
-
-    if not kernels_cached():
-        pytest.skip("numba's cache does not hold the kernels here: nothing is loaded in the background")
-    out, line = _first_asks(["suggest", "/nowhere/at/all"])
-    assert out.returncode == 2 and "nowhere" in out.stderr, out.stderr[-2000:]
-    for kernel in ("raster_fwd", "raster_bwd", "project_fwd", "project_bwd", "head"):
-        assert f"('{kernel}', 'aes-kernel-loads')" in line, line
-
-
-def test_suggest_help_starts_nothing_in_the_background():
-    out, line = _first_asks(["suggest", "--help"])
-    assert out.returncode == 0 and "DATASET_DIR" in out.stdout
-    assert "aes-kernel-loads" not in line, line
-
-
-def test_the_background_thread_imports_nothing_the_start_up_does_not():
-    """Every module `suggest`'s background thread needs is one its parser and ``PROGRAM_IMPORTS``
-    import anyway: starting it early moves no import into the program."""
-    probe = (
-        "import sys, importlib\n"
-        "from aes_planner.cli import build_parser\n"
-        "from aes_planner.cli import suggest as s\n"
-        "build_parser(['aes_planner.cli.suggest'])\n"
-        "[importlib.import_module(m) for m in s.PROGRAM_IMPORTS]\n"
-        "print([m for m in s.PROGRAM_BACKGROUND_IMPORTS if m not in sys.modules])\n"
-    )
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=600)
-    assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip().splitlines()[-1] == "[]"
-
-
-def test_a_background_whose_modules_do_not_import_starts_nothing(monkeypatch):
-    """Where a module the background thread needs does not import (numba missing), the program
-    starts nothing and goes on: the command meets the missing module where it uses it."""
-    import types
-
-    from aes_planner import cli
-
-    started = []
-    fake = types.ModuleType("aes_planner_fake_command")
-    fake.PROGRAM_BACKGROUND_IMPORTS = ("aes_planner_no_such_module",)
-    fake.program_background = lambda: started.append(True)
-    monkeypatch.setitem(sys.modules, fake.__name__, fake)
-    cli._program_background(fake.__name__, ["fake", "DIR"])
-    assert started == []
-    fake.PROGRAM_BACKGROUND_IMPORTS = ("json",)
-    cli._program_background(fake.__name__, ["fake", "--help"])
-    assert started == []  # --help: nothing
-    cli._program_background(fake.__name__, ["fake", "DIR"])
-    assert started == [True]
