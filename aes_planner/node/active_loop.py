@@ -203,15 +203,7 @@ class ActiveLoop:
         out["planner/suggestion"].append(
             self._suggestion(cands[: c.top_k], proposal.field_version, now, proposal=proposal)
         )
-        hope = hopes(
-            cands,
-            self.captures,
-            proposal.captured_pred,
-            c.optimism,
-            c.min_sigma,
-            c.residual_length_deg,
-            self._residual_length_m(),
-        )
+        hope = self._hopes(cands, self.captures, proposal.captured_pred)
         best_true = self._value(self._best_capture())
         order = decision_order(hope, cands, c.hope_quantum, self._tie_margin())
         self._log_decision(cands, hope, order, best_true, proposal)
@@ -243,6 +235,14 @@ class ActiveLoop:
                 target.far_best = best_true
             return target
         return self._explore_target(proposal)
+
+    def _hopes(self, cands: list[Candidate], captures: list[Capture], captured_pred) -> np.ndarray:  # -> [C]
+        """:func:`~aes_planner.node.captures.hopes` with the loop's settings: ``captured_pred`` [M],
+        the scorer's prediction at each of ``captures``."""
+        c = self.config
+        return hopes(
+            cands, captures, captured_pred, c.optimism, c.min_sigma, c.residual_length_deg, self._residual_length_m()
+        )
 
     def _residual_length_m(self) -> float | None:
         """``residual_length_m`` on a drone (unset: the motion's default); None (the view direction
@@ -451,15 +451,7 @@ class ActiveLoop:
             log.exception("%s: the hills' verification failed; polishing the captured hills", self.node_id)
             return []
         cands = [cd for cd in proposal.candidates if self._safe_candidate(cd)]
-        hope = hopes(
-            cands,
-            self.captures,
-            proposal.captured_pred,
-            c.optimism,
-            c.min_sigma,
-            c.residual_length_deg,
-            self._residual_length_m(),
-        )
+        hope = self._hopes(cands, self.captures, proposal.captured_pred)
         floor = self._value(self._best_capture()) - c.polish_start_gap
         targets: list[Target] = []
         tied = self._tie_margin() > 0
@@ -509,11 +501,11 @@ class ActiveLoop:
             return []
         if pred is None or not np.all(np.isfinite(pred)):
             return []
+        per_place, start = [], 0
+        for v in views:
+            per_place.append([Candidate(p, float(s)) for p, s in zip(v, pred[start : start + len(v)])])
+            start += len(v)
         if self._turns_one_by_one():
-            per_place, start = [], 0
-            for v in views:
-                per_place.append([Candidate(p, float(s)) for p, s in zip(v, pred[start : start + len(v)])])
-                start += len(v)
             self._turns = {
                 "places": per_place,
                 "captures": list(self.captures),  # calibrated by proposal.captured_pred
@@ -526,20 +518,29 @@ class ActiveLoop:
             }
             first = self._next_turn()
             return [first] if first is not None else []
+        bests = self._place_bests(per_place, self.captures, proposal.captured_pred, step_deg)
+        hope = self._hopes(bests, self.captures, proposal.captured_pred)
+        out: list[Target] = []
+        for i in decision_order(hope, bests, c.hope_quantum):
+            cd = bests[i]
+            if len(out) >= most or hope[i] < floor:
+                break
+            if self._near_turn(cd, targets + out, step_deg):
+                continue
+            log.info("%s: verify a turn: %s, pred %.3f hope %.3f", self.node_id, _where(cd), cd.score, hope[i])
+            out.append(Target(CaptureKind.VERIFY, cd.cam2world, None, None, predicted=float(hope[i])))
+        return self._feasible_targets(out)
+
+    def _place_bests(
+        self, places: list[list[Candidate]], captures: list[Capture], captured_pred, step_deg: float
+    ) -> list[Candidate]:
+        """Each place's best turn by hope (calibrated on ``captures`` and ``captured_pred`` [M]): not
+        within a coarsest polish step (``step_deg``) of a capture there, and safe; a place with
+        none gives none."""
+        c = self.config
         bests: list[Candidate] = []
-        start = 0
-        for v in views:
-            cands = [Candidate(p, float(s)) for p, s in zip(v, pred[start : start + len(v)])]
-            start += len(v)
-            hope = hopes(
-                cands,
-                self.captures,
-                proposal.captured_pred,
-                c.optimism,
-                c.min_sigma,
-                c.residual_length_deg,
-                self._residual_length_m(),
-            )
+        for cands in places:
+            hope = self._hopes(cands, captures, captured_pred)
             for i in decision_order(hope, cands, c.hope_quantum):
                 cd = cands[i]
                 if near_captured(self.captures, cd.cam2world, step_deg, c.min_move_m):
@@ -548,29 +549,16 @@ class ActiveLoop:
                     continue
                 bests.append(cd)
                 break
-        hope = hopes(
-            bests,
-            self.captures,
-            proposal.captured_pred,
-            c.optimism,
-            c.min_sigma,
-            c.residual_length_deg,
-            self._residual_length_m(),
+        return bests
+
+    def _near_turn(self, cd: Candidate, others: list[Target], step_deg: float) -> bool:
+        """``cd`` looks as one of ``others`` does (within two coarsest polish steps) from its place
+        (within ``min_move_m``)."""
+        return any(
+            view_angle_deg(cd.cam2world, o.cam2world) < 2.0 * step_deg
+            and np.linalg.norm(cd.cam2world[:3, 3] - o.cam2world[:3, 3]) <= self.config.min_move_m
+            for o in others
         )
-        out: list[Target] = []
-        for i in decision_order(hope, bests, c.hope_quantum):
-            cd = bests[i]
-            if len(out) >= most or hope[i] < floor:
-                break
-            if any(
-                view_angle_deg(cd.cam2world, t.cam2world) < 2.0 * step_deg
-                and np.linalg.norm(cd.cam2world[:3, 3] - t.cam2world[:3, 3]) <= c.min_move_m
-                for t in targets + out
-            ):
-                continue
-            log.info("%s: verify a turn: %s, pred %.3f hope %.3f", self.node_id, _where(cd), cd.score, hope[i])
-            out.append(Target(CaptureKind.VERIFY, cd.cam2world, None, None, predicted=float(hope[i])))
-        return self._feasible_targets(out)
 
     def _turns_one_by_one(self) -> bool:
         """``turns_one_by_one`` on a drone (unset: the motion's default); never on a rig (no turns)."""
@@ -607,30 +595,15 @@ class ActiveLoop:
             return None
         caps = t["captures"] + [cap for cap, _ in t["verified"]]
         pred = np.concatenate([t["pred"], np.array([raw for _, raw in t["verified"]], dtype=np.float64)])  # [M']
-        args = (caps, pred, c.optimism, c.min_sigma, c.residual_length_deg, self._residual_length_m())
         step_deg = t["step_deg"]
-        bests: list[Candidate] = []
-        for cands in t["places"]:
-            hope = hopes(cands, *args)
-            for i in decision_order(hope, cands, c.hope_quantum):
-                cd = cands[i]
-                if near_captured(self.captures, cd.cam2world, step_deg, c.min_move_m):
-                    continue  # a capture there looks this way already: its climb can reach it
-                if not self._safe_candidate(cd):
-                    continue
-                bests.append(cd)
-                break
-        hope = hopes(bests, *args)
+        bests = self._place_bests(t["places"], caps, pred, step_deg)
+        hope = self._hopes(bests, caps, pred)
         floor = self._value(self._best_capture()) - c.polish_start_gap
         for i in decision_order(hope, bests, c.hope_quantum):
             cd = bests[i]
             if hope[i] < floor:
                 break
-            if any(
-                view_angle_deg(cd.cam2world, o.cam2world) < 2.0 * step_deg
-                and np.linalg.norm(cd.cam2world[:3, 3] - o.cam2world[:3, 3]) <= c.min_move_m
-                for o in t["others"]
-            ):
+            if self._near_turn(cd, t["others"], step_deg):
                 continue
             target = Target(CaptureKind.VERIFY, cd.cam2world, None, None, predicted=float(hope[i]))
             if not self._feasible_targets([target]):
