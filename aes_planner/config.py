@@ -128,6 +128,13 @@ def require_optional_bool(obj: Any, name: str) -> None:
     )
 
 
+def require_bools(obj: Any, names: tuple[str, ...]) -> None:
+    """Raise for the first attribute of ``obj`` in ``names`` that is not a bool, naming it."""
+    for name in names:
+        v = getattr(obj, name)
+        require(isinstance(v, bool), name, f"must be true or false, got {v!r}")
+
+
 def require_within(obj: Any, names: tuple[str, ...], low: float, high: float) -> None:
     """Raise for the first attribute of ``obj`` in ``names`` (a number, or a flat sequence of them)
     holding anything but finite numbers within ``[low, high]``, naming that attribute."""

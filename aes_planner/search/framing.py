@@ -51,7 +51,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from aes_planner.config import require, require_within
+from aes_planner.config import require, require_bools, require_within
 from aes_planner.errors import AesPlannerError
 from aes_planner.field.scorer import ScoreOutput, Scorer
 from aes_planner.geometry.camera import Intrinsics
@@ -260,18 +260,12 @@ class FramingConfig:
             self.keep_at in (None, *KEEP_AT), "keep_at", f"must be one of {list(KEEP_AT)} or none, got {self.keep_at!r}"
         )
         require_within(self, ("occluded_max",), 0.0, 1.0)
-        require(
-            isinstance(self.grow_beyond_frame, bool),
-            "grow_beyond_frame",
-            f"must be true or false, got {self.grow_beyond_frame!r}",
+        require_bools(self, ("grow_beyond_frame", "open_refuse", "refine", "photo_rank"))
+        require_within(
+            self, ("grow_flat_ratio", "grow_colour_tol", "grow_plane_tol", "hidden_frac", "hidden_ratio"), 0.0, 1.0
         )
-        require_within(self, ("grow_flat_ratio", "grow_colour_tol"), 0.0, 1.0)
-        require_within(self, ("grow_plane_tol",), 0.0, 1.0)
         require_within(self, ("open_reach",), 0.0, 4.0)
-        require_within(self, ("hidden_frac", "hidden_ratio"), 0.0, 1.0)
-        require_within(self, ("fill_weight",), 0.0, 10.0)
-        require_within(self, ("smooth_dedup",), 0.0, 10.0)
-        require(isinstance(self.open_refuse, bool), "open_refuse", f"must be true or false, got {self.open_refuse!r}")
+        require_within(self, ("fill_weight", "smooth_dedup"), 0.0, 10.0)
         for name in ("placement_weight", "avoid_weight", "edge_weight", "grow_frac", "ring_frac"):
             v = getattr(self, name)
             require(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0, name, f"must be >= 0, got {v!r}")
@@ -291,8 +285,6 @@ class FramingConfig:
             "outline_dirs",
             f"must be an integer in [6, 4096], got {self.outline_dirs!r}",
         )
-        require(isinstance(self.refine, bool), "refine", f"must be true or false, got {self.refine!r}")
-        require(isinstance(self.photo_rank, bool), "photo_rank", f"must be true or false, got {self.photo_rank!r}")
         require(
             isinstance(self.photo_top, int) and 0 <= self.photo_top <= 10_000,
             "photo_top",
