@@ -16,7 +16,6 @@ Dev only: nothing here looked at the held-out photo scenes' files.
 from __future__ import annotations
 
 import math
-import shutil
 import zlib
 from pathlib import Path
 
@@ -127,6 +126,11 @@ def _aspect(image: str) -> float:  # width / height
     return img.shape[1] / img.shape[0]
 
 
+def _image_ref(image: str) -> str:
+    """The scene's path to a photograph: the project's own copy in sim/assets/photos, else beside the scene."""
+    return f"../../assets/photos/{image}" if (PHOTOS / image).exists() else image
+
+
 def _unproject(k, pose, u, v, d):
     ray = np.array([(u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0])
     return pose[:3, :3] @ (ray * d) + pose[:3, 3]
@@ -154,7 +158,7 @@ def _place(scene: Scene, k, pose, at, width_m, how, image, name, rng) -> list[di
     d = float(depth[iv, iu])
     width_m = round(width_m * d * k.width / k.fx, 3)  # given as a fraction of the frame's width at that depth
     height_m = width_m / _aspect(image)
-    mat = {"albedo": [0.7, 0.7, 0.7], "image": image}
+    mat = {"albedo": [0.7, 0.7, 0.7], "image": _image_ref(image)}
     eye = pose[:3, 3]
     if how == "wall":
         p = _unproject(k, pose, iu + 0.5, iv + 0.5, d)
@@ -232,9 +236,6 @@ def build(name: str, recipe: dict) -> Path:
     data = spec_to_dict(FAMILIES[recipe["family"]](recipe["seed"]))
     data["name"] = name
     data["rig"]["pan_tilt"].update(recipe["rig"])
-    for image, *_ in recipe["pictures"]:
-        if not (OUT / image).exists():
-            shutil.copy(PHOTOS / image, OUT / image)
     for i, (image, at, width_m, how) in enumerate(recipe["pictures"]):
         scene = Scene(from_dict(SceneSpec, data), base_dir=OUT)
         pt = PanTilt(scene.rig.pan_tilt) if hasattr(scene.rig, "pan_tilt") else scene.rig.kinematics()
