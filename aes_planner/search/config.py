@@ -289,13 +289,16 @@ REMOVED_PRESETS: dict[str, str] = {
     "3x the time; docs/decisions.md); use balanced, or override its fields, e.g. samples_per_segment",
 }
 
-#: What a preset changes for a drone (5 DoF, "free mode"). There a denser stage 1 finds better views; in rig
-#: mode (2 DoF, already densely sampled) it finds more of the field's over-estimates. Chosen on
-#: validation scenes and confirmed on the held-out and hand-written ones (docs/journal/benchmarks.md,
-#: "The closed loop's plans"): balanced 0.620 -> 0.654 and 0.637 -> 0.754 of the oracle, 0.58 -> 0.89 s.
+#: What a preset changes for a drone's one-shot suggestions (5 DoF, "free mode"; the drone loop's
+#: searches take ``DRONE_PLANNER_PRESETS``). There a denser stage 1 finds better views; in rig mode
+#: (2 DoF, already densely sampled) it finds more of the field's over-estimates (S 32, K 3: validation
+#: 0.620 -> 0.654, hand-written 0.637 -> 0.754; docs/journal/benchmarks.md, "The closed loop's plans").
+#: The rig's stage-1 screen (128 decoded) gives the same picks for ~2/3 of the CPU (12 validation
+#: drone scenes x 3 seeds: 35 of 36 the same, one-thread CPU 1090 -> 698 ms; held-out 11 of 12 the
+#: same, one better). K 4 scored higher on validation (0.674 against 0.664) but lost 0.07 held-out;
+#: 20 steps with 8 decoded in the explore pass were lower on validation (0.659): docs/decisions.md.
 FREE_MODE_PRESETS: dict[str, dict[str, Any]] = {
-    # the screens not measured on a drone yet, 20 steps neither (a rig's one-shot change): 25 kept
-    "balanced": dict(samples_per_segment=32, top_k=3, screen_keep=0, steps=25, explore_keep=0),
+    "balanced": dict(samples_per_segment=32, top_k=3, screen_keep=128, steps=25, explore_keep=0),
 }
 
 #: What a preset changes for a drone's (or a hand-held camera's) planner-node searches: the closed

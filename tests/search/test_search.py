@@ -142,13 +142,15 @@ def test_a_drones_loop_searches_are_pinned_apart_from_its_one_shot_presets():
 
 
 def test_free_mode_presets():
-    """balanced samples stage 1 twice as densely and keeps 3 in free mode (FREE_MODE_PRESETS);
-    the rig's presets and free fast are unchanged, and overrides still win."""
+    """balanced samples stage 1 twice as densely, screens it and keeps 3 in free mode
+    (FREE_MODE_PRESETS; docs/results/drone_front_s29/); the rig's presets and free fast are
+    unchanged, and overrides still win."""
     from aes_planner.search import FREE_MODE_PRESETS
 
     rig, free = SearchConfig.preset("balanced"), SearchConfig.preset("balanced", mode="drone")
     assert (rig.samples_per_segment, rig.top_k) == (16, 2)
     assert (free.samples_per_segment, free.top_k, free.neighbours, free.steps) == (32, 3, 8, 25)
+    assert (free.screen_keep, free.explore_keep) == (128, 0)
     assert free.preset_name == "balanced"
     assert set(FREE_MODE_PRESETS) == {"balanced"}
     for name in ("fast",):
@@ -667,7 +669,8 @@ def test_screen_keep_scores_only_the_screens_best_exactly():
     assert len(scorer.screened) == 1 and plain.candidates_exact.all()
     assert SearchConfig().screen_keep == 0 and SearchConfig.preset("fast").screen_keep == 0
     assert SearchConfig.preset("balanced").screen_keep == 128  # docs/benchmarks.md, perf-2 third round
-    assert SearchConfig.preset("balanced", mode="drone").screen_keep == 0  # not measured on a drone
+    assert SearchConfig.preset("balanced", mode="drone").screen_keep == 128  # one shot (the drone loop's: 0)
+    assert SearchConfig.preset("balanced", mode="drone", planner=True).screen_keep == 0
 
 
 def test_screen_puts_poses_near_avoided_ones_last():
