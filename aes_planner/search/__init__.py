@@ -15,13 +15,20 @@ scene source; :func:`oracle_search` searches the whole feasible space on them (c
 
 from __future__ import annotations
 
-from aes_planner.search.config import FREE_MODE_PRESETS, PLANNER_PRESETS, PRESETS, SearchConfig
+from aes_planner.search.config import (
+    DRONE_PLANNER_PRESETS,
+    FREE_MODE_PRESETS,
+    PLANNER_PRESETS,
+    PRESETS,
+    SearchConfig,
+)
 from aes_planner.search.ground_truth import GroundTruthScorer
 from aes_planner.search.oracle import normalized, oracle_search
 from aes_planner.search.pipeline import SearchError, SearchResult, Suggestion, search_views
 from aes_planner.search.scorers import SCORERS, build_search_scorer
 
 __all__ = [
+    "DRONE_PLANNER_PRESETS",
     "FREE_MODE_PRESETS",
     "PLANNER_PRESETS",
     "PRESETS",

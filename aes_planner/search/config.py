@@ -16,7 +16,14 @@ from typing import Any
 
 from aes_planner.config import ConfigError, require, require_finite
 
-__all__ = ["FREE_MODE_PRESETS", "PLANNER_PRESETS", "PRESETS", "REMOVED_PRESETS", "SearchConfig"]
+__all__ = [
+    "DRONE_PLANNER_PRESETS",
+    "FREE_MODE_PRESETS",
+    "PLANNER_PRESETS",
+    "PRESETS",
+    "REMOVED_PRESETS",
+    "SearchConfig",
+]
 
 from aes_planner.messages.suggestion import MAX_CANDIDATES
 
@@ -235,7 +242,8 @@ class SearchConfig:
         """The named preset for a platform kind ``mode`` (``rig`` or ``drone``, ``free`` read as
         drone: ``FREE_MODE_PRESETS`` change some presets for a drone) with ``overrides`` applied;
         ``planner``: the planner node's searches (``PLANNER_PRESETS`` on top of the one-shot
-        preset, under a drone's). Unknown names or keys are errors."""
+        preset; on a drone ``DRONE_PLANNER_PRESETS`` instead of ``FREE_MODE_PRESETS``, over both).
+        Unknown names or keys are errors."""
         from aes_planner.platform import parse_kind
 
         if name in REMOVED_PRESETS:
@@ -247,7 +255,8 @@ class SearchConfig:
         for key in overrides:
             if key not in known:
                 raise ConfigError(key, f"unknown search setting; expected one of: {', '.join(sorted(known))}")
-        drone = FREE_MODE_PRESETS.get(name, {}) if kind in ("drone", "handheld") else {}  # both 5 DoF
+        five_dof = DRONE_PLANNER_PRESETS if planner else FREE_MODE_PRESETS  # the loop's are pinned apart
+        drone = five_dof.get(name, {}) if kind in ("drone", "handheld") else {}  # both 5 DoF
         loop = PLANNER_PRESETS.get(name, {}) if planner else {}
         values = {**PRESETS[name], **loop, **drone, "preset_name": name, **overrides}
         return cls(**values)
@@ -280,11 +289,24 @@ REMOVED_PRESETS: dict[str, str] = {
     "3x the time; docs/decisions.md); use balanced, or override its fields, e.g. samples_per_segment",
 }
 
-#: What a preset changes for a drone (5 DoF, "free mode"). There a denser stage 1 finds better views; in rig
-#: mode (2 DoF, already densely sampled) it finds more of the field's over-estimates. Chosen on
-#: validation scenes and confirmed on the held-out and hand-written ones (docs/journal/benchmarks.md,
-#: "The closed loop's plans"): balanced 0.620 -> 0.654 and 0.637 -> 0.754 of the oracle, 0.58 -> 0.89 s.
+#: What a preset changes for a drone's one-shot suggestions (5 DoF, "free mode"; the drone loop's
+#: searches take ``DRONE_PLANNER_PRESETS``). There a denser stage 1 finds better views; in rig mode
+#: (2 DoF, already densely sampled) it finds more of the field's over-estimates (S 32, K 3: validation
+#: 0.620 -> 0.654, hand-written 0.637 -> 0.754; docs/journal/benchmarks.md, "The closed loop's plans").
+#: The rig's stage-1 screen (128 decoded) gives the same picks for ~2/3 of the CPU (12 validation
+#: drone scenes x 3 seeds: 35 of 36 the same, one-thread CPU 1090 -> 698 ms; held-out 11 of 12 the
+#: same, one better). K 4 scored higher on validation (0.674 against 0.664) but lost 0.07 held-out;
+#: 20 steps with 8 decoded in the explore pass were lower on validation (0.659): docs/decisions.md.
 FREE_MODE_PRESETS: dict[str, dict[str, Any]] = {
-    # the screens not measured on a drone yet, 20 steps neither (a rig's one-shot change): 25 kept
+    "balanced": dict(samples_per_segment=32, top_k=3, screen_keep=128, steps=25, explore_keep=0),
+}
+
+#: What a preset changes for a drone's (or a hand-held camera's) planner-node searches: the closed
+#: loop's plannings and verifications, in place of ``FREE_MODE_PRESETS`` (``SearchConfig.preset(...,
+#: mode="drone", planner=True)``). Pinned apart from the one-shot drone presets, which are chosen on
+#: the one-shot preset front: the dev drone loop was tuned with these values (session 28, 47 dev
+#: cells: ``DroneMotion.turns_one_by_one``), and a change here changes every drone loop's path, so it
+#: needs the dev drone loop re-run, not the one-shot eval. These are the session-28 one-shot values.
+DRONE_PLANNER_PRESETS: dict[str, dict[str, Any]] = {
     "balanced": dict(samples_per_segment=32, top_k=3, screen_keep=0, steps=25, explore_keep=0),
 }

@@ -106,14 +106,51 @@ def test_presets_and_overrides():
         SearchConfig(pitch_limits_deg=(10.0, -10.0))
 
 
+def test_a_drones_loop_searches_are_pinned_apart_from_its_one_shot_presets():
+    """The drone loop's searches (``planner=True``) take ``DRONE_PLANNER_PRESETS``, the values the
+    dev drone loop was tuned with (session 28), whatever a drone's one-shot preset
+    (``FREE_MODE_PRESETS``) becomes; the fields ``DroneMotion`` reads from the one-shot preset (its
+    search space) are the same in both."""
+    want = {
+        "balanced": SearchConfig(
+            samples_per_segment=32,
+            neighbours=8,
+            top_k=3,
+            steps=25,
+            render_width_px=48,
+            screen_keep=0,
+            explore_keep=0,
+            preset_name="balanced",
+        ),
+        "fast": SearchConfig(
+            samples_per_segment=4,
+            neighbours=4,
+            top_k=1,
+            steps=10,
+            render_width_px=32,
+            explore_points=16,
+            preset_name="fast",
+        ),
+    }
+    space_fields = ("jitter_fov", "dedup_fov", "shift_frac", "dedup_frac", "pitch_limits_deg")
+    for name, loop in want.items():
+        for kind in ("drone", "free", "handheld"):
+            assert SearchConfig.preset(name, mode=kind, planner=True) == loop, (name, kind)
+            one_shot = SearchConfig.preset(name, mode=kind)
+            assert [getattr(one_shot, f) for f in space_fields] == [getattr(loop, f) for f in space_fields]
+        assert SearchConfig.preset(name, mode="drone", planner=True, seed=3).seed == 3  # overrides still win
+
+
 def test_free_mode_presets():
-    """balanced samples stage 1 twice as densely and keeps 3 in free mode (FREE_MODE_PRESETS);
-    the rig's presets and free fast are unchanged, and overrides still win."""
+    """balanced samples stage 1 twice as densely, screens it and keeps 3 in free mode
+    (FREE_MODE_PRESETS; docs/results/drone_front_s29/); the rig's presets and free fast are
+    unchanged, and overrides still win."""
     from aes_planner.search import FREE_MODE_PRESETS
 
     rig, free = SearchConfig.preset("balanced"), SearchConfig.preset("balanced", mode="drone")
     assert (rig.samples_per_segment, rig.top_k) == (16, 2)
     assert (free.samples_per_segment, free.top_k, free.neighbours, free.steps) == (32, 3, 8, 25)
+    assert (free.screen_keep, free.explore_keep) == (128, 0)
     assert free.preset_name == "balanced"
     assert set(FREE_MODE_PRESETS) == {"balanced"}
     for name in ("fast",):
@@ -632,7 +669,8 @@ def test_screen_keep_scores_only_the_screens_best_exactly():
     assert len(scorer.screened) == 1 and plain.candidates_exact.all()
     assert SearchConfig().screen_keep == 0 and SearchConfig.preset("fast").screen_keep == 0
     assert SearchConfig.preset("balanced").screen_keep == 128  # docs/benchmarks.md, perf-2 third round
-    assert SearchConfig.preset("balanced", mode="drone").screen_keep == 0  # not measured on a drone
+    assert SearchConfig.preset("balanced", mode="drone").screen_keep == 128  # one shot (the drone loop's: 0)
+    assert SearchConfig.preset("balanced", mode="drone", planner=True).screen_keep == 0
 
 
 def test_screen_puts_poses_near_avoided_ones_last():
