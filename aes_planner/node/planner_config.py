@@ -207,6 +207,17 @@ class PlannerConfig:
       view direction, and one miss lowers the same way's hope at the other places. Unset: the
       platform's default (a drone true, measured on 39 dev drone runs: docs/decisions.md; a rig
       has no turns).
+    * ``verify_places``: a drone only: the turn verifications may also look from the places of a
+      lattice of the flight box (3 x 3 x 2 cells) that no capture was taken within ``far_m`` of,
+      and this many more of them are taken (on top of ``verify_turns``): a good view from a place
+      the loop never visited is otherwise never captured (dev tabletop:216@drone: the oracle looks
+      57 deg down from 0.15 m below every capture's height). Unset: the platform's default (0 on
+      both; docs/decisions.md).
+    * ``settle_tolerance_deg``: a drone only: the settle's capture (the final view) is taken when
+      the frame shows the best captured view within this angle (and ``arrival_tolerance_m``),
+      tighter than ``arrival_tolerance_deg``; not held after half of ``move_timeout_s``, the frame
+      then is taken as before (a warning). Unset: the platform's default (a drone 0.3; a rig's
+      arrival waits for its joints to stand still).
     * ``explore_below_covered`` / ``explore_moves``: when the search says its inputs cover less
       than this share of the space (the suggestion's ``covered_fraction``), the best predicted
       view is unverified where nothing was seen: before the loop stops on what it has (no
@@ -323,6 +334,8 @@ class PlannerConfig:
     residual_length_m: float | None = None
     turns_one_by_one: bool | None = None
     flank_repeats: int | None = None
+    verify_places: int | None = None
+    settle_tolerance_deg: float | None = None
 
     #: The keys ``platform:`` replaced, and how to rewrite each (read by :func:`~aes_planner.config.from_dict`).
     RETIRED_KEYS: ClassVar[dict[str, str]] = {
@@ -367,6 +380,14 @@ class PlannerConfig:
                 isinstance(v, int) and not isinstance(v, bool) and v >= 0, name, f"must be an integer >= 0, got {v!r}"
             )
         require_optional_int(self, "verify_turns", 16)
+        require_optional_int(self, "verify_places", 16)
+        if self.settle_tolerance_deg is not None:
+            require_numbers(self, ("settle_tolerance_deg",))
+            require(
+                0.0 < self.settle_tolerance_deg <= 180.0,
+                "settle_tolerance_deg",
+                f"must be in (0, 180] degrees, or unset for the platform's default, got {self.settle_tolerance_deg}",
+            )
         require_optional_int(self, "spare_hills", 16)
         require_optional_int(self, "short_hills", 16)
         require_optional_int(self, "flank_hills", 16)
