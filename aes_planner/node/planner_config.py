@@ -95,8 +95,9 @@ class PlannerConfig:
       the best that lies two coarsest polish steps or more from every view a climb stood on. A
       run's path up to there is unchanged and it settles on its best capture, so the figure can
       only rise (dev tabletop:202 ``seed:2``: two climbs spent 30 of 48 captures while a
-      verified hill 0.02 below the best was never climbed). Unset: the platform's default (a rig
-      2; a drone 0, not measured there).
+      verified hill 0.02 below the best was never climbed). Unset: the platform's default (2 on
+      both; a drone's since session 29, with ``flank_hills`` and ``settle_tolerance_deg``: dev
+      drones 0.9423 -> 0.9436, below 0.9 7 -> 6, docs/decisions.md).
     * ``short_hills``: before the climbs, up to this many moves whose capture is not a hill the
       polish climbs (it fell more than ``polish_start_gap`` short of the best, or lies on none of
       the climbed hills), at least two coarsest polish steps from every such hill and from each
@@ -129,8 +130,8 @@ class PlannerConfig:
       below the round's centre, the climb goes elsewhere, and nothing comes within 5 deg of that
       peak (dev outdoor:242: 0.731 at 4.5 deg from the oracle's 0.830; gallery:243: 0.636 at 4
       deg from a 3-deg-wide 0.817 ridge); so does a move that fell short beside a climbed hill
-      (dev tabletop:233: 0.609 at 5 deg from the oracle's 0.760). Unset: the platform's default (a rig 6; a drone 0, not
-      measured there). ``flank_captures``: 16.
+      (dev tabletop:233: 0.609 at 5 deg from the oracle's 0.760). Unset: the platform's default (6 on both; a drone's
+      since session 29, with ``spare_hills``). ``flank_captures``: 16.
     * ``verify_unseen``: with the hills' verifications, one capture of the search's exploratory
       candidate (the edge of what the inputs saw) when they cover less than
       ``explore_below_covered`` and no capture lies within a coarsest polish step of it: four
@@ -267,8 +268,8 @@ class PlannerConfig:
       topped 0.762 at pan 76, the oracle 0.834 at pan 59 behind a valley at pan 67.5). Unset:
       the platform's default, 0 on both (a rig's 1 lifted that scene to 0.990 and changed no
       other dev rig's score, but failed its ship rule's spread condition: the scene's
-      ``noise:1e-6`` run takes another path from the first move and stays 0.920; a drone's
-      ``flank_hills`` is 0 anyway; docs/benchmarks.md, session 28).
+      ``noise:1e-6`` run takes another path from the first move and stays 0.920; not measured
+      on drones; docs/benchmarks.md, session 28).
     """
 
     scorer: str = "field"
