@@ -221,7 +221,9 @@ def test_turns_from_places_never_visited_find_a_view_only_there():
     assert ends[0].score < 0.5
     assert ends[1].score > 0.85
     assert np.linalg.norm(ends[1].cam2world[:3, 3] - [2 / 3, 2 / 3, 1.25]) < 0.1
-    rig = PlannerNode(PlannerConfig(platform=RigPlatformConfig(RIG)), proposer=ScriptedProposer(), teacher=FakeTeacher())
+    rig = PlannerNode(
+        PlannerConfig(platform=RigPlatformConfig(RIG)), proposer=ScriptedProposer(), teacher=FakeTeacher()
+    )
     assert rig.motion.unvisited_places([], 0.3) == []
     for bad in (-1, 17, 1.5, True):
         with pytest.raises(ConfigError, match="verify_places"):
@@ -251,7 +253,9 @@ def test_a_drones_settle_waits_until_it_holds_the_best_view_closely():
     frame = SimpleNamespace(cam2world=pose(0.2, -0.1, 1.5, 31.0, 5.0))
     config.settle_tolerance_deg = 2.0
     assert node.motion.holds(Target("settle", view), frame, config)
-    rig = PlannerNode(PlannerConfig(platform=RigPlatformConfig(RIG)), proposer=ScriptedProposer(), teacher=FakeTeacher())
+    rig = PlannerNode(
+        PlannerConfig(platform=RigPlatformConfig(RIG)), proposer=ScriptedProposer(), teacher=FakeTeacher()
+    )
     assert rig.motion.holds(Target("settle", view), frame, rig.config)
     for bad in (0.0, -1.0, 200.0, math.nan, True):
         with pytest.raises(ConfigError, match="settle_tolerance_deg"):
