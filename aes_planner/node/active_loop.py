@@ -491,6 +491,10 @@ class ActiveLoop:
             p = cap.cam2world[:3, 3]
             if all(np.linalg.norm(p - q) >= c.min_move_m for q in places):
                 places.append(p)
+        extra = self._verify_places()
+        if extra > 0:  # and the box's places never visited: this many more turns
+            places += self.motion.unvisited_places(self.captures, c.far_m)
+            most += extra
         views = [self.motion.turns(p) for p in places]  # each [V, 4, 4]
         if not places or not sum(len(v) for v in views):
             return []
@@ -559,6 +563,12 @@ class ActiveLoop:
             and np.linalg.norm(cd.cam2world[:3, 3] - o.cam2world[:3, 3]) <= self.config.min_move_m
             for o in others
         )
+
+    def _verify_places(self) -> int:
+        """``verify_places`` (unset: the motion's default): more turn verifications, which may
+        look from the box's places no capture was taken near (:meth:`Motion.unvisited_places`)."""
+        n = self.config.verify_places
+        return self.motion.verify_places if n is None else n
 
     def _turns_one_by_one(self) -> bool:
         """``turns_one_by_one`` on a drone (unset: the motion's default); never on a rig (no turns)."""

@@ -98,6 +98,12 @@ class Motion(ABC):
     residual_length_m: float | None = None
     #: ``PlannerConfig.turns_one_by_one`` when the config leaves it unset
     turns_one_by_one: bool = False
+    #: ``PlannerConfig.settle_tolerance_deg`` when the config leaves it unset (a drone's; a rig's
+    #: arrival waits for the joints to stand still)
+    settle_tolerance_deg: float = 180.0
+    #: ``PlannerConfig.verify_places`` when the config leaves it unset (0: turns only from the
+    #: places captured at)
+    verify_places: int = 0
     #: ``PlannerConfig.flank_repeats`` when the config leaves it unset (0: one flanks' pass)
     flank_repeats: int = 0
 
@@ -137,6 +143,11 @@ class Motion(ABC):
     def far_places(self, n: int, captures: list[Capture], queued_m=()) -> list[Target]:
         """Captures from places far from every capture and from the places ``queued_m`` (``[3]``
         each) still to be captured, after the exploration's positions (a drone); none on a rig."""
+        return []
+
+    def unvisited_places(self, captures: list[Capture], far_m: float) -> list[np.ndarray]:
+        """Places (``[3]`` each) the platform can look from that no capture was taken within
+        ``far_m`` of (a drone's: its box's lattice); none on a rig."""
         return []
 
     def turns(self, place_m: np.ndarray) -> np.ndarray:  # [3] -> [V, 4, 4]
@@ -262,8 +273,13 @@ class RigMotion(Motion):
 
 class DroneMotion(Motion):
     suggestion_mode = "free"
-    spare_hills = 0  # not measured on drones yet: their polish is unchanged
-    short_hills = 0  # nor this
+    # PlannerConfig.spare_hills / flank_hills when unset: after the climbs, the captures they left climb up to
+    # 2 more hills, and up to 6 near-best captures no climb stood on get a round and their probes a climb, with
+    # the settle held within settle_tolerance_deg (docs/decisions.md; dev drones, 39 paired runs: mean 0.9423 ->
+    # 0.9436, below 0.9 7 -> 6, none lower, spread per scene 0.0194 -> 0.0177)
+    spare_hills = 2
+    flank_hills = 6
+    short_hills = 0  # not measured on drones yet
     verify_unseen = False  # nor this
     # PlannerConfig.search_grid_points when unset: 9 places of the box x 24 views (docs/decisions.md);
     # dev drones, 21 paired runs: mean 0.922 -> 0.937, below 0.9 5 -> 4 (432: 0.933, 6 below)
@@ -282,6 +298,10 @@ class DroneMotion(Motion):
     # turns verified before it (docs/decisions.md; dev drones, 39 paired runs with torch: mean 0.934 -> 0.942,
     # below 0.9 9 -> 7, spread per scene 0.037 -> 0.019)
     turns_one_by_one = True
+    # PlannerConfig.settle_tolerance_deg when unset: the settle's capture waits until the drone holds
+    # the best captured view this closely (the arrival tolerance is 2 deg; composition peaks can be
+    # 1 deg wide: dev gallery:203@drone noise, a settle 1.8 deg off its target, 0.907 -> 0.824)
+    settle_tolerance_deg = 0.3
 
     def __init__(self, box: DroneBox, search_config):
         self.box = box
@@ -383,6 +403,16 @@ class DroneMotion(Motion):
             targets.append(Target(CaptureKind.EXPLORE, look(places[i]), on_path=False))
         return targets
 
+    def unvisited_places(self, captures, far_m):
+        """The places of a lattice of the box (:func:`lattice_places`, ``EXPLORE_LATTICE`` cells,
+        height included) that no capture lies within ``far_m`` of, in the lattice's order."""
+        places = lattice_places(self.box.bounds_min_m, self.box.bounds_max_m, EXPLORE_LATTICE)  # [P, 3]
+        seen = np.asarray([cap.cam2world[:3, 3] for cap in captures], dtype=np.float64).reshape(-1, 3)  # [M, 3]
+        if not len(seen):
+            return list(places)
+        gap = np.min(np.linalg.norm(places[:, None, :] - seen[None], axis=-1), axis=1)  # [P]
+        return [p for p, g in zip(places, gap) if g > far_m]
+
     def turns(self, place_m):
         """Views from ``place_m`` (inside the box): every ``TURN_YAW_DEG`` of yaw x every
         ``TURN_PITCH_DEG`` of pitch inside the searched range (from its lowest), yaw fastest."""
@@ -426,10 +456,15 @@ class DroneMotion(Motion):
     def holds(self, target, frame, config):
         """The frame's pose within the arrival tolerances of the target: a drone's arrival is
         one frame within them, and a frame ``settle_s`` later can show it elsewhere (still
-        turning: up to ~6 deg on at 120 deg/s), so arriving is not holding."""
-        return self.platform.arrived(
-            frame.cam2world, target.cam2world, config.arrival_tolerance_deg, config.arrival_tolerance_m
-        )
+        turning: up to ~6 deg on at 120 deg/s), so arriving is not holding. The settle's view
+        within ``settle_tolerance_deg`` (unset: ``settle_tolerance_deg`` here) when that is
+        tighter: the final view is the best capture's, and a peak can be narrower than the
+        arrival tolerance."""
+        tol_deg = config.arrival_tolerance_deg
+        if target.kind == "settle":
+            settle = self.settle_tolerance_deg if config.settle_tolerance_deg is None else config.settle_tolerance_deg
+            tol_deg = min(tol_deg, settle)
+        return self.platform.arrived(frame.cam2world, target.cam2world, tol_deg, config.arrival_tolerance_m)
 
     def arrived(self, target, now, frame, gimbal, config):
         if frame is None or frame.stamp_s <= target.sent_s:

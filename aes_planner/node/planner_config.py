@@ -95,8 +95,9 @@ class PlannerConfig:
       the best that lies two coarsest polish steps or more from every view a climb stood on. A
       run's path up to there is unchanged and it settles on its best capture, so the figure can
       only rise (dev tabletop:202 ``seed:2``: two climbs spent 30 of 48 captures while a
-      verified hill 0.02 below the best was never climbed). Unset: the platform's default (a rig
-      2; a drone 0, not measured there).
+      verified hill 0.02 below the best was never climbed). Unset: the platform's default (2 on
+      both; a drone's since session 29, with ``flank_hills`` and ``settle_tolerance_deg``: dev
+      drones 0.9423 -> 0.9436, below 0.9 7 -> 6, docs/decisions.md).
     * ``short_hills``: before the climbs, up to this many moves whose capture is not a hill the
       polish climbs (it fell more than ``polish_start_gap`` short of the best, or lies on none of
       the climbed hills), at least two coarsest polish steps from every such hill and from each
@@ -129,8 +130,8 @@ class PlannerConfig:
       below the round's centre, the climb goes elsewhere, and nothing comes within 5 deg of that
       peak (dev outdoor:242: 0.731 at 4.5 deg from the oracle's 0.830; gallery:243: 0.636 at 4
       deg from a 3-deg-wide 0.817 ridge); so does a move that fell short beside a climbed hill
-      (dev tabletop:233: 0.609 at 5 deg from the oracle's 0.760). Unset: the platform's default (a rig 6; a drone 0, not
-      measured there). ``flank_captures``: 16.
+      (dev tabletop:233: 0.609 at 5 deg from the oracle's 0.760). Unset: the platform's default (6 on both; a drone's
+      since session 29, with ``spare_hills``). ``flank_captures``: 16.
     * ``verify_unseen``: with the hills' verifications, one capture of the search's exploratory
       candidate (the edge of what the inputs saw) when they cover less than
       ``explore_below_covered`` and no capture lies within a coarsest polish step of it: four
@@ -207,6 +208,17 @@ class PlannerConfig:
       view direction, and one miss lowers the same way's hope at the other places. Unset: the
       platform's default (a drone true, measured on 39 dev drone runs: docs/decisions.md; a rig
       has no turns).
+    * ``verify_places``: a drone only: the turn verifications may also look from the places of a
+      lattice of the flight box (3 x 3 x 2 cells) that no capture was taken within ``far_m`` of,
+      and this many more of them are taken (on top of ``verify_turns``): a good view from a place
+      the loop never visited is otherwise never captured (dev tabletop:216@drone: the oracle looks
+      57 deg down from 0.15 m below every capture's height). Unset: the platform's default (0 on
+      both; docs/decisions.md).
+    * ``settle_tolerance_deg``: a drone only: the settle's capture (the final view) is taken when
+      the frame shows the best captured view within this angle (and ``arrival_tolerance_m``),
+      tighter than ``arrival_tolerance_deg``; not held after half of ``move_timeout_s``, the frame
+      then is taken as before (a warning). Unset: the platform's default (a drone 0.3; a rig's
+      arrival waits for its joints to stand still).
     * ``explore_below_covered`` / ``explore_moves``: when the search says its inputs cover less
       than this share of the space (the suggestion's ``covered_fraction``), the best predicted
       view is unverified where nothing was seen: before the loop stops on what it has (no
@@ -256,8 +268,8 @@ class PlannerConfig:
       topped 0.762 at pan 76, the oracle 0.834 at pan 59 behind a valley at pan 67.5). Unset:
       the platform's default, 0 on both (a rig's 1 lifted that scene to 0.990 and changed no
       other dev rig's score, but failed its ship rule's spread condition: the scene's
-      ``noise:1e-6`` run takes another path from the first move and stays 0.920; a drone's
-      ``flank_hills`` is 0 anyway; docs/benchmarks.md, session 28).
+      ``noise:1e-6`` run takes another path from the first move and stays 0.920; not measured
+      on drones; docs/benchmarks.md, session 28).
     """
 
     scorer: str = "field"
@@ -323,6 +335,8 @@ class PlannerConfig:
     residual_length_m: float | None = None
     turns_one_by_one: bool | None = None
     flank_repeats: int | None = None
+    verify_places: int | None = None
+    settle_tolerance_deg: float | None = None
 
     #: The keys ``platform:`` replaced, and how to rewrite each (read by :func:`~aes_planner.config.from_dict`).
     RETIRED_KEYS: ClassVar[dict[str, str]] = {
@@ -367,6 +381,14 @@ class PlannerConfig:
                 isinstance(v, int) and not isinstance(v, bool) and v >= 0, name, f"must be an integer >= 0, got {v!r}"
             )
         require_optional_int(self, "verify_turns", 16)
+        require_optional_int(self, "verify_places", 16)
+        if self.settle_tolerance_deg is not None:
+            require_numbers(self, ("settle_tolerance_deg",))
+            require(
+                0.0 < self.settle_tolerance_deg <= 180.0,
+                "settle_tolerance_deg",
+                f"must be in (0, 180] degrees, or unset for the platform's default, got {self.settle_tolerance_deg}",
+            )
         require_optional_int(self, "spare_hills", 16)
         require_optional_int(self, "short_hills", 16)
         require_optional_int(self, "flank_hills", 16)

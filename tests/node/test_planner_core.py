@@ -776,7 +776,7 @@ def test_spare_hills_default_is_the_platforms_and_is_checked():
     from aes_planner.node.motion import DroneMotion, RigMotion
 
     assert PlannerConfig().spare_hills is None
-    assert RigMotion.spare_hills == 2 and DroneMotion.spare_hills == 0  # drones: not measured, unchanged
+    assert RigMotion.spare_hills == 2 and DroneMotion.spare_hills == 2  # drones since session 29 (dev drones)
     for bad in (-1, 17, 1.5, True):
         with pytest.raises(ConfigError, match="spare_hills"):
             PlannerConfig(spare_hills=bad)
@@ -1064,7 +1064,7 @@ def test_flank_hills_default_is_the_platforms_and_is_checked():
     from aes_planner.node.motion import DroneMotion, RigMotion
 
     assert PlannerConfig().flank_hills is None and PlannerConfig().flank_captures == 16
-    assert RigMotion.flank_hills == 6 and DroneMotion.flank_hills == 0  # drones: not measured, unchanged
+    assert RigMotion.flank_hills == 6 and DroneMotion.flank_hills == 6  # drones since session 29 (dev drones)
     for bad in (-1, 17, 1.5, True):
         with pytest.raises(ConfigError, match="flank_hills"):
             PlannerConfig(flank_hills=bad)
