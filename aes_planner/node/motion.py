@@ -100,6 +100,8 @@ class Motion(ABC):
     turns_one_by_one: bool = False
     #: ``PlannerConfig.flank_repeats`` when the config leaves it unset (0: one flanks' pass)
     flank_repeats: int = 0
+    #: ``PlannerConfig.shortfall_length_deg`` when the config leaves it unset (0: off)
+    shortfall_length_deg: float = 0.0
 
     #: ``ViewSuggestion.mode``'s word for the platform (the wire format's: ``rig`` or ``free``)
     suggestion_mode: str
@@ -178,6 +180,8 @@ class RigMotion(Motion):
     # and changed no other dev rig's score, but the scene's noise:1e-6 run stays 0.920 (another path
     # from move 1): its ship rule's spread condition failed (docs/benchmarks.md, session 28)
     flank_repeats = 0
+    # PlannerConfig.shortfall_length_deg when unset (session 29, docs/decisions.md)
+    shortfall_length_deg = 30.0
 
     def __init__(self, rig: PanTiltConfig):
         self.rig = rig

@@ -258,6 +258,14 @@ class PlannerConfig:
       other dev rig's score, but failed its ship rule's spread condition: the scene's
       ``noise:1e-6`` run takes another path from the first move and stays 0.920; a drone's
       ``flank_hills`` is 0 anyway; docs/benchmarks.md, session 28).
+    * ``shortfall_length_deg``: every hope the loop ranks by (moves, hill verifications) is
+      lowered by its region's shortfall: at each move and hill verification the miss below its
+      hope beyond ``SHORTFALL_SLACK`` (0.1), weighed by a Gaussian of this length (degrees) on
+      the view direction (:func:`~aes_planner.node.captures.shortfall`). The field is refit on
+      every capture and then predicts the captured views well while it may still over-rate the
+      views around them: the hope's residual correction cannot see it (dev photo_ring_room: four
+      moves into one corner, hoped 0.74-0.83, captured 0.48-0.71). 0: off. Unset: the
+      platform's default (a rig 30, a drone 0; docs/decisions.md).
     """
 
     scorer: str = "field"
@@ -323,6 +331,7 @@ class PlannerConfig:
     residual_length_m: float | None = None
     turns_one_by_one: bool | None = None
     flank_repeats: int | None = None
+    shortfall_length_deg: float | None = None
 
     #: The keys ``platform:`` replaced, and how to rewrite each (read by :func:`~aes_planner.config.from_dict`).
     RETIRED_KEYS: ClassVar[dict[str, str]] = {
@@ -421,6 +430,13 @@ class PlannerConfig:
                 f"must be in (0, 10] metres, or unset for the platform's default, got {self.residual_length_m}",
             )
         require_optional_bool(self, "turns_one_by_one")
+        if self.shortfall_length_deg is not None:
+            require_numbers(self, ("shortfall_length_deg",), strict=False)
+            require(
+                self.shortfall_length_deg <= 180.0,
+                "shortfall_length_deg",
+                f"must be in [0, 180] degrees (0: off), or unset for the platform's default, got {self.shortfall_length_deg}",
+            )
         require(self.top_k >= 1, "top_k", f"must be >= 1, got {self.top_k}")
         from aes_planner.messages.suggestion import MAX_CANDIDATES
 
