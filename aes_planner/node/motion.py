@@ -180,8 +180,10 @@ class RigMotion(Motion):
     # and changed no other dev rig's score, but the scene's noise:1e-6 run stays 0.920 (another path
     # from move 1): its ship rule's spread condition failed (docs/benchmarks.md, session 28)
     flank_repeats = 0
-    # PlannerConfig.shortfall_length_deg when unset (session 29, docs/decisions.md)
-    shortfall_length_deg = 30.0
+    # PlannerConfig.shortfall_length_deg when unset: 0, main's path. 30 lifted dev photo_ring_room 0.878 -> 1.000
+    # (noise 0.992, torch 0.992) but one move's miss on a narrow peak's flank pushed dev tabletop:236 off
+    # its hill (1.000 -> 0.880): its ship rule failed (docs/benchmarks.md, session 29)
+    shortfall_length_deg = 0.0
 
     def __init__(self, rig: PanTiltConfig):
         self.rig = rig

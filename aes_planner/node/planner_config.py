@@ -265,7 +265,10 @@ class PlannerConfig:
       every capture and then predicts the captured views well while it may still over-rate the
       views around them: the hope's residual correction cannot see it (dev photo_ring_room: four
       moves into one corner, hoped 0.74-0.83, captured 0.48-0.71). 0: off. Unset: the
-      platform's default (a rig 30, a drone 0; docs/decisions.md).
+      platform's default, 0 on both (a rig's 30 lifted that scene to 1.000 under ``base``,
+      ``noise:1e-6`` and ``torch``, but a single move's miss on a narrow peak's flank pushed
+      dev tabletop:236 off its hill, 1.000 -> 0.880: its ship rule failed; docs/benchmarks.md,
+      session 29).
     """
 
     scorer: str = "field"
