@@ -251,7 +251,7 @@ class ActiveLoop:
         )
         length = self.motion.shortfall_length_deg if c.shortfall_length_deg is None else c.shortfall_length_deg
         if length > 0.0:  # a region whose captures fell short of their hopes: its views hope less
-            hope = hope + shortfall(cands, captures, length, SHORTFALL_SLACK)
+            hope = hope + shortfall(cands, captures, length, SHORTFALL_SLACK, c.shortfall_gate)
         return hope
 
     def _residual_length_m(self) -> float | None:

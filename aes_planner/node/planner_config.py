@@ -268,7 +268,9 @@ class PlannerConfig:
       platform's default, 0 on both (a rig's 30 lifted that scene to 1.000 under ``base``,
       ``noise:1e-6`` and ``torch``, but a single move's miss on a narrow peak's flank pushed
       dev tabletop:236 off its hill, 1.000 -> 0.880: its ship rule failed; docs/benchmarks.md,
-      session 29).
+      session 29). ``shortfall_gate``: the shortfall counts only where more than this many
+      misses lie (Gaussian-weighted; scaled by ``clip(sum(w) - gate, 0, 1)``): 1 ignores a single
+      miss, which is as often the flank of a narrow peak beside it. 0: no gate.
     """
 
     scorer: str = "field"
@@ -335,6 +337,7 @@ class PlannerConfig:
     turns_one_by_one: bool | None = None
     flank_repeats: int | None = None
     shortfall_length_deg: float | None = None
+    shortfall_gate: float = 0.0
 
     #: The keys ``platform:`` replaced, and how to rewrite each (read by :func:`~aes_planner.config.from_dict`).
     RETIRED_KEYS: ClassVar[dict[str, str]] = {
@@ -433,6 +436,8 @@ class PlannerConfig:
                 f"must be in (0, 10] metres, or unset for the platform's default, got {self.residual_length_m}",
             )
         require_optional_bool(self, "turns_one_by_one")
+        require_numbers(self, ("shortfall_gate",), strict=False)
+        require(self.shortfall_gate <= 10.0, "shortfall_gate", f"must be in [0, 10] misses, got {self.shortfall_gate}")
         if self.shortfall_length_deg is not None:
             require_numbers(self, ("shortfall_length_deg",), strict=False)
             require(

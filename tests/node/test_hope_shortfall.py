@@ -116,3 +116,17 @@ def test_the_loop_ranks_by_the_hope_less_its_region_s_shortfall_where_it_is_on(k
         assert got[0] < plain[0] - 0.05
     else:
         assert np.array_equal(got, plain)
+
+
+def test_the_gate_ignores_one_miss_and_counts_a_region_that_missed_twice():
+    """``shortfall_gate`` 1: one move that missed beside a view may have landed on the flank of a
+    narrow peak there (dev tabletop:236); two that missed in one region lower it as ungated."""
+    near = [Candidate(pose(-25.0, 0.0), 0.7)]
+    one = [cap("move", -20.0, 0.45, 0.75)]
+    two = [*one, cap("move", -22.0, 0.50, 0.76)]
+    assert shortfall(near, one, 30.0, 0.1, gate=1.0)[0] == 0.0
+    assert shortfall(near, one, 30.0, 0.1)[0] < -0.05
+    gated, plain = shortfall(near, two, 30.0, 0.1, gate=1.0)[0], shortfall(near, two, 30.0, 0.1)[0]
+    assert plain < gated < 0.0 and gated < 0.5 * plain  # sum(w) ~ 1.9: most of it counts
+    with pytest.raises(ConfigError, match="shortfall_gate"):
+        PlannerConfig(shortfall_gate=-1.0)
