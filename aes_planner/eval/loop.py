@@ -114,6 +114,13 @@ DEV_LOOP_SCENES = [
     "gallery:256",
     "tabletop:257",
     "gallery:260",
+    # session 29: free dev seeds never run before (258-264; 265-270 still unrun)
+    "indoor:258",
+    "outdoor:259",
+    "tabletop:261",
+    "indoor:262",
+    "outdoor:263",
+    "gallery:264",
 ]
 
 #: The held-out set (seeds 300-311 and files written for it): never tuned on. Every family, wide-pan
