@@ -114,7 +114,7 @@ DEV_LOOP_SCENES = [
     "gallery:256",
     "tabletop:257",
     "gallery:260",
-    # session 29: free dev seeds never run before (258-264; 265-270 still unrun)
+    # session 29: free dev seeds never run before (258-264 but 260, which session 28 ran; 265-270 unrun)
     "indoor:258",
     "outdoor:259",
     "tabletop:261",
