@@ -114,6 +114,19 @@ DEV_LOOP_SCENES = [
     "gallery:256",
     "tabletop:257",
     "gallery:260",
+    # session 29: free dev seeds never run before (258-270 but 260, which session 28 ran)
+    "indoor:258",
+    "outdoor:259",
+    "tabletop:261",
+    "indoor:262",
+    "outdoor:263",
+    "gallery:264",
+    "tabletop:265",
+    "indoor:266",
+    "outdoor:267",
+    "gallery:268",
+    "tabletop:269",
+    "indoor:270",
 ]
 
 #: The held-out set (seeds 300-311 and files written for it): never tuned on. Every family, wide-pan

@@ -66,6 +66,7 @@ from aes_planner.node.captures import (
     hopes,
     look_distance_m,
     near_captured,
+    shortfall,
 )
 from aes_planner.platform import view_angle_deg
 
@@ -83,6 +84,11 @@ PLAN_GRID_HILLS = 8
 #: the oracle's (dev gallery:243: candidate 1 climbed one probe, 0.763 at pan -29, and ended at
 #: 0.890 of the oracle; with two, 0.748 at pan -14 climbed to 0.783, 0.932)
 FLANK_CLIMBS = 2
+
+#: A move's or a hill verification's miss below its hope that ``shortfall_length_deg`` counts is
+#: what lies beyond this (teacher units): the hopes are optimistic by design (``optimism`` times the
+#: residuals' spread), and the median dev rig move fell 0.09 short of its hope (session 28's runs)
+SHORTFALL_SLACK = 0.1
 
 __all__ = ["ActiveLoop", "LoopState"]
 
@@ -240,9 +246,13 @@ class ActiveLoop:
         """:func:`~aes_planner.node.captures.hopes` with the loop's settings: ``captured_pred`` [M],
         the scorer's prediction at each of ``captures``."""
         c = self.config
-        return hopes(
+        hope = hopes(
             cands, captures, captured_pred, c.optimism, c.min_sigma, c.residual_length_deg, self._residual_length_m()
         )
+        length = self.motion.shortfall_length_deg if c.shortfall_length_deg is None else c.shortfall_length_deg
+        if length > 0.0:  # a region whose captures fell short of their hopes: its views hope less
+            hope = hope + shortfall(cands, captures, length, SHORTFALL_SLACK, c.shortfall_gate)
+        return hope
 
     def _residual_length_m(self) -> float | None:
         """``residual_length_m`` on a drone (unset: the motion's default); None (the view direction

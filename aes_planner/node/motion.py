@@ -106,6 +106,8 @@ class Motion(ABC):
     verify_places: int = 0
     #: ``PlannerConfig.flank_repeats`` when the config leaves it unset (0: one flanks' pass)
     flank_repeats: int = 0
+    #: ``PlannerConfig.shortfall_length_deg`` when the config leaves it unset (0: off)
+    shortfall_length_deg: float = 0.0
 
     #: ``ViewSuggestion.mode``'s word for the platform (the wire format's: ``rig`` or ``free``)
     suggestion_mode: str
@@ -189,6 +191,10 @@ class RigMotion(Motion):
     # and changed no other dev rig's score, but the scene's noise:1e-6 run stays 0.920 (another path
     # from move 1): its ship rule's spread condition failed (docs/benchmarks.md, session 28)
     flank_repeats = 0
+    # PlannerConfig.shortfall_length_deg when unset: 0, main's path. 30 lifted dev photo_ring_room 0.878 -> 1.000
+    # (noise 0.992, torch 0.992) but one move's miss on a narrow peak's flank pushed dev tabletop:236 off
+    # its hill (1.000 -> 0.880): its ship rule failed (docs/benchmarks.md, session 29)
+    shortfall_length_deg = 0.0
 
     def __init__(self, rig: PanTiltConfig):
         self.rig = rig

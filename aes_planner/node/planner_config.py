@@ -270,6 +270,19 @@ class PlannerConfig:
       other dev rig's score, but failed its ship rule's spread condition: the scene's
       ``noise:1e-6`` run takes another path from the first move and stays 0.920; not measured
       on drones; docs/benchmarks.md, session 28).
+    * ``shortfall_length_deg``: every hope the loop ranks by (moves, hill verifications) is
+      lowered by its region's shortfall: at each move and hill verification the miss below its
+      hope beyond ``SHORTFALL_SLACK`` (0.1), weighed by a Gaussian of this length (degrees) on
+      the view direction (:func:`~aes_planner.node.captures.shortfall`). The field is refit on
+      every capture and then predicts the captured views well while it may still over-rate the
+      views around them: the hope's residual correction cannot see it (dev photo_ring_room: four
+      moves into one corner, hoped 0.74-0.83, captured 0.48-0.71). 0: off. Unset: the
+      platform's default, 0 on both (a rig's 30 lifted that scene to 1.000 under ``base``,
+      ``noise:1e-6`` and ``torch``, but a single move's miss on a narrow peak's flank pushed
+      dev tabletop:236 off its hill, 1.000 -> 0.880: its ship rule failed; docs/benchmarks.md,
+      session 29). ``shortfall_gate``: the shortfall counts only where more than this many
+      misses lie (Gaussian-weighted; scaled by ``clip(sum(w) - gate, 0, 1)``): 1 ignores a single
+      miss, which is as often the flank of a narrow peak beside it. 0: no gate.
     """
 
     scorer: str = "field"
@@ -337,6 +350,8 @@ class PlannerConfig:
     flank_repeats: int | None = None
     verify_places: int | None = None
     settle_tolerance_deg: float | None = None
+    shortfall_length_deg: float | None = None
+    shortfall_gate: float = 0.0
 
     #: The keys ``platform:`` replaced, and how to rewrite each (read by :func:`~aes_planner.config.from_dict`).
     RETIRED_KEYS: ClassVar[dict[str, str]] = {
@@ -443,6 +458,15 @@ class PlannerConfig:
                 f"must be in (0, 10] metres, or unset for the platform's default, got {self.residual_length_m}",
             )
         require_optional_bool(self, "turns_one_by_one")
+        require_numbers(self, ("shortfall_gate",), strict=False)
+        require(self.shortfall_gate <= 10.0, "shortfall_gate", f"must be in [0, 10] misses, got {self.shortfall_gate}")
+        if self.shortfall_length_deg is not None:
+            require_numbers(self, ("shortfall_length_deg",), strict=False)
+            require(
+                self.shortfall_length_deg <= 180.0,
+                "shortfall_length_deg",
+                f"must be in [0, 180] degrees (0: off), or unset for the platform's default, got {self.shortfall_length_deg}",
+            )
         require(self.top_k >= 1, "top_k", f"must be >= 1, got {self.top_k}")
         from aes_planner.messages.suggestion import MAX_CANDIDATES
 
