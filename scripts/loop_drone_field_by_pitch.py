@@ -3,7 +3,9 @@ turn at a few places (the start, and any given x,y,z), the field built from the 
 its first verification (what the verifications chose from). Shows whether the field ever ranks a
 pitch band the run never looked at.
 
-``python scripts/loop_drone_field_by_pitch.py RUN_DIR [x,y,z ...]`` (``RUN_DIR``: ``OUT/runs/<scene>__<perturbation>``)
+``python scripts/loop_drone_field_by_pitch.py RUN_DIR [x,y,z ...] [+yaw,pitch ...]`` (``RUN_DIR``:
+``OUT/runs/<scene>__<perturbation>``; ``+yaw,pitch``: one more input, a ground-truth capture from the
+start place looking that way, added to the field -- what an exploration capture there would tell it)
 """
 
 import json
@@ -32,8 +34,14 @@ teacher = get_teacher("composition").freeze()
 prop = FieldProposer("field", "balanced", max_frames=24)
 for c in held:
     prop.add_frame(src.capture(np.asarray(c["cam2world"]), stamp_s=c["stamp_s"]), keep=True)
+start = np.asarray(held[0]["cam2world"])[:3, 3]
+for a in (a for a in sys.argv[2:] if a.startswith("+")):
+    yaw, pitch = (math.radians(float(v)) for v in a[1:].split(","))
+    pose = view_to_cam2world(torch.tensor([*start, yaw, pitch], dtype=torch.float64)).numpy()
+    prop.add_frame(src.capture(pose, stamp_s=held[-1]["stamp_s"] + 0.1), keep=True)
+    print(f"  + an input at the start place looking yaw {a[1:]}")
 rand, oracle = s["random_mean"], s["oracle"]
-places = [np.asarray(held[0]["cam2world"])[:3, 3]] + [np.array([float(v) for v in a.split(",")]) for a in sys.argv[2:]]
+places = [start] + [np.array([float(v) for v in a.split(",")]) for a in sys.argv[2:] if not a.startswith("+")]
 yaws = np.arange(-180, 180, 30.0)
 pitches = np.arange(-60, 30 + 1e-9, 15.0)
 print(
