@@ -127,6 +127,33 @@ DEV_LOOP_SCENES = [
     "gallery:268",
     "tabletop:269",
     "indoor:270",
+    # session 29: hand-written scenes written as an outside engineer would: the first hand-written
+    # dev drones (a facade with photographs at three heights, subjects on the ground below, a ball
+    # on a column above, a narrow street, a subject behind the start, a floor mosaic, a sign behind
+    # a colonnade, a room, a 12 m farmyard box, a clock 25 deg above a low box) and rigs of kinds
+    # not in the set before (tilt +-6, a small subject among clutter of its colour, one half behind
+    # a pillar, backlight in a dim room, two equal subjects 130 deg apart);
+    # docs/results/loop/s29_new_scenes.md
+    *(
+        str(_SCENES / "loop_dev" / f"s29_{name}.yaml")
+        for name in (
+            "facade_drone",
+            "ground_drone",
+            "two_heights_drone",
+            "street_drone",
+            "behind_drone",
+            "mosaic_drone",
+            "arch_drone",
+            "room_drone",
+            "farm_drone",
+            "clocktower_drone",
+            "narrow_tilt_rig",
+            "clutter_rig",
+            "occluded_rig",
+            "backlit_rig",
+            "two_far_rig",
+        )
+    ),
 ]
 
 #: The held-out set (seeds 300-311 and files written for it): never tuned on. Every family, wide-pan
