@@ -310,8 +310,9 @@ class DroneMotion(Motion):
     # the best captured view this closely (the arrival tolerance is 2 deg; composition peaks can be
     # 1 deg wide: dev gallery:203@drone noise, a settle 1.8 deg off its target, 0.907 -> 0.824)
     settle_tolerance_deg = 0.3
-    # PlannerConfig.survey_pitch_views when unset: 0, the turn alone (-10 / +5 deg); the pitch
-    # range's ends measured in session 29 (docs/benchmarks.md, "A survey of the pitch range")
+    # PlannerConfig.survey_pitch_views when unset: 0, the turn alone (-10 / +5 deg). 6 lifted the 10 s29 dev
+    # drones (30 cells: 0.937 -> 0.972, below 0.9 7 -> 0) but moved dev tabletop:212 0.989 -> 0.826 and
+    # tabletop:207 1.000 -> 0.910 (base): its ship rule failed, as did 2's (docs/benchmarks.md, session 29)
     survey_pitch_views = 0
 
     def __init__(self, box: DroneBox, search_config):

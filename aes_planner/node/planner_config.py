@@ -226,7 +226,9 @@ class PlannerConfig:
       poor by the field, and no verification goes there (dev s29_ground_drone: every good view looks
       60 deg down, no capture looked below -11 deg, the field scores the start's best view 0.16
       against truth 0.84). Unset: the platform's default (0 on both; a rig's exploration spans
-      its tilt range; docs/benchmarks.md, session 29).
+      its tilt range). Measured on dev drones (docs/benchmarks.md, session 29): 6 lifted the 10
+      hand-written s29 drones (0.937 -> 0.972 over base / noise / torch) but two procedural
+      ones fell (tabletop:212 0.989 -> 0.826): not kept.
     * ``explore_below_covered`` / ``explore_moves``: when the search says its inputs cover less
       than this share of the space (the suggestion's ``covered_fraction``), the best predicted
       view is unverified where nothing was seen: before the loop stops on what it has (no
