@@ -163,6 +163,9 @@ class ActiveLoop:
         # choose what comes next
         if self.state is LoopState.INITIAL:
             self._queue = self.motion.explore(self.config.explore_views, self._frame, self.captures)
+            ends = self.config.survey_pitch_views
+            ends = self.motion.survey_pitch_views if ends is None else ends
+            self._queue += self.motion.survey_pitch_ends(ends, self._frame)
             self._positions_explored = False
             self.state = LoopState.EXPLORING
         if self.state is LoopState.EXPLORING and not self._queue and not self._positions_explored:

@@ -108,6 +108,9 @@ class Motion(ABC):
     flank_repeats: int = 0
     #: ``PlannerConfig.shortfall_length_deg`` when the config leaves it unset (0: off)
     shortfall_length_deg: float = 0.0
+    #: ``PlannerConfig.survey_pitch_views`` when the config leaves it unset (0: the survey's
+    #: turn alone)
+    survey_pitch_views: int = 0
 
     #: ``ViewSuggestion.mode``'s word for the platform (the wire format's: ``rig`` or ``free``)
     suggestion_mode: str
@@ -132,6 +135,11 @@ class Motion(ABC):
     @abstractmethod
     def explore(self, n: int, frame: PosedFrame, captures: list[Capture]) -> list[Target]:
         """``n`` exploration targets."""
+
+    def survey_pitch_ends(self, n: int, frame: PosedFrame) -> list[Target]:
+        """``n`` more survey targets at the ends of the searched pitch range (a drone); none on a
+        rig (its exploration already spans the tilt range)."""
+        return []
 
     def holds(self, target: Target, frame: PosedFrame, config) -> bool:
         """Whether ``frame``, after the arrival, still shows ``target`` (a capture is taken of a
@@ -308,6 +316,10 @@ class DroneMotion(Motion):
     # the best captured view this closely (the arrival tolerance is 2 deg; composition peaks can be
     # 1 deg wide: dev gallery:203@drone noise, a settle 1.8 deg off its target, 0.907 -> 0.824)
     settle_tolerance_deg = 0.3
+    # PlannerConfig.survey_pitch_views when unset: 0, the turn alone (-10 / +5 deg). 6 lifted the 10 s29 dev
+    # drones (30 cells: 0.937 -> 0.972, below 0.9 7 -> 0) but moved dev tabletop:212 0.989 -> 0.826 and
+    # tabletop:207 1.000 -> 0.910 (base): its ship rule failed, as did 2's (docs/benchmarks.md, session 29)
+    survey_pitch_views = 0
 
     def __init__(self, box: DroneBox, search_config):
         self.box = box
@@ -336,6 +348,26 @@ class DroneMotion(Motion):
         for i in range(1, n + 1):
             yaw = yaw0 + 2 * math.pi * i / (n + 1)
             pitch = math.radians(-10.0) if i % 2 else math.radians(5.0)
+            targets.append(
+                Target(CaptureKind.EXPLORE, self._pose(x, y, z, math.atan2(math.sin(yaw), math.cos(yaw)), pitch))
+            )
+        return targets
+
+    def survey_pitch_ends(self, n, frame):
+        """``n`` more turns in place at the start position, at the ends of the searched pitch
+        range (``search_config.pitch_limits_deg``, as the search space holds them), alternately the
+        lower and the upper end, their yaws spread around the circle from the start's (the first
+        looks the start's way, down): the turn's -10 / +5 deg leave a band no capture looked at, and
+        the field rates what it never saw as poor (dev s29_ground_drone: every good view looks 60
+        deg down, the field built from the survey scores the start's best one 0.16, truth 0.84)."""
+        if n <= 0:
+            return []
+        x, y, z, yaw0, _ = (float(v) for v in cam2world_to_view(frame.cam2world))
+        lo_p, hi_p = float(self.space.lower[4]), float(self.space.upper[4])
+        targets = []
+        for i in range(n):
+            yaw = yaw0 + 2 * math.pi * i / n
+            pitch = lo_p if i % 2 == 0 else hi_p
             targets.append(
                 Target(CaptureKind.EXPLORE, self._pose(x, y, z, math.atan2(math.sin(yaw), math.cos(yaw)), pitch))
             )

@@ -219,6 +219,16 @@ class PlannerConfig:
       tighter than ``arrival_tolerance_deg``; not held after half of ``move_timeout_s``, the frame
       then is taken as before (a warning). Unset: the platform's default (a drone 0.3; a rig's
       arrival waits for its joints to stand still).
+    * ``survey_pitch_views``: a drone only: after the survey's turn in place (``explore_views``,
+      pitched -10 / +5 deg), this many more captures from the start position at the ends of the
+      search's pitch range (``pitch_limits_deg``), alternately the lower and the upper end, their
+      yaws spread around the circle from the start's: a pitch band no capture looked at is rated
+      poor by the field, and no verification goes there (dev s29_ground_drone: every good view looks
+      60 deg down, no capture looked below -11 deg, the field scores the start's best view 0.16
+      against truth 0.84). Unset: the platform's default (0 on both; a rig's exploration spans
+      its tilt range). Measured on dev drones (docs/benchmarks.md, session 29): 6 lifted the 10
+      hand-written s29 drones (0.937 -> 0.972 over base / noise / torch) but two procedural
+      ones fell (tabletop:212 0.989 -> 0.826): not kept.
     * ``explore_below_covered`` / ``explore_moves``: when the search says its inputs cover less
       than this share of the space (the suggestion's ``covered_fraction``), the best predicted
       view is unverified where nothing was seen: before the loop stops on what it has (no
@@ -352,6 +362,7 @@ class PlannerConfig:
     settle_tolerance_deg: float | None = None
     shortfall_length_deg: float | None = None
     shortfall_gate: float = 0.0
+    survey_pitch_views: int | None = None
 
     #: The keys ``platform:`` replaced, and how to rewrite each (read by :func:`~aes_planner.config.from_dict`).
     RETIRED_KEYS: ClassVar[dict[str, str]] = {
@@ -397,6 +408,7 @@ class PlannerConfig:
             )
         require_optional_int(self, "verify_turns", 16)
         require_optional_int(self, "verify_places", 16)
+        require_optional_int(self, "survey_pitch_views", 16)
         if self.settle_tolerance_deg is not None:
             require_numbers(self, ("settle_tolerance_deg",))
             require(

@@ -512,3 +512,41 @@ def test_a_field_proposer_scores_views_with_the_scorer_of_its_frames(monkeypatch
     prop.add_frame(PosedFrame(np.zeros((K.height, K.width, 3), np.uint8), K, c2w[0], 0.0), keep=True)
     assert np.allclose(prop.score_views(c2w), [1.2, 1.7]) and len(built[-1]) == 1
     assert prop.score_views(np.zeros((0, 4, 4))).shape == (0,)
+
+
+def test_a_drones_survey_reaches_the_ends_of_the_searched_pitch_range_and_no_further():
+    """``survey_pitch_views``: more turns at the start place, alternately at the lower and upper end
+    of the search's pitch range (never beyond it), yaws spread from the start's; 0 adds none, and a
+    rig has none (its exploration spans the tilt range)."""
+    from aes_planner.node.motion import DroneMotion, RigMotion
+    from aes_planner.search.config import SearchConfig
+
+    assert DroneMotion.survey_pitch_views == 0 and RigMotion.survey_pitch_views == 0  # off: main's path
+    motion = DroneMotion(BOX, SearchConfig(pitch_limits_deg=(-45.0, 20.0)))
+    motion.bind(K)
+    start = view_to_cam2world(torch.tensor([0.2, -0.3, 1.4, 0.5, -0.1], dtype=torch.float64)).numpy()
+    frame = PosedFrame(np.zeros((K.height, K.width, 3), np.uint8), K, start, 0.0)
+    assert motion.survey_pitch_ends(0, frame) == []
+    targets = motion.survey_pitch_ends(6, frame)
+    assert len(targets) == 6 and all(t.kind == "explore" for t in targets)
+    views = np.stack([np.asarray(cam2world_to_view(t.cam2world)) for t in targets])  # [6, 5]
+    np.testing.assert_allclose(views[:, :3], np.tile([0.2, -0.3, 1.4], (6, 1)), atol=1e-9)  # in place
+    np.testing.assert_allclose(views[:, 4], np.radians([-45.0, 20.0] * 3), atol=1e-9)  # the ends, alternately
+    yaws = np.sort(np.mod(views[:, 3] - 0.5, 2 * math.pi))
+    np.testing.assert_allclose(yaws, np.radians(np.arange(6) * 60.0), atol=1e-9)  # spread from the start's
+    # through the loop: the survey's captures reach the ends (the gimbal's own range allowing)
+    base = dict(platform=DronePlatformConfig(BOX), explore_views=3, max_moves=0, settle_s=0.0, polish_captures=0)
+    node = _fly(PlannerConfig(**base, explore_positions=0, survey_pitch_views=4))
+    pitches = [float(cam2world_to_view(c.cam2world)[4]) for c in node.captures if c.kind == "explore"]
+    lo, hi = (math.radians(v) for v in SearchConfig().pitch_limits_deg)
+    assert len(pitches) == 3 + 4
+    assert min(pitches) == pytest.approx(lo, abs=math.radians(0.7))
+    assert max(pitches) == pytest.approx(hi, abs=math.radians(0.7))
+    assert all(lo - math.radians(0.7) <= p <= hi + math.radians(0.7) for p in pitches)
+    off = _fly(PlannerConfig(**base, explore_positions=0))
+    assert [c.kind for c in off.captures].count("explore") == 3
+    assert min(float(cam2world_to_view(c.cam2world)[4]) for c in off.captures) > math.radians(-11)
+    assert RigMotion.survey_pitch_ends(RigMotion.__new__(RigMotion), 4, frame) == []
+    for bad in (-1, 17, 2.0, True):
+        with pytest.raises(ConfigError, match="survey_pitch_views"):
+            PlannerConfig(survey_pitch_views=bad)
