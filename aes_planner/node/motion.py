@@ -108,6 +108,8 @@ class Motion(ABC):
     flank_repeats: int = 0
     #: ``PlannerConfig.shortfall_length_deg`` when the config leaves it unset (0: off)
     shortfall_length_deg: float = 0.0
+    #: ``PlannerConfig.spare_gap`` when the config leaves it unset (None: off)
+    spare_gap: float | None = None
 
     #: ``ViewSuggestion.mode``'s word for the platform (the wire format's: ``rig`` or ``free``)
     suggestion_mode: str
