@@ -1,4 +1,4 @@
-"""A stop with moves left (``spare_gap``, opt-in): before the loop stops on a prediction no capture
+"""A stop with moves left (``spare_gap``; a rig's default 0.01, a drone's off): before the loop stops on a prediction no capture
 verified, one more move to the best-ranked candidate within the gap of the best capture that no
 capture looks within ``spare_apart_deg`` of; nothing when the option is off or the moves are spent."""
 
@@ -80,8 +80,8 @@ def test_a_full_budget_never_reaches_the_spare_choice():
     assert node._plan(0.0, {}) is None  # no search, no suggestion: it would fail on this bare loop
 
 
-def test_off_on_both_platforms_by_default_and_bad_values_are_refused_by_name():
-    assert RigMotion.spare_gap is None and DroneMotion.spare_gap is None
+def test_on_for_a_rig_off_for_a_drone_by_default_and_bad_values_are_refused_by_name():
+    assert RigMotion.spare_gap == 0.01 and DroneMotion.spare_gap is None  # a drone: main's path
     assert PlannerConfig().spare_gap is None and PlannerConfig().spare_apart_deg == 10.0
     for bad in (-0.01, math.nan, math.inf, 1.5, "0.01", True):
         with pytest.raises(ConfigError, match="spare_gap"):
