@@ -8,7 +8,10 @@
     planning   build the scorer from every capture, search, and pick the best candidate that the
                same scorer expects to beat the best captured view by ``margin``; none, while the
                search's inputs cover too little of the space: its exploratory candidate
-               (``explore_below_covered``, ``explore_moves``); else (or ``max_moves`` spent) -> polishing
+               (``explore_below_covered``, ``explore_moves``); none of those with moves left: the
+               best candidate within ``spare_gap`` of the best captured score that no capture looks
+               within ``spare_apart_deg`` of (a prediction never verified is not stopped on); else
+               (or ``max_moves`` spent) -> polishing
     moving     command it (``gimbal/command``; a drone flies the top candidate of
                ``planner/suggestion``), wait for arrival (``gimbal/state``, or frames at the pose),
                capture there and score the real capture with the teacher (it verifies the
