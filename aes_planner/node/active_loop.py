@@ -8,7 +8,10 @@
     planning   build the scorer from every capture, search, and pick the best candidate that the
                same scorer expects to beat the best captured view by ``margin``; none, while the
                search's inputs cover too little of the space: its exploratory candidate
-               (``explore_below_covered``, ``explore_moves``); else (or ``max_moves`` spent) -> polishing
+               (``explore_below_covered``, ``explore_moves``); none of those with moves left: the
+               best candidate within ``spare_gap`` of the best captured score that no capture looks
+               within ``spare_apart_deg`` of (a prediction never verified is not stopped on); else
+               (or ``max_moves`` spent) -> polishing
     moving     command it (``gimbal/command``; a drone flies the top candidate of
                ``planner/suggestion``), wait for arrival (``gimbal/state``, or frames at the pose),
                capture there and score the real capture with the teacher (it verifies the
@@ -243,7 +246,42 @@ class ActiveLoop:
             if far:  # its capture is compared with the best captured view then (_record_capture)
                 target.far_best = best_true
             return target
-        return self._explore_target(proposal)
+        explore = self._explore_target(proposal)
+        if explore is not None:
+            return explore
+        return self._spare_target(cands, hope, order, best_true)
+
+    def _spare_target(
+        self, cands: list[Candidate], hope: np.ndarray, order: list[int], best_true: float
+    ) -> Target | None:
+        """Before stopping with moves left (``spare_gap``; unset: the motion's default, None = off):
+        the best-ranked candidate whose hope lies within ``spare_gap`` of the best captured score
+        (it may promise a little more, less than ``margin``) and that no capture looks within
+        ``spare_apart_deg`` of (from within ``far_m``): a prediction no capture verified is
+        checked with a move while the budget allows, rather than stopped on; else None."""
+        c = self.config
+        gap = self.motion.spare_gap if c.spare_gap is None else c.spare_gap
+        if gap is None or self.moves >= c.max_moves:
+            return None
+        for i in order:
+            if not hope[i] >= best_true - gap:  # NaN: never
+                if self._tie_margin() > 0:
+                    continue
+                break  # in order of hope
+            cd = cands[i]
+            if near_captured(self.captures, cd.cam2world, max(c.spare_apart_deg, c.min_move_deg), c.far_m):
+                continue
+            log.info(
+                "%s: move %d: spare %s, hope %.3f (best captured %.3f; no capture within %.0f deg)",
+                self.node_id,
+                self.moves + 1,
+                _where(cd),
+                hope[i],
+                best_true,
+                c.spare_apart_deg,
+            )
+            return Target("move", cd.cam2world, cd.pan_rad, cd.tilt_rad, predicted=float(hope[i]))
+        return None
 
     def _hopes(self, cands: list[Candidate], captures: list[Capture], captured_pred) -> np.ndarray:  # -> [C]
         """:func:`~aes_planner.node.captures.hopes` with the loop's settings: ``captured_pred`` [M],
