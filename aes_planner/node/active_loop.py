@@ -166,8 +166,7 @@ class ActiveLoop:
         # choose what comes next
         if self.state is LoopState.INITIAL:
             self._queue = self.motion.explore(self.config.explore_views, self._frame, self.captures)
-            ends = self.config.survey_pitch_views
-            ends = self.motion.survey_pitch_views if ends is None else ends
+            ends = self._setting("survey_pitch_views")
             self._queue += self.motion.survey_pitch_ends(ends, self._frame)
             self._positions_explored = False
             self.state = LoopState.EXPLORING
@@ -175,7 +174,7 @@ class ActiveLoop:
             # after the turn (a drone): positions across the box, looking the best way seen so far,
             # then places far from them all (their captures feed the field, off the search's path)
             self._positions_explored = True
-            places = self.motion.explore_places if self.config.explore_places is None else self.config.explore_places
+            places = self._setting("explore_places")
             self._queue = self.motion.explore_positions(self.config.explore_positions, self.captures)
             self._queue += self.motion.far_places(places, self.captures, [t.cam2world[:3, 3] for t in self._queue])
         if self.state is LoopState.EXPLORING and not self._queue:
@@ -260,7 +259,7 @@ class ActiveLoop:
         ``spare_apart_deg`` of (from within ``far_m``): a prediction no capture verified is
         checked with a move while the budget allows, rather than stopped on; else None."""
         c = self.config
-        gap = self.motion.spare_gap if c.spare_gap is None else c.spare_gap
+        gap = self._setting("spare_gap")
         if gap is None or self.moves >= c.max_moves:
             return None
         for i in order:
@@ -290,30 +289,34 @@ class ActiveLoop:
         hope = hopes(
             cands, captures, captured_pred, c.optimism, c.min_sigma, c.residual_length_deg, self._residual_length_m()
         )
-        length = self.motion.shortfall_length_deg if c.shortfall_length_deg is None else c.shortfall_length_deg
+        length = self._setting("shortfall_length_deg")
         if length > 0.0:  # a region whose captures fell short of their hopes: its views hope less
             hope = hope + shortfall(cands, captures, length, SHORTFALL_SLACK, c.shortfall_gate)
         return hope
+
+    def _setting(self, name: str):
+        """The config's ``name``, or the motion's default of that name when the config leaves it
+        unset (None): how every per-platform loop setting is read."""
+        value = getattr(self.config, name)
+        return getattr(self.motion, name) if value is None else value
 
     def _residual_length_m(self) -> float | None:
         """``residual_length_m`` on a drone (unset: the motion's default); None (the view direction
         alone) on a rig, whose views share one place."""
         if self.motion.suggestion_mode == "rig":
             return None
-        m = self.config.residual_length_m
-        return self.motion.residual_length_m if m is None else m
+        return self._setting("residual_length_m")
 
     def _tie_margin(self) -> float:
         """``hope_tie_margin`` (unset: the motion's default)."""
-        m = self.config.hope_tie_margin
-        return self.motion.hope_tie_margin if m is None else m
+        return self._setting("hope_tie_margin")
 
     def _far_moves_left(self) -> float:
         """How many more moves may go to a place no capture was taken at or near (``far_moves``;
         unset: the motion's default, None = no limit) before one of them has to beat the best
         captured view: the field's prediction from such a place is checked once before the moves
         trust it again."""
-        most = self.motion.far_moves if self.config.far_moves is None else self.config.far_moves
+        most = self._setting("far_moves")
         return math.inf if most is None else most - self.far_misses
 
     def _unvisited(self, cam2world: np.ndarray) -> bool:  # [4, 4]
@@ -332,12 +335,11 @@ class ActiveLoop:
         ``PLAN_GRID_HILLS`` views refined, as :class:`~aes_planner.search.SearchConfig` fields;
         on a drone with ``plan_draws`` false: the neighbours and coverage points of a fixed
         pattern (``fixed_draws``), and ``plan_adam_eps`` as stage 2's ``adam_eps``; None: the preset's."""
-        c = self.config
-        step_deg = self.motion.plan_grid_deg if c.plan_grid_deg is None else c.plan_grid_deg
+        step_deg = self._setting("plan_grid_deg")
         kinematics = getattr(self.platform, "kinematics", None)  # a rig's; a drone has none
         if kinematics is None:
-            draws = self.motion.plan_draws if c.plan_draws is None else c.plan_draws
-            eps = self.motion.plan_adam_eps if c.plan_adam_eps is None else c.plan_adam_eps
+            draws = self._setting("plan_draws")
+            eps = self._setting("plan_adam_eps")
             fields = ({} if draws else {"fixed_draws": True}) | ({} if eps is None else {"adam_eps": eps})
             return fields or None
         if not step_deg:
@@ -534,7 +536,7 @@ class ActiveLoop:
         A drone's captures look one way from each place; the climbs start only where a capture
         is (docs/benchmarks.md, "A drone looks one way from each place")."""
         c = self.config
-        most = self.motion.verify_turns if c.verify_turns is None else c.verify_turns
+        most = self._setting("verify_turns")
         if most <= 0:
             return []
         places: list[np.ndarray] = []
@@ -542,8 +544,8 @@ class ActiveLoop:
             p = cap.cam2world[:3, 3]
             if all(np.linalg.norm(p - q) >= c.min_move_m for q in places):
                 places.append(p)
-        extra = self._verify_places()
-        if extra > 0:  # and the box's places never visited: this many more turns
+        extra = self._setting("verify_places")
+        if extra > 0:  # and the box's places never visited (Motion.unvisited_places): this many more turns
             places += self.motion.unvisited_places(self.captures, c.far_m)
             most += extra
         views = [self.motion.turns(p) for p in places]  # each [V, 4, 4]
@@ -615,18 +617,11 @@ class ActiveLoop:
             for o in others
         )
 
-    def _verify_places(self) -> int:
-        """``verify_places`` (unset: the motion's default): more turn verifications, which may
-        look from the box's places no capture was taken near (:meth:`Motion.unvisited_places`)."""
-        n = self.config.verify_places
-        return self.motion.verify_places if n is None else n
-
     def _turns_one_by_one(self) -> bool:
         """``turns_one_by_one`` on a drone (unset: the motion's default); never on a rig (no turns)."""
         if self.motion.suggestion_mode == "rig":
             return False
-        on = self.config.turns_one_by_one
-        return bool(self.motion.turns_one_by_one if on is None else on)
+        return bool(self._setting("turns_one_by_one"))
 
     def _next_turn(self) -> Target | None:
         """The next turn verification when they are taken one by one (``turns_one_by_one``): the
@@ -684,7 +679,7 @@ class ActiveLoop:
         motion's default): the moves may have spent the budget before the loop explored, and a
         hill there is then climbed only if a capture shows it."""
         c = self.config
-        on = self.motion.verify_unseen if c.verify_unseen is None else c.verify_unseen
+        on = self._setting("verify_unseen")
         cd, covered = proposal.explore, proposal.covered_fraction
         if not on or cd is None or covered is None or covered >= c.explore_below_covered:
             return None
@@ -748,7 +743,7 @@ class ActiveLoop:
         field expected each to beat every capture, and its one capture may have landed on the
         flank of a peak narrower than the field sees."""
         c = self.config
-        most = self.motion.short_hills if c.short_hills is None else c.short_hills
+        most = self._setting("short_hills")
         if most <= 0:
             return []
         moves = [
@@ -810,7 +805,7 @@ class ActiveLoop:
         verifications included, within ``polish_start_gap`` of the best and two coarsest steps or
         more from every view a climb stood on. False when there is none."""
         c = self.config
-        most = self.motion.spare_hills if c.spare_hills is None else c.spare_hills
+        most = self._setting("spare_hills")
         if self._spares >= most or self._polish_left <= 0:
             return False
         apart_deg = 2.0 * self._coarsest_step_deg()
@@ -843,7 +838,7 @@ class ActiveLoop:
         ranked = sorted(self.captures, key=lambda cap: -self._value(cap))  # stable: earlier first on a tie
         starts = [best]
         # a verified best view: a move is another hill from ``verify_apart_deg`` of it (unset: ``apart_deg``)
-        verify_apart = self.motion.verify_apart_deg if c.verify_apart_deg is None else c.verify_apart_deg
+        verify_apart = self._setting("verify_apart_deg")
         if verify_apart is None or best.kind is not CaptureKind.VERIFY:
             verify_apart = apart_deg
         for cap in ranked:
@@ -1008,8 +1003,7 @@ class ActiveLoop:
         the top a flank climb reached, behind a valley narrower than the coarsest step, was never
         probed (dev photo_ring_room: the flank climb topped 0.762 at pan 76, the oracle 0.834 at
         pan 59, the valley at pan 67.5). False: nothing (more) to take."""
-        c = self.config
-        most = self.motion.flank_repeats if c.flank_repeats is None else c.flank_repeats
+        most = self._setting("flank_repeats")
         if self._repeat_round is None:
             if self._flank_repeats >= most or self._flank_from is None:
                 return False
@@ -1035,7 +1029,7 @@ class ActiveLoop:
     def _flank_hills(self) -> list[Capture]:
         """The captures :meth:`_flank_step` takes a round around (see there), best first."""
         c = self.config
-        most = self.motion.flank_hills if c.flank_hills is None else c.flank_hills
+        most = self._setting("flank_hills")
         if most <= 0 or c.polish_captures <= 0 or not self.captures:
             return []
         apart_deg = 0.75 * self._coarsest_step_deg()
